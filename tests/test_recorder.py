@@ -1,0 +1,243 @@
+"""The Rerun recorder, driven with synthetic runs and read back with ``RrdReader``."""
+
+from __future__ import annotations
+
+import math
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from tspend.recorder import (
+    RerunSink,
+    build_blueprint,
+    cartpole_poses,
+    close_recording,
+    open_recording,
+    read_scalar_series,
+    series_location,
+)
+from tspend.sinks import Block, FuzzyInputInfo, InnerSnapshot, RunEnd, RunInfo
+
+SCENARIO = '[plant]\nkind = "cartpole_ode"\nM = 10.0\n\n[run]\nduration = 3.0\n'
+TERMS = ("NB", "NS", "Z", "PS", "PB")
+DT = 0.001
+
+
+def make_info(order: int = 2, plant_kind: str = "cartpole_ode", steps: int = 3000) -> RunInfo:
+    extras = ("cart_pos", "cart_vel") if "cartpole" in plant_kind else ()
+    model = tuple(FuzzyInputInfo(f"x_o{i + 1}", -1.0, 1.0, TERMS) for i in range(order)) + (
+        FuzzyInputInfo("u_o", -5.0, 5.0, TERMS),)
+    comp = (FuzzyInputInfo("e_delta", -2.0, 2.0, ("N", "Z", "P")), FuzzyInputInfo("|x|", 0.0, 3.0, ("S", "B")))
+    return RunInfo(scenario_name="synthetic", scenario_text=SCENARIO, scenario_path="scenarios/synthetic.toml",
+                   seed=1234, version="0.1.0", plant_kind=plant_kind, order=order, dt=DT, duration=steps * DT,
+                   steps=steps, model_inputs=model, compensator_inputs=comp, extras=extras,
+                   plant_meta={"M": 10.0, "m": 1.0, "l": 3.0, "g": 9.8} if extras else {})
+
+
+def make_run(order: int, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Synthetic per-step arrays with the shapes of the block table in ``tspend.sinks``."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps) * DT
+    n = order
+    x = np.column_stack([np.sin(2.0 * t + i) * 0.3 for i in range(n)]) + 1e-3 * rng.standard_normal((steps, n))
+    ref = np.column_stack([0.1 * np.sin(t + i) for i in range(n + 1)])
+    e = x - ref[:, :n]
+    data = {
+        "t": t, "x": x, "ref": ref, "e": e, "e_delta": e.sum(axis=1), "u": np.cos(3 * t), "u_s": 0.1 * np.sin(5 * t),
+        "d_hat": 0.2 * np.sin(t), "d": 0.25 * np.sin(t), "p": rng.standard_normal((steps, n + 1)),
+        "V": 0.5 * (e**2).sum(axis=1), "norm_P": 1.0 + t, "norm_q": 0.5 + t, "min_b": np.full(steps, 0.1),
+        "extra/cart_pos": 0.5 * np.sin(0.5 * t), "extra/cart_vel": 0.25 * np.cos(0.5 * t),
+    }
+    return data
+
+
+def blocks(data: dict[str, np.ndarray], size: int = 1000):
+    steps = data["t"].shape[0]
+    for start in range(0, steps, size):
+        yield Block(start=start, data={k: v[start:start + size] for k, v in data.items()})
+
+
+def make_snapshot(info: RunInfo, t: float, step: int) -> InnerSnapshot:
+    def sets(inputs: tuple[FuzzyInputInfo, ...], z: float):
+        out = []
+        for inp in inputs:
+            grid = np.linspace(inp.lo, inp.hi, 41)
+            centres = np.linspace(inp.lo, inp.hi, len(inp.terms))
+            width = (inp.hi - inp.lo) / max(1, len(inp.terms) - 1)
+            curves = np.exp(-(((grid[None, :] - centres[:, None]) / width) ** 2))
+            zc = float(np.clip(z, inp.lo, inp.hi))
+            out.append((grid, curves, zc, np.exp(-(((zc - centres) / width) ** 2))))
+        return tuple(out)
+
+    h = len(TERMS) ** (info.order + 1)
+    rng = np.random.default_rng(step)
+    firing = rng.random(h)
+    return InnerSnapshot(t=t, step=step, model_sets=sets(info.model_inputs, math.sin(t)),
+                         compensator_sets=sets(info.compensator_inputs, math.cos(t)),
+                         firing=firing / firing.sum(), compensator_firing=rng.random(6),
+                         consequents=rng.standard_normal((h, info.order + 1)), q=rng.standard_normal(6))
+
+
+def drive(sink: RerunSink, info: RunInfo, data: dict[str, np.ndarray], end: RunEnd,
+          upto: int | None = None, inner_every: int = 20) -> None:
+    """What the runner does: start, snapshots during each block, the block, finish."""
+    sink.start(info)
+    for blk in blocks(data):
+        if upto is not None and blk.start >= upto:
+            break
+        for step in range(blk.start, blk.start + blk.data["t"].shape[0], inner_every):
+            sink.inner(make_snapshot(info, float(data["t"][step]), step))
+        sink.block(blk)
+    sink.finish(end)
+
+
+def completed(steps: int) -> RunEnd:
+    return RunEnd(status="completed", message="ok", steps_done=steps, metrics={"iae": 0.125, "max_u": 3.5})
+
+
+def entity_paths(path: Path) -> set[str]:
+    return {c.entity_path for c in RrdReader(path).stream().to_chunks()}
+
+
+def static_text(path: Path, entity: str) -> str:
+    chunks = RrdReader(path).stream().filter(content=entity, is_static=True).to_chunks()
+    texts = [t for c in chunks for row in c.to_record_batch().to_pydict().get("TextDocument:text", []) for t in row]
+    assert texts, f"no text document at {entity}"
+    return texts[-1]
+
+
+@pytest.fixture()
+def recorded(tmp_path: Path) -> tuple[Path, RunInfo, dict[str, np.ndarray]]:
+    info = make_info()
+    data = make_run(info.order, info.steps)
+    path = tmp_path / "run.rrd"
+    rec = open_recording("tspend_test", "save", path)
+    assert rec is not None
+    sink = RerunSink(rec)
+    drive(sink, info, data, completed(info.steps))
+    sink.close()
+    return path, info, data
+
+
+def test_entities_timeline_and_blueprint(recorded) -> None:
+    path, info, _ = recorded
+    reader = RrdReader(path)
+    assert len(reader.recordings()) == 1
+    assert len(reader.blueprints()) == 1, "the default blueprint is stored as a blueprint store"
+    blueprint = reader.store(store=reader.blueprints()[0]).summary()
+    assert "/viewport" in blueprint and "ViewBlueprint:class_identifier" in blueprint
+    paths = entity_paths(path)
+    expected = {"/info/scenario", "/info/run", "/info/status", "/info/metrics", "/series/tracking",
+                "/series/error", "/series/control", "/series/compensation", "/series/params",
+                "/series/lyapunov", "/series/norms", "/series/plant", "/world", "/world/cart", "/world/pole",
+                "/fuzzy/model/in0", "/fuzzy/model/in2", "/fuzzy/compensator/in1", "/fuzzy/firing",
+                "/fuzzy/compensator_firing", "/fuzzy/consequents", "/fuzzy/q"}
+    assert expected <= paths, expected - paths
+    schema = reader.store().schema()
+    assert "sim_time" in {c.name for c in schema.index_columns()}
+
+
+def test_x1_is_exact(recorded) -> None:
+    path, info, data = recorded
+    entity, instance = series_location("x1", info.order, info.extras)
+    t, x1 = read_scalar_series(path, entity, instance)
+    assert np.array_equal(x1, data["x"][:, 0])
+    assert np.allclose(t, data["t"], atol=1e-12)
+    _, params = read_scalar_series(path, "series/params")
+    assert np.array_equal(params, data["p"])
+    _, v = read_scalar_series(path, "series/lyapunov")
+    assert v.shape == (info.steps,) and np.array_equal(v, data["V"])
+
+
+def test_static_documents(recorded) -> None:
+    path, info, _ = recorded
+    assert SCENARIO.strip() in static_text(path, "/info/scenario")
+    run = static_text(path, "/info/run")
+    assert str(info.seed) in run and info.version in run and info.plant_kind in run
+    assert "completed" in static_text(path, "/info/status")
+    assert "0.125" in static_text(path, "/info/metrics")
+
+
+def test_cartpole_frames_at_50hz(recorded) -> None:
+    path, info, _ = recorded
+    chunks = RrdReader(path).stream().filter(content="/world/pole", is_static=False).to_chunks()
+    rows = sum(c.num_rows for c in chunks)
+    assert rows == 1 + info.steps // 20  # the initial pose plus one frame every 20 ms
+
+
+def test_diverged_run_is_readable_without_close(tmp_path: Path) -> None:
+    info = make_info()
+    data = make_run(info.order, info.steps)
+    path = tmp_path / "diverged.rrd"
+    rec = open_recording("tspend_test", "save", path)
+    assert rec is not None
+    sink = RerunSink(rec)
+    end = RunEnd(status="diverged", message="|theta| > pi/2 at t=1.9", steps_done=2000, metrics={"iae": float("nan")})
+    drive(sink, info, data, end, upto=2000)
+    # no close(): finish() alone must leave everything sent on disk
+    t, x1 = read_scalar_series(path, *series_location("x1", info.order, info.extras))
+    assert np.array_equal(x1, data["x"][:2000, 0])
+    assert "diverged" in static_text(path, "/info/status")
+    close_recording(rec)
+    assert "/events" in entity_paths(path)
+
+
+def test_generic_plant_has_no_3d_and_side_by_side_prefixes(tmp_path: Path) -> None:
+    info = make_info(order=3, plant_kind="third_order", steps=2000)
+    data = make_run(3, 2000)
+    path = tmp_path / "two.rrd"
+    rec = rr.RecordingStream("tspend_test", recording_id=uuid.uuid4())
+    rec.save(path)
+    for variant, prefix in enumerate(("mujoco/", "ode/")):
+        sink = RerunSink(rec, prefix=prefix, send_blueprint=False, variant=variant)
+        drive(sink, info, data, completed(2000))
+    rec.send_blueprint(build_blueprint(info, ["mujoco/", "ode/"]))
+    close_recording(rec)
+    paths = entity_paths(path)
+    assert {"/mujoco/series/tracking", "/ode/series/tracking", "/ode/fuzzy/firing"} <= paths
+    assert not any("/world" in p for p in paths)
+    _, e = read_scalar_series(path, "ode/series/error")
+    assert e.shape == (2000, 4) and np.array_equal(e[:, :3], data["e"])
+
+
+def test_curves_every_decimates(tmp_path: Path) -> None:
+    info = make_info(steps=2000)
+    data = make_run(2, 2000)
+    path = tmp_path / "dec.rrd"
+    rec = open_recording("tspend_test", "save", path)
+    assert rec is not None
+    drive(RerunSink(rec, curves_every=7), info, data, completed(2000))
+    close_recording(rec)
+    t, x1 = read_scalar_series(path, "series/tracking", 1)
+    assert np.array_equal(x1, data["x"][::7, 0])
+
+
+def test_cartpole_poses() -> None:
+    l = 2.0
+    up = cartpole_poses(1.0, 0.0, l, cart_height=0.4)
+    assert np.allclose(up.cart_translation, [[1.0, 0.0, 0.2]])
+    assert np.allclose(up.pole_translation, [[1.0, 0.0, 0.4 + l]])
+    flat = cartpole_poses(0.0, math.pi / 2, l, cart_height=0.4)
+    assert np.allclose(flat.pole_translation, [[-l, 0.0, 0.4]])  # theta > 0 leans toward -x
+    # the quaternion rotates local +z onto the pole axis
+    x, y, z, w = flat.pole_quaternion[0]
+    axis = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+    assert np.allclose(axis, [-1.0, 0.0, 0.0])
+
+
+def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch) -> None:
+    assert open_recording("tspend_test", "none") is None
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    rec = open_recording("tspend_test", "connect", tmp_path / "fb.rrd", url="rerun+http://127.0.0.1:9/proxy")
+    assert rec is not None
+    rec.log("x", rr.Scalars(1.0), static=True)
+    close_recording(rec)
+    assert (tmp_path / "fb.rrd").exists()
+    assert open_recording("tspend_test", "connect", None, url="rerun+http://127.0.0.1:9/proxy") is None
+    err = capsys.readouterr().err
+    assert err.count("warning") == 2 and len(err.strip().splitlines()) == 2

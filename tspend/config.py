@@ -1,0 +1,119 @@
+"""Typed, frozen configuration: what a scenario file maps onto.
+
+Every field here has a key of the same name in the scenario TOML (see
+``tspend/scenario.py`` for the loading and validation, and ``scenarios/`` for examples).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .signals import Disturbance, Reference
+
+
+@dataclass(frozen=True)
+class SetSpec:
+    """``terms`` evenly spaced fuzzy sets on ``[lo, hi]`` for one antecedent input."""
+
+    terms: int
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """The adaptive fuzzy controller of section 3 (defaults: Example 3's design values)."""
+
+    #: lambda_1 .. lambda_n of (18): s^n + lambda_n s^(n-1) + .. + lambda_1 must be Hurwitz
+    lam: tuple[float, ...] = (1.0, 2.0)
+    #: Q of Lemma 1, symmetric positive definite (n x n)
+    Q: tuple[tuple[float, ...], ...] = ((10.0, 0.0), (0.0, 10.0))
+    #: consequent adaptation rate eta of (25)-(26)
+    eta: float = 0.006
+    #: antecedent (BMF control point) rate; None means eta.  Ignored by first type.
+    eta_mu: float | None = None
+    #: compensator rate gamma of (27)
+    gamma: float = 1.6
+    #: "second" adapts consequents and BMFs; "first" adapts consequents only
+    adaptation: str = "second"
+    #: B-spline order d (3 = quadratic) and control points per set
+    bspline_order: int = 3
+    control_points: int = 9
+    #: sets of x_o1 .. x_on (one entry per state), of u_o, of e_Delta and of ||x||
+    state_sets: tuple[SetSpec, ...] = (SetSpec(5, -0.7853981633974483, 0.7853981633974483),) * 2
+    u_sets: SetSpec = SetSpec(3, -1000.0, 1000.0)
+    e_delta_sets: SetSpec = SetSpec(5, -12.0, 12.0)
+    x_norm_sets: SetSpec = SetSpec(5, 0.0, 1.0471975511965976)
+    #: initial consequents p_k^i and compensator consequents q^i drawn from these intervals
+    init_consequents: tuple[float, float] = (-0.01, 0.01)
+    init_compensator: tuple[float, float] = (-0.01, 0.01)
+    #: Assumption 5: projection p_{n+1}^i >= b_min > 0
+    b_min: float = 0.001
+    #: Assumption 4: projection of each consequent column onto ||p_k|| <= radius (0 = off)
+    norm_radius: float = 0.0
+    #: boundary layer eps: sat(e_Delta/eps) instead of sign(e_Delta) in (21) (0 = sign)
+    boundary_layer: float = 0.0
+    #: leakage sigma in the compensator law (0 = the paper's (27))
+    leakage: float = 0.0
+    #: "fixed" (x_o, u_o constant) or "state" (x_o = x, u_o = fraction * previous u)
+    operating_point: str = "state"
+    x_o: tuple[float, ...] = ()
+    u_o: float = 0.0
+    u_o_fraction: float = 0.5
+
+    @property
+    def order(self) -> int:
+        return len(self.lam)
+
+    @property
+    def antecedent_rate(self) -> float:
+        if self.adaptation == "first":
+            return 0.0
+        return self.eta if self.eta_mu is None else self.eta_mu
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """Which plant, its parameters and its initial state."""
+
+    kind: str = "cartpole_mujoco"
+    x0: tuple[float, ...] = (0.10471975511965977, 0.0)
+    #: cart-pole parameters (cartpole_ode and cartpole_mujoco)
+    M: float = 10.0
+    m: float = 1.0
+    l: float = 3.0
+    g: float = 9.8
+    #: MuJoCo backend: model file (relative to the project root or the scenario), names
+    model: str = "models/cartpole.xml"
+    slide_joint: str = "slider"
+    hinge_joint: str = "hinge"
+    actuator: str = "force"
+    integrator: str = ""
+    #: divergence guard: stop when any |x_i| exceeds this (0 = only non-finite values)
+    state_bound: float = 0.0
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    duration: float = 20.0
+    dt: float = 0.001
+    seed: int = 1
+    #: controller inner-state snapshots (BMF curves, firing) every this many seconds
+    snapshot_every: float = 0.02
+    #: divergence guard on |u| (0 = only non-finite values)
+    control_bound: float = 0.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    run: RunConfig
+    plant: PlantConfig
+    #: a reference and a disturbance of ``tspend.signals`` (frozen dataclasses too)
+    reference: Reference
+    disturbance: Disturbance
+    controller: ControllerConfig
+    #: where it came from, and its text (logged with every run)
+    path: str = ""
+    text: str = ""

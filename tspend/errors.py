@@ -1,0 +1,24 @@
+"""Errors a user can cause, each mapped to an exit status by the CLI."""
+
+from __future__ import annotations
+
+
+class TspendError(Exception):
+    """Base of every error tspend reports as a one-line message."""
+
+    exit_status = 1
+
+
+class ScenarioError(TspendError):
+    """Bad input: a scenario, model file or command-line value that cannot be used.
+
+    The message names the file, the key and what is allowed.
+    """
+
+    exit_status = 2
+
+
+class DivergenceError(TspendError):
+    """The closed loop left the region where it is meaningful (non-finite or out of bounds)."""
+
+    exit_status = 3

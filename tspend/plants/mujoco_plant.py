@@ -1,0 +1,391 @@
+"""The physical cart-pole of the paper's Example 3, stepped by MuJoCo.
+
+``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
+MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
+(READING section 7): the state is ``x = [theta, theta']`` (hinge qpos, qvel), ``u`` is
+the motor force on the cart, and the disturbance ``d_d`` of the ODE's numerator is
+applied as the hinge torque that has the same effect,
+
+    tau = -d_d m l / (M + m),
+
+because with a hinge torque the Lagrangian gives ``theta'' = (... - tau (M+m)/(m l))
+/ (m l cos^2 - 4/3 l (M+m))``, i.e. the torque enters exactly like ``-tau (M+m)/(m l)``
+in place of ``d_d``.  The torque goes in generalized coordinates (``qfrc_applied`` at the
+hinge DOF), so it is independent of the hinge axis convention: positive ``tau`` pushes
+``theta`` up, as positive ``theta`` is defined by the model.
+
+Physical parameters (M, m, l, g) can be overridden in code through ``mujoco.MjSpec``,
+and :attr:`MujocoCartPole.params` reads them back from the compiled model, so the ODE
+backend can be built from the same machine.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Final
+
+import mujoco
+import numpy as np
+
+from tspend.errors import DivergenceError, ScenarioError
+from tspend.plants.analytic import CartPoleParams
+
+#: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
+INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
+    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
+    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
+
+_GEOM_TYPES: Final[dict[int, str]] = {
+    int(v): k.removeprefix("mjGEOM_").lower()
+    for k, v in mujoco.mjtGeom.__members__.items()
+    if k not in ("mjGEOM_NONE", "mjNGEOMTYPES")
+}
+
+# MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
+_MJ_MAXVAL: Final[float] = 1e10
+
+# the geom rgba MuJoCo treats as "not set": a material's rgba then takes over
+_DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
+
+# Axial inertia of the rod relative to its transverse one.  It never enters the planar
+# dynamics (the hinge is the only rotational DOF) but must be positive; 3e4 reproduces
+# the 1e-4 kg m^2 of models/cartpole.xml at the default 3 kg m^2.
+_AXIAL_INERTIA_RATIO: Final[float] = 1.0 / 3e4
+
+BodyPose = tuple[np.ndarray, np.ndarray]
+
+
+def _names(elements: Any) -> str:
+    return ", ".join(e.name or "<unnamed>" for e in elements) or "none"
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 0.0 else np.array([0.0, 0.0, 1.0])
+
+
+class MujocoCartPole:
+    """Example 3's cart-pole as a MuJoCo model, behind the Plant protocol.
+
+    Parameters
+    ----------
+    model_path:
+        MJCF file, e.g. ``models/cartpole.xml``.
+    slide_joint, hinge_joint, actuator:
+        names of the cart's slide joint, the pole's hinge and the motor on the slider.
+    overrides:
+        if given, the model's M, m, l and g are replaced by these before compiling: the
+        pole's COM moves to ``l`` from the pivot along the pole, its inertia becomes the
+        uniform rod's ``m (2l)^2 / 12`` and the pole's visual geoms stretch with it.
+    integrator:
+        ``"RK4"`` (the model's default, matches the ODE), ``"Euler"``, ``"implicit"`` or
+        ``"implicitfast"``; only for the cross-check's contrast figures.
+    timestep:
+        overrides the model's physics timestep.
+
+    Raises
+    ------
+    ScenarioError
+        missing or unparsable model file, missing or mistyped joint or actuator, an
+        actuator that does not drive the slide joint, or an unknown integrator.
+    """
+
+    order: int = 2
+    name: str = "cartpole_mujoco"
+
+    def __init__(self, model_path: str | Path, slide_joint: str = "slider",
+                 hinge_joint: str = "hinge", actuator: str = "force",
+                 overrides: CartPoleParams | None = None,
+                 integrator: str | None = None, timestep: float | None = None) -> None:
+        self.model_path = Path(model_path)
+        where = str(model_path)
+        if not self.model_path.is_file():
+            raise ScenarioError(f"{where}: model file not found")
+        try:
+            spec = mujoco.MjSpec.from_file(str(self.model_path))
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: cannot parse MJCF: {exc}") from exc
+
+        slide = self._spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
+        hinge = self._spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
+        act = spec.actuator(actuator)
+        if act is None:
+            raise ScenarioError(f"{where}: no actuator named {actuator!r} "
+                                f"(actuators in the model: {_names(spec.actuators)})")
+        if act.trntype != mujoco.mjtTrn.mjTRN_JOINT or act.target != slide_joint:
+            raise ScenarioError(f"{where}: actuator {actuator!r} drives {act.target!r}, "
+                                f"not the slide joint {slide_joint!r}")
+
+        if integrator is not None:
+            if integrator not in INTEGRATORS:
+                raise ScenarioError(f"{where}: unknown integrator {integrator!r} "
+                                    f"(allowed: {', '.join(INTEGRATORS)})")
+            spec.option.integrator = INTEGRATORS[integrator]
+        if timestep is not None:
+            if not (timestep > 0.0 and math.isfinite(timestep)):
+                raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
+            spec.option.timestep = float(timestep)
+        if overrides is not None:
+            self._apply_overrides(spec, slide.parent, hinge, overrides, where)
+
+        try:
+            self.model: mujoco.MjModel = spec.compile()
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        self.data: mujoco.MjData = mujoco.MjData(self.model)
+        self._scratch: mujoco.MjData | None = None
+        self.slide_joint, self.hinge_joint, self.actuator = slide_joint, hinge_joint, actuator
+
+        m = self.model
+        self._slide_id = m.joint(slide_joint).id
+        self._hinge_id = m.joint(hinge_joint).id
+        self._cart_body = int(m.jnt_bodyid[self._slide_id])
+        self._pole_body = int(m.jnt_bodyid[self._hinge_id])
+        self._q_cart = int(m.jnt_qposadr[self._slide_id])
+        self._v_cart = int(m.jnt_dofadr[self._slide_id])
+        self._q_th = int(m.jnt_qposadr[self._hinge_id])
+        self._v_th = int(m.jnt_dofadr[self._hinge_id])
+        self._act = m.actuator(actuator).id
+        self._ts = float(m.opt.timestep)
+
+        p = self.params
+        # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
+        self._d_to_tau = -p.m * p.l / (p.M + p.m)
+
+        # dt -> substep count, so the common case (same dt every call) skips the check
+        self._last_dt = math.nan
+        self._last_k = 0
+        self._bind_views()
+        self.reset(np.zeros(2))
+
+    # --- construction helpers -------------------------------------------------------
+
+    @staticmethod
+    def _spec_joint(spec: mujoco.MjSpec, name: str, jtype: mujoco.mjtJoint, kind: str,
+                    where: str) -> Any:
+        joint = spec.joint(name)
+        if joint is None:
+            raise ScenarioError(f"{where}: no {kind} joint named {name!r} "
+                                f"(joints in the model: {_names(spec.joints)})")
+        if joint.type != jtype:
+            actual = joint.type.name.removeprefix("mjJNT_").lower()
+            raise ScenarioError(f"{where}: joint {name!r} is a {actual} joint, "
+                                f"expected a {kind} joint")
+        return joint
+
+    @staticmethod
+    def _apply_overrides(spec: mujoco.MjSpec, cart: Any, hinge: Any, p: CartPoleParams,
+                         where: str) -> None:
+        """Write M, m, l, g into the spec; the pole stays a uniform rod of length 2l."""
+        for field in ("M", "m", "l", "g"):
+            v = getattr(p, field)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ScenarioError(f"{where}: cart-pole parameter {field} must be positive, got {v}")
+        pole = hinge.parent
+        pivot = np.asarray(hinge.pos, dtype=float)
+        old_arm = np.asarray(pole.ipos, dtype=float) - pivot
+        old_l = float(np.linalg.norm(old_arm))
+        # the pole's direction in its body frame: where the COM is now, else body z
+        axis = _unit(old_arm)
+        scale = p.l / old_l if old_l > 0.0 else 1.0
+
+        cart.mass = p.M
+        pole.mass = p.m
+        pole.ipos = pivot + p.l * axis
+        i_perp = p.m * (2.0 * p.l) ** 2 / 12.0
+        # diaginertia in a frame whose z is the pole: clear any fullinertia so it wins
+        pole.fullinertia = [math.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
+        pole.inertia = [i_perp, i_perp, i_perp * _AXIAL_INERTIA_RATIO]
+        iquat = np.zeros(4)
+        mujoco.mju_quatZ2Vec(iquat, axis)
+        pole.iquat = iquat
+        spec.option.gravity = [0.0, 0.0, -p.g]
+
+        if scale != 1.0:
+            MujocoCartPole._stretch_pole_geoms(pole, pivot, axis, scale)
+
+    @staticmethod
+    def _stretch_pole_geoms(pole: Any, pivot: np.ndarray, axis: np.ndarray, scale: float) -> None:
+        """Stretch the pole's visual geoms along the pole so the drawing matches l.
+
+        Positions move along the pole (the pivot stays put); capsules, cylinders and
+        boxes whose own z runs along the pole get longer.  Anything across the pole
+        (the pivot pin, the tip ball) keeps its size.
+        """
+        def along(v: np.ndarray) -> np.ndarray:
+            r = v - pivot
+            return pivot + r + (scale - 1.0) * float(r @ axis) * axis
+
+        for geom in pole.geoms:
+            fromto = np.asarray(geom.fromto, dtype=float)
+            if not math.isnan(fromto[0]):
+                geom.fromto = np.concatenate([along(fromto[:3]), along(fromto[3:])])
+                continue
+            geom.pos = along(np.asarray(geom.pos, dtype=float))
+            gz = np.zeros(3)
+            mujoco.mju_rotVecQuat(gz, np.array([0.0, 0.0, 1.0]), np.asarray(geom.quat, dtype=float))
+            if abs(float(gz @ axis)) < 1.0 - 1e-9:
+                continue
+            size = np.asarray(geom.size, dtype=float).copy()
+            if geom.type in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER):
+                size[1] *= scale
+            elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+                size[2] *= scale
+            else:
+                continue
+            geom.size = size
+
+    def _bind_views(self) -> None:
+        # numpy views into MjData, taken once: fetching them through the binding costs
+        # more per step than the physics of this 2-DOF model
+        d = self.data
+        self._qpos, self._qvel = d.qpos, d.qvel
+        self._ctrl, self._qfrc = d.ctrl, d.qfrc_applied
+        # MuJoCo silently resets the simulation on NaN/huge qpos, qvel or qacc and only
+        # counts a warning: watch those counters so a blow-up cannot pass as [0, 0]
+        w = mujoco.mjtWarning
+        self._warnings = [d.warning[int(k)] for k in
+                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
+
+    # --- the Plant protocol ---------------------------------------------------------
+
+    @property
+    def params(self) -> CartPoleParams:
+        """M, m, l, g as the compiled model has them (what the ODE backend should use).
+
+        M is everything the slider carries except the pole; l is the distance from the
+        hinge to the pole's COM; g is the downward component of gravity.  These match
+        the ODE only if the pole's inertia about the hinge is the rod's 4/3 m l^2, which
+        ``models/cartpole.xml`` and ``overrides`` guarantee.
+        """
+        m = self.model
+        pole_mass = float(m.body_mass[self._pole_body])
+        carried = float(m.body_subtreemass[self._cart_body])
+        arm = m.body_ipos[self._pole_body] - m.jnt_pos[self._hinge_id]
+        return CartPoleParams(M=carried - pole_mass, m=pole_mass,
+                              l=float(np.linalg.norm(arm)), g=float(-m.opt.gravity[2]))
+
+    @property
+    def timestep(self) -> float:
+        """The physics timestep; ``step``'s dt must be a whole multiple of it."""
+        return self._ts
+
+    @property
+    def t(self) -> float:
+        """Simulated time since the last reset."""
+        return float(self.data.time)
+
+    def reset(self, x0: np.ndarray) -> None:
+        """Pole at ``x0 = [theta, theta']``, cart at rest at 0, no force, clock at 0."""
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (self.order,):
+            raise ValueError(f"{self.name}: initial state must have {self.order} entries, got {x0.shape}")
+        mujoco.mj_resetData(self.model, self.data)
+        self._qpos[self._q_th] = x0[0]
+        self._qvel[self._v_th] = x0[1]
+        mujoco.mj_forward(self.model, self.data)
+
+    def state(self) -> np.ndarray:
+        return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
+
+    def step(self, u: float, d: float, dt: float) -> None:
+        """Advance by ``dt`` (a whole number of physics steps) with u and d held.
+
+        Raises ScenarioError if dt is not a multiple of the timestep, DivergenceError if
+        u or d is not finite or MuJoCo had to reset an unstable simulation.
+        """
+        if dt != self._last_dt:
+            self._last_k = self._substeps(dt)
+            self._last_dt = dt
+        if not (abs(u) < _MJ_MAXVAL and abs(d) < _MJ_MAXVAL):
+            # NaN fails both comparisons; MuJoCo would otherwise zero a bad ctrl silently
+            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
+                                  f"at t={self.data.time:.6g}")
+        t0 = self.data.time
+        self._ctrl[self._act] = u
+        self._qfrc[self._v_th] = self._d_to_tau * d
+        mujoco.mj_step(self.model, self.data, self._last_k)
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values in "
+                                  f"qpos, qvel or qacc and reset the simulation (step from "
+                                  f"t={t0:.6g})")
+
+    def check_sample_time(self, dt: float) -> None:
+        """Raise ScenarioError now, before a run, if dt is not a multiple of the timestep."""
+        self._substeps(dt)
+
+    def _substeps(self, dt: float) -> int:
+        k = round(dt / self._ts)
+        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
+            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
+                                f"multiple of the model timestep {self._ts!r}")
+        return int(k)
+
+    def extras(self) -> dict[str, float]:
+        return {"cart_pos": float(self._qpos[self._q_cart]),
+                "cart_vel": float(self._qvel[self._v_cart])}
+
+    # --- for a 3D recorder ----------------------------------------------------------
+
+    def geoms(self) -> list[dict[str, Any]]:
+        """The model's geoms as plain data: what a recorder needs to draw them.
+
+        Each dict has ``name``, ``body`` (body name), ``type`` ('box', 'capsule',
+        'cylinder', 'sphere', 'plane', ...), ``size`` (MuJoCo's 3 numbers: half-sizes,
+        radius and half-length), ``rgba`` (the material's colour when the geom has none of
+        its own, as MuJoCo renders it) and ``pos`` / ``quat`` (wxyz) relative to the body.
+        """
+        m = self.model
+        out: list[dict[str, Any]] = []
+        for i in range(m.ngeom):
+            rgba = m.geom_rgba[i]
+            matid = int(m.geom_matid[i])
+            if matid >= 0 and tuple(float(c) for c in rgba) == _DEFAULT_GEOM_RGBA:
+                rgba = m.mat_rgba[matid]
+            out.append({
+                "name": m.geom(i).name,
+                "body": m.body(int(m.geom_bodyid[i])).name,
+                "type": _GEOM_TYPES.get(int(m.geom_type[i]), str(int(m.geom_type[i]))),
+                "size": m.geom_size[i].copy(),
+                "rgba": np.array(rgba, dtype=float),
+                "pos": m.geom_pos[i].copy(),
+                "quat": m.geom_quat[i].copy(),
+            })
+        return out
+
+    def body_poses(self) -> dict[str, BodyPose]:
+        """``{body name: (position (3,), quaternion wxyz (4,))}`` in the world frame, now."""
+        m, d = self.model, self.data
+        return {m.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy()) for i in range(m.nbody)}
+
+    def body_poses_at(self, cart_pos: float, theta: float) -> dict[str, BodyPose]:
+        """Body poses for a given cart position and pole angle (e.g. from the ODE backend).
+
+        Uses a scratch MjData, so the simulation's own state is untouched.
+        """
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.model)
+        return self.poses_at(self.model, cart_pos, theta, self.slide_joint, self.hinge_joint,
+                             scratch=self._scratch)
+
+    @staticmethod
+    def poses_at(model: mujoco.MjModel, cart_pos: float, theta: float,
+                 slide_joint: str = "slider", hinge_joint: str = "hinge",
+                 scratch: mujoco.MjData | None = None) -> dict[str, BodyPose]:
+        """Body poses of ``model`` with the cart at ``cart_pos`` and the pole at ``theta``.
+
+        Only kinematics (``mj_kinematics``), so any state from any backend can be drawn
+        with the model's geometry.  Pass ``scratch`` to reuse an MjData across frames.
+        """
+        d = scratch if scratch is not None else mujoco.MjData(model)
+        d.qpos[:] = model.qpos0
+        d.qpos[model.jnt_qposadr[model.joint(slide_joint).id]] = cart_pos
+        d.qpos[model.jnt_qposadr[model.joint(hinge_joint).id]] = theta
+        mujoco.mj_kinematics(model, d)
+        return {model.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy())
+                for i in range(model.nbody)}

@@ -1,0 +1,188 @@
+"""The closed-loop runner: plant, controller, reference and disturbance, sample by sample.
+
+It knows nothing of Rerun or MuJoCo: a plant satisfies :class:`tspend.plants.base.Plant`
+and every output goes to sinks (:mod:`tspend.sinks`).  Samples are gathered in blocks
+of fixed size, preallocated once, and each full block is handed to the sinks, so a long
+run keeps only one block in memory.
+
+A run ends ``completed``; ``diverged`` when the state, control or a parameter stops
+being finite or leaves its configured bound (the block up to the last finite sample is
+still delivered); ``interrupted`` on KeyboardInterrupt or :class:`RunInterrupted`
+(raised by the CLI's SIGTERM handler), which is re-raised after the sinks have finished
+so the caller can set the exit status.  Sinks always get :meth:`finish`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .controller import AdaptiveFuzzyController, diag_layout
+from .errors import DivergenceError
+from .plants.base import Plant
+from .signals import Disturbance, Reference
+from .sinks import Block, RunEnd, RunInfo, Sink
+
+
+class RunInterrupted(Exception):
+    """A request to stop the run (a signal); carries the exit status to use."""
+
+    def __init__(self, signal_name: str, exit_status: int) -> None:
+        super().__init__(f"interrupted by {signal_name}")
+        self.signal_name = signal_name
+        self.exit_status = exit_status
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    dt: float
+    steps: int
+    block_size: int = 1000
+    snapshot_every: int = 20          # steps between inner snapshots (0 = never)
+    state_bound: float = 0.0          # 0 = only non-finite values stop the run
+    control_bound: float = 0.0
+
+
+class BlockBuffer:
+    """Preallocated arrays of one block; ``view(k)`` exposes the first k samples."""
+
+    def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...]) -> None:
+        self.x = np.zeros((size, n))
+        self.diag = np.zeros((size, diag_width))
+        self.extras = {name: np.zeros(size) for name in extras}
+        self.layout = diag_layout(n)
+
+    def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
+        D, L = self.diag[:k], self.layout
+        data = {"t": t[:k], "x": self.x[:k], "ref": ref[:k], "d": d[:k]}
+        for key, where in L.items():
+            data[key] = D[:, where]
+        for name, arr in self.extras.items():
+            data[f"extra/{name}"] = arr[:k]
+        return data
+
+
+class ClosedLoop:
+    """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``."""
+
+    def __init__(self, plant: Plant, controller: AdaptiveFuzzyController, reference: Reference,
+                 disturbance: Disturbance, settings: LoopSettings) -> None:
+        if plant.order != controller.n:
+            raise ValueError(f"plant order {plant.order} != controller order {controller.n}")
+        self.plant = plant
+        self.controller = controller
+        self.reference = reference
+        self.disturbance = disturbance
+        self.s = settings
+        self._done = 0
+        self._pending: tuple | None = None
+        self.end: RunEnd | None = None
+
+    def run(self, info: RunInfo, sinks: list[Sink]) -> RunEnd:
+        for sink in sinks:
+            sink.start(info)
+        started = time.perf_counter()
+        done, status, message = 0, "completed", ""
+        try:
+            done, status, message = self._loop(sinks)
+        except (KeyboardInterrupt, RunInterrupted) as exc:
+            self.flush_pending(sinks)
+            self._finish(sinks, "interrupted", str(exc) or "interrupted by SIGINT", self._done,
+                         started)
+            raise
+        except Exception as exc:  # a bug or a plant failure: keep what was recorded
+            self.flush_pending(sinks)
+            self._finish(sinks, "failed", f"{type(exc).__name__}: {exc}", self._done, started)
+            raise
+        return self._finish(sinks, status, message, done, started)
+
+    def _finish(self, sinks: list[Sink], status: str, message: str, done: int,
+                started: float) -> RunEnd:
+        wall = time.perf_counter() - started
+        metrics = {}
+        for sink in sinks:
+            if hasattr(sink, "result"):
+                metrics = sink.result(wall_s=wall)
+        end = RunEnd(status=status, message=message, steps_done=done, metrics=metrics)
+        for sink in sinks:
+            sink.finish(end)
+        self.end = end
+        return end
+
+    def _loop(self, sinks: list[Sink]) -> tuple[int, str, str]:
+        s, plant, ctrl = self.s, self.plant, self.controller
+        n, dt = ctrl.n, s.dt
+        extras = tuple(plant.extras().keys())
+        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras)
+        self._done = 0
+        self._pending: tuple | None = None
+        u_index = buf.layout["u"]
+        for start in range(0, s.steps, s.block_size):
+            k = min(s.block_size, s.steps - start)
+            t = (start + np.arange(k)) * dt
+            ref = self.reference.derivatives(t, n)
+            dist = self.disturbance(t)
+            self._pending = (start, buf, t, ref, dist, 0)
+            for i in range(k):
+                x = plant.state()
+                ctrl.step(x, ref[i], dt)
+                buf.x[i] = x
+                buf.diag[i] = ctrl.diag
+                if extras:
+                    for name, value in plant.extras().items():
+                        buf.extras[name][i] = value
+                problem = self._check(x, ctrl.diag, t[i])
+                if problem:
+                    kept = i + 1 if problem[1] else i
+                    self._emit(sinks, start, buf, t, ref, dist, kept)
+                    return start + kept, "diverged", problem[0]
+                try:
+                    plant.step(ctrl.diag[u_index], dist[i], dt)
+                except (ArithmeticError, ValueError, DivergenceError) as exc:
+                    # math.exp overflow, sin(inf), MuJoCo's own instability check
+                    self._emit(sinks, start, buf, t, ref, dist, i + 1)
+                    return (start + i + 1, "diverged",
+                            f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
+                self._pending = (start, buf, t, ref, dist, i + 1)
+                self._done = start + i + 1
+                if s.snapshot_every and (start + i) % s.snapshot_every == 0:
+                    snap = ctrl.snapshot(float(t[i]), start + i, x)
+                    for sink in sinks:
+                        sink.inner(snap)
+            self._pending = None
+            self._emit(sinks, start, buf, t, ref, dist, k)
+        return s.steps, "completed", ""
+
+    def _check(self, x: np.ndarray, diag: np.ndarray, t: float) -> tuple[str, bool] | None:
+        """A divergence message, and whether the sample itself is finite (kept)."""
+        total = float(diag.sum()) + float(x.sum())
+        if not math.isfinite(total):
+            what = "the state" if not np.all(np.isfinite(x)) else (
+                "the control u" if not math.isfinite(diag[0]) else "a parameter or estimate")
+            return f"diverged at t = {t:.4f} s: {what} is not finite", False
+        if self.s.state_bound > 0.0:
+            worst = int(np.argmax(np.abs(x)))
+            if abs(x[worst]) > self.s.state_bound:
+                return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} exceeds "
+                        f"state_bound {self.s.state_bound:g}", True)
+        if self.s.control_bound > 0.0 and abs(diag[0]) > self.s.control_bound:
+            return (f"diverged at t = {t:.4f} s: |u| = {abs(diag[0]):.4g} exceeds "
+                    f"control_bound {self.s.control_bound:g}", True)
+        return None
+
+    def _emit(self, sinks, start, buf, t, ref, dist, k) -> None:
+        if k <= 0:
+            return
+        block = Block(start=start, data=buf.view(k, t, ref, dist))
+        for sink in sinks:
+            sink.block(block)
+
+    def flush_pending(self, sinks: list[Sink]) -> None:
+        """Deliver the samples of the block in progress (after an interruption)."""
+        if self._pending is not None:
+            start, buf, t, ref, dist, k = self._pending
+            self._pending = None
+            self._emit(sinks, start, buf, t, ref, dist, k)

@@ -1,0 +1,416 @@
+"""Scenario files: TOML onto the frozen configuration of :mod:`tspend.config`, validated.
+
+Every problem is a :class:`ScenarioError` whose message names the file, the key and
+what is allowed, e.g. ``scenarios/x.toml: controller.eta: must be > 0, got -1``.
+Validation happens before anything runs; what needs the model file (joint names, the
+MuJoCo timestep) is checked when the plant is built, still before the first step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from . import signals
+from .config import ControllerConfig, PlantConfig, RunConfig, Scenario, SetSpec
+from .control_law import is_hurwitz
+from .errors import ScenarioError
+
+#: plant kinds and their order n
+PLANT_ORDERS = {"nonaffine": 2, "duffing": 2, "cartpole_ode": 2, "cartpole_mujoco": 2,
+                "third_order": 3}
+CARTPOLE_KEYS = ("M", "m", "l", "g")
+MUJOCO_KEYS = ("model", "slide_joint", "hinge_joint", "actuator", "integrator")
+MUJOCO_INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
+
+REFERENCE_KINDS: dict[str, type] = {
+    "sine": signals.Sine, "sum_of_sines": signals.SumOfSines,
+    "exp_approach": signals.ExpApproach, "constant": signals.Constant,
+}
+DISTURBANCE_KINDS: dict[str, type] = {
+    "square": signals.SquareWave, "zero": signals.NoDisturbance, "sine": signals.SineDisturbance,
+}
+
+TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller")
+SET_KEYS = ("terms", "lo", "hi")
+SETS_KEYS = ("states", "u", "e_delta", "x_norm")
+
+
+def project_root() -> Path:
+    """The checkout that holds ``models/`` and ``scenarios/`` (the package's parent)."""
+    return Path(__file__).resolve().parents[1]
+
+
+def scenario_dirs() -> list[Path]:
+    dirs = [Path.cwd() / "scenarios", project_root() / "scenarios"]
+    seen: list[Path] = []
+    for d in dirs:
+        if d.is_dir() and d.resolve() not in [s.resolve() for s in seen]:
+            seen.append(d)
+    return seen
+
+
+def available_scenarios() -> list[Path]:
+    """Every scenario file, by name, from ./scenarios then the project's scenarios/."""
+    found: dict[str, Path] = {}
+    for d in scenario_dirs():
+        for p in sorted(d.glob("*.toml")):
+            found.setdefault(p.stem, p)
+    return [found[k] for k in sorted(found)]
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """A scenario file from a path, or from a bare name such as ``ex2_duffing``."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    for d in scenario_dirs():
+        for cand in (d / p.name, d / f"{p.name}.toml"):
+            if cand.is_file():
+                return cand
+    names = [s.stem for s in available_scenarios()]
+    hint = difflib.get_close_matches(p.stem, names, n=1)
+    did = f" (did you mean '{hint[0]}'?)" if hint else ""
+    raise ScenarioError(f"{name_or_path}: no such scenario file{did}; available: "
+                        f"{', '.join(names) or 'none'}")
+
+
+# -- small typed readers ---------------------------------------------------------------
+class _Reader:
+    """Reads keys of one table, each error naming the file and the dotted key."""
+
+    def __init__(self, path: str, table: dict, prefix: str) -> None:
+        self.path, self.table, self.prefix = path, table, prefix
+
+    def error(self, key: str, problem: str) -> ScenarioError:
+        return ScenarioError(f"{self.path}: {self.prefix}{key}: {problem}")
+
+    def check_keys(self, allowed: tuple[str, ...], context: str = "") -> None:
+        for key in self.table:
+            if key not in allowed:
+                close = difflib.get_close_matches(key, allowed, n=1)
+                did = f" (did you mean '{close[0]}'?)" if close else ""
+                where = f" {context}" if context else ""
+                raise self.error(key, f"unknown key{did}; allowed{where}: {', '.join(allowed)}")
+
+    def has(self, key: str) -> bool:
+        return key in self.table
+
+    def number(self, key: str, default: float | None = None, *, low: float | None = None,
+               strict: bool = False) -> float:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (a number is required)")
+            return default
+        v = self.table[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(key, f"must be a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.error(key, f"must be finite, got {v}")
+        if low is not None and (v <= low if strict else v < low):
+            raise self.error(key, f"must be {'>' if strict else '>='} {low:g}, got {v:g}")
+        return v
+
+    def integer(self, key: str, default: int | None = None, *, low: int = 0) -> int:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (an integer is required)")
+            return default
+        v = self.table[key]
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be an integer, got {type(v).__name__} {v!r}")
+        if v < low:
+            raise self.error(key, f"must be >= {low}, got {v}")
+        return v
+
+    def string(self, key: str, default: str | None = None,
+               choices: tuple[str, ...] | None = None) -> str:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (a string is required)")
+            return default
+        v = self.table[key]
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {type(v).__name__} {v!r}")
+        if choices is not None and v not in choices:
+            close = difflib.get_close_matches(v, choices, n=1)
+            did = f" (did you mean '{close[0]}'?)" if close else ""
+            raise self.error(key, f"'{v}' is not allowed{did}; allowed: {', '.join(choices)}")
+        return v
+
+    def numbers(self, key: str, length: int | None = None,
+                default: tuple[float, ...] | None = None) -> tuple[float, ...]:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (a list of numbers is required)")
+            return default
+        v = self.table[key]
+        if not isinstance(v, list) or any(isinstance(a, bool) or not isinstance(a, (int, float))
+                                          for a in v):
+            raise self.error(key, f"must be a list of numbers, got {v!r}")
+        if length is not None and len(v) != length:
+            raise self.error(key, f"must have {length} entries, got {len(v)}")
+        out = tuple(float(a) for a in v)
+        if not all(math.isfinite(a) for a in out):
+            raise self.error(key, f"must be finite, got {v!r}")
+        return out
+
+    def interval(self, key: str, default: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = self.numbers(key, 2, default)
+        if lo > hi:
+            raise self.error(key, f"interval [lo, hi] needs lo <= hi, got [{lo:g}, {hi:g}]")
+        return lo, hi
+
+    def table_of(self, key: str, required: bool = False) -> "_Reader":
+        v = self.table.get(key, None)
+        if v is None:
+            if required:
+                raise self.error(key, "missing table")
+            v = {}
+        if not isinstance(v, dict):
+            raise self.error(key, f"must be a table, got {type(v).__name__}")
+        return _Reader(self.path, v, f"{self.prefix}{key}.")
+
+
+# -- sections --------------------------------------------------------------------------
+def _run(r: _Reader) -> RunConfig:
+    r.check_keys(tuple(f.name for f in dataclasses.fields(RunConfig)))
+    d = RunConfig()
+    return RunConfig(
+        duration=r.number("duration", d.duration, low=0.0, strict=True),
+        dt=r.number("dt", d.dt, low=0.0, strict=True),
+        seed=r.integer("seed", d.seed, low=0),
+        snapshot_every=r.number("snapshot_every", d.snapshot_every, low=0.0),
+        control_bound=r.number("control_bound", d.control_bound, low=0.0),
+    )
+
+
+def _plant(r: _Reader) -> PlantConfig:
+    kind = r.string("kind", None, tuple(PLANT_ORDERS))
+    n = PLANT_ORDERS[kind]
+    allowed = ("kind", "x0", "state_bound")
+    if kind.startswith("cartpole"):
+        allowed += CARTPOLE_KEYS
+    if kind == "cartpole_mujoco":
+        allowed += MUJOCO_KEYS
+    r.check_keys(allowed, f"for plant kind '{kind}'")
+    d = PlantConfig()
+    return PlantConfig(
+        kind=kind,
+        x0=r.numbers("x0", n, (0.0,) * n),
+        M=r.number("M", d.M, low=0.0, strict=True),
+        m=r.number("m", d.m, low=0.0, strict=True),
+        l=r.number("l", d.l, low=0.0, strict=True),
+        g=r.number("g", d.g, low=0.0),
+        model=r.string("model", d.model),
+        slide_joint=r.string("slide_joint", d.slide_joint),
+        hinge_joint=r.string("hinge_joint", d.hinge_joint),
+        actuator=r.string("actuator", d.actuator),
+        integrator=r.string("integrator", "", MUJOCO_INTEGRATORS) if r.has("integrator") else "",
+        state_bound=r.number("state_bound", d.state_bound, low=0.0),
+    )
+
+
+def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
+    """A reference or disturbance: ``kind`` picks the class, the other keys its fields."""
+    kind = r.string("kind", default_kind, tuple(kinds))
+    cls = kinds[kind]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    r.check_keys(("kind",) + tuple(fields), f"for kind '{kind}'")
+    values = {}
+    for name, f in fields.items():
+        if not r.has(name):
+            if f.default is dataclasses.MISSING:
+                raise r.error(name, f"missing (required for kind '{kind}')")
+            continue
+        values[name] = r.numbers(name) if name.endswith("s") else r.number(name)
+    if kind == "sum_of_sines":
+        lengths = {len(values[k]) for k in ("amplitudes", "omegas", "phases")}
+        if len(lengths) != 1:
+            raise r.error("amplitudes", "amplitudes, omegas and phases must have the same length")
+    if kind == "square" and values.get("period", 1.0) <= 0.0:
+        raise r.error("period", f"must be > 0, got {values['period']:g}")
+    return cls(**values)
+
+
+def _sets(r: _Reader, key: str, default: SetSpec) -> SetSpec:
+    if not r.has(key):
+        return default
+    t = r.table[key]
+    if not isinstance(t, dict):
+        raise r.error(key, f"must be a table {{terms = .., lo = .., hi = ..}}, got {t!r}")
+    s = _Reader(r.path, t, f"{r.prefix}{key}.")
+    return _set_spec(s)
+
+
+def _set_spec(s: _Reader) -> SetSpec:
+    s.check_keys(SET_KEYS)
+    terms = s.integer("terms", None, low=1)
+    lo, hi = s.number("lo"), s.number("hi")
+    if lo >= hi:
+        raise s.error("lo", f"interval needs lo < hi, got lo = {lo:g}, hi = {hi:g}")
+    return SetSpec(terms, lo, hi)
+
+
+def _controller(r: _Reader, n: int) -> ControllerConfig:
+    allowed = tuple(f.name for f in dataclasses.fields(ControllerConfig) if f.name != "lam")
+    allowed = ("lambda",) + tuple(k for k in allowed if k not in
+                                  ("state_sets", "u_sets", "e_delta_sets", "x_norm_sets")) + ("sets",)
+    r.check_keys(allowed)
+    d = ControllerConfig()
+    lam = r.numbers("lambda", n, (1.0, 2.0) if n == 2 else None)
+    if not is_hurwitz(np.asarray(lam)):
+        raise r.error("lambda", f"s^{n} + lambda_n s^{n - 1} + .. + lambda_1 must be Hurwitz "
+                                f"(all roots in Re s < 0); {list(lam)} is not")
+    Q = _matrix(r, "Q", n, d.Q if n == 2 else tuple(tuple(10.0 * (i == j) for j in range(n))
+                                                      for i in range(n)))
+    order = r.integer("bspline_order", d.bspline_order, low=2)
+    cps = r.integer("control_points", d.control_points, low=1)
+    if cps < order:
+        raise r.error("control_points", f"must be >= bspline_order ({order}), got {cps}")
+    sets = r.table_of("sets")
+    sets.check_keys(SETS_KEYS)
+    state_sets = _state_sets(sets, n, d.state_sets)
+    eta = r.number("eta", d.eta, low=0.0, strict=True)
+    op = r.string("operating_point", d.operating_point, ("fixed", "state"))
+    init_c = r.interval("init_consequents", d.init_consequents)
+    init_q = r.interval("init_compensator", d.init_compensator)
+    return ControllerConfig(
+        lam=lam, Q=Q, eta=eta,
+        eta_mu=r.number("eta_mu", low=0.0) if r.has("eta_mu") else None,
+        gamma=r.number("gamma", d.gamma, low=0.0, strict=True),
+        adaptation=r.string("adaptation", d.adaptation, ("second", "first")),
+        bspline_order=order, control_points=cps,
+        state_sets=state_sets,
+        u_sets=_sets(sets, "u", d.u_sets),
+        e_delta_sets=_sets(sets, "e_delta", d.e_delta_sets),
+        x_norm_sets=_sets(sets, "x_norm", d.x_norm_sets),
+        init_consequents=init_c, init_compensator=init_q,
+        b_min=r.number("b_min", d.b_min, low=0.0, strict=True),
+        norm_radius=r.number("norm_radius", d.norm_radius, low=0.0),
+        boundary_layer=r.number("boundary_layer", d.boundary_layer, low=0.0),
+        leakage=r.number("leakage", d.leakage, low=0.0),
+        operating_point=op,
+        x_o=r.numbers("x_o", n, (0.0,) * n),
+        u_o=r.number("u_o", d.u_o),
+        u_o_fraction=r.number("u_o_fraction", d.u_o_fraction),
+    )
+
+
+def _state_sets(sets: _Reader, n: int, default: tuple[SetSpec, ...]) -> tuple[SetSpec, ...]:
+    if not sets.has("states"):
+        if len(default) != n:
+            raise sets.error("states", f"missing: give {n} set tables, one per state")
+        return default
+    v = sets.table["states"]
+    if not isinstance(v, list) or len(v) != n or not all(isinstance(t, dict) for t in v):
+        raise sets.error("states", f"must be a list of {n} tables {{terms, lo, hi}} (one per "
+                                   f"state), got {v!r}")
+    return tuple(_set_spec(_Reader(sets.path, t, f"{sets.prefix}states[{i}].")) for i, t in
+                 enumerate(v))
+
+
+def _matrix(r: _Reader, key: str, n: int, default) -> tuple[tuple[float, ...], ...]:
+    if not r.has(key):
+        return default
+    v = r.table[key]
+    ok = (isinstance(v, list) and len(v) == n and all(isinstance(row, list) and len(row) == n
+                                                      for row in v))
+    if not ok:
+        raise r.error(key, f"must be an {n}x{n} list of lists, got {v!r}")
+    rows = tuple(_Reader(r.path, {key: row}, r.prefix).numbers(key, n) for row in v)
+    Q = np.array(rows)
+    if not np.allclose(Q, Q.T):
+        raise r.error(key, "must be symmetric")
+    if np.linalg.eigvalsh(Q).min() <= 0.0:
+        raise r.error(key, f"must be positive definite (eigenvalues {np.linalg.eigvalsh(Q)})")
+    return rows
+
+
+# -- entry points ----------------------------------------------------------------------
+def parse_scenario(text: str, path: str = "<string>", name: str | None = None) -> Scenario:
+    """A validated :class:`Scenario` from TOML text (``path`` is used in messages)."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    top = _Reader(path, raw, "")
+    top.check_keys(TOP_KEYS)
+    plant_r = top.table_of("plant", required=True)
+    plant = _plant(plant_r)
+    n = PLANT_ORDERS[plant.kind]
+    run = _run(top.table_of("run"))
+    ref = _signal(top.table_of("reference", required=True), REFERENCE_KINDS, "sine")
+    dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
+    ctrl = _controller(top.table_of("controller", required=True), n)
+    if run.dt > run.duration:
+        raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
+    return Scenario(
+        name=top.string("name", name or Path(path).stem),
+        description=top.string("description", ""),
+        run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
+        path=str(path), text=text)
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load and validate a scenario by path or by name (``ex3_pendulum_ode``)."""
+    path = find_scenario(name_or_path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+    return parse_scenario(text, _display(path))
+
+
+def _display(path: Path) -> str:
+    """The path as a user would type it: relative to the cwd when it is below it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def override(scenario: Scenario, **changes: Any) -> Scenario:
+    """A copy with dotted fields replaced, e.g. ``override(s, **{"run.duration": 5})``.
+
+    Keys are ``section.field`` of the frozen config (``controller.eta``,
+    ``plant.M``, ``run.seed``) or top-level fields.  The copy is validated again by
+    rebuilding it from the dataclasses' own checks where they exist.
+    """
+    for key, value in changes.items():
+        section, _, fname = key.partition(".")
+        if not fname:
+            scenario = dataclasses.replace(scenario, **{section: value})
+            continue
+        part = getattr(scenario, section, None)
+        if part is None or not dataclasses.is_dataclass(part):
+            raise ScenarioError(f"override {key}: no section '{section}'")
+        names = [f.name for f in dataclasses.fields(part)]
+        if fname not in names:
+            close = difflib.get_close_matches(fname, names, n=1)
+            did = f" (did you mean '{close[0]}'?)" if close else ""
+            raise ScenarioError(f"override {key}: unknown field{did}; allowed: {', '.join(names)}")
+        scenario = dataclasses.replace(scenario, **{section: dataclasses.replace(part, **{fname: value})})
+    return scenario
+
+
+def resolve_model_path(scenario: Scenario) -> Path:
+    """The MJCF of a MuJoCo scenario: as given, else next to the scenario, else the project's."""
+    p = Path(scenario.plant.model)
+    if p.is_absolute():
+        return p
+    bases = [Path.cwd()]
+    if scenario.path and scenario.path != "<string>":
+        bases.append(Path(scenario.path).resolve().parent)
+    bases.append(project_root())
+    for base in bases:
+        if (base / p).is_file():
+            return base / p
+    return p
