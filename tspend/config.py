@@ -117,3 +117,5 @@ class Scenario:
     #: where it came from, and its text (logged with every run)
     path: str = ""
     text: str = ""
+    #: (dotted key, value) pairs applied on top of ``text`` (CLI --set, Python override)
+    overrides: tuple = ()

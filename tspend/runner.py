@@ -34,6 +34,8 @@ class RunInterrupted(Exception):
         super().__init__(f"interrupted by {signal_name}")
         self.signal_name = signal_name
         self.exit_status = exit_status
+        #: how the run ended (metrics up to the stop), set by the runner
+        self.end: RunEnd | None = None
 
 
 @dataclass(frozen=True)
@@ -90,9 +92,9 @@ class ClosedLoop:
             done, status, message = self._loop(sinks)
         except (KeyboardInterrupt, RunInterrupted) as exc:
             self.flush_pending(sinks)
-            self._finish(sinks, "interrupted", str(exc) or "interrupted by SIGINT", self._done,
-                         started)
-            raise
+            stop = exc if isinstance(exc, RunInterrupted) else RunInterrupted("SIGINT", 130)
+            stop.end = self._finish(sinks, "interrupted", str(stop), self._done, started)
+            raise stop from None
         except Exception as exc:  # a bug or a plant failure: keep what was recorded
             self.flush_pending(sinks)
             self._finish(sinks, "failed", f"{type(exc).__name__}: {exc}", self._done, started)

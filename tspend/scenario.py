@@ -335,13 +335,22 @@ def _matrix(r: _Reader, key: str, n: int, default) -> tuple[tuple[float, ...], .
 
 
 # -- entry points ----------------------------------------------------------------------
-def parse_scenario(text: str, path: str = "<string>", name: str | None = None) -> Scenario:
-    """A validated :class:`Scenario` from TOML text (``path`` is used in messages)."""
+def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
+                   overrides: tuple[tuple[str, Any], ...] = ()) -> Scenario:
+    """A validated :class:`Scenario` from TOML text (``path`` is used in messages).
+
+    ``overrides`` are ``(dotted.key, value)`` pairs applied to the parsed TOML before
+    validation, so an override is checked exactly like a key of the file.
+    """
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    top = _Reader(path, raw, "")
+    where = path
+    for key, value in overrides:
+        _set_dotted(raw, key, value, path)
+        where = f"{path} (with overrides)"
+    top = _Reader(where, raw, "")
     top.check_keys(TOP_KEYS)
     plant_r = top.table_of("plant", required=True)
     plant = _plant(plant_r)
@@ -356,7 +365,30 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None) -
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
-        path=str(path), text=text)
+        path=str(path), text=text, overrides=tuple(overrides))
+
+
+def _set_dotted(raw: dict, key: str, value: Any, path: str) -> None:
+    parts = key.split(".")
+    if not all(parts):
+        raise ScenarioError(f"{path}: override '{key}': expected a dotted key such as "
+                            f"controller.eta")
+    node = raw
+    for part in parts[:-1]:
+        nxt = node.setdefault(part, {})
+        if not isinstance(nxt, dict):
+            raise ScenarioError(f"{path}: override '{key}': '{part}' is not a table")
+        node = nxt
+    node[parts[-1]] = _plain(value)
+
+
+def _plain(value: Any) -> Any:
+    """Python values as TOML would give them (tuples become lists, dataclasses tables)."""
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {k: _plain(v) for k, v in dataclasses.asdict(value).items()}
+    return value
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
@@ -378,27 +410,15 @@ def _display(path: Path) -> str:
 
 
 def override(scenario: Scenario, **changes: Any) -> Scenario:
-    """A copy with dotted fields replaced, e.g. ``override(s, **{"run.duration": 5})``.
+    """A copy with keys replaced, validated like the file: ``override(s, **{"run.duration": 5})``.
 
-    Keys are ``section.field`` of the frozen config (``controller.eta``,
-    ``plant.M``, ``run.seed``) or top-level fields.  The copy is validated again by
-    rebuilding it from the dataclasses' own checks where they exist.
+    Keys are the scenario file's dotted keys (``controller.eta``, ``plant.M``,
+    ``controller.sets.u``, ``reference.amplitude``); the new scenario remembers them in
+    ``overrides`` so a recording says exactly what ran.
     """
-    for key, value in changes.items():
-        section, _, fname = key.partition(".")
-        if not fname:
-            scenario = dataclasses.replace(scenario, **{section: value})
-            continue
-        part = getattr(scenario, section, None)
-        if part is None or not dataclasses.is_dataclass(part):
-            raise ScenarioError(f"override {key}: no section '{section}'")
-        names = [f.name for f in dataclasses.fields(part)]
-        if fname not in names:
-            close = difflib.get_close_matches(fname, names, n=1)
-            did = f" (did you mean '{close[0]}'?)" if close else ""
-            raise ScenarioError(f"override {key}: unknown field{did}; allowed: {', '.join(names)}")
-        scenario = dataclasses.replace(scenario, **{section: dataclasses.replace(part, **{fname: value})})
-    return scenario
+    merged = dict(scenario.overrides)
+    merged.update(changes)
+    return parse_scenario(scenario.text, scenario.path, scenario.name, tuple(merged.items()))
 
 
 def resolve_model_path(scenario: Scenario) -> Path:

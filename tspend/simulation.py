@@ -56,10 +56,16 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     return plant
 
 
-def build_controller(scenario: Scenario, rng: np.random.Generator | None = None
-                     ) -> AdaptiveFuzzyController:
-    """The controller, its consequents drawn from ``rng`` (default: the scenario's seed)."""
-    ctrl = AdaptiveFuzzyController(scenario.controller)
+def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
+                     backend: str = "auto") -> AdaptiveFuzzyController:
+    """The controller, its consequents drawn from ``rng`` (default: the scenario's seed).
+
+    ``backend``: "numba" (compiled kernel), "numpy" (the reference implementation) or
+    "auto" (numba when installed); both compute the same step (tests/test_kernels.py).
+    """
+    from .kernels import make_controller
+
+    ctrl = make_controller(scenario.controller, backend)
     ctrl.initialise(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
@@ -130,14 +136,15 @@ def steps_of(scenario: Scenario) -> int:
 
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
-        plant_kind: str | None = None, block_size: int = 1000) -> RunResult:
+        plant_kind: str | None = None, block_size: int = 1000,
+        backend: str = "auto") -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
     MuJoCo scenario, say), which is what the cross-check does.
     """
     plant = build_plant(scenario, plant_kind)
-    ctrl = build_controller(scenario)
+    ctrl = build_controller(scenario, backend=backend)
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0

@@ -1,0 +1,48 @@
+"""Lemma 1's Gamma against scipy, Hurwitz checks, the control law (19)."""
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_continuous_lyapunov
+
+from tspend.control_law import companion, control, is_hurwitz, lyapunov_gamma
+
+
+@pytest.mark.parametrize("lam,Q", [
+    ((1.0, 2.0), np.diag([10.0, 10.0])),
+    ((1.0, 3.0, 3.0), np.diag([10.0, 10.0, 10.0])),
+    ((2.0, 5.0, 4.0, 3.0), np.eye(4) + 0.3 * np.ones((4, 4))),
+])
+def test_gamma_solves_lemma_1_and_equals_scipy(lam, Q):
+    G = lyapunov_gamma(np.array(lam), Q)
+    A = companion(np.array(lam))
+    np.testing.assert_allclose(A.T @ G + G @ A, -Q, atol=1e-10)
+    np.testing.assert_allclose(G, solve_continuous_lyapunov(A.T, -Q), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(G, G.T)
+    assert np.linalg.eigvalsh(G).min() > 0
+
+
+def test_paper_gamma_value():
+    G = lyapunov_gamma(np.array([1.0, 2.0]), np.diag([10.0, 10.0]))
+    np.testing.assert_allclose(G, [[15.0, 5.0], [5.0, 5.0]], atol=1e-12)
+
+
+def test_hurwitz():
+    assert is_hurwitz(np.array([1.0, 2.0]))
+    assert not is_hurwitz(np.array([-1.0, 2.0]))
+    assert not is_hurwitz(np.array([1.0, 0.0]))       # marginal: roots on the axis
+    assert is_hurwitz(np.array([1.0, 3.0, 3.0]))
+
+
+def test_control_law_gives_designed_error_dynamics():
+    """On a plant that IS the model, (19) makes e'' = -lambda . e - u_s exactly."""
+    rng = np.random.default_rng(0)
+    lam = np.array([1.0, 2.0])
+    p = np.array([0.3, -0.7, 1.9])
+    x_o, u_o = np.array([0.1, -0.2]), 0.4
+    x = rng.normal(size=2)
+    ref = rng.normal(size=3)
+    e = x - ref[:2]
+    u_s = 0.05
+    u = control(p, x - x_o, ref[2], lam, e, u_s, u_o)
+    xdot_n = p[:2] @ (x - x_o) + p[2] * (u - u_o)
+    assert xdot_n - ref[2] == pytest.approx(-lam @ e - u_s)
