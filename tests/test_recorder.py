@@ -14,8 +14,10 @@ from rerun.chunk import RrdReader
 from tspend.recorder import (
     RerunSink,
     build_blueprint,
+    cartpole_geometry,
     cartpole_poses,
     close_recording,
+    is_cartpole,
     open_recording,
     read_scalar_series,
     series_location,
@@ -103,6 +105,12 @@ def entity_paths(path: Path) -> set[str]:
     return {c.entity_path for c in RrdReader(path).stream().to_chunks()}
 
 
+def chunks_of(path: Path, entity: str, component: str):
+    """Temporal chunks of ``entity`` holding ``component``, as record batches."""
+    chunks = RrdReader(path).stream().filter(content=entity, is_static=False, components=component).to_chunks()
+    return [c.to_record_batch() for c in chunks]
+
+
 def static_text(path: Path, entity: str) -> str:
     chunks = RrdReader(path).stream().filter(content=entity, is_static=True).to_chunks()
     texts = [t for c in chunks for row in c.to_record_batch().to_pydict().get("TextDocument:text", []) for t in row]
@@ -169,6 +177,45 @@ def test_cartpole_frames_at_50hz(recorded) -> None:
     assert rows == 1 + info.steps // 20  # the initial pose plus one frame every 20 ms
 
 
+def test_firing_tensors_match_the_sdk_encoding(recorded) -> None:
+    path, info, data = recorded
+    batches = chunks_of(path, "/fuzzy/firing", "BarChart:values")
+    rows = [row for b in batches for row in b.column("BarChart:values").to_pylist()]
+    assert len(rows) == info.steps // 20
+    expected = make_snapshot(info, float(data["t"][40]), 40).firing.astype(np.float32)
+    sdk = rr.components.TensorDataBatch(expected).as_arrow_array().to_pylist()[0]
+    assert rows[2] == [sdk]
+
+
+def test_membership_curves_sent_only_when_changed(tmp_path: Path) -> None:
+    info = make_info(steps=2000)
+    data = make_run(2, 2000)
+    path = tmp_path / "curves.rrd"
+    rec = open_recording("tspend_test", "save", path)
+    assert rec is not None
+    sink = RerunSink(rec)
+    sink.start(info)
+    for blk in blocks(data):
+        for step in range(blk.start, blk.start + 1000, 20):
+            snap = make_snapshot(info, float(data["t"][step]), step)
+            if step >= 1500:  # the first model input's sets move once, at t = 1.5 s
+                grid, curves, z, mu = snap.model_sets[0]
+                snap = InnerSnapshot(snap.t, snap.step, ((grid, 0.5 * curves, z, mu),) + snap.model_sets[1:],
+                                     snap.compensator_sets, snap.firing, snap.compensator_firing,
+                                     snap.consequents, snap.q)
+            sink.inner(snap)
+        sink.block(blk)
+    sink.finish(completed(2000))
+    close_recording(rec)
+    strips = chunks_of(path, "/fuzzy/model/in0", "LineStrips2D:strips")
+    times = sorted(t for b in strips for t in b.column("sim_time").cast("int64").to_pylist())
+    assert times == [0, 1_500_000_000]
+    assert sum(b.num_rows for b in chunks_of(path, "/fuzzy/model/in1", "LineStrips2D:strips")) == 1
+    points = chunks_of(path, "/fuzzy/model/in0", "Points2D:positions")
+    assert sum(b.num_rows for b in points) == 100
+
+
+@pytest.mark.filterwarnings("ignore:.*no footer.*")
 def test_diverged_run_is_readable_without_close(tmp_path: Path) -> None:
     info = make_info()
     data = make_run(info.order, info.steps)
@@ -229,6 +276,22 @@ def test_cartpole_poses() -> None:
     assert np.allclose(axis, [-1.0, 0.0, 0.0])
 
 
+def test_cartpole_detection_and_mjcf_geometry(tmp_path: Path) -> None:
+    assert is_cartpole(make_info())
+    assert not is_cartpole(make_info(order=3, plant_kind="third_order"))
+    assert cartpole_geometry({"l": 2.0}).l == 2.0
+    mjcf = tmp_path / "cp.xml"
+    mjcf.write_text(
+        '<mujoco><worldbody><geom type="plane" size="5 5 .1"/>'
+        '<body name="cart"><joint type="slide" axis="1 0 0"/><geom type="box" size=".4 .25 .15" rgba="1 0 0 1"/>'
+        '<body name="pole"><joint type="hinge" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" rgba="0 1 0 1"/></body></body></worldbody></mujoco>')
+    geom = cartpole_geometry({"mjcf": str(mjcf), "l": 0.5})
+    assert geom.cart_half_sizes == pytest.approx((0.4, 0.25, 0.15))
+    assert geom.pole_radius == pytest.approx(0.03) and geom.pole_color == (0, 255, 0) and geom.l == 0.5
+    assert cartpole_geometry({"mjcf": str(tmp_path / "missing.xml")}).pole_radius > 0  # falls back
+
+
 def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch) -> None:
     assert open_recording("tspend_test", "none") is None
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -239,5 +302,6 @@ def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[
     close_recording(rec)
     assert (tmp_path / "fb.rrd").exists()
     assert open_recording("tspend_test", "connect", None, url="rerun+http://127.0.0.1:9/proxy") is None
+    assert open_recording("tspend_test", "spawn", None) is None  # no display here
     err = capsys.readouterr().err
-    assert err.count("warning") == 2 and len(err.strip().splitlines()) == 2
+    assert err.count("warning") == 3 and len(err.strip().splitlines()) == 3

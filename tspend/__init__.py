@@ -1,2 +1,32 @@
-"""tspend: on-line T-S fuzzy modeling and robust adaptive control testbed."""
+"""tspend: on-line T-S fuzzy modeling and robust adaptive control, a testbed.
+
+The paper's structure, one module per concept: ``bspline`` (BMFs, eq. 1-5), ``rules``
+(grid rule base and firing strengths, eq. 9-12), ``ts_model`` (T-S model and its second
+type laws, eq. 14-16, 25-26), ``compensator`` (eq. 21-24, 27), ``control_law`` (eq. 18-19,
+Lemma 1), ``controller`` (one controller sample), ``plants`` (analytic and MuJoCo),
+``signals`` (references and disturbances), ``scenario`` (TOML), ``runner`` (closed loop),
+``metrics``, ``recorder`` (Rerun), ``cli``.
+
+Python API::
+
+    from tspend import load_scenario, override, run
+    result = run(override(load_scenario("ex2_duffing"), **{"controller.eta": 0.2}))
+    result.metrics["rmse_ss"], result.history["x"]
+"""
+
 __version__ = "0.1.0"
+
+__all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller"]
+
+
+def __getattr__(name: str):
+    # keep `import tspend` light: MuJoCo, numba and Rerun load only when used
+    if name in ("load_scenario", "override"):
+        from . import scenario
+
+        return getattr(scenario, name)
+    if name in ("run", "build_plant", "build_controller"):
+        from . import simulation
+
+        return getattr(simulation, name)
+    raise AttributeError(f"module 'tspend' has no attribute {name!r}")

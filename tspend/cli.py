@@ -143,7 +143,8 @@ def _fmt(v: Any) -> str:
     return "n/a" if v is None else str(v)
 
 
-def print_metrics(metrics: dict, stream=sys.stdout) -> None:
+def print_metrics(metrics: dict, stream=None) -> None:
+    stream = stream or sys.stdout
     keys = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
             "control_energy", "max_abs_u", "tv_u_per_s", "sim_s", "steps", "wall_s")
     width = max(len(k) for k in keys)

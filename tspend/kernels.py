@@ -26,7 +26,9 @@ practical, the same order of floating-point operations:
 Nothing is allocated per step: every constant is packed once by
 :class:`CompiledController` and the scratch lives in one preallocated workspace.
 Summation order inside dot products differs from BLAS, so results agree with the numpy
-reference to rounding (~1e-15 relative), not bit for bit.
+reference to rounding (~1e-15 relative per step), not bit for bit.  The kernels use
+numba's ``error_model="numpy"``: a division by zero gives inf/nan as numpy does instead
+of raising, and NaN inputs propagate (the runner's divergence guard sees them).
 
 numba is optional: without it this module still imports, :func:`make_controller` with
 ``backend="auto"`` returns the numpy controller and only ``backend="numba"`` (or
@@ -392,8 +394,10 @@ class CompiledController(AdaptiveFuzzyController):
     ``diag``), so ``parameters()``, ``snapshot()``, ``initialise()`` and the runner work
     unchanged.  Constants (rates, projections, Gamma, knots, term-index tables) are
     packed in ``__init__``: change the configuration by building a new controller.
-    The parameter arrays are looked up on every step, so they may be replaced as long
-    as shapes are kept.
+    ``model.P``, ``compensator.q`` and ``diag`` are looked up on every step, so they may
+    be replaced by arrays of the same shape (float64, C order); the control points are
+    updated in place through ``rules.C_all``, which must never be replaced (``rules.C``
+    are views into it).
     """
 
     def __init__(self, cfg: ControllerConfig) -> None:
@@ -440,13 +444,15 @@ class CompiledController(AdaptiveFuzzyController):
         self._ic = ic
         self._tidx = tidx
         self._ws = np.zeros((4 * M + 7, width))
+        # the control points are never replaced (rules.C are views into C_all)
+        self._Cm = mrules.C_all
+        self._Cc = crules.C_all
 
     def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
         """One controller sample (the numpy :meth:`AdaptiveFuzzyController.step`, compiled)."""
-        model, comp = self.model, self.compensator
-        u = controller_step(x, ref, dt, self.u_prev, model.P, model.rules.C_all, comp.q,
-                            comp.rules.C_all, self.diag, self._fc, self._knots, self._ic,
-                            self._tidx, self._ws)
+        u = controller_step(x, ref, dt, self.u_prev, self.model.P, self._Cm,
+                            self.compensator.q, self._Cc, self.diag, self._fc, self._knots,
+                            self._ic, self._tidx, self._ws)
         self.u_prev = u
         return u
 

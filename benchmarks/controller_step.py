@@ -1,0 +1,247 @@
+"""Cost of one controller step (numpy and numba backends) against one bare ``mj_step``.
+
+Run from the project root::
+
+    .venv/bin/python benchmarks/controller_step.py [--blocks 31] [--no-startup]
+
+Everything is measured in this process: the baseline is one ``mujoco.mj_step`` of
+``models/cartpole.xml`` (or, if that file is missing, a minimal inline cart-pole MJCF with
+RK4), then the whole controller sample (T-S model + compensator + both adaptive laws,
+``ControllerConfig()`` = Example 3 sizes) through ``controller.step(x, ref, dt)``, Python
+call included.  Each figure is the median over blocks of the mean cost of one call in
+the block.  Then the scaling table (sets per state input, plant order) and the start-up
+time of a fresh interpreter that imports the kernels, builds a controller and takes one
+step with a warm numba cache (run twice, the second reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from tspend.config import ControllerConfig, SetSpec  # noqa: E402
+from tspend.kernels import HAVE_NUMBA, make_controller  # noqa: E402
+
+#: the target of the benchmark: a controller step costs at most this many mj_steps
+TARGET_RATIO = 2.0
+STARTUP_LIMIT_S = 1.0
+
+INLINE_CARTPOLE = """
+<mujoco model="cartpole-inline">
+  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
+  <option timestep="0.001" integrator="RK4" gravity="0 0 -9.8">
+    <flag contact="disable"/>
+  </option>
+  <worldbody>
+    <body name="cart" pos="0 0 1">
+      <joint name="slider" type="slide" axis="1 0 0"/>
+      <inertial pos="0 0 0" mass="10" diaginertia="1 1 1"/>
+      <body name="pole" pos="0 0 0.25">
+        <joint name="hinge" type="hinge" axis="0 -1 0"/>
+        <inertial pos="0 0 3" mass="1" diaginertia="3 3 0.0001"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="force" joint="slider" gear="1"/>
+  </actuator>
+</mujoco>
+"""
+
+STARTUP_CODE = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+import tspend.kernels
+from tspend.config import ControllerConfig
+c = tspend.kernels.make_controller(ControllerConfig(), "numba")
+c.initialise(np.random.default_rng(0))
+c.step(np.array([0.1, 0.0]), np.array([0.0, 0.0, 0.0]), 1e-3)
+print(time.perf_counter() - t0)
+"""
+
+
+def median_cost(call, items: list, blocks: int, per_block: int, between=None) -> float:
+    """Median over ``blocks`` of the mean seconds per ``call(item)`` in a block."""
+    k = len(items)
+    for i in range(min(per_block, 50)):         # warm-up
+        call(items[i % k])
+    costs = []
+    for _ in range(blocks):
+        if between is not None:
+            between()
+        j0 = np.random.randint(k)
+        block = [items[(j0 + i) % k] for i in range(per_block)]
+        t0 = time.perf_counter_ns()
+        for it in block:
+            call(it)
+        costs.append((time.perf_counter_ns() - t0) / per_block)
+    return float(np.median(costs)) * 1e-9
+
+
+def mj_step_cost(blocks: int, per_block: int) -> tuple[float, str]:
+    import mujoco
+
+    path = ROOT / "models" / "cartpole.xml"
+    if path.exists():
+        model, source = mujoco.MjModel.from_xml_path(str(path)), str(path.relative_to(ROOT))
+    else:
+        model, source = mujoco.MjModel.from_xml_string(INLINE_CARTPOLE), "inline MJCF (RK4)"
+    data = mujoco.MjData(model)
+
+    def reset():
+        mujoco.mj_resetData(model, data)
+        data.qpos[1] = np.pi / 30
+        data.ctrl[0] = 1.0
+
+    step = mujoco.mj_step
+    return median_cost(lambda _: step(model, data), [None], blocks, per_block, reset), source
+
+
+def signals(cfg: ControllerConfig, samples: int = 2000, dt: float = 1e-3):
+    """(x, ref) pairs along a smooth trajectory inside the state sets (Example 3-like)."""
+    n = cfg.order
+    t = np.arange(samples) * dt
+    amp = np.array([0.5 * max(abs(s.lo), abs(s.hi)) for s in cfg.state_sets])
+    X = amp * np.sin(t[:, None] * (1.0 + np.arange(n)) + 0.3 * np.arange(n))
+    R = np.zeros((samples, n + 1))
+    R[:, :n] = X + 0.05 * amp * np.cos(2.0 * t[:, None] + np.arange(n))
+    R[:, n] = np.sin(t)
+    return [(X[k].copy(), R[k].copy()) for k in range(samples)]
+
+
+def step_cost(cfg: ControllerConfig, backend: str, blocks: int, per_block: int,
+              seed: int = 1) -> float:
+    ctrl = make_controller(cfg, backend)
+    ctrl.initialise(np.random.default_rng(seed))
+    items = signals(cfg)
+    step = ctrl.step
+    dt = 1e-3
+    return median_cost(lambda it: step(it[0], it[1], dt), items, blocks, per_block,
+                       lambda: ctrl.initialise(np.random.default_rng(seed)))
+
+
+def kernel_only_cost(cfg: ControllerConfig, steps: int = 100_000) -> float:
+    """The kernel looped inside compiled code: the cost without the Python call."""
+    from numba import njit
+
+    from tspend.kernels import controller_step
+
+    @njit(cache=True)
+    def loop(count, x, ref, dt, P, Cm, q, Cc, diag, fc, knots, ic, tidx, ws):
+        u = 0.0
+        for _ in range(count):
+            u = controller_step(x, ref, dt, 0.5 * u, P, Cm, q, Cc, diag, fc, knots, ic,
+                                tidx, ws)
+        return u
+
+    c = make_controller(cfg, "numba")
+    c.initialise(np.random.default_rng(1))
+    x, ref = signals(cfg)[100]
+    args = (x, ref, 1e-6, c.model.P, c.model.rules.C_all, c.compensator.q,
+            c.compensator.rules.C_all, c.diag, c._fc, c._knots, c._ic, c._tidx, c._ws)
+    loop(10, *args)
+    costs = []
+    for _ in range(5):
+        t0 = time.perf_counter_ns()
+        loop(steps, *args)
+        costs.append((time.perf_counter_ns() - t0) / steps)
+    return float(np.median(costs)) * 1e-9
+
+
+def startup_time() -> tuple[float, float, float]:
+    """Wall time of a fresh interpreter (import, build, one step); runs twice."""
+    walls, inner = [], 0.0
+    for _ in range(2):
+        t0 = time.perf_counter()
+        out = subprocess.run([sys.executable, "-c", STARTUP_CODE], cwd=ROOT, check=True,
+                             capture_output=True, text=True)
+        walls.append(time.perf_counter() - t0)
+        inner = float(out.stdout.strip().splitlines()[-1])
+    return walls[0], walls[1], inner
+
+
+def order_config(n: int, sets: int) -> ControllerConfig:
+    """Example 3's design with ``sets`` sets per state input at plant order n."""
+    lam = {2: (1.0, 2.0), 3: (1.0, 3.0, 3.0)}[n]
+    Q = tuple(tuple(10.0 if i == j else 0.0 for j in range(n)) for i in range(n))
+    spec = SetSpec(sets, -np.pi / 4, np.pi / 4)
+    return ControllerConfig(lam=lam, Q=Q, state_sets=(spec,) * n)
+
+
+def us(seconds: float) -> str:
+    return f"{seconds * 1e6:9.2f} us"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--blocks", type=int, default=31, help="timed blocks per figure")
+    ap.add_argument("--per-block", type=int, default=2000, help="calls per block (numba)")
+    ap.add_argument("--no-startup", action="store_true", help="skip the start-up figure")
+    ap.add_argument("--no-numpy-scaling", action="store_true",
+                    help="numba only in the scaling table")
+    a = ap.parse_args()
+    blocks, per = a.blocks, a.per_block
+    per_numpy = max(20, per // 100)
+
+    print("controller step vs mujoco.mj_step (median over blocks, Python call included)")
+    base, source = mj_step_cost(blocks, per)
+    print(f"  baseline mj_step ({source}):      {us(base)}")
+    cfg = ControllerConfig()
+    t_np = step_cost(cfg, "numpy", blocks, per_numpy)
+    print(f"  numpy controller step (Example 3):   {us(t_np)}   = {t_np / base:7.2f} x mj_step")
+    ok = True
+    if HAVE_NUMBA:
+        t_nb = step_cost(cfg, "numba", blocks, per)
+        ratio = t_nb / base
+        ok = ratio <= TARGET_RATIO
+        print(f"  numba controller step (Example 3):   {us(t_nb)}   = {ratio:7.2f} x mj_step"
+              f"   (target <= {TARGET_RATIO:g}: {'met' if ok else 'MISSED'})")
+        t_k = kernel_only_cost(cfg)
+        print(f"    of which the kernel itself:        {us(t_k)}   (Python call and "
+              f"dispatch: {(t_nb - t_k) * 1e6:.2f} us)")
+        print(f"  speed-up numba over numpy:           {t_np / t_nb:9.1f} x")
+    else:
+        print("  numba is not installed: no compiled figures")
+
+    print()
+    print("scaling (n = plant order, sets per state input; u_o 3 sets, compensator 5 x 5)")
+    backends = (["numba"] if HAVE_NUMBA else []) + ([] if a.no_numpy_scaling else ["numpy"])
+    head = f"  {'n':>2} {'sets':>4} {'model':>6} {'comp':>5} {'rules':>6}"
+    for b in backends:
+        head += f" | {b + ' step':>13} {'per rule':>11} {'x mj_step':>9}"
+    print(head)
+    for n, sets in ((2, 3), (2, 5), (2, 7), (3, 3), (3, 5)):
+        c = order_config(n, sets)
+        h = sets ** n * c.u_sets.terms
+        hc = c.e_delta_sets.terms * c.x_norm_sets.terms
+        row = f"  {n:>2} {sets:>4} {h:>6} {hc:>5} {h + hc:>6}"
+        for b in backends:
+            t = step_cost(c, b, blocks if b == "numba" else max(5, blocks // 3),
+                          per if b == "numba" else per_numpy)
+            row += f" | {us(t):>13} {t / (h + hc) * 1e9:8.1f} ns {t / base:9.2f}"
+        print(row)
+
+    if HAVE_NUMBA and not a.no_startup:
+        print()
+        first, second, inner = startup_time()
+        good = second < STARTUP_LIMIT_S
+        print("start-up: fresh interpreter, import tspend.kernels, build, one numba step")
+        print(f"  first run {first:.3f} s, second run (warm cache) {second:.3f} s "
+              f"(of which in-process {inner:.3f} s)   (limit {STARTUP_LIMIT_S:g} s: "
+              f"{'met' if good else 'MISSED'})")
+        ok = ok and good
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
