@@ -187,6 +187,39 @@ def test_firing_tensors_match_the_sdk_encoding(recorded) -> None:
     assert rows[2] == [sdk]
 
 
+def test_runner_may_reuse_its_buffers(tmp_path: Path) -> None:
+    """Blocks are views of buffers the runner overwrites, snapshots hold live arrays."""
+    info = make_info(steps=2000)
+    data = make_run(2, 2000)
+    path = tmp_path / "reuse.rrd"
+    rec = open_recording("tspend_test", "save", path)
+    assert rec is not None
+    sink = RerunSink(rec)
+    sink.start(info)
+    scratch = {k: np.empty((1000,) + v.shape[1:]) for k, v in data.items()}
+    live = np.zeros((len(TERMS) ** 3, 3))
+    for start in (0, 1000):
+        for step in range(start, start + 1000, 20):
+            snap = make_snapshot(info, float(data["t"][step]), step)
+            live[:] = step
+            sink.inner(InnerSnapshot(snap.t, snap.step, snap.model_sets, snap.compensator_sets, snap.firing,
+                                     snap.compensator_firing, live, snap.q))
+        for k, v in data.items():
+            scratch[k][:] = v[start:start + 1000]
+        sink.block(Block(start=start, data={k: v[:] for k, v in scratch.items()}))
+        for v in scratch.values():
+            v.fill(np.nan)
+        live.fill(np.nan)
+    sink.finish(completed(2000))
+    close_recording(rec)
+    _, x1 = read_scalar_series(path, *series_location("x1", info.order, info.extras))
+    assert np.array_equal(x1, data["x"][:, 0])
+    cons = [row[0] for b in chunks_of(path, "/fuzzy/consequents", "Tensor:data")
+            for row in b.column("Tensor:data").to_pylist()]
+    assert [row["shape"] for row in cons[:1]] == [[len(TERMS) ** 3, 3]] and cons[0]["names"] == ["rule", "k"]
+    assert [row["buffer"][0] for row in cons] == [float(s) for s in range(0, 2000, 20)]
+
+
 def test_membership_curves_sent_only_when_changed(tmp_path: Path) -> None:
     info = make_info(steps=2000)
     data = make_run(2, 2000)

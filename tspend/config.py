@@ -98,8 +98,8 @@ class RunConfig:
     duration: float = 20.0
     dt: float = 0.001
     seed: int = 1
-    #: controller inner-state snapshots (BMF curves, firing) every this many seconds
-    snapshot_every: float = 0.02
+    #: controller inner-state snapshots (BMF curves, firing) every this many seconds (0 = never)
+    snapshot_every: float = 0.1
     #: divergence guard on |u| (0 = only non-finite values)
     control_bound: float = 0.0
 

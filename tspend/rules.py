@@ -70,6 +70,7 @@ class RuleBase:
         for C, inp in zip(self.C, self.inputs):
             C[:] = inp.initial_control_points()
         self._leave_one_out = self._contraction_subscripts()
+        self._grid_basis: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def _contraction_subscripts(self) -> list[str]:
         """einsum subscripts contracting a rule tensor with every input's vector but one."""
@@ -119,6 +120,9 @@ class RuleBase:
 
     def curves(self, j: int, points: int = 101) -> tuple[np.ndarray, np.ndarray]:
         """Membership curves of input j on a grid: (grid (G,), curves (T_j, G))."""
-        grid = np.linspace(self.lo[j], self.hi[j], points)
-        N = basis_matrix(grid, self.knots[j], self.orders[j])
-        return grid, np.clip(self.C[j] @ N.T, 0.0, 1.0)
+        key = (j, points)
+        if key not in self._grid_basis:  # the basis on the grid never changes: once
+            grid = np.linspace(self.lo[j], self.hi[j], points)
+            self._grid_basis[key] = (grid, basis_matrix(grid, self.knots[j], self.orders[j]).T)
+        grid, NT = self._grid_basis[key]
+        return grid, np.clip(self.C[j] @ NT, 0.0, 1.0)

@@ -54,7 +54,8 @@ class BlockBuffer:
     def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...]) -> None:
         self.x = np.zeros((size, n))
         self.diag = np.zeros((size, diag_width))
-        self.extras = {name: np.zeros(size) for name in extras}
+        self.extra_names = extras
+        self.extra = np.zeros((size, len(extras)))
         self.layout = diag_layout(n)
 
     def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
@@ -62,8 +63,8 @@ class BlockBuffer:
         data = {"t": t[:k], "x": self.x[:k], "ref": ref[:k], "d": d[:k]}
         for key, where in L.items():
             data[key] = D[:, where]
-        for name, arr in self.extras.items():
-            data[f"extra/{name}"] = arr[:k]
+        for j, name in enumerate(self.extra_names):
+            data[f"extra/{name}"] = self.extra[:k, j]
         return data
 
 
@@ -80,7 +81,6 @@ class ClosedLoop:
         self.disturbance = disturbance
         self.s = settings
         self._done = 0
-        self._pending: tuple | None = None
         self.end: RunEnd | None = None
 
     def run(self, info: RunInfo, sinks: list[Sink]) -> RunEnd:
@@ -91,12 +91,10 @@ class ClosedLoop:
         try:
             done, status, message = self._loop(sinks)
         except (KeyboardInterrupt, RunInterrupted) as exc:
-            self.flush_pending(sinks)
             stop = exc if isinstance(exc, RunInterrupted) else RunInterrupted("SIGINT", 130)
             stop.end = self._finish(sinks, "interrupted", str(stop), self._done, started)
             raise stop from None
         except Exception as exc:  # a bug or a plant failure: keep what was recorded
-            self.flush_pending(sinks)
             self._finish(sinks, "failed", f"{type(exc).__name__}: {exc}", self._done, started)
             raise
         return self._finish(sinks, status, message, done, started)
@@ -119,72 +117,87 @@ class ClosedLoop:
         n, dt = ctrl.n, s.dt
         extras = tuple(plant.extras().keys())
         buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras)
-        self._done = 0
-        self._pending: tuple | None = None
-        u_index = buf.layout["u"]
+        X, D, E = buf.x, buf.diag, buf.extra
+        diag = ctrl.diag
+        # inner snapshots cost a numpy evaluation each: only for sinks that draw them
+        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)]
+        snap_every = s.snapshot_every if snap_sinks else 0
+        bounded = s.state_bound > 0.0 or s.control_bound > 0.0
+        isfinite = math.isfinite
         for start in range(0, s.steps, s.block_size):
             k = min(s.block_size, s.steps - start)
             t = (start + np.arange(k)) * dt
             ref = self.reference.derivatives(t, n)
             dist = self.disturbance(t)
-            self._pending = (start, buf, t, ref, dist, 0)
-            for i in range(k):
-                x = plant.state()
-                ctrl.step(x, ref[i], dt)
-                buf.x[i] = x
-                buf.diag[i] = ctrl.diag
-                if extras:
-                    for name, value in plant.extras().items():
-                        buf.extras[name][i] = value
-                problem = self._check(x, ctrl.diag, t[i])
-                if problem:
-                    kept = i + 1 if problem[1] else i
-                    self._emit(sinks, start, buf, t, ref, dist, kept)
-                    return start + kept, "diverged", problem[0]
-                try:
-                    plant.step(ctrl.diag[u_index], dist[i], dt)
-                except (ArithmeticError, ValueError, DivergenceError) as exc:
-                    # math.exp overflow, sin(inf), MuJoCo's own instability check
-                    self._emit(sinks, start, buf, t, ref, dist, i + 1)
-                    return (start + i + 1, "diverged",
-                            f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
-                self._pending = (start, buf, t, ref, dist, i + 1)
-                self._done = start + i + 1
-                if s.snapshot_every and (start + i) % s.snapshot_every == 0:
-                    snap = ctrl.snapshot(float(t[i]), start + i, x)
-                    for sink in sinks:
-                        sink.inner(snap)
-            self._pending = None
+            i = 0
+            try:
+                for i in range(k):
+                    x = plant.state()
+                    u = ctrl.step(x, ref[i], dt)
+                    X[i] = x
+                    D[i] = diag
+                    if extras:
+                        E[i] = tuple(plant.extras().values())
+                    # a non-finite state or parameter reaches u within the sample
+                    if not isfinite(u) or (bounded and self._out_of_bounds(x, u)):
+                        problem, kept = self._diagnose(x, diag, t[i])
+                        self._emit(sinks, start, buf, t, ref, dist, i + kept)
+                        self._done = start + i + kept
+                        return self._done, "diverged", problem
+                    try:
+                        plant.step(u, dist[i], dt)
+                    except (ArithmeticError, ValueError, DivergenceError) as exc:
+                        # math.exp overflow, sin(inf), MuJoCo's own instability check
+                        self._emit(sinks, start, buf, t, ref, dist, i + 1)
+                        self._done = start + i + 1
+                        return (self._done, "diverged",
+                                f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
+                    if snap_every and (start + i) % snap_every == 0:
+                        snap = ctrl.snapshot(float(t[i]), start + i, x)
+                        for sink in snap_sinks:
+                            sink.inner(snap)
+            except BaseException:
+                # interrupted or failed inside sample i: the samples before it are complete
+                self._emit(sinks, start, buf, t, ref, dist, i)
+                self._done = start + i
+                raise
+            bad = self._first_non_finite(D[:k])
+            if bad is not None:
+                self._emit(sinks, start, buf, t, ref, dist, bad)
+                self._done = start + bad
+                return (self._done, "diverged", f"diverged at t = {t[bad]:.4f} s: "
+                        f"a parameter or estimate is not finite")
             self._emit(sinks, start, buf, t, ref, dist, k)
+            self._done = start + k
         return s.steps, "completed", ""
 
-    def _check(self, x: np.ndarray, diag: np.ndarray, t: float) -> tuple[str, bool] | None:
-        """A divergence message, and whether the sample itself is finite (kept)."""
-        total = float(diag.sum()) + float(x.sum())
-        if not math.isfinite(total):
-            what = "the state" if not np.all(np.isfinite(x)) else (
-                "the control u" if not math.isfinite(diag[0]) else "a parameter or estimate")
-            return f"diverged at t = {t:.4f} s: {what} is not finite", False
+    @staticmethod
+    def _first_non_finite(D: np.ndarray) -> int | None:
+        ok = np.isfinite(D).all(axis=1)
+        return None if ok.all() else int(np.argmin(ok))
+
+    def _out_of_bounds(self, x: np.ndarray, u: float) -> bool:
+        return ((self.s.state_bound > 0.0 and float(np.abs(x).max()) > self.s.state_bound)
+                or (self.s.control_bound > 0.0 and abs(u) > self.s.control_bound))
+
+    def _diagnose(self, x: np.ndarray, diag: np.ndarray, t: float) -> tuple[str, int]:
+        """What went wrong at time t, and whether that sample is kept (1: finite) or not."""
+        if not np.all(np.isfinite(x)):
+            return f"diverged at t = {t:.4f} s: the state is not finite", 0
+        if not math.isfinite(diag[0]):
+            return f"diverged at t = {t:.4f} s: the control u is not finite", 0
         if self.s.state_bound > 0.0:
             worst = int(np.argmax(np.abs(x)))
             if abs(x[worst]) > self.s.state_bound:
-                return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} exceeds "
-                        f"state_bound {self.s.state_bound:g}", True)
-        if self.s.control_bound > 0.0 and abs(diag[0]) > self.s.control_bound:
-            return (f"diverged at t = {t:.4f} s: |u| = {abs(diag[0]):.4g} exceeds "
-                    f"control_bound {self.s.control_bound:g}", True)
-        return None
+                return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} "
+                        f"exceeds state_bound {self.s.state_bound:g}", 1)
+        return (f"diverged at t = {t:.4f} s: |u| = {abs(diag[0]):.4g} exceeds "
+                f"control_bound {self.s.control_bound:g}", 1)
 
-    def _emit(self, sinks, start, buf, t, ref, dist, k) -> None:
+    def _emit(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+              ref: np.ndarray, dist: np.ndarray, k: int) -> None:
         if k <= 0:
             return
         block = Block(start=start, data=buf.view(k, t, ref, dist))
         for sink in sinks:
             sink.block(block)
-
-    def flush_pending(self, sinks: list[Sink]) -> None:
-        """Deliver the samples of the block in progress (after an interruption)."""
-        if self._pending is not None:
-            start, buf, t, ref, dist, k = self._pending
-            self._pending = None
-            self._emit(sinks, start, buf, t, ref, dist, k)
