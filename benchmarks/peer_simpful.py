@@ -18,12 +18,12 @@ Why it is a like-for-like comparison:
 * same defuzzification: simpful's Sugeno weighted average ``sum g y / sum g`` with
   crisp (zero-order) per-rule outputs ``P[i, k]``, tspend's normalised ``w @ P``.
 
-simpful rules have one consequent each, so the three components p1, p2, p3 take three
-copies of the rule base (225 rules); the p1-only figure (75 rules) is printed too.
-The reported simpful cost uses a pure-Python scalar B-spline membership (the cheapest
-faithful one); the figure with memberships that call ``tspend.bspline`` is printed too.
-Each figure is the median over blocks of the mean cost of one call, inputs cycling
-through the test points, Python call overhead included on every side.
+A simpful rule has one consequent, so p1, p2, p3 take three copies of the rule base
+(225 rules); p1 alone (75 rules) is timed too.  The headline simpful figure uses a
+scalar pure-Python B-spline membership (the cheapest faithful one); memberships calling
+``tspend.bspline`` and a zero-cost membership (simpful's own floor) are timed too.
+Figures: median over blocks of the mean cost of one call, inputs cycling through the
+test points, Python call overhead included on every side.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import io
 import statistics
 import sys
 import time
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +61,8 @@ class BSplineMF(sf.MF_object):
     """Term t of a tspend input, B = sum_l c_l N_l(x), in scalar Python (kernels._basis)."""
 
     def __init__(self, knots: np.ndarray, d: int, c: np.ndarray) -> None:
-        self.t, self.d, self.c, self.r = [float(k) for k in knots], d, [float(v) for v in c], len(c)
+        self.t, self.d, self.r = [float(k) for k in knots], d, len(c)
+        self.c = [float(v) for v in c]
 
     def _execute(self, x: float) -> float:
         t, d, r = self.t, self.d, self.r
@@ -92,11 +94,11 @@ class TspendMF(sf.MF_object):
 class ConstMF(sf.MF_object):
     """Timing floor only: a membership that costs nothing (the result is not p)."""
 
-    def __init__(self, knots: np.ndarray, d: int, c: np.ndarray) -> None:
-        self.v = 0.5
+    def __init__(self, *_) -> None:
+        pass
 
     def _execute(self, x: float) -> float:
-        return self.v
+        return 0.5
 
 
 def build_simpful(model, mf_class) -> sf.FuzzySystem:
@@ -166,7 +168,7 @@ def main() -> int:
     rules = model.rules
     names = [inp.name for inp in rules.inputs]
     print(f"T-S model: {' x '.join(str(t) for t in rules.shape)} = {rules.size} rules, "
-          f"P {model.P.shape}, simpful {_version()}")
+          f"P {model.P.shape}, simpful {version('simpful')}")
 
     rng = np.random.default_rng(1)
     zs = [rng.uniform(rules.lo, rules.hi) for _ in range(48)] + [rules.lo.copy(), rules.hi.copy()]
@@ -174,13 +176,13 @@ def main() -> int:
     fs_np = build_simpful(model, TspendMF)
 
     # -- correctness -------------------------------------------------------------------
-    mf_err = max(abs(fs._lvs[inp.name]._FSlist[t].get_value(z[j]) - model.rules.evaluate(z).mu[j][t])
+    mf_err = max(abs(fs._lvs[inp.name]._FSlist[t].get_value(z[j]) - rules.evaluate(z).mu[j][t])
                  for z in zs for j, inp in enumerate(rules.inputs) for t in range(inp.terms))
     p_ts = np.array([model.evaluate(z)[1] for z in zs])
     p_sf = np.array([simpful_p(fs, names, z) for z in zs])
     p_sf_np = np.array([simpful_p(fs_np, names, z) for z in zs[:10]])
     # tspend's guarded weights (g + eps/h)/(varpi + eps) move p by eps (mean(P) - p)/(varpi + eps)
-    varpi = np.array([model.rules.evaluate(z).varpi - VARPI_EPS for z in zs])
+    varpi = np.array([rules.evaluate(z).varpi - VARPI_EPS for z in zs])
     guard = VARPI_EPS * (model.P.mean(axis=0) - p_sf) / (varpi + VARPI_EPS)[:, None]
     print(f"max |mu simpful - mu tspend| over {len(zs)} inputs, all sets: {mf_err:.2e}")
     print(f"max |p simpful - p tspend numpy| : {np.abs(p_sf - p_ts).max():.2e}"
@@ -205,10 +207,10 @@ def main() -> int:
     us = 1e6
     print("\nper evaluation of p at one input (median over blocks):")
     print(f"simpful 75-rule inference (p1..p3, 225 rules): {t_sf * us:10.1f} us/eval")
-    print(f"simpful p1 only (75 rules):                    {t_sf1 * us:10.1f} us/eval")
-    print(f"simpful p1..p3, MFs via tspend.bspline:        {t_sfn * us:10.1f} us/eval")
-    print(f"simpful p1..p3, MFs returning a constant:      {t_sfc * us:10.1f} us/eval"
-          "  (simpful's own floor: rules, AND via eval, averaging)")
+    for label, t in (("simpful p1 only (75 rules)", t_sf1),
+                     ("simpful p1..p3, MFs via tspend.bspline", t_sfn),
+                     ("simpful p1..p3, zero-cost MFs (floor)", t_sfc)):
+        print(f"  ({label + '):':<43} {t * us:10.1f} us/eval")
     print(f"tspend numpy (TSModel.evaluate):               {t_np * us:10.1f} us/eval"
           f"  (simpful is {t_sf / t_np:.1f}x slower)")
     if HAVE_NUMBA:
@@ -220,11 +222,6 @@ def main() -> int:
     if not ok:
         print("WARNING: simpful and tspend disagree beyond 1e-9")
     return 0
-
-
-def _version() -> str:
-    from importlib.metadata import version
-    return version("simpful")
 
 
 if __name__ == "__main__":

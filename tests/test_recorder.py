@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -267,21 +266,31 @@ def test_diverged_run_is_readable_without_close(tmp_path: Path) -> None:
 
 
 def test_generic_plant_has_no_3d_and_side_by_side_prefixes(tmp_path: Path) -> None:
+    """Two runs in one recording, wired like the CLI's cross-check."""
     info = make_info(order=3, plant_kind="third_order", steps=2000)
     data = make_run(3, 2000)
     path = tmp_path / "two.rrd"
-    rec = rr.RecordingStream("tspend_test", recording_id=uuid.uuid4())
-    rec.save(path)
-    for variant, prefix in enumerate(("mujoco/", "ode/")):
-        sink = RerunSink(rec, prefix=prefix, send_blueprint=False, variant=variant)
+    prefixes = ("mujoco/", "ode/")
+    rec = open_recording("tspend_test", path=path)
+    assert rec is not None
+    sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None)
+             for i, p in enumerate(prefixes)]
+    assert [s.variant for s in sinks] == [0, 1]
+    for sink in sinks:
         drive(sink, info, data, completed(2000))
-    rec.send_blueprint(build_blueprint(info, ["mujoco/", "ode/"]))
     close_recording(rec)
     paths = entity_paths(path)
     assert {"/mujoco/series/tracking", "/ode/series/tracking", "/ode/fuzzy/firing"} <= paths
     assert not any("/world" in p for p in paths)
     _, e = read_scalar_series(path, "ode/series/error")
     assert e.shape == (2000, 4) and np.array_equal(e[:, :3], data["e"])
+    reader = RrdReader(path)
+    assert len(reader.blueprints()) == 1
+    queries = [q for c in reader.stream(store=reader.blueprints()[0]).to_chunks()
+               if "ViewContents:query" in c.to_record_batch().schema.names
+               for q in c.to_record_batch().column("ViewContents:query").to_pylist()[0]]
+    assert ["/mujoco/series/error", "/ode/series/error"] in [queries[i:i + 2] for i in range(len(queries))]
+    assert build_blueprint(info, prefixes) is not None
 
 
 def test_curves_every_decimates(tmp_path: Path) -> None:
@@ -314,13 +323,14 @@ def test_cartpole_detection_and_mjcf_geometry(tmp_path: Path) -> None:
     assert not is_cartpole(make_info(order=3, plant_kind="third_order"))
     assert cartpole_geometry({"l": 2.0}).l == 2.0
     mjcf = tmp_path / "cp.xml"
-    mjcf.write_text(
-        '<mujoco><worldbody><geom type="plane" size="5 5 .1"/>'
+    mjcf.write_text(  # a rail box and a pivot cylinder come first: they must not be taken for cart and pole
+        '<mujoco><asset><material name="pole" rgba="0 1 0 1"/></asset><worldbody><geom type="plane" size="5 5 .1"/>'
+        '<geom name="rail" type="box" size="30 .04 .04"/>'
         '<body name="cart"><joint type="slide" axis="1 0 0"/><geom type="box" size=".4 .25 .15" rgba="1 0 0 1"/>'
-        '<body name="pole"><joint type="hinge" axis="0 1 0"/>'
-        '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" rgba="0 1 0 1"/></body></body></worldbody></mujoco>')
+        '<body name="pole"><joint type="hinge" axis="0 1 0"/><geom type="cylinder" size=".09 .2"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" material="pole"/></body></body></worldbody></mujoco>')
     geom = cartpole_geometry({"mjcf": str(mjcf), "l": 0.5})
-    assert geom.cart_half_sizes == pytest.approx((0.4, 0.25, 0.15))
+    assert geom.cart_half_sizes == pytest.approx((0.4, 0.25, 0.15)) and geom.cart_color == (255, 0, 0)
     assert geom.pole_radius == pytest.approx(0.03) and geom.pole_color == (0, 255, 0) and geom.l == 0.5
     assert cartpole_geometry({"mjcf": str(tmp_path / "missing.xml")}).pole_radius > 0  # falls back
 
@@ -338,3 +348,16 @@ def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert open_recording("tspend_test", "spawn", None) is None  # no display here
     err = capsys.readouterr().err
     assert err.count("warning") == 3 and len(err.strip().splitlines()) == 3
+    # the CLI's form: a file plus a viewer that is not there -> the file alone, one warning
+    tee = open_recording("tspend_test", path=tmp_path / "tee.rrd", spawn=True,
+                         connect="rerun+http://127.0.0.1:9/proxy")
+    assert tee is not None
+    close_recording(tee)
+    assert (tmp_path / "tee.rrd").exists()
+    assert capsys.readouterr().err.count("warning") == 2
+    assert open_recording("tspend_test", path=None) is None
+
+
+def test_sink_without_recording_records_nothing() -> None:
+    info = make_info(steps=1000)
+    drive(RerunSink(None), info, make_run(2, 1000), completed(1000))

@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import sys
 import time
@@ -167,7 +168,10 @@ def open_sinks(args: argparse.Namespace, name: str, prefixes: tuple[str, ...] = 
     path = None if args.no_record else Path(args.out or default_recording_path(name))
     if path is not None:
         check_writable(path, "recording")
-    rec = open_recording(f"tspend/{name}", path=path, spawn=args.spawn, connect=args.connect)
+    app_id = "tspend_" + re.sub(r"[^A-Za-z0-9_-]", "_", name)  # Rerun entry-name rules
+    rec = open_recording(app_id, path=path, spawn=args.spawn, connect=args.connect)
+    if rec is None:  # no viewer reachable and nothing to save: the run goes on headless
+        return None, None, []
     sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None)
              for i, p in enumerate(prefixes)]
     return rec, path, sinks
@@ -229,10 +233,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _close(rec) -> None:
+    from .recorder import close_recording
+
     try:
-        rec.flush()
-    except Exception:  # the recording is best effort at shutdown; the run's result stands
-        pass
+        close_recording(rec)
+    except Exception as exc:  # the run's result stands; say what happened to the file
+        print(f"tspend: warning: closing the recording failed: {exc}", file=sys.stderr)
 
 
 def cmd_crosscheck(args: argparse.Namespace) -> int:

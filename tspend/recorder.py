@@ -38,9 +38,10 @@ import sys
 import time
 import uuid
 import warnings
-from dataclasses import dataclass, field
+import weakref
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, NamedTuple, Sequence
+from typing import Callable, Iterable, Literal, NamedTuple, Sequence
 from urllib.parse import urlparse
 
 import numpy as np
@@ -224,24 +225,42 @@ def cartpole_geometry(plant_meta: dict) -> CartPoleGeometry:
 
 
 def _geometry_from_mjcf(path: str, base: CartPoleGeometry) -> CartPoleGeometry:
-    """First box geom -> cart, first capsule/cylinder geom -> pole radius and colours."""
+    """Cart = the box on the slider's body; pole = the longest capsule/cylinder on the hinge's body.
+
+    Colours as MuJoCo renders them (the material's when the geom keeps the default rgba).
+    """
     try:
         import mujoco
 
         model = mujoco.MjModel.from_xml_path(path)
     except Exception:  # noqa: BLE001 - drawing must never stop a run
         return base
-    cart_half, cart_color = base.cart_half_sizes, base.cart_color
-    radius, pole_color = base.pole_radius, base.pole_color
-    found_box = found_pole = False
-    for g in range(model.ngeom):
-        gtype, size, rgba = int(model.geom_type[g]), model.geom_size[g], model.geom_rgba[g]
-        color = tuple(int(round(255 * c)) for c in rgba[:3])
-        if gtype == mujoco.mjtGeom.mjGEOM_BOX and not found_box:
-            cart_half, cart_color, found_box = (float(size[0]), float(size[1]), float(size[2])), color, True
-        elif gtype in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER) and not found_pole:
-            radius, pole_color, found_pole = float(size[0]), color, True
-    return CartPoleGeometry(base.l, cart_half, cart_color, radius, pole_color)  # type: ignore[arg-type]
+
+    def body_of(joint_type: int) -> int | None:
+        found = [int(model.jnt_bodyid[j]) for j in range(model.njnt) if int(model.jnt_type[j]) == joint_type]
+        return found[0] if found else None
+
+    def color(g: int) -> Color:
+        rgba = model.geom_rgba[g]
+        if int(model.geom_matid[g]) >= 0 and np.allclose(rgba, (0.5, 0.5, 0.5, 1.0)):
+            rgba = model.mat_rgba[int(model.geom_matid[g])]
+        return tuple(int(round(255 * c)) for c in rgba[:3])  # type: ignore[return-value]
+
+    cart_body, pole_body = body_of(mujoco.mjtJoint.mjJNT_SLIDE), body_of(mujoco.mjtJoint.mjJNT_HINGE)
+    geoms = range(model.ngeom)
+    boxes = [g for g in geoms if int(model.geom_bodyid[g]) == cart_body
+             and int(model.geom_type[g]) == mujoco.mjtGeom.mjGEOM_BOX]
+    rods = [g for g in geoms if int(model.geom_bodyid[g]) == pole_body
+            and int(model.geom_type[g]) in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER)]
+    geom = base
+    if boxes:
+        size = model.geom_size[boxes[0]]
+        geom = replace(geom, cart_half_sizes=(float(size[0]), float(size[1]), float(size[2])),
+                       cart_color=color(boxes[0]))
+    if rods:
+        rod = max(rods, key=lambda g: float(model.geom_size[g][1]))
+        geom = replace(geom, pole_radius=float(model.geom_size[rod][0]), pole_color=color(rod))
+    return geom
 
 
 # --------------------------------------------------------------------------- column builders
@@ -671,6 +690,18 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
 # --------------------------------------------------------------------------- the sink
 
 
+_SINKS_PER_RECORDING: weakref.WeakKeyDictionary[rr.RecordingStream, int] = weakref.WeakKeyDictionary()
+
+
+def _next_variant(rec: rr.RecordingStream | None) -> int:
+    """0 for the first sink made on ``rec``, 1 for the second, ...: overlaid runs differ in shade."""
+    if rec is None:
+        return 0
+    count = _SINKS_PER_RECORDING.get(rec, 0)
+    _SINKS_PER_RECORDING[rec] = count + 1
+    return count
+
+
 def _lighten(color: Color, amount: float) -> Color:
     return tuple(int(round(c + (255 - c) * amount)) for c in color)  # type: ignore[return-value]
 
@@ -683,10 +714,11 @@ class RerunSink:
     ``variant`` 1 lightens the colours, so overlaid runs stay distinguishable.
     ``curves_every`` decimates the per-step series (1 = every step, exact);
     ``frame_hz`` is the rate of 3D frames; ``decimated_rows`` and ``max_latency_s``
-    bound how long 3D frames and snapshots wait before they are sent.  With
-    ``send_blueprint`` the sink sends :func:`build_blueprint` for its own run at
-    :meth:`start` (turn it off when several sinks share a recording and send
-    ``build_blueprint(info, prefixes)`` yourself).
+    bound how long 3D frames and snapshots wait before they are sent.  At :meth:`start`
+    the sink sends :func:`build_blueprint` for ``blueprint_prefixes``: ``"own"`` (its own
+    prefix), a list (e.g. all runs of a shared recording, from one of its sinks), or
+    ``None`` (no blueprint).  ``variant`` defaults to 0, 1, ... in the order sinks are
+    made on one recording.  With ``rec=None`` the sink records nothing.
 
     Memory stays flat: each block's series are sent as the block comes; the decimated
     data (3D frames, inner snapshots) wait in small reused buffers until ``decimated_rows``
@@ -695,21 +727,24 @@ class RerunSink:
     of a reused buffer), since Rerun encodes it later on its own thread.
     """
 
-    def __init__(self, rec: rr.RecordingStream, *, prefix: str = "", label: str | None = None,
-                 curves_every: int = 1, frame_hz: float = FRAME_HZ, send_blueprint: bool = True,
-                 variant: int = 0, decimated_rows: int = DECIMATED_ROWS,
+    def __init__(self, rec: rr.RecordingStream | None, *, prefix: str = "", label: str | None = None,
+                 curves_every: int = 1, frame_hz: float = FRAME_HZ,
+                 blueprint_prefixes: Sequence[str] | Literal["own"] | None = "own",
+                 variant: int | None = None, decimated_rows: int = DECIMATED_ROWS,
                  max_latency_s: float = MAX_LATENCY_S) -> None:
         if curves_every < 1:
             raise ValueError("curves_every must be >= 1")
-        self.decimated_rows = max(1, int(decimated_rows))
-        self.max_latency_s = float(max_latency_s)
         self.rec = rec
         self.prefix = prefix.strip("/")
         self.label = prefix_label(prefix) if label is None else label
         self.curves_every = int(curves_every)
         self.frame_hz = float(frame_hz)
-        self.send_blueprint = send_blueprint
-        self.variant = int(variant)
+        self.blueprint_prefixes: list[str] | None = (
+            [self.prefix] if blueprint_prefixes == "own" else None if blueprint_prefixes is None
+            else list(blueprint_prefixes))
+        self.variant = _next_variant(rec) if variant is None else int(variant)
+        self.decimated_rows = max(1, int(decimated_rows))
+        self.max_latency_s = float(max_latency_s)
         self.info: RunInfo | None = None
         self._specs: list[SeriesSpec] = []
         self._frame_every = 1
@@ -727,7 +762,7 @@ class RerunSink:
         return join_path(self.prefix, path)
 
     def _color(self, color: Color) -> Color:
-        return _lighten(color, 0.45) if self.variant else color
+        return _lighten(color, min(0.7, 0.45 * self.variant)) if self.variant else color
 
     def _series_name(self, name: str) -> str:
         return f"{name} [{self.label}]" if self.label else name
@@ -737,6 +772,8 @@ class RerunSink:
     def start(self, info: RunInfo) -> None:
         """Static documents, series styles, static geometry and the blueprint."""
         self.info = info
+        if self.rec is None:
+            return
         self._snaps = _SnapshotBuffer()
         self._sent_curves = {}
         self._frames, self._frame_rows = [], 0
@@ -755,13 +792,15 @@ class RerunSink:
         statics.send(self.rec)
         if self._geometry is not None:
             self._send_poses([0.0], np.zeros(1), np.zeros(1))  # drawn before the first block arrives
-        if self.send_blueprint:
-            self.rec.send_blueprint(build_blueprint(info, [self.prefix]))
+        if self.blueprint_prefixes is not None:
+            self.rec.send_blueprint(build_blueprint(info, self.blueprint_prefixes))
         if not self.prefix:
             self.rec.send_recording_name(info.scenario_name)
 
     def block(self, block: Block) -> None:
         """Send the block's series; buffer its 3D frames; send decimated data when due."""
+        if self.rec is None or self.info is None:
+            return
         data = block.data
         t = np.asarray(data["t"], dtype=np.float64)
         if t.size:
@@ -774,11 +813,15 @@ class RerunSink:
 
     def inner(self, snap: InnerSnapshot) -> None:
         """Buffer a snapshot (copied: the runner may reuse its arrays)."""
+        if self.rec is None:
+            return
         self._snaps.append(snap)
         self._last_t = max(self._last_t, float(snap.t))
 
     def finish(self, end: RunEnd) -> None:
         """Send what is pending, the status and metrics documents, and flush to the sink."""
+        if self.rec is None:
+            return
         self._flush_decimated()
         md = rr.MediaType.MARKDOWN
         statics = _StaticBatch()
@@ -796,7 +839,8 @@ class RerunSink:
 
         Call once, after every sink sharing the recording has finished.
         """
-        close_recording(self.rec)
+        if self.rec is not None:
+            close_recording(self.rec)
 
     # -- block parts
 
@@ -963,73 +1007,90 @@ def _grpc_endpoint(url: str | None) -> tuple[str, int]:
     return parsed.hostname or "127.0.0.1", parsed.port or default
 
 
-def _fallback(rec: rr.RecordingStream, path: str | os.PathLike[str] | None, why: str,
-              write_footer: bool = True) -> rr.RecordingStream | None:
-    """After a viewer failure: save to ``path`` if given, else record nothing."""
-    if path is not None:
-        _warn(f"{why}; saving the recording to {path} instead")
-        _save(rec, path, write_footer)
-        return rec
-    _warn(f"{why}; recording nothing")
-    return None
+PathLike = str | os.PathLike[str]
 
 
-def _save(rec: rr.RecordingStream, path: str | os.PathLike[str], write_footer: bool = True) -> None:
+def _file_sink(path: PathLike, write_footer: bool) -> rr.FileSink:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    rec.save(path, write_footer=write_footer)
+    return rr.FileSink(str(path), write_footer=write_footer)
 
 
-def open_recording(app_id: str, mode: str, path: str | os.PathLike[str] | None = None,
-                   url: str | None = None, *, recording_id: str | None = None,
+def _viewer_sink(rec: rr.RecordingStream, kind: str, url: str | None, port: int) -> tuple[rr.GrpcSink | None, str]:
+    """A gRPC sink to a viewer (``kind`` "spawn": start one; "connect": reach ``url``), or why not."""
+    if kind == "connect":
+        host, grpc_port = _grpc_endpoint(url)
+        if not _port_open(host, grpc_port):
+            return None, f"no Rerun viewer at {url or f'{host}:{grpc_port}'}"
+        return rr.GrpcSink(url), ""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        # the viewer would start, fail to open a window, and leave us waiting ~10 s
+        return None, "no display for the Rerun viewer"
+    exe = _viewer_executable()
+    if exe is None:
+        return None, "Rerun viewer executable not found"
+    try:
+        rr.spawn(port=port, connect=False, executable_path=exe, recording=rec)
+    except Exception as exc:  # noqa: BLE001 - any failure means: no viewer
+        return None, f"cannot start the Rerun viewer ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+    if not _port_open("127.0.0.1", port, timeout=2.0):
+        return None, f"the Rerun viewer did not come up on port {port}"
+    return rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"), ""
+
+
+def open_recording(app_id: str, mode: str | None = None, path: PathLike | None = None, url: str | None = None, *,
+                   spawn: bool = False, connect: str | bool | None = None, recording_id: str | None = None,
                    port: int = DEFAULT_VIEWER_PORT, write_footer: bool = True) -> rr.RecordingStream | None:
-    """A new recording stream (never the global one) with its sink attached.
+    """A new recording stream (never the global one) with its sinks attached, or ``None``.
 
-    ``mode``: ``"save"`` streams to the ``.rrd`` at ``path`` as data comes;
-    ``"spawn"`` starts a viewer on ``port``; ``"connect"`` connects to ``url``
-    (default ``rerun+http://127.0.0.1:9876/proxy``); ``"none"`` returns ``None`` (record
-    nothing: don't add a sink).  When no viewer can be reached, a one-line warning goes
-    to stderr and the recording is saved to ``path`` if given, else ``None`` is returned.
+    With ``mode``: ``"save"`` streams to the ``.rrd`` at ``path`` as data comes;
+    ``"spawn"`` starts a viewer on ``port``; ``"connect"`` connects to ``url`` (default
+    ``rerun+http://127.0.0.1:9876/proxy``); ``"none"`` returns ``None`` (record nothing:
+    don't add a sink).  When the viewer cannot be reached, a one-line warning goes to
+    stderr and the recording is saved to ``path`` if given, else ``None`` is returned.
+
+    Without ``mode`` (the CLI's form): save to ``path`` if given and *also* stream to a
+    spawned viewer (``spawn``) and/or the viewer at ``connect`` (a URL, or True for the
+    default one); viewers that cannot be reached are dropped with a one-line warning.
 
     ``write_footer``: the ``.rrd`` footer (a chunk index, needed by
     ``RrdReader.store()``; ``stream()`` works without it) is kept in memory until the
-    file is closed, ~3 kB per chunk, i.e. ~40 kB per 1000-step block here.  Pass
+    file is closed, ~3 kB per chunk, i.e. ~20-40 kB per 1000-step block here.  Pass
     ``False`` for very long runs to keep memory strictly flat.
     """
     if mode == "none":
         return None
+    if mode not in (None, "save", "spawn", "connect"):
+        raise ValueError(f"unknown recording mode {mode!r} (save, spawn, connect, none)")
+    if mode == "save" and path is None:
+        raise ValueError("mode 'save' needs a path")
     rec = rr.RecordingStream(app_id, recording_id=recording_id or uuid.uuid4())
-    if mode == "save":
-        if path is None:
-            raise ValueError("mode 'save' needs a path")
-        _save(rec, path, write_footer)
-        return rec
-    if mode == "spawn":
-        return _spawn(rec, path, port, write_footer)
-    if mode == "connect":
-        host, grpc_port = _grpc_endpoint(url)
-        if not _port_open(host, grpc_port):
-            return _fallback(rec, path, f"no Rerun viewer at {url or f'{host}:{grpc_port}'}", write_footer)
-        rec.connect_grpc(url)
-        return rec
-    raise ValueError(f"unknown recording mode {mode!r} (save, spawn, connect, none)")
-
-
-def _spawn(rec: rr.RecordingStream, path: str | os.PathLike[str] | None, port: int,
-           write_footer: bool) -> rr.RecordingStream | None:
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        # the viewer would start, fail to open a window, and leave us waiting ~10 s
-        return _fallback(rec, path, "no display for the Rerun viewer", write_footer)
-    exe = _viewer_executable()
-    if exe is None:
-        return _fallback(rec, path, "Rerun viewer executable not found", write_footer)
-    try:
-        rr.spawn(port=port, connect=False, executable_path=exe, recording=rec)
-    except Exception as exc:  # noqa: BLE001 - any failure means: no viewer
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        return _fallback(rec, path, f"cannot start the Rerun viewer ({first})", write_footer)
-    if not _port_open("127.0.0.1", port, timeout=2.0):
-        return _fallback(rec, path, f"the Rerun viewer did not come up on port {port}", write_footer)
-    rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy")
+    viewers: list[rr.GrpcSink] = []
+    if mode in ("spawn", "connect"):
+        viewer, why = _viewer_sink(rec, mode, url, port)
+        if viewer is not None:
+            path = None  # the file is only the fallback of these modes
+            viewers.append(viewer)
+        elif path is not None:
+            _warn(f"{why}; saving the recording to {path} instead")
+        else:
+            _warn(f"{why}; recording nothing")
+            return None
+    elif mode is None:
+        wanted = ([("spawn", None)] if spawn else []) + \
+                 ([("connect", None if connect is True else str(connect))] if connect else [])
+        for kind, viewer_url in wanted:
+            viewer, why = _viewer_sink(rec, kind, viewer_url, port)
+            if viewer is not None:
+                viewers.append(viewer)
+            else:
+                _warn(f"{why}; " + (f"recording to {path} only" if path is not None else "not streaming to it"))
+    if viewers:
+        rec.set_sinks(*viewers, *([_file_sink(path, write_footer)] if path is not None else []))
+    elif path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        rec.save(path, write_footer=write_footer)  # streams to disk as data comes
+    else:
+        return None
     return rec
 
 

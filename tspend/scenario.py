@@ -37,6 +37,9 @@ DISTURBANCE_KINDS: dict[str, type] = {
     "square": signals.SquareWave, "zero": signals.NoDisturbance, "sine": signals.SineDisturbance,
 }
 
+#: longest run accepted, in samples (10^9 samples is days of wall time)
+MAX_STEPS = 1e9
+
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller")
 SET_KEYS = ("terms", "lo", "hi")
 SETS_KEYS = ("states", "u", "e_delta", "x_norm")
@@ -361,6 +364,9 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ctrl = _controller(top.table_of("controller", required=True), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
+    if run.duration / run.dt > MAX_STEPS:
+        raise top.error("run.dt", f"duration / dt = {run.duration / run.dt:.3g} samples is more "
+                                  f"than {MAX_STEPS:.0e}; use a larger dt or a shorter duration")
     return Scenario(
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
