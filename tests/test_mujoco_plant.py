@@ -17,7 +17,15 @@ import numpy as np
 import pytest
 
 from tspend.crosscheck_openloop import (OpenLoopComparison, ReferenceCartPole, chirp_force,
-                                        open_loop_compare, square_disturbance)
+                                        open_loop_compare)
+from tspend.signals import SquareWave
+
+_SQUARE = SquareWave(amplitude=0.05)
+
+
+def square_disturbance(t: float) -> float:
+    """The paper's +/-0.05 square wave of period 2 pi, at one time."""
+    return float(_SQUARE(np.array([t]))[0])
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import CartPoleParams, cartpole_ode_plant
 from tspend.plants.base import Plant

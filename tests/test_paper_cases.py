@@ -98,6 +98,8 @@ def test_cli_run_writes_metrics_json(tmp_path, capsys):
                 "max_abs_u", "tv_u_per_s", "wall_s", "sim_s", "steps", "seed"):
         assert key in m
     assert m["seed"] == 3 and m["steps"] == 1000 and math.isfinite(m["rmse"])
+    assert m["scenario_text"].startswith("description = ") and m["overrides"] == {
+        "run.duration": 1.0, "run.seed": 3}
     assert "rmse_ss" in capsys.readouterr().out
 
 

@@ -100,3 +100,12 @@ def test_unwritable_output_reported_before_run(tmp_path, capsys):
 def test_debug_shows_traceback(capsys):
     assert main(["run", "nope_not_here", "--no-record", "--debug"]) == 2
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_unwritable_recording_reported_before_run(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    status = main(["run", "ex2_duffing", "--duration", "0.01", "--out", str(blocker / "r.rrd")])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "recording" in err and "cannot create directory" in err

@@ -154,6 +154,13 @@ def print_metrics(metrics: dict, stream=None) -> None:
             print(f"  {k:<{width}}  {_fmt(metrics[k])}", file=stream)
 
 
+def metrics_document(scn, end) -> dict:
+    """The metrics JSON: the figures, how the run ended, and what produced it."""
+    return dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
+                version=__version__, scenario_path=scn.path,
+                overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+
+
 def write_json(path: Path, obj: dict) -> None:
     path.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
 
@@ -209,8 +216,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except RunInterrupted as exc:
         status = exc.exit_status
         if metrics_path is not None and exc.end is not None:
-            write_json(metrics_path, dict(exc.end.metrics, scenario=scn.name,
-                                          status=exc.end.status, message=exc.end.message))
+            write_json(metrics_path, metrics_document(scn, exc.end))
         print(f"tspend: interrupted ({'SIGTERM' if status == 143 else 'SIGINT'}); "
               f"recording{' ' + str(rrd) if rrd else ''} and metrics kept up to the stop",
               file=sys.stderr)
@@ -219,9 +225,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if rec is not None:
             _close(rec)
     end = result.end
-    metrics = dict(end.metrics, scenario=scn.name, status=end.status, message=end.message)
     if metrics_path is not None:
-        write_json(metrics_path, metrics)
+        write_json(metrics_path, metrics_document(scn, end))
     print(f"{end.status}: {end.steps_done} steps" + (f" ({end.message})" if end.message else ""))
     print_metrics(end.metrics)
     if rrd:

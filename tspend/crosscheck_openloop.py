@@ -31,12 +31,6 @@ def chirp_force(t: float, amplitude: float, f0: float, f1: float, duration: floa
     return amplitude * math.sin(2.0 * math.pi * (f0 * t + 0.5 * (f1 - f0) * t * t / duration))
 
 
-def square_disturbance(t: float, amplitude: float = 0.05, period: float = 2.0 * math.pi) -> float:
-    """``amplitude * sign(sin(2 pi t / period))``: the square-wave d_d of the paper's runs."""
-    s = math.sin(2.0 * math.pi * t / period)
-    return amplitude * (1.0 if s > 0.0 else -1.0 if s < 0.0 else 0.0)
-
-
 class ReferenceCartPole:
     """The cart-pole ODE integrated by ``solve_ivp`` over each held sample: the oracle.
 

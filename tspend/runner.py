@@ -89,7 +89,9 @@ class ClosedLoop:
         started = time.perf_counter()
         done, status, message = 0, "completed", ""
         try:
-            done, status, message = self._loop(sinks)
+            # overflow on the way to a divergence is expected: it is detected and reported
+            with np.errstate(over="ignore", invalid="ignore"):
+                done, status, message = self._loop(sinks)
         except (KeyboardInterrupt, RunInterrupted) as exc:
             stop = exc if isinstance(exc, RunInterrupted) else RunInterrupted("SIGINT", 130)
             stop.end = self._finish(sinks, "interrupted", str(stop), self._done, started)

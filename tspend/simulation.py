@@ -70,6 +70,14 @@ def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
     return ctrl
 
 
+def scenario_text(scenario: Scenario) -> str:
+    """The file's text, with the overrides applied on top written after it as comments."""
+    if not scenario.overrides:
+        return scenario.text
+    lines = "\n".join(f"#   {k} = {v!r}" for k, v in scenario.overrides)
+    return f"{scenario.text.rstrip()}\n\n# overrides applied on top of this file:\n{lines}\n"
+
+
 def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None) -> RunInfo:
     kind = kind or scenario.plant.kind
     meta: dict = {}
@@ -79,7 +87,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         if kind == "cartpole_mujoco":
             meta["mjcf"] = str(resolve_model_path(scenario))
     return RunInfo(
-        scenario_name=scenario.name, scenario_text=scenario.text, scenario_path=scenario.path,
+        scenario_name=scenario.name, scenario_text=scenario_text(scenario),
+        scenario_path=scenario.path,
         seed=scenario.run.seed, version=__version__, plant_kind=kind,
         order=plant.order, dt=scenario.run.dt, duration=steps * scenario.run.dt, steps=steps,
         model_inputs=input_info(model_inputs(scenario.controller)),
