@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 
 from tspend import load_scenario, override, run
 from tspend.cli import main
@@ -30,6 +31,14 @@ def test_recording_equals_run_arrays_sample_for_sample(tmp_path):
     t, theta = _pole_angle(tmp_path / "r.rrd")
     np.testing.assert_array_equal(theta, result.history["x"][:, 0])
     np.testing.assert_allclose(t, result.history["t"], atol=1e-9)
+    # the controller's inner state arrives at the snapshot rate (every 0.1 s of 2 s)
+    rows = {}
+    for chunk in RrdReader(tmp_path / "r.rrd").stream():
+        if "sim_time" in chunk.timeline_names and chunk.entity_path.startswith("/fuzzy/"):
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.to_record_batch().num_rows
+    for entity in ("/fuzzy/firing", "/fuzzy/consequents", "/fuzzy/compensator_firing",
+                   "/fuzzy/model/in0", "/fuzzy/compensator/in1"):
+        assert rows.get(entity) == 20, (entity, rows)
 
 
 def test_divergence_exit_3_with_recording_and_metrics(tmp_path, capsys):

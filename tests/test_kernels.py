@@ -185,3 +185,27 @@ def test_configuration_is_packed_once() -> None:
     b3 = make_controller(CONFIGS["n3_first_state"], "numba")
     assert b2._fc.size != b3._fc.size
     assert b3._tidx.shape == (b3.model.rules.size + b3.compensator.rules.size, 4)
+
+
+def test_last_firing_matches_numpy_reference():
+    """Snapshots read the compiled workspace: same memberships and firing as numpy's."""
+    from tspend.config import ControllerConfig
+    from tspend.kernels import make_controller
+
+    cfg = ControllerConfig()
+    a, b = make_controller(cfg, "numpy"), make_controller(cfg, "numba")
+    a.initialise(np.random.default_rng(5))
+    b.initialise(np.random.default_rng(5))
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        x, ref = rng.normal(0, 0.2, 2), rng.normal(0, 0.2, 3)
+        a.step(x, ref, 1e-3)
+        b.step(x, ref, 1e-3)
+        for fa, fb in zip(a.last_firing(x), b.last_firing(x)):
+            np.testing.assert_allclose(fa.z, fb.z, atol=1e-12)
+            np.testing.assert_allclose(fa.w, fb.w, atol=1e-12)
+            for ma, mb in zip(fa.mu, fb.mu):
+                np.testing.assert_allclose(ma, mb, atol=1e-12)
+        sa, sb = a.snapshot(0.0, 0, x), b.snapshot(0.0, 0, x)
+        np.testing.assert_allclose(sa.firing, sb.firing, atol=1e-12)
+        np.testing.assert_allclose(sa.model_sets[2][1], sb.model_sets[2][1], atol=1e-10)

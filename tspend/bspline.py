@@ -56,34 +56,53 @@ def greville_abscissae(knots: np.ndarray, d: int) -> np.ndarray:
     return window.mean(axis=1)[:r]
 
 
-def basis_matrix(z: np.ndarray, knots: np.ndarray, d: int) -> np.ndarray:
-    """All basis functions ``N_{i,d}(z)`` (3)-(4) at the points ``z``: shape (len(z), r).
+class BasisEvaluator:
+    """All basis functions ``N_{i,d}`` (3)-(4) of one knot vector, at any points.
 
-    Vectorised over points and basis functions; the only loop is over the order.
-    ``z`` is clamped to the knot range, and the right end goes to the last non-empty
-    span.  Terms with a zero-length support (0/0) are zero.
+    The denominators of (4) depend on the knots only, so they are computed once; each
+    call is then a few vectorised operations per order (no loop over basis functions).
+    Terms with a zero-length support (0/0) are zero.  ``z`` is clamped to the knot
+    range, and the right end goes to the last non-empty span.
     """
-    z = np.atleast_1d(np.asarray(z, dtype=float))
-    t = knots
-    r = len(t) - d
-    lo, hi = t[0], t[-1]
-    z = np.clip(z, lo, hi)[:, None]
-    # order 1 (3): half-open spans, with z == hi assigned to the last non-empty span
-    n_spans = len(t) - 1
-    N = ((t[:n_spans] <= z) & (z < t[1:])).astype(float)
-    at_hi = z[:, 0] >= hi
-    if np.any(at_hi):
-        N[at_hi] = 0.0
-        N[at_hi, r - 1] = 1.0
-    for k in range(2, d + 1):
-        m = n_spans - k + 1                      # number of order-k functions
-        left_den = t[k - 1: k - 1 + m] - t[:m]
-        right_den = t[k: k + m] - t[1: 1 + m]
-        left = np.divide(z - t[:m], left_den, out=np.zeros((z.shape[0], m)), where=left_den > 0)
-        right = np.divide(t[k: k + m] - z, right_den, out=np.zeros((z.shape[0], m)),
-                          where=right_den > 0)
-        N = left * N[:, :m] + right * N[:, 1: m + 1]
-    return N
+
+    def __init__(self, knots: np.ndarray, d: int) -> None:
+        self.t = t = np.asarray(knots, dtype=float)
+        self.d = d
+        self.r = len(t) - d
+        self.lo, self.hi = t[0], t[-1]
+        self.n_spans = len(t) - 1
+        self.levels = []
+        for k in range(2, d + 1):
+            m = self.n_spans - k + 1                     # number of order-k functions
+            left_den = t[k - 1: k - 1 + m] - t[:m]
+            right_den = t[k: k + m] - t[1: 1 + m]
+            self.levels.append((m, t[:m], t[k: k + m],
+                                np.where(left_den > 0, left_den, 1.0), left_den > 0,
+                                np.where(right_den > 0, right_den, 1.0), right_den > 0))
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        """Shape (len(z), r)."""
+        t = self.t
+        z = np.clip(np.atleast_1d(np.asarray(z, dtype=float)), self.lo, self.hi)[:, None]
+        # order 1 (3): half-open spans, with z == hi assigned to the last non-empty span
+        N = ((t[:-1] <= z) & (z < t[1:])).astype(float)
+        at_hi = z[:, 0] >= self.hi
+        if at_hi.any():
+            N[at_hi] = 0.0
+            N[at_hi, self.r - 1] = 1.0
+        for m, t_lo, t_hi, lden, lok, rden, rok in self.levels:
+            left = np.where(lok, (z - t_lo) / lden, 0.0)
+            right = np.where(rok, (t_hi - z) / rden, 0.0)
+            N = left * N[:, :m] + right * N[:, 1: m + 1]
+        return N
+
+
+def basis_matrix(z: np.ndarray, knots: np.ndarray, d: int) -> np.ndarray:
+    """All basis functions ``N_{i,d}(z)`` at the points ``z``: shape (len(z), r).
+
+    Convenience form of :class:`BasisEvaluator` for a one-off evaluation.
+    """
+    return BasisEvaluator(knots, d)(z)
 
 
 def clip_unit(b: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ which the runner copies into its block: no allocation of result objects per step
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .bspline import BSplineInput
@@ -59,6 +61,14 @@ def compensator_inputs(cfg: ControllerConfig) -> tuple[BSplineInput, BSplineInpu
 
 def input_info(inputs: tuple[BSplineInput, ...]) -> tuple[FuzzyInputInfo, ...]:
     return tuple(FuzzyInputInfo(i.name, i.lo, i.hi, i.term_names) for i in inputs)
+
+
+class FiringView(NamedTuple):
+    """One rule base's inputs (m,), memberships (per input, (T_j,)) and firing (h,)."""
+
+    z: np.ndarray
+    mu: list
+    w: np.ndarray
 
 
 class AdaptiveFuzzyController:
@@ -111,6 +121,7 @@ class AdaptiveFuzzyController:
         v = np.append(x_delta, u - u_o)
         self._record(u, u_s, d_hat, e_delta, e, p)
         self._adapt(fir, cfir, v, e_delta, dt)
+        self._last = (fir, cfir)
         self.u_prev = u
         return u
 
@@ -147,26 +158,31 @@ class AdaptiveFuzzyController:
         out.update({f"C_comp{j}": C.copy() for j, C in enumerate(self.compensator.rules.C)})
         return out
 
+    def last_firing(self, x: np.ndarray | None = None) -> tuple[FiringView, FiringView]:
+        """Inputs, memberships and firing strengths that produced the last sample's u.
+
+        Model (z = [x_o; u_o]) then compensator (z = [e_Delta, ||x||]), inputs clamped
+        to their intervals as the rule bases see them.
+        """
+        fir, cfir = self._last
+        return (FiringView(fir.z, fir.mu, fir.w), FiringView(cfir.z, cfir.mu, cfir.w))
+
     def snapshot(self, t: float, step: int, x: np.ndarray) -> InnerSnapshot:
-        """Membership curves, operating point and firing strengths at the current state."""
-        x_o, u_o = self.operating_point(x)
-        z = np.append(x_o, u_o)
-        # the compensator input of the sample just taken (its e_Delta is in diag)
-        e_delta = float(self.diag[self.layout["e_delta"]])
-        fir = self.model.rules.evaluate(z)
-        cz = np.array([e_delta, float(np.linalg.norm(x))])
-        cfir = self.compensator.rules.evaluate(cz)
+        """The controller's inner state after the sample at ``t``: membership curves (with
+        the adapted control points), where the sample's inputs sat on them, and the
+        firing strengths and consequents it used."""
+        fir, cfir = self.last_firing(x)
         return InnerSnapshot(
             t=t, step=step,
             model_sets=_sets(self.model.rules, fir),
             compensator_sets=_sets(self.compensator.rules, cfir),
-            firing=fir.w.copy(), compensator_firing=cfir.w.copy(),
+            firing=np.array(fir.w), compensator_firing=np.array(cfir.w),
             consequents=self.model.P.copy(), q=self.compensator.q.copy())
 
 
-def _sets(rules, fir) -> tuple:
+def _sets(rules, fir: FiringView) -> tuple:
     out = []
     for j in range(len(rules.inputs)):
         grid, curves = rules.curves(j)
-        out.append((grid, curves, float(fir.z[j]), fir.mu[j].copy()))
+        out.append((grid, curves, float(fir.z[j]), np.array(fir.mu[j])))
     return tuple(out)

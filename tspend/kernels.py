@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from .config import ControllerConfig
-from .controller import DIAG_SCALARS, AdaptiveFuzzyController
+from .controller import DIAG_SCALARS, AdaptiveFuzzyController, FiringView
 from .rules import VARPI_EPS
 
 try:  # optional dependency
@@ -444,9 +444,28 @@ class CompiledController(AdaptiveFuzzyController):
         self._ic = ic
         self._tidx = tidx
         self._ws = np.zeros((4 * M + 7, width))
+        self._M = M
         # the control points are never replaced (rules.C are views into C_all)
         self._Cm = mrules.C_all
         self._Cc = crules.C_all
+
+    def last_firing(self, x: np.ndarray | None = None) -> tuple[FiringView, FiringView]:
+        """The last sample's memberships and firing strengths, read from the workspace.
+
+        Rows of ``ws`` as :func:`controller_step` writes them: ``M + J`` memberships of
+        input J, ``4 M`` the model's firing, ``4 M + 2`` the compensator's, ``4 M + 6``
+        the model's input z.  ``x`` (the sample's state) gives the compensator's ||x||.
+        """
+        ws, M = self._ws, self._M
+        mr, cr = self.model.rules, self.compensator.rules
+        m = len(mr.inputs)
+        z = np.clip(ws[4 * M + 6, :m], mr.lo, mr.hi)
+        mu = [ws[M + j, : inp.terms].copy() for j, inp in enumerate(mr.inputs)]
+        cmu = [ws[M + m + j, : inp.terms].copy() for j, inp in enumerate(cr.inputs)]
+        x_norm = float(np.linalg.norm(x)) if x is not None else 0.0
+        cz = np.clip(np.array([self.diag[self.layout["e_delta"]], x_norm]), cr.lo, cr.hi)
+        return (FiringView(z, mu, ws[4 * M, : mr.size].copy()),
+                FiringView(cz, cmu, ws[4 * M + 2, : cr.size].copy()))
 
     def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
         """One controller sample (the numpy :meth:`AdaptiveFuzzyController.step`, compiled)."""

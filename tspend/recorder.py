@@ -727,6 +727,9 @@ class RerunSink:
     of a reused buffer), since Rerun encodes it later on its own thread.
     """
 
+    #: the runner delivers inner snapshots (membership curves, firing) only to sinks that ask
+    wants_inner = True
+
     def __init__(self, rec: rr.RecordingStream | None, *, prefix: str = "", label: str | None = None,
                  curves_every: int = 1, frame_hz: float = FRAME_HZ,
                  blueprint_prefixes: Sequence[str] | Literal["own"] | None = "own",

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bspline import BSplineInput, basis_matrix, memberships
+from .bspline import BasisEvaluator, BSplineInput, memberships
 
 #: regularisation of the normalisation (12); see the module docstring
 VARPI_EPS = 1e-12
@@ -58,6 +58,7 @@ class RuleBase:
         self.shape = tuple(inp.terms for inp in self.inputs)
         self.size = int(np.prod(self.shape))
         self.knots = [inp.knots for inp in self.inputs]
+        self.bases = [BasisEvaluator(kn, inp.order) for kn, inp in zip(self.knots, self.inputs)]
         self.orders = [inp.order for inp in self.inputs]
         self.lo = np.array([inp.lo for inp in self.inputs])
         self.hi = np.array([inp.hi for inp in self.inputs])
@@ -90,7 +91,7 @@ class RuleBase:
     def evaluate(self, z: np.ndarray) -> Firing:
         """Memberships of every input and normalised firing strengths (12) at ``z``."""
         z = np.clip(np.asarray(z, dtype=float), self.lo, self.hi)
-        N = [basis_matrix(zj, kn, d)[0] for zj, kn, d in zip(z, self.knots, self.orders)]
+        N = [basis(zj)[0] for zj, basis in zip(z, self.bases)]
         mu, unsat = zip(*(memberships(Cj, Nj) for Cj, Nj in zip(self.C, N)))
         g = mu[0]
         for mu_j in mu[1:]:
@@ -123,6 +124,6 @@ class RuleBase:
         key = (j, points)
         if key not in self._grid_basis:  # the basis on the grid never changes: once
             grid = np.linspace(self.lo[j], self.hi[j], points)
-            self._grid_basis[key] = (grid, basis_matrix(grid, self.knots[j], self.orders[j]).T)
+            self._grid_basis[key] = (grid, self.bases[j](grid).T)
         grid, NT = self._grid_basis[key]
         return grid, np.clip(self.C[j] @ NT, 0.0, 1.0)
