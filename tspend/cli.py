@@ -291,6 +291,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("tspend: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug: still one line, the traceback on request
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        print(f"tspend: internal error: {type(exc).__name__}: {exc} (--debug shows the "
+              f"traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

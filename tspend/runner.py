@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,7 +111,11 @@ class ClosedLoop:
                 metrics = sink.result(wall_s=wall)
         end = RunEnd(status=status, message=message, steps_done=done, metrics=metrics)
         for sink in sinks:
-            sink.finish(end)
+            try:
+                sink.finish(end)
+            except Exception as exc:  # one failing sink must not cost the others their data
+                warnings.warn(f"sink {type(sink).__name__} failed to finish: {exc}",
+                              RuntimeWarning, stacklevel=2)
         self.end = end
         return end
 

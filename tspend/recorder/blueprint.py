@@ -1,0 +1,91 @@
+"""The default viewer layout: :func:`build_blueprint` and its view helpers."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import rerun.blueprint as rrb
+
+from ..sinks import RunInfo
+from .cartpole import is_cartpole
+from .common import join_path, prefix_label
+
+
+def _abs(prefix: str, path: str) -> str:
+    return "/" + join_path(prefix, path)
+
+
+_TIME_SERIES_VIEWS: tuple[tuple[str, str], ...] = (
+    ("reference and output", "series/tracking"),
+    ("error and e_delta", "series/error"),
+    ("control u and u_s", "series/control"),
+    ("d_hat and disturbance d", "series/compensation"),
+    ("estimated p_k and b_hat", "series/params"),
+    ("Lyapunov V", "series/lyapunov"),
+    ("parameter norms", "series/norms"),
+)
+
+
+def _fuzzy_views(info: RunInfo, prefix: str, suffix: str) -> tuple[list[rrb.View], list[rrb.View]]:
+    """(membership-curve views, firing/consequent views) of one run."""
+    bmf: list[rrb.View] = []
+    for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):
+        for j, inp in enumerate(inputs):
+            pad = 0.05 * (inp.hi - inp.lo)
+            bmf.append(rrb.Spatial2DView(
+                origin=_abs(prefix, f"fuzzy/{group}/in{j}"), name=f"BMF {group} {inp.name}{suffix}",
+                visual_bounds=rrb.VisualBounds2D(x_range=[inp.lo - pad, inp.hi + pad], y_range=[-1.1, 0.1])))
+    firing: list[rrb.View] = [
+        rrb.BarChartView(origin=_abs(prefix, "fuzzy/firing"), name=f"rule firing w{suffix}"),
+        rrb.BarChartView(origin=_abs(prefix, "fuzzy/compensator_firing"), name=f"compensator firing tau{suffix}"),
+        rrb.TensorView(origin=_abs(prefix, "fuzzy/consequents"), name=f"consequents p_k^i{suffix}"),
+        rrb.BarChartView(origin=_abs(prefix, "fuzzy/q"), name=f"compensator consequents q{suffix}"),
+    ]
+    return bmf, firing
+
+
+def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
+                    cartpole: bool | None = None) -> rrb.Blueprint:
+    """The default layout: 3D cart-pole and fuzzy internals beside the time series.
+
+    With several ``prefixes`` (side-by-side runs in one recording, e.g. the MuJoCo/ODE
+    crosscheck) every time-series view overlays all runs; 3D and fuzzy views are per run.
+    ``cartpole`` defaults to :func:`is_cartpole` of ``info``.
+    """
+    prefixes = list(prefixes) or [""]
+    multi = len(prefixes) > 1
+    suffixes = [f" [{prefix_label(p)}]" if multi else "" for p in prefixes]
+    series_views: list[rrb.View] = [
+        rrb.TimeSeriesView(origin="/", contents=[_abs(p, path) for p in prefixes], name=name)
+        for name, path in _TIME_SERIES_VIEWS
+    ]
+    if info.extras:
+        series_views.append(rrb.TimeSeriesView(
+            origin="/", contents=[_abs(p, "series/plant") for p in prefixes], name="plant extras"))
+    bmf_views: list[rrb.View] = []
+    firing_views: list[rrb.View] = []
+    doc_views: list[rrb.View] = []
+    for p, sfx in zip(prefixes, suffixes):
+        bmf, firing = _fuzzy_views(info, p, sfx)
+        bmf_views += bmf
+        firing_views += firing
+        doc_views += [rrb.TextDocumentView(origin=_abs(p, f"info/{doc}"), name=f"{doc}{sfx}")
+                      for doc in ("status", "metrics", "run", "scenario")]
+        doc_views.append(rrb.TextLogView(origin=_abs(p, "events"), name=f"events{sfx}"))
+    tabs = rrb.Tabs(
+        rrb.Grid(*bmf_views, name="membership functions"),
+        rrb.Grid(*firing_views, name="firing and consequents"),
+        rrb.Tabs(*doc_views, name="run info"),
+    )
+    left: list[rrb.Container | rrb.View] = []
+    if is_cartpole(info) if cartpole is None else cartpole:
+        views3d = [rrb.Spatial3DView(origin=_abs(p, "world"), name=f"cart-pole{sfx}")
+                   for p, sfx in zip(prefixes, suffixes)]
+        left.append(rrb.Horizontal(*views3d) if multi else views3d[0])
+    left.append(tabs)
+    root = rrb.Horizontal(
+        rrb.Vertical(*left),
+        rrb.Grid(*series_views, grid_columns=2),
+        column_shares=[2, 3],
+    )
+    return rrb.Blueprint(root, collapse_panels=False)

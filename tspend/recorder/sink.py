@@ -1,0 +1,383 @@
+""":class:`RerunSink`, the :class:`~tspend.sinks.Sink` that streams a run, and its snapshot buffer."""
+
+from __future__ import annotations
+
+import time
+import weakref
+from typing import Literal, Sequence
+
+import numpy as np
+import rerun as rr
+
+from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from .arrow import RowBatch, StaticBatch, points_column, pose_columns, strips_column, tensor_column, time_column
+from .blueprint import build_blueprint
+from .cartpole import CartPoleGeometry, cartpole_geometry, cartpole_poses, is_cartpole
+from .common import PALETTE, Color, join_path, prefix_label
+from .documents import metrics_markdown, run_markdown, scenario_markdown, status_markdown
+from .series import SeriesSpec, series_specs
+from .stream import close_recording, flush
+
+
+#: rate of the 3D cart-pole frames (Hz of simulated time)
+FRAME_HZ = 50.0
+#: 3D frames and inner snapshots are sent in batches of this many rows (2 s at 50 Hz) ...
+DECIMATED_ROWS = 100
+#: ... or after this much wall time, so a live viewer stays current
+MAX_LATENCY_S = 0.5
+
+
+def _snapshot_values(snap: InnerSnapshot) -> list[object]:
+    """The snapshot's fields in the fixed order of :meth:`_SnapshotBuffer.keys`."""
+    values: list[object] = [snap.t]
+    for sets in (snap.model_sets, snap.compensator_sets):
+        for grid, curves, z, mu in sets:
+            values += (grid, curves, z, mu)
+    values += (snap.firing, snap.compensator_firing, snap.consequents, snap.q)
+    return values
+
+
+class _SnapshotBuffer:
+    """Preallocated rows for the snapshots awaiting a flush, reused flush after flush.
+
+    Values are copied in (the controller may hand out its live consequent arrays)
+    with one numpy assignment per field and no per-row allocation.
+    """
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.keys: list[str] = []
+        self._layout: tuple[int, int] | None = None
+        self._bufs: list[np.ndarray] = []
+        self._index: dict[str, int] = {}
+
+    def append(self, snap: InnerSnapshot) -> None:
+        values = _snapshot_values(snap)
+        if self.count == 0:
+            self._ensure_layout(snap, values)
+        elif self.count == self._bufs[0].shape[0]:
+            self._bufs = [np.concatenate([b, np.empty_like(b)]) for b in self._bufs]
+        i = self.count
+        for buf, value in zip(self._bufs, values):
+            buf[i] = value
+        self.count += 1
+
+    def _ensure_layout(self, snap: InnerSnapshot, values: list[object]) -> None:
+        """(Re)allocate when the snapshot's structure differs from the buffers'."""
+        layout = (len(snap.model_sets), len(snap.compensator_sets))
+        shapes = [np.shape(v) for v in values]
+        if layout == self._layout and shapes == [b.shape[1:] for b in self._bufs]:
+            return
+        self._layout = layout
+        self.keys = ["t"]
+        for group, count in zip(("model", "compensator"), layout):
+            for j in range(count):
+                self.keys += [f"{group}/in{j}/{f}" for f in ("grid", "curves", "z", "mu")]
+        self.keys += ["firing", "compensator_firing", "consequents", "q"]
+        self._index = {k: i for i, k in enumerate(self.keys)}
+        self._bufs = [np.empty((64,) + shape) for shape in shapes]
+
+    def clear(self) -> None:
+        """Forget the rows, keep the storage (so memory stays flat)."""
+        self.count = 0
+
+    def get(self, key: str) -> np.ndarray:
+        """The ``count`` rows of ``key`` (a view, valid until the next append)."""
+        return self._bufs[self._index[key]][: self.count]
+
+    def inputs(self, group: str) -> list[str]:
+        """``"model/in0"``, ... for the buffered snapshots."""
+        count = self._layout[0 if group == "model" else 1] if self._layout else 0
+        return [f"{group}/in{j}" for j in range(count)]
+
+
+_SINKS_PER_RECORDING: weakref.WeakKeyDictionary[rr.RecordingStream, int] = weakref.WeakKeyDictionary()
+
+
+def _next_variant(rec: rr.RecordingStream | None) -> int:
+    """0 for the first sink made on ``rec``, 1 for the second, ...: overlaid runs differ in shade."""
+    if rec is None:
+        return 0
+    count = _SINKS_PER_RECORDING.get(rec, 0)
+    _SINKS_PER_RECORDING[rec] = count + 1
+    return count
+
+
+def _lighten(color: Color, amount: float) -> Color:
+    return tuple(int(round(c + (255 - c) * amount)) for c in color)  # type: ignore[return-value]
+
+
+class RerunSink:
+    """Streams a run into a caller-created :class:`rerun.RecordingStream`.
+
+    ``prefix`` puts every entity under ``prefix/`` so several runs can share one
+    recording; ``label`` (default: the prefix) is appended to series names and
+    ``variant`` 1 lightens the colours, so overlaid runs stay distinguishable.
+    ``curves_every`` decimates the per-step series (1 = every step, exact);
+    ``frame_hz`` is the rate of 3D frames; ``decimated_rows`` and ``max_latency_s``
+    bound how long 3D frames and snapshots wait before they are sent.  At :meth:`start`
+    the sink sends :func:`build_blueprint` for ``blueprint_prefixes``: ``"own"`` (its own
+    prefix), a list (e.g. all runs of a shared recording, from one of its sinks), or
+    ``None`` (no blueprint).  ``variant`` defaults to 0, 1, ... in the order sinks are
+    made on one recording.  With ``rec=None`` the sink records nothing.
+
+    Memory stays flat: each block's series are sent as the block comes; the decimated
+    data (3D frames, inner snapshots) wait in small reused buffers until ``decimated_rows``
+    rows or ``max_latency_s`` of wall time have gathered, and :meth:`finish` sends the rest.
+    Everything handed to Rerun is a fresh array (never a view of the runner's block or
+    of a reused buffer), since Rerun encodes it later on its own thread.
+    """
+
+    #: the runner delivers inner snapshots (membership curves, firing) only to sinks that ask
+    wants_inner = True
+
+    def __init__(self, rec: rr.RecordingStream | None, *, prefix: str = "", label: str | None = None,
+                 curves_every: int = 1, frame_hz: float = FRAME_HZ,
+                 blueprint_prefixes: Sequence[str] | Literal["own"] | None = "own",
+                 variant: int | None = None, decimated_rows: int = DECIMATED_ROWS,
+                 max_latency_s: float = MAX_LATENCY_S) -> None:
+        if curves_every < 1:
+            raise ValueError("curves_every must be >= 1")
+        if not frame_hz > 0:
+            raise ValueError(f"frame_hz must be > 0, got {frame_hz}")
+        self.rec = rec
+        self.prefix = prefix.strip("/")
+        self.label = prefix_label(prefix) if label is None else label
+        self.curves_every = int(curves_every)
+        self.frame_hz = float(frame_hz)
+        self.blueprint_prefixes: list[str] | None = (
+            [self.prefix] if blueprint_prefixes == "own" else None if blueprint_prefixes is None
+            else list(blueprint_prefixes))
+        self.variant = _next_variant(rec) if variant is None else int(variant)
+        self.decimated_rows = max(1, int(decimated_rows))
+        self.max_latency_s = float(max_latency_s)
+        self.info: RunInfo | None = None
+        self._specs: list[SeriesSpec] = []
+        self._frame_every = 1
+        self._geometry: CartPoleGeometry | None = None
+        self._snaps = _SnapshotBuffer()
+        self._sent_curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []   # (t, cart_pos, theta)
+        self._frame_rows = 0
+        self._last_flush = time.monotonic()
+        self._last_t = 0.0
+
+    # -- helpers
+
+    def _path(self, path: str) -> str:
+        return join_path(self.prefix, path)
+
+    def _color(self, color: Color) -> Color:
+        return _lighten(color, min(0.7, 0.45 * self.variant)) if self.variant else color
+
+    def _series_name(self, name: str) -> str:
+        return f"{name} [{self.label}]" if self.label else name
+
+    # -- Sink protocol
+
+    def start(self, info: RunInfo) -> None:
+        """Static documents, series styles, static geometry and the blueprint."""
+        self.info = info
+        if self.rec is None:
+            return
+        self._snaps = _SnapshotBuffer()
+        self._sent_curves = {}
+        self._frames, self._frame_rows = [], 0
+        self._last_flush, self._last_t = time.monotonic(), 0.0
+        self._specs = series_specs(info.order, info.extras)
+        self._frame_every = max(1, int(round(1.0 / (self.frame_hz * info.dt)))) if info.dt > 0 else 1
+        statics = StaticBatch()
+        self._log_documents(statics, info)
+        for spec in self._specs:
+            statics.add(self._path(spec.entity), rr.SeriesLines(
+                names=[self._series_name(n) for n in spec.names], colors=[self._color(c) for c in spec.colors]))
+        self._log_fuzzy_styles(statics, info)
+        self._geometry = cartpole_geometry(info.plant_meta) if is_cartpole(info) else None
+        if self._geometry is not None:
+            self._log_cartpole_geometry(statics, self._geometry)
+        statics.send(self.rec)
+        if self._geometry is not None:
+            self._send_poses([0.0], np.zeros(1), np.zeros(1))  # drawn before the first block arrives
+        if self.blueprint_prefixes is not None:
+            self.rec.send_blueprint(build_blueprint(info, self.blueprint_prefixes))
+        if not self.prefix:
+            self.rec.send_recording_name(info.scenario_name)
+
+    def block(self, block: Block) -> None:
+        """Send the block's series; buffer its 3D frames; send decimated data when due."""
+        if self.rec is None or self.info is None:
+            return
+        data = block.data
+        t = np.asarray(data["t"], dtype=np.float64)
+        if t.size:
+            self._last_t = float(t[-1])
+            self._send_series(block.start, data, t)
+            if self._geometry is not None:
+                self._buffer_frames(block.start, data, t)
+        if self._decimated_due():
+            self._flush_decimated()
+
+    def inner(self, snap: InnerSnapshot) -> None:
+        """Buffer a snapshot (copied: the runner may reuse its arrays)."""
+        if self.rec is None:
+            return
+        self._snaps.append(snap)
+        self._last_t = max(self._last_t, float(snap.t))
+
+    def finish(self, end: RunEnd) -> None:
+        """Send what is pending, the status and metrics documents, and flush to the sink."""
+        if self.rec is None:
+            return
+        self._flush_decimated()
+        md = rr.MediaType.MARKDOWN
+        statics = StaticBatch()
+        statics.add(self._path("info/status"), rr.TextDocument(status_markdown(end), media_type=md))
+        statics.add(self._path("info/metrics"), rr.TextDocument(metrics_markdown(end.metrics), media_type=md))
+        statics.send(self.rec)
+        if end.status != "completed":
+            level = "WARN" if end.status == "interrupted" else "ERROR"
+            self.rec.send_columns(self._path("events"), indexes=[time_column([self._last_t])],
+                                  columns=rr.TextLog.columns(text=[f"{end.status}: {end.message}"], level=[level]))
+        flush(self.rec)
+
+    def close(self) -> None:
+        """Flush and close the recording's sinks (finalises the ``.rrd`` footer).
+
+        Call once, after every sink sharing the recording has finished.
+        """
+        if self.rec is not None:
+            close_recording(self.rec)
+
+    # -- block parts
+
+    def _send_series(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
+        rows = slice((-start) % self.curves_every, None, self.curves_every)
+        batch = RowBatch(t[rows])
+        for spec in self._specs:
+            try:
+                values = spec.extract(data)
+            except KeyError:
+                continue  # e.g. an extra the plant did not report in this block
+            batch.add_scalars(self._path(spec.entity), values[rows])
+        batch.send(self.rec)
+
+    def _buffer_frames(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
+        """Keep the block's frame rows (every ``1 / frame_hz`` s of sim time) until the next flush."""
+        rows = slice((-start) % self._frame_every, None, self._frame_every)
+        theta = np.array(data["x"][rows, 0], dtype=np.float64)
+        if theta.size == 0:
+            return
+        cart = data.get("extra/cart_pos")
+        cart_pos = np.zeros_like(theta) if cart is None else np.array(cart[rows], dtype=np.float64)
+        self._frames.append((t[rows].copy(), cart_pos, theta))
+        self._frame_rows += theta.size
+
+    def _decimated_due(self) -> bool:
+        """Frames and snapshots go out in batches of ``decimated_rows`` rows (chunks have a fixed
+        cost of ~50 us each), or after ``max_latency_s`` of wall time for a live viewer."""
+        rows = max(self._frame_rows, self._snaps.count)
+        return rows >= self.decimated_rows or (rows > 0 and time.monotonic() - self._last_flush >= self.max_latency_s)
+
+    def _flush_decimated(self) -> None:
+        if self._frames:
+            t, cart_pos, theta = (np.concatenate(parts) for parts in zip(*self._frames))
+            self._frames, self._frame_rows = [], 0
+            self._send_poses(t, cart_pos, theta)
+        self._flush_snapshots()
+        self._last_flush = time.monotonic()
+
+    def _send_poses(self, t: np.ndarray | Sequence[float], cart_pos: np.ndarray, theta: np.ndarray) -> None:
+        assert self._geometry is not None
+        poses = cartpole_poses(cart_pos, theta, self._geometry.l, 2.0 * self._geometry.cart_half_sizes[2])
+        batch = RowBatch(t)
+        batch.add(self._path("world/cart"), pose_columns(poses.cart_translation))
+        batch.add(self._path("world/pole"), pose_columns(poses.pole_translation, poses.pole_quaternion))
+        batch.send(self.rec)
+
+    def _flush_snapshots(self) -> None:
+        buf = self._snaps
+        if not buf.count:
+            return
+        t = buf.get("t")
+        batch = RowBatch(t)
+        for group in ("model", "compensator"):
+            for key in buf.inputs(group):
+                batch.add(self._path(f"fuzzy/{key}"), [self._operating_points(key, buf)])
+                self._send_changed_curves(key, buf, batch)
+        bar = rr.BarChart.descriptor_values()
+        for name in ("firing", "compensator_firing", "q"):
+            batch.add(self._path(f"fuzzy/{name}"), [tensor_column(buf.get(name), bar)])
+        batch.add(self._path("fuzzy/consequents"),
+                  [tensor_column(buf.get("consequents"), rr.Tensor.descriptor_data(), names=("rule", "k"))])
+        batch.send(self.rec)
+        buf.clear()
+
+    @staticmethod
+    def _operating_points(key: str, buf: _SnapshotBuffer) -> rr.ComponentColumn:
+        """The operating point on every curve of input ``key``, one row per snapshot."""
+        mu = buf.get(f"{key}/mu")
+        count, terms = mu.shape
+        marks = np.empty((count, terms, 2))
+        marks[..., 0] = buf.get(f"{key}/z")[:, None]
+        marks[..., 1] = -mu                                   # y down on screen: log -mu
+        return points_column(marks.reshape(-1, 2), terms)
+
+    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, batch: RowBatch) -> None:
+        """Curves of input ``key`` at the snapshots where they differ from the last ones sent.
+
+        Fixed membership functions are thus sent once, which keeps the file small; curves
+        that change at every snapshot ride along in ``batch`` (the snapshots' own rows).
+        """
+        grid, curves = buf.get(f"{key}/grid"), buf.get(f"{key}/curves")
+        count, terms, points = curves.shape
+        previous = self._sent_curves.get(key)
+        if (previous is not None and previous[0].shape == grid.shape[1:] and previous[1].shape == curves.shape[1:]
+                and (grid == previous[0]).all() and (curves == previous[1]).all()):
+            return  # the common case: fixed membership functions, one pass over the block
+        changed = np.empty(count, dtype=bool)
+        changed[0] = previous is None or not (np.array_equal(previous[0], grid[0])
+                                              and np.array_equal(previous[1], curves[0]))
+        changed[1:] = np.any(curves[1:] != curves[:-1], axis=(1, 2)) | np.any(grid[1:] != grid[:-1], axis=1)
+        if not changed.any():
+            return
+        self._sent_curves[key] = (grid[-1].copy(), curves[-1].copy())
+        rows = np.flatnonzero(changed)
+        strips = np.empty((rows.size, terms, points, 2))
+        strips[..., 0] = grid[rows][:, None, :]
+        strips[..., 1] = -curves[rows]
+        column = strips_column(strips.reshape(-1, points, 2), terms)
+        if rows.size == count:
+            batch.add(self._path(f"fuzzy/{key}"), [column])
+            return
+        own = RowBatch(buf.get("t")[rows])
+        own.add(self._path(f"fuzzy/{key}"), [column])
+        own.send(self.rec)
+
+    # -- static parts
+
+    def _log_documents(self, statics: StaticBatch, info: RunInfo) -> None:
+        md = rr.MediaType.MARKDOWN
+        statics.add(self._path("info/scenario"), rr.TextDocument(scenario_markdown(info), media_type=md))
+        statics.add(self._path("info/run"), rr.TextDocument(run_markdown(info), media_type=md))
+
+    def _log_fuzzy_styles(self, statics: StaticBatch, info: RunInfo) -> None:
+        for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):
+            for j, inp in enumerate(inputs):
+                colors = [self._color(PALETTE[k % len(PALETTE)]) for k in range(len(inp.terms))]
+                statics.add(self._path(f"fuzzy/{group}/in{j}"),
+                            rr.LineStrips2D.from_fields(colors=colors, labels=list(inp.terms), radii=[-1.5]),
+                            rr.Points2D.from_fields(colors=colors, radii=[-5.0]))
+        for path, color in (("fuzzy/firing", (31, 119, 180)), ("fuzzy/compensator_firing", (44, 160, 44)),
+                            ("fuzzy/q", (255, 127, 14))):
+            # BarChart.from_fields(color=...) trips over its own values converter in 0.41
+            statics.add(self._path(path), [rr.components.ColorBatch([self._color(color)]).described(
+                rr.BarChart.descriptor_color())])
+
+    def _log_cartpole_geometry(self, statics: StaticBatch, geom: CartPoleGeometry) -> None:
+        statics.add(self._path("world"), rr.ViewCoordinates.RIGHT_HAND_Z_UP)
+        statics.add(self._path("world/cart"), rr.Boxes3D(
+            half_sizes=[geom.cart_half_sizes], colors=[self._color(geom.cart_color)],
+            fill_mode=rr.components.FillMode.Solid))
+        statics.add(self._path("world/pole"), rr.Capsules3D(
+            lengths=[2.0 * geom.l], radii=[geom.pole_radius], translations=[[0.0, 0.0, -geom.l]],
+            colors=[self._color(geom.pole_color)]))
