@@ -50,3 +50,23 @@ def test_crosscheck_fails_beyond_tolerance_with_euler(capsys):
 def test_crosscheck_needs_a_cartpole(capsys):
     assert main(["crosscheck", "ex2_duffing", "--no-record"]) == 2
     assert "cart-pole" in capsys.readouterr().err
+
+
+def test_any_mjcf_cartpole_with_named_joints_runs(tmp_path):
+    """Another MJCF (joints and actuator renamed, written by MjSpec) runs by naming them."""
+    import mujoco
+
+    from tspend.scenario import project_root
+
+    spec = mujoco.MjSpec.from_file(str(project_root() / "models" / "cartpole.xml"))
+    spec.joint("slider").name = "cart_x"
+    spec.joint("hinge").name = "pole_angle"
+    spec.actuator("force").name = "push"
+    spec.actuator("push").target = "cart_x"
+    (tmp_path / "mine.xml").write_text(spec.to_xml())
+    scn = override(load_scenario("pendulum_mujoco"), **{
+        "plant.model": str(tmp_path / "mine.xml"), "plant.slide_joint": "cart_x",
+        "plant.hinge_joint": "pole_angle", "plant.actuator": "push", "run.duration": 2.0})
+    assert open_loop(scn, duration=2.0)["open_loop_max_dtheta"] < 1e-8
+    cl = closed_loop(scn)
+    assert cl["closed_loop_status_mujoco"] == "completed" and cl["closed_loop_max_dtheta"] < 1e-8

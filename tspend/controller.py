@@ -24,7 +24,7 @@ import numpy as np
 from .bspline import BSplineInput
 from .compensator import FuzzyCompensator
 from .config import ControllerConfig, SetSpec
-from .control_law import companion, control, lyapunov_gamma
+from .control_law import control, lyapunov_gamma
 from .sinks import FuzzyInputInfo, InnerSnapshot
 from .ts_model import TSModel
 
@@ -78,7 +78,6 @@ class AdaptiveFuzzyController:
         self.cfg = cfg
         self.n = n = cfg.order
         self.lam = np.asarray(cfg.lam, dtype=float)
-        self.Lambda = companion(self.lam)
         self.Gamma = lyapunov_gamma(self.lam, np.asarray(cfg.Q, dtype=float))
         #: e_Delta = e^T Gamma b_e = Gamma[n-1] . e (Gamma is symmetric)
         self.gamma_row = self.Gamma[n - 1].copy()
@@ -94,6 +93,7 @@ class AdaptiveFuzzyController:
         self.u_prev = 0.0
         self.diag = np.zeros(diag_size(n))
         self.layout = diag_layout(n)
+        self._last: tuple | None = None        # the last sample's (model, compensator) firing
 
     # -- set-up -----------------------------------------------------------------------
     def initialise(self, rng: np.random.Generator) -> None:
@@ -164,6 +164,8 @@ class AdaptiveFuzzyController:
         Model (z = [x_o; u_o]) then compensator (z = [e_Delta, ||x||]), inputs clamped
         to their intervals as the rule bases see them.
         """
+        if self._last is None:
+            raise RuntimeError("no controller sample taken yet: call step() first")
         fir, cfir = self._last
         return (FiringView(fir.z, fir.mu, fir.w), FiringView(cfir.z, cfir.mu, cfir.w))
 
