@@ -9,21 +9,11 @@ import rerun.blueprint as rrb
 from ..sinks import RunInfo
 from .cartpole import is_cartpole
 from .common import join_path, prefix_label
+from .series import series_specs
 
 
 def _abs(prefix: str, path: str) -> str:
     return "/" + join_path(prefix, path)
-
-
-_TIME_SERIES_VIEWS: tuple[tuple[str, str], ...] = (
-    ("reference and output", "series/tracking"),
-    ("error and e_delta", "series/error"),
-    ("control u and u_s", "series/control"),
-    ("d_hat and disturbance d", "series/compensation"),
-    ("estimated p_k and b_hat", "series/params"),
-    ("Lyapunov V", "series/lyapunov"),
-    ("parameter norms", "series/norms"),
-)
 
 
 def _fuzzy_views(info: RunInfo, prefix: str, suffix: str) -> tuple[list[rrb.View], list[rrb.View]]:
@@ -56,12 +46,10 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
     multi = len(prefixes) > 1
     suffixes = [f" [{prefix_label(p)}]" if multi else "" for p in prefixes]
     series_views: list[rrb.View] = [
-        rrb.TimeSeriesView(origin="/", contents=[_abs(p, path) for p in prefixes], name=name)
-        for name, path in _TIME_SERIES_VIEWS
+        rrb.TimeSeriesView(origin="/", contents=[_abs(p, spec.entity) for p in prefixes],
+                           name=spec.title)
+        for spec in series_specs(info.order, info.extras)
     ]
-    if info.extras:
-        series_views.append(rrb.TimeSeriesView(
-            origin="/", contents=[_abs(p, "series/plant") for p in prefixes], name="plant extras"))
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
     doc_views: list[rrb.View] = []
