@@ -8,7 +8,7 @@ import rerun.blueprint as rrb
 
 from ..sinks import RunInfo
 from .cartpole import is_cartpole
-from .common import join_path, prefix_label
+from .common import BMF_WIDTH, join_path, prefix_label
 from .series import series_specs
 
 
@@ -21,10 +21,12 @@ def _fuzzy_views(info: RunInfo, prefix: str, suffix: str) -> tuple[list[rrb.View
     bmf: list[rrb.View] = []
     for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):
         for j, inp in enumerate(inputs):
-            pad = 0.05 * (inp.hi - inp.lo)
+            # drawn on [0, BMF_WIDTH] (RerunSink._display_x): the name carries the interval
             bmf.append(rrb.Spatial2DView(
-                origin=_abs(prefix, f"fuzzy/{group}/in{j}"), name=f"BMF {group} {inp.name}{suffix}",
-                visual_bounds=rrb.VisualBounds2D(x_range=[inp.lo - pad, inp.hi + pad], y_range=[-1.1, 0.1])))
+                origin=_abs(prefix, f"fuzzy/{group}/in{j}"),
+                name=f"BMF {inp.name} on [{inp.lo:.4g}, {inp.hi:.4g}]{suffix}",
+                visual_bounds=rrb.VisualBounds2D(x_range=[-0.05 * BMF_WIDTH, 1.05 * BMF_WIDTH],
+                                                 y_range=[-1.1, 0.1])))
     firing: list[rrb.View] = [
         rrb.BarChartView(origin=_abs(prefix, "fuzzy/firing"), name=f"rule firing w{suffix}"),
         rrb.BarChartView(origin=_abs(prefix, "fuzzy/compensator_firing"), name=f"compensator firing tau{suffix}"),
@@ -32,6 +34,20 @@ def _fuzzy_views(info: RunInfo, prefix: str, suffix: str) -> tuple[list[rrb.View
         rrb.BarChartView(origin=_abs(prefix, "fuzzy/q"), name=f"compensator consequents q{suffix}"),
     ]
     return bmf, firing
+
+
+def _cartpole_view(info: RunInfo, prefix: str, suffix: str) -> rrb.Spatial3DView:
+    """The cart-pole seen from the side, the camera following the cart.
+
+    The cart travels tens of metres in a long run while the pole is 2 l long: a camera
+    fitted to the scene bounds would lose the pole, so it tracks the cart instead.
+    """
+    l = float(info.plant_meta.get("l", 3.0))
+    return rrb.Spatial3DView(
+        origin=_abs(prefix, "world"), name=f"cart-pole{suffix}",
+        eye_controls=rrb.EyeControls3D(
+            position=[0.0, -(3.0 * l + 6.0), l + 0.5], look_target=[0.0, 0.0, l + 0.5],
+            eye_up=[0.0, 0.0, 1.0], tracking_entity=_abs(prefix, "world/cart")))
 
 
 def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
@@ -67,8 +83,7 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
     )
     left: list[rrb.Container | rrb.View] = []
     if is_cartpole(info) if cartpole is None else cartpole:
-        views3d = [rrb.Spatial3DView(origin=_abs(p, "world"), name=f"cart-pole{sfx}")
-                   for p, sfx in zip(prefixes, suffixes)]
+        views3d = [_cartpole_view(info, p, sfx) for p, sfx in zip(prefixes, suffixes)]
         left.append(rrb.Horizontal(*views3d) if multi else views3d[0])
     left.append(tabs)
     root = rrb.Horizontal(

@@ -21,3 +21,6 @@ def join_path(prefix: str, path: str) -> str:
 def prefix_label(prefix: str) -> str:
     """Human label of a prefix: ``"mujoco/"`` -> ``"mujoco"``."""
     return prefix.strip("/")
+
+#: width on screen of every membership-function plot (height 1): see RerunSink._display_x
+BMF_WIDTH = 2.0

@@ -13,7 +13,7 @@ from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
 from .arrow import RowBatch, StaticBatch, points_column, pose_columns, strips_column, tensor_column, time_column
 from .blueprint import build_blueprint
 from .cartpole import CartPoleGeometry, cartpole_geometry, cartpole_poses, is_cartpole
-from .common import PALETTE, Color, join_path, prefix_label
+from .common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
 from .documents import metrics_markdown, run_markdown, scenario_markdown, status_markdown
 from .series import SeriesSpec, series_specs
 from .stream import close_recording, flush
@@ -182,6 +182,10 @@ class RerunSink:
             return
         self._snaps = _SnapshotBuffer()
         self._sent_curves = {}
+        self._intervals = {f"{group}/in{j}": (inp.lo, inp.hi)
+                           for group, inputs in (("model", info.model_inputs),
+                                                 ("compensator", info.compensator_inputs))
+                           for j, inp in enumerate(inputs)}
         self._frames, self._frame_rows = [], 0
         self._last_flush, self._last_t = time.monotonic(), 0.0
         self._specs = series_specs(info.order, info.extras)
@@ -312,13 +316,21 @@ class RerunSink:
         batch.send(self.rec)
         buf.clear()
 
-    @staticmethod
-    def _operating_points(key: str, buf: _SnapshotBuffer) -> rr.ComponentColumn:
+    def _display_x(self, key: str, z: np.ndarray) -> np.ndarray:
+        """Input values drawn on [0, BMF_WIDTH] whatever the interval.
+
+        A 2D view keeps a 1:1 aspect: membership (0..1) against u_o on [-1000, 1000]
+        would be a flat line.  The view's name gives the real interval.
+        """
+        lo, hi = self._intervals[key]
+        return (np.asarray(z, dtype=np.float64) - lo) * (BMF_WIDTH / (hi - lo))
+
+    def _operating_points(self, key: str, buf: _SnapshotBuffer) -> rr.ComponentColumn:
         """The operating point on every curve of input ``key``, one row per snapshot."""
         mu = buf.get(f"{key}/mu")
         count, terms = mu.shape
         marks = np.empty((count, terms, 2))
-        marks[..., 0] = buf.get(f"{key}/z")[:, None]
+        marks[..., 0] = self._display_x(key, buf.get(f"{key}/z"))[:, None]
         marks[..., 1] = -mu                                   # y down on screen: log -mu
         return points_column(marks.reshape(-1, 2), terms)
 
@@ -343,7 +355,7 @@ class RerunSink:
         self._sent_curves[key] = (grid[-1].copy(), curves[-1].copy())
         rows = np.flatnonzero(changed)
         strips = np.empty((rows.size, terms, points, 2))
-        strips[..., 0] = grid[rows][:, None, :]
+        strips[..., 0] = self._display_x(key, grid[rows])[:, None, :]
         strips[..., 1] = -curves[rows]
         column = strips_column(strips.reshape(-1, points, 2), terms)
         if rows.size == count:
