@@ -24,7 +24,7 @@ from typing import Any, Iterator
 
 from . import __version__
 from .errors import ScenarioError, TspendError
-from .runner import RunInterrupted
+from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_DIVERGED = 3
@@ -122,20 +122,28 @@ def default_recording_path(name: str) -> Path:
 
 
 @contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises RunInterrupted so the runner can flush like on Ctrl-C."""
-    def handler(signum, frame):
-        raise RunInterrupted("SIGTERM", 143)
+def stop_on_signals() -> Iterator[StopRequest]:
+    """SIGINT and SIGTERM ask the run to stop at the next sample (it then flushes).
+
+    A second Ctrl-C interrupts at once, for a run stuck outside the loop.
+    """
+    stop = StopRequest()
+
+    def on_signal(signum, frame):
+        if signum == signal.SIGINT and stop.signal_name == "SIGINT":
+            raise KeyboardInterrupt
+        stop.request(*{signal.SIGINT: ("SIGINT", 130), signal.SIGTERM: ("SIGTERM", 143)}[signum])
 
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        yield
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread: signals stay as they are
+        yield stop
         return
     try:
-        yield
+        yield stop
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _fmt(v: Any) -> str:
@@ -209,24 +217,27 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"tspend {__version__}: {scn.name} ({scn.plant.kind}), {scn.run.duration:g} s at "
           f"dt = {scn.run.dt:g} s, seed {scn.run.seed}"
           + (f", recording to {rrd}" if rrd else ""), flush=True)
-    result = None
-    try:
-        with sigterm_as_interrupt():
-            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend)
-    except RunInterrupted as exc:
-        status = exc.exit_status
-        if metrics_path is not None and exc.end is not None:
-            write_json(metrics_path, metrics_document(scn, exc.end))
-        print(f"tspend: interrupted ({'SIGTERM' if status == 143 else 'SIGINT'}); "
-              f"recording{' ' + str(rrd) if rrd else ''} and metrics kept up to the stop",
-              file=sys.stderr)
-        return status
-    finally:
-        if rec is not None:
-            _close(rec)
+    # signals only set a flag from here on, so closing the recording cannot be cut short
+    with stop_on_signals() as stop:
+        try:
+            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop)
+        except RunInterrupted as exc:
+            if metrics_path is not None and exc.end is not None:
+                write_json(metrics_path, metrics_document(scn, exc.end))
+            print(f"tspend: interrupted by {exc.signal_name}; recording"
+                  f"{' ' + str(rrd) if rrd else ''} and metrics kept up to the stop",
+                  file=sys.stderr)
+            return exc.exit_status
+        finally:
+            if rec is not None:
+                _close(rec)
     end = result.end
     if metrics_path is not None:
         write_json(metrics_path, metrics_document(scn, end))
+    if stop.signal_name is not None:  # arrived after the last sample: the run is whole
+        print(f"tspend: {stop.signal_name} after the run completed; results kept",
+              file=sys.stderr)
+        return stop.exit_status
     print(f"{end.status}: {end.steps_done} steps" + (f" ({end.message})" if end.message else ""))
     print_metrics(end.metrics)
     if rrd:
@@ -256,16 +267,16 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     if not (args.tol > 0 and math.isfinite(args.tol)):
         raise ScenarioError(f"--tol: must be a positive number, got {args.tol}")
     rec, rrd, sinks = open_sinks(args, f"{scn.name}-crosscheck", prefixes=("mujoco/", "ode/"))
-    try:
-        with sigterm_as_interrupt():
+    with stop_on_signals() as stop:
+        try:
             report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
-                                backend=args.backend, recording=rec)
-    except RunInterrupted as exc:
-        print(f"tspend: cross-check interrupted by {exc.signal_name}", file=sys.stderr)
-        return exc.exit_status
-    finally:
-        if rec is not None:
-            _close(rec)
+                                backend=args.backend, stop=stop)
+        except RunInterrupted as exc:
+            print(f"tspend: cross-check interrupted by {exc.signal_name}", file=sys.stderr)
+            return exc.exit_status
+        finally:
+            if rec is not None:
+                _close(rec)
     report["tolerance"] = args.tol
     report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
     for k, v in report.items():

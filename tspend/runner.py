@@ -7,9 +7,10 @@ run keeps only one block in memory.
 
 A run ends ``completed``; ``diverged`` when the state, control or a parameter stops
 being finite or leaves its configured bound (the block up to the last finite sample is
-still delivered); ``interrupted`` on KeyboardInterrupt or :class:`RunInterrupted`
-(raised by the CLI's SIGTERM handler), which is re-raised after the sinks have finished
-so the caller can set the exit status.  Sinks always get :meth:`finish`.
+still delivered); ``interrupted`` when a :class:`StopRequest` is set (the CLI's SIGINT/SIGTERM handlers
+do that; the loop honours it between samples) or on KeyboardInterrupt; then
+:class:`RunInterrupted` is raised after the sinks have finished, so the caller can set
+the exit status.  Sinks always get :meth:`finish`.
 """
 
 from __future__ import annotations
@@ -37,6 +38,22 @@ class RunInterrupted(Exception):
         self.exit_status = exit_status
         #: how the run ended (metrics up to the stop), set by the runner
         self.end: RunEnd | None = None
+
+
+class StopRequest:
+    """A request to stop, set by a signal handler and honoured between two samples.
+
+    Raising from the handler itself could land in the middle of handing a block to the
+    sinks (some would have it, some not); the loop checks this flag before each sample
+    instead, where everything before is complete.
+    """
+
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+        self.exit_status = 0
+
+    def request(self, signal_name: str, exit_status: int) -> None:
+        self.signal_name, self.exit_status = signal_name, exit_status
 
 
 @dataclass(frozen=True)
@@ -73,7 +90,8 @@ class ClosedLoop:
     """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``."""
 
     def __init__(self, plant: Plant, controller: AdaptiveFuzzyController, reference: Reference,
-                 disturbance: Disturbance, settings: LoopSettings) -> None:
+                 disturbance: Disturbance, settings: LoopSettings,
+                 stop: StopRequest | None = None) -> None:
         if plant.order != controller.n:
             raise ValueError(f"plant order {plant.order} != controller order {controller.n}")
         self.plant = plant
@@ -81,6 +99,7 @@ class ClosedLoop:
         self.reference = reference
         self.disturbance = disturbance
         self.s = settings
+        self.stop = stop if stop is not None else StopRequest()
         self._done = 0
         self.end: RunEnd | None = None
 
@@ -131,6 +150,7 @@ class ClosedLoop:
         snap_every = s.snapshot_every if snap_sinks else 0
         bounded = s.state_bound > 0.0 or s.control_bound > 0.0
         isfinite = math.isfinite
+        stop = self.stop
         for start in range(0, s.steps, s.block_size):
             k = min(s.block_size, s.steps - start)
             t = (start + np.arange(k)) * dt
@@ -139,6 +159,8 @@ class ClosedLoop:
             i = 0
             try:
                 for i in range(k):
+                    if stop.signal_name is not None:
+                        raise RunInterrupted(stop.signal_name, stop.exit_status)
                     x = plant.state()
                     u = ctrl.step(x, ref[i], dt)
                     X[i] = x

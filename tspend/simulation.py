@@ -20,7 +20,7 @@ from .metrics import MetricsAccumulator
 from .plants.analytic import (CartPoleParams, cartpole_ode_plant, duffing_plant,
                               nonaffine_plant, third_order_plant)
 from .plants.base import Plant
-from .runner import ClosedLoop, LoopSettings
+from .runner import ClosedLoop, LoopSettings, StopRequest
 from .scenario import resolve_model_path
 from .sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 
@@ -146,11 +146,13 @@ def steps_of(scenario: Scenario) -> int:
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
-        backend: str = "auto") -> RunResult:
+        backend: str = "auto", stop: StopRequest | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
-    MuJoCo scenario, say), which is what the cross-check does.
+    MuJoCo scenario, say), which is what the cross-check does.  ``stop``, set from a
+    signal handler, ends the run cleanly at the next sample (RunInterrupted is raised
+    after the sinks have finished).
     """
     plant = build_plant(scenario, plant_kind)
     ctrl = build_controller(scenario, backend=backend)
@@ -160,7 +162,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     settings = LoopSettings(dt=dt, steps=steps, block_size=block_size, snapshot_every=snap_every,
                             state_bound=scenario.plant.state_bound,
                             control_bound=scenario.run.control_bound)
-    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings)
+    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop)
     metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
