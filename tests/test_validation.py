@@ -109,3 +109,16 @@ def test_unwritable_recording_reported_before_run(tmp_path, capsys):
     assert status == 2
     err = capsys.readouterr().err
     assert "recording" in err and "cannot create directory" in err
+
+
+def test_every_controller_field_has_a_scenario_key():
+    import dataclasses
+
+    from tspend.config import ControllerConfig
+    from tspend.scenario import CONTROLLER_KEYS, SETS_KEYS
+
+    renamed = {"lam": "lambda", "state_sets": "sets", "u_sets": "sets", "e_delta_sets": "sets",
+               "x_norm_sets": "sets"}
+    fields = {f.name for f in dataclasses.fields(ControllerConfig)}
+    assert {renamed.get(f, f) for f in fields} == set(CONTROLLER_KEYS)
+    assert set(SETS_KEYS) == {"states", "u", "e_delta", "x_norm"}

@@ -42,6 +42,12 @@ MAX_STEPS = 1e9
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller")
 SET_KEYS = ("terms", "lo", "hi")
+#: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
+#: four ``*_sets`` fields in the [controller.sets] table
+CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
+                   "control_points", "init_consequents", "init_compensator", "b_min",
+                   "norm_radius", "boundary_layer", "leakage", "operating_point", "x_o", "u_o",
+                   "u_o_fraction", "sets")
 SETS_KEYS = ("states", "u", "e_delta", "x_norm")
 
 
@@ -263,10 +269,7 @@ def _set_spec(s: _Reader) -> SetSpec:
 
 
 def _controller(r: _Reader, n: int) -> ControllerConfig:
-    allowed = tuple(f.name for f in dataclasses.fields(ControllerConfig) if f.name != "lam")
-    allowed = ("lambda",) + tuple(k for k in allowed if k not in
-                                  ("state_sets", "u_sets", "e_delta_sets", "x_norm_sets")) + ("sets",)
-    r.check_keys(allowed)
+    r.check_keys(CONTROLLER_KEYS)
     d = ControllerConfig()
     lam = r.numbers("lambda", n, (1.0, 2.0) if n == 2 else None)
     if not is_hurwitz(np.asarray(lam)):

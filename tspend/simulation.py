@@ -101,8 +101,6 @@ class History:
 
     def __init__(self) -> None:
         self.blocks: list[dict[str, np.ndarray]] = []
-        self.snapshots: list[InnerSnapshot] = []
-        self.keep_snapshots = False
 
     def start(self, info: RunInfo) -> None:
         pass
@@ -111,8 +109,7 @@ class History:
         self.blocks.append({k: np.array(v, copy=True) for k, v in block.data.items()})
 
     def inner(self, snap: InnerSnapshot) -> None:
-        if self.keep_snapshots:
-            self.snapshots.append(snap)
+        pass
 
     def finish(self, end: RunEnd) -> None:
         pass
