@@ -105,3 +105,13 @@ def test_missing_viewer_runs_headless(tmp_path, capsys):
     assert status == 0
     assert (tmp_path / "v.rrd").stat().st_size > 0
     assert "viewer" in capsys.readouterr().err.lower()
+
+
+def test_record_every_decimates_the_series(tmp_path, capsys):
+    rrd = tmp_path / "d.rrd"
+    assert main(["run", "ex2_duffing", "--duration", "1", "--record-every", "10",
+                 "--out", str(rrd)]) == 0
+    t, x1 = read_scalar_series(rrd, *series_location("x1", 2))
+    assert len(x1) == 100 and t[1] - t[0] == pytest.approx(0.01)
+    assert main(["run", "ex2_duffing", "--record-every", "0", "--no-record"]) == 2
+    assert "--record-every" in capsys.readouterr().err

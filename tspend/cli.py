@@ -65,6 +65,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     out.add_argument("--out", metavar="PATH.rrd",
                      help="recording file (default runs/<scenario>-<timestamp>.rrd)")
     out.add_argument("--no-record", action="store_true", help="record nothing")
+    p.add_argument("--record-every", type=int, default=1, metavar="N",
+                   help="record every Nth sample of the time series (default 1: every one, "
+                        "exact); 10 makes long recordings ten times smaller")
     p.add_argument("--spawn", action="store_true", help="also stream to a live Rerun viewer")
     p.add_argument("--connect", metavar="URL", help="also stream to a running Rerun viewer")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -176,6 +179,8 @@ def write_json(path: Path, obj: dict) -> None:
 # -- recording ---------------------------------------------------------------------------
 def open_sinks(args: argparse.Namespace, name: str, prefixes: tuple[str, ...] = ("",)):
     """The recording stream and one Rerun sink per prefix (none with --no-record)."""
+    if args.record_every < 1:
+        raise ScenarioError(f"--record-every: must be >= 1, got {args.record_every}")
     if args.no_record and not (args.spawn or args.connect):
         return None, None, []
     from .recorder import RerunSink, open_recording
@@ -187,7 +192,8 @@ def open_sinks(args: argparse.Namespace, name: str, prefixes: tuple[str, ...] = 
     rec = open_recording(app_id, path=path, spawn=args.spawn, connect=args.connect)
     if rec is None:  # no viewer reachable and nothing to save: the run goes on headless
         return None, None, []
-    sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None)
+    sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None,
+                       curves_every=args.record_every)
              for i, p in enumerate(prefixes)]
     return rec, path, sinks
 
