@@ -170,17 +170,14 @@ class ClosedLoop:
                     # a non-finite state or parameter reaches u within the sample
                     if not isfinite(u) or (bounded and self._out_of_bounds(x, u)):
                         problem, kept = self._diagnose(x, diag, t[i])
-                        self._emit(sinks, start, buf, t, ref, dist, i + kept)
-                        self._done = start + i + kept
-                        return self._done, "diverged", problem
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
                     try:
                         plant.step(u, dist[i], dt)
                     except (ArithmeticError, ValueError, DivergenceError) as exc:
                         # math.exp overflow, sin(inf), MuJoCo's own instability check
-                        self._emit(sinks, start, buf, t, ref, dist, i + 1)
-                        self._done = start + i + 1
-                        return (self._done, "diverged",
-                                f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
+                                              f"diverged at t = {t[i]:.4f} s: the plant failed "
+                                              f"({exc})")
                     if snap_every and (start + i) % snap_every == 0:
                         snap = ctrl.snapshot(float(t[i]), start + i, x)
                         for sink in snap_sinks:
@@ -192,13 +189,20 @@ class ClosedLoop:
                 raise
             bad = self._first_non_finite(D[:k])
             if bad is not None:
-                self._emit(sinks, start, buf, t, ref, dist, bad)
-                self._done = start + bad
-                return (self._done, "diverged", f"diverged at t = {t[bad]:.4f} s: "
-                        f"a parameter or estimate is not finite")
+                return self._diverged(sinks, start, buf, t, ref, dist, bad,
+                                      f"diverged at t = {t[bad]:.4f} s: a parameter or "
+                                      f"estimate is not finite")
             self._emit(sinks, start, buf, t, ref, dist, k)
             self._done = start + k
         return s.steps, "completed", ""
+
+    def _diverged(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                  ref: np.ndarray, dist: np.ndarray, kept: int,
+                  message: str) -> tuple[int, str, str]:
+        """Deliver the block's first ``kept`` samples and end the run as diverged."""
+        self._emit(sinks, start, buf, t, ref, dist, kept)
+        self._done = start + kept
+        return self._done, "diverged", message
 
     @staticmethod
     def _first_non_finite(D: np.ndarray) -> int | None:
