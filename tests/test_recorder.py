@@ -21,6 +21,7 @@ from tspend.recorder import (
     read_scalar_series,
     series_location,
 )
+from tspend.controller import paper_diagnostics
 from tspend.sinks import Block, FuzzyInputInfo, InnerSnapshot, RunEnd, RunInfo
 
 SCENARIO = '[plant]\nkind = "cartpole_ode"\nM = 10.0\n\n[run]\nduration = 3.0\n'
@@ -36,6 +37,7 @@ def make_info(order: int = 2, plant_kind: str = "cartpole_ode", steps: int = 300
     return RunInfo(scenario_name="synthetic", scenario_text=SCENARIO, scenario_path="scenarios/synthetic.toml",
                    seed=1234, version="0.1.0", plant_kind=plant_kind, order=order, dt=DT, duration=steps * DT,
                    steps=steps, model_inputs=model, compensator_inputs=comp, extras=extras,
+                   controller_kind="second_type", diagnostics=paper_diagnostics(order),
                    plant_meta={"M": 10.0, "m": 1.0, "l": 3.0, "g": 9.8} if extras else {})
 
 
@@ -139,7 +141,8 @@ def test_entities_timeline_and_blueprint(recorded) -> None:
     assert "/viewport" in blueprint and "ViewBlueprint:class_identifier" in blueprint
     paths = entity_paths(path)
     expected = {"/info/scenario", "/info/run", "/info/status", "/info/metrics", "/series/tracking",
-                "/series/error", "/series/control", "/series/compensation", "/series/params",
+                "/series/error", "/series/control", "/series/compensator", "/series/disturbance",
+                "/series/params",
                 "/series/lyapunov", "/series/norms", "/series/plant", "/world", "/world/cart", "/world/pole",
                 "/fuzzy/model/in0", "/fuzzy/model/in2", "/fuzzy/compensator/in1", "/fuzzy/firing",
                 "/fuzzy/compensator_firing", "/fuzzy/consequents", "/fuzzy/q"}

@@ -39,6 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO,
                    help="scenario name (see 'tspend list') or path to a .toml file")
     _common(r)
+    r.add_argument("--controller", metavar="KIND",
+                   help="run another controller kind on the scenario (default: the scenario's "
+                        "own; 'tspend run --controller help' lists the kinds)")
     r.add_argument("--metrics", metavar="PATH", help="write the metrics as one JSON object")
 
     c = sub.add_parser("crosscheck", help="run a cart-pole scenario on MuJoCo and on the ODE")
@@ -215,7 +218,12 @@ def cmd_list(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from .simulation import run
 
+    from .controllers import KINDS
+
     scn = load_with_overrides(args)
+    if args.controller is not None and args.controller not in KINDS:
+        raise ScenarioError(f"--controller {args.controller}: unknown kind; allowed: "
+                            f"{', '.join(KINDS)}")
     metrics_path = Path(args.metrics) if args.metrics else None
     if metrics_path is not None:
         check_writable(metrics_path, "metrics")
@@ -226,7 +234,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     # signals only set a flag from here on, so closing the recording cannot be cut short
     with stop_on_signals() as stop:
         try:
-            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop)
+            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop,
+                         controller=args.controller)
         except RunInterrupted as exc:
             if metrics_path is not None and exc.end is not None:
                 write_json(metrics_path, metrics_document(scn, exc.end))

@@ -25,6 +25,7 @@ from .bspline import BSplineInput
 from .compensator import FuzzyCompensator
 from .config import ControllerConfig, SetSpec
 from .control_law import control, lyapunov_gamma
+from .controllers.base import Diagnostic
 from .sinks import FuzzyInputInfo, InnerSnapshot
 from .ts_model import TSModel
 
@@ -43,6 +44,34 @@ def diag_layout(n: int) -> dict[str, slice | int]:
 
 def diag_size(n: int) -> int:
     return len(DIAG_SCALARS) + 2 * n + 1
+
+
+def paper_diagnostics(n: int) -> tuple[Diagnostic, ...]:
+    """The per-sample diagnostics of the paper controller, as the runner sees them.
+
+    ``u`` and ``e`` are in ``diag`` too (the kernel writes them) but the runner records
+    those itself, so they are not declared.
+    """
+    L = diag_layout(n)
+    p = L["p"]
+    return (
+        Diagnostic("u_s", L["u_s"], panel="compensator", unit="N",
+                   description="compensator part of u (21)", chattering=True),
+        Diagnostic("d_hat", L["d_hat"], panel="disturbance", unit="",
+                   description="compensator estimate of the lumped uncertainty (23)", chattering=True),
+        Diagnostic("e_delta", L["e_delta"], panel="error", description="e^T Gamma b_e"),
+        Diagnostic("V", L["V"], panel="lyapunov", log=True,
+                   description="tracking part of the Lyapunov function (28), 1/2 e^T Gamma e"),
+        Diagnostic("norm_P", L["norm_P"], panel="norms", log=True,
+                   description="Frobenius norm of the consequents P"),
+        Diagnostic("norm_q", L["norm_q"], panel="norms", log=True,
+                   description="norm of the compensator consequents q"),
+        Diagnostic("min_b", L["min_b"], panel="norms",
+                   description="min over rules of p_{n+1}^i (>= b_min under projection)"),
+        Diagnostic("p", p.start, p.stop - p.start,
+                   labels=tuple(f"p_{i + 1}" for i in range(n)) + ("b_hat",), panel="params",
+                   description="model output p_1 .. p_{n+1} of (9); b_hat = p_{n+1}"),
+    )
 
 
 def _input(name: str, spec: SetSpec, cfg: ControllerConfig) -> BSplineInput:
@@ -72,11 +101,16 @@ class FiringView(NamedTuple):
 
 
 class AdaptiveFuzzyController:
-    """The controller of Theorem 1 with the numpy reference implementation of each step."""
+    """The controller of Theorem 1 with the numpy reference implementation of each step.
+
+    A :class:`tspend.controllers.base.Controller`: kind ``second_type`` (or
+    ``first_type`` when the antecedents are fixed).
+    """
 
     def __init__(self, cfg: ControllerConfig) -> None:
         self.cfg = cfg
-        self.n = n = cfg.order
+        self.kind = "first_type" if cfg.adaptation == "first" else "second_type"
+        self.n = self.order = n = cfg.order
         self.lam = np.asarray(cfg.lam, dtype=float)
         self.Gamma = lyapunov_gamma(self.lam, np.asarray(cfg.Q, dtype=float))
         #: e_Delta = e^T Gamma b_e = Gamma[n-1] . e (Gamma is symmetric)
@@ -93,6 +127,7 @@ class AdaptiveFuzzyController:
         self.u_prev = 0.0
         self.diag = np.zeros(diag_size(n))
         self.layout = diag_layout(n)
+        self.diagnostics = paper_diagnostics(n)
         self._last: tuple | None = None        # the last sample's (model, compensator) firing
 
     # -- set-up -----------------------------------------------------------------------
@@ -101,6 +136,15 @@ class AdaptiveFuzzyController:
         self.model.initialise(rng, *self.cfg.init_consequents)
         self.compensator.initialise(rng, *self.cfg.init_compensator)
         self.u_prev = 0.0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """The protocol's name for :meth:`initialise`."""
+        self.initialise(rng)
+
+    def fuzzy_inputs(self) -> dict[str, tuple[FuzzyInputInfo, ...]]:
+        """The antecedent inputs of the model's and the compensator's rule bases."""
+        return {"model": input_info(model_inputs(self.cfg)),
+                "compensator": input_info(compensator_inputs(self.cfg))}
 
     # -- one sample ---------------------------------------------------------------------
     def operating_point(self, x: np.ndarray) -> tuple[np.ndarray, float]:

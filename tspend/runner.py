@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .controller import AdaptiveFuzzyController, diag_layout
+from .controllers.base import Controller, Diagnostic, check_diagnostics
 from .errors import DivergenceError
 from .plants.base import Plant
 from .signals import Disturbance, Reference
@@ -67,20 +67,28 @@ class LoopSettings:
 
 
 class BlockBuffer:
-    """Preallocated arrays of one block; ``view(k)`` exposes the first k samples."""
+    """Preallocated arrays of one block; ``view(k)`` exposes the first k samples.
 
-    def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...]) -> None:
+    The runner's own keys (``t x ref e u d``), then each of the controller's declared
+    diagnostics under its name, then the plant's extras as ``extra/NAME``.
+    """
+
+    def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...],
+                 diagnostics: tuple[Diagnostic, ...] = ()) -> None:
+        self.n = n
         self.x = np.zeros((size, n))
+        self.u = np.zeros(size)
         self.diag = np.zeros((size, diag_width))
         self.extra_names = extras
         self.extra = np.zeros((size, len(extras)))
-        self.layout = diag_layout(n)
+        self.diagnostics = diagnostics
 
     def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
-        D, L = self.diag[:k], self.layout
-        data = {"t": t[:k], "x": self.x[:k], "ref": ref[:k], "d": d[:k]}
-        for key, where in L.items():
-            data[key] = D[:, where]
+        D, X = self.diag[:k], self.x[:k]
+        data = {"t": t[:k], "x": X, "ref": ref[:k], "e": X - ref[:k, :self.n], "u": self.u[:k],
+                "d": d[:k]}
+        for diagnostic in self.diagnostics:
+            data[diagnostic.name] = D[:, diagnostic.columns]
         for j, name in enumerate(self.extra_names):
             data[f"extra/{name}"] = self.extra[:k, j]
         return data
@@ -89,11 +97,12 @@ class BlockBuffer:
 class ClosedLoop:
     """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``."""
 
-    def __init__(self, plant: Plant, controller: AdaptiveFuzzyController, reference: Reference,
+    def __init__(self, plant: Plant, controller: Controller, reference: Reference,
                  disturbance: Disturbance, settings: LoopSettings,
                  stop: StopRequest | None = None) -> None:
-        if plant.order != controller.n:
-            raise ValueError(f"plant order {plant.order} != controller order {controller.n}")
+        if plant.order != controller.order:
+            raise ValueError(f"plant order {plant.order} != controller order {controller.order}")
+        check_diagnostics(controller.diagnostics, controller.diag)
         self.plant = plant
         self.controller = controller
         self.reference = reference
@@ -140,13 +149,15 @@ class ClosedLoop:
 
     def _loop(self, sinks: list[Sink]) -> tuple[int, str, str]:
         s, plant, ctrl = self.s, self.plant, self.controller
-        n, dt = ctrl.n, s.dt
+        n, dt = ctrl.order, s.dt
         extras = tuple(plant.extras().keys())
-        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras)
-        X, D, E = buf.x, buf.diag, buf.extra
+        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras, ctrl.diagnostics)
+        X, U, D, E = buf.x, buf.u, buf.diag, buf.extra
         diag = ctrl.diag
-        # inner snapshots cost a numpy evaluation each: only for sinks that draw them
-        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)]
+        # inner snapshots cost a numpy evaluation each: only for sinks that draw them, and
+        # only from controllers that have an inner state to show
+        snapshot = getattr(ctrl, "snapshot", None)
+        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)] if snapshot else []
         snap_every = s.snapshot_every if snap_sinks else 0
         bounded = s.state_bound > 0.0 or s.control_bound > 0.0
         isfinite = math.isfinite
@@ -164,12 +175,13 @@ class ClosedLoop:
                     x = plant.state()
                     u = ctrl.step(x, ref[i], dt)
                     X[i] = x
+                    U[i] = u
                     D[i] = diag
                     if extras:
                         E[i] = tuple(plant.extras().values())
                     # a non-finite state or parameter reaches u within the sample
                     if not isfinite(u) or (bounded and self._out_of_bounds(x, u)):
-                        problem, kept = self._diagnose(x, diag, t[i])
+                        problem, kept = self._diagnose(x, u, t[i])
                         return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
                     try:
                         plant.step(u, dist[i], dt)
@@ -179,7 +191,7 @@ class ClosedLoop:
                                               f"diverged at t = {t[i]:.4f} s: the plant failed "
                                               f"({exc})")
                     if snap_every and (start + i) % snap_every == 0:
-                        snap = ctrl.snapshot(float(t[i]), start + i, x)
+                        snap = snapshot(float(t[i]), start + i, x)
                         for sink in snap_sinks:
                             sink.inner(snap)
             except BaseException:
@@ -187,7 +199,7 @@ class ClosedLoop:
                 self._emit(sinks, start, buf, t, ref, dist, i)
                 self._done = start + i
                 raise
-            bad = self._first_non_finite(D[:k])
+            bad = self._first_non_finite(D[:k]) if D.shape[1] else None
             if bad is not None:
                 return self._diverged(sinks, start, buf, t, ref, dist, bad,
                                       f"diverged at t = {t[bad]:.4f} s: a parameter or "
@@ -213,18 +225,18 @@ class ClosedLoop:
         return ((self.s.state_bound > 0.0 and float(np.abs(x).max()) > self.s.state_bound)
                 or (self.s.control_bound > 0.0 and abs(u) > self.s.control_bound))
 
-    def _diagnose(self, x: np.ndarray, diag: np.ndarray, t: float) -> tuple[str, int]:
+    def _diagnose(self, x: np.ndarray, u: float, t: float) -> tuple[str, int]:
         """What went wrong at time t, and whether that sample is kept (1: finite) or not."""
         if not np.all(np.isfinite(x)):
             return f"diverged at t = {t:.4f} s: the state is not finite", 0
-        if not math.isfinite(diag[0]):
+        if not math.isfinite(u):
             return f"diverged at t = {t:.4f} s: the control u is not finite", 0
         if self.s.state_bound > 0.0:
             worst = int(np.argmax(np.abs(x)))
             if abs(x[worst]) > self.s.state_bound:
                 return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} "
                         f"exceeds state_bound {self.s.state_bound:g}", 1)
-        return (f"diverged at t = {t:.4f} s: |u| = {abs(diag[0]):.4g} exceeds "
+        return (f"diverged at t = {t:.4f} s: |u| = {abs(u):.4g} exceeds "
                 f"control_bound {self.s.control_bound:g}", 1)
 
     def _emit(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,

@@ -15,7 +15,8 @@ import numpy as np
 
 from . import __version__
 from .config import Scenario
-from .controller import AdaptiveFuzzyController, compensator_inputs, input_info, model_inputs
+from .controllers import build as build_controller_kind
+from .controllers.base import Controller
 from .metrics import MetricsAccumulator
 from .plants.analytic import (CartPoleParams, cartpole_ode_plant, duffing_plant,
                               nonaffine_plant, third_order_plant)
@@ -57,16 +58,15 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
-                     backend: str = "auto") -> AdaptiveFuzzyController:
-    """The controller, its consequents drawn from ``rng`` (default: the scenario's seed).
+                     backend: str = "auto", kind: str | None = None) -> Controller:
+    """The controller ``kind`` (default: the scenario's own), reset with ``rng``
+    (default: a generator seeded with the scenario's seed).
 
-    ``backend``: "numba" (compiled kernel), "numpy" (the reference implementation) or
-    "auto" (numba when installed); both compute the same step (tests/test_kernels.py).
+    ``backend`` applies to the paper controller: "numba" (compiled kernel), "numpy"
+    (the reference implementation) or "auto" (numba when installed).
     """
-    from .kernels import make_controller
-
-    ctrl = make_controller(scenario.controller, backend)
-    ctrl.initialise(rng if rng is not None else np.random.default_rng(scenario.run.seed))
+    ctrl = build_controller_kind(scenario, kind, backend=backend)
+    ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
 
@@ -78,8 +78,11 @@ def scenario_text(scenario: Scenario) -> str:
     return f"{scenario.text.rstrip()}\n\n# overrides applied on top of this file:\n{lines}\n"
 
 
-def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None) -> RunInfo:
+def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None,
+             controller: Controller | None = None) -> RunInfo:
     kind = kind or scenario.plant.kind
+    fuzzy_inputs = getattr(controller, "fuzzy_inputs", None)
+    fuzzy = fuzzy_inputs() if fuzzy_inputs else {}
     meta: dict = {}
     if kind.startswith("cartpole"):
         p = getattr(plant, "params", None) or cartpole_params(scenario)
@@ -91,9 +94,10 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         scenario_path=scenario.path,
         seed=scenario.run.seed, version=__version__, plant_kind=kind,
         order=plant.order, dt=scenario.run.dt, duration=steps * scenario.run.dt, steps=steps,
-        model_inputs=input_info(model_inputs(scenario.controller)),
-        compensator_inputs=input_info(compensator_inputs(scenario.controller)),
-        extras=tuple(plant.extras().keys()), plant_meta=meta)
+        model_inputs=fuzzy.get("model", ()), compensator_inputs=fuzzy.get("compensator", ()),
+        extras=tuple(plant.extras().keys()), plant_meta=meta,
+        controller_kind=getattr(controller, "kind", ""),
+        diagnostics=tuple(getattr(controller, "diagnostics", ())))
 
 
 class History:
@@ -125,7 +129,7 @@ class RunResult:
     scenario: Scenario
     end: RunEnd
     history: dict[str, np.ndarray]
-    controller: AdaptiveFuzzyController
+    controller: Controller
     plant: Plant
 
     @property
@@ -143,7 +147,8 @@ def steps_of(scenario: Scenario) -> int:
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
-        backend: str = "auto", stop: StopRequest | None = None) -> RunResult:
+        backend: str = "auto", stop: StopRequest | None = None,
+        controller: str | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
@@ -152,7 +157,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     after the sinks have finished).
     """
     plant = build_plant(scenario, plant_kind)
-    ctrl = build_controller(scenario, backend=backend)
+    ctrl = build_controller(scenario, backend=backend, kind=controller)
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
@@ -163,5 +168,5 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
-    end = loop.run(run_info(scenario, plant, steps, plant_kind), all_sinks)
+    end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl), all_sinks)
     return RunResult(scenario, end, history.arrays(), ctrl, plant)

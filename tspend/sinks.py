@@ -6,7 +6,8 @@ also passes a snapshot of the controller's inner state (membership curves, firin
 strengths).  Sinks: the metrics accumulator, the in-memory history for the Python API,
 the Rerun recorder.
 
-Per-step block (``Block.data``), every array's first axis is the step within the block:
+Per-step block (``Block.data``), every array's first axis is the step within the block.
+The runner writes these keys for every controller:
 
 =============  ==========  ==========================================================
 key            shape       meaning
@@ -15,16 +16,12 @@ key            shape       meaning
 ``x``          (k, n)      plant state read by the controller
 ``ref``        (k, n+1)    reference r, r', ..., r^(n)
 ``e``          (k, n)      tracking error e = x - r (first n entries of ref)
-``e_delta``    (k,)        e^T Gamma b_e
-``u``          (k,)        applied control (19)
-``u_s``        (k,)        compensator part (21)
-``d_hat``      (k,)        compensator estimate (23)
+``u``          (k,)        control returned by the controller
 ``d``          (k,)        disturbance d_d applied over the step
-``p``          (k, n+1)    p_1 .. p_{n+1} of (9); b_hat = p[:, n]
-``V``          (k,)        tracking part of the Lyapunov function (28): 1/2 e^T Gamma e
-``norm_P``     (k,)        Frobenius norm of the consequent parameters
-``norm_q``     (k,)        norm of the compensator consequents q
-``min_b``      (k,)        min over rules of p_{n+1}^i (>= b_min under projection)
+``NAME``       (k,)/(k,w)  each diagnostic the controller declares
+                           (:class:`tspend.controllers.base.Diagnostic`), e.g. the paper
+                           controller's ``u_s``, ``d_hat``, ``e_delta``, ``V``, ``p``,
+                           ``norm_P``, ``norm_q``, ``min_b``
 ``extra/NAME`` (k,)        plant extras (cart_pos, cart_vel for cart-poles)
 =============  ==========  ==========================================================
 """
@@ -35,6 +32,8 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+
+from .controllers.base import Diagnostic
 
 
 @dataclass(frozen=True)
@@ -61,9 +60,13 @@ class RunInfo:
     dt: float
     duration: float
     steps: int
-    model_inputs: tuple[FuzzyInputInfo, ...]
-    compensator_inputs: tuple[FuzzyInputInfo, ...]
+    #: the paper controller's antecedent inputs (empty for controllers without rule bases)
+    model_inputs: tuple[FuzzyInputInfo, ...] = ()
+    compensator_inputs: tuple[FuzzyInputInfo, ...] = ()
     extras: tuple[str, ...] = ()
+    #: which controller runs, and the diagnostics it declared
+    controller_kind: str = ""
+    diagnostics: tuple[Diagnostic, ...] = ()
     #: plant-specific drawing data (e.g. the MJCF path and cart-pole parameters)
     plant_meta: dict = field(default_factory=dict)
 

@@ -19,6 +19,8 @@ def _abs(prefix: str, path: str) -> str:
 def _fuzzy_views(info: RunInfo, prefix: str, suffix: str) -> tuple[list[rrb.View], list[rrb.View]]:
     """(membership-curve views, firing/consequent views) of one run."""
     bmf: list[rrb.View] = []
+    if not (info.model_inputs or info.compensator_inputs):
+        return [], []  # a controller without rule bases
     for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):
         for j, inp in enumerate(inputs):
             # drawn on [0, BMF_WIDTH] (RerunSink._display_x): the name carries the interval
@@ -64,7 +66,7 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
     series_views: list[rrb.View] = [
         rrb.TimeSeriesView(origin="/", contents=[_abs(p, spec.entity) for p in prefixes],
                            name=spec.title)
-        for spec in series_specs(info.order, info.extras)
+        for spec in series_specs(info.order, info.extras, info.diagnostics)
     ]
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
@@ -76,11 +78,9 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
         doc_views += [rrb.TextDocumentView(origin=_abs(p, f"info/{doc}"), name=f"{doc}{sfx}")
                       for doc in ("status", "metrics", "run", "scenario")]
         doc_views.append(rrb.TextLogView(origin=_abs(p, "events"), name=f"events{sfx}"))
-    tabs = rrb.Tabs(
-        rrb.Grid(*bmf_views, name="membership functions"),
-        rrb.Grid(*firing_views, name="firing and consequents"),
-        rrb.Tabs(*doc_views, name="run info"),
-    )
+    fuzzy_tabs = [rrb.Grid(*bmf_views, name="membership functions"),
+                  rrb.Grid(*firing_views, name="firing and consequents")] if bmf_views else []
+    tabs = rrb.Tabs(*fuzzy_tabs, rrb.Tabs(*doc_views, name="run info"))
     left: list[rrb.Container | rrb.View] = []
     if is_cartpole(info) if cartpole is None else cartpole:
         views3d = [_cartpole_view(info, p, sfx) for p, sfx in zip(prefixes, suffixes)]

@@ -8,6 +8,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..controllers.base import Diagnostic
 from .common import PALETTE, Color, join_path
 
 
@@ -39,33 +40,46 @@ def _stack(*getters: Callable[[dict[str, np.ndarray]], np.ndarray]) -> Callable[
     return extract
 
 
-def series_specs(order: int, extras: Sequence[str] = ()) -> list[SeriesSpec]:
-    """The time-series layout for a plant of order ``order`` with ``extras``.
+#: the runner's own panels: entity, title, and the panel name diagnostics join them by
+STANDARD_PANELS = (("tracking", "reference and output"), ("error", "tracking error"),
+                   ("control", "control u"), ("disturbance", "disturbance"))
+PANEL_TITLES = {"compensator": "compensator part u_s", "lyapunov": "Lyapunov function",
+                "norms": "parameter norms", "params": "model output p"}
+
+
+def series_specs(order: int, extras: Sequence[str] = (),
+                 diagnostics: Sequence[Diagnostic] = ()) -> list[SeriesSpec]:
+    """The time-series layout for a plant of order ``order`` with ``extras`` under a
+    controller that declares ``diagnostics``.
 
     The single source of truth for where each per-step quantity is logged: the sink
     uses it to send, the blueprint to lay out its views, :func:`series_location` to
-    find a series again.
+    find a series again.  The runner's own series come first; each diagnostic joins
+    the view of its ``panel`` (a standard one, or one of its own).
     """
     n = order
     e_names = tuple(f"e_{i + 1}" for i in range(n))
-    p_names = tuple(f"p_{i + 1}" for i in range(n)) + ("b_hat",)
-    specs = [
-        SeriesSpec("series/tracking", "reference and output", ("r", "x1"), ((150, 150, 150), (31, 119, 180)),
-                   _stack(_col("ref", 0), _col("x", 0))),
-        SeriesSpec("series/error", "error and e_delta", e_names + ("e_delta",),
-                   PALETTE[:n] + ((0, 0, 0),), _stack(_col("e"), _col("e_delta"))),
-        SeriesSpec("series/control", "control u and u_s", ("u", "u_s"), ((214, 39, 40), (255, 127, 14)),
-                   _stack(_col("u"), _col("u_s"))),
-        SeriesSpec("series/compensation", "d_hat and disturbance d", ("d_hat", "d"), ((44, 160, 44), (127, 127, 127)),
-                   _stack(_col("d_hat"), _col("d"))),
-        SeriesSpec("series/params", "estimated p_k and b_hat", p_names,
-                   tuple(PALETTE[i % len(PALETTE)] for i in range(n)) + ((214, 39, 40),),
-                   _stack(_col("p"))),
-        SeriesSpec("series/lyapunov", "Lyapunov V", ("V",), ((148, 103, 189),), _stack(_col("V"))),
-        SeriesSpec("series/norms", "parameter norms", ("norm_P", "norm_q", "min_b"),
-                   ((140, 86, 75), (227, 119, 194), (188, 189, 34)),
-                   _stack(_col("norm_P"), _col("norm_q"), _col("min_b"))),
-    ]
+    names: dict[str, list[str]] = {
+        "tracking": ["r", "x1"], "error": list(e_names), "control": ["u"], "disturbance": ["d"]}
+    colors: dict[str, list[Color]] = {
+        "tracking": [(150, 150, 150), (31, 119, 180)], "error": list(PALETTE[:n]),
+        "control": [(214, 39, 40)], "disturbance": [(127, 127, 127)]}
+    getters: dict[str, list] = {
+        "tracking": [_col("ref", 0), _col("x", 0)], "error": [_col("e")], "control": [_col("u")],
+        "disturbance": [_col("d")]}
+    titles = dict(STANDARD_PANELS)
+    for diag in diagnostics:
+        panel = diag.panel or diag.name
+        if panel not in names:
+            names[panel], colors[panel], getters[panel] = [], [], []
+            titles[panel] = PANEL_TITLES.get(panel, panel)
+        for label in diag.column_labels:
+            names[panel].append(label)
+            colors[panel].append(PALETTE[(len(colors[panel]) + 3) % len(PALETTE)]
+                                 if panel in dict(STANDARD_PANELS) else PALETTE[len(colors[panel]) % len(PALETTE)])
+        getters[panel].append(_col(diag.name))
+    specs = [SeriesSpec(f"series/{panel}", titles[panel], tuple(names[panel]), tuple(colors[panel]),
+                        _stack(*getters[panel])) for panel in names]
     if extras:
         specs.append(SeriesSpec(
             "series/plant", "plant extras", tuple(extras),
@@ -75,9 +89,9 @@ def series_specs(order: int, extras: Sequence[str] = ()) -> list[SeriesSpec]:
 
 
 def series_location(name: str, order: int, extras: Sequence[str] = (),
-                    prefix: str = "") -> tuple[str, int]:
+                    prefix: str = "", diagnostics: Sequence[Diagnostic] = ()) -> tuple[str, int]:
     """``(entity, instance)`` where series ``name`` (``"x1"``, ``"u"``, ``"b_hat"``) is logged."""
-    for spec in series_specs(order, extras):
+    for spec in series_specs(order, extras, diagnostics):
         if name in spec.names:
             return join_path(prefix, spec.entity), spec.names.index(name)
     raise KeyError(f"no logged series named {name!r}")

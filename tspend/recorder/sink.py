@@ -188,7 +188,7 @@ class RerunSink:
                            for j, inp in enumerate(inputs)}
         self._frames, self._frame_rows = [], 0
         self._last_flush, self._last_t = time.monotonic(), 0.0
-        self._specs = series_specs(info.order, info.extras)
+        self._specs = series_specs(info.order, info.extras, info.diagnostics)
         self._frame_every = max(1, int(round(1.0 / (self.frame_hz * info.dt)))) if info.dt > 0 else 1
         statics = StaticBatch()
         self._log_documents(statics, info)

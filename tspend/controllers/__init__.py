@@ -1,0 +1,52 @@
+"""Controllers behind one protocol (:mod:`tspend.controllers.base`), chosen by kind.
+
+``KINDS`` maps each kind to the function that builds it from a scenario: the paper's
+``second_type`` (the default) and ``first_type`` (antecedents fixed), and the baselines
+to compare them with.  A builder takes the scenario and the keyword options, and returns
+a controller that has not been reset yet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING, Callable
+
+from .base import Controller, Diagnostic
+
+if TYPE_CHECKING:
+    from ..config import Scenario
+
+
+def _paper(adaptation: str | None) -> Callable[..., Controller]:
+    def build(scenario: "Scenario", backend: str = "auto") -> Controller:
+        from ..kernels import make_controller
+
+        cfg = scenario.controller
+        if adaptation is not None and cfg.adaptation != adaptation:
+            cfg = replace(cfg, adaptation=adaptation)
+        return make_controller(cfg, backend)
+
+    return build
+
+
+#: controller kind -> builder(scenario, **options)
+KINDS: dict[str, Callable[..., Controller]] = {
+    "second_type": _paper("second"),
+    "first_type": _paper("first"),
+}
+
+
+def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
+    """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller)."""
+    if kind is None:
+        return _paper(None)(scenario, **options)
+    try:
+        builder = KINDS[kind]
+    except KeyError:
+        raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}") from None
+    if kind not in ("second_type", "first_type"):
+        options.pop("backend", None)
+    return builder(scenario, **options)
+
+
+__all__ = ["KINDS", "Controller", "Diagnostic", "build"]
