@@ -1,4 +1,4 @@
-"""The MuJoCo cart-pole reproduces Example 3's ODE (READING section 7).
+"""The MuJoCo cart-pole reproduces Example 3's ODE (docs/paper-notes.md section 7).
 
 The oracle is ``solve_ivp`` (DOP853, rtol 1e-12) restarted over each 1 ms sample with u
 and d held: independent of both MuJoCo and tspend's own RK4.  The runs are open loop,
@@ -34,7 +34,7 @@ from tspend.plants.mujoco_plant import MujocoCartPole
 MODEL = Path(__file__).resolve().parents[1] / "models" / "cartpole.xml"
 DURATION, DT = 10.0, 1e-3
 X0 = np.array([0.05, 0.0])
-TOL = 1e-8  # rad; RK4 at 1 ms actually lands near 1e-11 (READING section 7)
+TOL = 1e-8  # rad; RK4 at 1 ms actually lands near 1e-11 (docs/paper-notes.md section 7)
 
 OVERRIDES = [CartPoleParams(5.0, 0.5, 1.0), CartPoleParams(20.0, 2.0, 0.5)]
 

@@ -98,7 +98,7 @@ def test_cartpole_ode_matches_solve_ivp(params):
 
 
 def test_cartpole_sign_convention():
-    """u > 0 gives theta'' > 0 at rest upright (READING section 7)."""
+    """u > 0 gives theta'' > 0 at rest upright (docs/paper-notes.md section 7)."""
     plant = cartpole_ode_plant()
     plant.reset(np.zeros(2))
     plant.step(10.0, 0.0, DT)

@@ -155,7 +155,7 @@ def memberships(C: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     ``C``: control points (T, r); ``N``: basis at the input (r,).  Returns ``mu`` (T,)
     and the mask ``0 < B < 1`` where ``d mu / d c_l = N_l`` (elsewhere S is flat and
-    the gradient is zero, READING section 1).
+    the gradient is zero, docs/paper-notes.md section 1).
     """
     B = C @ N
     return clip_unit(B), (B > 0.0) & (B < 1.0)

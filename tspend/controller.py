@@ -5,7 +5,7 @@ One call of :meth:`AdaptiveFuzzyController.step` is one controller sample:
 1. ``e = x - r``, ``e_Delta = e^T Gamma b_e``;
 2. the operating point: fixed ``(x_o, u_o)``, or state-following ``x_o = x`` and
    ``u_o = fraction * u(previous sample)`` (Example 3's ``u_o = u(t)/2`` is an algebraic
-   loop; the previous sample breaks it, READING section 6);
+   loop; the previous sample breaks it, docs/paper-notes.md section 6);
 3. the T-S model's p (9) at ``z = [x_o; u_o]``, the compensator's d_hat and u_s (21)-(23);
 4. u from (19);
 5. the adaptive laws (25)-(27) integrated by forward Euler over the sample time, as a

@@ -1,4 +1,4 @@
-"""Cross-check the MuJoCo cart-pole against the analytic ODE (READING section 7).
+"""Cross-check the MuJoCo cart-pole against the analytic ODE (docs/paper-notes.md section 7).
 
 (a) Open loop: both backends from the scenario's x0 under the same chirp force and the
 scenario's disturbance, held over each sample; the two are exact models of one machine,

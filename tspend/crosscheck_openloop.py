@@ -1,4 +1,4 @@
-"""Open-loop cross-check of cart-pole backends (READING section 7, the paper's Example 3).
+"""Open-loop cross-check of cart-pole backends (docs/paper-notes.md section 7, the paper's Example 3).
 
 Before trusting closed-loop results on the MuJoCo cart-pole, drive it and the analytic
 ODE with the same zero-order-hold force and disturbance and compare the trajectories.

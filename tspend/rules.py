@@ -7,8 +7,8 @@ loop over rules is needed.  Rules are numbered in C order of the grid (the last 
 varies fastest).
 
 The weighted output of any per-rule quantity ``y^i`` is ``y = sum_i w^i y^i``; its
-gradient with respect to one membership value (the chain rule behind eq. (11), READING
-section 4) is ``dy/dmu_{F_j^s} = sum_{i uses F_j^s} (y^i - y) w^i / mu_{F_j^s}``, where
+gradient with respect to one membership value (the chain rule behind eq. (11),
+docs/paper-notes.md section 4) is ``dy/dmu_{F_j^s} = sum_{i uses F_j^s} (y^i - y) w^i / mu_{F_j^s}``, where
 ``w^i / mu_{F_j^s}`` is the product of the rule's *other* memberships over ``varpi``:
 a tensor contraction over every input but j, never a division by a membership.
 

@@ -11,7 +11,7 @@ Adaptive laws, with ``e_Delta = e^T Gamma b_e``:
 * antecedents (second type): the paper adapts the membership values themselves through
   the regressors of (11).  What can be tuned is the BMF control points, which all n+1
   outputs share, so (11) summed over k is carried to the control points by the chain
-  rule (READING section 4): ``dc/dt = eta_mu e_Delta dy/dc`` with ``y^i = p^i . v`` and
+  rule (docs/paper-notes.md section 4): ``dc/dt = eta_mu e_Delta dy/dc`` with ``y^i = p^i . v`` and
   ``y = sum_i w^i y^i``.  ``eta_mu = 0`` is the first type law (consequents only).
 
 Assumption 5 (b_hat bounded away from zero) is enforced by projecting every control-gain
@@ -44,7 +44,7 @@ class TSModel:
 
         The paper draws every consequent around zero, so b_hat starts with either sign
         and (19) divides by it: gains are drawn from ``[max(lo, b_min), max(hi, b_min)]``
-        instead (a point when the interval lies below b_min), READING section 5.
+        instead (a point when the interval lies below b_min), docs/paper-notes.md section 5.
         """
         h, n = self.rules.size, self.order
         self.P[:, :n] = rng.uniform(lo, hi, size=(h, n))

@@ -2,7 +2,7 @@
 
 ``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
 MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
-(READING section 7): the state is ``x = [theta, theta']`` (hinge qpos, qvel), ``u`` is
+(docs/paper-notes.md section 7): the state is ``x = [theta, theta']`` (hinge qpos, qvel), ``u`` is
 the motor force on the cart, and the disturbance ``d_d`` of the ODE's numerator is
 applied as the hinge torque that has the same effect,
 
