@@ -260,6 +260,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if end.status == "diverged":
         print(f"tspend: {end.message}", file=sys.stderr)
         return EXIT_DIVERGED
+    if end.status == "rail_end":  # tspend.effects.RailEnd
+        print(f"tspend: {end.message}", file=sys.stderr)
+        return 4
     return 0
 
 
@@ -301,6 +304,11 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         write_json(json_path, report)
     if rrd:
         print(f"recording: {rrd}  (open with: rerun {rrd})")
+    if not report["open_loop_ok"]:
+        from .crosscheck import failure_reason
+
+        print(f"tspend: cross-check failed: max |dtheta| = {report['open_loop_max_dtheta']:.3g} "
+              f"rad > {args.tol:g}; {failure_reason(report)}", file=sys.stderr)
     return 0 if report["open_loop_ok"] else 1
 
 
