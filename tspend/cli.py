@@ -22,8 +22,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from . import __version__
+from . import __version__, cli_inspect
 from .errors import ScenarioError, TspendError
+from .plants.mjcf_warning import print_as_one_line
 from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
@@ -54,6 +55,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="length of the open-loop comparison (default 10 s)")
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
+    cli_inspect.add_parser(sub)
     return p
 
 
@@ -314,7 +316,9 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck}
+    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
+                "inspect": cli_inspect.cmd}
+    print_as_one_line()
     try:
         return commands[args.command](args)
     except TspendError as exc:

@@ -18,8 +18,8 @@ from typing import Any, Callable
 import numpy as np
 
 from . import signals
-from .config import (ControllerConfig, EffectsConfig, OuterLoopConfig, ParameterChange,
-                     PlantConfig, RunConfig, Scenario, SetSpec)
+from .config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
+                     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from .control_law import is_hurwitz
 from .errors import ScenarioError
 from .plants.registry import PLANT_KINDS
@@ -471,7 +471,7 @@ def override(scenario: Scenario, **changes: Any) -> Scenario:
 
 def resolve_model_path(scenario: Scenario) -> Path:
     """The MJCF of a MuJoCo scenario: as given, else next to the scenario, else the project's."""
-    p = Path(scenario.plant.model)
+    p = Path(getattr(scenario.plant, "model", MujocoCartPoleConfig.model))
     if p.is_absolute():
         return p
     bases = [Path.cwd()]

@@ -208,8 +208,9 @@ def departures(f: ModelFacts, dt: float | None = None) -> list[str]:
         out.append(f"pole inertia about the pivot is {f.pole_inertia_pivot:.6g} kg m^2, not the "
                    f"uniform rod's 4/3 m l^2 = {f.rod_inertia_pivot:.6g}")
     if f.gain_sign < 0:
-        out.append("reversed gain sign: u > 0 gives theta'' < 0 at the upright (the controller "
-                   "needs controller.gain_sign = \"negative\" or \"plant\")")
+        out.append("reversed gain sign: u > 0 gives theta'' < 0 at the upright (the paper "
+                   "controller takes this sign from the model unless controller.gain_sign "
+                   "says otherwise)")
     if f.actuator_type != "motor":
         out.append("actuator is not a plain motor (gain, bias or dynamics): u is not a force")
     if f.gear != 1.0:

@@ -130,8 +130,8 @@ class MujocoCartPole:
             spec.option.timestep = float(timestep)
         for joint, damping, friction in ((slide, cart_damping, cart_friction),
                                          (hinge, hinge_damping, hinge_friction)):
-            if damping is not None:
-                joint.damping = damping
+            if damping is not None:  # MuJoCo 4 keeps [linear, 0, 0] damping coefficients
+                joint.damping = [damping, 0.0, 0.0]
             if friction is not None:
                 joint.frictionloss = friction
         if overrides is not None:
@@ -400,3 +400,31 @@ class MujocoCartPole:
         mujoco.mj_kinematics(model, d)
         return {model.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy())
                 for i in range(model.nbody)}
+
+
+def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
+                actuator: str | None) -> tuple[str, str, str]:
+    """Joint and actuator names: the given ones, else the model's only slide joint, only
+    hinge joint and only actuator on that slide (ScenarioError when ambiguous)."""
+    where = str(model_path)
+    if not Path(model_path).is_file():
+        raise ScenarioError(f"{where}: model file not found")
+    try:
+        spec = mujoco.MjSpec.from_file(str(model_path))
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: cannot parse MJCF: {exc}") from exc
+
+    def only(found: list[str], what: str, flag: str) -> str:
+        if len(found) != 1:
+            raise ScenarioError(f"{where}: {len(found)} {what} ({', '.join(found) or 'none'}); "
+                                f"name one with {flag}")
+        return found[0]
+
+    joints = list(spec.joints)
+    slide = slide or only([j.name for j in joints if j.type == mujoco.mjtJoint.mjJNT_SLIDE],
+                          "slide joints", "--slide")
+    hinge = hinge or only([j.name for j in joints if j.type == mujoco.mjtJoint.mjJNT_HINGE],
+                          "hinge joints", "--hinge")
+    actuator = actuator or only([a.name for a in spec.actuators if a.target == slide],
+                                f"actuators on '{slide}'", "--actuator")
+    return slide, hinge, actuator
