@@ -334,7 +334,8 @@ class MujocoCartPole:
         k = round(dt / self._ts)
         if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
             raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
-                                f"multiple of the model timestep {self._ts!r}")
+                                f"multiple of the model timestep {self._ts!r}: set plant.timestep "
+                                f"(e.g. plant.timestep = {dt:g}) or run.dt to a multiple of it")
         return int(k)
 
     def extras(self) -> dict[str, float]:
