@@ -215,8 +215,14 @@ class CsvReference:
             raise ValueError("time must increase strictly and values be finite")
         return t, v
 
+    def __post_init__(self) -> None:
+        # the filtered table per order n, computed once per reference (not per block)
+        object.__setattr__(self, "_filtered", {})
+
     def derivatives(self, t: np.ndarray, n: int) -> np.ndarray:
-        grid, states = _filtered_csv(self, n)
+        if n not in self._filtered:  # type: ignore[attr-defined]
+            self._filtered[n] = _filtered_csv(self, n)  # type: ignore[attr-defined]
+        grid, states = self._filtered[n]  # type: ignore[attr-defined]
         t = np.asarray(t, dtype=float)
         out = np.empty((t.size, n + 1))
         for k in range(n + 1):
@@ -224,14 +230,8 @@ class CsvReference:
         return out
 
 
-_CSV_CACHE: dict = {}
-
-
 def _filtered_csv(ref: CsvReference, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The filter's states r .. r^(n-1) and r^(n) on the grid (cached per file and n)."""
-    key = (ref, n)
-    if key in _CSV_CACHE:
-        return _CSV_CACHE[key]
+    """The filter's states r .. r^(n-1) and r^(n) on the grid."""
     from scipy.linalg import expm
 
     t_in, v_in = ref._table()
@@ -256,5 +256,4 @@ def _filtered_csv(ref: CsvReference, n: int) -> tuple[np.ndarray, np.ndarray]:
         z[k + 1] = Phi @ z[k] + G0 * v[k] + G1 * (v[k + 1] - v[k])
     top = (z @ A[-1]) + w ** n * v
     states = np.column_stack([z, top])
-    _CSV_CACHE[key] = (grid, states)
     return grid, states
