@@ -171,7 +171,7 @@ def test_finite_rail_ends_the_run_with_its_status_and_exit_code(tmp_path: Path) 
                    **{"effects.outer_loop.k_x": 0.0, "effects.outer_loop.k_v": 0.0})
     r = run(scn, plant_kind="cartpole_ode")
     assert r.status == "rail_end" and "end of the rail" in r.end.message
-    assert abs(r.history["extra/cart_pos"][-1]) >= 6.0 - 0.1
+    assert abs(r.history["extra/cart_pos"][-1]) >= 8.0 - 0.1
     metrics = tmp_path / "m.json"
     code = main(["run", "pendulum_finite_rail", "--no-record", "--metrics", str(metrics),
                  "--set", "effects.outer_loop.k_x=0.0", "--set", "effects.outer_loop.k_v=0.0"])
@@ -183,7 +183,7 @@ def test_outer_loop_keeps_the_cart_on_the_rail_with_a_smooth_reference() -> None
     r = run(scn, plant_kind="cartpole_ode")
     assert r.status == "completed"
     cart = r.history["extra/cart_pos"]
-    assert np.abs(cart).max() < 6.0
+    assert np.abs(cart).max() < 8.0
     ref, t = r.history["ref"], r.history["t"]
     # the shaped reference's derivatives are the derivatives of the shaped reference
     # (r'' has kinks where the lean command meets max_angle: compare all but those)

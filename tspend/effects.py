@@ -93,7 +93,7 @@ class EffectsPlant:
 class OuterLoop:
     """Cart centring by the pole reference (docs/testbed.md, equations (O1)-(O2)).
 
-    ``c = clip(theta_sign (k_x x_c + k_v x_c'), +/- max_angle)`` (O1) is the lean that
+    ``c = a tanh(theta_sign (k_x x_c + k_v x_c') / a)``, a = max_angle (O1), is the lean that
     brings the cart back (a pole held at theta accelerates the cart by -g tan theta);
     it is smoothed by ``w^n / (s + w)^n``, w = 1/tau (O2), whose states give the added
     reference and its n derivatives, discretised exactly for c held over a sample.
@@ -117,8 +117,9 @@ class OuterLoop:
 
     def shape(self, ref_row: np.ndarray, cart_pos: float, cart_vel: float) -> None:
         c = self.cfg
-        cmd = self.sign * (c.k_x * cart_pos + c.k_v * cart_vel)
-        cmd = min(max(cmd, -c.max_angle), c.max_angle)
+        # a smooth limit: a clip's kink would put a jump into r^(n)'s derivative
+        cmd = c.max_angle * math.tanh(self.sign * (c.k_x * cart_pos + c.k_v * cart_vel)
+                                      / c.max_angle)
         z = self.z
         ref_row[: self.n] += z
         ref_row[self.n] += float(self.A[-1] @ z + self.b[-1] * cmd)
