@@ -38,7 +38,9 @@ def _require_cartpole(scenario: Scenario) -> None:
 def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
     """Max differences between the backends under the same force and disturbance."""
     _require_cartpole(scenario)
+    # the machine itself: effects (actuator, rail, noise) stay out of the open loop
     mj = build_plant(scenario, "cartpole_mujoco")
+    mj = getattr(mj, "inner", mj)
     # the ODE of the very machine MuJoCo compiled (masses, inertia, damping, gear, sign)
     params = mj.params  # type: ignore[attr-defined]
     ode = cartpole_ode_plant(params)
