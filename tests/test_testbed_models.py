@@ -194,3 +194,16 @@ def test_failing_crosscheck_names_the_departures(capsys) -> None:
     assert code == 1
     assert "cross-check failed" in err and "integrator Euler" in err and "is limited" in err
     assert "no departure" in failure_reason({"departures": []})
+
+
+def test_inspect_bad_input_is_one_line_and_status_2(tmp_path: Path, capsys) -> None:
+    assert main(["inspect", str(tmp_path / "none.xml")]) == 2
+    two = tmp_path / "two_hinges.xml"
+    two.write_text(REVERSED.read_text().replace(
+        '<joint name="hinge" type="hinge" axis="0 1 0"/>',
+        '<joint name="hinge" type="hinge" axis="0 1 0"/><joint name="twist" type="hinge" axis="0 0 1"/>'))
+    assert main(["inspect", str(two)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("tspend: error:") and "2 hinge joints (hinge, twist)" in err[-1]
+    assert "--hinge" in err[-1]
+    assert main(["inspect", str(two), "--hinge", "hinge"]) == 0
