@@ -29,12 +29,21 @@ import numpy as np
 
 
 class GaussianGrid(NamedTuple):
-    """Centres (one array per input), widths and intervals of a fixed Gaussian grid."""
+    """Centres (one array per input), widths and intervals of a fixed Gaussian grid.
+
+    ``flat_centres``, ``flat_sigma`` and ``owner`` (the input each flattened centre
+    belongs to) let one ``exp`` call evaluate every membership; ``slices`` cut the
+    result back into the inputs.
+    """
 
     centres: tuple[np.ndarray, ...]
     sigma: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
+    flat_centres: np.ndarray
+    flat_sigma: np.ndarray
+    owner: np.ndarray
+    slices: tuple[slice, ...]
 
     @property
     def rules(self) -> int:
@@ -47,16 +56,26 @@ def gaussian_grid(sets) -> GaussianGrid:
     centres = tuple(np.linspace(s.lo, s.hi, s.terms) if s.terms > 1
                     else np.array([0.5 * (s.lo + s.hi)]) for s in sets)
     sigma = np.array([(s.hi - s.lo) / max(s.terms - 1, 1) for s in sets])
+    owner = np.concatenate([np.full(c.size, i) for i, c in enumerate(centres)])
     return GaussianGrid(centres, sigma, np.array([s.lo for s in sets]),
-                        np.array([s.hi for s in sets]))
+                        np.array([s.hi for s in sets]), np.concatenate(centres),
+                        sigma[owner], owner, _slices([c.size for c in centres]))
+
+
+def _slices(sizes: list[int]) -> tuple[slice, ...]:
+    ends = np.cumsum(sizes)
+    return tuple(slice(int(e - k), int(e)) for e, k in zip(ends, sizes))
 
 
 def memberships(grid: GaussianGrid, x: np.ndarray) -> list[np.ndarray]:
-    z = np.clip(x, grid.lo, grid.hi)
-    return [np.exp(-(((z[i] - c) / grid.sigma[i]) ** 2)) for i, c in enumerate(grid.centres)]
+    """``mu_ij(x_i)`` of every set, one array per input."""
+    z = np.minimum(np.maximum(x, grid.lo), grid.hi)[grid.owner]
+    mu = np.exp(-np.square((z - grid.flat_centres) / grid.flat_sigma))
+    return [mu[s] for s in grid.slices]
 
 
 def basis(grid: GaussianGrid, x: np.ndarray) -> np.ndarray:
     """``xi(x)``: the normalised firing strengths of every rule (row-major grid order)."""
-    g = reduce(np.multiply.outer, memberships(grid, x)).ravel()
+    mu = memberships(grid, x)
+    g = np.outer(mu[0], mu[1]).ravel() if len(mu) == 2 else reduce(np.multiply.outer, mu).ravel()
     return g / g.sum()
