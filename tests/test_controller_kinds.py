@@ -308,3 +308,20 @@ def test_every_baseline_has_settings_and_defaults_documented():
         assert cls.__doc__ and f"[controllers.{kind}]" in cls.__doc__
         for f in cls.__dataclass_fields__.values():
             assert f.metadata.get("doc"), (kind, f.name)
+
+
+def test_a_baselines_diagnostics_are_recorded_by_name(tmp_path):
+    from tspend.recorder import (RerunSink, close_recording, open_recording,
+                                 read_scalar_series, series_location)
+
+    s = override(load_scenario("ex2_duffing"), **{"run.duration": 0.5})
+    rrd = tmp_path / "smc.rrd"
+    rec = open_recording("tspend_test_kinds", path=rrd)
+    r = run(s, controller="sliding_mode", sinks=[RerunSink(rec)])
+    close_recording(rec)
+    diags = r.controller.diagnostics
+    for name in ("s", "u_sw", "u_eq"):
+        entity, instance = series_location(name, 2, (), diagnostics=diags)
+        t, values = read_scalar_series(rrd, entity, instance)
+        np.testing.assert_array_equal(values, r.history[name])
+        np.testing.assert_allclose(t, r.history["t"], atol=1e-12)

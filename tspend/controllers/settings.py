@@ -173,11 +173,6 @@ def settings_for(scenario: "Scenario", kind: str):
     return SETTINGS[kind]()
 
 
-def describe(cls) -> list[tuple[str, Any, str]]:
-    """``(key, default, doc)`` of every setting of a kind (for ``docs/`` and ``--help``)."""
-    return [(key_of(f), f.default, f.metadata["doc"]) for f in dataclasses.fields(cls)]
-
-
 def finite_or(value: float | None, fallback: float) -> float:
     """``value`` when given, else the plant-derived ``fallback`` (must be finite)."""
     out = fallback if value is None else value

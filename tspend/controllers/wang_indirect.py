@@ -156,9 +156,14 @@ class WangIndirectController:
         self.theta_f[:] = 0.0
         self.theta_g[:] = self.g_init
 
+    def law_coefficients(self, e_delta: float, u_c: float) -> tuple[float, float]:
+        """The laws are ``theta_f' = a_f xi(x)`` and ``theta_g' = a_g xi(x)``: ``(a_f, a_g)``."""
+        return self.gamma_f * e_delta, self.gamma_g * e_delta * u_c
+
     def rates(self, e_delta: float, xi: np.ndarray, u_c: float) -> tuple[np.ndarray, np.ndarray]:
         """``(theta_f', theta_g')`` before projection."""
-        return self.gamma_f * e_delta * xi, self.gamma_g * e_delta * u_c * xi
+        a_f, a_g = self.law_coefficients(e_delta, u_c)
+        return a_f * xi, a_g * xi
 
     def supervisory(self, e_delta: float, V: float, f_hat: float, g_hat: float,
                     u_c: float) -> float:
@@ -181,11 +186,11 @@ class WangIndirectController:
         d = self.diag
         d[0], d[1], d[2], d[3], d[4], d[5] = u_c, u_s, f_hat, g_hat, e_delta, V
         d[6], d[7] = math.sqrt(self.theta_f @ self.theta_f), self.theta_g.min()
-        dtf, dtg = self.rates(e_delta, xi, u_c)
-        self.theta_f += dt * dtf
-        self.theta_g += dt * dtg
-        if self.f_radius > 0.0 or self.g_radius > 0.0 or dtg.min() < 0.0:
-            self.project()  # only a decrease of theta_g or a ball can leave the set
+        a_f, a_g = self.law_coefficients(e_delta, u_c)
+        self.theta_f += (dt * a_f) * xi
+        self.theta_g += (dt * a_g) * xi
+        if a_g < 0.0 or self.f_radius > 0.0 or self.g_radius > 0.0:
+            self.project()  # xi > 0: only a_g < 0 (or a ball) can leave the set
         return u_c + u_s
 
     def project(self) -> None:
