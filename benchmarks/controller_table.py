@@ -8,7 +8,8 @@ under every kind of ``tspend.controllers.KINDS``, the baselines with the scenari
 over the last half of the run, ``control_energy`` is ``int u^2 dt``, ``tv_u_per_s`` the
 chattering, ``wall_s`` the loop's wall time.  A run that diverges is listed with the
 runner's reason.  The baselines draw nothing from the seed (their runs are identical for
-every seed); ``--seeds N`` reports the paper controller's median over seeds 1..N.
+every seed); ``--seeds N`` reports the paper controller's median over seeds 1..N, with
+the range over the seeds after its ``rmse_ss``.
 """
 
 from __future__ import annotations
@@ -55,7 +56,10 @@ def main() -> None:
             cells = []
             for c in COLUMNS:
                 vals = [r.metrics[c] for r in results if r.metrics.get(c) is not None]
-                cells.append(fmt(statistics.median(vals)) if vals else "n/a")
+                cell = fmt(statistics.median(vals)) if vals else "n/a"
+                if c == "rmse_ss" and len(vals) > 1:
+                    cell += f" [{fmt(min(vals))}, {fmt(max(vals))}]"
+                cells.append(cell)
             status = f"{status} ({note})" if note else status
             print(f"| {name} | {kind} | {status} | " + " | ".join(cells) + " |", flush=True)
 
