@@ -70,8 +70,7 @@ def solve_for_u(model: PlantModel, t: float, x: np.ndarray, v: float, u0: float,
     """``(u, iterations, residual)`` with ``f(t, x, u) = v``."""
     if model.affine_in_u:
         f0 = model.f(t, x, 0.0)
-        g = model.f(t, x, 1.0) - f0
-        u = (v - f0) / g
+        u = (v - f0) / (model.f(t, x, 1.0) - f0)
         return u, 0, model.f(t, x, u) - v
     u = u0
     res = model.f(t, x, u) - v
