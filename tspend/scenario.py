@@ -21,6 +21,7 @@ from . import signals
 from .config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
                      ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from .control_law import is_hurwitz
+from .controllers.settings import parse_kind_tables
 from .errors import ScenarioError
 from .plants.registry import PLANT_KINDS
 
@@ -40,7 +41,7 @@ DISTURBANCE_KINDS: dict[str, type] = {
 MAX_STEPS = 1e9
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
-            "effects")
+            "controllers", "effects")
 SET_KEYS = ("terms", "lo", "hi")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
@@ -402,6 +403,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ref = _signal(top.table_of("reference", required=True), REFERENCE_KINDS, "sine")
     dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
     ctrl = _controller(top.table_of("controller", required=True), n)
+    kind_settings = parse_kind_tables(top.table_of("controllers"), n)
     effects = _effects(top.table_of("effects"), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
@@ -413,7 +415,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
         effects=effects,
-        path=str(path), text=text, overrides=tuple(overrides))
+        path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
 
 
 def _set_dotted(raw: dict, key: str, value: Any, path: str) -> None:

@@ -43,6 +43,16 @@ def third_order_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
             + (1.5 + math.cos(x1)) * (u + 0.2 * math.tanh(u)) + d)
 
 
+def cartpole_accel_fn(p: CartPoleParams) -> Accel:
+    """theta'' of the cart-pole (C1)-(C2) (:mod:`tspend.plants.cartpole`) as ``f(t, x, u, d)``,
+    with the cart at rest (its velocity enters only through cart damping)."""
+
+    def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
+        return cartpole.accelerations(p, x[0], x[1], 0.0, u, d)[0]
+
+    return accel
+
+
 class AnalyticPlant:
     """A plant of the form (6), stepped by classical RK4 with u and d held constant.
 
