@@ -58,14 +58,11 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
-                     backend: str = "auto", kind: str | None = None) -> Controller:
+                     kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
     (default: a generator seeded with the scenario's seed).
-
-    ``backend`` applies to the paper controller: "numba" (compiled kernel), "numpy"
-    (the reference implementation) or "auto" (numba when installed).
     """
-    ctrl = build_controller_kind(scenario, kind, backend=backend)
+    ctrl = build_controller_kind(scenario, kind)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
@@ -147,7 +144,7 @@ def steps_of(scenario: Scenario) -> int:
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
-        backend: str = "auto", stop: StopRequest | None = None,
+        stop: StopRequest | None = None,
         controller: str | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
@@ -157,7 +154,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     after the sinks have finished).
     """
     plant = build_plant(scenario, plant_kind)
-    ctrl = build_controller(scenario, backend=backend, kind=controller)
+    ctrl = build_controller(scenario, kind=controller)
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
