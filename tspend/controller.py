@@ -317,6 +317,7 @@ def _sample(bound, x, ref, dt, diag):
 
 
 _VECTOR = types.Array(types.float64, 1, "A")
+_FLOAT64 = np.dtype(np.float64)
 
 
 class CompiledController(NamedTuple):
@@ -389,9 +390,12 @@ class AdaptiveFuzzyController:
 
     # -- one sample ---------------------------------------------------------------------
     def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
-        """One controller sample at state ``x`` (float64, (n,)) with reference derivatives
-        ``ref`` (float64, (n+1,))."""
+        """One controller sample at state ``x`` (n,) with reference derivatives ``ref`` (n+1,)."""
         self._stepped = True
+        if x.dtype is not _FLOAT64 or ref.dtype is not _FLOAT64 or x.ndim != 1 or ref.ndim != 1:
+            # the compiled entry takes float64 vectors as they are; anything else is converted
+            x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1)
+            ref = np.ascontiguousarray(ref, dtype=np.float64).reshape(-1)
         return self._entry(self._bound, x, ref, dt, self.diag)
 
     def compiled(self) -> CompiledController:
