@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from .bspline import JIT
+from .config import ControllerConfig
 from .rules import Firing, Grid, membership_gradient, move_control_points
 
 
@@ -46,6 +47,13 @@ class CompensatorSettings(NamedTuple):
     leakage: float           # sigma (0: the paper's (27))
     e_modification: bool     # leakage scaled by |e_Delta| (Narendra) instead of constant
     adapt_sets: bool         # the membership part of (27) (second type)
+
+
+def compensator_settings(cfg: ControllerConfig, grid: Grid) -> CompensatorSettings:
+    """The compensator's constants from the controller's configuration."""
+    return CompensatorSettings(grid=grid, gamma=cfg.gamma, boundary_layer=cfg.boundary_layer,
+                               leakage=cfg.leakage, e_modification=cfg.leakage_mode == "e",
+                               adapt_sets=cfg.adaptation != "first")
 
 
 @njit(**JIT)

@@ -35,14 +35,15 @@ from numba.experimental import structref
 
 from . import rules
 from .bspline import JIT, BSplineInput
-from .compensator import CompensatorSettings, compensator_law, estimate, sets_gradient, switching
+from .compensator import (CompensatorSettings, compensator_law, compensator_settings, estimate,
+                          sets_gradient, switching)
 from .config import ControllerConfig, SetSpec
 from .control_law import ControlLawSettings, control, control_law_settings, lyapunov_tracking, tracking_error
 from .controllers.base import Diagnostic
 from .rules import Firing, fire
 from .sinks import FuzzyInputInfo, InnerSnapshot
 from .ts_model import (ModelSettings, antecedent_gradient, antecedent_law, consequent_law,
-                       initial_consequents, model_output)
+                       initial_consequents, model_output, model_settings)
 
 #: scalar diagnostics in ``diag``, in order; then e (n entries) and p (n + 1 entries)
 DIAG_SCALARS = ("u", "u_s", "d_hat", "e_delta", "V", "norm_P", "norm_q", "min_b")
@@ -169,13 +170,8 @@ def settings_of(cfg: ControllerConfig) -> Settings:
     L = diag_layout(n)
     return Settings(
         law=control_law_settings(cfg.lam, cfg.Q),
-        model=ModelSettings(grid=rules.grid(model_inputs(cfg), shape), eta=cfg.eta,
-                            eta_mu=cfg.antecedent_rate, b_min=cfg.b_min,
-                            norm_radius=cfg.norm_radius),
-        compensator=CompensatorSettings(
-            grid=rules.grid(compensator_inputs(cfg), shape), gamma=cfg.gamma,
-            boundary_layer=cfg.boundary_layer, leakage=cfg.leakage,
-            e_modification=cfg.leakage_mode == "e", adapt_sets=cfg.adaptation != "first"),
+        model=model_settings(cfg, rules.grid(model_inputs(cfg), shape)),
+        compensator=compensator_settings(cfg, rules.grid(compensator_inputs(cfg), shape)),
         operating_point=OperatingPoint(
             state_following=cfg.operating_point == "state",
             x_o=np.asarray(cfg.x_o, dtype=float) if cfg.x_o else np.zeros(n),

@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit
 
 from .bspline import JIT
+from .config import ControllerConfig
 from .rules import Firing, Grid, membership_gradient, move_control_points
 
 
@@ -42,6 +43,12 @@ class ModelSettings(NamedTuple):
     eta_mu: float            # rate of the antecedent law (0: first type)
     b_min: float             # Assumption 5
     norm_radius: float       # Assumption 4 (0: off)
+
+
+def model_settings(cfg: ControllerConfig, grid: Grid) -> ModelSettings:
+    """The model's constants from the controller's configuration."""
+    return ModelSettings(grid=grid, eta=cfg.eta, eta_mu=cfg.antecedent_rate, b_min=cfg.b_min,
+                         norm_radius=cfg.norm_radius)
 
 
 @njit(**JIT)
