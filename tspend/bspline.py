@@ -107,8 +107,10 @@ class BSplineInput:
 
 
 
-#: numba options shared by every compiled function of the controller
-JIT = dict(cache=True, nogil=True, error_model="numpy")
+#: numba options shared by every compiled function of the controller.  The step allocates
+#: nothing, so it needs no reference counting (``_nrt=False``): with it, every array view
+#: and every structure passed between these small functions would touch atomic counters.
+JIT = dict(cache=True, nogil=True, error_model="numpy", _nrt=False)
 
 
 @njit(**JIT)
@@ -184,7 +186,7 @@ def unsaturated(mu: float) -> bool:
     return 0.0 < mu < 1.0
 
 
-@njit(**JIT)
+@njit(cache=True, nogil=True, error_model="numpy")
 def membership_curves(C: np.ndarray, knots: np.ndarray, points: int, order: int,
                       terms: int, grid: np.ndarray, out: np.ndarray) -> None:
     """The sets' curves (5) at every point of ``grid``: ``out`` has shape (terms, len(grid))."""

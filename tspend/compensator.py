@@ -85,7 +85,9 @@ def estimate(tau: np.ndarray, q: np.ndarray) -> float:
 @njit(**JIT)
 def sets_gradient(s: CompensatorSettings, q: np.ndarray, f: Firing, varpi: float) -> None:
     """``d d_hat / dmu`` into ``f.dmu`` (per-rule outputs ``q^i``)."""
-    f.y[:] = q
+    y = f.y
+    for i in range(q.size):
+        y[i] = q[i]
     membership_gradient(s.grid, f, varpi)
 
 
@@ -94,13 +96,14 @@ def compensator_law(s: CompensatorSettings, q: np.ndarray, C: np.ndarray, f: Fir
                     e_delta: float, dt: float) -> None:
     """(27) with the optional leakage, one forward-Euler step; then its membership part
     ``dc/dt = gamma |e_Delta| d d_hat / dc`` (gradient from :func:`sets_gradient`)."""
+    tau = f.w
     ae = s.gamma * abs(e_delta)
     if s.leakage > 0.0:
         gs = s.gamma * s.leakage * (abs(e_delta) if s.e_modification else 1.0)
         for i in range(q.size):
-            q[i] += dt * (ae * f.w[i] - gs * q[i])
+            q[i] += dt * (ae * tau[i] - gs * q[i])
     else:
         for i in range(q.size):
-            q[i] += dt * (ae * f.w[i])
+            q[i] += dt * (ae * tau[i])
     if s.adapt_sets:
         move_control_points(s.grid, C, f, ae, dt)

@@ -67,24 +67,26 @@ def control_law_settings(lam, Q) -> ControlLawSettings:
 @njit(**JIT)
 def tracking_error(s: ControlLawSettings, x: np.ndarray, ref: np.ndarray, e: np.ndarray) -> float:
     """``e = x - r`` into ``e``; returns ``e_Delta = e^T Gamma b_e`` (Gamma's last row . e)."""
+    G = s.Gamma
     n = e.size
     e_delta = 0.0
     for k in range(n):
         ek = x[k] - ref[k]
         e[k] = ek
-        e_delta += s.Gamma[n - 1, k] * ek
+        e_delta += G[n - 1, k] * ek
     return e_delta
 
 
 @njit(**JIT)
 def lyapunov_tracking(s: ControlLawSettings, e: np.ndarray) -> float:
     """The tracking part of the Lyapunov function (28): ``V = 1/2 e^T Gamma e``."""
+    G = s.Gamma
     n = e.size
     V = 0.0
     for k in range(n):
         acc = 0.0
         for i in range(n):
-            acc += (0.5 * e[i]) * s.Gamma[i, k]
+            acc += (0.5 * e[i]) * G[i, k]
         V += acc * e[k]
     return V
 

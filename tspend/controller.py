@@ -31,6 +31,9 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 from numba import njit, typeof, types
+from numba.core import cgutils
+from numba.core.extending import intrinsic
+from numba.core.runtime.nrtdynmod import _meminfo_struct_type
 from numba.experimental import structref
 
 from . import rules
@@ -151,6 +154,7 @@ class State(NamedTuple):
     q: np.ndarray            # (h_d,) compensator consequents
     C_compensator: np.ndarray  # (2, T_max, r) control points of the compensator's sets
     last_u: np.ndarray       # (1,) the previous sample's u (state-following u_o)
+    samples: np.ndarray      # (1,) samples taken since the last reset
 
 
 class Scratch(NamedTuple):
@@ -187,7 +191,7 @@ def state_of(settings: Settings) -> State:
                  C_model=np.zeros(gm.peak_windows.shape[:2] + (gm.points,)),
                  q=np.zeros(gc.term_index.shape[0]),
                  C_compensator=np.zeros(gc.peak_windows.shape[:2] + (gc.points,)),
-                 last_u=np.zeros(1))
+                 last_u=np.zeros(1), samples=np.zeros(1, dtype=np.int64))
 
 
 def scratch_of(settings: Settings) -> Scratch:
@@ -210,9 +214,10 @@ def operating_point(o: OperatingPoint, x: np.ndarray, last_u: float, z: np.ndarr
             v[k] = x[k] - x[k]
     else:
         u_o = o.u_o
+        x_o = o.x_o
         for k in range(n):
-            z[k] = o.x_o[k]
-            v[k] = x[k] - o.x_o[k]
+            z[k] = x_o[k]
+            v[k] = x[k] - x_o[k]
     z[n] = u_o
     return u_o
 
@@ -221,8 +226,8 @@ def operating_point(o: OperatingPoint, x: np.ndarray, last_u: float, z: np.ndarr
 def record(slots: DiagSlots, state: State, scratch: Scratch, diag: np.ndarray, u: float,
            u_s: float, d_hat: float, e_delta: float, V: float) -> None:
     """The sample's diagnostics into ``diag``, of the parameters the sample used."""
-    P, q = state.P, state.q
-    n = scratch.e.size
+    P, q, e, p = state.P, state.q, scratch.e, scratch.p
+    n = e.size
     diag[slots.u] = u
     diag[slots.u_s] = u_s
     diag[slots.d_hat] = d_hat
@@ -242,9 +247,9 @@ def record(slots: DiagSlots, state: State, scratch: Scratch, diag: np.ndarray, u
     diag[slots.norm_q] = math.sqrt(sq)
     diag[slots.min_b] = bmin
     for k in range(n):
-        diag[slots.e + k] = scratch.e[k]
+        diag[slots.e + k] = e[k]
     for k in range(n + 1):
-        diag[slots.p + k] = scratch.p[k]
+        diag[slots.p + k] = p[k]
 
 
 @njit(**JIT)
@@ -281,6 +286,7 @@ def controller_step(settings: Settings, state: State, scratch: Scratch, x: np.nd
         antecedent_law(s.model, st.C_model, w.model, e_delta, dt)
     compensator_law(s.compensator, st.q, st.C_compensator, w.compensator, e_delta, dt)
     st.last_u[0] = u
+    st.samples[0] += 1
     return u
 
 
@@ -307,9 +313,37 @@ def _bind(settings, state, scratch):
     return _Bound(settings, state, scratch)
 
 
+@intrinsic
+def _borrow(typingctx, bound):
+    """The three structures of a :class:`_Bound`, borrowed: no reference count touched.
+
+    Reading them through the struct reference's own attributes would increment and
+    decrement the count of each of their ~35 arrays on every sample (atomic operations,
+    ~0.5 us a sample); the proxy keeps them alive.  Only for functions compiled without
+    reference counting (``_nrt=False``).  The payload pointer is read from the MemInfo
+    as numba's own ``NRT_MemInfo_data_fast`` reads it.
+    """
+    names = ("settings", "state", "scratch")
+    sig = types.Tuple([bound.field_dict[name] for name in names])(bound)
+
+    def codegen(context, builder, signature, args):
+        meminfo = cgutils.create_struct_proxy(bound)(context, builder, value=args[0]).meminfo
+        info = builder.bitcast(meminfo, _meminfo_struct_type.as_pointer())
+        payload = builder.load(cgutils.gep(builder, info, 0, 3))
+        data_type = bound.get_data_type()
+        layout = context.data_model_manager[data_type].get_value_type()
+        data = cgutils.create_struct_proxy(data_type)(
+            context, builder, ref=builder.bitcast(payload, layout.as_pointer()))
+        return context.make_tuple(builder, signature.return_type,
+                                  [getattr(data, name) for name in names])
+
+    return sig, codegen
+
+
 @njit(**JIT)
 def _sample(bound, x, ref, dt, diag):
-    return controller_step(bound.settings, bound.state, bound.scratch, x, ref, dt, diag)
+    settings, state, scratch = _borrow(bound)
+    return controller_step(settings, state, scratch, x, ref, dt, diag)
 
 
 _VECTOR = types.Array(types.float64, 1, "A")
@@ -358,14 +392,7 @@ class AdaptiveFuzzyController:
         self.layout = diag_layout(n)
         self.diagnostics = paper_diagnostics(n)
         self.inputs = {"model": model_inputs(cfg), "compensator": compensator_inputs(cfg)}
-        self._stepped = False
-        self._bound = _bind(self.settings, self.state, self.scratch)
-        sig = (typeof(self._bound), _VECTOR, _VECTOR, types.float64,
-               types.Array(types.float64, 1, "C"))
-        _sample.compile(sig)
-        # the compiled entry of that signature: no type dispatch per call (x and ref are
-        # float64 vectors, any strides; diag is ours)
-        self._entry = _sample.overloads[sig].entry_point
+        self.step = self._compiled_sample()
 
     # -- set-up -----------------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
@@ -376,7 +403,7 @@ class AdaptiveFuzzyController:
         st.P[:] = initial_consequents(s.model, rng, self.n, *cfg.init_consequents)
         st.q[:] = rng.uniform(*cfg.init_compensator, size=st.q.size)
         st.last_u[0] = 0.0
-        self._stepped = False
+        st.samples[0] = 0
 
     initialise = reset
 
@@ -386,13 +413,32 @@ class AdaptiveFuzzyController:
 
     # -- one sample ---------------------------------------------------------------------
     def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
-        """One controller sample at state ``x`` (n,) with reference derivatives ``ref`` (n+1,)."""
-        self._stepped = True
-        if x.dtype is not _FLOAT64 or ref.dtype is not _FLOAT64 or x.ndim != 1 or ref.ndim != 1:
-            # the compiled entry takes float64 vectors as they are; anything else is converted
-            x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1)
-            ref = np.ascontiguousarray(ref, dtype=np.float64).reshape(-1)
-        return self._entry(self._bound, x, ref, dt, self.diag)
+        """One controller sample at state ``x`` (n,) with reference derivatives ``ref`` (n+1,).
+
+        (Replaced in ``__init__`` by the closure of :meth:`_compiled_sample`.)
+        """
+        raise NotImplementedError  # pragma: no cover
+
+    def _compiled_sample(self) -> Callable[[np.ndarray, np.ndarray, float], float]:
+        """:meth:`step` as a closure over the compiled entry: the fewest Python operations.
+
+        The entry is the compiled overload of one fixed signature, called without numba's
+        type dispatch (x and ref float64 vectors of any strides; anything else is
+        converted first), on a struct reference holding settings, state and scratch.
+        """
+        bound = _bind(self.settings, self.state, self.scratch)
+        sig = (typeof(bound), _VECTOR, _VECTOR, types.float64, types.Array(types.float64, 1, "C"))
+        _sample.compile(sig)
+        entry, diag, f8 = _sample.overloads[sig].entry_point, self.diag, _FLOAT64
+
+        def step(x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+            if x.dtype is not f8 or ref.dtype is not f8 or x.ndim != 1 or ref.ndim != 1:
+                x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1)
+                ref = np.ascontiguousarray(ref, dtype=np.float64).reshape(-1)
+            return entry(bound, x, ref, dt, diag)
+
+        step.__doc__ = AdaptiveFuzzyController.step.__doc__
+        return step
 
     def compiled(self) -> CompiledController:
         """The compiled step and this controller's structures, for a closed loop in numba."""
@@ -430,7 +476,7 @@ class AdaptiveFuzzyController:
         to their intervals as the rule bases see them.  ``x`` is accepted for the
         protocol's sake; the sample's own ||x|| is kept.
         """
-        if not self._stepped:
+        if self.state.samples[0] == 0:
             raise RuntimeError("no controller sample taken yet: call step() first")
         out = []
         for group, f in (("model", self.scratch.model), ("compensator", self.scratch.compensator)):

@@ -106,21 +106,23 @@ def fire(g: Grid, C: np.ndarray, f: Firing) -> float:
 
     Returns ``varpi`` (plus eps), which :func:`membership_gradient` needs.
     """
-    m = f.z.size
-    h = f.w.size
+    # array fields held in locals: numba then touches their reference counts once
+    z, N, span, mu, fw, tidx = f.z, f.basis, f.span, f.mu, f.w, g.term_index
+    m = z.size
+    h = fw.size
     prod = 1.0
     for j in range(m):
-        s = basis(f.z[j], g.knots[j], g.points, g.order, f.basis[j])
-        f.span[j] = s
-        total = memberships(C[j], f.basis[j], s, g.order, g.terms[j], f.mu[j])
+        s = basis(z[j], g.knots[j], g.points, g.order, N[j])
+        span[j] = s
+        total = memberships(C[j], N[j], s, g.order, g.terms[j], mu[j])
         prod = total if j == 0 else prod * total
     varpi = prod + g.eps
     floor = g.eps / h
     for i in range(h):
-        w = f.mu[0, g.term_index[i, 0]]
+        w = mu[0, tidx[i, 0]]
         for j in range(1, m):
-            w = w * f.mu[j, g.term_index[i, j]]
-        f.w[i] = (w + floor) / varpi
+            w = w * mu[j, tidx[i, j]]
+        fw[i] = (w + floor) / varpi
     return varpi
 
 
@@ -136,17 +138,20 @@ def weighted_output(w: np.ndarray, y: np.ndarray) -> float:
 @njit(**JIT)
 def membership_gradient(g: Grid, f: Firing, varpi: float) -> None:
     """``dy/dmu`` (11) of ``y = sum_i w^i y^i`` (``y^i`` in ``f.y``) into ``f.dmu``."""
+    mu, dmu, yr, tidx = f.mu, f.dmu, f.y, g.term_index
     m = f.z.size
-    y = weighted_output(f.w, f.y)
-    f.dmu[:] = 0.0
-    for i in range(f.w.size):
-        D = (f.y[i] - y) / varpi
+    y = weighted_output(f.w, yr)
+    for j in range(m):
+        for t in range(dmu.shape[1]):
+            dmu[j, t] = 0.0
+    for i in range(yr.size):
+        D = (yr[i] - y) / varpi
         for j in range(m):
             d = D
             for k in range(m):
                 if k != j:
-                    d = d * f.mu[k, g.term_index[i, k]]
-            f.dmu[j, g.term_index[i, j]] += d
+                    d = d * mu[k, tidx[i, k]]
+            dmu[j, tidx[i, j]] += d
 
 
 @njit(**JIT)
@@ -156,13 +161,14 @@ def move_control_points(g: Grid, C: np.ndarray, f: Firing, rate: float, dt: floa
     Only the ``d`` control points under the input's span move; then the optional shape
     projection.
     """
+    N, span, mu, dmu, terms = f.basis, f.span, f.mu, f.dmu, g.terms
     d = g.order
-    for j in range(f.z.size):
-        base = f.span[j] - d + 1
-        for t in range(g.terms[j]):
-            gs = f.dmu[j, t] * (1.0 if unsaturated(f.mu[j, t]) else 0.0)
+    for j in range(span.size):
+        base = span[j] - d + 1
+        for t in range(terms[j]):
+            gs = dmu[j, t] * (1.0 if unsaturated(mu[j, t]) else 0.0)
             for l in range(d):
-                C[j, t, base + l] += dt * (rate * (gs * f.basis[j, l]))
+                C[j, t, base + l] += dt * (rate * (gs * N[j, l]))
     if g.shape_projection:
         project_shapes(g, C)
 
