@@ -64,8 +64,6 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, metavar="N", help="override run.seed")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any field, e.g. --set controller.eta=0.01 (repeatable)")
-    p.add_argument("--backend", choices=("auto", "numba", "numpy"), default="auto",
-                   help="controller implementation (default: numba when installed)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--out", metavar="PATH.rrd",
                      help="recording file (default runs/<scenario>-<timestamp>.rrd)")
@@ -236,7 +234,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # signals only set a flag from here on, so closing the recording cannot be cut short
     with stop_on_signals() as stop:
         try:
-            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop,
+            result = run(scn, sinks=sinks, keep_history=False, stop=stop,
                          controller=args.controller)
         except RunInterrupted as exc:
             if metrics_path is not None and exc.end is not None:
@@ -290,7 +288,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     with stop_on_signals() as stop:
         try:
             report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
-                                backend=args.backend, stop=stop)
+                                stop=stop)
         except RunInterrupted as exc:
             print(f"tspend: cross-check interrupted by {exc.signal_name}", file=sys.stderr)
             return exc.exit_status
