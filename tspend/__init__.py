@@ -16,7 +16,8 @@ Python API::
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller"]
+__all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller",
+           "sweep"]
 
 
 def __getattr__(name: str):
@@ -29,4 +30,8 @@ def __getattr__(name: str):
         from . import simulation
 
         return getattr(simulation, name)
+    if name == "sweep":  # the module, callable: tspend.sweep(...) runs tspend.sweep.sweep(...)
+        import importlib
+
+        return importlib.import_module(".sweep", __name__)
     raise AttributeError(f"module 'tspend' has no attribute {name!r}")
