@@ -23,7 +23,9 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from . import __version__
+from . import cli_export, cli_sweep
 from .errors import ScenarioError, TspendError
+from .progress import RunProgress
 from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
@@ -54,6 +56,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="length of the open-loop comparison (default 10 s)")
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
+    cli_sweep.add_parser(sub)
+    cli_export.add_parser(sub)
     return p
 
 
@@ -228,6 +232,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if metrics_path is not None:
         check_writable(metrics_path, "metrics")
     rec, rrd, sinks = open_sinks(args, scn.name)
+    sinks = [*sinks, RunProgress()]  # a bar on a terminal once the run takes a few seconds
     print(f"tspend {__version__}: {scn.name} ({scn.plant.kind}), {scn.run.duration:g} s at "
           f"dt = {scn.run.dt:g} s, seed {scn.run.seed}"
           + (f", recording to {rrd}" if rrd else ""), flush=True)
@@ -307,6 +312,8 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck}
+    commands["sweep"] = cli_sweep.cmd
+    commands["export"] = cli_export.cmd
     try:
         return commands[args.command](args)
     except TspendError as exc:

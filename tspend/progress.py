@@ -87,10 +87,19 @@ class SweepProgress:
         self._started = time.monotonic()
         self._last_line = self._started
         self._bar = None
-        if enabled and _on_terminal(self.stream):
+
+    def start(self, workers: int, where: str) -> None:
+        """Say what is about to run, then show the bar (on a terminal) or plain lines."""
+        if not self.enabled:
+            return
+        before = f", {self.skipped} already in the table" if self.skipped else ""
+        print(f"sweep: {self.total} runs on {workers} {where} worker"
+              f"{'s' if workers != 1 else ''}{before}", file=self.stream, flush=True)
+        self._started = self._last_line = time.monotonic()
+        if _on_terminal(self.stream):
             from tqdm import tqdm
 
-            self._bar = tqdm(total=total, file=self.stream, unit="run", dynamic_ncols=True,
+            self._bar = tqdm(total=self.total, file=self.stream, unit="run", dynamic_ncols=True,
                              desc="sweep", smoothing=0.05)
             self._bar.set_postfix_str(self._postfix(), refresh=True)
 

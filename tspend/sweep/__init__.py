@@ -120,6 +120,7 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
         if todo:
             if executor is None:
                 executor = make_executor(jobs, dask)
+            shown.start(executor.workers, executor.name)
             for row in _execute(executor, todo, stop):
                 if table is not None:
                     table.append(row)
