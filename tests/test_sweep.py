@@ -7,7 +7,6 @@ read back with pandas.
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -56,7 +55,7 @@ def test_killed_sweep_restarted_ends_with_every_row_once(tmp_path):
 
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
-    assert f"already in the table" in rerun.stderr
+    assert "already in the table" in rerun.stderr
     table = pd.read_parquet(out)  # one plain Parquet file, journal folded in
     assert not journal.exists()
     assert sorted(table["seed"]) == list(range(seeds))
@@ -142,3 +141,16 @@ def test_table_refuses_another_grid(tmp_path):
     with pytest.raises(ScenarioError, match="grid keys"):
         tspend.sweep(scn, grid={"controller.eta": [0.1]}, jobs=1, out=out)
     assert len(pd.read_parquet(out)) == 1
+
+
+def test_without_dask_the_error_names_the_extra(tmp_path, monkeypatch, capsys):
+    from tspend.cli import main
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if not installed
+    out = tmp_path / "d.parquet"
+    status = main(["sweep", "ex2_duffing", "--duration", "0.1", "--dask", "local",
+                   "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1
+    assert "pip install 'tspend[dask]'" in err[0]
+    assert not out.exists() and not journal_path(out).exists()

@@ -4,7 +4,8 @@ Rows arrive one by one as runs finish.  Each is appended as one JSON line to
 ``PATH.journal`` (next to ``PATH``) and flushed, so a sweep killed at any moment keeps
 every finished row; a line cut short by the kill is ignored when read.  Every
 ``compact_every`` seconds, and when the sweep ends, the journal is folded into ``PATH``:
-the whole table is written to a temporary file that then replaces ``PATH`` atomically,
+the whole table is written to a temporary file that then replaces ``PATH`` atomically
+(less often for a table so big that rewriting it would cost over 5% of the time),
 and only after that is the journal removed.  So ``PATH`` is always a complete, readable
 Parquet file, and :func:`read_table` (file + journal) always has every finished row,
 once: a row is identified by its ``run_key``.
@@ -87,7 +88,7 @@ class RowTable:
         self.journal = journal_path(self.path)
         self.compact_every = compact_every
         self._last_compact = time.monotonic()
-        self._fresh = 0
+        self._interval = compact_every
         self._file = None
 
     def check_writable(self) -> None:
@@ -109,8 +110,7 @@ class RowTable:
                 self._file.write("\n")  # a line cut short by a kill stays on its own line
         self._file.write(json.dumps(row, allow_nan=False) + "\n")
         self._file.flush()
-        self._fresh += 1
-        if time.monotonic() - self._last_compact >= self.compact_every:
+        if time.monotonic() - self._last_compact >= self._interval:
             self.compact()
 
     def compact(self, order: dict[str, int] | None = None) -> None:
@@ -118,7 +118,7 @@ class RowTable:
         if self._file is not None:
             self._file.close()
             self._file = None
-        self._last_compact = time.monotonic()
+        started = self._last_compact = time.monotonic()
         if not self.journal.exists():
             return
         import pandas as pd
@@ -136,7 +136,8 @@ class RowTable:
         os.replace(tmp, self.path)
         # only now is every journal row safely in the file
         self.journal.unlink(missing_ok=True)
-        self._fresh = 0
+        # a big table takes a while to rewrite: keep that under 5% of the sweep's time
+        self._interval = max(self.compact_every, 20.0 * (time.monotonic() - started))
 
     def close(self, order: dict[str, int] | None = None) -> None:
         self.compact(order)

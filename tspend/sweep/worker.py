@@ -90,7 +90,6 @@ def init_worker() -> None:
 
 def warm(_: int = 0) -> int:
     """Load the controller kernel in this worker (what the first run would otherwise pay)."""
-    from ..kernels import make_controller  # noqa: F401  (imports numba and the cached kernel)
     from ..scenario import load_scenario, override
     from ..simulation import run
 
