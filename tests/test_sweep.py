@@ -154,3 +154,47 @@ def test_without_dask_the_error_names_the_extra(tmp_path, monkeypatch, capsys):
     assert status == 2 and len(err) == 1
     assert "pip install 'tspend[dask]'" in err[0]
     assert not out.exists() and not journal_path(out).exists()
+
+
+def test_a_job_whose_worker_dies_twice_is_a_failed_row_and_the_rest_run_once():
+    from concurrent.futures import Future
+
+    from tspend.sweep import _execute
+    from tspend.sweep.executors import WorkerDied
+
+    jobs = plan.make_plan(tspend.override(tspend.load_scenario("ex2_duffing"),
+                                          **{"run.duration": 0.01}), seeds=range(4))
+    crasher = jobs[1].key
+
+    class Executor:
+        """In-process stand-in for the pool: the crasher's worker dies every time."""
+
+        name = "local"
+        restarts = 0
+
+        def submit(self, fn, job):
+            f = Future()
+            f.job = job
+            f.set_running_or_notify_cancel()
+            return f
+
+        def running(self, f):
+            return f.job.key == crasher
+
+        def wait(self, futures, timeout):
+            return set(futures)
+
+        def result(self, f):
+            if f.job.key == crasher:
+                raise WorkerDied("killed")
+            return {"run_key": f.job.key, "status": "completed"}
+
+        def restart(self):
+            self.restarts += 1
+
+    executor = Executor()
+    rows = list(_execute(executor, jobs, None))
+    assert sorted(r["run_key"] for r in rows) == sorted(j.key for j in jobs)
+    dead = next(r for r in rows if r["run_key"] == crasher)
+    assert dead["status"] == "failed" and "worker process died" in dead["message"]
+    assert executor.restarts == 1
