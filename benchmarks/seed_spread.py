@@ -5,8 +5,9 @@ Every case runs with its own scenario file (20 s, the paper's gains) for seeds 0
 both controller kinds, as one sweep (``tspend.sweep``), so the run is resumable: the
 table is kept at ``--out`` and a second call only runs what is missing.  Per case and
 kind it prints the median rmse_ss, its quartiles, and how many seeds miss the case's
-steady-state bar (the bounds of ``tests/test_paper_cases.py``); per case, the paired comparison: in how many seeds the second type has
-the smaller rmse_ss, and the median over seeds of first / second.
+steady-state bar (the bounds of ``tests/test_paper_cases.py``); per case, the paired
+comparison: in how many seeds the second type has the smaller rmse_ss, and the median
+over seeds of first / second.
 
 Run: ``python benchmarks/seed_spread.py`` (``--jobs`` workers, default one per core).
 """
