@@ -13,7 +13,8 @@ FORMATS = (".parquet", ".csv")
 
 def add_parser(sub) -> None:
     p = sub.add_parser("export", help="write a recording's time series as Parquet or CSV",
-                       description=__doc__.split("\n\n")[0])
+                       description="Write every scalar series of a recording as one table "
+                                   "indexed by time t, one column per series.")
     p.add_argument("recording", metavar="FILE.rrd", help="a recording made by tspend")
     p.add_argument("--to", required=True, metavar="PATH.parquet|PATH.csv",
                    help="the table to write (the suffix picks the format; never overwritten)")

@@ -20,7 +20,9 @@ from .runner import RunInterrupted
 def add_parser(sub) -> None:
     p = sub.add_parser("sweep", help="run a grid of scenario values x seeds x controllers, "
                                      "one table row per run",
-                       description=__doc__.split("\n\n")[0])
+                       description="Run the product of --grid values, --seeds and --controller "
+                                   "kinds, one row per run in a Parquet table (--out); the "
+                                   "same command after a kill runs only what is missing.")
     p.add_argument("scenario", nargs="+", help="scenario name(s) or .toml path(s)")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="sweep a scenario key over values (TOML, as for --set; repeatable: the "

@@ -181,6 +181,8 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
     grid = dict(grid or {})
+    if "run.seed" in grid:
+        raise ScenarioError("--grid run.seed: seeds are swept with --seeds (seeds= in Python)")
     for key, values in grid.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
             raise ScenarioError(f"grid {key}: expected a list of values, got {values!r}")
