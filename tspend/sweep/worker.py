@@ -90,9 +90,8 @@ def init_worker() -> None:
 
 def warm(_: int = 0) -> int:
     """Load the controller kernel in this worker (what the first run would otherwise pay)."""
-    from ..scenario import load_scenario, override
-    from ..simulation import run
+    from ..config import ControllerConfig
+    from ..kernels import make_controller
 
-    run(override(load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.002}),
-        keep_history=False)
+    make_controller(ControllerConfig())  # compiles, or loads numba's cache, once per process
     return os.getpid()
