@@ -65,7 +65,7 @@ from ..errors import ScenarioError
 from ..runner import RunInterrupted, StopRequest
 from .executors import WorkerDied, make_executor
 from .plan import RECORD_MODES, Job, make_plan
-from .table import KEY_COLUMN, RowTable, read_table
+from .table import KEY_COLUMN, RowTable, read_table, typed
 from .worker import METRIC_COLUMNS, run_job
 
 #: columns of every row besides the grid columns, in table order around them
@@ -93,6 +93,8 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
     from ..progress import SweepProgress
 
     out_path = Path(out) if out is not None else None
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise ScenarioError(f"--jobs: must be an integer >= 1, got {jobs!r}")
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
     record_dir = None
@@ -137,7 +139,7 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
         frame = read_table(out_path)
         frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
     else:
-        frame = pd.DataFrame.from_records(rows)
+        frame = typed(pd.DataFrame.from_records(rows))
     if not len(frame):
         return frame
     frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")

@@ -73,8 +73,14 @@ def read_table(path: str | os.PathLike[str]):
     if not frames:
         return pd.DataFrame()
     table = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
-    table = table.drop_duplicates(KEY_COLUMN, keep="first").reset_index(drop=True)
-    for column in NUMERIC_COLUMNS:  # a column of a failed run alone reads back as None
+    return typed(table.drop_duplicates(KEY_COLUMN, keep="first").reset_index(drop=True))
+
+
+def typed(table):
+    """Metric columns as numbers: a column of failed runs alone would hold None objects."""
+    import pandas as pd
+
+    for column in NUMERIC_COLUMNS:
         if column in table.columns:
             table[column] = pd.to_numeric(table[column])
     return table
