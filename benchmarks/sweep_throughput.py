@@ -19,6 +19,7 @@ Each figure is the median of ``--repeat`` measurements.  Run:
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
@@ -95,6 +96,12 @@ def main() -> None:
           f"(one-sample run through the sweep {overhead * 1e3 + t1 * 1e3:.2f} ms, "
           f"directly {t1 * 1e3:.2f} ms)")
     print(f"  overhead / 20 s run                    {overhead / t20:8.2%}   (target < 5%)")
+    load = os.getloadavg()[0]
+    if load > 0.5 * default_jobs():
+        # with the kernel's autogroup scheduling, a busy machine gives this whole sweep one
+        # share of the CPU however many workers it has: the ratio then says nothing
+        print(f"  warning: load average {load:.1f} on {default_jobs()} cores; measure the "
+              f"throughput ratio on a quiet machine")
 
 
 if __name__ == "__main__":
