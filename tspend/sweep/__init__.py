@@ -58,6 +58,7 @@ from __future__ import annotations
 import sys
 import time
 import types
+from collections import deque
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -147,9 +148,22 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
 
 
 def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
-    """Rows of ``todo`` as they finish; a worker that dies costs its job a retry."""
-    pending = {executor.submit(run_job, job): job for job in todo}
+    """Rows of ``todo`` as they finish; a worker that dies costs its job a retry.
+
+    A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
+    million small Job records in the parent, not a million queued tasks.
+    """
+    waiting = deque(todo)
+    window = max(16, 4 * getattr(executor, "workers", 1))
+    pending: dict[Any, Job] = {}
     deaths: dict[str, int] = {}
+
+    def top_up() -> None:
+        while waiting and len(pending) < window:
+            job = waiting.popleft()
+            pending[executor.submit(run_job, job)] = job
+
+    top_up()
     while pending:
         if stop is not None and stop.signal_name is not None:
             raise RunInterrupted(stop.signal_name, stop.exit_status)
@@ -170,10 +184,10 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
                     lost.append(job)
         if lost:
             # the local pool refuses work once a worker has died: a fresh one takes the rest
-            lost += list(pending.values())
+            waiting.extendleft(reversed(lost + list(pending.values())))
             pending.clear()
             executor.restart()
-            pending = {executor.submit(run_job, job): job for job in lost}
+        top_up()
 
 
 def _died_row(job: Job, why: str) -> dict[str, Any]:

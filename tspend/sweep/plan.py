@@ -29,9 +29,9 @@ class Job:
     index: int                          # position in the plan: the table's row order
     key: str                            # the row's identity (resume skips keys present)
     label: str                          # the scenario's name (the ``scenario`` column)
-    scenario: Scenario                  # grid values and seed applied, validated
+    scenario: Scenario                  # grid values applied, validated (shared by the seeds)
     grid: tuple[tuple[str, Any], ...]   # (key, value as its column holds it)
-    seed: int
+    seed: int                           # applied by the worker (a valid seed by construction)
     controller: str                     # the kind in the row
     run_kind: str | None                # what run() is asked for (None: the scenario's own)
     scenario_hash: str
@@ -204,8 +204,6 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
                 raise ScenarioError(f"--grid: {exc}") from None
             columns = tuple((k, column_value(v)) for k, v in changes.items())
             for seed in seed_list if seed_list is not None else [base.run.seed]:
-                scn = override(at_point, **{"run.seed": seed}) if seed != at_point.run.seed \
-                    else at_point
                 for kind in kinds:
                     label_kind = kind if kind is not None else own_kind(base)
                     key = row_key(base.name, columns, seed, label_kind)
@@ -214,6 +212,6 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
                     seen.add(key)
                     path = (str(recording_path(record_dir, base.name, seed, label_kind, key))
                             if record != "none" and record_dir is not None else None)
-                    jobs.append(Job(len(jobs), key, base.name, scn, columns, seed, label_kind,
+                    jobs.append(Job(len(jobs), key, base.name, at_point, columns, seed, label_kind,
                                     kind, base_hash, record if path else "none", path))
     return jobs

@@ -25,6 +25,15 @@ from .plan import Job
 METRIC_COLUMNS = tuple(k for k in METRIC_KEYS if k != "seed")
 
 
+def _seeded(job: Job):
+    """The job's scenario with its seed (applied here, in parallel, not in the parent)."""
+    from ..scenario import override
+
+    if job.seed == job.scenario.run.seed:
+        return job.scenario
+    return override(job.scenario, **{"run.seed": job.seed})
+
+
 def _recorded_run(job: Job, path: Path):
     from ..recorder import RerunSink, close_recording, open_recording
     from ..simulation import run
@@ -32,7 +41,7 @@ def _recorded_run(job: Job, path: Path):
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = open_recording(f"tspend_sweep_{job.label}", path=path)
     try:
-        return run(job.scenario, sinks=[RerunSink(rec)], keep_history=False,
+        return run(_seeded(job), sinks=[RerunSink(rec)], keep_history=False,
                    controller=job.run_kind)
     finally:
         close_recording(rec)
@@ -43,7 +52,7 @@ def _attempt(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
 
     try:
         result = (_recorded_run(job, record_to) if record_to is not None else
-                  run(job.scenario, keep_history=False, controller=job.run_kind))
+                  run(_seeded(job), keep_history=False, controller=job.run_kind))
     except Exception as exc:  # a failed run is a row, never the end of the sweep
         return "failed", f"{type(exc).__name__}: {exc}", {}
     end = result.end
