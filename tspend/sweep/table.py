@@ -114,7 +114,7 @@ class RowTable:
             self._file = open(self.journal, "a", encoding="utf-8")
             if self._file.tell() > 0:
                 self._file.write("\n")  # a line cut short by a kill stays on its own line
-        self._file.write(json.dumps(row, allow_nan=False) + "\n")
+        self._file.write(json.dumps(row) + "\n")
         self._file.flush()
         if time.monotonic() - self._last_compact >= self._interval:
             self.compact()
