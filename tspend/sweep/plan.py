@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +38,7 @@ class Job:
     scenario_hash: str
     record: str                         # one of RECORD_MODES
     record_path: str | None             # where a recording goes if one is made
+    cwd: str = ""                       # the caller's directory: relative paths mean the same
 
 
 def scenario_hash(scenario: Scenario) -> str:
@@ -192,6 +194,7 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
     seed_list = _seed_list(seeds)
     kinds = _controller_list(controllers)
     keys = list(grid)
+    cwd = os.getcwd()
     jobs: list[Job] = []
     seen: set[str] = set()
     for base in resolve_scenarios(scenarios):
@@ -213,5 +216,5 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
                     path = (str(recording_path(record_dir, base.name, seed, label_kind, key))
                             if record != "none" and record_dir is not None else None)
                     jobs.append(Job(len(jobs), key, base.name, at_point, columns, seed, label_kind,
-                                    kind, base_hash, record if path else "none", path))
+                                    kind, base_hash, record if path else "none", path, cwd))
     return jobs

@@ -62,6 +62,8 @@ def _attempt(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
 def run_job(job: Job) -> dict[str, Any]:
     """The row of ``job``: its identity, how it ended, every metric, where it is recorded."""
     started = time.perf_counter()
+    if job.cwd and job.cwd != os.getcwd() and os.path.isdir(job.cwd):
+        os.chdir(job.cwd)  # a worker started before the caller changed directory
     recording = None
     if job.record == "all":
         recording = Path(job.record_path)
