@@ -156,7 +156,7 @@ def test_without_dask_the_error_names_the_extra(tmp_path, monkeypatch, capsys):
     assert not out.exists() and not journal_path(out).exists()
 
 
-def test_a_job_whose_worker_dies_twice_is_a_failed_row_and_the_rest_run_once():
+def test_a_job_whose_worker_dies_is_a_failed_row_and_the_rest_run_once():
     from concurrent.futures import Future
 
     from tspend.sweep import _execute
@@ -178,9 +178,6 @@ def test_a_job_whose_worker_dies_twice_is_a_failed_row_and_the_rest_run_once():
             f.set_running_or_notify_cancel()
             return f
 
-        def running(self, f):
-            return f.job.key == crasher
-
         def wait(self, futures, timeout):
             return set(futures)
 
@@ -197,4 +194,31 @@ def test_a_job_whose_worker_dies_twice_is_a_failed_row_and_the_rest_run_once():
     assert sorted(r["run_key"] for r in rows) == sorted(j.key for j in jobs)
     dead = next(r for r in rows if r["run_key"] == crasher)
     assert dead["status"] == "failed" and "worker process died" in dead["message"]
-    assert executor.restarts == 1
+    assert executor.restarts == 2  # once for the death among others, once for it alone
+
+
+def test_a_worker_killed_mid_run_costs_nothing_but_time(tmp_path):
+    import threading
+
+    from tspend.sweep.executors import LocalPool
+
+    out = tmp_path / "k.parquet"
+    scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 1.0})
+    with LocalPool(1) as pool:
+        first = set(pool._pool._processes)  # the worker to kill (the pool's own record)
+
+        def kill_when_a_row_is_in() -> None:
+            while not (journal_path(out).exists() and journal_path(out).read_text()):
+                time.sleep(0.005)
+            for pid in first:
+                os.kill(pid, signal.SIGKILL)
+
+        killer = threading.Thread(target=kill_when_a_row_is_in, daemon=True)
+        killer.start()
+        table = tspend.sweep(scn, seeds=range(8), executor=pool, out=out)
+        killer.join(timeout=5)
+        assert set(pool._pool._processes).isdisjoint(first)  # a fresh pool took over
+    assert sorted(table["seed"]) == list(range(8)) and table["run_key"].is_unique
+    assert (table["status"] == "completed").all()
+    direct = _direct("ex3_pendulum_ode", 5, **{"run.duration": 1.0})
+    assert table["rmse_ss"].iloc[5] == direct["rmse_ss"]

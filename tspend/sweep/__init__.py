@@ -73,8 +73,6 @@ from .worker import METRIC_COLUMNS, run_job
 LEADING_COLUMNS = ("scenario",)
 TRAILING_COLUMNS = ("seed", "controller", "status", "message") + METRIC_COLUMNS + (
     "version", "scenario_hash", "recording", "job_s", KEY_COLUMN)
-#: a job whose worker died this many times becomes a failed row
-MAX_WORKER_DEATHS = 2
 
 
 def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
@@ -148,17 +146,29 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
 
 
 def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
-    """Rows of ``todo`` as they finish; a worker that dies costs its job a retry.
+    """Rows of ``todo`` as they finish; a job whose worker process dies becomes a row too.
 
     A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
-    million small Job records in the parent, not a million queued tasks.
+    million small Job records in the parent, not a million queued tasks.  When a local
+    worker dies, the pool fails every job in flight and cannot tell which one killed it;
+    those jobs are then run again one at a time, so a death is pinned on its own job (a
+    ``failed`` row) and the others finish normally.  Dask retries a task whose worker
+    died by itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.
     """
     waiting = deque(todo)
+    alone: deque[Job] = deque()           # to run by themselves after a worker died
     window = max(16, 4 * getattr(executor, "workers", 1))
     pending: dict[Any, Job] = {}
-    deaths: dict[str, int] = {}
+    ran_alone: set[str] = set()
+    retries_itself = getattr(executor, "retries_itself", False)
 
     def top_up() -> None:
+        if alone:
+            if not pending:
+                job = alone.popleft()
+                ran_alone.add(job.key)
+                pending[executor.submit(run_job, job)] = job
+            return
         while waiting and len(pending) < window:
             job = waiting.popleft()
             pending[executor.submit(run_job, job)] = job
@@ -167,24 +177,23 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
     while pending:
         if stop is not None and stop.signal_name is not None:
             raise RunInterrupted(stop.signal_name, stop.exit_status)
-        running = {f for f in pending if executor.running(f)}
         done = executor.wait(pending, timeout=0.25)
         lost: list[Job] = []
+        broken = False
         for future in done:
             job = pending.pop(future)
             try:
                 yield executor.result(future)
             except WorkerDied as exc:
-                if future in running or executor.name == "dask":
-                    deaths[job.key] = deaths.get(job.key, 0) + (
-                        MAX_WORKER_DEATHS if executor.name == "dask" else 1)
-                if deaths.get(job.key, 0) >= MAX_WORKER_DEATHS:
+                broken = not retries_itself
+                if job.key in ran_alone or retries_itself:
                     yield _died_row(job, str(exc))
                 else:
                     lost.append(job)
-        if lost:
-            # the local pool refuses work once a worker has died: a fresh one takes the rest
-            waiting.extendleft(reversed(lost + list(pending.values())))
+        if broken:
+            # the local pool has failed every job in flight and refuses more: a fresh pool
+            # runs them, one at a time
+            alone.extend(lost + list(pending.values()))
             pending.clear()
             executor.restart()
         top_up()

@@ -38,6 +38,7 @@ class LocalPool:
     """``jobs`` worker processes on this machine (forkserver: no inherited threads)."""
 
     name = "local"
+    retries_itself = False
 
     def __init__(self, jobs: int | None = None) -> None:
         self.jobs = jobs or default_jobs()
@@ -79,9 +80,6 @@ class LocalPool:
         except BrokenProcessPool as exc:
             raise WorkerDied(str(exc)) from None
 
-    def running(self, future: Future) -> bool:
-        return future.running()
-
     def restart(self) -> None:
         """A new pool after a worker died (the old one refuses further work)."""
         self.close(cancel=True)
@@ -109,6 +107,8 @@ class DaskExecutor:
     ``LocalCluster`` of ``jobs`` single-threaded worker processes on this machine."""
 
     name = "dask"
+    #: the scheduler reruns a task whose worker died, and reports KilledWorker when it gives up
+    retries_itself = True
 
     def __init__(self, address: str, jobs: int | None = None) -> None:
         try:
@@ -154,9 +154,6 @@ class DaskExecutor:
             return future.result()
         except KilledWorker as exc:
             raise WorkerDied(str(exc)) from None
-
-    def running(self, future: Any) -> bool:
-        return False  # the scheduler retries a task whose worker died by itself
 
     def restart(self) -> None:
         pass
