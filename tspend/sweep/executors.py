@@ -171,7 +171,8 @@ class DaskExecutor:
 
 
 def make_executor(jobs: int | None = None, dask: str | None = None):
-    """A :class:`DaskExecutor` for ``dask`` (an address or ``"local"``), else a :class:`LocalPool`."""
+    """A :class:`DaskExecutor` for ``dask`` (an address or ``"local"``), else a
+    :class:`LocalPool` of ``jobs`` workers."""
     if jobs is not None and jobs < 1:
         raise ScenarioError(f"--jobs: must be >= 1, got {jobs}")
     return DaskExecutor(dask, jobs) if dask else LocalPool(jobs)
