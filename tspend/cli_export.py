@@ -22,7 +22,6 @@ def add_parser(sub) -> None:
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from .cli import check_writable
     from .timeseries import recording_frame
 
     source, target = Path(args.recording), Path(args.to)
@@ -33,7 +32,11 @@ def cmd(args: argparse.Namespace) -> int:
     if target.exists():
         raise ScenarioError(f"--to {target}: exists; choose another path (nothing is "
                             f"overwritten)")
-    check_writable(target, "--to")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ScenarioError(f"--to {target}: cannot create directory {target.parent}: "
+                            f"{exc.strerror or exc}") from None
     try:
         table = recording_frame(source)
     except (ValueError, OSError) as exc:

@@ -51,8 +51,8 @@ def add_parser(sub) -> None:
 
 
 def _scenarios(args: argparse.Namespace) -> list:
-    from .cli import _parse_value
     from .scenario import load_scenario, override
+    from .sweep.plan import parse_value
 
     changes = {}
     if args.duration is not None:
@@ -64,7 +64,7 @@ def _scenarios(args: argparse.Namespace) -> list:
         key, sep, value = item.partition("=")
         if not sep:
             raise ScenarioError(f"--set {item}: expected KEY=VALUE, e.g. controller.eta=0.01")
-        changes[key.strip()] = _parse_value(value.strip())
+        changes[key.strip()] = parse_value(value.strip())
     scenarios = [load_scenario(s) for s in args.scenario]
     return [override(s, **changes) if changes else s for s in scenarios]
 

@@ -81,10 +81,19 @@ def split_values(text: str) -> list[str]:
     return [p.strip() for p in parts]
 
 
+def parse_value(text: str) -> Any:
+    """One value as ``--set`` reads it: TOML (numbers, booleans, strings, lists, inline
+    tables), and the bare text when it is not TOML (``adaptation=first``)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
 def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
     """``--grid KEY=V1,V2`` options (values in TOML, as for ``--set``) -> {key: values}."""
-    from ..cli import _parse_value
-
     grid: dict[str, list[Any]] = {}
     for item in items:
         key, sep, values = item.partition("=")
@@ -97,7 +106,7 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
         texts = split_values(values)
         if any(not t for t in texts):
             raise ScenarioError(f"--grid {item}: empty value in the list")
-        grid[key] = [_parse_value(t) for t in texts]
+        grid[key] = [parse_value(t) for t in texts]
     return grid
 
 

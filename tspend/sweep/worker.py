@@ -101,8 +101,9 @@ def init_worker() -> None:
 
 def warm(_: int = 0) -> int:
     """Load the controller kernel in this worker (what the first run would otherwise pay)."""
-    from ..config import ControllerConfig
-    from ..kernels import make_controller
+    from ..scenario import load_scenario, project_root
+    from ..simulation import build_controller
 
-    make_controller(ControllerConfig())  # compiles, or loads numba's cache, once per process
+    # the project's own file, whatever the caller's directory holds
+    build_controller(load_scenario(project_root() / "scenarios" / "ex3_pendulum_ode.toml"))
     return os.getpid()
