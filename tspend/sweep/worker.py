@@ -94,9 +94,18 @@ def _exit_with_parent(parent: int) -> None:
 
 def init_worker() -> None:
     """Pool initialiser: Ctrl-C is the parent's to handle; leave when the parent is gone
-    (the parent of a forkserver worker is the fork server, which ends with the sweep)."""
+    (the parent of a forkserver worker is the fork server, which ends with the sweep).
+
+    Each worker is a session of its own: Linux's autogroup scheduler shares the CPU between
+    sessions, so workers left in the sweep's session would share one session's share
+    between them on a busy machine, and W workers would run no faster than one.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    try:
+        os.setsid()
+    except (AttributeError, OSError):  # not POSIX, or already a session leader
+        pass
 
 
 def warm(_: int = 0) -> int:
