@@ -98,8 +98,8 @@ def main() -> None:
     print(f"  overhead / 20 s run                    {overhead / t20:8.2%}   (target < 5%)")
     load = os.getloadavg()[0]
     if load > 0.5 * default_jobs():
-        # with the kernel's autogroup scheduling, a busy machine gives this whole sweep one
-        # share of the CPU however many workers it has: the ratio then says nothing
+        # the workers then compete with every other program for the cores: the ratio
+        # measures the machine's load more than the sweep
         print(f"  warning: load average {load:.1f} on {default_jobs()} cores; measure the "
               f"throughput ratio on a quiet machine")
 
