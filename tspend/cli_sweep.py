@@ -86,9 +86,18 @@ def summary(frame, grid_keys: list[str]):
     return out.reset_index() if isinstance(out, pd.DataFrame) else out
 
 
+def _stop_requests(args: argparse.Namespace):
+    """A context giving the StopRequest that SIGINT/SIGTERM set while the sweep runs."""
+    guard = getattr(args, "guard", None)  # the CLI's signal guard, when it provides one
+    if guard is not None:
+        return guard.deferred()
+    from .cli import stop_on_signals
+
+    return stop_on_signals()
+
+
 def cmd(args: argparse.Namespace) -> int:
     from . import __version__
-    from .cli import stop_on_signals
     from .sweep import plan as sweep_plan, read_table, sweep
 
     scenarios = _scenarios(args)
@@ -99,7 +108,7 @@ def cmd(args: argparse.Namespace) -> int:
     names = ", ".join(s.name for s in scenarios)
     print(f"tspend {__version__}: sweep of {names}" + (f", table {args.out}" if args.out else ""),
           flush=True)
-    with stop_on_signals() as stop:
+    with _stop_requests(args) as stop:
         try:
             frame = sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
                           jobs=args.jobs, dask=args.dask, out=args.out, record=args.record,
