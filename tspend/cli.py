@@ -22,9 +22,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from . import __version__
+from . import __version__, cli_inspect
 from . import cli_export, cli_sweep
 from .errors import ScenarioError, TspendError
+from .plants.mjcf_warning import print_as_one_line
 from .progress import RunProgress
 from .runner import RunInterrupted, StopRequest
 
@@ -56,6 +57,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="length of the open-loop comparison (default 10 s)")
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
+    cli_inspect.add_parser(sub)
     cli_sweep.add_parser(sub)
     cli_export.add_parser(sub)
     return p
@@ -265,6 +267,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if end.status == "diverged":
         print(f"tspend: {end.message}", file=sys.stderr)
         return EXIT_DIVERGED
+    if end.status == "rail_end":  # tspend.effects.RailEnd
+        print(f"tspend: {end.message}", file=sys.stderr)
+        return 4
     return 0
 
 
@@ -306,14 +311,21 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         write_json(json_path, report)
     if rrd:
         print(f"recording: {rrd}  (open with: rerun {rrd})")
+    if not report["open_loop_ok"]:
+        from .crosscheck import failure_reason
+
+        print(f"tspend: cross-check failed: max |dtheta| = {report['open_loop_max_dtheta']:.3g} "
+              f"rad > {args.tol:g}; {failure_reason(report)}", file=sys.stderr)
     return 0 if report["open_loop_ok"] else 1
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck}
+    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
+                "inspect": cli_inspect.cmd}
     commands["sweep"] = cli_sweep.cmd
     commands["export"] = cli_export.cmd
+    print_as_one_line()
     try:
         return commands[args.command](args)
     except TspendError as exc:
