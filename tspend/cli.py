@@ -23,8 +23,10 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from . import __version__, cli_inspect
+from . import cli_export, cli_sweep
 from .errors import ScenarioError, TspendError
 from .plants.mjcf_warning import print_as_one_line
+from .progress import RunProgress
 from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
@@ -56,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
     cli_inspect.add_parser(sub)
+    cli_sweep.add_parser(sub)
+    cli_export.add_parser(sub)
     return p
 
 
@@ -228,6 +232,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if metrics_path is not None:
         check_writable(metrics_path, "metrics")
     rec, rrd, sinks = open_sinks(args, scn.name)
+    sinks = [*sinks, RunProgress()]  # a bar on a terminal once the run takes a few seconds
     print(f"tspend {__version__}: {scn.name} ({scn.plant.kind}), {scn.run.duration:g} s at "
           f"dt = {scn.run.dt:g} s, seed {scn.run.seed}"
           + (f", recording to {rrd}" if rrd else ""), flush=True)
@@ -316,6 +321,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
                 "inspect": cli_inspect.cmd}
+    commands["sweep"] = cli_sweep.cmd
+    commands["export"] = cli_export.cmd
     print_as_one_line()
     try:
         return commands[args.command](args)

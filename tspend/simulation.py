@@ -129,6 +129,12 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
+    def to_pandas(self):
+        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.timeseries`)."""
+        from .timeseries import history_frame
+
+        return history_frame(self.history, self.controller.diagnostics)
+
 
 def steps_of(scenario: Scenario) -> int:
     return int(round(scenario.run.duration / scenario.run.dt))
