@@ -44,6 +44,9 @@ class EffectsPlant:
         self._t = 0.0
         self._changed = False
 
+    # the inner plant's compiled step or state views would bypass the effects
+    compiled = state_views = None
+
     def __getattr__(self, name: str) -> Any:  # params, gain_sign, model, facts ...
         return getattr(self.inner, name)
 

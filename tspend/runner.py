@@ -25,6 +25,7 @@ import numpy as np
 
 from .controllers.base import Controller, Diagnostic, check_diagnostics
 from .errors import DivergenceError
+from .fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
 from .plants.base import Plant
 from .signals import Disturbance, Reference
 from .sinks import Block, RunEnd, RunInfo, Sink
@@ -65,6 +66,9 @@ class LoopSettings:
     snapshot_every: int = 20          # steps between inner snapshots (0 = never)
     state_bound: float = 0.0          # 0 = only non-finite values stop the run
     control_bound: float = 0.0
+    #: run stretches of samples in compiled code when plant and controller offer it
+    #: (:mod:`tspend.fastloop`); False forces the generic loop (same results)
+    compiled: bool = True
 
 
 class BlockBuffer:
@@ -117,6 +121,8 @@ class ClosedLoop:
         self.hook = hook
         self._done = 0
         self.end: RunEnd | None = None
+        #: which loop ran: "compiled" (:mod:`tspend.fastloop`) or "generic"
+        self.path = ""
 
     def run(self, info: RunInfo, sinks: list[Sink]) -> RunEnd:
         for sink in sinks:
@@ -168,6 +174,12 @@ class ClosedLoop:
         bounded = s.state_bound > 0.0 or s.control_bound > 0.0
         isfinite = math.isfinite
         stop, hook = self.stop, self.hook
+        segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E),
+                                 Bounds(s.state_bound, s.control_bound), dt) \
+            if s.compiled else None
+        self.path = "generic" if segment is None else "compiled"
+        if segment is not None:
+            return self._segments(sinks, segment, buf, snap_sinks, snap_every)
         for start in range(0, s.steps, s.block_size):
             k = min(s.block_size, s.steps - start)
             t = (start + np.arange(k)) * dt
@@ -192,13 +204,7 @@ class ClosedLoop:
                     try:
                         plant.step(u, dist[i], dt)
                     except (ArithmeticError, ValueError, DivergenceError) as exc:
-                        # math.exp overflow, sin(inf), MuJoCo's own instability check
-                        if getattr(exc, "status", None):  # e.g. the end of a finite rail
-                            return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
-                                                  str(exc), exc.status)
-                        return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
-                                              f"diverged at t = {t[i]:.4f} s: the plant failed "
-                                              f"({exc})")
+                        return self._plant_failed(sinks, start, buf, t, ref, dist, i, exc)
                     if snap_every and (start + i) % snap_every == 0:
                         snap = snapshot(float(t[i]), start + i, x)
                         for sink in snap_sinks:
@@ -216,6 +222,65 @@ class ClosedLoop:
             self._emit(sinks, start, buf, t, ref, dist, k)
             self._done = start + k
         return s.steps, "completed", ""
+
+    def _segments(self, sinks: list[Sink], segment: Segment, buf: BlockBuffer,
+                  snap_sinks: list[Sink], snap_every: int) -> tuple[int, str, str]:
+        """:meth:`_loop` with each stretch of samples between two events (a snapshot, a
+        divergence, a stop check, the block's end) run by a compiled ``segment``
+        (:mod:`tspend.fastloop`): the same samples, blocks, snapshots and endings."""
+        s, n, dt, X, U, D = self.s, self.controller.order, self.s.dt, buf.x, buf.u, buf.diag
+        stop = self.stop
+        snapshot = getattr(self.controller, "snapshot", None)
+        for start in range(0, s.steps, s.block_size):
+            k = min(s.block_size, s.steps - start)
+            t = (start + np.arange(k)) * dt
+            ref = self.reference.derivatives(t, n)
+            dist = self.disturbance(t)
+            i = 0
+            try:
+                while i < k:
+                    if stop.signal_name is not None:
+                        raise RunInterrupted(stop.signal_name, stop.exit_status)
+                    snap = i + (-(start + i)) % snap_every if snap_every else k
+                    try:
+                        i, code = segment(i, min(k, snap + 1), t, ref, dist, dt)
+                    except SampleFailed as failed:
+                        i = failed.i
+                        if not isinstance(failed.error, (ArithmeticError, ValueError,
+                                                         DivergenceError)):
+                            raise failed.error from None
+                        return self._plant_failed(sinks, start, buf, t, ref, dist, i,
+                                                  failed.error)
+                    if code == CHECK:
+                        problem, kept = self._diagnose(X[i], float(U[i]), t[i])
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
+                    if i == snap + 1:
+                        inner = snapshot(float(t[snap]), start + snap, X[snap].copy())
+                        for sink in snap_sinks:
+                            sink.inner(inner)
+            except BaseException:
+                self._emit(sinks, start, buf, t, ref, dist, i)
+                self._done = start + i
+                raise
+            bad = self._first_non_finite(D[:k]) if D.shape[1] else None
+            if bad is not None:
+                return self._diverged(sinks, start, buf, t, ref, dist, bad,
+                                      f"diverged at t = {t[bad]:.4f} s: a parameter or "
+                                      f"estimate is not finite")
+            self._emit(sinks, start, buf, t, ref, dist, k)
+            self._done = start + k
+        return s.steps, "completed", ""
+
+    def _plant_failed(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                      ref: np.ndarray, dist: np.ndarray, i: int,
+                      exc: BaseException) -> tuple[int, str, str]:
+        """The plant's step raised at sample i (math.exp overflow, sin(inf), MuJoCo's own
+        instability check): sample i is kept, the run ends."""
+        if getattr(exc, "status", None):  # e.g. the end of a finite rail
+            return self._diverged(sinks, start, buf, t, ref, dist, i + 1, str(exc),
+                                  exc.status)  # type: ignore[attr-defined]
+        return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
+                              f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
 
     def _diverged(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
                   ref: np.ndarray, dist: np.ndarray, kept: int,

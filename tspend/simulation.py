@@ -143,13 +143,14 @@ def steps_of(scenario: Scenario) -> int:
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
         stop: StopRequest | None = None,
-        controller: str | None = None) -> RunResult:
+        controller: str | None = None, compiled: bool = True) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
     MuJoCo scenario, say), which is what the cross-check does.  ``stop``, set from a
     signal handler, ends the run cleanly at the next sample (RunInterrupted is raised
-    after the sinks have finished).
+    after the sinks have finished).  ``compiled=False`` runs the generic Python loop even
+    where the compiled one applies (:mod:`tspend.fastloop`; the results are the same).
     """
     plant = build_plant(scenario, plant_kind)
     scenario = with_gain_sign(scenario, plant)
@@ -159,7 +160,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
     settings = LoopSettings(dt=dt, steps=steps, block_size=block_size, snapshot_every=snap_every,
                             state_bound=scenario.plant.state_bound,
-                            control_bound=scenario.run.control_bound)
+                            control_bound=scenario.run.control_bound, compiled=compiled)
     hook = Measurement(scenario.effects, plant, dt, scenario.run.seed) \
         if needs_hook(scenario.effects) else None
     loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,

@@ -9,28 +9,36 @@ plant itself (Duffing's forcing) are evaluated at each RK4 stage.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import overload, register_jitable
 
+from ..bspline import JIT
 from . import cartpole
 from .cartpole import CartPoleParams
 
 Accel = Callable[[float, np.ndarray, float, float], float]
 
 
+@register_jitable
 def nonaffine_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     """Example 1: ``x2' = 0.2 (1 + e^{x1 x2}) (2 + sin x2) (u + e^u - 1) + d_d``."""
     x1, x2 = x[0], x[1]
     return 0.2 * (1.0 + math.exp(x1 * x2)) * (2.0 + math.sin(x2)) * (u + math.exp(u) - 1.0) + d
 
 
+@register_jitable
 def duffing_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     """Example 2: ``x2' = -0.1 x2 - x1^3 + 12 cos t + u + d_d``."""
     x1, x2 = x[0], x[1]
-    return -0.1 * x2 - x1**3 + 12.0 * math.cos(t) + u + d
+    # x1 ** 3.0, not x1**3: numba expands an integer power into products, whose rounding
+    # differs from pow(); a float exponent is pow() in Python and in compiled code alike
+    return -0.1 * x2 - x1 ** 3.0 + 12.0 * math.cos(t) + u + d
 
 
+@register_jitable
 def third_order_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     """A nonaffine third-order plant (not in the paper) to exercise n = 3.
 
@@ -53,6 +61,125 @@ def cartpole_accel_fn(p: CartPoleParams) -> Accel:
     return accel
 
 
+class RK4Work(NamedTuple):
+    """Work arrays of one RK4 step over a state of size N: the four slopes and a stage point."""
+
+    k1: np.ndarray
+    k2: np.ndarray
+    k3: np.ndarray
+    k4: np.ndarray
+    stage: np.ndarray
+
+
+def rk4_work(size: int) -> RK4Work:
+    return RK4Work(*(np.zeros(size) for _ in range(5)))
+
+
+@register_jitable
+def rk4_step(params: Any, t: float, s: np.ndarray, u: float, d: float, dt: float,
+             w: RK4Work) -> None:
+    """Classical RK4 over ``dt`` with u and d held, ``s`` advanced in place;
+    :func:`plant_rhs` of ``params`` gives the derivative.
+
+    Plain Python from Python (the generic loop, where a blow-up in ``math`` raises) and
+    inlined into compiled code (:mod:`tspend.fastloop`): one integrator, two callers.
+    """
+    h2 = 0.5 * dt
+    N = s.size
+    plant_rhs(params, t, s, u, d, w.k1)
+    for i in range(N):
+        w.stage[i] = s[i] + h2 * w.k1[i]
+    plant_rhs(params, t + h2, w.stage, u, d, w.k2)
+    for i in range(N):
+        w.stage[i] = s[i] + h2 * w.k2[i]
+    plant_rhs(params, t + h2, w.stage, u, d, w.k3)
+    for i in range(N):
+        w.stage[i] = s[i] + dt * w.k3[i]
+    plant_rhs(params, t + dt, w.stage, u, d, w.k4)
+    sixth = dt / 6.0
+    for i in range(N):
+        s[i] = s[i] + sixth * (w.k1[i] + 2.0 * w.k2[i] + 2.0 * w.k3[i] + w.k4[i])
+
+
+@register_jitable
+def chain_rhs(accel: Callable, t: float, s: np.ndarray, u: float, d: float,
+              sdot: np.ndarray) -> None:
+    """The chain of integrators (6): ``x_i' = x_{i+1}``, ``x_n' = accel(t, x, u, d)``."""
+    n = s.size
+    for i in range(n - 1):
+        sdot[i] = s[i + 1]
+    sdot[n - 1] = accel(t, s, u, d)
+
+
+# Compiled code picks a plant's right-hand side by the type of its parameters: types that
+# are module-level classes stay the same from one process to the next, so the compiled
+# closed loop is cached on disk (a function passed as a value would not be).
+class NonaffineChain(NamedTuple):
+    """Example 1's plant, as compiled code knows it (no parameters)."""
+
+    order: int = 2
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        chain_rhs(nonaffine_accel, t, s, u, d, sdot)
+
+
+class DuffingChain(NamedTuple):
+    """Example 2's plant, as compiled code knows it (no parameters)."""
+
+    order: int = 2
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        chain_rhs(duffing_accel, t, s, u, d, sdot)
+
+
+class ThirdOrderChain(NamedTuple):
+    """The third-order plant, as compiled code knows it (no parameters)."""
+
+    order: int = 3
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        chain_rhs(third_order_accel, t, s, u, d, sdot)
+
+
+def plant_rhs(params: Any, t: float, s: np.ndarray, u: float, d: float,
+              sdot: np.ndarray) -> None:
+    """The right-hand side of the plant ``params`` stands for, into ``sdot``: in Python its
+    ``rhs_into``; in compiled code chosen by the type of ``params`` (:func:`_plant_rhs`)."""
+    params.rhs_into(t, s, u, d, sdot)
+
+
+@overload(plant_rhs, jit_options=JIT)
+def _plant_rhs(params, t, s, u, d, sdot):
+    cls = getattr(params, "instance_class", None)
+    if cls is cartpole.CartPoleMachine:
+        def impl(params, t, s, u, d, sdot):
+            cartpole.machine_rhs(params, t, s, u, d, sdot)
+
+        return impl
+    if cls in _CHAIN_ACCEL:
+        accel = _CHAIN_ACCEL[cls]
+
+        def chain_impl(params, t, s, u, d, sdot):
+            chain_rhs(accel, t, s, u, d, sdot)
+
+        return chain_impl
+    return None
+
+
+class CompiledPlant(NamedTuple):
+    """What a compiled closed loop needs to step a plant without Python.
+
+    Inside ``@njit`` code: ``rk4_step(plant_rhs, params, clock[0], state, u, d, dt, work)``
+    then ``clock[0] += dt``; ``state`` (the full state, x first, then hidden states) and
+    ``clock`` are the plant's own arrays, so the plant is where the loop left it.
+    """
+
+    params: Any
+    state: np.ndarray
+    clock: np.ndarray
+    work: RK4Work
+
+
 class AnalyticPlant:
     """A plant of the form (6), stepped by classical RK4 with u and d held constant.
 
@@ -68,40 +195,51 @@ class AnalyticPlant:
         self.name = name
         self.hidden_rhs = hidden_rhs
         self.hidden_names = hidden_names
-        self.t = 0.0
+        self._clock = np.zeros(1)
         self.s = np.zeros(self.order + len(hidden_names))
+        self._work = rk4_work(self.s.size)
+
+    @property
+    def t(self) -> float:
+        return float(self._clock[0])
 
     def reset(self, x0: np.ndarray) -> None:
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (self.order,):
             raise ValueError(f"{self.name}: initial state must have {self.order} entries, got {x0.shape}")
-        self.s = np.zeros(self.order + len(self.hidden_names))
+        self.s[:] = 0.0
         self.s[: self.order] = x0
-        self.t = 0.0
+        self._clock[0] = 0.0
 
     def state(self) -> np.ndarray:
         return self.s[: self.order].copy()
 
     def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
         """Full derivative: the chain of integrators, accel last, then hidden states."""
-        n = self.order
         sdot = np.empty_like(s)
-        sdot[: n - 1] = s[1:n]
-        a = self.accel(t, s, u, d)
-        sdot[n - 1] = a
-        if self.hidden_rhs is not None:
-            sdot[n:] = self.hidden_rhs(t, s, u, d, a)
+        plant_rhs(self._rhs_params(), t, s, u, d, sdot)
         return sdot
 
+    def _rhs_params(self) -> Any:
+        return self
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        n = self.order
+        chain_rhs(self.accel, t, s[:n], u, d, sdot[:n])
+        if self.hidden_rhs is not None:
+            sdot[n:] = self.hidden_rhs(t, s, u, d, sdot[n - 1])
+
     def step(self, u: float, d: float, dt: float) -> None:
-        t, s = self.t, self.s
-        h2 = 0.5 * dt
-        k1 = self.rhs(t, s, u, d)
-        k2 = self.rhs(t + h2, s + h2 * k1, u, d)
-        k3 = self.rhs(t + h2, s + h2 * k2, u, d)
-        k4 = self.rhs(t + dt, s + dt * k3, u, d)
-        self.s = s + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        self.t = t + dt
+        rk4_step(self._rhs_params(), self._clock[0], self.s, u, d, dt, self._work)
+        self._clock[0] += dt
+
+    def compiled(self) -> CompiledPlant | None:
+        """The plant for a compiled closed loop (None for an ``accel`` compiled code does
+        not know, or hidden states given in Python)."""
+        chain = _CHAIN_OF.get(self.accel)
+        if chain is None or self.hidden_rhs is not None:
+            return None
+        return CompiledPlant(chain(), self.s, self._clock, self._work)
 
     def extras(self) -> dict[str, float]:
         return {name: float(v) for name, v in zip(self.hidden_names, self.s[self.order:])}
@@ -112,9 +250,9 @@ class CartPoleODE(AnalyticPlant):
     hidden states, so the ODE backend can draw the cart and meet a finite rail too."""
 
     def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
-        super().__init__(lambda t, s, u, d: cartpole.accelerations(params, s[0], s[1], s[3], u, d)[0],
+        super().__init__(lambda t, s, u, d: cartpole.accelerations(self._machine, s[0], s[1], s[3], u, d)[0],
                          2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"))
-        self.params = params
+        self.set_params(params)
 
     @property
     def gain_sign(self) -> int:
@@ -123,9 +261,20 @@ class CartPoleODE(AnalyticPlant):
     def set_params(self, params: CartPoleParams) -> None:
         """Change the machine while it runs (a payload picked up); the state is kept."""
         self.params = params
+        self._machine = params.machine()
 
-    def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
-        return cartpole.rhs(self.params, s, u, d)
+    def _rhs_params(self) -> Any:
+        return self._machine
+
+
+    def compiled(self) -> CompiledPlant:
+        return CompiledPlant(self._machine, self.s, self._clock, self._work)
+
+
+_CHAIN_ACCEL: dict[type, Callable] = {NonaffineChain: nonaffine_accel,
+                                      DuffingChain: duffing_accel,
+                                      ThirdOrderChain: third_order_accel}
+_CHAIN_OF = {accel: chain for chain, accel in _CHAIN_ACCEL.items()}
 
 
 def nonaffine_plant() -> AnalyticPlant:

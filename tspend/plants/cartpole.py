@@ -23,8 +23,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
 DRY_FRICTION_SLIP = 1e-3
@@ -61,14 +63,49 @@ class CartPoleParams:
         enters the paper's numerator (exact for the rod, the paper's meaning otherwise)."""
         return -self.m * self.l / (self.M + self.m)
 
+    def machine(self) -> "CartPoleMachine":
+        """These parameters as compiled code reads them (the properties resolved)."""
+        return CartPoleMachine(
+            M=self.M, m=self.m, l=self.l, g=self.g, J=self.pole_inertia_pivot,
+            disturbance_torque=self.disturbance_torque, cart_damping=self.cart_damping,
+            hinge_damping=self.hinge_damping, cart_friction=self.cart_friction,
+            hinge_friction=self.hinge_friction, gear=self.gear, theta_sign=self.theta_sign)
 
+
+class CartPoleMachine(NamedTuple):
+    """:class:`CartPoleParams` with ``J`` the inertia about the pivot and the hinge torque
+    per unit d_d resolved: a structure numba can pass by value."""
+
+    M: float
+    m: float
+    l: float
+    g: float
+    J: float
+    disturbance_torque: float
+    cart_damping: float
+    hinge_damping: float
+    cart_friction: float
+    hinge_friction: float
+    gear: float
+    theta_sign: float
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        machine_rhs(self, t, s, u, d, sdot)
+
+
+@register_jitable
 def _dry(force: float, v: float) -> float:
     return force * math.tanh(v / DRY_FRICTION_SLIP) if force > 0.0 else 0.0
 
 
-def accelerations(p: CartPoleParams, theta: float, w: float, cart_vel: float, u: float,
-                  d: float) -> tuple[float, float]:
-    """``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``)."""
+@register_jitable
+def machine_accelerations(p: CartPoleMachine, theta: float, w: float, cart_vel: float,
+                          u: float, d: float) -> tuple[float, float]:
+    """``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``).
+
+    Plain Python when called from Python; compiled inline when called from numba code
+    (the compiled closed loop, :mod:`tspend.fastloop`).
+    """
     s_th = p.theta_sign
     th, om = s_th * theta, s_th * w
     sn, cs = math.sin(th), math.cos(th)
@@ -78,11 +115,19 @@ def accelerations(p: CartPoleParams, theta: float, w: float, cart_vel: float, u:
     q_model = p.disturbance_torque * d - p.hinge_damping * w - _dry(p.hinge_friction, w)
     q_th = s_th * q_model + ml * p.g * sn
     b = ml * cs
-    J = p.pole_inertia_pivot
+    J = p.J
     det = mm * J - b * b
     thdd = (mm * q_th + b * q_x) / det
     xdd = (J * q_x + b * q_th) / det
     return s_th * thdd, xdd
+
+
+def accelerations(p: CartPoleParams | CartPoleMachine, theta: float, w: float,
+                  cart_vel: float, u: float, d: float) -> tuple[float, float]:
+    """``(theta'', x'')`` of (C1)-(C2), evaluated in Python (pass a :class:`CartPoleMachine`
+    when calling often: resolving the parameters each call costs more than the math)."""
+    machine = p if isinstance(p, CartPoleMachine) else p.machine()
+    return machine_accelerations(machine, theta, w, cart_vel, u, d)
 
 
 def gain_sign(p: CartPoleParams) -> float:
@@ -91,7 +136,18 @@ def gain_sign(p: CartPoleParams) -> float:
                          - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
 
 
-def rhs(p: CartPoleParams, s: np.ndarray, u: float, d: float) -> np.ndarray:
+def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) -> np.ndarray:
     """Derivative of ``[theta, theta', x, x']``."""
     thdd, xdd = accelerations(p, s[0], s[1], s[3], u, d)
     return np.array([s[1], thdd, s[3], xdd])
+
+
+@register_jitable
+def machine_rhs(p: CartPoleMachine, t: float, s: np.ndarray, u: float, d: float,
+                sdot: np.ndarray) -> None:
+    """:func:`rhs` into ``sdot``, for :func:`tspend.plants.analytic.rk4_step`."""
+    thdd, xdd = machine_accelerations(p, s[0], s[1], s[3], u, d)
+    sdot[0] = s[1]
+    sdot[1] = thdd
+    sdot[2] = s[3]
+    sdot[3] = xdd

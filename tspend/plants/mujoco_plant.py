@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 import mujoco
 import numpy as np
@@ -53,6 +53,17 @@ _MJ_MAXVAL: Final[float] = 1e10
 _DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
 
 BodyPose = tuple[np.ndarray, np.ndarray]
+
+
+class StateViews(NamedTuple):
+    """MjData's qpos and qvel, and the indices of theta, theta', cart position and velocity."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    theta: int
+    omega: int
+    cart_pos: int
+    cart_vel: int
 
 
 def _names(elements: Any) -> str:
@@ -302,6 +313,12 @@ class MujocoCartPole:
 
     def state(self) -> np.ndarray:
         return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
+
+    def state_views(self) -> "StateViews":
+        """Where ``state()`` and ``extras()`` read from, for a closed loop that reads the
+        state in place each sample (:mod:`tspend.fastloop`)."""
+        return StateViews(self._qpos, self._qvel, self._q_th, self._v_th, self._q_cart,
+                          self._v_cart)
 
     def step(self, u: float, d: float, dt: float) -> None:
         """Advance by ``dt`` (a whole number of physics steps) with u and d held.
