@@ -45,7 +45,7 @@ class EffectsPlant:
         self._changed = False
 
     # the inner plant's compiled step or state views would bypass the effects
-    compiled = state_views = None
+    compiled = compiled_mujoco = None
 
     def __getattr__(self, name: str) -> Any:  # params, gain_sign, model, facts ...
         return getattr(self.inner, name)

@@ -14,9 +14,13 @@ Two kinds of segment:
 
 * :class:`CompiledSegment` (analytic plants, :class:`tspend.plants.analytic.CompiledPlant`):
   controller step, RK4 and the block buffers in one ``@njit`` loop;
-* :class:`MujocoSegment` (a MuJoCo plant offering ``state_views()``): a tight Python loop
-  of the compiled controller sample and the plant's ``step`` (one ``mj_step(m, d,
-  nstep=k)``), reading the state from MuJoCo's arrays in place.
+* :class:`MujocoCompiledSegment` (a MuJoCo plant offering ``compiled_mujoco(dt)``): the
+  same loop calling MuJoCo's C ``mj_step`` (through ctypes) on the plant's own mjModel and
+  mjData, so nothing of Python runs per sample.  A huge input or MuJoCo's instability
+  reset ends the segment and the plant's own Python ``step`` / check says why, as in the
+  generic loop.  (Other routes measured: ``mujoco.set_mjcb_control`` with a numba cfunc
+  is process-global and cannot reach the controller's arrays without a per-run compile; a
+  tight Python loop of the compiled sample and ``mj_step`` ran at 2.3x bare ``mj_step``.)
 
 The arithmetic is the generic loop's, in the same order, so blocks are equal bit for bit
 (tests/test_fastloop.py).  One difference in kind: where Python's ``math`` raises on an
@@ -37,8 +41,9 @@ from numba.extending import overload
 from .bspline import JIT
 from .plants.analytic import rk4_step
 
-#: what a segment reports: every sample ran, or it stopped at a sample to look at
-RAN, CHECK = 0, 1
+#: what a segment reports: every sample ran, or it stopped at a sample to look at; the
+#: plant-level codes are handled inside this module (they become SampleFailed)
+RAN, CHECK, BAD_INPUT, UNSTABLE = 0, 1, 2, 3
 
 
 class Bounds(NamedTuple):
@@ -151,41 +156,63 @@ class SampleFailed(Exception):
         self.i, self.error = i, error
 
 
-class MujocoSegment:
-    """A MuJoCo plant (its ``state_views()``) with a compiled controller sample, in a tight
-    Python loop: the physics is the cost there, and the plant's own ``step`` (its input
-    and instability checks) runs unchanged."""
+@njit(**JIT)
+def _mujoco_samples(settings, state, scratch, mj_step, link, x, diag, buf: Buffers,
+                    a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray, dt: float,
+                    bounds: Bounds) -> tuple[int, int]:
+    """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoCartPole.step`
+    with MuJoCo's C ``mj_step`` called from here."""
+    qpos, qvel, numbers = link.qpos, link.qvel, link.warning_number
+    for i in range(a, b):
+        x[0] = qpos[link.theta]
+        x[1] = qvel[link.omega]
+        u = controller_sample(settings, state, scratch, x, ref[i], dt, diag)
+        buf.X[i, 0] = x[0]
+        buf.X[i, 1] = x[1]
+        buf.U[i] = u
+        for j in range(diag.size):
+            buf.D[i, j] = diag[j]
+        buf.E[i, 0] = qpos[link.cart_pos]
+        buf.E[i, 1] = qvel[link.cart_vel]
+        if _out_of_bounds(x, u, bounds):
+            return i, CHECK
+        d = dist[i]
+        if not (abs(u) < link.max_input and abs(d) < link.max_input):
+            return i, BAD_INPUT
+        link.ctrl[link.actuator] = u
+        link.qfrc[link.omega] = link.d_to_tau * d
+        for _ in range(link.nstep):
+            mj_step(link.model_address, link.data_address)
+        if numbers[link.bad_qpos] or numbers[link.bad_qvel] or numbers[link.bad_qacc]:
+            return i, UNSTABLE
+    return b, RAN
 
-    def __init__(self, controller_step: Callable, diag: np.ndarray, plant: Any, views: Any,
-                 buffers: Buffers, bounds: Bounds) -> None:
-        self._step, self._diag, self._plant_step = controller_step, diag, plant.step
-        self._views, self._buf, self._bounds = views, buffers, bounds
+
+class MujocoCompiledSegment:
+    """A MuJoCo plant (its ``compiled_mujoco(dt)``) and a compiled controller in one
+    compiled loop calling MuJoCo's C ``mj_step``."""
+
+    def __init__(self, compiled_controller: Any, plant: Any, link: Any, mj_step: Any,
+                 diag: np.ndarray, buffers: Buffers, bounds: Bounds) -> None:
+        c = compiled_controller
+        _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
+        self._plant, self._buf = plant, buffers
+        self._args = (c.settings, c.state, c.scratch, mj_step, link, np.zeros(2), diag, buffers)
+        self._bounds = bounds
 
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
                  dt: float) -> tuple[int, int]:
-        step, diag, plant_step, v = self._step, self._diag, self._plant_step, self._views
-        X, U, D, E = self._buf
-        qpos, qvel, q_th, v_th, q_cart, v_cart = v
-        state_bound, control_bound = self._bounds
-        isfinite = math.isfinite
-        x = np.empty(2)
-        for i in range(a, b):
-            x[0] = qpos[q_th]
-            x[1] = qvel[v_th]
-            u = step(x, ref[i], dt)
-            X[i] = x
-            U[i] = u
-            D[i] = diag
-            E[i, 0] = qpos[q_cart]
-            E[i, 1] = qvel[v_cart]
-            if not isfinite(u) or (control_bound > 0.0 and abs(u) > control_bound) or (
-                    state_bound > 0.0 and (abs(x[0]) > state_bound or abs(x[1]) > state_bound)):
-                return i, CHECK
+        i, code = _mujoco_samples(*self._args, a, b, t, ref, dist, dt, self._bounds)
+        if code == BAD_INPUT:
+            # the plant's own step refuses the input and says why
             try:
-                plant_step(u, dist[i], dt)
+                self._plant.step(float(self._buf.U[i]), float(dist[i]), dt)
             except Exception as exc:
                 raise SampleFailed(i, exc) from exc
-        return b, RAN
+        if code == UNSTABLE:
+            error = self._plant.instability(float(t[i]))
+            raise SampleFailed(i, error)
+        return i, code
 
 
 def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bounds: Bounds,
@@ -203,8 +230,12 @@ def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bou
         if p is not None and buffers.E.shape[1] == p.state.size - order:
             return CompiledSegment(compiled_controller(), p, controller.diag, buffers, bounds,
                                    order)
-    state_views = getattr(plant, "state_views", None)
-    if state_views is not None and order == 2 and buffers.E.shape[1] == 2:
-        return MujocoSegment(controller.step, controller.diag, plant, state_views(), buffers,
-                             bounds)
+    compiled_mujoco = getattr(plant, "compiled_mujoco", None)
+    if compiled_mujoco is not None and order == 2 and buffers.E.shape[1] == 2:
+        from .plants.mujoco_plant import mj_step_pointer
+
+        link = compiled_mujoco(dt)
+        if link is not None:
+            return MujocoCompiledSegment(compiled_controller(), plant, link, mj_step_pointer(),
+                                         controller.diag, buffers, bounds)
     return None

@@ -55,15 +55,53 @@ _DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
 BodyPose = tuple[np.ndarray, np.ndarray]
 
 
-class StateViews(NamedTuple):
-    """MjData's qpos and qvel, and the indices of theta, theta', cart position and velocity."""
+class MujocoLink(NamedTuple):
+    """One model and its data as compiled code steps them (:mod:`tspend.fastloop`): the
+    addresses of mjModel and mjData for ``mj_step``, MjData's arrays in place, the indices
+    of theta, theta', the cart and the motor, and the step's constants."""
 
+    model_address: int
+    data_address: int
     qpos: np.ndarray
     qvel: np.ndarray
+    ctrl: np.ndarray
+    qfrc: np.ndarray
+    warning_number: np.ndarray
+    bad_qpos: int
+    bad_qvel: int
+    bad_qacc: int
     theta: int
     omega: int
     cart_pos: int
     cart_vel: int
+    actuator: int
+    d_to_tau: float
+    nstep: int
+    max_input: float
+
+
+def mj_step_pointer() -> Any:
+    """MuJoCo's C ``mj_step(const mjModel*, mjData*)`` as a ctypes function, which compiled
+    code calls without Python (the library the bindings themselves loaded)."""
+    global _MJ_STEP
+    if _MJ_STEP is None:
+        import ctypes
+        import glob
+        import os
+
+        here = os.path.dirname(mujoco.__file__)
+        libs = sorted(glob.glob(os.path.join(here, "libmujoco.so*"))
+                      + glob.glob(os.path.join(here, "libmujoco*.dylib"))
+                      + glob.glob(os.path.join(here, "mujoco.dll")))
+        if not libs:
+            return None
+        fn = ctypes.CDLL(libs[0]).mj_step
+        fn.restype, fn.argtypes = None, [ctypes.c_void_p, ctypes.c_void_p]
+        _MJ_STEP = fn
+    return _MJ_STEP
+
+
+_MJ_STEP: Any = None
 
 
 def _names(elements: Any) -> str:
@@ -314,11 +352,27 @@ class MujocoCartPole:
     def state(self) -> np.ndarray:
         return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
 
-    def state_views(self) -> "StateViews":
-        """Where ``state()`` and ``extras()`` read from, for a closed loop that reads the
-        state in place each sample (:mod:`tspend.fastloop`)."""
-        return StateViews(self._qpos, self._qvel, self._q_th, self._v_th, self._q_cart,
-                          self._v_cart)
+    def compiled_mujoco(self, dt: float) -> MujocoLink | None:
+        """This plant for a compiled closed loop stepping it at sample time ``dt`` (None
+        when MuJoCo's library cannot be found)."""
+        if mj_step_pointer() is None:
+            return None
+        w = mujoco.mjtWarning
+        return MujocoLink(self.model._address, self.data._address, self._qpos, self._qvel,
+                          self._ctrl, self._qfrc, self.data.warning.number,
+                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
+                          self._q_th, self._v_th, self._q_cart, self._v_cart, self._act,
+                          self._d_to_tau, self._substeps(dt), _MJ_MAXVAL)
+
+    def instability(self, t0: float) -> DivergenceError | None:
+        """The error :meth:`step` raises when MuJoCo found NaN, Inf or huge values (and
+        reset the simulation) in a step from time ``t0``; None when it did not."""
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values in "
+                                   f"qpos, qvel or qacc and reset the simulation (step from "
+                                   f"t={t0:.6g})")
+        return None
 
     def step(self, u: float, d: float, dt: float) -> None:
         """Advance by ``dt`` (a whole number of physics steps) with u and d held.
@@ -337,11 +391,9 @@ class MujocoCartPole:
         self._ctrl[self._act] = u
         self._qfrc[self._v_th] = self._d_to_tau * d
         mujoco.mj_step(self.model, self.data, self._last_k)
-        w = self._warnings
-        if w[0].number or w[1].number or w[2].number:
-            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values in "
-                                  f"qpos, qvel or qacc and reset the simulation (step from "
-                                  f"t={t0:.6g})")
+        unstable = self.instability(t0)
+        if unstable is not None:
+            raise unstable
 
     def check_sample_time(self, dt: float) -> None:
         """Raise ScenarioError now, before a run, if dt is not a multiple of the timestep."""
