@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from . import __version__
+from . import __version__, cli_compare, cli_figures
 from .errors import ScenarioError, TspendError
 from .runner import RunInterrupted, StopRequest
 
@@ -54,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="length of the open-loop comparison (default 10 s)")
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
+    cli_compare.add_parser(sub)
+    cli_figures.add_parser(sub)
     return p
 
 
@@ -306,7 +308,8 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck}
+    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
+                "compare": cli_compare.cmd, "figures": cli_figures.cmd}
     try:
         return commands[args.command](args)
     except TspendError as exc:
