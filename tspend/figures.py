@@ -332,22 +332,34 @@ def box_figure(fig_out: Figures, table, metric: str, name: str,
     return fig_out.save(fig, pd.DataFrame(data), name)
 
 
-#: units of each metric, for axis labels (e: the tracking error's unit, u: the input's)
-METRIC_UNITS = {"rmse": "e", "rmse_ss": "e", "max_abs_e": "e", "max_abs_e_ss": "e",
-                "iae": "e·s", "ise": "e²·s", "itae": "e·s²", "control_energy": "u²·s",
-                "max_abs_u": "u", "tv_u_per_s": "u/s"}
+#: each metric's unit as powers of (the error's unit, u's unit, seconds)
+METRIC_DIMENSIONS = {"rmse": (1, 0, 0), "rmse_ss": (1, 0, 0), "max_abs_e": (1, 0, 0),
+                     "max_abs_e_ss": (1, 0, 0), "iae": (1, 0, 1), "ise": (2, 0, 1),
+                     "itae": (1, 0, 2), "control_energy": (0, 2, 1), "max_abs_u": (0, 1, 0),
+                     "tv_u_per_s": (0, 1, -1)}
+
+
+def _plant_kind(scenario: str) -> str:
+    from .scenario import load_scenario
+
+    try:
+        return load_scenario(scenario).plant.kind
+    except Exception:  # a table from elsewhere: its scenario may not be at hand
+        return ""
 
 
 def metric_label(metric: str, part=None) -> str:
-    """``rmse_ss [rad]`` for the cart-pole scenarios, ``[e]`` spelled out otherwise."""
-    unit = METRIC_UNITS.get(metric, "")
-    scenarios = set(part["scenario"]) if part is not None and "scenario" in part else set()
-    if scenarios and all("pendulum" in s for s in scenarios):
-        unit = unit.replace("e", "rad").replace("u", "N")
-    else:
-        unit = unit.replace("e", "[e]").replace("u", "[u]") if unit else ""
-        return f"{metric} ({unit} units)" if unit else metric
-    return f"{metric} [{unit}]"
+    """``rmse_ss [rad]``, ``control_energy [N²·s]``; ``[–]`` for a dimensionless plant's;
+    no unit when the scenarios of ``part`` are unknown or differ in units."""
+    kinds = {_plant_kind(s) for s in set(part["scenario"])} if part is not None else {""}
+    if len(kinds) != 1 or "" in kinds or metric not in METRIC_DIMENSIONS:
+        return metric
+    kind = kinds.pop()
+    e_unit, u_unit = ("rad", "N") if kind.startswith("cartpole") else ("", "")
+    power = {1: "", 2: "²", -1: "⁻¹"}
+    parts = [f"{unit}{power.get(k, k)}" for unit, k in
+             zip((e_unit, u_unit, "s"), METRIC_DIMENSIONS[metric]) if unit and k]
+    return f"{metric} [{'·'.join(parts) or '–'}]"
 
 
 def heatmap_figure(fig_out: Figures, table, x: str, y: str, metric: str, name: str,
