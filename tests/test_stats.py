@@ -151,3 +151,11 @@ def test_unknown_metric_and_duplicate_runs_are_errors():
     dup = pd.concat([t, t])
     with pytest.raises(ValueError, match="more than one run"):
         stats.compare(dup, metrics=["rmse_ss"])
+
+
+def test_a_consistent_but_tiny_difference_is_flagged_negligible():
+    b = np.linspace(1.0, 2.0, 12)
+    r = stats.paired_difference(b * 0.998, b, n_resamples=999)
+    assert r.verdict == "A" and r.negligible
+    r = stats.paired_difference(b * 0.9, b, n_resamples=999)
+    assert r.verdict == "A" and not r.negligible

@@ -161,6 +161,7 @@ class PairedResult:
     p_value: float                # Wilcoxon signed-rank, two-sided; nan when undefined
     deterministic: bool           # A and B the same at every seed: one observation, no test
     verdict: str                  # "A", "B" or "" (no difference shown)
+    negligible: bool = False      # a verdict, but the median ratio is within 1 +- negligible
     a_diverged: int = 0
     b_diverged: int = 0
     notes: tuple[str, ...] = field(default=())
@@ -175,7 +176,7 @@ def _ratio(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
                       n_resamples: int = 9999, confidence: float = 0.95,
-                      alpha: float = 0.05) -> PairedResult:
+                      alpha: float = 0.05, negligible: float = 0.01) -> PairedResult:
     """Compare paired outcomes ``a[i]``, ``b[i]`` (same seed; +inf for a diverged run,
     nan for a run with no verdict, which drops the pair).
 
@@ -185,7 +186,9 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
     without ties, normal-approximated otherwise (scipy's ``method="auto"``).  The verdict
     names the better controller when the p-value is below ``alpha`` *and* the interval
     excludes 0; when neither controller's outcome varies with the seed there is a single
-    observation, no test, and the verdict is the sign of that one difference.
+    observation, no test, and the verdict is the sign of that one difference.  A verdict
+    whose median ratio A/B lies within ``1 +- negligible`` is flagged ``negligible``: real
+    (the same sign at most seeds) but too small to matter.
     """
     from scipy import stats
 
@@ -234,6 +237,7 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
         pairs=n, unpaired=unpaired, median_difference=med, ci_low=lo, ci_high=hi,
         median_ratio=ratio, wins=wins, win_rate=wins / n, p_value=p,
         deterministic=deterministic, verdict=verdict,
+        negligible=bool(verdict and abs(ratio - 1.0) < negligible),
         a_diverged=int(np.isposinf(a).sum()), b_diverged=int(np.isposinf(b).sum()))
 
 
@@ -270,6 +274,7 @@ class Comparison:
 def compare(table, controllers: Iterable[str] | None = None,
             metrics: Sequence[str] = DEFAULT_METRICS, *, seed: int = 0,
             n_resamples: int = 9999, confidence: float = 0.95, alpha: float = 0.05,
+            negligible: float = 0.01,
             pairs: Sequence[tuple[str, str]] | None = None) -> Comparison:
     """Every pair of ``controllers`` (in the order given: A before B) on every scenario
     and grid point of ``table``, on every metric.  ``pairs`` restricts the pairs."""
@@ -291,7 +296,8 @@ def compare(table, controllers: Iterable[str] | None = None,
             for metric in metrics:
                 va, vb, _ = paired_outcomes(part, a, b, metric)
                 r = paired_difference(va, vb, seed=seed, n_resamples=n_resamples,
-                                      confidence=confidence, alpha=alpha)
+                                      confidence=confidence, alpha=alpha,
+                                      negligible=negligible)
                 rec = dict(zip(groups, key), a=a, b=b, metric=metric)
                 rec.update({k: getattr(r, k) for k in PairedResult.__dataclass_fields__
                             if k != "notes"})
@@ -300,7 +306,7 @@ def compare(table, controllers: Iterable[str] | None = None,
     return Comparison(summary=summary, pairs=pd.DataFrame.from_records(records),
                       controllers=kinds, metrics=list(metrics), group_columns=groups,
                       settings=dict(seed=seed, n_resamples=n_resamples,
-                                    confidence=confidence, alpha=alpha,
+                                    confidence=confidence, alpha=alpha, negligible=negligible,
                                     bootstrap="percentile", test="wilcoxon signed-rank, "
                                     "two-sided, zero differences dropped",
                                     diverged="+inf (worst)", failed="left out, counted"))
@@ -316,6 +322,13 @@ def fmt(v: float, digits: int = 3) -> str:
     if v == 0:
         return "0"
     return f"{v:.{digits}g}"
+
+
+def fmt_ratio(v: float) -> str:
+    """A ratio near 1 with three decimals (1.004), otherwise three significant figures."""
+    if v is None or math.isnan(v) or math.isinf(v) or not 0.1 <= v < 10:
+        return fmt(v)
+    return f"{v:.3f}"
 
 
 def _fmt_p(p: float) -> str:
@@ -377,10 +390,17 @@ def markdown(comp: Comparison, seeds_text: str = "") -> str:
                 extra.append("seed-independent: one observation")
             p = _fmt_p(r.p_value) + (f" ({'; '.join(extra)})" if extra else "")
             lines.append(f"| {r.a} vs {r.b} | {r.metric} | {r.pairs} | {fmt(r.median_difference)} "
-                         f"[{fmt(r.ci_low)}, {fmt(r.ci_high)}] | {fmt(r.median_ratio)} | "
-                         f"{r.wins:g}/{r.pairs} | {p} | {r.verdict or '—'} |")
+                         f"[{fmt(r.ci_low)}, {fmt(r.ci_high)}] | {fmt_ratio(r.median_ratio)} | "
+                         f"{r.wins:g}/{r.pairs} | {p} | {verdict_text(r)} |")
         lines.append("")
     return "\n".join(lines)
+
+
+def verdict_text(r) -> str:
+    """``second_type``, ``second_type (negligible)`` or ``—``."""
+    if not r.verdict:
+        return "—"
+    return f"{r.verdict} (negligible)" if r.negligible else r.verdict
 
 
 def _json_number(v: Any) -> Any:
