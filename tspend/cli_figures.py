@@ -91,7 +91,7 @@ def cmd(args: argparse.Namespace) -> int:
             raise ScenarioError(f"--every: must be >= 1, got {args.every}")
         if args.duration is not None and not args.duration > 0:
             raise ScenarioError(f"--duration: must be positive, got {args.duration}")
-        pngs = paper_figures(out, kinds, seed=args.seed, duration=args.duration,
+        paper_figures(out, kinds, seed=args.seed, duration=args.duration,
                              every=args.every)
     else:
         table = _read(args.table)
@@ -108,11 +108,12 @@ def cmd(args: argparse.Namespace) -> int:
         if args.figure == "box":
             names = [f"{stem}_box_{m}" for m in metrics]
             out.check(names)
-            pngs = [box_figure(out, table, m, n, kinds) for m, n in zip(metrics, names)]
+            for m, n in zip(metrics, names):
+                box_figure(out, table, m, n, kinds)
         else:
             name = f"{stem}_heatmap_{metrics[0]}"
             out.check([name])
-            pngs = [heatmap_figure(out, table, args.x, args.y, metrics[0], name, kinds)]
+            heatmap_figure(out, table, args.x, args.y, metrics[0], name, kinds)
     for p in out.written:
         print(p)
     return 0

@@ -375,6 +375,9 @@ def heatmap_figure(fig_out: Figures, table, x: str, y: str, metric: str, name: s
         if key not in table.columns:
             raise ScenarioError(f"--x/--y {key}: not a column of the table; grid columns: "
                                 f"{', '.join(c for c in table.columns if '.' in c) or 'none'}")
+    if "scenario" in table.columns and table["scenario"].nunique() > 1:
+        raise ScenarioError(f"a heat map shows one scenario; the table has "
+                            f"{', '.join(map(str, table['scenario'].unique()))}")
     kinds = _ordered_controllers(table, controllers)
     t = table[table["controller"].isin(kinds)].copy()
     t["_v"] = outcome_values(t, metric)
