@@ -49,7 +49,8 @@ def verdict_sentences(comp, scenario: str, a: str, b: str) -> list[str]:
         if r.deterministic:
             tail = "; neither depends on the seed, so this is one observation, not a test"
         else:
-            tail = f", p = {_fmt_p(r.p_value)}"
+            p = _fmt_p(r.p_value)
+            tail = f", p {p}" if p.startswith("<") else f", p = {p}"
         if r.verdict and r.negligible:
             verdict = f"{r.verdict} lower, but by less than 1%: negligible"
         elif r.verdict:
