@@ -19,7 +19,9 @@ from .errors import ScenarioError
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "compare", help="compare controller kinds over seeds, paired (Markdown table)",
-        description=__doc__.split("\n\n")[0])
+        description="Every controller kind on every scenario at the same seeds, paired by "
+                    "seed: median [Q1, Q3] per kind; per pair the median difference with a "
+                    "bootstrap 95%% interval, the win rate and the Wilcoxon p-value.")
     p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
                    help="scenario names (see 'tspend list') or .toml paths")
     p.add_argument("--controller", metavar="K1,K2,...",
@@ -28,7 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="seeds A to B-1 (or N1,N2,...); default 0:20")
     p.add_argument("--metrics", metavar="M1,M2,...",
                    help="metrics to compare (default: rmse,rmse_ss,max_abs_e_ss,"
-                        "control_energy,tv_u_per_s; 'help' lists them)")
+                        "control_energy,tv_u_per_s; an unknown name lists them)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key for every run (repeatable)")
     p.add_argument("--duration", type=float, metavar="S", help="override run.duration")

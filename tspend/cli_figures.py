@@ -21,7 +21,9 @@ from .errors import ScenarioError
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("figures", help="draw figures (PNG/PDF + CSV) from runs or "
                               "a sweep table (needs the [plot] extra)",
-                              description=__doc__.split("\n\n")[0])
+                              description="Figures as PNG (PDF with --pdf) with their data "
+                                          "as CSV: the paper's, box plots of a comparison, "
+                                          "heat maps of a two-key sweep.")
     sub = p.add_subparsers(dest="figure", required=True)
 
     def common(q):
