@@ -21,7 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "compare", help="compare controller kinds over seeds, paired (Markdown table)",
         description="Every controller kind on every scenario at the same seeds, paired by "
                     "seed: median [Q1, Q3] per kind; per pair the median difference with a "
-                    "bootstrap 95%% interval, the win rate and the Wilcoxon p-value.")
+                    "bootstrap 95% interval, the win rate and the Wilcoxon p-value.")
     p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
                    help="scenario names (see 'tspend list') or .toml paths")
     p.add_argument("--controller", metavar="K1,K2,...",
