@@ -62,15 +62,17 @@ def _kinds(text: str | None) -> list[str] | None:
 
 
 def _read(path: str):
+    import pandas as pd
+
     if not Path(path).exists():
         raise ScenarioError(f"{path}: no such file")
+    read_table = pd.read_parquet
+    if Path(path + ".journal").exists():  # a sweep still running: its unfolded rows too
+        from .sweep.table import read_table
     try:
-        from .sweep.table import read_table  # the file and its journal of unfolded rows
-    except ImportError:
-        import pandas as pd
-
-        read_table = pd.read_parquet
-    table = read_table(path)
+        table = read_table(path)
+    except (OSError, ValueError) as exc:
+        raise ScenarioError(f"{path}: not a readable Parquet table ({exc})") from None
     if len(table) == 0 or "controller" not in table.columns:
         raise ScenarioError(f"{path}: no runs in the table")
     return table
