@@ -209,8 +209,9 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
     wins = float((d < 0).sum() + 0.5 * (d == 0).sum())
     med = median(d)
     # a ratio needs values of one sign; every tspend metric is >= 0
-    ratio = (float(np.exp(median(np.log(_ratio(a, b))))) if (a >= 0).all() and (b >= 0).all()
-             else nan)
+    with np.errstate(divide="ignore"):  # log 0 = -inf: A at 0, or B diverged
+        ratio = (float(np.exp(median(np.log(_ratio(a, b))))) if (a >= 0).all()
+                 and (b >= 0).all() else nan)
     deterministic = bool(n > 1 and np.all(a == a[0]) and np.all(b == b[0])) or n == 1
     if deterministic:
         lo = hi = med
