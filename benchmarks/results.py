@@ -2,6 +2,7 @@
 
     python benchmarks/results.py                      # 20 seeds, every controller kind
     python benchmarks/results.py --seeds 0:5 --jobs 2 --out /tmp/r --page /tmp/r.md
+    python benchmarks/results.py --fresh          # after a scenario file changed
 
 It runs (through ``tspend.sweep``, resumable: the tables are kept in ``--out``):
 
@@ -144,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controller", help="kinds (default: every kind in KINDS)")
     ap.add_argument("--jobs", type=int)
     ap.add_argument("--no-heatmap", action="store_true")
+    ap.add_argument("--fresh", action="store_true",
+                    help="start the tables in --out afresh (needed when a scenario file "
+                         "changed: a sweep table never mixes two versions of a scenario)")
     args = ap.parse_args(argv)
 
     import tspend
@@ -156,6 +160,10 @@ def main(argv: list[str] | None = None) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.fresh:
+        for name in ("runs", "heatmap", "shape"):
+            for p in (out / f"{name}.parquet", out / f"{name}.parquet.journal"):
+                p.unlink(missing_ok=True)
     scenarios = [s.strip() for s in args.scenarios.split(",") if s.strip()]
     kinds = ([k.strip() for k in args.controller.split(",")] if args.controller
              else list(KINDS))
