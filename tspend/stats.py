@@ -372,6 +372,8 @@ def markdown(comp: Comparison, seeds_text: str = "") -> str:
             lines.append(f"| {kind} | {first.runs} | {first.diverged} | {first.failed} | "
                          + " | ".join(cells) + " |")
         lines.append("")
+        if pairs.empty:  # one controller: nothing to pair
+            continue
         psel = np.ones(len(pairs), bool)
         for g in groups:
             psel &= (pairs[g] == key[g]).to_numpy()
