@@ -18,6 +18,13 @@ Python API::
 
 __version__ = "0.1.0"
 
+from pathlib import Path as _Path
+
+from .jit_cache import invalidate_stale_cache as _invalidate_stale_cache
+
+# before any compiled function loads from numba's cache (see tspend/jit_cache.py)
+_invalidate_stale_cache(_Path(__file__).resolve().parent)
+
 __all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller",
            "sweep"]
 

@@ -24,6 +24,7 @@ from typing import Any, Iterator
 
 from . import __version__, cli_inspect
 from . import cli_export, cli_sweep
+from . import cli_compare, cli_figures
 from .errors import ScenarioError, TspendError
 from .plants.mjcf_warning import print_as_one_line
 from .progress import RunProgress
@@ -60,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
     cli_inspect.add_parser(sub)
     cli_sweep.add_parser(sub)
     cli_export.add_parser(sub)
+    cli_compare.add_parser(sub)
+    cli_figures.add_parser(sub)
     return p
 
 
@@ -323,6 +326,8 @@ def main(argv: list[str] | None = None) -> int:
                 "inspect": cli_inspect.cmd}
     commands["sweep"] = cli_sweep.cmd
     commands["export"] = cli_export.cmd
+    commands["compare"] = cli_compare.cmd
+    commands["figures"] = cli_figures.cmd
     print_as_one_line()
     try:
         return commands[args.command](args)

@@ -1,0 +1,161 @@
+"""tspend.stats against hand-computed cases and scipy's published examples."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tspend import stats
+
+
+def frame(rows):
+    """A sweep-shaped table from (scenario, controller, seed, status, rmse_ss) tuples."""
+    base = dict(message="", version="0.1.0", scenario_hash="h", wall_s=0.1, sim_s=20.0,
+                steps=20000)
+    return pd.DataFrame.from_records([
+        dict(base, scenario=s, controller=k, seed=seed, status=st, rmse_ss=v, rmse=v)
+        for s, k, seed, st, v in rows])
+
+
+# -- Wilcoxon -----------------------------------------------------------------------------
+def test_wilcoxon_p_value_of_scipys_published_example():
+    # scipy.stats.wilcoxon's documentation (Hollander & Wolfe): differences in height of
+    # cross- and self-fertilised plants; exact two-sided p = 0.041259765625 (W = 24)
+    d = np.array([6, 8, 14, 16, 23, 24, 28, 29, 41, -48, 49, 56, 60, -67, 75], float)
+    b = np.linspace(100.0, 200.0, d.size)
+    r = stats.paired_difference(b + d, b, n_resamples=999)
+    assert r.p_value == pytest.approx(0.041259765625, abs=1e-15)
+    assert r.median_difference == 24.0                      # 8th of the 15 sorted d
+    assert r.wins == 2 and r.win_rate == pytest.approx(2 / 15)   # A lower only at -48, -67
+    assert r.verdict == "B"                                  # B lower, p < 0.05, CI > 0
+
+
+def test_wilcoxon_hand_computed_all_one_sign():
+    # n = 5, every d < 0: W+ = 0; of the 2^5 equally likely sign patterns under H0 one
+    # has W+ = 0 and one W- = 0, so the exact two-sided p = 2/32
+    a = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    r = stats.paired_difference(a, a + [0.5, 1.5, 2.5, 3.5, 4.5], n_resamples=999)
+    assert r.p_value == pytest.approx(2 / 32)
+    assert r.wins == 5
+    assert r.verdict == ""            # 0.0625 is not below 0.05: no difference shown
+
+
+# -- bootstrap ----------------------------------------------------------------------------
+def test_bootstrap_interval_covers_true_median_difference_at_its_level():
+    # paired differences with a known median 0.3 (symmetric noise around it); over 200
+    # independent synthetic studies a 95% interval must cover 0.3 about 95% of the time
+    rng = np.random.default_rng(12345)
+    true = 0.3
+    covered = 0
+    studies = 200
+    for k in range(studies):
+        b = rng.lognormal(0.0, 1.0, 30)
+        a = b + true + rng.normal(0.0, 0.5, 30)
+        r = stats.paired_difference(a, b, seed=k, n_resamples=2000)
+        covered += r.ci_low <= true <= r.ci_high
+    assert 0.88 <= covered / studies <= 0.995
+
+
+def test_bootstrap_interval_is_seeded_and_excludes_a_far_value():
+    rng = np.random.default_rng(7)
+    b = rng.uniform(1, 2, 25)
+    a = b - 1.0 + rng.normal(0, 0.1, 25)
+    r1 = stats.paired_difference(a, b, seed=3)
+    r2 = stats.paired_difference(a, b, seed=3)
+    assert (r1.ci_low, r1.ci_high) == (r2.ci_low, r2.ci_high)
+    assert r1.ci_low <= -1.0 + 0.1 and r1.ci_high >= -1.0 - 0.1
+    assert r1.ci_high < 0 and r1.verdict == "A"
+
+
+# -- divergence and failures ----------------------------------------------------------------
+def test_quartiles_with_infinite_values_follow_linear_interpolation():
+    # positions 0.75, 1.5, 2.25 of [1, 2, 3, inf]: 1.75, 2.5, and 3 + 0.25 (inf - 3) = inf
+    assert stats.quartiles([1.0, 2.0, 3.0, math.inf]) == (1.75, 2.5, math.inf)
+    assert stats.median([1.0, math.inf, math.inf]) == math.inf
+    assert stats.median([1.0, 2.0, math.inf]) == 2.0
+
+
+def test_a_diverged_run_is_the_worst_outcome_never_dropped():
+    rows = []
+    for seed in range(10):
+        rows.append(("s", "A", seed, "diverged" if seed in (2, 5) else "completed", 0.01))
+        rows.append(("s", "B", seed, "completed", 0.02))
+    t = frame(rows)
+    comp = stats.compare(t, ["A", "B"], metrics=["rmse_ss"], n_resamples=999)
+    summ = comp.summary.set_index("controller")
+    assert summ.loc["A", "diverged"] == 2 and summ.loc["A", "n"] == 10
+    assert summ.loc["A", "median"] == 0.01 and summ.loc["A", "q3"] == 0.01
+    # Q3 of [0.01] * 8 + [inf] * 2 sits at position 6.75, among the finite values
+    pair = comp.pairs.iloc[0]
+    assert pair.pairs == 10 and pair.unpaired == 0
+    assert pair.wins == 8 and pair.a_diverged == 2      # the two diverged seeds are losses
+    # the Wilcoxon statistic sees the two +inf differences as the largest positive ranks:
+    # ranks 9, 10 positive, 1..8 tied negative (all |d| = 0.01 -> mean rank 4.5)
+    from scipy.stats import wilcoxon
+    d = np.array([-0.01] * 8 + [np.inf] * 2)
+    assert pair.p_value == pytest.approx(wilcoxon(d).pvalue)
+
+
+def test_both_diverged_is_a_tie_and_failed_runs_are_counted_not_paired():
+    rows = [("s", "A", 0, "diverged", 1.0), ("s", "B", 0, "diverged", 2.0),
+            ("s", "A", 1, "failed", None), ("s", "B", 1, "completed", 0.5),
+            ("s", "A", 2, "completed", 0.1), ("s", "B", 2, "completed", 0.3),
+            ("s", "A", 3, "completed", 0.2), ("s", "B", 3, "completed", 0.1)]
+    comp = stats.compare(frame(rows), metrics=["rmse_ss"], n_resamples=999)
+    pair = comp.pairs.iloc[0]
+    assert pair.pairs == 3 and pair.unpaired == 1
+    assert pair.wins == 0.5 + 1 + 0                      # tie, win, loss
+    summ = comp.summary.set_index("controller")
+    assert summ.loc["A", "failed"] == 1 and summ.loc["A", "runs"] == 4
+    assert summ.loc["A", "n"] == 3                       # diverged kept (as inf), failed out
+    md = stats.markdown(comp)
+    assert "1 unpaired" in md and "| A | 4 | 1 | 1 |" in md
+    json.dumps(stats.to_json(comp), allow_nan=False)     # inf/nan encoded, valid JSON
+
+
+def test_seed_independent_controllers_are_one_observation_not_a_test():
+    rows = [(("s", k, seed, "completed", v)) for seed in range(8)
+            for k, v in (("A", 1.0), ("B", 2.0))]
+    pair = stats.compare(frame(rows), metrics=["rmse"], n_resamples=999).pairs.iloc[0]
+    assert pair.deterministic and math.isnan(pair.p_value)
+    assert pair.verdict == "A" and pair.median_difference == -1.0
+
+
+def test_pairs_are_formed_per_scenario_and_grid_point_by_seed():
+    rng = np.random.default_rng(0)
+    recs = []
+    for scn in ("s1", "s2"):
+        for gamma in (0.1, 1.0):
+            for seed in (3, 1, 2, 0):   # out of order: pairing is by seed, not position
+                for k in ("A", "B"):
+                    v = seed + (10.0 if k == "B" and scn == "s2" else 0.0) + rng.uniform(0, .1)
+                    recs.append(dict(scenario=scn, controller=k, seed=seed, status="completed",
+                                     message="", rmse_ss=v, **{"controller.gamma": gamma}))
+    comp = stats.compare(pd.DataFrame.from_records(recs), metrics=["rmse_ss"], n_resamples=999)
+    assert comp.group_columns == ["scenario", "controller.gamma"]
+    assert len(comp.pairs) == 4 and (comp.pairs.pairs == 4).all()
+    s2 = comp.pairs[comp.pairs.scenario == "s2"]
+    assert (s2.median_difference.between(-10.1, -9.9)).all() and (s2.wins == 4).all()
+
+
+def test_unknown_metric_and_duplicate_runs_are_errors():
+    t = frame([("s", "A", 0, "completed", 1.0), ("s", "B", 0, "completed", 1.0)])
+    with pytest.raises(ValueError, match="unknown metric"):
+        stats.compare(t, metrics=["speed"])
+    with pytest.raises(ValueError, match="not in the table"):
+        stats.compare(t, ["A", "C"])
+    dup = pd.concat([t, t])
+    with pytest.raises(ValueError, match="more than one run"):
+        stats.compare(dup, metrics=["rmse_ss"])
+
+
+def test_a_consistent_but_tiny_difference_is_flagged_negligible():
+    b = np.linspace(1.0, 2.0, 12)
+    r = stats.paired_difference(b * 0.998, b, n_resamples=999)
+    assert r.verdict == "A" and r.negligible
+    r = stats.paired_difference(b * 0.9, b, n_resamples=999)
+    assert r.verdict == "A" and not r.negligible
