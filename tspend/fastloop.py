@@ -18,9 +18,10 @@ Two kinds of segment:
   same loop calling MuJoCo's C ``mj_step`` (through ctypes) on the plant's own mjModel and
   mjData, so nothing of Python runs per sample.  A huge input or MuJoCo's instability
   reset ends the segment and the plant's own Python ``step`` / check says why, as in the
-  generic loop.  (Other routes measured: ``mujoco.set_mjcb_control`` with a numba cfunc
-  is process-global and cannot reach the controller's arrays without a per-run compile; a
-  tight Python loop of the compiled sample and ``mj_step`` ran at 2.3x bare ``mj_step``.)
+  generic loop.  (Other routes: a tight Python loop of the compiled sample and
+  ``mj_step`` was measured at 2.3x bare ``mj_step``; ``mujoco.set_mjcb_control`` with a
+  numba cfunc was not taken: the callback is process-global, shared by threads, and
+  could reach the controller's arrays only through a cfunc compiled per run.)
 
 The arithmetic is the generic loop's, in the same order, so blocks are equal bit for bit
 (tests/test_fastloop.py).  One difference in kind: where Python's ``math`` raises on an
@@ -209,6 +210,7 @@ class MujocoCompiledSegment:
                 self._plant.step(float(self._buf.U[i]), float(dist[i]), dt)
             except Exception as exc:
                 raise SampleFailed(i, exc) from exc
+            return i + 1, RAN  # the plant took it after all: sample i is complete
         if code == UNSTABLE:
             error = self._plant.instability(float(t[i]))
             raise SampleFailed(i, error)
