@@ -12,7 +12,6 @@ import math
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
-from numba import njit
 from numba.extending import overload, register_jitable
 
 from ..bspline import JIT
