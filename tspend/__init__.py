@@ -29,4 +29,8 @@ def __getattr__(name: str):
         from . import simulation
 
         return getattr(simulation, name)
+    if name == "recorder":  # `import tspend` then `tspend.recorder.open_recording(...)`
+        import importlib
+
+        return importlib.import_module(".recorder", __name__)
     raise AttributeError(f"module 'tspend' has no attribute {name!r}")
