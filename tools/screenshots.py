@@ -7,8 +7,8 @@ Usage (after ``pip install -e '.[screenshots]'`` and Debian's ``chromium chromiu
 For each recording: ``rerun --serve-web`` serves it on 127.0.0.1, headless Chromium
 (software WebGL: SwiftShader through ANGLE) opens the viewer, waits ``--wait`` seconds
 for the data to load and the layout to settle, and saves ``OUT_DIR/<stem>.png``.
-``--click TEXT`` additionally saves one screenshot per tab whose title contains TEXT
-(e.g. ``--click "membership functions"``) as ``<stem>-<tab>.png``.
+(egui draws into a canvas, so a tab is clicked at its position: ``--click X,Y=NAME``
+clicks window pixel (X, Y) and saves ``<stem>-NAME.png``).
 A plain ``chromium --screenshot`` is not enough: it captures the loading screen.
 """
 
@@ -71,18 +71,11 @@ def _driver(width: int, height: int):
     return webdriver.Chrome(service=service, options=options)
 
 
-def _click_tab(driver, text: str) -> bool:
-    """Click the tab whose title contains ``text`` (egui draws into a canvas: use its
-    accessibility tree, which egui exposes to the browser)."""
-    from selenium.webdriver.common.by import By
-
-    for element in driver.find_elements(By.XPATH, f"//*[contains(@aria-label, '{text}') or contains(text(), '{text}')]"):
-        try:
-            element.click()
-            return True
-        except Exception:  # noqa: BLE001 - try the next match
-            continue
-    return False
+def _click_at(driver, x: int, y: int) -> None:
+    """Click window pixel (x, y) through the DevTools protocol (the viewer is one canvas)."""
+    for kind in ("mousePressed", "mouseReleased"):
+        driver.execute_cdp_cmd("Input.dispatchMouseEvent",
+                               {"type": kind, "x": x, "y": y, "button": "left", "clickCount": 1})
 
 
 def _save(driver, path: Path, attempts: int = 8) -> None:
@@ -90,9 +83,15 @@ def _save(driver, path: Path, attempts: int = 8) -> None:
     answer chromedriver within its fixed 10 s."""
     from selenium.common.exceptions import TimeoutException
 
+    import base64
+
     for attempt in range(attempts):
         try:
-            driver.save_screenshot(str(path))
+            if attempt % 2 == 0:
+                driver.save_screenshot(str(path))
+            else:  # straight through the DevTools protocol, without chromedriver's renderer round trip
+                shot = driver.execute_cdp_cmd("Page.captureScreenshot", {"format": "png"})
+                path.write_bytes(base64.b64decode(shot["data"]))
             return
         except TimeoutException:
             if attempt == attempts - 1:
@@ -119,14 +118,14 @@ def screenshot(rrd: Path, out: Path, wait_s: float, width: int, height: int, cli
             path = out / f"{rrd.stem}.png"
             _save(driver, path)
             saved.append(path)
-            for text in clicks:
-                if _click_tab(driver, text):
-                    time.sleep(max(5.0, wait_s / 6))
-                    path = out / f"{rrd.stem}-{re.sub(r'[^a-z0-9]+', '_', text.lower())}.png"
-                    _save(driver, path)
-                    saved.append(path)
-                else:
-                    print(f"{rrd.name}: no tab named {text!r} found", file=sys.stderr)
+            for spec in clicks:
+                where, _, name = spec.partition("=")
+                x, y = (int(v) for v in where.split(","))
+                _click_at(driver, x, y)
+                time.sleep(max(10.0, wait_s / 4))
+                path = out / f"{rrd.stem}-{re.sub(r'[^a-z0-9]+', '_', (name or where).lower())}.png"
+                _save(driver, path)
+                saved.append(path)
         finally:
             driver.quit()
     finally:
@@ -144,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recordings", type=Path, nargs="+", help=".rrd files")
     parser.add_argument("--wait", type=float, default=90.0, help="seconds to let the viewer load (default 90)")
     parser.add_argument("--size", default="1600x1000", help="window size WxH (default 1600x1000)")
-    parser.add_argument("--click", action="append", default=[], help="also screenshot the tab containing TEXT")
+    parser.add_argument("--click", action="append", default=[], metavar="X,Y=NAME",
+                        help="then click window pixel X,Y (a tab) and save <stem>-NAME.png; repeatable")
     args = parser.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
     args.out.mkdir(parents=True, exist_ok=True)

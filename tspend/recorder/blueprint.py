@@ -16,7 +16,7 @@ import rerun.blueprint as rrb
 
 from ..sinks import FuzzyInputInfo, RunInfo
 from .cartpole import is_cartpole
-from .common import BMF_WIDTH, join_path, prefix_label
+from .common import BMF_WIDTH, TIMELINE, join_path, prefix_label
 from .labels import plant_labels
 from .series import SeriesSpec, series_specs
 
@@ -41,7 +41,8 @@ def series_view(name: str, contents: Sequence[str], duration: float) -> rrb.Time
 
 
 def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
-    """``"model input x_o1 = theta (rad) on [-0.524, 0.524]"``."""
+    """``"model: x_o1 = theta (rad)"``: short enough for a view a third of the screen wide
+    (the axis under the curves gives the interval)."""
     labels = plant_labels(info.plant_kind, info.order)
     quantity = None
     if inp.name.startswith("x_o") and inp.name[3:].isdigit() and int(inp.name[3:]) <= len(labels.states):
@@ -49,7 +50,7 @@ def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
     elif inp.name == "u_o":
         quantity = labels.control
     meaning = f" = {quantity.with_unit()}" if quantity is not None and quantity.symbol != inp.name else ""
-    return f"{group} input {inp.name}{meaning} on [{inp.lo:.3g}, {inp.hi:.3g}]"
+    return f"{group}: {inp.name}{meaning}"
 
 
 def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list[rrb.View], list[rrb.View]]:
@@ -108,7 +109,7 @@ def document_views(prefix: str = "", suffix: str = "") -> list[rrb.View]:
 def panels() -> list[rrb.BlueprintPart]:
     """Side panels folded (the plots need the room); the time panel keeps its controls."""
     return [rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-            rrb.TimePanel(state="collapsed")]
+            rrb.TimePanel(state="collapsed", timeline=TIMELINE)]
 
 
 def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,

@@ -13,7 +13,7 @@ import rerun as rr
 
 AXIS_COLOR = (110, 110, 110)
 #: ticks along the input axis
-TICKS = 5
+TICKS = 3
 #: gap between a peak and its term label (membership units)
 LABEL_GAP = 0.12
 

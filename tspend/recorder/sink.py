@@ -313,9 +313,9 @@ class RerunSink:
         times = time_column(buf.get("t"))
         for group in ("model", "compensator"):
             for key in buf.inputs(group):
-                self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times],
-                                      columns=self._operating_points(key, buf))
-                self._send_changed_curves(key, buf)
+                points = self._operating_points(key, buf)
+                if not self._send_changed_curves(key, buf, points):
+                    self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times], columns=points)
         bar = rr.BarChart.descriptor_values()
         for name in ("firing", "compensator_firing", "q"):
             self.rec.send_columns(self._path(f"fuzzy/{name}"), indexes=[times],
@@ -344,37 +344,41 @@ class RerunSink:
         marks[..., 1] = -mu                                   # y down on screen: log -mu
         return rr.Points2D.columns(positions=marks.reshape(-1, 2)).partition(np.full(count, terms))
 
-    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer) -> None:
+    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, op_points: rr.ComponentColumnList) -> bool:
         """Curves of input ``key`` at the snapshots where they differ from the last ones sent.
 
         Fixed membership functions are thus sent once, which keeps the file small; curves
-        that change at every snapshot ride along in ``batch`` (the snapshots' own rows).
+        that change at every snapshot go out with the operating points ``op_points`` in one chunk, and
+        then the call returns True (the points are sent).
         """
         grid, curves = buf.get(f"{key}/grid"), buf.get(f"{key}/curves")
         count, terms, points = curves.shape
         previous = self._sent_curves.get(key)
         if (previous is not None and previous[0].shape == grid.shape[1:] and previous[1].shape == curves.shape[1:]
                 and (grid == previous[0]).all() and (curves == previous[1]).all()):
-            return  # the common case: fixed membership functions, one pass over the block
+            return False  # the common case: fixed membership functions, one pass over the block
         changed = np.empty(count, dtype=bool)
         changed[0] = previous is None or not (np.array_equal(previous[0], grid[0])
                                               and np.array_equal(previous[1], curves[0]))
         changed[1:] = np.any(curves[1:] != curves[:-1], axis=(1, 2)) | np.any(grid[1:] != grid[:-1], axis=1)
         if not changed.any():
-            return
+            return False
         self._sent_curves[key] = (grid[-1].copy(), curves[-1].copy())
         rows = np.flatnonzero(changed)
         strips = np.empty((rows.size, terms, points, 2))
         strips[..., 0] = self._display_x(key, grid[rows])[:, None, :]
         strips[..., 1] = -curves[rows]
         times = time_column(buf.get("t")[rows])
+        curves_column = rr.LineStrips2D.columns(strips=strips.reshape(-1, points, 2)).partition(
+            np.full(rows.size, terms))
+        every_row = rows.size == count
         self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times],
-                              columns=rr.LineStrips2D.columns(strips=strips.reshape(-1, points, 2)).partition(
-                                  np.full(rows.size, terms)))
+                              columns=[*curves_column, *op_points] if every_row else curves_column)
         # each term's name above its peak, wherever adaptation moved it
         self.rec.send_columns(self._path(f"fuzzy/{key}/terms"), indexes=[times],
                               columns=rr.Points2D.columns(positions=term_label_positions(strips)).partition(
                                   np.full(rows.size, terms)))
+        return every_row
 
     # -- static parts
 
