@@ -158,3 +158,23 @@ def test_recorder_reachable_from_the_package() -> None:
     sys.modules.pop("tspend.recorder", None)
     pkg = importlib.reload(tspend)
     assert callable(pkg.recorder.open_recording)
+
+
+def test_tensor_columns_match_the_sdk_or_fail_clearly(monkeypatch) -> None:
+    """The one hand-built Arrow column equals the SDK's own encoding; a changed encoding
+    (simulated: the SDK's tensor turned into float64) stops with a message naming the version."""
+    from tspend.recorder import arrow
+
+    arrow.check_tensor_type.cache_clear()
+    arrow.check_tensor_type()  # the installed SDK: no error
+
+    class Float64Tensor(rr.Tensor):
+        def __init__(self, array, dim_names=None):
+            super().__init__(np.asarray(array, dtype=np.float64), dim_names=dim_names)
+
+    monkeypatch.setattr(rr, "Tensor", Float64Tensor)
+    arrow.check_tensor_type.cache_clear()
+    with pytest.raises(arrow.RerunVersionError, match=r"rerun-sdk .*TensorData.*tspend/recorder/arrow.py needs updating"):
+        arrow.check_tensor_type()
+    monkeypatch.undo()
+    arrow.check_tensor_type.cache_clear()

@@ -64,7 +64,7 @@ def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list
             # drawn on [0, BMF_WIDTH] with y = -mu (RerunSink._display_x); the axis labels carry the values
             bmf.append(rrb.Spatial2DView(
                 origin=_abs(prefix, f"fuzzy/{group}/in{j}"), name=_input_title(info, group, inp) + suffix,
-                visual_bounds=rrb.VisualBounds2D(x_range=[-0.3, BMF_WIDTH + 0.1], y_range=[-1.3, 0.3])))
+                visual_bounds=rrb.VisualBounds2D(x_range=[-0.3, BMF_WIDTH + 0.1], y_range=[-1.3, 0.45])))
     rules = 1
     for inp in info.model_inputs:
         rules *= max(1, len(inp.terms))
@@ -72,15 +72,16 @@ def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list
     firing: list[rrb.View] = [
         rrb.BarChartView(origin=_abs(prefix, "fuzzy/firing"), plot_legend=no_legend,
                          name=f"model rule firing w^i, {rules} rules{suffix}"),
-        rrb.TensorView(origin=_abs(prefix, "fuzzy/consequents"),
-                       name=f"consequents p_k^i: rows k = 1..{info.order + 1}, columns rules i{suffix}",
-                       view_fit="Fill",
-                       scalar_mapping=rrb.TensorScalarMapping(colormap="Viridis", mag_filter="Nearest")),
         rrb.BarChartView(origin=_abs(prefix, "fuzzy/compensator_firing"), plot_legend=no_legend,
                          name=f"compensator rule firing tau^i{suffix}"),
-        rrb.BarChartView(origin=_abs(prefix, "fuzzy/q"), plot_legend=no_legend,
-                         name=f"compensator consequents q^i{suffix}"),
     ]
+    # the consequents p_k^i, one bar chart per output k (own axis each), then q^i
+    symbols = [f"p_{k + 1}" for k in range(info.order)] + ["b = p_{n+1}"]
+    firing += [rrb.BarChartView(origin=_abs(prefix, f"fuzzy/consequent_{k + 1}"), plot_legend=no_legend,
+                                name=f"consequents {symbol}^i over the rules{suffix}")
+               for k, symbol in enumerate(symbols)]
+    firing.append(rrb.BarChartView(origin=_abs(prefix, "fuzzy/q"), plot_legend=no_legend,
+                                   name=f"compensator consequents q^i{suffix}"))
     return bmf, firing
 
 

@@ -320,10 +320,14 @@ class RerunSink:
         for name in ("firing", "compensator_firing", "q"):
             self.rec.send_columns(self._path(f"fuzzy/{name}"), indexes=[times],
                                   columns=[tensor_column(buf.get(name), bar)])
-        # (k, rule): three wide rows that fill the view, one per consequent p_k
+        # (k, rule): the whole matrix, for reading back; drawn as one bar chart per output k,
+        # each with its own axis (p_1, p_2 and b differ in scale)
         consequents = np.swapaxes(buf.get("consequents"), 1, 2)
         self.rec.send_columns(self._path("fuzzy/consequents"), indexes=[times],
                               columns=[tensor_column(consequents, rr.Tensor.descriptor_data(), names=("k", "rule"))])
+        for k in range(consequents.shape[1]):
+            self.rec.send_columns(self._path(f"fuzzy/consequent_{k + 1}"), indexes=[times],
+                                  columns=[tensor_column(consequents[:, k, :], bar)])
         buf.clear()
 
     def _display_x(self, key: str, z: np.ndarray) -> np.ndarray:
@@ -399,8 +403,9 @@ class RerunSink:
                                                                       radii=[-0.5], show_labels=True), static=True)
                 for name, part in axis_parts(inp.lo, inp.hi, BMF_WIDTH).items():
                     self.rec.log(f"{path}/axis/{name}", part, static=True)
+        outputs = [(f"fuzzy/consequent_{k + 1}", PALETTE[(4 + k) % len(PALETTE)]) for k in range(info.order + 1)]
         for path, color in (("fuzzy/firing", (31, 119, 180)), ("fuzzy/compensator_firing", (44, 160, 44)),
-                            ("fuzzy/q", (255, 127, 14))):
+                            ("fuzzy/q", (255, 127, 14)), *outputs):
             # BarChart.from_fields(color=...) trips over its own values converter in 0.41
             self.rec.log(self._path(path), [rr.components.ColorBatch([self._color(color)]).described(
                 rr.BarChart.descriptor_color())], static=True)
