@@ -22,8 +22,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from . import __version__
+from . import __version__, cli_inspect
 from .errors import ScenarioError, TspendError
+from .plants.mjcf_warning import print_as_one_line
 from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
@@ -54,6 +55,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="length of the open-loop comparison (default 10 s)")
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
+    cli_inspect.add_parser(sub)
     return p
 
 
@@ -260,6 +262,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if end.status == "diverged":
         print(f"tspend: {end.message}", file=sys.stderr)
         return EXIT_DIVERGED
+    if end.status == "rail_end":  # tspend.effects.RailEnd
+        print(f"tspend: {end.message}", file=sys.stderr)
+        return 4
     return 0
 
 
@@ -304,12 +309,19 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         write_json(json_path, report)
     if rrd:
         print(f"recording: {rrd}  (open with: rerun {rrd})")
+    if not report["open_loop_ok"]:
+        from .crosscheck import failure_reason
+
+        print(f"tspend: cross-check failed: max |dtheta| = {report['open_loop_max_dtheta']:.3g} "
+              f"rad > {args.tol:g}; {failure_reason(report)}", file=sys.stderr)
     return 0 if report["open_loop_ok"] else 1
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck}
+    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
+                "inspect": cli_inspect.cmd}
+    print_as_one_line()
     try:
         return commands[args.command](args)
     except TspendError as exc:

@@ -92,7 +92,7 @@ def cartpole_view(info: RunInfo, prefix: str = "", suffix: str = "") -> rrb.Spat
     camera tracks the cart; the drift shows as the rail's metre marks passing by and in
     the readout under the cart.
     """
-    l = float(info.plant_meta.get("l", 3.0))
+    l = info.drawing.l if info.drawing is not None else 3.0
     return rrb.Spatial3DView(
         origin=_abs(prefix, "world"), name=f"cart-pole (rail marks every 10 m, readout: cart position){suffix}",
         line_grid=rrb.LineGrid3D(visible=False),

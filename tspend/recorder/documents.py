@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tomllib
@@ -76,7 +77,9 @@ def run_markdown(info: RunInfo) -> str:
         ("compensator inputs", ", ".join(i.name for i in info.compensator_inputs)),
         ("plant extras", ", ".join(info.extras)),
     ]
-    rows += [(f"plant: {k}", portable_path(v) if k == "mjcf" else v) for k, v in info.plant_meta.items()]
+    if info.drawing is not None:
+        rows += [(f"plant: {k}", portable_path(v) if k == "mjcf" else v)
+                 for k, v in dataclasses.asdict(info.drawing).items()]
     return f"# Run: {info.scenario_name}\n\n" + _md_table(rows)
 
 
