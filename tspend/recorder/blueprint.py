@@ -76,7 +76,7 @@ def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list
                          name=f"compensator rule firing tau^i{suffix}"),
     ]
     # the consequents p_k^i, one bar chart per output k (own axis each), then q^i
-    symbols = [f"p_{k + 1}" for k in range(info.order)] + ["b = p_{n+1}"]
+    symbols = [f"p_{k + 1}" for k in range(info.order)] + ["b"]  # b = p_{n+1}
     firing += [rrb.BarChartView(origin=_abs(prefix, f"fuzzy/consequent_{k + 1}"), plot_legend=no_legend,
                                 name=f"consequents {symbol}^i over the rules{suffix}")
                for k, symbol in enumerate(symbols)]
