@@ -1,9 +1,11 @@
-"""The one column built directly in Arrow: ``TensorData`` (bar charts, the consequents).
+"""Columns built directly in Arrow: ``TensorData`` (bar charts, the consequents) and the
+membership curves (``LineStrips2D``/``Points2D`` at every snapshot while they adapt).
 
 Everything else goes through Rerun's public API (``send_columns`` with the archetypes'
 ``.columns()``, ``log(..., static=True)``).  Tensors have no batched path in the SDK: it
 converts each ``TensorData`` in Python (~0.4 ms apiece, 50 per simulated second), which
-cost more than the simulation.  So :func:`tensor_column` assembles the SDK's own Arrow
+cost more than the simulation; its strip converter loops over strips in Python, which
+for adapting membership functions doubled the recording's cost.  So :func:`tensor_column` assembles the SDK's own Arrow
 type (read from the SDK at run time), and :func:`check_tensor_type` verifies at start-up
 that the layout it assumes still holds, with a clear error if a newer SDK changed it."""
 
@@ -119,6 +121,28 @@ def _column(array: pa.Array, descriptor: rr.ComponentDescriptor, offsets: np.nda
     return rr.ComponentColumn(descriptor, _ArrowBatch(array, descriptor), offsets=offsets)
 
 
+def strips_column(strips: np.ndarray, per_row: int) -> rr.ComponentColumn:
+    """``LineStrips2D:strips`` from ``strips`` (R, G, 2): ``per_row`` strips per row.
+
+    Built directly in arrow; the SDK's converter loops over strips in Python.
+    """
+    ltype = _arrow_type(rr.components.LineStrip2DBatch, [[0.0, 0.0]])
+    count, points = strips.shape[:2]
+    flat = pa.array(np.ascontiguousarray(strips, dtype=np.float32).reshape(-1))
+    arr = pa.ListArray.from_arrays(pa.array(np.arange(0, count * points + 1, points, dtype=np.int32)),
+                                   pa.FixedSizeListArray.from_arrays(flat, type=ltype.value_type), type=ltype)
+    return _column(arr, rr.LineStrips2D.descriptor_strips(),
+                   np.arange(0, count + 1, per_row, dtype=np.int32))
+
+
+def points_column(points: np.ndarray, per_row: int) -> rr.ComponentColumn:
+    """``Points2D:positions`` from ``points`` (R, 2): ``per_row`` points per row."""
+    ptype = _arrow_type(rr.components.Position2DBatch, [0.0, 0.0])
+    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).reshape(-1))
+    return _column(pa.FixedSizeListArray.from_arrays(flat, type=ptype), rr.Points2D.descriptor_positions(),
+                   np.arange(0, points.shape[0] + 1, per_row, dtype=np.int32))
+
+
 class RerunVersionError(TspendError):
     """The installed rerun-sdk encodes tensors differently from what tspend builds."""
 
@@ -137,8 +161,11 @@ def check_tensor_type() -> None:
         sdk = next(b for b in tensor.as_component_batches()
                    if b.component_descriptor() == rr.Tensor.descriptor_data()).as_arrow_array()
         same = ours.type == sdk.type and ours.to_pylist() == sdk.to_pylist()
+        strips = np.arange(8, dtype=np.float32).reshape(2, 2, 2)
+        sdk_strips = next(iter(rr.LineStrips2D.columns(strips=strips))).as_arrow_array()
+        same = same and strips_column(strips, 1).as_arrow_array().to_pylist() == sdk_strips.to_pylist()
     except Exception as exc:  # noqa: BLE001 - any mismatch is the same problem for the user
-        raise RerunVersionError(f"rerun-sdk {rr.__version__}: cannot build TensorData columns "
+        raise RerunVersionError(f"rerun-sdk {rr.__version__}: cannot build TensorData or LineStrips2D columns "
                                 f"({type(exc).__name__}: {exc}); tspend/recorder/arrow.py needs updating "
                                 f"for this version (known to work: 0.41)") from exc
     if not same:

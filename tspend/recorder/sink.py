@@ -10,7 +10,7 @@ import numpy as np
 import rerun as rr
 
 from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
-from .arrow import check_tensor_type, tensor_column, time_column
+from .arrow import check_tensor_type, points_column, strips_column, tensor_column, time_column
 from .blueprint import build_blueprint
 from .cartpole import CartPoleGeometry, cartpole_geometry, cartpole_poses, is_cartpole
 from .common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
@@ -343,16 +343,16 @@ class RerunSink:
         lo, hi = self._intervals[key]
         return (np.asarray(z, dtype=np.float64) - lo) * (BMF_WIDTH / (hi - lo))
 
-    def _operating_points(self, key: str, buf: _SnapshotBuffer) -> rr.ComponentColumnList:
+    def _operating_points(self, key: str, buf: _SnapshotBuffer) -> list[rr.ComponentColumn]:
         """The operating point on every curve of input ``key``, one row per snapshot."""
         mu = buf.get(f"{key}/mu")
         count, terms = mu.shape
         marks = np.empty((count, terms, 2))
         marks[..., 0] = self._display_x(key, buf.get(f"{key}/z"))[:, None]
         marks[..., 1] = -mu                                   # y down on screen: log -mu
-        return rr.Points2D.columns(positions=marks.reshape(-1, 2)).partition(np.full(count, terms))
+        return [points_column(marks.reshape(-1, 2), terms)]
 
-    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, op_points: rr.ComponentColumnList) -> bool:
+    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, op_points: list[rr.ComponentColumn]) -> bool:
         """Curves of input ``key`` at the snapshots where they differ from the last ones sent.
 
         Fixed membership functions are thus sent once, which keeps the file small; curves
@@ -377,15 +377,13 @@ class RerunSink:
         strips[..., 0] = self._display_x(key, grid[rows])[:, None, :]
         strips[..., 1] = -curves[rows]
         times = time_column(buf.get("t")[rows])
-        curves_column = rr.LineStrips2D.columns(strips=strips.reshape(-1, points, 2)).partition(
-            np.full(rows.size, terms))
+        curves_column = [strips_column(strips.reshape(-1, points, 2), terms)]
         every_row = rows.size == count
         self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times],
                               columns=[*curves_column, *op_points] if every_row else curves_column)
         # each term's name above its peak, wherever adaptation moved it
         self.rec.send_columns(self._path(f"fuzzy/{key}/terms"), indexes=[times],
-                              columns=rr.Points2D.columns(positions=term_label_positions(strips)).partition(
-                                  np.full(rows.size, terms)))
+                              columns=[points_column(term_label_positions(strips), terms)])
         return every_row
 
     # -- static parts
