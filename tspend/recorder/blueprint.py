@@ -94,7 +94,9 @@ def cartpole_view(info: RunInfo, prefix: str = "", suffix: str = "") -> rrb.Spat
     """
     l = info.drawing.l if info.drawing is not None else 3.0
     return rrb.Spatial3DView(
-        origin=_abs(prefix, "world"), name=f"cart-pole (rail marks every 10 m, readout: cart position){suffix}",
+        origin=_abs(prefix, "world"),
+        # side by side (the cross-check) a view is half as wide: the short title
+        name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marks every 10 m, readout: cart position)",
         line_grid=rrb.LineGrid3D(visible=False),
         eye_controls=rrb.EyeControls3D(
             position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],
