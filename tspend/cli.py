@@ -23,8 +23,10 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from . import __version__, cli_inspect
+from . import cli_export, cli_sweep
 from .errors import ScenarioError, TspendError
 from .plants.mjcf_warning import print_as_one_line
+from .progress import RunProgress
 from .runner import RunInterrupted, StopRequest
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
@@ -56,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("list", help="list the scenarios with their descriptions")
     cli_inspect.add_parser(sub)
+    cli_sweep.add_parser(sub)
+    cli_export.add_parser(sub)
     return p
 
 
@@ -64,8 +68,6 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, metavar="N", help="override run.seed")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any field, e.g. --set controller.eta=0.01 (repeatable)")
-    p.add_argument("--backend", choices=("auto", "numba", "numpy"), default="auto",
-                   help="controller implementation (default: numba when installed)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--out", metavar="PATH.rrd",
                      help="recording file (default runs/<scenario>-<timestamp>.rrd)")
@@ -230,13 +232,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     if metrics_path is not None:
         check_writable(metrics_path, "metrics")
     rec, rrd, sinks = open_sinks(args, scn.name)
+    sinks = [*sinks, RunProgress()]  # a bar on a terminal once the run takes a few seconds
     print(f"tspend {__version__}: {scn.name} ({scn.plant.kind}), {scn.run.duration:g} s at "
           f"dt = {scn.run.dt:g} s, seed {scn.run.seed}"
           + (f", recording to {rrd}" if rrd else ""), flush=True)
     # signals only set a flag from here on, so closing the recording cannot be cut short
     with stop_on_signals() as stop:
         try:
-            result = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop,
+            result = run(scn, sinks=sinks, keep_history=False, stop=stop,
                          controller=args.controller)
         except RunInterrupted as exc:
             if metrics_path is not None and exc.end is not None:
@@ -292,7 +295,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     with stop_on_signals() as stop:
         try:
             report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
-                                backend=args.backend, stop=stop)
+                                stop=stop)
             report["tolerance"] = args.tol
             report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
             record_verdict(sinks, report)
@@ -321,6 +324,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
                 "inspect": cli_inspect.cmd}
+    commands["sweep"] = cli_sweep.cmd
+    commands["export"] = cli_export.cmd
     print_as_one_line()
     try:
         return commands[args.command](args)

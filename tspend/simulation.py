@@ -56,14 +56,11 @@ def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
-                     backend: str = "auto", kind: str | None = None) -> Controller:
+                     kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
     (default: a generator seeded with the scenario's seed).
-
-    ``backend`` applies to the paper controller: "numba" (compiled kernel), "numpy"
-    (the reference implementation) or "auto" (numba when installed).
     """
-    ctrl = build_controller_kind(scenario, kind, backend=backend)
+    ctrl = build_controller_kind(scenario, kind)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
@@ -132,6 +129,12 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
+    def to_pandas(self):
+        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.timeseries`)."""
+        from .timeseries import history_frame
+
+        return history_frame(self.history, self.controller.diagnostics)
+
 
 def steps_of(scenario: Scenario) -> int:
     return int(round(scenario.run.duration / scenario.run.dt))
@@ -139,7 +142,7 @@ def steps_of(scenario: Scenario) -> int:
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
-        backend: str = "auto", stop: StopRequest | None = None,
+        stop: StopRequest | None = None,
         controller: str | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
@@ -150,7 +153,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     """
     plant = build_plant(scenario, plant_kind)
     scenario = with_gain_sign(scenario, plant)
-    ctrl = build_controller(scenario, backend=backend, kind=controller)
+    ctrl = build_controller(scenario, kind=controller)
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0

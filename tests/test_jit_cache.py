@@ -1,0 +1,49 @@
+"""A cached compiled function is dropped when any source of the package changes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tspend.jit_cache import STAMP, invalidate_stale_cache, sources_digest
+
+
+def _package(tmp_path: Path) -> Path:
+    pkg = tmp_path / "pkg"
+    (pkg / "sub" / "__pycache__").mkdir(parents=True)
+    (pkg / "__pycache__").mkdir()
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    return pkg
+
+
+def _cache_files(pkg: Path) -> list[Path]:
+    return sorted(pkg.rglob("*.nb[ic]"))
+
+
+def test_unchanged_sources_keep_the_cache(tmp_path: Path) -> None:
+    pkg = _package(tmp_path)
+    invalidate_stale_cache(pkg)            # first sight: stamps the sources
+    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(b"index")
+    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(b"code")
+    assert invalidate_stale_cache(pkg) is False
+    assert len(_cache_files(pkg)) == 2
+    assert (pkg / "__pycache__" / STAMP).read_text().strip() == sources_digest(pkg)
+
+
+def test_a_changed_callee_drops_every_cached_function(tmp_path: Path) -> None:
+    pkg = _package(tmp_path)
+    invalidate_stale_cache(pkg)
+    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(b"index")
+    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(b"code")
+    (pkg / "sub" / "b.py").write_text("y = 3\n")    # only the callee's file changes
+    assert invalidate_stale_cache(pkg) is True
+    assert _cache_files(pkg) == []
+    assert (pkg / "__pycache__" / STAMP).read_text().strip() == sources_digest(pkg)
+
+
+def test_the_installed_package_is_stamped() -> None:
+    import tspend
+
+    pkg = Path(tspend.__file__).resolve().parent
+    stamp = pkg / "__pycache__" / STAMP
+    assert stamp.is_file() and stamp.read_text().strip() == sources_digest(pkg)
