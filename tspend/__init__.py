@@ -39,15 +39,9 @@ def __getattr__(name: str):
         from . import simulation
 
         return getattr(simulation, name)
-<<<<<<< HEAD
-    if name == "recorder":  # `import tspend` then `tspend.recorder.open_recording(...)`
+    if name in ("recorder", "sweep"):
+        # `tspend.recorder.open_recording(...)`; the sweep module is callable: tspend.sweep(...)
         import importlib
 
-        return importlib.import_module(".recorder", __name__)
-=======
-    if name == "sweep":  # the module, callable: tspend.sweep(...) runs tspend.sweep.sweep(...)
-        import importlib
-
-        return importlib.import_module(".sweep", __name__)
->>>>>>> main
+        return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'tspend' has no attribute {name!r}")
