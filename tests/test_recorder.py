@@ -145,7 +145,8 @@ def test_entities_timeline_and_blueprint(recorded) -> None:
     expected = {"/info/scenario", "/info/run", "/info/status", "/info/metrics", "/series/tracking",
                 "/series/error", "/series/control", "/series/compensator", "/series/disturbance",
                 "/series/params",
-                "/series/lyapunov", "/series/norms", "/series/plant", "/world", "/world/cart", "/world/pole",
+                "/series/lyapunov", "/series/norms", "/series/norms_log10", "/series/plant/cart_pos",
+                    "/series/plant/cart_vel", "/world/rail", "/world/cart/readout", "/world", "/world/cart", "/world/pole",
                 "/fuzzy/model/in0", "/fuzzy/model/in2", "/fuzzy/compensator/in1", "/fuzzy/firing",
                 "/fuzzy/compensator_firing", "/fuzzy/consequents", "/fuzzy/q"}
     assert expected <= paths, expected - paths
@@ -162,7 +163,8 @@ def test_x1_is_exact(recorded) -> None:
     _, params = read_scalar_series(path, "series/params")
     assert np.array_equal(params, data["p"])
     _, v = read_scalar_series(path, "series/lyapunov")
-    assert v.shape == (info.steps,) and np.array_equal(v, data["V"])
+    # V is declared log: recorded as log10 V (Rerun's plots have no log axis)
+    assert v.shape == (info.steps,) and np.array_equal(v, np.log10(np.maximum(data["V"], 1e-12)))
 
 
 def test_static_documents(recorded) -> None:
@@ -220,7 +222,8 @@ def test_runner_may_reuse_its_buffers(tmp_path: Path) -> None:
     assert np.array_equal(x1, data["x"][:, 0])
     cons = [row[0] for b in chunks_of(path, "/fuzzy/consequents", "Tensor:data")
             for row in b.column("Tensor:data").to_pylist()]
-    assert [row["shape"] for row in cons[:1]] == [[len(TERMS) ** 3, 3]] and cons[0]["names"] == ["rule", "k"]
+    # drawn as (k, rule): three wide rows of a heat map
+    assert [row["shape"] for row in cons[:1]] == [[3, len(TERMS) ** 3]] and cons[0]["names"] == ["k", "rule"]
     assert [row["buffer"][0] for row in cons] == [float(s) for s in range(0, 2000, 20)]
 
 

@@ -39,8 +39,9 @@ def __getattr__(name: str):
         from . import simulation
 
         return getattr(simulation, name)
-    if name == "sweep":  # the module, callable: tspend.sweep(...) runs tspend.sweep.sweep(...)
+    if name in ("recorder", "sweep"):
+        # `tspend.recorder.open_recording(...)`; the sweep module is callable: tspend.sweep(...)
         import importlib
 
-        return importlib.import_module(".sweep", __name__)
+        return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'tspend' has no attribute {name!r}")

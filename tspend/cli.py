@@ -293,18 +293,21 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     if not (args.tol > 0 and math.isfinite(args.tol)):
         raise ScenarioError(f"--tol: must be a positive number, got {args.tol}")
     rec, rrd, sinks = open_sinks(args, f"{scn.name}-crosscheck", prefixes=("mujoco/", "ode/"))
+    from .recorder.crosscheck import crosscheck_sinks, record_verdict
+    sinks = crosscheck_sinks(sinks)
     with stop_on_signals() as stop:
         try:
             report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
                                 stop=stop)
+            report["tolerance"] = args.tol
+            report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
+            record_verdict(sinks, report)
         except RunInterrupted as exc:
             print(f"tspend: cross-check interrupted by {exc.signal_name}", file=sys.stderr)
             return exc.exit_status
         finally:
             if rec is not None:
                 _close(rec)
-    report["tolerance"] = args.tol
-    report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
     for k, v in report.items():
         if not isinstance(v, dict):
             print(f"  {k:<34} {_fmt(v)}")

@@ -6,22 +6,25 @@ What is logged (entity paths relative to the sink's ``prefix``):
   package version, plant kind, order, dt, ...
 - ``info/status``, ``info/metrics``: static markdown at :meth:`RerunSink.finish`
 - ``events``: a ``TextLog`` at the last time when a run does not complete
-- ``series/<group>``: multi-instance ``Scalars``, see :func:`series_specs`
+- ``series/<panel>``: multi-instance ``Scalars`` (u and chattering panels with min/max
+  aggregation, ``log`` diagnostics as log10), ``series/plant/<extra>``; see :func:`series_specs`
 - ``world/cart``, ``world/pole``: static ``Boxes3D`` / ``Capsules3D`` and a
-  ``Transform3D`` per body at ~50 Hz (cart-poles only)
+  ``Transform3D`` per body at ~50 Hz; ``world/rail`` with metre ticks and labelled marks,
+  ``world/cart/readout`` the cart position as text (cart-poles only)
+- ``crosscheck/verdict``, ``crosscheck/diff/<key>``: the cross-check's verdict and
+  MuJoCo-minus-ODE series (:mod:`.crosscheck`)
 - ``fuzzy/model/in<j>``, ``fuzzy/compensator/in<j>``: membership curves
   (``LineStrips2D``, one strip per term) and the operating point (``Points2D``)
 - ``fuzzy/firing``, ``fuzzy/compensator_firing``, ``fuzzy/q``: ``BarChart``;
-  ``fuzzy/consequents``: ``Tensor`` (rule x k)
+  ``fuzzy/consequents``: ``Tensor`` (k x rule), ``fuzzy/consequent_<k>``: ``BarChart`` per output
 
 Everything time-dependent lives on the ``sim_time`` duration timeline and is sent in
-columns, never row by row.  Rerun turns each entity's columns into a chunk, and a chunk
-costs a fixed ~50 us to convert plus ~50 us of Python around ``send_columns``, whatever
-its size.  So: series that share a plot share an entity (multi-instance ``Scalars``);
-all entities of a block go out as one arrow record batch (``send_record_batch``, ~20-40 us
-per chunk); 3D frames and inner snapshots (50 Hz) are batched ``DECIMATED_ROWS`` at a
-time; membership curves are only re-sent when they change; ``TensorData`` columns are
-built directly in arrow (the SDK converts each tensor in Python, ~0.4 ms apiece).
+columns with the public ``send_columns`` and the archetypes' ``.columns()``, never row by
+row; static data with ``log(..., static=True)``.  A chunk has a fixed cost whatever its
+size, so series that share a plot share an entity (multi-instance ``Scalars``); 3D
+frames and inner snapshots (50 Hz) are batched ``DECIMATED_ROWS`` at a time; membership
+curves are only re-sent when they change.  ``TensorData`` and the membership curves are
+built directly in Arrow (:mod:`.arrow`, checked at start-up against the SDK's encoding).
 
 Rerun's 2D views draw y downwards (rerun-io/rerun#1387), so membership curves are
 logged with ``y = -mu``: peaks point up on screen.
@@ -34,8 +37,11 @@ Where things are:
 - :mod:`.series`: which per-step series go to which entity (:func:`series_specs`)
 - :mod:`.cartpole`: 3D cart-pole poses and geometry (from the MJCF geoms)
 - :mod:`.blueprint`: the default viewer layout (:func:`build_blueprint`)
-- :mod:`.documents`: the markdown documents (run, scenario, status, metrics)
-- :mod:`.arrow`: arrow columns and record batches built directly
+- :mod:`.documents`: the markdown documents (run, scenario, status, metrics), relative paths only
+- :mod:`.labels`: physical names and units of a plant's states, control and extras
+- :mod:`.fuzzy_axes`, :mod:`.world`: membership-function axes and term labels; the 3D rail
+- :mod:`.crosscheck`: the cross-check recording (differences, verdict, layout)
+- :mod:`.arrow`: the columns built directly in Arrow
 - :mod:`.readback`: reading series back from an ``.rrd`` (:func:`read_scalar_series`)
 - :mod:`.common`: the timeline, entity paths and colours they share
 """

@@ -1,18 +1,24 @@
-"""Arrow columns and record batches built directly, bypassing the SDK's per-row converters.
+"""Columns built directly in Arrow: ``TensorData`` (bar charts, the consequents) and the
+membership curves (``LineStrips2D``/``Points2D`` at every snapshot while they adapt).
 
-:class:`RowBatch` sends the time-indexed columns of several entities as one record
-batch, :class:`StaticBatch` the static archetypes; the ``*_column`` builders make
-``TensorData``, ``LineStrips2D``, ``Points2D`` and ``Transform3D`` columns in arrow."""
+Everything else goes through Rerun's public API (``send_columns`` with the archetypes'
+``.columns()``, ``log(..., static=True)``).  Tensors have no batched path in the SDK: it
+converts each ``TensorData`` in Python (~0.4 ms apiece, 50 per simulated second), which
+cost more than the simulation; its strip converter loops over strips in Python, which
+for adapting membership functions doubled the recording's cost.  So :func:`tensor_column` assembles the SDK's own Arrow
+type (read from the SDK at run time), and :func:`check_tensor_type` verifies at start-up
+that the layout it assumes still holds, with a clear error if a newer SDK changed it."""
 
 from __future__ import annotations
 
 import functools
-from typing import Iterable, NamedTuple, Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import pyarrow as pa
 import rerun as rr
 
+from ..errors import TspendError
 from .common import TIMELINE
 
 
@@ -23,92 +29,6 @@ def _durations(t: np.ndarray | Sequence[float]) -> np.ndarray:
 
 def time_column(t: np.ndarray | Sequence[float]) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=_durations(t))
-
-
-_SCALARS = rr.Scalars.descriptor_scalars()
-
-
-_FIELDS: dict[tuple[str, str], pa.Field] = {}
-
-
-def _component_field(entity: str, desc: rr.ComponentDescriptor, dtype: pa.DataType) -> pa.Field:
-    """The arrow field of a component column, tagged with Rerun's metadata.
-
-    Cached by (entity, component): the same few fields recur block after block, and a
-    component's arrow type never changes.
-    """
-    key = (entity, desc.component)
-    found = _FIELDS.get(key)
-    if found is None:
-        path = "/" + entity.strip("/")
-        meta = {"rerun:kind": "data", "rerun:entity_path": path, "rerun:component": desc.component}
-        if desc.archetype:
-            meta["rerun:archetype"] = desc.archetype
-        if desc.component_type:
-            meta["rerun:component_type"] = desc.component_type
-        found = _FIELDS[key] = pa.field(f"{path}:{desc.component}", dtype, metadata=meta)
-    return found
-
-
-class RowBatch:
-    """Columns of several entities over the same ``sim_time`` rows, sent as one arrow record batch.
-
-    Rerun splits it into one chunk per entity.  Converting one record batch costs ~20 us
-    per chunk against ~100 us per ``send_columns`` call, and a block has ~20 chunks.
-    """
-
-    def __init__(self, t: np.ndarray | Sequence[float]) -> None:
-        times = pa.array(_durations(t))
-        self._fields = [pa.field(TIMELINE, times.type, nullable=False)]
-        self._arrays: list[pa.Array] = [times]
-
-    def add(self, entity: str, columns: Iterable[rr.ComponentColumn]) -> None:
-        """Add ``columns`` (one row per time) of ``entity`` (absolute, no leading slash needed)."""
-        for column in columns:
-            self.add_array(entity, column.component_descriptor(), column.as_arrow_array())
-
-    def add_array(self, entity: str, desc: rr.ComponentDescriptor, array: pa.Array) -> None:
-        """Add a list array (one component batch per row) of ``entity``."""
-        self._fields.append(_component_field(entity, desc, array.type))
-        self._arrays.append(array)
-
-    def add_scalars(self, entity: str, values: np.ndarray) -> None:
-        """``Scalars`` of ``entity`` from ``values`` (rows, m): m instances per row."""
-        v = np.ascontiguousarray(values, dtype=np.float64)
-        rows, m = v.shape
-        self.add_array(entity, _SCALARS, pa.ListArray.from_arrays(
-            pa.array(np.arange(0, rows * m + 1, m, dtype=np.int32)), pa.array(v.reshape(-1))))
-
-    def send(self, rec: rr.RecordingStream) -> None:
-        if len(self._arrays) > 1:
-            rec.send_record_batch(pa.RecordBatch.from_arrays(self._arrays, schema=pa.schema(self._fields)),
-                                  index=TIMELINE)
-
-
-class StaticBatch:
-    """Static archetypes of several entities, sent as one record batch of one row.
-
-    One call instead of ~25 ``log(..., static=True)`` calls at ~0.15 ms each.
-    """
-
-    def __init__(self) -> None:
-        self._fields: list[pa.Field] = []
-        self._arrays: list[pa.Array] = []
-
-    def add(self, entity: str, *parts: object) -> None:
-        """Add archetypes (or lists of described component batches) of ``entity``."""
-        for part in parts:
-            batches = part.as_component_batches() if hasattr(part, "as_component_batches") else part
-            for batch in batches:  # type: ignore[union-attr]
-                values = batch.as_arrow_array()
-                array = pa.ListArray.from_arrays(pa.array([0, len(values)], type=pa.int32()), values)
-                self._fields.append(_component_field(entity, batch.component_descriptor(), array.type))
-                self._arrays.append(array)
-
-    def send(self, rec: rr.RecordingStream) -> None:
-        if self._arrays:
-            rec.send_record_batch(pa.RecordBatch.from_arrays(self._arrays, schema=pa.schema(self._fields)),
-                                  index=None)
 
 
 class _ArrowBatch:
@@ -177,6 +97,12 @@ def tensor_column(rows: np.ndarray, descriptor: rr.ComponentDescriptor,
     (~0.4 ms per tensor), which at 50 snapshots per second cost more than the run.
     float32 halves the largest part of the file; these tensors are for looking at.
     """
+    struct = _tensor_struct(rows, names)
+    return _column(struct, descriptor, np.arange(len(struct) + 1, dtype=np.int32))
+
+
+def _tensor_struct(rows: np.ndarray, names: Sequence[str] | None) -> pa.StructArray:
+    """The ``TensorData`` struct array of ``rows`` (S, *shape), one tensor per row."""
     layout = _tensor_layout()
     data = np.ascontiguousarray(rows, dtype=np.float32)
     count = data.shape[0]
@@ -188,7 +114,7 @@ def tensor_column(rows: np.ndarray, descriptor: rr.ComponentDescriptor,
     # from_buffers keeps the union's non-nullable child fields (from_dense would drop them)
     buffer_arr = pa.Array.from_buffers(layout.union, count, [None, type_ids, value_offsets], children=children)
     struct = pa.StructArray.from_arrays([shape_arr, names_arr, buffer_arr], fields=list(layout.type))
-    return _column(struct, descriptor, np.arange(count + 1, dtype=np.int32))
+    return struct
 
 
 def _column(array: pa.Array, descriptor: rr.ComponentDescriptor, offsets: np.ndarray) -> rr.ComponentColumn:
@@ -217,18 +143,32 @@ def points_column(points: np.ndarray, per_row: int) -> rr.ComponentColumn:
                    np.arange(0, points.shape[0] + 1, per_row, dtype=np.int32))
 
 
-def _fixed_column(values: np.ndarray, descriptor: rr.ComponentDescriptor, batch_cls: type) -> rr.ComponentColumn:
-    """One fixed-size float32 vector per row (translations, quaternions), built directly in arrow."""
-    vtype = _arrow_type(batch_cls, np.zeros(values.shape[1]))
-    flat = pa.array(np.ascontiguousarray(values, dtype=np.float32).reshape(-1))
-    return _column(pa.FixedSizeListArray.from_arrays(flat, type=vtype), descriptor,
-                   np.arange(values.shape[0] + 1, dtype=np.int32))
+class RerunVersionError(TspendError):
+    """The installed rerun-sdk encodes tensors differently from what tspend builds."""
 
 
-def pose_columns(translation: np.ndarray, quaternion: np.ndarray | None = None) -> list[rr.ComponentColumn]:
-    """``Transform3D`` translation (and rotation) columns; ``Transform3D.columns`` costs ~0.1 ms more."""
-    columns = [_fixed_column(translation, rr.Transform3D.descriptor_translation(), rr.components.Translation3DBatch)]
-    if quaternion is not None:
-        columns.append(_fixed_column(quaternion, rr.Transform3D.descriptor_quaternion(),
-                                     rr.components.RotationQuatBatch))
-    return columns
+@functools.cache
+def check_tensor_type() -> None:
+    """Compare :func:`tensor_column` with the SDK's own encoding of the same tensor.
+
+    Raises :class:`RerunVersionError` naming the installed version when the Arrow type
+    or the encoded values differ (a newer rerun-sdk changed ``TensorData``).
+    """
+    sample = np.arange(6, dtype=np.float32).reshape(1, 2, 3)
+    try:
+        ours = _tensor_struct(sample, ("a", "b"))
+        tensor = rr.Tensor(sample[0], dim_names=("a", "b"))
+        sdk = next(b for b in tensor.as_component_batches()
+                   if b.component_descriptor() == rr.Tensor.descriptor_data()).as_arrow_array()
+        same = ours.type == sdk.type and ours.to_pylist() == sdk.to_pylist()
+        strips = np.arange(8, dtype=np.float32).reshape(2, 2, 2)
+        sdk_strips = next(iter(rr.LineStrips2D.columns(strips=strips))).as_arrow_array()
+        same = same and strips_column(strips, 1).as_arrow_array().to_pylist() == sdk_strips.to_pylist()
+    except Exception as exc:  # noqa: BLE001 - any mismatch is the same problem for the user
+        raise RerunVersionError(f"rerun-sdk {rr.__version__}: cannot build TensorData or LineStrips2D columns "
+                                f"({type(exc).__name__}: {exc}); tspend/recorder/arrow.py needs updating "
+                                f"for this version (known to work: 0.41)") from exc
+    if not same:
+        raise RerunVersionError(f"rerun-sdk {rr.__version__} changed the Arrow type of TensorData; "
+                                f"tspend/recorder/arrow.py needs updating for this version "
+                                f"(known to work: 0.41)")

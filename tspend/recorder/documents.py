@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-
 import json
+import os
+import tomllib
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -36,11 +38,39 @@ def _md_table(rows: Sequence[tuple[str, object]], header: tuple[str, str] = ("ke
     return "\n".join(lines)
 
 
+#: the repository (or installed package's parent): shipped scenarios and models are shown relative to it
+_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+
+
+def portable_path(path: object) -> str:
+    """``path`` as a recording may show it: relative to the working directory or to the
+    tspend repository when inside one, else the file's name alone.  Nothing in a
+    recording refers to the machine it was made on."""
+    text = str(path)
+    if not text or not os.path.isabs(text):
+        return text
+    resolved = Path(text).resolve()
+    for base in (Path.cwd().resolve(), _PACKAGE_ROOT):
+        try:
+            return resolved.relative_to(base).as_posix()
+        except ValueError:
+            continue
+    return resolved.name
+
+
+def _declared_kind(info: RunInfo) -> str | None:
+    try:
+        return str(tomllib.loads(info.scenario_text).get("plant", {}).get("kind", "")) or None
+    except tomllib.TOMLDecodeError:
+        return None
+
+
 def run_markdown(info: RunInfo) -> str:
     """Markdown summary of the run's identity."""
     rows: list[tuple[str, object]] = [
-        ("scenario", info.scenario_name), ("scenario file", info.scenario_path),
+        ("scenario", info.scenario_name), ("scenario file", portable_path(info.scenario_path)),
         ("seed", info.seed), ("tspend version", info.version), ("plant kind", info.plant_kind),
+        ("controller kind", info.controller_kind),
         ("order n", info.order), ("dt (s)", info.dt), ("duration (s)", info.duration),
         ("steps", info.steps),
         ("model inputs", ", ".join(i.name for i in info.model_inputs)),
@@ -48,12 +78,25 @@ def run_markdown(info: RunInfo) -> str:
         ("plant extras", ", ".join(info.extras)),
     ]
     if info.drawing is not None:
-        rows += [(f"plant: {k}", v) for k, v in dataclasses.asdict(info.drawing).items()]
+        rows += [(f"plant: {k}", portable_path(v) if k == "mjcf" else v)
+                 for k, v in dataclasses.asdict(info.drawing).items()]
     return f"# Run: {info.scenario_name}\n\n" + _md_table(rows)
 
 
 def scenario_markdown(info: RunInfo) -> str:
-    return f"# Scenario `{info.scenario_name}`\n\n`{info.scenario_path}`\n\n```toml\n{info.scenario_text}\n```\n"
+    """The scenario's TOML; when the run used another plant kind than the file declares
+    (the cross-check runs one scenario on both backends), says so first and appends the
+    override to the TOML, so the document describes the run it belongs to."""
+    text = info.scenario_text
+    note = ""
+    declared = _declared_kind(info)
+    if declared is not None and declared != info.plant_kind:
+        note = (f"**This run used `plant.kind = \"{info.plant_kind}\"`**; the file declares "
+                f"`\"{declared}\"` (the cross-check runs the scenario on both backends).\n\n")
+        text = (f"{text.rstrip()}\n\n# overridden for this run:\n"
+                f"#   plant.kind = \"{info.plant_kind}\"\n")
+    return (f"# Scenario `{info.scenario_name}` on `{info.plant_kind}`\n\n{note}"
+            f"`{portable_path(info.scenario_path)}`\n\n```toml\n{text}\n```\n")
 
 
 def status_markdown(end: RunEnd) -> str:

@@ -10,12 +10,14 @@ import numpy as np
 import rerun as rr
 
 from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
-from .arrow import RowBatch, StaticBatch, points_column, pose_columns, strips_column, tensor_column, time_column
+from .arrow import check_tensor_type, points_column, strips_column, tensor_column, time_column
 from .blueprint import build_blueprint
 from .cartpole import CartPoleGeometry, cartpole_geometry, cartpole_poses, is_cartpole
 from .common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
 from .documents import metrics_markdown, run_markdown, scenario_markdown, status_markdown
+from .fuzzy_axes import axis_parts, term_label_positions
 from .series import SeriesSpec, series_specs
+from .world import log_world, readout_labels
 from .stream import close_recording, flush
 
 
@@ -189,25 +191,27 @@ class RerunSink:
                            for j, inp in enumerate(inputs)}
         self._frames, self._frame_rows = [], 0
         self._last_flush, self._last_t = time.monotonic(), 0.0
-        self._specs = series_specs(info.order, info.extras, info.diagnostics)
+        self._specs = series_specs(info.order, info.extras, info.diagnostics, info.plant_kind)
         self._frame_every = max(1, int(round(1.0 / (self.frame_hz * info.dt)))) if info.dt > 0 else 1
-        statics = StaticBatch()
-        self._log_documents(statics, info)
+        if info.model_inputs or info.compensator_inputs:
+            check_tensor_type()  # before anything is written: a newer SDK may have changed TensorData
+        self._log_documents(info)
         for spec in self._specs:
-            statics.add(self._path(spec.entity), rr.SeriesLines(
-                names=[self._series_name(n) for n in spec.names], colors=[self._color(c) for c in spec.colors]))
-        self._log_fuzzy_styles(statics, info)
+            policy = rr.components.AggregationPolicy.MinMax if spec.minmax else None
+            self.rec.log(self._path(spec.entity), rr.SeriesLines(
+                names=[self._series_name(n) for n in spec.names], colors=[self._color(c) for c in spec.colors],
+                aggregation_policy=policy), static=True)
+        self._log_fuzzy_styles(info)
         self._geometry = cartpole_geometry(info.drawing) if is_cartpole(info) else None
         self._info_theta_sign = info.drawing.theta_sign if info.drawing is not None else 1.0
         if self._geometry is not None:
-            self._log_cartpole_geometry(statics, self._geometry)
-        statics.send(self.rec)
-        if self._geometry is not None:
+            log_world(self.rec, self._path("world"), self._geometry, self._color)
             self._send_poses([0.0], np.zeros(1), np.zeros(1))  # drawn before the first block arrives
         if self.blueprint_prefixes is not None:
             self.rec.send_blueprint(build_blueprint(info, self.blueprint_prefixes))
         if not self.prefix:
-            self.rec.send_recording_name(info.scenario_name)
+            self.rec.send_recording_name(f"{info.scenario_name} ({info.controller_kind or 'run'}, "
+                                         f"seed {info.seed})")
 
     def block(self, block: Block) -> None:
         """Send the block's series; buffer its 3D frames; send decimated data when due."""
@@ -236,10 +240,9 @@ class RerunSink:
             return
         self._flush_decimated()
         md = rr.MediaType.MARKDOWN
-        statics = StaticBatch()
-        statics.add(self._path("info/status"), rr.TextDocument(status_markdown(end), media_type=md))
-        statics.add(self._path("info/metrics"), rr.TextDocument(metrics_markdown(end.metrics), media_type=md))
-        statics.send(self.rec)
+        self.rec.log(self._path("info/status"), rr.TextDocument(status_markdown(end), media_type=md), static=True)
+        self.rec.log(self._path("info/metrics"), rr.TextDocument(metrics_markdown(end.metrics), media_type=md),
+                     static=True)
         if end.status != "completed":
             level = "WARN" if end.status == "interrupted" else "ERROR"
             self.rec.send_columns(self._path("events"), indexes=[time_column([self._last_t])],
@@ -258,14 +261,15 @@ class RerunSink:
 
     def _send_series(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
         rows = slice((-start) % self.curves_every, None, self.curves_every)
-        batch = RowBatch(t[rows])
+        times = time_column(t[rows])
         for spec in self._specs:
             try:
                 values = spec.extract(data)
             except KeyError:
                 continue  # e.g. an extra the plant did not report in this block
-            batch.add_scalars(self._path(spec.entity), values[rows])
-        batch.send(self.rec)
+            values = np.ascontiguousarray(values[rows])
+            self.rec.send_columns(self._path(spec.entity), indexes=[times],
+                                  columns=rr.Scalars.columns(scalars=values[:, 0] if values.shape[1] == 1 else values))
 
     def _buffer_frames(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
         """Keep the block's frame rows (every ``1 / frame_hz`` s of sim time) until the next flush."""
@@ -297,27 +301,37 @@ class RerunSink:
     def _send_poses(self, t: np.ndarray | Sequence[float], cart_pos: np.ndarray, theta: np.ndarray) -> None:
         assert self._geometry is not None
         poses = cartpole_poses(cart_pos, theta, self._geometry.l, 2.0 * self._geometry.cart_half_sizes[2])
-        batch = RowBatch(t)
-        batch.add(self._path("world/cart"), pose_columns(poses.cart_translation))
-        batch.add(self._path("world/pole"), pose_columns(poses.pole_translation, poses.pole_quaternion))
-        batch.send(self.rec)
+        times = time_column(t)
+        self.rec.send_columns(self._path("world/cart"), indexes=[times],
+                              columns=rr.Transform3D.columns(translation=poses.cart_translation))
+        self.rec.send_columns(self._path("world/cart/readout"), indexes=[times],
+                              columns=rr.Points3D.columns(labels=readout_labels(cart_pos)))
+        self.rec.send_columns(self._path("world/pole"), indexes=[times],
+                              columns=rr.Transform3D.columns(translation=poses.pole_translation,
+                                                             quaternion=poses.pole_quaternion))
 
     def _flush_snapshots(self) -> None:
         buf = self._snaps
         if not buf.count:
             return
-        t = buf.get("t")
-        batch = RowBatch(t)
+        times = time_column(buf.get("t"))
         for group in ("model", "compensator"):
             for key in buf.inputs(group):
-                batch.add(self._path(f"fuzzy/{key}"), [self._operating_points(key, buf)])
-                self._send_changed_curves(key, buf, batch)
+                points = self._operating_points(key, buf)
+                if not self._send_changed_curves(key, buf, points):
+                    self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times], columns=points)
         bar = rr.BarChart.descriptor_values()
         for name in ("firing", "compensator_firing", "q"):
-            batch.add(self._path(f"fuzzy/{name}"), [tensor_column(buf.get(name), bar)])
-        batch.add(self._path("fuzzy/consequents"),
-                  [tensor_column(buf.get("consequents"), rr.Tensor.descriptor_data(), names=("rule", "k"))])
-        batch.send(self.rec)
+            self.rec.send_columns(self._path(f"fuzzy/{name}"), indexes=[times],
+                                  columns=[tensor_column(buf.get(name), bar)])
+        # (k, rule): the whole matrix, for reading back; drawn as one bar chart per output k,
+        # each with its own axis (p_1, p_2 and b differ in scale)
+        consequents = np.swapaxes(buf.get("consequents"), 1, 2)
+        self.rec.send_columns(self._path("fuzzy/consequents"), indexes=[times],
+                              columns=[tensor_column(consequents, rr.Tensor.descriptor_data(), names=("k", "rule"))])
+        for k in range(consequents.shape[1]):
+            self.rec.send_columns(self._path(f"fuzzy/consequent_{k + 1}"), indexes=[times],
+                                  columns=[tensor_column(consequents[:, k, :], bar)])
         buf.clear()
 
     def _display_x(self, key: str, z: np.ndarray) -> np.ndarray:
@@ -329,71 +343,71 @@ class RerunSink:
         lo, hi = self._intervals[key]
         return (np.asarray(z, dtype=np.float64) - lo) * (BMF_WIDTH / (hi - lo))
 
-    def _operating_points(self, key: str, buf: _SnapshotBuffer) -> rr.ComponentColumn:
+    def _operating_points(self, key: str, buf: _SnapshotBuffer) -> list[rr.ComponentColumn]:
         """The operating point on every curve of input ``key``, one row per snapshot."""
         mu = buf.get(f"{key}/mu")
         count, terms = mu.shape
         marks = np.empty((count, terms, 2))
         marks[..., 0] = self._display_x(key, buf.get(f"{key}/z"))[:, None]
         marks[..., 1] = -mu                                   # y down on screen: log -mu
-        return points_column(marks.reshape(-1, 2), terms)
+        return [points_column(marks.reshape(-1, 2), terms)]
 
-    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, batch: RowBatch) -> None:
+    def _send_changed_curves(self, key: str, buf: _SnapshotBuffer, op_points: list[rr.ComponentColumn]) -> bool:
         """Curves of input ``key`` at the snapshots where they differ from the last ones sent.
 
         Fixed membership functions are thus sent once, which keeps the file small; curves
-        that change at every snapshot ride along in ``batch`` (the snapshots' own rows).
+        that change at every snapshot go out with the operating points ``op_points`` in one chunk, and
+        then the call returns True (the points are sent).
         """
         grid, curves = buf.get(f"{key}/grid"), buf.get(f"{key}/curves")
         count, terms, points = curves.shape
         previous = self._sent_curves.get(key)
         if (previous is not None and previous[0].shape == grid.shape[1:] and previous[1].shape == curves.shape[1:]
                 and (grid == previous[0]).all() and (curves == previous[1]).all()):
-            return  # the common case: fixed membership functions, one pass over the block
+            return False  # the common case: fixed membership functions, one pass over the block
         changed = np.empty(count, dtype=bool)
         changed[0] = previous is None or not (np.array_equal(previous[0], grid[0])
                                               and np.array_equal(previous[1], curves[0]))
         changed[1:] = np.any(curves[1:] != curves[:-1], axis=(1, 2)) | np.any(grid[1:] != grid[:-1], axis=1)
         if not changed.any():
-            return
+            return False
         self._sent_curves[key] = (grid[-1].copy(), curves[-1].copy())
         rows = np.flatnonzero(changed)
         strips = np.empty((rows.size, terms, points, 2))
         strips[..., 0] = self._display_x(key, grid[rows])[:, None, :]
         strips[..., 1] = -curves[rows]
-        column = strips_column(strips.reshape(-1, points, 2), terms)
-        if rows.size == count:
-            batch.add(self._path(f"fuzzy/{key}"), [column])
-            return
-        own = RowBatch(buf.get("t")[rows])
-        own.add(self._path(f"fuzzy/{key}"), [column])
-        own.send(self.rec)
+        times = time_column(buf.get("t")[rows])
+        curves_column = [strips_column(strips.reshape(-1, points, 2), terms)]
+        every_row = rows.size == count
+        self.rec.send_columns(self._path(f"fuzzy/{key}"), indexes=[times],
+                              columns=[*curves_column, *op_points] if every_row else curves_column)
+        # each term's name above its peak, wherever adaptation moved it
+        self.rec.send_columns(self._path(f"fuzzy/{key}/terms"), indexes=[times],
+                              columns=[points_column(term_label_positions(strips), terms)])
+        return every_row
 
     # -- static parts
 
-    def _log_documents(self, statics: StaticBatch, info: RunInfo) -> None:
+    def _log_documents(self, info: RunInfo) -> None:
         md = rr.MediaType.MARKDOWN
-        statics.add(self._path("info/scenario"), rr.TextDocument(scenario_markdown(info), media_type=md))
-        statics.add(self._path("info/run"), rr.TextDocument(run_markdown(info), media_type=md))
+        self.rec.log(self._path("info/scenario"), rr.TextDocument(scenario_markdown(info), media_type=md),
+                     static=True)
+        self.rec.log(self._path("info/run"), rr.TextDocument(run_markdown(info), media_type=md), static=True)
 
-    def _log_fuzzy_styles(self, statics: StaticBatch, info: RunInfo) -> None:
+    def _log_fuzzy_styles(self, info: RunInfo) -> None:
         for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):
             for j, inp in enumerate(inputs):
                 colors = [self._color(PALETTE[k % len(PALETTE)]) for k in range(len(inp.terms))]
-                statics.add(self._path(f"fuzzy/{group}/in{j}"),
-                            rr.LineStrips2D.from_fields(colors=colors, labels=list(inp.terms), radii=[-1.5]),
-                            rr.Points2D.from_fields(colors=colors, radii=[-5.0]))
+                path = self._path(f"fuzzy/{group}/in{j}")
+                self.rec.log(path, rr.LineStrips2D.from_fields(colors=colors, radii=[-1.5]),
+                             rr.Points2D.from_fields(colors=colors, radii=[-5.0]), static=True)
+                self.rec.log(f"{path}/terms", rr.Points2D.from_fields(colors=colors, labels=list(inp.terms),
+                                                                      radii=[-0.5], show_labels=True), static=True)
+                for name, part in axis_parts(inp.lo, inp.hi, BMF_WIDTH).items():
+                    self.rec.log(f"{path}/axis/{name}", part, static=True)
+        outputs = [(f"fuzzy/consequent_{k + 1}", PALETTE[(4 + k) % len(PALETTE)]) for k in range(info.order + 1)]
         for path, color in (("fuzzy/firing", (31, 119, 180)), ("fuzzy/compensator_firing", (44, 160, 44)),
-                            ("fuzzy/q", (255, 127, 14))):
+                            ("fuzzy/q", (255, 127, 14)), *outputs):
             # BarChart.from_fields(color=...) trips over its own values converter in 0.41
-            statics.add(self._path(path), [rr.components.ColorBatch([self._color(color)]).described(
-                rr.BarChart.descriptor_color())])
-
-    def _log_cartpole_geometry(self, statics: StaticBatch, geom: CartPoleGeometry) -> None:
-        statics.add(self._path("world"), rr.ViewCoordinates.RIGHT_HAND_Z_UP)
-        statics.add(self._path("world/cart"), rr.Boxes3D(
-            half_sizes=[geom.cart_half_sizes], colors=[self._color(geom.cart_color)],
-            fill_mode=rr.components.FillMode.Solid))
-        statics.add(self._path("world/pole"), rr.Capsules3D(
-            lengths=[2.0 * geom.l], radii=[geom.pole_radius], translations=[[0.0, 0.0, -geom.l]],
-            colors=[self._color(geom.pole_color)]))
+            self.rec.log(self._path(path), [rr.components.ColorBatch([self._color(color)]).described(
+                rr.BarChart.descriptor_color())], static=True)

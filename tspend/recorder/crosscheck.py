@@ -1,0 +1,227 @@
+"""The cross-check (MuJoCo against the cart-pole ODE) as a recording of its own.
+
+:func:`crosscheck_sinks` wraps the two runs' :class:`RerunSink` so that, besides each
+run, the recording holds the difference MuJoCo minus ODE of every state and of the cart
+position (``crosscheck/diff/<key>``, sample by sample, from the same values the runs
+report), a name, and a layout that puts each state's overlay beside its difference.
+:func:`record_verdict` adds the verdict document (``crosscheck/verdict``): the figures
+of the report, the tolerance and pass/fail, with the report as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from .arrow import time_column
+from .blueprint import cartpole_view, document_views, panels, series_view
+from .common import PALETTE
+from .labels import Quantity, extra_quantity, plant_labels
+from .series import series_location
+from .sink import RerunSink
+
+VERDICT = "crosscheck/verdict"
+DIFF = "crosscheck/diff"
+
+
+def diff_entity(key: str) -> str:
+    """Entity of the difference series of ``key`` (``x1``, ``x2``, ``cart_pos``)."""
+    return f"{DIFF}/{key}"
+
+
+class _MujocoSide:
+    """Records the MuJoCo run and keeps its states for the difference."""
+
+    wants_inner = True
+
+    def __init__(self, sink: RerunSink, pair: "_Pair") -> None:
+        self.sink, self.pair = sink, pair
+
+    def start(self, info: RunInfo) -> None:
+        self.pair.start(info)
+        self.sink.start(info)
+
+    def block(self, block: Block) -> None:
+        self.pair.keep(block)
+        self.sink.block(block)
+
+    def inner(self, snap: InnerSnapshot) -> None:
+        self.sink.inner(snap)
+
+    def finish(self, end: RunEnd) -> None:
+        self.sink.finish(end)
+
+
+class _OdeSide(_MujocoSide):
+    """Records the ODE run and the difference MuJoCo minus ODE as its blocks come."""
+
+    def start(self, info: RunInfo) -> None:
+        self.sink.start(info)
+
+    def block(self, block: Block) -> None:
+        self.sink.block(block)
+        self.pair.send_difference(block)
+
+
+class _Pair:
+    """What the two sides share: the MuJoCo states by step, and the recording."""
+
+    def __init__(self, mujoco: RerunSink, ode: RerunSink) -> None:
+        self.mujoco, self.ode = mujoco, ode
+        self.rec = mujoco.rec
+        self.every = mujoco.curves_every
+        self._kept: dict[str, list[np.ndarray]] = {}
+        self._columns: dict[str, np.ndarray] | None = None
+        self.keys: list[tuple[str, Quantity]] = []
+
+    def start(self, info: RunInfo) -> None:
+        labels = plant_labels(info.plant_kind, info.order)
+        self.keys = [(f"x{i + 1}", q) for i, q in enumerate(labels.states)]
+        if "cart_pos" in info.extras:
+            self.keys.append(("cart_pos", extra_quantity(labels, "cart_pos")))
+        if self.rec is None:
+            return
+        for i, (key, q) in enumerate(self.keys):
+            self.rec.log(diff_entity(key), rr.SeriesLines(
+                names=[f"{q.symbol}: MuJoCo - ODE"], colors=[PALETTE[(4 + i) % len(PALETTE)]],
+                aggregation_policy=rr.components.AggregationPolicy.MinMax), static=True)
+        self.rec.send_blueprint(crosscheck_blueprint(info, self.keys))
+        self.rec.send_recording_name(f"{info.scenario_name}: cross-check MuJoCo vs ODE (seed {info.seed})")
+
+    def _values(self, data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out = {}
+        for key, _ in self.keys:
+            if key.startswith("x") and key[1:].isdigit():
+                out[key] = np.asarray(data["x"][:, int(key[1:]) - 1], dtype=np.float64)
+            elif f"extra/{key}" in data:
+                out[key] = np.asarray(data[f"extra/{key}"], dtype=np.float64)
+        return out
+
+    def keep(self, block: Block) -> None:
+        for key, values in self._values(block.data).items():
+            self._kept.setdefault(key, []).append(values.copy())
+
+    def send_difference(self, block: Block) -> None:
+        if self.rec is None:
+            return
+        if self._columns is None:
+            self._columns = {k: np.concatenate(v) for k, v in self._kept.items()}
+            self._kept = {}
+        t = np.asarray(block.data["t"], dtype=np.float64)
+        start = block.start
+        for key, ode in self._values(block.data).items():
+            mujoco = self._columns.get(key)
+            if mujoco is None:
+                continue
+            count = max(0, min(ode.size, mujoco.size - start))
+            rows = np.arange((-start) % self.every, count, self.every)
+            if rows.size == 0:
+                continue
+            diff = mujoco[start + rows] - ode[rows]
+            self.rec.send_columns(diff_entity(key), indexes=[time_column(t[rows])],
+                                  columns=rr.Scalars.columns(scalars=diff))
+
+
+def crosscheck_sinks(sinks: Sequence[RerunSink]) -> list:
+    """The two sinks of a cross-check (MuJoCo first, then the ODE), wrapped so the
+    recording also holds the differences, a name and the cross-check layout."""
+    if len(sinks) != 2:
+        return list(sinks)
+    mujoco, ode = sinks
+    mujoco.blueprint_prefixes = ode.blueprint_prefixes = None  # the pair sends its own layout
+    pair = _Pair(mujoco, ode)
+    return [_MujocoSide(mujoco, pair), _OdeSide(ode, pair)]
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, bool):
+        return "pass" if value else "FAIL"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)
+
+
+def verdict_markdown(report: dict) -> str:
+    """The verdict: pass/fail against the tolerance, then every figure of the report."""
+    tol = report.get("tolerance")
+    ok = report.get("open_loop_ok")
+    head = "PASS" if ok else "FAIL" if ok is not None else "no verdict (no tolerance given)"
+    lines = [f"# Cross-check {report.get('scenario', '')}: {head}", ""]
+    if tol is not None:
+        lines += [f"Open loop (same chirp force and disturbance on both backends for "
+                  f"{_fmt(report.get('open_loop_duration'))} s): max |theta_MuJoCo - theta_ODE| = "
+                  f"{_fmt(report.get('open_loop_max_dtheta'))} rad against the tolerance {_fmt(tol)} rad: "
+                  f"**{_fmt(bool(ok))}**.", "",
+                  "Closed loop (the scenario's controller on each backend; the plots MuJoCo minus ODE "
+                  "show it sample by sample): "
+                  f"max |d theta| = {_fmt(report.get('closed_loop_max_dtheta'))} rad, "
+                  f"max |d theta'| = {_fmt(report.get('closed_loop_max_dthetadot'))} rad/s "
+                  "(reported, not judged: sign() in the compensator may amplify round-off).", ""]
+    lines += ["| figure | value |", "| --- | --- |"]
+    flat = {k: v for k, v in report.items() if not isinstance(v, dict)}
+    lines += [f"| {k} | {_fmt(v)} |" for k, v in flat.items()]
+    body = json.dumps(flat, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o),
+                      allow_nan=True)
+    lines += ["", "```json", body, "```", ""]
+    return "\n".join(lines)
+
+
+def record_verdict(sinks: Sequence[object], report: dict) -> None:
+    """Log the verdict document into the recording of ``sinks`` (none: nothing)."""
+    rec = next((getattr(getattr(s, "sink", s), "rec", None) for s in sinks), None)
+    if rec is None:
+        return
+    rec.log(VERDICT, rr.TextDocument(verdict_markdown(report), media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def read_verdict(text: str) -> dict:
+    """The report's figures back from a verdict document (its JSON block)."""
+    body = text.split("```json", 1)[1].split("```", 1)[0]
+    return json.loads(body)
+
+
+def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
+                         prefixes: Sequence[str] = ("mujoco/", "ode/")) -> rrb.Blueprint:
+    """Each state's overlay (MuJoCo and ODE) beside its difference; u, u_s and V overlaid;
+    the two 3D scenes; the verdict first among the documents."""
+    order, extras, diags = info.order, info.extras, info.diagnostics
+
+    def both(name: str) -> list[str]:
+        return ["/" + series_location(name, order, extras, p, diags)[0] for p in prefixes]
+
+    views: list[rrb.View] = []
+    for key, q in keys:
+        if key == "x1":
+            overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()} and reference: MuJoCo and ODE",
+                                  both("x1"), info.duration)
+        elif key.startswith("x"):
+            # x2.. are not plotted per run; the error view holds e_2 = x_2 - r' for both
+            overlay = series_view(f"tracking error (e_2 = {q.symbol} - r'): MuJoCo and ODE",
+                                  both("e_1"), info.duration)
+        else:
+            overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE", both(key),
+                                  info.duration)
+        views += [overlay, series_view(f"MuJoCo minus ODE: {q.symbol}" + (f" ({q.unit})" if q.unit else ""),
+                                       ["/" + diff_entity(key)], info.duration)]
+    views.append(series_view("control u (N): MuJoCo and ODE", both("u"), info.duration))
+    try:
+        views.append(series_view("compensator part u_s (N): MuJoCo and ODE", both("u_s"), info.duration))
+    except KeyError:
+        pass  # a controller without a compensator
+    left = [rrb.Horizontal(*(cartpole_view(info, p, f" [{p.strip('/')}]") for p in prefixes))]
+    docs = [rrb.TextDocumentView(origin="/" + VERDICT, name="cross-check verdict")]
+    for p in prefixes:
+        docs += document_views(p, f" [{p.strip('/')}]")
+    left.append(rrb.Tabs(*docs, name="verdict and run info"))
+    root = rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3]), rrb.Grid(*views, grid_columns=2),
+                          column_shares=[2, 3])
+    return rrb.Blueprint(root, *panels(), collapse_panels=False)
+
+
+__all__ = ["VERDICT", "crosscheck_blueprint", "crosscheck_sinks", "diff_entity", "read_verdict",
+           "record_verdict", "verdict_markdown"]
