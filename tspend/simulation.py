@@ -141,6 +141,22 @@ class RunResult:
         return self.end.status
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """A plant and a controller built (and so checked) before anything is run or written."""
+
+    plant: Plant
+    controller: Controller
+
+
+def prepare(scenario: Scenario, plant_kind: str | None = None, backend: str = "auto",
+            controller: str | None = None) -> Prepared:
+    """Build the plant (model file, joint names, timestep) and the controller without
+    running: every error a scenario can still raise surfaces here, as a ScenarioError."""
+    return Prepared(build_plant(scenario, plant_kind),
+                    build_controller(scenario, backend=backend, kind=controller))
+
+
 def steps_of(scenario: Scenario) -> int:
     return int(round(scenario.run.duration / scenario.run.dt))
 
@@ -148,16 +164,17 @@ def steps_of(scenario: Scenario) -> int:
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
         backend: str = "auto", stop: StopRequest | None = None,
-        controller: str | None = None) -> RunResult:
+        controller: str | None = None, prepared: Prepared | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
     MuJoCo scenario, say), which is what the cross-check does.  ``stop``, set from a
     signal handler, ends the run cleanly at the next sample (RunInterrupted is raised
-    after the sinks have finished).
+    after the sinks have finished).  ``prepared``: the plant and controller of
+    :func:`prepare`, built before the caller opened its outputs.
     """
-    plant = build_plant(scenario, plant_kind)
-    ctrl = build_controller(scenario, backend=backend, kind=controller)
+    parts = prepared or prepare(scenario, plant_kind, backend, controller)
+    plant, ctrl = parts.plant, parts.controller
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
