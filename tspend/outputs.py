@@ -111,6 +111,8 @@ def _check_explicit(req: OutputRequest) -> Path:
         raise _bad(req, raw, f"a {req.what} file name must end in {req.suffix} (so that no "
                              f"other kind of file is ever replaced)")
     target = Path(os.path.realpath(given))  # a symlink's own target is what gets replaced
+    if target.suffix.lower() != req.suffix:
+        raise _bad(req, raw, f"is a link to {display(target)}, not to a {req.suffix} file")
     if len(os.fsencode(str(target))) >= 4096:
         raise _bad(req, raw, "the path is longer than the file system allows (4096 bytes)")
     ancestor = _existing_ancestor(target.parent)
