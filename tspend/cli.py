@@ -81,7 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f".cli_{name}", __package__)
-        module.add_parser(sub).set_defaults(handler=module.cmd)
+        known = set(sub.choices)
+        module.add_parser(sub)
+        for added in set(sub.choices) - known:  # whatever names the module registered
+            sub.choices[added].set_defaults(handler=module.cmd)
     return p
 
 
@@ -387,8 +390,9 @@ def main(argv: list[str] | None = None) -> int:
         quiet_rerun()
         args = build_parser().parse_args(argv)
         args.guard = guard
+        # warnings (numpy's overflow on the way to a bad value, say) would add lines to
+        # the one-line error: kept, and printed after a command that succeeds
         with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("default")
             status = args.handler(args)
         for message in dict.fromkeys(str(w.message) for w in caught):
             say(f"warning: {message}")
@@ -409,6 +413,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:  # a bug: still one line, the traceback on request
         guard.hold()
+        if guard.stop.signal_name is not None:
+            # the signal's exception, turned into another by the code it interrupted (an
+            # extension module being imported reports "ImportError: initialization failed")
+            say(f"interrupted by {guard.stop.signal_name} before the run started; nothing "
+                f"was written")
+            return guard.stop.exit_status
         if getattr(args, "debug", False):
             traceback.print_exc()
         say(f"internal error: {type(exc).__name__}: {exc} (--debug shows the traceback)")

@@ -47,7 +47,10 @@ def viewer_url_problem(url: str) -> str:
     """Why ``url`` cannot address a Rerun viewer (``rerun+http://HOST:PORT/proxy``), or ""."""
     if any(ord(c) < 32 or ord(c) == 127 for c in url):
         return "contains control characters"
-    parsed = urlparse(url)
+    try:
+        parsed = urlparse(url)
+    except ValueError as exc:  # e.g. an unclosed IPv6 bracket
+        return str(exc)
     if parsed.scheme not in VIEWER_SCHEMES:
         return f"scheme must be one of {', '.join(VIEWER_SCHEMES)}, e.g. rerun+http://127.0.0.1:9876/proxy"
     try:
