@@ -238,7 +238,8 @@ def cases() -> list[Case]:
         "no slider": model_text(**{'name="slider"': 'name="slide2"'}),
         "no actuator": model_text(**{'name="force"': 'name="push"'}),
         "integrator bogus": model_text(**{'integrator="RK4"': 'integrator="magic"'}),
-        "mass 0": model_text(**{'mass="10"': 'mass="0"'}),
+        "motor on the hinge": model_text(**{'joint="slider" gear': 'joint="hinge" gear'}),
+        "hinge is a slide": model_text(**{'name="hinge" type="hinge"': 'name="hinge" type="slide"'}),
     }
     for label, text in mj_models.items():
         add(f"MJCF {label}", ["run", "Q.toml", "--duration", "0.05"] + OUT,

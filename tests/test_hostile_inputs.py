@@ -189,7 +189,7 @@ def test_a_signal_during_start_up_ends_the_command_cleanly(tmp_path, sig, status
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == status, err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert f"interrupted by {signal.Signals(sig).name} before the run started" in err
+    assert f"interrupted by {signal.Signals(sig).name} before any output was written" in err
     assert out == ""
     assert_intact(tmp_path, before)
 

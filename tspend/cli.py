@@ -399,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
         return status
     except Interrupted as exc:
         guard.hold()
-        say(f"interrupted by {exc.signal_name} before the run started; nothing was written")
+        say(f"interrupted by {exc.signal_name} before any output was written")
         return exc.exit_status
     except TspendError as exc:
         guard.hold()
@@ -416,20 +416,24 @@ def main(argv: list[str] | None = None) -> int:
         if guard.stop.signal_name is not None:
             # the signal's exception, turned into another by the code it interrupted (an
             # extension module being imported reports "ImportError: initialization failed")
-            say(f"interrupted by {guard.stop.signal_name} before the run started; nothing "
-                f"was written")
+            say(f"interrupted by {guard.stop.signal_name} before any output was written")
             return guard.stop.exit_status
         if getattr(args, "debug", False):
             traceback.print_exc()
         say(f"internal error: {type(exc).__name__}: {exc} (--debug shows the traceback)")
         return EXIT_INTERNAL
     finally:
+        guard.hold()  # from here a signal is only noted: the exit cannot be cut short
         try:
             sys.stdout.flush()
         except (OSError, ValueError):
             pass
         sys.stdout = real_stdout
-        guard.restore()
+        if argv is not None:
+            # called from Python (tests, notebooks): give the caller its handlers back.  As
+            # the program itself (argv from the command line) they stay until the
+            # interpreter exits, so a late second signal cannot become a traceback
+            guard.restore()
 
 
 if __name__ == "__main__":
