@@ -334,6 +334,8 @@ def cases() -> list[Case]:
         "out 300-char name": ["--out", "x" * 296 + ".rrd"],
         "metrics 300-char name": ["--metrics", "m" * 295 + ".json"],
         "out path 5000": ["--out", "/".join(["d" * 200] * 25) + "/x.rrd"],
+        "out directory name 300": ["--out", "d" * 300 + "/x.rrd"],
+        "metrics directory name 300": ["--metrics", "d" * 300 + "/x.json"],
         "out empty": ["--out", ""],
         "metrics empty": ["--metrics", ""],
         "out under a file": ["--out", "notes.txt/x.rrd"],

@@ -202,10 +202,14 @@ def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 300_000):
         time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
-    for _ in range(5):
-        time.sleep(0.01)
-        proc.send_signal(signal.SIGINT)
-        proc.send_signal(signal.SIGHUP)
+    deadline = time.time() + 120
+    while proc.poll() is None and time.time() < deadline:  # more signals until it exits
+        time.sleep(0.005)
+        for sig in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+            try:
+                proc.send_signal(sig)
+            except ProcessLookupError:
+                break
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 143, err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -429,11 +429,13 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError):
             pass
         sys.stdout = real_stdout
-        if argv is not None:
-            # called from Python (tests, notebooks): give the caller its handlers back.  As
-            # the program itself (argv from the command line) they stay until the
-            # interpreter exits, so a late second signal cannot become a traceback
+        if argv is not None:  # called from Python (tests, notebooks): handlers back
             guard.restore()
+        else:
+            # the program itself: the interpreter's shutdown resets Python handlers to the
+            # default action, so a late second signal would kill the process and lose the
+            # exit status.  Its work is done: ignore them for the last milliseconds.
+            guard.ignore_from_now_on()
 
 
 if __name__ == "__main__":

@@ -75,6 +75,12 @@ class SignalGuard:
             signal.signal(signum, handler)
         self._previous.clear()
 
+    def ignore_from_now_on(self) -> None:
+        """Ignore these signals until the process exits (for the program's last moments)."""
+        if self.installed:
+            for signum in HANDLED:
+                signal.signal(signum, signal.SIG_IGN)
+
     @property
     def installed(self) -> bool:
         return bool(self._previous)

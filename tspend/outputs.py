@@ -161,7 +161,10 @@ def plan_outputs(requests: Sequence[OutputRequest],
             _check_directory(req, f"(default {req.default_dir}/)", directory)
             plans.append(PlannedOutput(req, directory / slug(req.default_stem), True))
         else:
-            plans.append(PlannedOutput(req, _check_explicit(req), False))
+            try:
+                plans.append(PlannedOutput(req, _check_explicit(req), False))
+            except OSError as exc:  # e.g. a directory name longer than the system allows
+                raise _bad(req, req.path, f"cannot be used: {exc.strerror or exc}") from None
     explicit = [p for p in plans if not p.default]
     for i, a in enumerate(explicit):
         for b in explicit[i + 1:]:
