@@ -119,3 +119,5 @@ class Scenario:
     text: str = ""
     #: (dotted key, value) pairs applied on top of ``text`` (CLI --set, Python override)
     overrides: tuple = ()
+    #: (kind, settings) pairs from the [controllers.KIND] tables (tspend.controllers.settings)
+    controllers: tuple = ()

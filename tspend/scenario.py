@@ -20,6 +20,7 @@ import numpy as np
 from . import signals
 from .config import ControllerConfig, PlantConfig, RunConfig, Scenario, SetSpec
 from .control_law import is_hurwitz
+from .controllers.settings import parse_kind_tables
 from .errors import ScenarioError
 
 #: plant kinds and their order n
@@ -59,7 +60,8 @@ MAX_SEED = 2**63 - 1
 #: a scenario name: printed and used in file names
 MAX_NAME = 200
 
-TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller")
+TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
+            "controllers")
 SET_KEYS = ("terms", "lo", "hi")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
@@ -403,6 +405,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ref = _signal(top.table_of("reference", required=True), REFERENCE_KINDS, "sine")
     dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
     ctrl = _controller(top.table_of("controller", required=True), n)
+    kind_settings = parse_kind_tables(top.table_of("controllers"), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
     if run.duration / run.dt > MAX_STEPS:
@@ -415,7 +418,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
-        path=str(path), text=text, overrides=tuple(overrides))
+        path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
 
 
 def parse_toml(text: str, path: str) -> dict:

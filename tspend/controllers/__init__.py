@@ -2,8 +2,11 @@
 
 ``KINDS`` maps each kind to the function that builds it from a scenario: the paper's
 ``second_type`` (the default) and ``first_type`` (antecedents fixed), and the baselines
-to compare them with.  A builder takes the scenario and the keyword options, and returns
-a controller that has not been reset yet.
+to compare them with, one module each (``pd``, ``lqr``, ``feedback_linearization``,
+``sliding_mode``, ``wang_indirect``; see docs/controllers.md).  A builder takes the
+scenario and the keyword options, and returns a controller that has not been reset yet.
+``SETTINGS`` maps each baseline kind to its settings dataclass, read from the scenario's
+``[controllers.KIND]`` table (:mod:`.settings`).
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
+from . import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
 from .base import Controller, Diagnostic
 
 if TYPE_CHECKING:
@@ -33,6 +37,20 @@ def _paper(adaptation: str | None) -> Callable[..., Controller]:
 KINDS: dict[str, Callable[..., Controller]] = {
     "second_type": _paper("second"),
     "first_type": _paper("first"),
+    "pd": pd.build,
+    "lqr": lqr.build,
+    "feedback_linearization": feedback_linearization.build,
+    "sliding_mode": sliding_mode.build,
+    "wang_indirect": wang_indirect.build,
+}
+
+#: baseline kind -> its settings dataclass, read from [controllers.KIND]
+SETTINGS: dict[str, type] = {
+    "pd": pd.PDSettings,
+    "lqr": lqr.LQRSettings,
+    "feedback_linearization": feedback_linearization.FeedbackLinearizationSettings,
+    "sliding_mode": sliding_mode.SlidingModeSettings,
+    "wang_indirect": wang_indirect.WangSettings,
 }
 
 
@@ -49,4 +67,4 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     return builder(scenario, **options)
 
 
-__all__ = ["KINDS", "Controller", "Diagnostic", "build"]
+__all__ = ["KINDS", "SETTINGS", "Controller", "Diagnostic", "build"]

@@ -1,0 +1,92 @@
+"""``pd``: error feedback with a nominal input gain (a PD controller for n = 2).
+
+    u = (r^(n) - k^T e) / b0,        e = x - r,  k = [k_1 .. k_n]
+
+(Astrom and Murray, *Feedback Systems*, 2nd ed., 2021, ch. 3 and 11: PD action on the
+tracking error plus feedforward of the reference acceleration.)  On the chain of
+integrators ``x_n' = b0 u`` this gives ``e^(n) + k_n e^(n-1) + .. + k_1 e = 0``; on the
+real plant, everything in ``f`` besides ``b0 u`` (gravity, Duffing's cubic and forcing,
+Example 1's nonlinear gain) is left to the feedback to reject, so the error stays
+roughly ``|f - b0 u| / k_1``.
+
+Defaults (:class:`PDSettings`): ``k`` are the coefficients of ``(s + bandwidth)^n``
+(critically damped, all poles at ``-bandwidth``); ``bandwidth = 10 rad/s`` is ten times
+the paper's references' frequency (1 rad/s) and, at the 1 ms sample time, a hundredth of
+the sample rate, so the hold costs nothing noticeable.  ``b0`` defaults to ``df/du`` at
+the operating point, from the plant's own equations (:mod:`.plant_model`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import comb
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .base import diag_width, diagnostics
+from .plant_model import plant_model
+from .settings import finite_or, setting, settings_for
+
+if TYPE_CHECKING:
+    from ..config import Scenario
+
+
+@dataclass(frozen=True)
+class PDSettings:
+    """``[controllers.pd]``."""
+
+    gains: tuple[float, ...] | None = setting(
+        None, "k_1 .. k_n on e_1 .. e_n (default: coefficients of (s + bandwidth)^n)",
+        kind="vector", length="n", low=0.0, strict=True)
+    bandwidth: float = setting(10.0, "rad/s; all closed-loop poles at -bandwidth when gains "
+                                     "are not given", low=0.0, strict=True)
+    b0: float | None = setting(None, "nominal input gain (default: df/du at the operating "
+                                     "point, from the plant's equations)")
+
+    def check(self, n: int):
+        if self.b0 is not None and self.b0 == 0.0:
+            return "b0", "must not be 0 (u = (r^(n) - k^T e) / b0)"
+        return None
+
+
+def gains_from_poles(n: int, pole: float) -> np.ndarray:
+    """``k_1 .. k_n`` with ``s^n + k_n s^(n-1) + .. + k_1 = (s + pole)^n``."""
+    return np.array([comb(n, i) * pole ** (n - i) for i in range(n)], dtype=float)
+
+
+class PDController:
+    """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
+
+    kind = "pd"
+
+    def __init__(self, gains: np.ndarray, b0: float) -> None:
+        self.k = np.asarray(gains, dtype=float)
+        self.order = self.k.size
+        self.b0 = float(b0)
+        self.diagnostics = diagnostics(
+            ("u_ff", 1, {"panel": "control", "description": "feedforward r^(n) / b0"}),
+            ("u_fb", 1, {"panel": "control", "description": "feedback -k^T e / b0"}))
+        self.diag = np.zeros(diag_width(self.diagnostics))
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Nothing is adapted and nothing is drawn."""
+
+    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+        n = self.order
+        e = x - ref[:n]
+        u_ff = ref[n] / self.b0
+        u_fb = -float(self.k @ e) / self.b0
+        self.diag[0], self.diag[1] = u_ff, u_fb
+        return u_ff + u_fb
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return {}
+
+
+def build(scenario: "Scenario") -> PDController:
+    s: PDSettings = settings_for(scenario, "pd")
+    model = plant_model(scenario)
+    gains = np.asarray(s.gains) if s.gains else gains_from_poles(model.order, s.bandwidth)
+    b0 = finite_or(s.b0, model.linearisation()[1])
+    return PDController(gains, b0)

@@ -1,0 +1,181 @@
+"""The ``[controllers.KIND]`` tables of a scenario: per-kind settings, typed and validated.
+
+Each baseline kind has a frozen dataclass of settings in its own module; every field is
+declared with :func:`setting`, which records what the value is (a number, a vector of
+length n, an n x n matrix, a choice, ...) and its documentation.  A scenario may carry
+
+    [controllers.lqr]
+    R = 0.01
+
+and :func:`parse_kind_tables` turns those tables into the dataclasses when the scenario
+is loaded, so a bad key or value stops the run before anything is written, with one line
+naming the file, the key and what is allowed (``tspend.errors.ScenarioError``, exit 2).
+A kind without a table runs on its documented defaults.  ``None`` in a field means
+"derived from the plant when the controller is built" (each module says how).
+
+The paper controller (``second_type``, ``first_type``) keeps its settings in
+``[controller]``, as before.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from ..config import Scenario
+
+#: the paper controller's kinds: their settings live in [controller]
+PAPER_KINDS = ("second_type", "first_type")
+
+
+class TableReader(Protocol):
+    """What :func:`parse_kind_tables` needs of ``tspend.scenario._Reader``."""
+
+    path: str
+    table: dict
+    prefix: str
+
+    def error(self, key: str, problem: str) -> Exception: ...
+
+    def check_keys(self, allowed: tuple[str, ...], context: str = "") -> None: ...
+
+    def has(self, key: str) -> bool: ...
+
+    def number(self, key: str, default: float | None = None, *, low: float | None = None,
+               strict: bool = False) -> float: ...
+
+    def integer(self, key: str, default: int | None = None, *, low: int = 0) -> int: ...
+
+    def string(self, key: str, default: str | None = None,
+               choices: tuple[str, ...] | None = None) -> str: ...
+
+    def numbers(self, key: str, length: int | None = None,
+                default: tuple[float, ...] | None = None) -> tuple[float, ...]: ...
+
+    def table_of(self, key: str, required: bool = False) -> "TableReader": ...
+
+
+def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
+            strict: bool = False, length: str | None = None,
+            choices: tuple[str, ...] = (), name: str | None = None) -> Any:
+    """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``,
+    ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``matrix`` (n x n, symmetric positive
+    definite) or ``sets`` (n tables ``{terms, lo, hi}``); ``name`` is the key in the
+    file when the field's name cannot be it (``lambda``)."""
+    meta = {"doc": doc, "kind": kind, "low": low, "strict": strict, "length": length,
+            "choices": choices, "name": name}
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _value(r: TableReader, f: dataclasses.Field, n: int) -> Any:
+    meta, key = f.metadata, key_of(f)
+    kind = meta["kind"]
+    if kind == "number":
+        return r.number(key, low=meta["low"], strict=meta["strict"])
+    if kind == "integer":
+        return r.integer(key, low=int(meta["low"] or 0))
+    if kind == "bool":
+        v = r.table[key]
+        if not isinstance(v, bool):
+            raise r.error(key, f"must be true or false, got {v!r}")
+        return v
+    if kind == "choice":
+        return r.string(key, choices=meta["choices"])
+    if kind == "vector":
+        length = n if meta["length"] == "n" else n - 1
+        values = r.numbers(key, length)
+        if meta["low"] is not None and any(v <= meta["low"] if meta["strict"] else v < meta["low"]
+                                           for v in values):
+            op = ">" if meta["strict"] else ">="
+            raise r.error(key, f"every entry must be {op} {meta['low']:g}, got {list(values)}")
+        return values
+    if kind == "matrix":
+        return _matrix(r, key, n)
+    if kind == "sets":
+        return _sets(r, key, n)
+    raise AssertionError(f"unknown setting kind {kind!r}")
+
+
+def key_of(f: dataclasses.Field) -> str:
+    """The key of a settings field in the scenario file."""
+    return f.metadata.get("name") or f.name
+
+
+def _matrix(r: TableReader, key: str, n: int) -> tuple[tuple[float, ...], ...]:
+    v = r.table[key]
+    if not (isinstance(v, list) and len(v) == n and all(isinstance(row, list) for row in v)):
+        raise r.error(key, f"must be an {n}x{n} list of lists, got {v!r}")
+    rows = tuple(type(r)(r.path, {key: row}, r.prefix).numbers(key, n) for row in v)
+    M = np.array(rows)
+    if not np.allclose(M, M.T):
+        raise r.error(key, "must be symmetric")
+    if np.linalg.eigvalsh(M).min() <= 0.0:
+        raise r.error(key, f"must be positive definite, eigenvalues {np.linalg.eigvalsh(M)}")
+    return rows
+
+
+def _sets(r: TableReader, key: str, n: int):
+    from ..config import SetSpec
+
+    v = r.table[key]
+    if not (isinstance(v, list) and len(v) == n and all(isinstance(t, dict) for t in v)):
+        raise r.error(key, f"must be a list of {n} tables {{terms, lo, hi}} (one per state), "
+                           f"got {v!r}")
+    out = []
+    for i, t in enumerate(v):
+        s = type(r)(r.path, t, f"{r.prefix}{key}[{i}].")
+        s.check_keys(("terms", "lo", "hi"))
+        terms, lo, hi = s.integer("terms", low=2), s.number("lo"), s.number("hi")
+        if not lo < hi:
+            raise s.error("lo", f"interval needs lo < hi, got lo = {lo:g}, hi = {hi:g}")
+        out.append(SetSpec(terms, lo, hi))
+    return tuple(out)
+
+
+def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
+    """The ``[controllers]`` table: ``(kind, settings)`` pairs, validated for order ``n``."""
+    from . import SETTINGS
+
+    out = []
+    for kind in r.table:
+        if kind in PAPER_KINDS:
+            raise r.error(kind, "the paper controller's settings live in [controller]; "
+                                f"[controllers.KIND] tables are for: {', '.join(SETTINGS)}")
+        if kind not in SETTINGS:
+            raise r.error(kind, f"unknown controller kind; allowed: {', '.join(SETTINGS)}")
+        cls = SETTINGS[kind]
+        sub = r.table_of(kind)
+        fields = dataclasses.fields(cls)
+        sub.check_keys(tuple(key_of(f) for f in fields), f"for kind '{kind}'")
+        values = {f.name: _value(sub, f, n) for f in fields if sub.has(key_of(f))}
+        settings = cls(**values)
+        check = getattr(settings, "check", None)
+        if check is not None:
+            problem = check(n)
+            if problem:
+                key, message = problem
+                raise sub.error(key, message)
+        out.append((kind, settings))
+    return tuple(out)
+
+
+def settings_for(scenario: "Scenario", kind: str):
+    """The scenario's settings of ``kind``: its ``[controllers.KIND]`` table, else defaults."""
+    from . import SETTINGS
+
+    for k, s in getattr(scenario, "controllers", ()):
+        if k == kind:
+            return s
+    return SETTINGS[kind]()
+
+
+def finite_or(value: float | None, fallback: float) -> float:
+    """``value`` when given, else the plant-derived ``fallback`` (must be finite)."""
+    out = fallback if value is None else value
+    if not math.isfinite(out):
+        raise ValueError(f"derived setting is not finite: {out}")
+    return float(out)

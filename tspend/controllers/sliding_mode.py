@@ -1,0 +1,137 @@
+"""``sliding_mode``: sliding-mode control with a nominal model and a boundary layer.
+
+Following Slotine and Li, *Applied Nonlinear Control*, 1991, sections 7.1-7.2 (and
+Utkin, *Sliding Modes in Control and Optimization*, 1992), on the surface
+
+    s = c^T e = c_1 e_1 + .. + c_{n-1} e_{n-1} + e_n,        e = x - r,  c_n = 1,
+
+with the nominal model ``f_hat(x) = a^T (x - x*)``, ``b_hat = b0`` (the linearisation at
+the operating point, :mod:`.plant_model`; ``nominal = "none"`` drops ``f_hat``):
+
+    u = u* + (r^(n) - f_hat(x) - sum_{i<n} c_i e_{i+1} - k sat(s / phi)) / b_hat.
+
+Then ``s' = Delta - k sat(s / phi)`` with ``Delta`` the model error and the disturbance
+(in units of ``x_n'``).  While ``|Delta| < k`` the surface is reached in finite time,
+``|s| <= phi`` from then on (the boundary layer), and inside it ``s`` settles at about
+``phi Delta / k``; on the surface ``e`` decays as ``c`` dictates.  ``sat`` replaces
+``sign`` so that ``u`` does not chatter at the sample rate (Slotine and Li, 7.2).
+
+Defaults (:class:`SlidingModeSettings`):
+
+* ``c``: Slotine's ``s = (d/dt + surface_pole)^(n-1) e``, ``surface_pole = 5 rad/s``,
+  five times the references' frequency;
+* ``k`` by plant, a margin over ``|Delta|`` on the paper's operating regions:
+  Example 1 ``2`` (disturbance 0.1 plus the input gain's variation away from the
+  origin), Duffing ``20`` (``12 cos t`` and ``x1^3`` with ``|x1| <= 1.5`` are outside the
+  linear model: about 15.5), the cart-pole ``0.5 rad/s^2`` (the disturbance is ``0.05 /
+  41 ~ 1.2e-3`` and the linearisation's error ~ 2.6 theta^3/6 is smaller still; 0.5
+  gives a fast reaching phase from ``theta(0) = pi/30``), the third-order plant ``2``;
+* ``phi = k / 50``: the layer's linear gain ``k / phi = 50 s^-1`` is fast against the
+  references and slow against the 1 ms sample (``dt k / phi = 0.05 << 2``), so the
+  discrete loop stays inside the layer without chattering;
+* ``b0 = df/du`` at the operating point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .base import diag_width, diagnostics
+from .pd import gains_from_poles
+from .plant_model import plant_model
+from .settings import finite_or, setting, settings_for
+
+if TYPE_CHECKING:
+    from ..config import Scenario
+
+#: switching gain k by plant kind (see the module docstring for the reasons)
+DEFAULT_SWITCHING_GAIN = {"nonaffine": 2.0, "duffing": 20.0, "cartpole_ode": 0.5,
+                          "cartpole_mujoco": 0.5, "third_order": 2.0}
+#: phi = k / LAYER_RATE when phi is not given
+LAYER_RATE = 50.0
+
+
+@dataclass(frozen=True)
+class SlidingModeSettings:
+    """``[controllers.sliding_mode]``."""
+
+    c: tuple[float, ...] | None = setting(
+        None, "c_1 .. c_{n-1} of s = c^T e, c_n = 1 (default: (d/dt + surface_pole)^(n-1))",
+        kind="vector", length="n-1", low=0.0, strict=True)
+    surface_pole: float = setting(5.0, "rad/s; the surface's pole when c is not given",
+                                  low=0.0, strict=True)
+    k: float | None = setting(None, "switching gain in units of x_n' (default by plant)",
+                              low=0.0, strict=True)
+    phi: float | None = setting(None, "boundary layer half-width on s (default k / 50)",
+                                low=0.0, strict=True)
+    b0: float | None = setting(None, "nominal input gain (default df/du at the operating point)")
+    nominal: str = setting("linear", "nominal f_hat: the linearisation, or none (f_hat = 0)",
+                           kind="choice", choices=("linear", "none"))
+
+    def check(self, n: int):
+        if self.b0 is not None and self.b0 == 0.0:
+            return "b0", "must not be 0"
+        return None
+
+
+def sat(z: float) -> float:
+    return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
+
+
+class SlidingModeController:
+    """The ``sliding_mode`` kind (a :class:`~tspend.controllers.base.Controller`)."""
+
+    kind = "sliding_mode"
+
+    def __init__(self, c: np.ndarray, k: float, phi: float, a: np.ndarray, b0: float,
+                 x_op: np.ndarray, u_op: float) -> None:
+        self.c = np.append(np.asarray(c, dtype=float), 1.0)   # c_n = 1
+        self.order = n = self.c.size
+        self.k, self.phi, self.b0 = float(k), float(phi), float(b0)
+        self.a = np.asarray(a, dtype=float)
+        self.x_op, self.u_op = np.asarray(x_op, dtype=float), float(u_op)
+        #: sum_{i<n} c_i e_{i+1} = c_shift . e
+        self.c_shift = np.zeros(n)
+        self.c_shift[1:] = self.c[:-1]
+        self.diagnostics = diagnostics(
+            ("s", 1, {"panel": "sliding", "description": "sliding variable c^T e"}),
+            ("s_over_phi", 1, {"panel": "sliding",
+                               "description": "s / phi: inside the boundary layer when |.| <= 1"}),
+            ("u_eq", 1, {"panel": "control", "description": "equivalent control of the nominal model"}),
+            ("u_sw", 1, {"panel": "control", "chattering": True,
+                         "description": "switching part -k sat(s / phi) / b0"}))
+        self.diag = np.zeros(diag_width(self.diagnostics))
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Nothing is adapted and nothing is drawn."""
+
+    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+        n = self.order
+        e = x - ref[:n]
+        s = float(self.c @ e)
+        f_hat = float(self.a @ (x - self.x_op))
+        u_eq = self.u_op + (ref[n] - f_hat - float(self.c_shift @ e)) / self.b0
+        u_sw = -self.k * sat(s / self.phi) / self.b0
+        d = self.diag
+        d[0], d[1], d[2], d[3] = s, s / self.phi, u_eq, u_sw
+        return u_eq + u_sw
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return {}
+
+
+def build(scenario: "Scenario") -> SlidingModeController:
+    st: SlidingModeSettings = settings_for(scenario, "sliding_mode")
+    model = plant_model(scenario)
+    n = model.order
+    a, b = model.linearisation()
+    c = np.asarray(st.c) if st.c is not None else gains_from_poles(n - 1, st.surface_pole)
+    k = finite_or(st.k, DEFAULT_SWITCHING_GAIN[model.name])
+    phi = finite_or(st.phi, k / LAYER_RATE)
+    if st.nominal == "none":
+        a = np.zeros(n)
+    return SlidingModeController(c, k, phi, a, finite_or(st.b0, b), np.asarray(model.x_op),
+                                 model.u_op)
