@@ -122,7 +122,7 @@ def bounded_int(low: int, high: int):
 
 def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> None:
     """The options of every command that runs a scenario: overrides, backend, recording."""
-    from .scenario import MAX_SEED
+    from .bounds import MAX_SEED
 
     p.add_argument("--duration", type=finite(), metavar="S", help="override run.duration")
     p.add_argument("--seed", type=bounded_int(0, MAX_SEED), metavar="N",

@@ -26,7 +26,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd(args: argparse.Namespace) -> int:
     from .native_logs import mujoco_warnings_in_errors
-    from .scenario import MAX_STEPS
+    from .bounds import MAX_STEPS
 
     scn = load_with_overrides(args)
     if not scn.plant.kind.startswith("cartpole"):

@@ -18,6 +18,8 @@ from typing import Any, Callable
 import numpy as np
 
 from . import signals
+from .bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST, MAX_NAME,
+                     MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
 from .config import ControllerConfig, PlantConfig, RunConfig, Scenario, SetSpec
 from .control_law import is_hurwitz
 from .controllers.settings import parse_kind_tables
@@ -37,28 +39,6 @@ REFERENCE_KINDS: dict[str, type] = {
 DISTURBANCE_KINDS: dict[str, type] = {
     "square": signals.SquareWave, "zero": signals.NoDisturbance, "sine": signals.SineDisturbance,
 }
-
-#: longest run accepted, in samples (10^9 samples is days of wall time)
-MAX_STEPS = 1e9
-
-# Resource bounds: a scenario inside them fits in memory and starts at once; the
-# messages name the bound, and the README's "Bounds" table lists them.
-#: largest scenario file read, in bytes
-MAX_FILE_BYTES = 1_000_000
-#: deepest nesting of tables and arrays in a scenario file or a --set value
-MAX_NESTING = 32
-#: longest list of numbers (x0, the sum-of-sines components, ...)
-MAX_LIST = 1000
-#: fuzzy sets per input, B-spline order and control points per set
-MAX_TERMS = 50
-MAX_BSPLINE_ORDER = 10
-MAX_CONTROL_POINTS = 64
-#: rules of the T-S model (product of the state and u sets) and of the compensator
-MAX_RULES = 10_000
-#: seeds are 63-bit integers (what every numpy seed and JSON reader handles)
-MAX_SEED = 2**63 - 1
-#: a scenario name: printed and used in file names
-MAX_NAME = 200
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
             "controllers")
