@@ -10,7 +10,6 @@ line and that the user's files (``cli_harness.user_files``) are byte-for-byte in
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -25,7 +25,7 @@ renamed into place only when whole.  Signal handlers are installed before any of
 before numpy, MuJoCo or Rerun are imported (:mod:`tspend.interrupts`).
 
 Adding a subcommand: write ``tspend/cli_<name>.py`` with ``add_parser(subparsers)``
-(returns its parser) and ``cmd(args) -> int``, and add ``"<name>"`` to :data:`COMMANDS`.
+(adds its subparser) and ``cmd(args) -> int``, and add ``"<name>"`` to :data:`COMMANDS`.
 Keep the module's top-level imports light (stdlib, ``tspend.cli``); import the heavy
 parts inside ``cmd``.  The machinery below is for those modules:
 :func:`add_scenario_options`, :func:`load_with_overrides`, :func:`plan`, :class:`Claimed`
@@ -307,7 +307,7 @@ def printable(text: object, limit: int = 2000) -> str:
     return s if len(s) <= limit else s[:limit] + "..."
 
 
-def _fmt(v: Any) -> str:
+def format_value(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.6g}"
     return "n/a" if v is None else str(v)
@@ -320,7 +320,7 @@ def print_metrics(metrics: dict, stream=None) -> None:
     width = max(len(k) for k in keys)
     for k in keys:
         if k in metrics:
-            print(f"  {k:<{width}}  {_fmt(metrics[k])}", file=stream)
+            print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
 def metrics_document(scn, end) -> dict:

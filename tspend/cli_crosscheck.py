@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed, _fmt, add_scenario_options,
+from .cli import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed, format_value, add_scenario_options,
                   check_model_size, check_viewer_url, finite, load_with_overrides, plan,
                   printable, recording_request, say, scenario_inputs)
 from .cli_run import close_sinks, open_sinks
@@ -78,7 +78,7 @@ def _crosscheck(args, scn, stop, outs: Claimed, crosscheck) -> int:
         report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
         for k, v in report.items():
             if not isinstance(v, dict):
-                print(f"  {k:<34} {printable(_fmt(v))}")
+                print(f"  {k:<34} {printable(format_value(v))}")
         failures.append(outs.write_json(json_out, report))
     failures = [f for f in failures if f]
     if recording is not None and recording.committed:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import re
-import sys
 
 from . import __version__
 from .cli import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, Claimed, add_scenario_options,
