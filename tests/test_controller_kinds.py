@@ -325,3 +325,15 @@ def test_a_baselines_diagnostics_are_recorded_by_name(tmp_path):
         t, values = read_scalar_series(rrd, entity, instance)
         np.testing.assert_array_equal(values, r.history[name])
         np.testing.assert_allclose(t, r.history["t"], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["lqr", "sliding_mode"])
+def test_model_based_kinds_assume_the_compiled_machine(kind: str) -> None:
+    """On an MJCF whose hinge axis is reversed, the nominal model is read back from the
+    compiled model (its gain sign included), so the baselines still balance the pole."""
+    scenario = override(load_scenario("pendulum_mujoco"), **{
+        "run.duration": 6.0, "plant.model": "tests/models/cartpole_reversed.xml"})
+    with pytest.warns(Warning, match="reversed gain sign"):
+        result = run(scenario, controller=kind, keep_history=False)
+    assert result.status == "completed"
+    assert result.metrics["rmse_ss"] < 1e-3

@@ -8,6 +8,7 @@ agree anyway.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from functools import partial
 from pathlib import Path
@@ -16,8 +17,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from tspend.crosscheck_openloop import (OpenLoopComparison, ReferenceCartPole, chirp_force,
-                                        open_loop_compare)
+from cartpole_oracle import ReferenceCartPole
+from tspend.crosscheck_openloop import OpenLoopComparison, chirp_force, open_loop_compare
 from tspend.signals import SquareWave
 
 _SQUARE = SquareWave(amplitude=0.05)
@@ -59,7 +60,7 @@ def default_plant() -> MujocoCartPole:
 
 
 def test_params_read_back(default_plant: MujocoCartPole) -> None:
-    assert default_plant.params == CartPoleParams(10.0, 1.0, 3.0, 9.8)
+    assert default_plant.params == CartPoleParams(10.0, 1.0, 3.0, 9.8, J=pytest.approx(12.0, rel=1e-12))
     assert default_plant.timestep == pytest.approx(1e-3)
     assert isinstance(default_plant, Plant)
 
@@ -70,7 +71,8 @@ def test_matches_solve_ivp_oracle(overrides: CartPoleParams | None) -> None:
     mj = MujocoCartPole(MODEL, overrides=overrides)
     p = mj.params
     if overrides is not None:
-        assert p == pytest.approx(overrides)
+        assert dataclasses.replace(p, J=0.0) == pytest.approx(overrides)
+        assert p.J == pytest.approx(4.0 / 3.0 * p.m * p.l ** 2, rel=1e-12)
     r = run(mj, ReferenceCartPole(p), p)
     assert np.ptp(r.theta_a) > 1.0  # the pole really moved (it falls and swings)
     assert r.max_dtheta < TOL, r.max_dtheta

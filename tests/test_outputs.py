@@ -234,7 +234,7 @@ def test_a_recording_that_cannot_be_completed_is_a_failure_not_a_success(tmp_pat
     r = tspend("run", "ex2_duffing", "--duration", "2", "--out", "K.rrd", "--metrics", "new.json",
                cwd=tmp_path, preexec_fn=_limit_file_size(60_000))
     line = r.one_error_line()
-    assert r.status == 4 and "recording K.rrd: could not be completed" in line, r.err
+    assert r.status == 5 and "recording K.rrd: could not be completed" in line, r.err
     assert "completed:" in r.out
     doc = json.loads(r.out[r.out.index("{"):])
     assert doc["status"] == "completed" and doc["steps"] == 2000
@@ -249,7 +249,7 @@ def test_metrics_that_cannot_be_written_go_to_stdout(tmp_path):
     before = snapshot(tmp_path)
     r = tspend("run", "ex2_duffing", *SHORT, "--no-record", "--metrics", "big.json",
                cwd=tmp_path, preexec_fn=_limit_file_size(1000))
-    assert r.status == 4 and "metrics big.json: could not be completed" in r.one_error_line()
+    assert r.status == 5 and "metrics big.json: could not be completed" in r.one_error_line()
     doc = json.loads(r.out[r.out.index("{"):])
     assert doc["steps"] == 50 and doc["scenario"] == "ex2_duffing"
     assert_intact(tmp_path, before)
@@ -267,7 +267,7 @@ def test_a_full_tmpfs_fails_the_run_and_keeps_the_old_files(tmp_path):
         before = user_files(disk)  # 200 kB of it is K.rrd: little room is left
         r = tspend("run", str(disk / "S.toml"), "--duration", "2", "--out", "out.rrd",
                    "--metrics", "m.json", cwd=disk)
-        assert r.status == 4 and "out.rrd: could not be completed" in r.one_error_line()
+        assert r.status == 5 and "out.rrd: could not be completed" in r.one_error_line()
         assert "the metrics are on stdout" in r.err and '"steps": 2000' in r.out
         assert_intact(disk, before, allow_new=("m.json",))
     finally:

@@ -7,7 +7,8 @@ Exit status (the ``EXIT_*`` constants):
 1     ``crosscheck``: the backends differ by more than ``--tol``
 2     bad input: command line, scenario, model file, output path, a size bound exceeded
 3     the closed loop diverged (recording and metrics kept up to the divergence)
-4     an output could not be completed (disk full, I/O error); the file it would have
+4     the cart reached the end of a finite rail (``[effects]``; outputs kept up to it)
+5     an output could not be completed (disk full, I/O error); the file it would have
       replaced is untouched and the metrics are printed to stdout as JSON as well
 70    internal error (a bug: please report it with the ``--debug`` traceback)
 129   SIGHUP, 130 SIGINT (Ctrl-C), 143 SIGTERM: outputs completed up to the stop
@@ -45,6 +46,7 @@ import re
 import sys
 import traceback
 import warnings
+from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from . import __version__
@@ -53,14 +55,15 @@ from .interrupts import Interrupted, SignalGuard
 from .outputs import Output, OutputRequest, PlannedOutput, claim, display, plan_outputs
 
 #: the subcommands, each the module ``tspend/cli_<name>.py``, in ``--help`` order
-COMMANDS = ("run", "crosscheck", "list")
+COMMANDS = ("run", "crosscheck", "list", "inspect")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0
 EXIT_TOLERANCE = 1
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
-EXIT_WRITE_FAILED = 4
+EXIT_RAIL_END = 4
+EXIT_WRITE_FAILED = 5
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)
 MAX_COUNT = 10**9
@@ -191,19 +194,24 @@ def load_with_overrides(args: argparse.Namespace):
     return override(scn, **changes) if changes else scn
 
 
+def uses_mujoco(scn) -> bool:
+    """Whether the scenario's plant is a MuJoCo model (its configuration names a model file)."""
+    return hasattr(scn.plant, "model")
+
+
 def scenario_inputs(scn) -> list[str]:
     """Every file a run reads: outputs must never be one of them."""
     from .scenario import resolve_model_path
 
     inputs = [scn.path] if scn.path and scn.path != "<string>" else []
-    if "mujoco" in scn.plant.kind:
+    if uses_mujoco(scn):
         inputs.append(str(resolve_model_path(scn)))
     return inputs
 
 
 def check_model_size(scn, limit: int = 10_000_000, kind: str | None = None) -> None:
     """An MJCF larger than ``limit`` bytes is refused before MuJoCo reads it."""
-    if "mujoco" not in (kind or scn.plant.kind):
+    if not (uses_mujoco(scn) or (kind and "mujoco" in kind)):
         return
     from .scenario import resolve_model_path
 
@@ -328,6 +336,24 @@ def metrics_document(scn, end) -> dict:
     return dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
                 version=__version__, scenario_path=scn.path,
                 overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+
+
+def check_writable(path: Path, what: str) -> None:
+    """Check one JSON output before the work (a command with several outputs uses
+    :func:`plan` and :class:`Claimed`)."""
+    plan_outputs([OutputRequest(f"--{what}", what, ".json", str(path))])
+
+
+def write_json(path: Path, obj: dict) -> None:
+    """Write ``obj`` to ``path`` atomically: a partial file beside it, renamed when whole.
+
+    Raises OutputError (exit 5) if it cannot be completed; ``path`` is then untouched.
+    """
+    plans = plan_outputs([OutputRequest("--json", "json", ".json", str(path))])
+    with Claimed(plans) as outs:
+        problem = outs.write_json(outs["--json"], obj)
+    if problem:
+        raise OutputError(problem)
 
 
 def say(message: str) -> None:

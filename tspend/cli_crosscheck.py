@@ -54,7 +54,7 @@ def cmd(args: argparse.Namespace) -> int:
 def _mujoco_model(scn) -> list[str]:
     from .scenario import resolve_model_path
 
-    return [] if "mujoco" in scn.plant.kind else [str(resolve_model_path(scn))]
+    return [] if hasattr(scn.plant, "model") else [str(resolve_model_path(scn))]
 
 
 def _crosscheck(args, scn, stop, outs: Claimed, crosscheck) -> int:
@@ -92,4 +92,10 @@ def _crosscheck(args, scn, stop, outs: Claimed, crosscheck) -> int:
     if stop.signal_name is not None:
         say(f"{stop.signal_name} after the cross-check completed; results kept")
         return stop.exit_status
-    return EXIT_OK if report["open_loop_ok"] else EXIT_TOLERANCE
+    if not report["open_loop_ok"]:
+        from .crosscheck import failure_reason
+
+        say(f"cross-check failed: max |dtheta| = {report['open_loop_max_dtheta']:.3g} rad > "
+            f"{args.tol:g}; {failure_reason(report)}")
+        return EXIT_TOLERANCE
+    return EXIT_OK

@@ -7,9 +7,10 @@ import json
 import re
 
 from . import __version__
-from .cli import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, Claimed, add_scenario_options,
-                  check_model_size, check_viewer_url, load_with_overrides, metrics_document,
-                  plan, print_metrics, printable, recording_request, say, scenario_inputs)
+from .cli import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_RAIL_END, Claimed,
+                  add_scenario_options, check_model_size, check_viewer_url, load_with_overrides,
+                  metrics_document, plan, print_metrics, printable, recording_request, say,
+                  scenario_inputs, uses_mujoco)
 from .errors import OutputError, ScenarioError
 from .outputs import OutputRequest, display, slug
 
@@ -70,7 +71,7 @@ def cmd(args: argparse.Namespace) -> int:
                   OutputRequest("--metrics", "metrics", ".json", args.metrics)
                   if args.metrics is not None else None],
                  scenario_inputs(scn))
-    with mujoco_warnings_in_errors("mujoco" in scn.plant.kind):
+    with mujoco_warnings_in_errors(uses_mujoco(scn)):
         from .simulation import prepare, run
 
         prepared = prepare(scn, backend=args.backend, controller=args.controller)
@@ -122,4 +123,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end.status == "diverged":
         say(end.message)
         return EXIT_DIVERGED
+    if end.status == "rail_end":  # tspend.effects.RailEnd
+        say(end.message)
+        return EXIT_RAIL_END
     return EXIT_OK

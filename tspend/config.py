@@ -6,7 +6,7 @@ Every field here has a key of the same name in the scenario TOML (see
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .signals import Disturbance, Reference
 
@@ -47,8 +47,11 @@ class ControllerConfig:
     #: initial consequents p_k^i and compensator consequents q^i drawn from these intervals
     init_consequents: tuple[float, float] = (-0.01, 0.01)
     init_compensator: tuple[float, float] = (-0.01, 0.01)
-    #: Assumption 5: projection p_{n+1}^i >= b_min > 0
+    #: Assumption 5: projection p_{n+1}^i >= b_min > 0 (or <= -b_min, see gain_sign)
     b_min: float = 0.001
+    #: the known sign of df/du: "plant" (measured on the plant at run start), "positive"
+    #: or "negative"; the projection keeps sign * p_{n+1}^i >= b_min
+    gain_sign: str = "plant"
     #: Assumption 4: projection of each consequent column onto ||p_k|| <= radius (0 = off)
     norm_radius: float = 0.0
     #: boundary layer eps: sat(e_Delta/eps) instead of sign(e_Delta) in (21) (0 = sign)
@@ -66,31 +69,126 @@ class ControllerConfig:
         return len(self.lam)
 
     @property
+    def b_sign(self) -> float:
+        """+1 or -1: the side of zero the gain consequents are kept on ("plant" = +1 until
+        the run resolves it)."""
+        return -1.0 if self.gain_sign == "negative" else 1.0
+
+    @property
     def antecedent_rate(self) -> float:
         if self.adaptation == "first":
             return 0.0
         return self.eta if self.eta_mu is None else self.eta_mu
 
 
+def _positive(**more) -> dict:
+    return {"low": 0.0, "strict": True, **more}
+
+
+def _at_least_zero(**more) -> dict:
+    return {"low": 0.0, **more}
+
+
 @dataclass(frozen=True)
 class PlantConfig:
-    """Which plant, its parameters and its initial state."""
+    """What every plant kind has: its kind, initial state and divergence guard.
+
+    Each kind has its own subclass (``tspend.plants.registry.PLANT_KINDS``); the scenario
+    reader accepts exactly the fields of the kind's class, checked by the ``metadata``
+    of each field (``low``/``strict`` bounds, ``choices``).
+    """
 
     kind: str = "cartpole_mujoco"
     x0: tuple[float, ...] = (0.10471975511965977, 0.0)
-    #: cart-pole parameters (cartpole_ode and cartpole_mujoco)
-    M: float = 10.0
-    m: float = 1.0
-    l: float = 3.0
-    g: float = 9.8
-    #: MuJoCo backend: model file (relative to the project root or the scenario), names
+    #: divergence guard: stop when any |x_i| exceeds this (0 = only non-finite values)
+    state_bound: float = field(default=0.0, metadata=_at_least_zero())
+
+
+@dataclass(frozen=True)
+class AnalyticPlantConfig(PlantConfig):
+    """The paper's analytic plants (nonaffine, duffing) and third_order: no parameters."""
+
+
+@dataclass(frozen=True)
+class CartPoleConfig(PlantConfig):
+    """The cart-pole (C1)-(C2) of tspend/plants/cartpole.py, on either backend."""
+
+    M: float = field(default=10.0, metadata=_positive())
+    m: float = field(default=1.0, metadata=_positive())
+    l: float = field(default=3.0, metadata=_positive())
+    g: float = field(default=9.8, metadata=_at_least_zero())
+    #: pole inertia about the pivot, kg m^2 (0 = the uniform rod's 4/3 m l^2)
+    J: float = field(default=0.0, metadata=_at_least_zero())
+    #: viscous damping (N s/m, N m s/rad) and dry friction (N, N m) at cart and hinge
+    cart_damping: float = field(default=0.0, metadata=_at_least_zero())
+    hinge_damping: float = field(default=0.0, metadata=_at_least_zero())
+    cart_friction: float = field(default=0.0, metadata=_at_least_zero())
+    hinge_friction: float = field(default=0.0, metadata=_at_least_zero())
+
+
+@dataclass(frozen=True)
+class MujocoCartPoleConfig(CartPoleConfig):
+    """A cart-pole MJCF stepped by MuJoCo; M, m, l, J, g and friction are written into it."""
+
+    #: model file (relative to the cwd, the scenario or the project root) and its names
     model: str = "models/cartpole.xml"
     slide_joint: str = "slider"
     hinge_joint: str = "hinge"
     actuator: str = "force"
-    integrator: str = ""
-    #: divergence guard: stop when any |x_i| exceeds this (0 = only non-finite values)
-    state_bound: float = 0.0
+    #: "" keeps the model's integrator
+    integrator: str = field(default="", metadata={"choices": ("", "RK4", "Euler", "implicit",
+                                                              "implicitfast")})
+    #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
+    timestep: float = field(default=0.0, metadata=_at_least_zero())
+    #: false keeps the model's own masses, COM and inertia (M, m, l, J are then ignored)
+    override_inertials: bool = True
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """A change of the machine at time ``at`` (a payload picked up); 0 keeps a value."""
+
+    at: float = field(default=0.0, metadata=_at_least_zero())
+    M: float = field(default=0.0, metadata=_at_least_zero())
+    m: float = field(default=0.0, metadata=_at_least_zero())
+    l: float = field(default=0.0, metadata=_at_least_zero())
+
+
+@dataclass(frozen=True)
+class OuterLoopConfig:
+    """Cart centring by shaping the pole reference (docs/testbed.md); gains 0 = off."""
+
+    #: theta_ref += k_x x_c + k_v x_c' (rad per m, rad per m/s), clipped to +/- max_angle
+    k_x: float = 0.0
+    k_v: float = 0.0
+    max_angle: float = field(default=0.1, metadata=_positive())
+    #: time constant of the first-order filter that makes the shaped reference smooth
+    tau: float = field(default=0.5, metadata=_positive())
+
+
+@dataclass(frozen=True)
+class EffectsConfig:
+    """Real-world effects between the controller and the plant; every one off by default."""
+
+    #: actuator saturation |u| <= saturation (N; 0 = none) and rate limit (N/s; 0 = none)
+    saturation: float = field(default=0.0, metadata=_at_least_zero())
+    rate_limit: float = field(default=0.0, metadata=_at_least_zero())
+    #: standard deviation of white sensor noise per state (empty = none), and its seed
+    #: (its own stream: the controller's draws do not change)
+    noise_std: tuple[float, ...] = ()
+    noise_seed: int = 0
+    #: measurement delay, in samples
+    delay: int = 0
+    #: the machine changes at a given time
+    change: ParameterChange | None = None
+    #: a rail of this half-length (m); the run ends with status "rail_end" (0 = endless)
+    rail: float = field(default=0.0, metadata=_at_least_zero())
+    #: cart-centring outer loop (off by default)
+    outer_loop: OuterLoopConfig | None = None
+
+    @property
+    def active(self) -> bool:
+        return self != EffectsConfig()
 
 
 @dataclass(frozen=True)
@@ -114,6 +212,8 @@ class Scenario:
     reference: Reference
     disturbance: Disturbance
     controller: ControllerConfig
+    #: real-world effects (all off unless the scenario's [effects] table sets them)
+    effects: EffectsConfig = EffectsConfig()
     #: where it came from, and its text (logged with every run)
     path: str = ""
     text: str = ""

@@ -115,7 +115,7 @@ class AdaptiveFuzzyController:
         self.Gamma = lyapunov_gamma(self.lam, np.asarray(cfg.Q, dtype=float))
         #: e_Delta = e^T Gamma b_e = Gamma[n-1] . e (Gamma is symmetric)
         self.gamma_row = self.Gamma[n - 1].copy()
-        self.model = TSModel(model_inputs(cfg), cfg.b_min, cfg.norm_radius)
+        self.model = TSModel(model_inputs(cfg), cfg.b_min, cfg.norm_radius, cfg.b_sign)
         e_in, x_in = compensator_inputs(cfg)
         self.compensator = FuzzyCompensator(e_in, x_in, cfg.boundary_layer, cfg.leakage)
         self.eta = cfg.eta

@@ -30,5 +30,5 @@ class OutputError(TspendError):
     The file it would have replaced is untouched; the message names the file.
     """
 
-    exit_status = 4
+    exit_status = 5
 

@@ -363,9 +363,9 @@ def controller_step(x, ref, dt, u_prev, P, Cm, q, Cc, diag, fc, knots, ic, tidx,
                 f = 1.0
             for i in range(h):
                 P[i, k] *= f
-    b_min = fc[F_B_MIN]
+    b_min = fc[F_B_MIN]  # signed: Assumption 5 keeps the gains on b_min's side of it
     for i in range(h):
-        if P[i, n] < b_min:
+        if (P[i, n] - b_min) * b_min < 0.0:
             P[i, n] = b_min
     if eta_mu != 0.0:
         _move_control_points(0, m, Cm, ic, ws, M, eta_mu * e_delta, dt)
@@ -412,7 +412,7 @@ class CompiledController(AdaptiveFuzzyController):
         fc[F_ETA] = self.eta
         fc[F_ETA_MU] = self.eta_mu
         fc[F_GAMMA] = self.gamma
-        fc[F_B_MIN] = self.model.b_min
+        fc[F_B_MIN] = self.model.b_sign * self.model.b_min
         fc[F_RADIUS] = self.model.norm_radius
         fc[F_BOUNDARY] = self.compensator.boundary_layer
         fc[F_LEAKAGE] = self.compensator.leakage

@@ -19,6 +19,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -84,7 +85,9 @@ class ClosedLoop:
 
     def __init__(self, plant: Plant, controller: Controller, reference: Reference,
                  disturbance: Disturbance, settings: LoopSettings,
-                 stop: StopRequest | None = None) -> None:
+                 stop: StopRequest | None = None,
+                 hook: "Callable[[float, np.ndarray, np.ndarray], np.ndarray] | None" = None
+                 ) -> None:
         if plant.order != controller.order:
             raise ValueError(f"plant order {plant.order} != controller order {controller.order}")
         check_diagnostics(controller.diagnostics, controller.diag)
@@ -94,6 +97,9 @@ class ClosedLoop:
         self.disturbance = disturbance
         self.s = settings
         self.stop = stop if stop is not None else StopRequest()
+        #: per-sample hook (t, x, ref row) -> the state the controller sees; it may shape
+        #: the reference row in place (tspend.effects: sensor noise, delay, outer loop)
+        self.hook = hook
         self._done = 0
         self.end: RunEnd | None = None
 
@@ -146,7 +152,7 @@ class ClosedLoop:
         snap_every = s.snapshot_every if snap_sinks else 0
         bounded = s.state_bound > 0.0 or s.control_bound > 0.0
         isfinite = math.isfinite
-        stop = self.stop
+        stop, hook = self.stop, self.hook
         for start in range(0, s.steps, s.block_size):
             k = min(s.block_size, s.steps - start)
             t = (start + np.arange(k)) * dt
@@ -158,7 +164,7 @@ class ClosedLoop:
                     if stop.signal_name is not None:
                         raise RunInterrupted(stop.signal_name, stop.exit_status)
                     x = plant.state()
-                    u = ctrl.step(x, ref[i], dt)
+                    u = ctrl.step(x if hook is None else hook(t[i], x, ref[i]), ref[i], dt)
                     X[i] = x
                     U[i] = u
                     D[i] = diag
@@ -172,6 +178,9 @@ class ClosedLoop:
                         plant.step(u, dist[i], dt)
                     except (ArithmeticError, ValueError, DivergenceError) as exc:
                         # math.exp overflow, sin(inf), MuJoCo's own instability check
+                        if getattr(exc, "status", None):  # e.g. the end of a finite rail
+                            return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
+                                                  str(exc), exc.status)
                         return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
                                               f"diverged at t = {t[i]:.4f} s: the plant failed "
                                               f"({exc})")
@@ -195,11 +204,11 @@ class ClosedLoop:
 
     def _diverged(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
                   ref: np.ndarray, dist: np.ndarray, kept: int,
-                  message: str) -> tuple[int, str, str]:
+                  message: str, status: str = "diverged") -> tuple[int, str, str]:
         """Deliver the block's first ``kept`` samples and end the run as diverged."""
         self._emit(sinks, start, buf, t, ref, dist, kept)
         self._done = start + kept
-        return self._done, "diverged", message
+        return self._done, status, message
 
     @staticmethod
     def _first_non_finite(D: np.ndarray) -> int | None:

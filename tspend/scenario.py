@@ -20,35 +20,34 @@ import numpy as np
 from . import signals
 from .bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST, MAX_NAME,
                      MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
-from .config import ControllerConfig, PlantConfig, RunConfig, Scenario, SetSpec
+from .config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
+                     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from .control_law import is_hurwitz
 from .controllers.settings import parse_kind_tables
 from .errors import ScenarioError
+from .plants.registry import PLANT_KINDS
 
 #: plant kinds and their order n
-PLANT_ORDERS = {"nonaffine": 2, "duffing": 2, "cartpole_ode": 2, "cartpole_mujoco": 2,
-                "third_order": 3}
-CARTPOLE_KEYS = ("M", "m", "l", "g")
-MUJOCO_KEYS = ("model", "slide_joint", "hinge_joint", "actuator", "integrator")
-MUJOCO_INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
+PLANT_ORDERS = {kind: k.order for kind, k in PLANT_KINDS.items()}
 
 REFERENCE_KINDS: dict[str, type] = {
     "sine": signals.Sine, "sum_of_sines": signals.SumOfSines,
     "exp_approach": signals.ExpApproach, "constant": signals.Constant,
+    "steps": signals.StepSequence, "csv": signals.CsvReference,
 }
 DISTURBANCE_KINDS: dict[str, type] = {
     "square": signals.SquareWave, "zero": signals.NoDisturbance, "sine": signals.SineDisturbance,
 }
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
-            "controllers")
+            "controllers", "effects")
 SET_KEYS = ("terms", "lo", "hi")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
                    "control_points", "init_consequents", "init_compensator", "b_min",
                    "norm_radius", "boundary_layer", "leakage", "operating_point", "x_o", "u_o",
-                   "u_o_fraction", "sets")
+                   "u_o_fraction", "gain_sign", "sets")
 SETS_KEYS = ("states", "u", "e_delta", "x_norm")
 
 
@@ -214,29 +213,57 @@ def _run(r: _Reader) -> RunConfig:
 
 
 def _plant(r: _Reader) -> PlantConfig:
-    kind = r.string("kind", None, tuple(PLANT_ORDERS))
+    """``[plant]`` onto the kind's own configuration class (tspend.plants.registry)."""
+    kind = r.string("kind", None, tuple(PLANT_KINDS))
+    cls = PLANT_KINDS[kind].config
+    values = _fields(r, cls, f"for plant kind '{kind}'", skip=("kind", "x0"))
     n = PLANT_ORDERS[kind]
-    allowed = ("kind", "x0", "state_bound")
-    if kind.startswith("cartpole"):
-        allowed += CARTPOLE_KEYS
-    if kind == "cartpole_mujoco":
-        allowed += MUJOCO_KEYS
-    r.check_keys(allowed, f"for plant kind '{kind}'")
-    d = PlantConfig()
-    return PlantConfig(
-        kind=kind,
-        x0=r.numbers("x0", n, (0.0,) * n),
-        M=r.number("M", d.M, low=0.0, strict=True),
-        m=r.number("m", d.m, low=0.0, strict=True),
-        l=r.number("l", d.l, low=0.0, strict=True),
-        g=r.number("g", d.g, low=0.0),
-        model=r.string("model", d.model),
-        slide_joint=r.string("slide_joint", d.slide_joint),
-        hinge_joint=r.string("hinge_joint", d.hinge_joint),
-        actuator=r.string("actuator", d.actuator),
-        integrator=r.string("integrator", "", MUJOCO_INTEGRATORS) if r.has("integrator") else "",
-        state_bound=r.number("state_bound", d.state_bound, low=0.0),
-    )
+    return cls(kind=kind, x0=r.numbers("x0", n, (0.0,) * n), **values)
+
+
+def _fields(r: _Reader, cls: type, context: str, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Every field of dataclass ``cls`` present in the table, read by its type and checked
+    by its metadata (``low``, ``strict``, ``choices``); unknown keys are errors."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    r.check_keys(tuple(fields), context)
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name in skip or not r.has(name):
+            continue
+        meta, default = f.metadata, f.default
+        if isinstance(default, bool):
+            v = r.table[name]
+            if not isinstance(v, bool):
+                raise r.error(name, f"must be true or false, got {v!r}")
+            values[name] = v
+        elif isinstance(default, int) and not isinstance(default, bool) and f.type in ("int", int):
+            values[name] = r.integer(name, None, low=int(meta.get("low", 0)))
+        elif isinstance(default, float):
+            values[name] = r.number(name, None, low=meta.get("low"), strict=meta.get("strict", False))
+        elif isinstance(default, str):
+            values[name] = r.string(name, None, meta.get("choices"))
+        elif isinstance(default, tuple):
+            values[name] = r.numbers(name)
+            if any(v < 0 for v in values[name]) and "low" in meta:
+                raise r.error(name, f"entries must be >= {meta['low']:g}")
+    return values
+
+
+def _effects(r: _Reader, n: int) -> EffectsConfig:
+    values = _fields(r, EffectsConfig, "in [effects]", skip=("change", "outer_loop"))
+    if any(v < 0 for v in values.get("noise_std", ())):
+        raise r.error("noise_std", "standard deviations must be >= 0")
+    if "noise_std" in values and len(values["noise_std"]) != n:
+        raise r.error("noise_std", f"must have {n} entries (one per state), got "
+                                   f"{len(values['noise_std'])}")
+    if r.has("change"):
+        c = r.table_of("change")
+        values["change"] = ParameterChange(**_fields(c, ParameterChange, "in [effects.change]"))
+    if r.has("outer_loop"):
+        o = r.table_of("outer_loop")
+        values["outer_loop"] = OuterLoopConfig(**_fields(o, OuterLoopConfig,
+                                                         "in [effects.outer_loop]"))
+    return EffectsConfig(**values)
 
 
 def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
@@ -251,11 +278,19 @@ def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
             if f.default is dataclasses.MISSING:
                 raise r.error(name, f"missing (required for kind '{kind}')")
             continue
-        values[name] = r.numbers(name) if name.endswith("s") else r.number(name)
+        if isinstance(f.default, str) or f.type in ("str", str):
+            values[name] = r.string(name)
+        else:
+            values[name] = r.numbers(name) if name.endswith("s") else r.number(name)
     if kind == "sum_of_sines":
         lengths = {len(values[k]) for k in ("amplitudes", "omegas", "phases")}
         if len(lengths) != 1:
             raise r.error("amplitudes", "amplitudes, omegas and phases must have the same length")
+    if kind in ("steps", "csv"):
+        check = getattr(cls, "validate", None)
+        problem = check(values, r.path) if check else None
+        if problem:
+            raise r.error(problem[0], problem[1])
     if kind == "square" and values.get("period", 1.0) <= 0.0:
         raise r.error("period", f"must be > 0, got {values['period']:g}")
     return cls(**values)
@@ -322,6 +357,7 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
         x_o=r.numbers("x_o", n, (0.0,) * n),
         u_o=r.number("u_o", d.u_o),
         u_o_fraction=r.number("u_o_fraction", d.u_o_fraction),
+        gain_sign=r.string("gain_sign", d.gain_sign, ("plant", "positive", "negative")),
     )
 
 
@@ -386,6 +422,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
     ctrl = _controller(top.table_of("controller", required=True), n)
     kind_settings = parse_kind_tables(top.table_of("controllers"), n)
+    effects = _effects(top.table_of("effects"), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
     if run.duration / run.dt > MAX_STEPS:
@@ -398,6 +435,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
+        effects=effects,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
 
 
@@ -504,7 +542,7 @@ def override(scenario: Scenario, **changes: Any) -> Scenario:
 
 def resolve_model_path(scenario: Scenario) -> Path:
     """The MJCF of a MuJoCo scenario: as given, else next to the scenario, else the project's."""
-    p = Path(scenario.plant.model)
+    p = Path(getattr(scenario.plant, "model", MujocoCartPoleConfig.model))
     if p.is_absolute():
         return p
     bases = [Path.cwd()]

@@ -8,7 +8,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -18,43 +19,40 @@ from .config import Scenario
 from .controllers import build as build_controller_kind
 from .controllers.base import Controller
 from .metrics import MetricsAccumulator
-from .plants.analytic import (CartPoleParams, cartpole_ode_plant, duffing_plant,
-                              nonaffine_plant, third_order_plant)
+from .effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
+from .plants import registry as plant_registry
 from .plants.base import Plant
+from .plants.mjcf_warning import ModelWarning
 from .runner import ClosedLoop, LoopSettings, StopRequest
-from .scenario import resolve_model_path
 from .sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 
 
-def cartpole_params(scenario: Scenario) -> CartPoleParams:
-    p = scenario.plant
-    return CartPoleParams(M=p.M, m=p.m, l=p.l, g=p.g)
-
-
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
-    """The scenario's plant (or the same machine on backend ``kind``), reset to x0."""
-    kind = kind or scenario.plant.kind
-    if kind == "nonaffine":
-        plant = nonaffine_plant()
-    elif kind == "duffing":
-        plant = duffing_plant()
-    elif kind == "third_order":
-        plant = third_order_plant()
-    elif kind == "cartpole_ode":
-        plant = cartpole_ode_plant(cartpole_params(scenario))
-    elif kind == "cartpole_mujoco":
-        from .plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
+    """The scenario's plant (or the same machine on backend ``kind``), reset to x0, with
+    the scenario's real-world effects on the actuator, rail and parameters.
 
-        pc = scenario.plant
-        plant = MujocoCartPole(resolve_model_path(scenario), slide_joint=pc.slide_joint,
-                               hinge_joint=pc.hinge_joint, actuator=pc.actuator,
-                               overrides=cartpole_params(scenario),
-                               integrator=pc.integrator or None)
-        plant.check_sample_time(scenario.run.dt)
-    else:  # the scenario loader only lets known kinds through
-        raise ValueError(f"unknown plant kind {kind!r}")
+    A MuJoCo model's departures from the paper's ODE are warned about here, once, as
+    :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
+    """
+    plant = plant_registry.build(scenario, kind)
+    check = getattr(plant, "check_sample_time", None)
+    if check is not None:
+        check(scenario.run.dt)
+        for line in plant.departures(scenario.run.dt):  # type: ignore[attr-defined]
+            warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
+    if needs_plant_wrapper(scenario.effects):
+        plant = EffectsPlant(plant, scenario.effects)
     plant.reset(np.asarray(scenario.plant.x0, dtype=float))
     return plant
+
+
+def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
+    """Resolve ``controller.gain_sign = "plant"`` to the sign the plant measures."""
+    if scenario.controller.gain_sign != "plant":
+        return scenario
+    sign = getattr(plant, "gain_sign", 1)
+    return replace(scenario, controller=replace(
+        scenario.controller, gain_sign="negative" if sign < 0 else "positive"))
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
@@ -83,19 +81,13 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
     kind = kind or scenario.plant.kind
     fuzzy_inputs = getattr(controller, "fuzzy_inputs", None)
     fuzzy = fuzzy_inputs() if fuzzy_inputs else {}
-    meta: dict = {}
-    if kind.startswith("cartpole"):
-        p = getattr(plant, "params", None) or cartpole_params(scenario)
-        meta = {"M": p.M, "m": p.m, "l": p.l, "g": p.g}
-        if kind == "cartpole_mujoco":
-            meta["mjcf"] = str(resolve_model_path(scenario))
     return RunInfo(
         scenario_name=scenario.name, scenario_text=scenario_text(scenario),
         scenario_path=scenario.path,
         seed=scenario.run.seed, version=__version__, plant_kind=kind,
         order=plant.order, dt=scenario.run.dt, duration=steps * scenario.run.dt, steps=steps,
         model_inputs=fuzzy.get("model", ()), compensator_inputs=fuzzy.get("compensator", ()),
-        extras=tuple(plant.extras().keys()), plant_meta=meta,
+        extras=tuple(plant.extras().keys()), drawing=plant_registry.drawing(plant, scenario),
         controller_kind=getattr(controller, "kind", ""),
         diagnostics=tuple(getattr(controller, "diagnostics", ())))
 
@@ -145,6 +137,7 @@ class RunResult:
 class Prepared:
     """A plant and a controller built (and so checked) before anything is run or written."""
 
+    scenario: Scenario   # with what the plant decides resolved (controller.gain_sign)
     plant: Plant
     controller: Controller
 
@@ -153,8 +146,9 @@ def prepare(scenario: Scenario, plant_kind: str | None = None, backend: str = "a
             controller: str | None = None) -> Prepared:
     """Build the plant (model file, joint names, timestep) and the controller without
     running: every error a scenario can still raise surfaces here, as a ScenarioError."""
-    return Prepared(build_plant(scenario, plant_kind),
-                    build_controller(scenario, backend=backend, kind=controller))
+    plant = build_plant(scenario, plant_kind)
+    scenario = with_gain_sign(scenario, plant)
+    return Prepared(scenario, plant, build_controller(scenario, backend=backend, kind=controller))
 
 
 def steps_of(scenario: Scenario) -> int:
@@ -174,14 +168,17 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     :func:`prepare`, built before the caller opened its outputs.
     """
     parts = prepared or prepare(scenario, plant_kind, backend, controller)
-    plant, ctrl = parts.plant, parts.controller
+    scenario, plant, ctrl = parts.scenario, parts.plant, parts.controller
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
     settings = LoopSettings(dt=dt, steps=steps, block_size=block_size, snapshot_every=snap_every,
                             state_bound=scenario.plant.state_bound,
                             control_bound=scenario.run.control_bound)
-    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop)
+    hook = Measurement(scenario.effects, plant, dt, scenario.run.seed) \
+        if needs_hook(scenario.effects) else None
+    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
+                      hook=hook)
     metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)

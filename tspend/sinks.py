@@ -34,6 +34,7 @@ from typing import Protocol
 import numpy as np
 
 from .controllers.base import Diagnostic
+from .plants.base import CartPoleDrawing
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,8 @@ class RunInfo:
     #: which controller runs, and the diagnostics it declared
     controller_kind: str = ""
     diagnostics: tuple[Diagnostic, ...] = ()
-    #: plant-specific drawing data (e.g. the MJCF path and cart-pole parameters)
-    plant_meta: dict = field(default_factory=dict)
+    #: what to draw of the plant in 3D (a cart-pole's parameters and MJCF), or None
+    drawing: CartPoleDrawing | None = None
 
 
 @dataclass(frozen=True)

@@ -32,10 +32,12 @@ class TSModel:
     """Grid T-S model with consequents ``P`` (h, n+1) over the inputs ``[x_o; u_o]``."""
 
     def __init__(self, inputs: tuple[BSplineInput, ...], b_min: float,
-                 norm_radius: float = 0.0) -> None:
+                 norm_radius: float = 0.0, b_sign: float = 1.0) -> None:
         self.rules = RuleBase(inputs)
         self.order = len(inputs) - 1
         self.b_min = float(b_min)
+        #: Assumption 5's known sign of df/du: gains are kept at b_sign * p >= b_min
+        self.b_sign = 1.0 if b_sign >= 0.0 else -1.0
         self.norm_radius = float(norm_radius)
         self.P = np.zeros((self.rules.size, self.order + 1))
 
@@ -48,7 +50,9 @@ class TSModel:
         """
         h, n = self.rules.size, self.order
         self.P[:, :n] = rng.uniform(lo, hi, size=(h, n))
-        self.P[:, n] = rng.uniform(max(lo, self.b_min), max(hi, self.b_min), size=h)
+        sg = self.b_sign
+        lo_s, hi_s = sorted((sg * lo, sg * hi))
+        self.P[:, n] = sg * rng.uniform(max(lo_s, self.b_min), max(hi_s, self.b_min), size=h)
         self.project()
 
     def evaluate(self, z: np.ndarray) -> tuple[Firing, np.ndarray]:
@@ -77,4 +81,5 @@ class TSModel:
         if self.norm_radius > 0.0:
             norms = np.linalg.norm(self.P, axis=0)
             self.P *= np.minimum(1.0, self.norm_radius / np.maximum(norms, 1e-300))
-        np.maximum(self.P[:, self.order], self.b_min, out=self.P[:, self.order])
+        b = self.P[:, self.order]
+        b[...] = self.b_sign * np.maximum(self.b_sign * b, self.b_min)

@@ -21,7 +21,7 @@ Derived quantities, each computed numerically from ``f`` and documented as such:
   ``12 cos t`` is additive, so it changes no derivative; it is outside the linear
   model and a linear design sees it as a disturbance.
 
-The MuJoCo cart-pole is described by the cart-pole ODE of the scenario's ``M, m, l, g``
+The MuJoCo cart-pole is described by the cart-pole ODE of the compiled model
 (:func:`cartpole_params_of`, the one place that lookup lives), which the project's
 cross-check shows MuJoCo integrates to 1e-14 rad (README, "MuJoCo against the ODE").
 """
@@ -88,14 +88,21 @@ class PlantModel:
 
 
 def cartpole_params_of(scenario: "Scenario") -> CartPoleParams:
-    """The cart-pole a model-based controller assumes: the scenario's ``M, m, l, g``.
+    """The cart-pole a model-based controller assumes: the machine the plant is.
 
-    For ``cartpole_mujoco`` this is the machine the scenario asks MuJoCo to build (the
-    plant applies the same four numbers to the MJCF with ``MjSpec``).  Reading them back
-    from the compiled model instead would change only this function.
+    For ``cartpole_ode`` that is the scenario's parameters; for ``cartpole_mujoco`` it is
+    read back from the compiled model (masses, COM distance, pole inertia, damping,
+    gear and the hinge axis' sign), so a baseline on a third-party MJCF assumes the
+    machine MuJoCo actually simulates.  The plant's friction terms are left out: a
+    nominal model knows the rigid body, not what a rig adds to it.
     """
-    p = scenario.plant
-    return CartPoleParams(M=p.M, m=p.m, l=p.l, g=p.g)
+    from dataclasses import replace
+
+    from ..plants import registry
+
+    params = registry.build(scenario).params  # type: ignore[attr-defined]
+    return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,
+                   hinge_friction=0.0)
 
 
 def plant_model(scenario: "Scenario") -> PlantModel:

@@ -9,10 +9,12 @@ plant itself (Duffing's forcing) are evaluated at each RK4 stage.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
+from . import cartpole
+from .cartpole import CartPoleParams
 
 Accel = Callable[[float, np.ndarray, float, float], float]
 
@@ -41,30 +43,12 @@ def third_order_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
             + (1.5 + math.cos(x1)) * (u + 0.2 * math.tanh(u)) + d)
 
 
-@dataclass(frozen=True)
-class CartPoleParams:
-    """Cart-pole of Example 3: cart mass M, pole mass m, pole half-length l, gravity g."""
-
-    M: float = 10.0
-    m: float = 1.0
-    l: float = 3.0
-    g: float = 9.8
-
-
 def cartpole_accel_fn(p: CartPoleParams) -> Accel:
-    """Example 3's pole dynamics with parameters ``p``.
-
-    ``theta'' = (m l w^2 sin cos - (M+m) g sin - u cos + d_d) / (m l cos^2 - 4/3 l (M+m))``:
-    the uniform-rod cart-pole (pole inertia 4/3 m l^2 about the pivot).
-    """
-    M, m, l, g = p.M, p.m, p.l, p.g
-    ml, Mm = m * l, M + m
-    four_thirds_l_Mm = 4.0 / 3.0 * l * Mm
+    """theta'' of the cart-pole (C1)-(C2) (:mod:`tspend.plants.cartpole`) as ``f(t, x, u, d)``,
+    with the cart at rest (its velocity enters only through cart damping)."""
 
     def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
-        th, w = x[0], x[1]
-        s, c = math.sin(th), math.cos(th)
-        return (ml * w * w * s * c - Mm * g * s - u * c + d) / (ml * c * c - four_thirds_l_Mm)
+        return cartpole.accelerations(p, x[0], x[1], 0.0, u, d)[0]
 
     return accel
 
@@ -123,20 +107,25 @@ class AnalyticPlant:
         return {name: float(v) for name, v in zip(self.hidden_names, self.s[self.order:])}
 
 
-def cartpole_cart_rhs_fn(p: CartPoleParams):
-    """Cart of the cart-pole: ``xc'' = (u + m l (cos th th'' - sin th th'^2)) / (M + m)``.
+class CartPoleODE(AnalyticPlant):
+    """The cart-pole ODE (C1)-(C2) of :mod:`tspend.plants.cartpole`, with the cart as
+    hidden states, so the ODE backend can draw the cart and meet a finite rail too."""
 
-    From the same Lagrangian as :func:`cartpole_accel_fn` (x to the right, u pushes
-    right, theta > 0 leans the pole to -x), so the ODE backend can draw the cart too.
-    """
-    ml, Mm = p.m * p.l, p.M + p.m
+    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
+        super().__init__(lambda t, s, u, d: cartpole.accelerations(params, s[0], s[1], s[3], u, d)[0],
+                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"))
+        self.params = params
 
-    def hidden(t: float, s: np.ndarray, u: float, d: float, a: float) -> np.ndarray:
-        th, w, vc = s[0], s[1], s[3]
-        acc = (u + ml * (math.cos(th) * a - math.sin(th) * w * w)) / Mm
-        return np.array([vc, acc])
+    @property
+    def gain_sign(self) -> int:
+        return int(cartpole.gain_sign(self.params))
 
-    return hidden
+    def set_params(self, params: CartPoleParams) -> None:
+        """Change the machine while it runs (a payload picked up); the state is kept."""
+        self.params = params
+
+    def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
+        return cartpole.rhs(self.params, s, u, d)
 
 
 def nonaffine_plant() -> AnalyticPlant:
@@ -151,7 +140,5 @@ def third_order_plant() -> AnalyticPlant:
     return AnalyticPlant(third_order_accel, 3, "third_order")
 
 
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> AnalyticPlant:
-    return AnalyticPlant(cartpole_accel_fn(params), 2, "cartpole_ode",
-                         hidden_rhs=cartpole_cart_rhs_fn(params),
-                         hidden_names=("cart_pos", "cart_vel"))
+def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
+    return CartPoleODE(params)

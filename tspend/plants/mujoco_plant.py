@@ -29,7 +29,8 @@ import mujoco
 import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.analytic import CartPoleParams
+from tspend.plants import mjcf
+from tspend.plants.cartpole import CartPoleParams
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
 INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
@@ -50,11 +51,6 @@ _MJ_MAXVAL: Final[float] = 1e10
 
 # the geom rgba MuJoCo treats as "not set": a material's rgba then takes over
 _DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
-
-# Axial inertia of the rod relative to its transverse one.  It never enters the planar
-# dynamics (the hinge is the only rotational DOF) but must be positive; 3e4 reproduces
-# the 1e-4 kg m^2 of models/cartpole.xml at the default 3 kg m^2.
-_AXIAL_INERTIA_RATIO: Final[float] = 1.0 / 3e4
 
 BodyPose = tuple[np.ndarray, np.ndarray]
 
@@ -100,7 +96,10 @@ class MujocoCartPole:
     def __init__(self, model_path: str | Path, slide_joint: str = "slider",
                  hinge_joint: str = "hinge", actuator: str = "force",
                  overrides: CartPoleParams | None = None,
-                 integrator: str | None = None, timestep: float | None = None) -> None:
+                 integrator: str | None = None, timestep: float | None = None,
+                 cart_damping: float | None = None, hinge_damping: float | None = None,
+                 cart_friction: float | None = None, hinge_friction: float | None = None
+                 ) -> None:
         self.model_path = Path(model_path)
         where = str(model_path)
         if not self.model_path.is_file():
@@ -129,8 +128,19 @@ class MujocoCartPole:
             if not (timestep > 0.0 and math.isfinite(timestep)):
                 raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
             spec.option.timestep = float(timestep)
+        for joint, damping, friction in ((slide, cart_damping, cart_friction),
+                                         (hinge, hinge_damping, hinge_friction)):
+            if damping is not None:  # MuJoCo 4 keeps [linear, 0, 0] damping coefficients
+                joint.damping = [damping, 0.0, 0.0]
+            if friction is not None:
+                joint.frictionloss = friction
         if overrides is not None:
-            self._apply_overrides(spec, slide.parent, hinge, overrides, where)
+            pivot = np.asarray(hinge.pos, dtype=float)
+            axis = mjcf._pole_direction(hinge.parent, pivot)
+            old_l = float(np.linalg.norm(np.asarray(hinge.parent.ipos, dtype=float) - pivot))
+            mjcf.apply_overrides(spec, slide.parent, hinge, overrides, where)
+            if old_l > 0.0 and overrides.l != old_l:
+                self._stretch_pole_geoms(hinge.parent, pivot, axis, overrides.l / old_l)
 
         try:
             self.model: mujoco.MjModel = spec.compile()
@@ -155,9 +165,13 @@ class MujocoCartPole:
         self._act = m.actuator(actuator).id
         self._ts = float(m.opt.timestep)
 
-        p = self.params
+        self.facts = mjcf.read_facts(m, slide_joint, hinge_joint, actuator, where)
+        if overrides is not None:
+            mjcf.verify_overrides(self.facts, overrides, m.body(self._cart_body).name,
+                                  m.body(self._pole_body).name, where)
+        self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
-        self._d_to_tau = -p.m * p.l / (p.M + p.m)
+        self._d_to_tau = self._params.disturbance_torque
 
         # dt -> substep count, so the common case (same dt every call) skips the check
         self._last_dt = math.nan
@@ -179,37 +193,6 @@ class MujocoCartPole:
             raise ScenarioError(f"{where}: joint {name!r} is a {actual} joint, "
                                 f"expected a {kind} joint")
         return joint
-
-    @staticmethod
-    def _apply_overrides(spec: mujoco.MjSpec, cart: Any, hinge: Any, p: CartPoleParams,
-                         where: str) -> None:
-        """Write M, m, l, g into the spec; the pole stays a uniform rod of length 2l."""
-        for field in ("M", "m", "l", "g"):
-            v = getattr(p, field)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ScenarioError(f"{where}: cart-pole parameter {field} must be positive, got {v}")
-        pole = hinge.parent
-        pivot = np.asarray(hinge.pos, dtype=float)
-        old_arm = np.asarray(pole.ipos, dtype=float) - pivot
-        old_l = float(np.linalg.norm(old_arm))
-        # the pole's direction in its body frame: where the COM is now, else body z
-        axis = _unit(old_arm)
-        scale = p.l / old_l if old_l > 0.0 else 1.0
-
-        cart.mass = p.M
-        pole.mass = p.m
-        pole.ipos = pivot + p.l * axis
-        i_perp = p.m * (2.0 * p.l) ** 2 / 12.0
-        # diaginertia in a frame whose z is the pole: clear any fullinertia so it wins
-        pole.fullinertia = [math.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
-        pole.inertia = [i_perp, i_perp, i_perp * _AXIAL_INERTIA_RATIO]
-        iquat = np.zeros(4)
-        mujoco.mju_quatZ2Vec(iquat, axis)
-        pole.iquat = iquat
-        spec.option.gravity = [0.0, 0.0, -p.g]
-
-        if scale != 1.0:
-            MujocoCartPole._stretch_pole_geoms(pole, pivot, axis, scale)
 
     @staticmethod
     def _stretch_pole_geoms(pole: Any, pivot: np.ndarray, axis: np.ndarray, scale: float) -> None:
@@ -258,19 +241,47 @@ class MujocoCartPole:
 
     @property
     def params(self) -> CartPoleParams:
-        """M, m, l, g as the compiled model has them (what the ODE backend should use).
+        """The ODE of the compiled model (:meth:`ModelFacts.params`): masses, COM distance,
+        inertia about the pivot, joint damping and friction, gear and angle sign."""
+        return self._params
 
-        M is everything the slider carries except the pole; l is the distance from the
-        hinge to the pole's COM; g is the downward component of gravity.  These match
-        the ODE only if the pole's inertia about the hinge is the rod's 4/3 m l^2, which
-        ``models/cartpole.xml`` and ``overrides`` guarantee.
+    @property
+    def gain_sign(self) -> int:
+        """Sign of d(theta'')/du at the upright, measured on the compiled model."""
+        return self.facts.gain_sign
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        """How this model departs from the paper's ODE (with ``dt``: and the sample time)."""
+        return mjcf.departures(self.facts, dt)
+
+    def set_params(self, p: CartPoleParams) -> None:
+        """Change M, m, l (J) of the running machine, as a payload picked up would.
+
+        Writes the compiled model's inertials in place, exactly as an override would
+        have compiled them; the state is kept.
         """
         m = self.model
-        pole_mass = float(m.body_mass[self._pole_body])
-        carried = float(m.body_subtreemass[self._cart_body])
-        arm = m.body_ipos[self._pole_body] - m.jnt_pos[self._hinge_id]
-        return CartPoleParams(M=carried - pole_mass, m=pole_mass,
-                              l=float(np.linalg.norm(arm)), g=float(-m.opt.gravity[2]))
+        pole, cart = self._pole_body, self._cart_body
+        pivot = m.jnt_pos[self._hinge_id]
+        arm = m.body_ipos[pole] - pivot
+        axis = arm / np.linalg.norm(arm)
+        i_perp = p.pole_inertia_pivot - p.m * p.l ** 2
+        if i_perp <= 0.0 or p.M <= 0.0 or p.m <= 0.0 or p.l <= 0.0:
+            raise ScenarioError(f"{self.model_path}: cannot change to M={p.M:g}, m={p.m:g}, "
+                                f"l={p.l:g}, J={p.pole_inertia_pivot:g}")
+        m.body_mass[pole] = p.m
+        m.body_ipos[pole] = pivot + p.l * axis
+        quat = m.body_iquat[pole].copy()
+        mujoco.mju_quatZ2Vec(quat, axis)
+        m.body_iquat[pole] = quat
+        m.body_inertia[pole] = (i_perp, i_perp, i_perp * mjcf.AXIAL_INERTIA_RATIO)
+        carried = float(m.body_subtreemass[cart]) - float(m.body_mass[cart]) - self._params.m
+        m.body_mass[cart] = p.M - carried
+        m.body_subtreemass[cart] = p.M + p.m
+        m.body_subtreemass[pole] = p.m
+        from dataclasses import replace
+        self._params = replace(self._params, M=p.M, m=p.m, l=p.l, J=p.J)
+        self._d_to_tau = self._params.disturbance_torque
 
     @property
     def timestep(self) -> float:
@@ -326,7 +337,8 @@ class MujocoCartPole:
         k = round(dt / self._ts)
         if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
             raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
-                                f"multiple of the model timestep {self._ts!r}")
+                                f"multiple of the model timestep {self._ts!r}: set plant.timestep "
+                                f"(e.g. plant.timestep = {dt:g}) or run.dt to a multiple of it")
         return int(k)
 
     def extras(self) -> dict[str, float]:
@@ -392,3 +404,31 @@ class MujocoCartPole:
         mujoco.mj_kinematics(model, d)
         return {model.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy())
                 for i in range(model.nbody)}
+
+
+def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
+                actuator: str | None) -> tuple[str, str, str]:
+    """Joint and actuator names: the given ones, else the model's only slide joint, only
+    hinge joint and only actuator on that slide (ScenarioError when ambiguous)."""
+    where = str(model_path)
+    if not Path(model_path).is_file():
+        raise ScenarioError(f"{where}: model file not found")
+    try:
+        spec = mujoco.MjSpec.from_file(str(model_path))
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: cannot parse MJCF: {exc}") from exc
+
+    def only(found: list[str], what: str, flag: str) -> str:
+        if len(found) != 1:
+            raise ScenarioError(f"{where}: {len(found)} {what} ({', '.join(found) or 'none'}); "
+                                f"name one with {flag}")
+        return found[0]
+
+    joints = list(spec.joints)
+    slide = slide or only([j.name for j in joints if j.type == mujoco.mjtJoint.mjJNT_SLIDE],
+                          "slide joints", "--slide")
+    hinge = hinge or only([j.name for j in joints if j.type == mujoco.mjtJoint.mjJNT_HINGE],
+                          "hinge joints", "--hinge")
+    actuator = actuator or only([a.name for a in spec.actuators if a.target == slide],
+                                f"actuators on '{slide}'", "--actuator")
+    return slide, hinge, actuator

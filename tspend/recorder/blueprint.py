@@ -44,7 +44,7 @@ def _cartpole_view(info: RunInfo, prefix: str, suffix: str) -> rrb.Spatial3DView
     The cart travels tens of metres in a long run while the pole is 2 l long: a camera
     fitted to the scene bounds would lose the pole, so it tracks the cart instead.
     """
-    l = float(info.plant_meta.get("l", 3.0))
+    l = info.drawing.l if info.drawing is not None else 3.0
     return rrb.Spatial3DView(
         origin=_abs(prefix, "world"), name=f"cart-pole{suffix}",
         eye_controls=rrb.EyeControls3D(

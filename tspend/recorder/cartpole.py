@@ -7,6 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..plants.base import CartPoleDrawing
 from ..sinks import RunInfo
 from .common import Color
 
@@ -65,13 +66,13 @@ def is_cartpole(info: RunInfo) -> bool:
     return info.order == 2 and ("cartpole" in kind or "cart_pos" in info.extras)
 
 
-def cartpole_geometry(plant_meta: dict) -> CartPoleGeometry:
+def cartpole_geometry(drawing: CartPoleDrawing | None) -> CartPoleGeometry:
     """Geometry from the plant metadata; box/capsule sizes from the MJCF when given.
 
     Reading the MJCF is best effort: any failure keeps the default drawing.
     """
-    geom = CartPoleGeometry(l=float(plant_meta.get("l", DEFAULT_POLE_HALF_LENGTH)))
-    mjcf = plant_meta.get("mjcf")
+    geom = CartPoleGeometry(l=drawing.l if drawing is not None else DEFAULT_POLE_HALF_LENGTH)
+    mjcf = drawing.mjcf if drawing is not None else ""
     if mjcf:
         geom = _geometry_from_mjcf(str(mjcf), geom)
     return geom

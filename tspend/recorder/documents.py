@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 from typing import Sequence
 
@@ -45,7 +47,8 @@ def run_markdown(info: RunInfo) -> str:
         ("compensator inputs", ", ".join(i.name for i in info.compensator_inputs)),
         ("plant extras", ", ".join(info.extras)),
     ]
-    rows += [(f"plant: {k}", v) for k, v in info.plant_meta.items()]
+    if info.drawing is not None:
+        rows += [(f"plant: {k}", v) for k, v in dataclasses.asdict(info.drawing).items()]
     return f"# Run: {info.scenario_name}\n\n" + _md_table(rows)
 
 

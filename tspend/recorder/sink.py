@@ -155,6 +155,7 @@ class RerunSink:
         self._specs: list[SeriesSpec] = []
         self._frame_every = 1
         self._geometry: CartPoleGeometry | None = None
+        self._info_theta_sign = 1.0
         self._snaps = _SnapshotBuffer()
         self._sent_curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []   # (t, cart_pos, theta)
@@ -196,7 +197,8 @@ class RerunSink:
             statics.add(self._path(spec.entity), rr.SeriesLines(
                 names=[self._series_name(n) for n in spec.names], colors=[self._color(c) for c in spec.colors]))
         self._log_fuzzy_styles(statics, info)
-        self._geometry = cartpole_geometry(info.plant_meta) if is_cartpole(info) else None
+        self._geometry = cartpole_geometry(info.drawing) if is_cartpole(info) else None
+        self._info_theta_sign = info.drawing.theta_sign if info.drawing is not None else 1.0
         if self._geometry is not None:
             self._log_cartpole_geometry(statics, self._geometry)
         statics.send(self.rec)
@@ -286,7 +288,9 @@ class RerunSink:
         if self._frames:
             t, cart_pos, theta = (np.concatenate(parts) for parts in zip(*self._frames))
             self._frames, self._frame_rows = [], 0
-            self._send_poses(t, cart_pos, theta)
+            # a model whose positive angle leans the pole toward +x is drawn as it moves
+            sign = self._info_theta_sign
+            self._send_poses(t, cart_pos, theta if sign == 1.0 else sign * theta)
         self._flush_snapshots()
         self._last_flush = time.monotonic()
 
