@@ -356,6 +356,19 @@ def write_json(path: Path, obj: dict) -> None:
         raise OutputError(problem)
 
 
+def release_warnings(args: argparse.Namespace) -> None:
+    """Print the warnings held so far, one ``tspend: warning:`` line each.
+
+    Warnings are held while a command checks its input, so that bad input stays one line;
+    a command calls this once the input is accepted (before its banner).
+    """
+    held = getattr(args, "warnings", None)
+    if held:
+        for message in dict.fromkeys(str(w.message) for w in held):
+            say(f"warning: {message}")
+        held.clear()
+
+
 def say(message: str) -> None:
     """One line on stderr, ``tspend: ...``; a vanished terminal (SIGHUP) is not an error."""
     try:
@@ -419,9 +432,9 @@ def main(argv: list[str] | None = None) -> int:
         # warnings (numpy's overflow on the way to a bad value, say) would add lines to
         # the one-line error: kept, and printed after a command that succeeds
         with warnings.catch_warnings(record=True) as caught:
+            args.warnings = caught
             status = args.handler(args)
-        for message in dict.fromkeys(str(w.message) for w in caught):
-            say(f"warning: {message}")
+        release_warnings(args)
         return status
     except Interrupted as exc:
         guard.hold()

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed, format_value, add_scenario_options,
-                  check_model_size, check_viewer_url, finite, load_with_overrides, plan,
-                  printable, recording_request, say, scenario_inputs)
+from .cli import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed, add_scenario_options,
+                  check_model_size, check_viewer_url, finite, format_value, load_with_overrides,
+                  plan, printable, recording_request, release_warnings, say, scenario_inputs)
 from .cli_run import close_sinks, open_sinks
 from .errors import OutputError, ScenarioError
 from .outputs import OutputRequest, display, slug
@@ -63,6 +63,7 @@ def _crosscheck(args, scn, stop, outs: Claimed, crosscheck) -> int:
     recording, json_out = outs["--out"], outs["--json"]
     rec, sinks = open_sinks(args, f"{scn.name}-crosscheck",
                             recording.partial if recording else None, prefixes=("mujoco/", "ode/"))
+    release_warnings(args)
     try:
         report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
                             backend=args.backend, stop=stop)

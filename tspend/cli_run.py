@@ -9,8 +9,8 @@ import re
 from . import __version__
 from .cli import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_RAIL_END, Claimed,
                   add_scenario_options, check_model_size, check_viewer_url, load_with_overrides,
-                  metrics_document, plan, print_metrics, printable, recording_request, say,
-                  scenario_inputs, uses_mujoco)
+                  metrics_document, plan, print_metrics, printable, recording_request,
+                  release_warnings, say, scenario_inputs, uses_mujoco)
 from .errors import OutputError, ScenarioError
 from .outputs import OutputRequest, display, slug
 
@@ -84,6 +84,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
 
     recording, metrics_out = outs["--out"], outs["--metrics"]
     rec, sinks = open_sinks(args, scn.name, recording.partial if recording else None)
+    release_warnings(args)
     print(f"tspend {__version__}: {printable(scn.name)} ({scn.plant.kind}), "
           f"{scn.run.duration:g} s at dt = {scn.run.dt:g} s, seed {scn.run.seed}"
           + (f", recording to {printable(display(recording.target))}" if recording else ""),
