@@ -1,4 +1,4 @@
-"""Cost of one controller step (numpy and numba backends) against one bare ``mj_step``.
+"""Cost of one compiled controller step against one bare ``mj_step``.
 
 Run from the project root::
 
@@ -10,7 +10,7 @@ RK4), then the whole controller sample (T-S model + compensator + both adaptive 
 ``ControllerConfig()`` = Example 3 sizes) through ``controller.step(x, ref, dt)``, Python
 call included.  Each figure is the median over blocks of the mean cost of one call in
 the block.  Then the scaling table (sets per state input, plant order) and the start-up
-time of a fresh interpreter that imports the kernels, builds a controller and takes one
+time of a fresh interpreter that imports the controller, builds it and takes one
 step with a warm numba cache (run twice, the second reported).
 """
 
@@ -29,10 +29,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from tspend.config import ControllerConfig, SetSpec  # noqa: E402
-from tspend.kernels import HAVE_NUMBA, make_controller  # noqa: E402
+from tspend.controller import make_controller  # noqa: E402
 
 #: the target of the benchmark: a controller step costs at most this many mj_steps
-TARGET_RATIO = 2.0
+TARGET_RATIO = 0.6
 STARTUP_LIMIT_S = 1.0
 
 INLINE_CARTPOLE = """
@@ -61,10 +61,10 @@ STARTUP_CODE = """
 import time
 t0 = time.perf_counter()
 import numpy as np
-import tspend.kernels
+from tspend.controller import make_controller
 from tspend.config import ControllerConfig
-c = tspend.kernels.make_controller(ControllerConfig(), "numba")
-c.initialise(np.random.default_rng(0))
+c = make_controller(ControllerConfig())
+c.reset(np.random.default_rng(0))
 c.step(np.array([0.1, 0.0]), np.array([0.0, 0.0, 0.0]), 1e-3)
 print(time.perf_counter() - t0)
 """
@@ -119,36 +119,31 @@ def signals(cfg: ControllerConfig, samples: int = 2000, dt: float = 1e-3):
     return [(X[k].copy(), R[k].copy()) for k in range(samples)]
 
 
-def step_cost(cfg: ControllerConfig, backend: str, blocks: int, per_block: int,
-              seed: int = 1) -> float:
-    ctrl = make_controller(cfg, backend)
-    ctrl.initialise(np.random.default_rng(seed))
+def step_cost(cfg: ControllerConfig, blocks: int, per_block: int, seed: int = 1) -> float:
+    ctrl = make_controller(cfg)
+    ctrl.reset(np.random.default_rng(seed))
     items = signals(cfg)
     step = ctrl.step
     dt = 1e-3
     return median_cost(lambda it: step(it[0], it[1], dt), items, blocks, per_block,
-                       lambda: ctrl.initialise(np.random.default_rng(seed)))
+                       lambda: ctrl.reset(np.random.default_rng(seed)))
 
 
 def kernel_only_cost(cfg: ControllerConfig, steps: int = 100_000) -> float:
-    """The kernel looped inside compiled code: the cost without the Python call."""
+    """The step looped inside compiled code (``controller.compiled()``): no Python call."""
     from numba import njit
 
-    from tspend.kernels import controller_step
-
     @njit(cache=True)
-    def loop(count, x, ref, dt, P, Cm, q, Cc, diag, fc, knots, ic, tidx, ws):
+    def loop(count, step, settings, state, scratch, x, ref, dt, diag):
         u = 0.0
         for _ in range(count):
-            u = controller_step(x, ref, dt, 0.5 * u, P, Cm, q, Cc, diag, fc, knots, ic,
-                                tidx, ws)
+            u = step(settings, state, scratch, x, ref, dt, diag)
         return u
 
-    c = make_controller(cfg, "numba")
-    c.initialise(np.random.default_rng(1))
+    c = make_controller(cfg)
+    c.reset(np.random.default_rng(1))
     x, ref = signals(cfg)[100]
-    args = (x, ref, 1e-6, c.model.P, c.model.rules.C_all, c.compensator.q,
-            c.compensator.rules.C_all, c.diag, c._fc, c._knots, c._ic, c._tidx, c._ws)
+    args = (*c.compiled(), x, ref, 1e-6, c.diag)
     loop(10, *args)
     costs = []
     for _ in range(5):
@@ -187,55 +182,40 @@ def main() -> int:
     ap.add_argument("--blocks", type=int, default=31, help="timed blocks per figure")
     ap.add_argument("--per-block", type=int, default=2000, help="calls per block (numba)")
     ap.add_argument("--no-startup", action="store_true", help="skip the start-up figure")
-    ap.add_argument("--no-numpy-scaling", action="store_true",
-                    help="numba only in the scaling table")
     a = ap.parse_args()
     blocks, per = a.blocks, a.per_block
-    per_numpy = max(20, per // 100)
 
     print("controller step vs mujoco.mj_step (median over blocks, Python call included)")
     base, source = mj_step_cost(blocks, per)
     print(f"  baseline mj_step ({source}):      {us(base)}")
     cfg = ControllerConfig()
-    t_np = step_cost(cfg, "numpy", blocks, per_numpy)
-    print(f"  numpy controller step (Example 3):   {us(t_np)}   = {t_np / base:7.2f} x mj_step")
-    ok = True
-    if HAVE_NUMBA:
-        t_nb = step_cost(cfg, "numba", blocks, per)
-        ratio = t_nb / base
-        ok = ratio <= TARGET_RATIO
-        print(f"  numba controller step (Example 3):   {us(t_nb)}   = {ratio:7.2f} x mj_step"
-              f"   (target <= {TARGET_RATIO:g}: {'met' if ok else 'MISSED'})")
-        t_k = kernel_only_cost(cfg)
-        print(f"    of which the kernel itself:        {us(t_k)}   (Python call and "
-              f"dispatch: {(t_nb - t_k) * 1e6:.2f} us)")
-        print(f"  speed-up numba over numpy:           {t_np / t_nb:9.1f} x")
-    else:
-        print("  numba is not installed: no compiled figures")
-
+    t_nb = step_cost(cfg, blocks, per)
+    ratio = t_nb / base
+    ok = ratio <= TARGET_RATIO
+    print(f"  controller step (Example 3):         {us(t_nb)}   = {ratio:7.2f} x mj_step"
+          f"   (target <= {TARGET_RATIO:g}: {'met' if ok else 'MISSED'})")
+    t_k = kernel_only_cost(cfg)
+    print(f"    of which the step itself:          {us(t_k)}   (Python call: "
+          f"{(t_nb - t_k) * 1e6:.2f} us)")
     print()
     print("scaling (n = plant order, sets per state input; u_o 3 sets, compensator 5 x 5)")
-    backends = (["numba"] if HAVE_NUMBA else []) + ([] if a.no_numpy_scaling else ["numpy"])
     head = f"  {'n':>2} {'sets':>4} {'model':>6} {'comp':>5} {'rules':>6}"
-    for b in backends:
-        head += f" | {b + ' step':>13} {'per rule':>11} {'x mj_step':>9}"
+    head += f" | {'step':>13} {'per rule':>11} {'x mj_step':>9}"
     print(head)
     for n, sets in ((2, 3), (2, 5), (2, 7), (3, 3), (3, 5)):
         c = order_config(n, sets)
         h = sets ** n * c.u_sets.terms
         hc = c.e_delta_sets.terms * c.x_norm_sets.terms
         row = f"  {n:>2} {sets:>4} {h:>6} {hc:>5} {h + hc:>6}"
-        for b in backends:
-            t = step_cost(c, b, blocks if b == "numba" else max(5, blocks // 3),
-                          per if b == "numba" else per_numpy)
-            row += f" | {us(t):>13} {t / (h + hc) * 1e9:8.1f} ns {t / base:9.2f}"
+        t = step_cost(c, blocks, per)
+        row += f" | {us(t):>13} {t / (h + hc) * 1e9:8.1f} ns {t / base:9.2f}"
         print(row)
 
-    if HAVE_NUMBA and not a.no_startup:
+    if not a.no_startup:
         print()
         first, second, inner = startup_time()
         good = second < STARTUP_LIMIT_S
-        print("start-up: fresh interpreter, import tspend.kernels, build, one numba step")
+        print("start-up: fresh interpreter, import tspend.controller, build, one step")
         print(f"  first run {first:.3f} s, second run (warm cache) {second:.3f} s "
               f"(of which in-process {inner:.3f} s)   (limit {STARTUP_LIMIT_S:g} s: "
               f"{'met' if good else 'MISSED'})")

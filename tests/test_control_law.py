@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_lyapunov
 
-from tspend.control_law import companion, control, is_hurwitz, lyapunov_gamma
+from tspend.control_law import (companion, control, control_law_settings, is_hurwitz,
+                                lyapunov_gamma, lyapunov_tracking, tracking_error)
 
 
 @pytest.mark.parametrize("lam,Q", [
@@ -46,3 +47,18 @@ def test_control_law_gives_designed_error_dynamics():
     u = control(p, x - x_o, ref[2], lam, e, u_s, u_o)
     xdot_n = p[:2] @ (x - x_o) + p[2] * (u - u_o)
     assert xdot_n - ref[2] == pytest.approx(-lam @ e - u_s)
+
+
+def test_tracking_error_and_lyapunov_function_against_scipy_gamma():
+    """e_Delta = e^T Gamma b_e and V = 1/2 e^T Gamma e with Gamma from scipy's solver."""
+    lam, Q = np.array([1.0, 3.0, 3.0]), np.diag([10.0, 4.0, 1.0])
+    s = control_law_settings(lam, Q)
+    G = solve_continuous_lyapunov(companion(lam).T, -Q)
+    rng = np.random.default_rng(1)
+    e = np.empty(3)
+    for _ in range(10):
+        x, ref = rng.normal(size=3), rng.normal(size=4)
+        e_delta = tracking_error(s, x, ref, e)
+        np.testing.assert_allclose(e, x - ref[:3])
+        assert e_delta == pytest.approx(e @ G @ np.array([0.0, 0.0, 1.0]), rel=1e-10)
+        assert lyapunov_tracking(s, e) == pytest.approx(0.5 * e @ G @ e, rel=1e-10)

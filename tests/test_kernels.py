@@ -1,4 +1,4 @@
-"""The numba controller kernel against the numpy reference, step by step.
+"""The compiled controller against the numpy oracle (tests/oracles), step by step.
 
 Both controllers start from the same draw (``initialise`` with the same seed) and see the
 same random-but-smooth states and references (with a few samples far outside every
@@ -8,23 +8,16 @@ every one of 2000 steps.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from numba import njit
+from oracles.numpy_controller import NumpyController
 
-pytest.importorskip("numba")
-
-from tspend.config import ControllerConfig, SetSpec  # noqa: E402
-from tspend.controller import AdaptiveFuzzyController, diag_layout  # noqa: E402
-from tspend.kernels import CompiledController, make_controller  # noqa: E402
+from tspend.config import ControllerConfig, SetSpec
+from tspend.controller import AdaptiveFuzzyController, diag_layout
 
 RTOL, ATOL = 1e-10, 1e-12
 STEPS = 2000
-ROOT = Path(__file__).resolve().parents[1]
 
 _N3 = dict(
     lam=(1.0, 3.0, 3.0),
@@ -47,6 +40,10 @@ CONFIGS = {
     # Example 3 with fast laws and every robust option, so that projections act
     "example3_fast_robust": ControllerConfig(
         eta=0.5, eta_mu=2.0, gamma=1.6, boundary_layer=0.1, leakage=0.05, norm_radius=0.3,
+        init_consequents=(-0.1, 0.1), init_compensator=(-0.25, 0.25)),
+    # Narendra's e-modification in place of the sigma-modification
+    "with_e_modification": ControllerConfig(
+        eta=0.5, eta_mu=2.0, gamma=1.6, leakage=0.5, leakage_mode="e",
         init_consequents=(-0.1, 0.1), init_compensator=(-0.25, 0.25)),
 }
 
@@ -76,7 +73,7 @@ def _signals(cfg: ControllerConfig, seed: int, steps: int = STEPS, dt: float = 1
     return X, R
 
 
-def _compare(a: AdaptiveFuzzyController, b: AdaptiveFuzzyController, k: int) -> None:
+def _compare(a: NumpyController, b: AdaptiveFuzzyController, k: int) -> None:
     layout = diag_layout(a.n)
     for key, where in layout.items():
         np.testing.assert_allclose(b.diag[where], a.diag[where], rtol=RTOL, atol=ATOL,
@@ -90,11 +87,10 @@ def _compare(a: AdaptiveFuzzyController, b: AdaptiveFuzzyController, k: int) -> 
 
 
 def _pair(cfg: ControllerConfig, seed: int):
-    a = make_controller(cfg, "numpy")
-    b = make_controller(cfg, "numba")
-    assert type(a) is AdaptiveFuzzyController and isinstance(b, CompiledController)
+    a = NumpyController(cfg)
+    b = AdaptiveFuzzyController(cfg)
     a.initialise(np.random.default_rng(seed))
-    b.initialise(np.random.default_rng(seed))
+    b.reset(np.random.default_rng(seed))
     _compare(a, b, -1)
     return a, b
 
@@ -123,8 +119,15 @@ def test_kernel_matches_numpy_every_step(name: str) -> None:
         # Assumption 4 acted (the b_min projection after it may lift the last column)
         assert np.max(col_norms) >= cfg.norm_radius * (1.0 - 1e-9)
     if cfg.antecedent_rate > 0.0:
-        init = make_controller(cfg, "numpy")
+        init = NumpyController(cfg)
         assert not np.allclose(init.model.rules.C_all, a.model.rules.C_all)
+    if cfg.leakage > 0.0:
+        # the leakage term acted: q differs from the same run without it
+        c = NumpyController(ControllerConfig(**{**cfg.__dict__, "leakage": 0.0}))
+        c.initialise(np.random.default_rng(seed))
+        for k in range(STEPS):
+            c.step(X[k], R[k], dt)
+        assert not np.allclose(c.compensator.q, a.compensator.q, rtol=1e-6)
 
 
 def test_non_contiguous_inputs_and_snapshot() -> None:
@@ -136,66 +139,21 @@ def test_non_contiguous_inputs_and_snapshot() -> None:
         a.step(X[k], R[k], 1e-3)
         b.step(Xf[k], Rf[k], 1e-3)
         _compare(a, b, k)
-    sa, sb = a.snapshot(0.05, 50, X[-1]), b.snapshot(0.05, 50, X[-1])
-    np.testing.assert_allclose(sb.firing, sa.firing, rtol=RTOL, atol=ATOL)
-    np.testing.assert_allclose(sb.compensator_firing, sa.compensator_firing, rtol=RTOL,
-                               atol=ATOL)
-    # initialise resets the previous control used by the state-following operating point
-    b.initialise(np.random.default_rng(3))
+    fa, sb = a.last_firing(X[-1]), b.snapshot(0.05, 50, X[-1])
+    np.testing.assert_allclose(sb.firing, fa[0].w, rtol=RTOL, atol=ATOL)
+    np.testing.assert_allclose(sb.compensator_firing, fa[1].w, rtol=RTOL, atol=ATOL)
+    # reset forgets the previous control (state-following operating point) and the sets
+    b.reset(np.random.default_rng(3))
     assert b.u_prev == 0.0
-
-
-def test_factory_backends() -> None:
-    cfg = ControllerConfig()
-    assert isinstance(make_controller(cfg), CompiledController)
-    assert isinstance(make_controller(cfg, "numba"), CompiledController)
-    assert type(make_controller(cfg, "numpy")) is AdaptiveFuzzyController
-    with pytest.raises(ValueError):
-        make_controller(cfg, "cuda")
-
-
-def test_runs_without_numba() -> None:
-    """With numba unimportable, tspend still works: "auto" falls back to numpy."""
-    code = (
-        "import sys; sys.modules['numba'] = None\n"
-        "import numpy as np\n"
-        "from tspend.config import ControllerConfig\n"
-        "from tspend.controller import AdaptiveFuzzyController\n"
-        "from tspend.kernels import HAVE_NUMBA, make_controller\n"
-        "assert not HAVE_NUMBA\n"
-        "c = make_controller(ControllerConfig())\n"
-        "assert type(c) is AdaptiveFuzzyController\n"
-        "c.initialise(np.random.default_rng(0))\n"
-        "c.step(np.array([0.1, 0.0]), np.zeros(3), 1e-3)\n"
-        "try:\n"
-        "    make_controller(ControllerConfig(), 'numba')\n"
-        "except ImportError:\n"
-        "    print('ok')\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, cwd=ROOT, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "ok"
-
-
-def test_configuration_is_packed_once() -> None:
-    """Sizes come from the parameter arrays; a different config gets its own constants."""
-    b2 = make_controller(ControllerConfig(), "numba")
-    b3 = make_controller(CONFIGS["n3_first_state"], "numba")
-    assert b2._fc.size != b3._fc.size
-    assert b3._tidx.shape == (b3.model.rules.size + b3.compensator.rules.size, 4)
+    np.testing.assert_array_equal(b.parameters()["C_model0"], NumpyController(cfg).model.rules.C[0])
 
 
 def test_last_firing_matches_numpy_reference():
     """Snapshots read the compiled workspace: same memberships and firing as numpy's."""
-    from tspend.config import ControllerConfig
-    from tspend.kernels import make_controller
-
     cfg = ControllerConfig()
-    a, b = make_controller(cfg, "numpy"), make_controller(cfg, "numba")
+    a, b = NumpyController(cfg), AdaptiveFuzzyController(cfg)
     a.initialise(np.random.default_rng(5))
-    b.initialise(np.random.default_rng(5))
+    b.reset(np.random.default_rng(5))
     rng = np.random.default_rng(6)
     for _ in range(50):
         x, ref = rng.normal(0, 0.2, 2), rng.normal(0, 0.2, 3)
@@ -206,6 +164,38 @@ def test_last_firing_matches_numpy_reference():
             np.testing.assert_allclose(fa.w, fb.w, atol=1e-12)
             for ma, mb in zip(fa.mu, fb.mu):
                 np.testing.assert_allclose(ma, mb, atol=1e-12)
-        sa, sb = a.snapshot(0.0, 0, x), b.snapshot(0.0, 0, x)
-        np.testing.assert_allclose(sa.firing, sb.firing, atol=1e-12)
-        np.testing.assert_allclose(sa.model_sets[2][1], sb.model_sets[2][1], atol=1e-10)
+        sb = b.snapshot(0.0, 0, x)
+        np.testing.assert_allclose(sb.firing, a.last_firing(x)[0].w, atol=1e-12)
+        grid, curves = sb.model_sets[2][:2]
+        np.testing.assert_allclose(curves, a.model.rules.curves(2, grid.size)[1], atol=1e-10)
+
+
+@njit
+def _closed_loop_samples(step, settings, state, scratch, X, R, dt, diag, out):
+    for k in range(X.shape[0]):
+        out[k] = step(settings, state, scratch, X[k], R[k], dt, diag)
+
+
+def test_compiled_entry_from_a_numba_loop_matches_step():
+    """``controller.compiled()`` called from an @njit loop gives Controller.step's u and state."""
+    cfg = CONFIGS["example3_fast_robust"]
+    a, b = AdaptiveFuzzyController(cfg), AdaptiveFuzzyController(cfg)
+    a.reset(np.random.default_rng(11))
+    b.reset(np.random.default_rng(11))
+    X, R = _signals(cfg, 11, steps=300)
+    ua = np.array([a.step(X[k], R[k], 1e-3) for k in range(300)])
+    ub = np.empty(300)
+    c = b.compiled()
+    _closed_loop_samples(c.step, c.settings, c.state, c.scratch, X, R, 1e-3, b.diag, ub)
+    np.testing.assert_array_equal(ub, ua)
+    np.testing.assert_array_equal(b.diag, a.diag)
+    for key, value in a.parameters().items():
+        np.testing.assert_array_equal(b.parameters()[key], value, err_msg=key)
+
+
+def test_configuration_sizes_come_from_the_config():
+    b2 = AdaptiveFuzzyController(ControllerConfig())
+    b3 = AdaptiveFuzzyController(CONFIGS["n3_first_state"])
+    assert b2.state.P.shape == (75, 3) and b3.state.P.shape == (5 * 3 * 5 * 3, 4)
+    assert b3.settings.model.grid.term_index.shape == (225, 4)
+    assert b3.scratch.compensator.w.shape == (25,)

@@ -5,18 +5,21 @@ The paper's structure, one module per concept: ``bspline`` (BMFs, eq. 1-5), ``ru
 type laws, eq. 14-16, 25-26), ``compensator`` (eq. 21-24, 27), ``control_law`` (eq. 18-19,
 Lemma 1), ``controller`` (one controller sample), ``plants`` (analytic and MuJoCo),
 ``signals`` (references and disturbances), ``scenario`` (TOML), ``runner`` (closed loop),
-``metrics``, ``recorder`` (Rerun), ``cli``.
+``metrics``, ``recorder`` (Rerun), ``sweep`` (many runs, one table row each), ``cli``.
 
 Python API::
 
+    import tspend
     from tspend import load_scenario, override, run
     result = run(override(load_scenario("ex2_duffing"), **{"controller.eta": 0.2}))
     result.metrics["rmse_ss"], result.history["x"]
+    table = tspend.sweep("ex2_duffing", seeds=range(20), controllers=["second_type", "first_type"])
 """
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller"]
+__all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller",
+           "sweep"]
 
 
 def __getattr__(name: str):
@@ -29,4 +32,8 @@ def __getattr__(name: str):
         from . import simulation
 
         return getattr(simulation, name)
+    if name == "sweep":  # the module, callable: tspend.sweep(...) runs tspend.sweep.sweep(...)
+        import importlib
+
+        return importlib.import_module(".sweep", __name__)
     raise AttributeError(f"module 'tspend' has no attribute {name!r}")

@@ -1,10 +1,10 @@
-"""B-spline membership functions (BMFs), eq. (1)-(5) of the paper.
+"""B-spline membership functions (BMFs), eq. (1)-(5) of the paper, compiled.
 
 A fuzzy set F over an input interval [lo, hi] is one B-spline curve clipped to [0, 1]:
 ``mu_F(z) = S(sum_i c_i N_{i,d}(z))`` (5).  All sets of one input share the interval,
-so they share the knot vector and the basis; only their control points differ.  The
-basis is evaluated once per input and all that input's sets follow by one
-matrix-vector product.
+so they share the knot vector and the basis; only their control points differ.  At one
+input value only ``d`` basis functions are nonzero (those of the knot span holding z), so
+:func:`basis` evaluates just those and :func:`memberships` sums over them.
 
 Knot vector (1), open uniform: d knots at lo, ``r - d`` interior knots, d knots at hi.
 **Erratum:** (1) prints the interior step as ``(hi - lo)/(r - d + 2)``; the uniform step
@@ -12,7 +12,16 @@ is ``(hi - lo)/(r - d + 1)`` (with the printed value the last span is twice the 
 
 Cox-de Boor (3)-(4) uses half-open spans ``[t_i, t_{i+1})``; ``z = hi`` is put in the
 last non-empty span so that the right end evaluates, and inputs outside [lo, hi] are
-clamped to it (a BMF is defined on its interval only).
+clamped to it (a BMF is defined on its interval only).  A NaN input gives all-zero
+basis functions (it propagates to the runner's divergence guard, not to an exception).
+
+The compiled functions use numba's ``error_model="numpy"`` (a division by zero gives
+inf/nan instead of raising), as do all the controller's compiled functions.
+
+Optional shape projection (issue 15): :func:`project_unimodal` keeps one set's control
+polygon unimodal with its peak inside a window of control points.  By the
+variation-diminishing property of B-splines a unimodal control polygon gives a unimodal
+curve, and disjoint ordered windows keep an input's sets in order.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 #: linguistic term names by number of sets
 TERM_NAMES = {
@@ -54,60 +64,6 @@ def greville_abscissae(knots: np.ndarray, d: int) -> np.ndarray:
         return 0.5 * (knots[:r] + knots[1: r + 1])
     window = np.lib.stride_tricks.sliding_window_view(knots[1:-1], d - 1)
     return window.mean(axis=1)[:r]
-
-
-class BasisEvaluator:
-    """All basis functions ``N_{i,d}`` (3)-(4) of one knot vector, at any points.
-
-    The denominators of (4) depend on the knots only, so they are computed once; each
-    call is then a few vectorised operations per order (no loop over basis functions).
-    Terms with a zero-length support (0/0) are zero.  ``z`` is clamped to the knot
-    range, and the right end goes to the last non-empty span.
-    """
-
-    def __init__(self, knots: np.ndarray, d: int) -> None:
-        self.t = t = np.asarray(knots, dtype=float)
-        self.d = d
-        self.r = len(t) - d
-        self.lo, self.hi = t[0], t[-1]
-        self.n_spans = len(t) - 1
-        self.levels = []
-        for k in range(2, d + 1):
-            m = self.n_spans - k + 1                     # number of order-k functions
-            left_den = t[k - 1: k - 1 + m] - t[:m]
-            right_den = t[k: k + m] - t[1: 1 + m]
-            self.levels.append((m, t[:m], t[k: k + m],
-                                np.where(left_den > 0, left_den, 1.0), left_den > 0,
-                                np.where(right_den > 0, right_den, 1.0), right_den > 0))
-
-    def __call__(self, z: np.ndarray) -> np.ndarray:
-        """Shape (len(z), r)."""
-        t = self.t
-        z = np.clip(np.atleast_1d(np.asarray(z, dtype=float)), self.lo, self.hi)[:, None]
-        # order 1 (3): half-open spans, with z == hi assigned to the last non-empty span
-        N = ((t[:-1] <= z) & (z < t[1:])).astype(float)
-        at_hi = z[:, 0] >= self.hi
-        if at_hi.any():
-            N[at_hi] = 0.0
-            N[at_hi, self.r - 1] = 1.0
-        for m, t_lo, t_hi, lden, lok, rden, rok in self.levels:
-            left = np.where(lok, (z - t_lo) / lden, 0.0)
-            right = np.where(rok, (t_hi - z) / rden, 0.0)
-            N = left * N[:, :m] + right * N[:, 1: m + 1]
-        return N
-
-
-def basis_matrix(z: np.ndarray, knots: np.ndarray, d: int) -> np.ndarray:
-    """All basis functions ``N_{i,d}(z)`` at the points ``z``: shape (len(z), r).
-
-    Convenience form of :class:`BasisEvaluator` for a one-off evaluation.
-    """
-    return BasisEvaluator(knots, d)(z)
-
-
-def clip_unit(b: np.ndarray) -> np.ndarray:
-    """S of (5): clip the B-spline curve to [0, 1]."""
-    return np.clip(b, 0.0, 1.0)
 
 
 def triangle_control_points(knots: np.ndarray, d: int, terms: int) -> np.ndarray:
@@ -150,17 +106,129 @@ class BSplineInput:
         return triangle_control_points(self.knots, self.order, self.terms)
 
 
-def memberships(C: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Membership values (5) of all sets of one input, and where they are unsaturated.
 
-    ``C``: control points (T, r); ``N``: basis at the input (r,).  Returns ``mu`` (T,)
-    and the mask ``0 < B < 1`` where ``d mu / d c_l = N_l`` (elsewhere S is flat and
-    the gradient is zero, docs/paper-notes.md section 1).
+#: numba options shared by every compiled function of the controller.  The step allocates
+#: nothing, so it needs no reference counting (``_nrt=False``): with it, every array view
+#: and every structure passed between these small functions would touch atomic counters.
+JIT = dict(cache=True, nogil=True, error_model="numpy", _nrt=False)
+
+
+@njit(**JIT)
+def basis(z: float, knots: np.ndarray, points: int, order: int, out: np.ndarray) -> int:
+    """The ``d`` basis functions (3)-(4) that can be nonzero at ``z``, into ``out[:d]``.
+
+    Returns the knot span s: ``out[l]`` is ``N_{s-d+1+l, d}(z)``.  Terms of (4) with a
+    zero-length support (0/0) are zero.
     """
-    B = C @ N
-    return clip_unit(B), (B > 0.0) & (B < 1.0)
+    d = order
+    lo = knots[0]
+    hi = knots[points + d - 1]
+    if z < lo:
+        z = lo
+    if z > hi:
+        z = hi
+    for l in range(d):
+        out[l] = 0.0
+    if not (z >= lo):          # NaN: every basis function is zero
+        return d - 1
+    s = points - 1             # z == hi: the last non-empty span
+    if z < hi:
+        for k in range(d - 1, points):
+            if knots[k] <= z and z < knots[k + 1]:
+                s = k
+                break
+    base = s - d + 1
+    out[d - 1] = 1.0           # order 1 (3): the indicator of span s
+    for k in range(2, d + 1):
+        # order k (4): N_i = left_i N_i + right_i N_{i+1} for i = s-k+1 .. s; ascending i
+        # overwrites N_i only after it was read, and N_{s+1} of order k-1 is zero
+        for i in range(s - k + 1, s + 1):
+            a = i - base
+            left_den = knots[i + k - 1] - knots[i]
+            right_den = knots[i + k] - knots[i + 1]
+            left = (z - knots[i]) / left_den if left_den > 0.0 else 0.0
+            right = (knots[i + k] - z) / right_den if right_den > 0.0 else 0.0
+            nxt = out[a + 1] if i < s else 0.0
+            out[a] = left * out[a] + right * nxt
+    return s
 
 
-def membership_gradient(N: np.ndarray, unsaturated: np.ndarray) -> np.ndarray:
-    """``d mu_s / d c_{s,l}`` for every set s and control point l: shape (T, r)."""
-    return unsaturated[:, None] * N[None, :]
+@njit(**JIT)
+def memberships(C: np.ndarray, N: np.ndarray, span: int, order: int, terms: int,
+                mu: np.ndarray) -> float:
+    """Memberships (5) of the first ``terms`` sets (rows of ``C``) into ``mu``; returns their sum.
+
+    ``N`` and ``span`` are :func:`basis` at the input.  S clips to [0, 1]; where it
+    clips, ``d mu / d c = 0`` (see :func:`unsaturated`).
+    """
+    base = span - order + 1
+    total = 0.0
+    for t in range(terms):
+        B = 0.0
+        for l in range(order):
+            B += C[t, base + l] * N[l]
+        if B < 0.0:
+            B = 0.0
+        if B > 1.0:
+            B = 1.0
+        mu[t] = B
+        total += B
+    return total
+
+
+@njit(**JIT)
+def unsaturated(mu: float) -> bool:
+    """Whether S of (5) passes the curve through: ``0 < B < 1``, equivalently ``0 < mu < 1``.
+
+    There ``d mu / d c_l = N_l``; elsewhere S is flat and the gradient is zero
+    (docs/paper-notes.md section 1).
+    """
+    return 0.0 < mu < 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def membership_curves(C: np.ndarray, knots: np.ndarray, points: int, order: int,
+                      terms: int, grid: np.ndarray, out: np.ndarray) -> None:
+    """The sets' curves (5) at every point of ``grid``: ``out`` has shape (terms, len(grid))."""
+    N = np.empty(order)
+    mu = np.empty(terms)
+    for g in range(grid.size):
+        s = basis(grid[g], knots, points, order, N)
+        memberships(C, N, s, order, terms, mu)
+        for t in range(terms):
+            out[t, g] = mu[t]
+
+
+@njit(**JIT)
+def project_unimodal(c: np.ndarray, first: int, last: int) -> None:
+    """Make the control polygon ``c`` unimodal with its peak in ``c[first:last + 1]``, in place.
+
+    The peak is the largest point inside the window; moving away from it on either side
+    every point is lowered to at most its inner neighbour.  Points already in shape do
+    not move, so the map is a projection (applying it twice changes nothing).
+    """
+    k = first
+    for l in range(first + 1, last + 1):
+        if c[l] > c[k]:
+            k = l
+    for l in range(k - 1, -1, -1):
+        if c[l] > c[l + 1]:
+            c[l] = c[l + 1]
+    for l in range(k + 1, c.size):
+        if c[l] > c[l - 1]:
+            c[l] = c[l - 1]
+
+
+def peak_windows(C: np.ndarray) -> np.ndarray:
+    """Disjoint, ordered windows of control points (T, 2) in which each set may peak.
+
+    Set t peaks at ``argmax C[t]`` initially; its window runs from just past the midpoint
+    with its left neighbour's peak to the midpoint with its right neighbour's.
+    """
+    peaks = np.argmax(C, axis=1)
+    T, r = C.shape
+    windows = np.empty((T, 2), dtype=np.int64)
+    for t in range(T):
+        windows[t, 0] = 0 if t == 0 else (peaks[t - 1] + peaks[t]) // 2 + 1
+        windows[t, 1] = r - 1 if t == T - 1 else (peaks[t] + peaks[t + 1]) // 2
+    return windows

@@ -47,15 +47,16 @@ import sys
 import traceback
 import warnings
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from contextlib import contextmanager
+from typing import Any, Iterable, Iterator, Sequence
 
 from . import __version__
 from .errors import OutputError, ScenarioError, TspendError
-from .interrupts import Interrupted, SignalGuard
+from .interrupts import Interrupted, SignalGuard, StopRequest
 from .outputs import Output, OutputRequest, PlannedOutput, claim, display, plan_outputs
 
 #: the subcommands, each the module ``tspend/cli_<name>.py``, in ``--help`` order
-COMMANDS = ("run", "crosscheck", "list", "inspect")
+COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0
@@ -124,7 +125,7 @@ def bounded_int(low: int, high: int):
 
 
 def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> None:
-    """The options of every command that runs a scenario: overrides, backend, recording."""
+    """The options of every command that runs a scenario: overrides and recording."""
     from .bounds import MAX_SEED
 
     p.add_argument("--duration", type=finite(), metavar="S", help="override run.duration")
@@ -132,8 +133,6 @@ def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> 
                    help="override run.seed")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any field, e.g. --set controller.eta=0.01 (repeatable)")
-    p.add_argument("--backend", choices=("auto", "numba", "numpy"), default="auto",
-                   help="controller implementation (default: numba when installed)")
     if recording:
         out = p.add_mutually_exclusive_group()
         out.add_argument("--out", metavar="PATH.rrd",
@@ -336,6 +335,18 @@ def metrics_document(scn, end) -> dict:
     return dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
                 version=__version__, scenario_path=scn.path,
                 overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[StopRequest]:
+    """For a command called without the CLI's ``args.guard`` (from Python): signals only
+    request a stop while the block runs; the previous handlers are put back after."""
+    guard = SignalGuard().install()
+    try:
+        with guard.deferred() as stop:
+            yield stop
+    finally:
+        guard.restore()
 
 
 def check_writable(path: Path, what: str) -> None:

@@ -46,7 +46,7 @@ def cmd(args: argparse.Namespace) -> int:
         from .crosscheck import crosscheck
         from .simulation import prepare
 
-        prepare(scn, "cartpole_mujoco", backend=args.backend)  # the model, checked now
+        prepare(scn, "cartpole_mujoco")  # the model, checked now
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
             return _crosscheck(args, scn, stop, outs, crosscheck)
 
@@ -66,7 +66,7 @@ def _crosscheck(args, scn, stop, outs: Claimed, crosscheck) -> int:
     release_warnings(args)
     try:
         report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
-                            backend=args.backend, stop=stop)
+                            stop=stop)
     except RunInterrupted as exc:
         report, interrupted = None, exc
     else:

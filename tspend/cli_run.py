@@ -74,12 +74,13 @@ def cmd(args: argparse.Namespace) -> int:
     with mujoco_warnings_in_errors(uses_mujoco(scn)):
         from .simulation import prepare, run
 
-        prepared = prepare(scn, backend=args.backend, controller=args.controller)
+        prepared = prepare(scn, controller=args.controller)
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
             return _run(args, scn, prepared, stop, outs, run)
 
 
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
+    from .progress import RunProgress  # a bar on a terminal once the run takes a few seconds
     from .runner import RunInterrupted
 
     recording, metrics_out = outs["--out"], outs["--metrics"]
@@ -91,7 +92,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
           flush=True)
     interrupted = None
     try:
-        end = run(scn, sinks=sinks, keep_history=False, backend=args.backend, stop=stop,
+        end = run(scn, sinks=[*sinks, RunProgress()], keep_history=False, stop=stop,
                   controller=args.controller, prepared=prepared).end
     except RunInterrupted as exc:
         interrupted, end = exc, exc.end

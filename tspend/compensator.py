@@ -1,4 +1,4 @@
-"""The fuzzy error compensator, eq. (21)-(24), and its adaptive law (27).
+"""The fuzzy error compensator, eq. (21)-(24), and its adaptive law (27), compiled.
 
 Rules (22): IF e_Delta is F_e^i AND ||x|| is F_x^i THEN d_hat^i = q^i; the estimate of
 the lumped error d~ is ``d_hat = sum_i tau^i q^i`` (23) and the compensator is
@@ -8,57 +8,102 @@ Law (27): ``dq^i/dt = gamma tau^i |e_Delta|``; its membership part moves the BMF
 control points along ``gamma |e_Delta| d d_hat / dc`` (the tau entries for the
 membership part of (23) are exactly that derivative).
 
-(27) only ever increases d_hat.  Two standard robust options, off by default so that the
-paper's own run stays the paper's: a boundary layer ``sat(e_Delta / eps)`` in place of
-sign() (removes chattering at the cost of a residual error of order eps), and leakage
-(sigma-modification) ``dq/dt = gamma (tau |e_Delta| - sigma q)`` (bounds q).
+(27) only ever increases d_hat.  Robust options, off by default so that the paper's own
+run stays the paper's:
+
+* a boundary layer ``sat(e_Delta / eps)`` in place of sign() (removes chattering at the
+  cost of a residual error of order eps);
+* leakage ``sigma > 0`` (``leakage``), in one of two forms (``leakage_mode``):
+
+  - ``"sigma"``, the sigma-modification (Ioannou & Kokotovic):
+    ``dq/dt = gamma (tau |e_Delta| - sigma q)``; bounds q, at the price of a bias
+    towards q = 0 even when the error is zero;
+  - ``"e"``, Narendra's e-modification (K. S. Narendra and A. M. Annaswamy, "A new
+    adaptive law for robust adaptation without persistent excitation", IEEE Trans.
+    Automatic Control 32(2):134-145, 1987):
+    ``dq/dt = gamma (tau |e_Delta| - sigma |e_Delta| q)``; the leakage is scaled by the
+    error, so it vanishes as tracking becomes exact and q is not pulled away from the
+    value that achieves it.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numba import njit
 
-from .bspline import BSplineInput
-from .rules import Firing, RuleBase
+from .bspline import JIT
+from .config import ControllerConfig
+from .rules import Firing, Grid, membership_gradient, move_control_points
 
 
+class CompensatorSettings(NamedTuple):
+    """Constants of the compensator and its law (27)."""
+
+    grid: Grid               # rule base over (e_Delta, ||x||)
+    gamma: float             # rate of (27)
+    boundary_layer: float    # 0: sign() of (21)
+    leakage: float           # sigma (0: the paper's (27))
+    e_modification: bool     # leakage scaled by |e_Delta| (Narendra) instead of constant
+    adapt_sets: bool         # the membership part of (27) (second type)
+
+
+def compensator_settings(cfg: ControllerConfig, grid: Grid) -> CompensatorSettings:
+    """The compensator's constants from the controller's configuration."""
+    return CompensatorSettings(grid=grid, gamma=cfg.gamma, boundary_layer=cfg.boundary_layer,
+                               leakage=cfg.leakage, e_modification=cfg.leakage_mode == "e",
+                               adapt_sets=cfg.adaptation != "first")
+
+
+@njit(**JIT)
 def switching(e_delta: float, boundary_layer: float) -> float:
     """sign(e_Delta) of (21), or sat(e_Delta / eps) with a boundary layer eps > 0."""
     if boundary_layer > 0.0:
-        return float(np.clip(e_delta / boundary_layer, -1.0, 1.0))
-    return float(np.sign(e_delta))
+        sw = e_delta / boundary_layer
+        if sw < -1.0:
+            sw = -1.0
+        if sw > 1.0:
+            sw = 1.0
+        return sw
+    if e_delta > 0.0:
+        return 1.0
+    if e_delta < 0.0:
+        return -1.0
+    return e_delta            # sign(0) = 0 (and NaN stays NaN)
 
 
-class FuzzyCompensator:
-    """Rule base on ``(e_Delta, ||x||)`` with consequents ``q`` (h_d,)."""
+@njit(**JIT)
+def estimate(tau: np.ndarray, q: np.ndarray) -> float:
+    """(23): ``d_hat = sum_i tau^i q^i``."""
+    acc = 0.0
+    for i in range(tau.size):
+        acc += tau[i] * q[i]
+    return acc
 
-    def __init__(self, e_input: BSplineInput, x_input: BSplineInput,
-                 boundary_layer: float = 0.0, leakage: float = 0.0) -> None:
-        self.rules = RuleBase((e_input, x_input))
-        self.boundary_layer = float(boundary_layer)
-        self.leakage = float(leakage)
-        self.q = np.zeros(self.rules.size)
 
-    def initialise(self, rng: np.random.Generator, lo: float, hi: float) -> None:
-        self.q[:] = rng.uniform(lo, hi, size=self.rules.size)
+@njit(**JIT)
+def sets_gradient(s: CompensatorSettings, q: np.ndarray, f: Firing, varpi: float) -> None:
+    """``d d_hat / dmu`` into ``f.dmu`` (per-rule outputs ``q^i``)."""
+    y = f.y
+    for i in range(q.size):
+        y[i] = q[i]
+    membership_gradient(s.grid, f, varpi)
 
-    def evaluate(self, e_delta: float, x_norm: float) -> tuple[Firing, float, float]:
-        """Firing strengths tau, the estimate d_hat (23) and u_s (21)."""
-        fir = self.rules.evaluate(np.array([e_delta, x_norm]))
-        d_hat = float(fir.w @ self.q)
-        return fir, d_hat, switching(e_delta, self.boundary_layer) * d_hat
 
-    def q_rate(self, fir: Firing, e_delta: float, gamma: float) -> np.ndarray:
-        """(27): ``dq/dt = gamma (tau |e_Delta| - sigma q)``."""
-        rate = (gamma * abs(e_delta)) * fir.w
-        if self.leakage > 0.0:
-            rate -= (gamma * self.leakage) * self.q
-        return rate
-
-    def control_point_rates(self, fir: Firing, e_delta: float, gamma: float,
-                            adapt: bool = True) -> list[np.ndarray]:
-        """Membership part of (27): ``dc/dt = gamma |e_Delta| d d_hat / dc``."""
-        if not adapt:
-            return [np.zeros_like(C) for C in self.rules.C]
-        grads = self.rules.output_gradient_wrt_control_points(fir, self.q)
-        return [(gamma * abs(e_delta)) * g for g in grads]
+@njit(**JIT)
+def compensator_law(s: CompensatorSettings, q: np.ndarray, C: np.ndarray, f: Firing,
+                    e_delta: float, dt: float) -> None:
+    """(27) with the optional leakage, one forward-Euler step; then its membership part
+    ``dc/dt = gamma |e_Delta| d d_hat / dc`` (gradient from :func:`sets_gradient`)."""
+    tau = f.w
+    ae = s.gamma * abs(e_delta)
+    if s.leakage > 0.0:
+        gs = s.gamma * s.leakage * (abs(e_delta) if s.e_modification else 1.0)
+        for i in range(q.size):
+            q[i] += dt * (ae * tau[i] - gs * q[i])
+    else:
+        for i in range(q.size):
+            q[i] += dt * (ae * tau[i])
+    if s.adapt_sets:
+        move_control_points(s.grid, C, f, ae, dt)

@@ -58,11 +58,16 @@ class ControllerConfig:
     boundary_layer: float = 0.0
     #: leakage sigma in the compensator law (0 = the paper's (27))
     leakage: float = 0.0
+    #: "sigma": leakage sigma q in (27); "e": Narendra's e-modification, sigma |e_Delta| q
+    leakage_mode: str = "sigma"
     #: "fixed" (x_o, u_o constant) or "state" (x_o = x, u_o = fraction * previous u)
     operating_point: str = "state"
     x_o: tuple[float, ...] = ()
     u_o: float = 0.0
     u_o_fraction: float = 0.5
+    #: "unimodal": project the control points after each update so that every set stays
+    #: unimodal and each input's sets stay ordered; "off": the paper's free sets
+    shape_projection: str = "off"
 
     @property
     def order(self) -> int:

@@ -1,5 +1,8 @@
 """The control law (19), the error dynamics (18) and the Lyapunov matrix of Lemma 1.
 
+Gamma is solved once when the controller is built (numpy); the per-sample functions
+are compiled.
+
 ``e = x - r`` with ``r = [r, r', .., r^(n-1)]``; ``lambda = [lambda_1 .. lambda_n]`` makes
 the companion matrix Lambda (last row ``-lambda``) Hurwitz, and Gamma solves
 ``Lambda^T Gamma + Gamma Lambda = -Q`` (Lemma 1).  ``e_Delta = e^T Gamma b_e``.
@@ -11,7 +14,12 @@ dynamics are (18): ``e' = Lambda e + b_e (d~ - u_s)``.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numba import njit
+
+from .bspline import JIT
 
 
 def companion(lam: np.ndarray) -> np.ndarray:
@@ -44,8 +52,53 @@ def lyapunov_gamma(lam: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return 0.5 * (G + G.T)
 
 
+class ControlLawSettings(NamedTuple):
+    """Constants of (18)-(19): the error gains and Gamma of Lemma 1."""
+
+    lam: np.ndarray          # (n,) lambda_1 .. lambda_n
+    Gamma: np.ndarray        # (n, n) solves Lambda^T Gamma + Gamma Lambda = -Q
+
+
+def control_law_settings(lam, Q) -> ControlLawSettings:
+    lam = np.asarray(lam, dtype=float)
+    return ControlLawSettings(lam=lam, Gamma=lyapunov_gamma(lam, np.asarray(Q, dtype=float)))
+
+
+@njit(**JIT)
+def tracking_error(s: ControlLawSettings, x: np.ndarray, ref: np.ndarray, e: np.ndarray) -> float:
+    """``e = x - r`` into ``e``; returns ``e_Delta = e^T Gamma b_e`` (Gamma's last row . e)."""
+    G = s.Gamma
+    n = e.size
+    e_delta = 0.0
+    for k in range(n):
+        ek = x[k] - ref[k]
+        e[k] = ek
+        e_delta += G[n - 1, k] * ek
+    return e_delta
+
+
+@njit(**JIT)
+def lyapunov_tracking(s: ControlLawSettings, e: np.ndarray) -> float:
+    """The tracking part of the Lyapunov function (28): ``V = 1/2 e^T Gamma e``."""
+    G = s.Gamma
+    n = e.size
+    V = 0.0
+    for k in range(n):
+        acc = 0.0
+        for i in range(n):
+            acc += (0.5 * e[i]) * G[i, k]
+        V += acc * e[k]
+    return V
+
+
+@njit(**JIT)
 def control(p: np.ndarray, x_delta: np.ndarray, r_n: float, lam: np.ndarray,
             e: np.ndarray, u_s: float, u_o: float) -> float:
-    """The control law (19)."""
-    n = x_delta.size
-    return float((-(p[:n] @ x_delta) + r_n - lam @ e - u_s) / p[n] + u_o)
+    """The control law (19): ``u = (-p_{1..n} . x_delta + r^(n) - lambda^T e - u_s) / p_{n+1} + u_o``."""
+    n = lam.size
+    px = 0.0
+    le = 0.0
+    for k in range(n):
+        px += p[k] * x_delta[k]
+        le += lam[k] * e[k]
+    return (-px + r_n - le - u_s) / p[n] + u_o

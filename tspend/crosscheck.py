@@ -63,14 +63,14 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
             "departures": mj.departures(scenario.run.dt)}  # type: ignore[attr-defined]
 
 
-def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (), backend: str = "auto",
+def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (),
                 stop: StopRequest | None = None) -> dict:
     """The scenario's closed loop on both backends; sinks[0] sees MuJoCo, sinks[1] the ODE."""
     _require_cartpole(scenario)
     mj_sinks = [sinks[0]] if len(sinks) > 0 else []
     ode_sinks = [sinks[1]] if len(sinks) > 1 else []
-    a = run(scenario, sinks=mj_sinks, plant_kind="cartpole_mujoco", backend=backend, stop=stop)
-    b = run(scenario, sinks=ode_sinks, plant_kind="cartpole_ode", backend=backend, stop=stop)
+    a = run(scenario, sinks=mj_sinks, plant_kind="cartpole_mujoco", stop=stop)
+    b = run(scenario, sinks=ode_sinks, plant_kind="cartpole_ode", stop=stop)
     k = min(len(a.history.get("t", ())), len(b.history.get("t", ())))
     xa, xb = a.history["x"][:k], b.history["x"][:k]
     diff = np.abs(xa - xb) if k else np.full((1, 2), math.nan)
@@ -87,12 +87,12 @@ def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (), backend: str = "
 
 
 def crosscheck(scenario: Scenario, sinks: Sequence[Sink] = (), open_loop_duration: float = 10.0,
-               backend: str = "auto", stop: StopRequest | None = None) -> dict:
+               stop: StopRequest | None = None) -> dict:
     """Both parts of the cross-check as one flat report (the CLI's JSON)."""
     report = {"scenario": scenario.name, "dt": scenario.run.dt,
               "boundary_layer": scenario.controller.boundary_layer}
     report.update(open_loop(scenario, open_loop_duration))
-    report.update(closed_loop(scenario, sinks, backend, stop))
+    report.update(closed_loop(scenario, sinks, stop))
     return report
 
 

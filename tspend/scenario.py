@@ -46,8 +46,8 @@ SET_KEYS = ("terms", "lo", "hi")
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
                    "control_points", "init_consequents", "init_compensator", "b_min",
-                   "norm_radius", "boundary_layer", "leakage", "operating_point", "x_o", "u_o",
-                   "u_o_fraction", "gain_sign", "sets")
+                   "norm_radius", "boundary_layer", "leakage", "leakage_mode", "operating_point", "x_o",
+                   "u_o", "u_o_fraction", "shape_projection", "gain_sign", "sets")
 SETS_KEYS = ("states", "u", "e_delta", "x_norm")
 
 
@@ -353,11 +353,13 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
         norm_radius=r.number("norm_radius", d.norm_radius, low=0.0),
         boundary_layer=r.number("boundary_layer", d.boundary_layer, low=0.0),
         leakage=r.number("leakage", d.leakage, low=0.0),
+        leakage_mode=r.string("leakage_mode", d.leakage_mode, ("sigma", "e")),
         operating_point=op,
         x_o=r.numbers("x_o", n, (0.0,) * n),
         u_o=r.number("u_o", d.u_o),
         u_o_fraction=r.number("u_o_fraction", d.u_o_fraction),
         gain_sign=r.string("gain_sign", d.gain_sign, ("plant", "positive", "negative")),
+        shape_projection=r.string("shape_projection", d.shape_projection, ("off", "unimodal")),
     )
 
 

@@ -56,14 +56,11 @@ def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
-                     backend: str = "auto", kind: str | None = None) -> Controller:
+                     kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
     (default: a generator seeded with the scenario's seed).
-
-    ``backend`` applies to the paper controller: "numba" (compiled kernel), "numpy"
-    (the reference implementation) or "auto" (numba when installed).
     """
-    ctrl = build_controller_kind(scenario, kind, backend=backend)
+    ctrl = build_controller_kind(scenario, kind)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
@@ -132,6 +129,12 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
+    def to_pandas(self):
+        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.timeseries`)."""
+        from .timeseries import history_frame
+
+        return history_frame(self.history, self.controller.diagnostics)
+
 
 @dataclass(frozen=True)
 class Prepared:
@@ -142,13 +145,13 @@ class Prepared:
     controller: Controller
 
 
-def prepare(scenario: Scenario, plant_kind: str | None = None, backend: str = "auto",
+def prepare(scenario: Scenario, plant_kind: str | None = None,
             controller: str | None = None) -> Prepared:
     """Build the plant (model file, joint names, timestep) and the controller without
     running: every error a scenario can still raise surfaces here, as a ScenarioError."""
     plant = build_plant(scenario, plant_kind)
     scenario = with_gain_sign(scenario, plant)
-    return Prepared(scenario, plant, build_controller(scenario, backend=backend, kind=controller))
+    return Prepared(scenario, plant, build_controller(scenario, kind=controller))
 
 
 def steps_of(scenario: Scenario) -> int:
@@ -157,7 +160,7 @@ def steps_of(scenario: Scenario) -> int:
 
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
-        backend: str = "auto", stop: StopRequest | None = None,
+        stop: StopRequest | None = None,
         controller: str | None = None, prepared: Prepared | None = None) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
@@ -167,7 +170,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     after the sinks have finished).  ``prepared``: the plant and controller of
     :func:`prepare`, built before the caller opened its outputs.
     """
-    parts = prepared or prepare(scenario, plant_kind, backend, controller)
+    parts = prepared or prepare(scenario, plant_kind, controller)
     scenario, plant, ctrl = parts.scenario, parts.plant, parts.controller
     steps = steps_of(scenario)
     dt = scenario.run.dt

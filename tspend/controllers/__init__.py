@@ -22,13 +22,13 @@ if TYPE_CHECKING:
 
 
 def _paper(adaptation: str | None) -> Callable[..., Controller]:
-    def build(scenario: "Scenario", backend: str = "auto") -> Controller:
-        from ..kernels import make_controller
+    def build(scenario: "Scenario") -> Controller:
+        from ..controller import make_controller
 
         cfg = scenario.controller
         if adaptation is not None and cfg.adaptation != adaptation:
             cfg = replace(cfg, adaptation=adaptation)
-        return make_controller(cfg, backend)
+        return make_controller(cfg)
 
     return build
 
@@ -62,8 +62,6 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
         builder = KINDS[kind]
     except KeyError:
         raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}") from None
-    if kind not in ("second_type", "first_type"):
-        options.pop("backend", None)
     return builder(scenario, **options)
 
 

@@ -1,0 +1,1 @@
+"""Independent numpy implementations the compiled controller is tested against."""

@@ -1,0 +1,257 @@
+"""Sweeps and Monte Carlo: many closed loops, one row each, on a local pool or Dask.
+
+The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)::
+
+    sweep(scenarios, *, grid=None, seeds=None, controllers=None, jobs=None, dask=None,
+          out=None, record="none", progress=False, executor=None) -> pandas.DataFrame
+
+``scenarios``
+    one scenario (a name such as ``"ex2_duffing"``, a path to a ``.toml``, or a
+    :class:`tspend.config.Scenario`, overrides included) or a list of them.
+``grid``
+    ``{"controller.eta": [0.001, 0.01], "plant.M": [5, 10]}``: any scenario key, each
+    value validated like ``--set``/:func:`tspend.override` before anything runs.  The
+    sweep runs the cartesian product of the grid, the seeds and the controllers.
+``seeds``
+    an int, an iterable of ints, or ``"A:B"`` (A to B-1); ``None``: the scenario's seed.
+``controllers``
+    controller kinds of :data:`tspend.controllers.KINDS` (a list, or ``"k1,k2"``);
+    ``None``: the scenario's own controller.
+``jobs``, ``dask``
+    ``jobs`` worker processes on this machine (default: one per core), or a Dask
+    cluster: ``dask="tcp://host:8786"`` or ``dask="local"`` (a ``LocalCluster`` of
+    ``jobs`` workers; needs ``pip install 'tspend[dask]'``).
+``out``
+    a Parquet table (see :mod:`tspend.sweep.table`): rows are written as runs finish;
+    rows already in it are not run again, so the same call after a kill finishes the
+    sweep.  ``None``: nothing is written, the rows are only returned.
+``record``
+    ``"failed"``: a Rerun recording of every run that diverged or failed; ``"all"``:
+    of every run; ``"none"``.  Each at its own path (``OUT.recordings/...rrd``, or
+    ``runs/sweep-<time>/`` without ``out``), named in the row's ``recording`` column.
+``progress``
+    a progress bar on a terminal (plain lines every 10 s otherwise).
+``executor``
+    an executor from :func:`tspend.sweep.executors.make_executor`, reused across calls
+    (its workers keep their loaded kernel); it is not closed.
+
+Returns the rows of this sweep, in plan order (scenario, grid point, seed, controller),
+one per run, columns:
+
+- ``scenario``; one column per grid key (named by the key, e.g. ``controller.eta``,
+  holding the value; lists and tables as JSON text); ``seed``; ``controller`` (the kind);
+- ``status`` (``completed``, ``diverged`` or ``failed``) and ``message`` (why);
+- every metric of :data:`tspend.metrics.METRIC_KEYS` (``rmse_ss``, ..., ``wall_s``, the
+  loop's wall time), NaN where undefined (a run that failed before its first sample);
+- ``version`` (tspend's), ``scenario_hash`` (SHA-256 of the scenario's text, 16 hex
+  digits), ``recording`` (path or None), ``job_s`` (the worker's whole time for the run)
+  and ``run_key`` (the row's identity, used to resume).
+
+Rows are the same bit for bit, apart from ``wall_s`` and ``job_s``, on either executor
+with any number of workers: a run depends only on its scenario, seed and kind.
+
+``tspend.sweep`` is this module, and calling it calls :func:`sweep`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+from collections import deque
+from pathlib import Path
+from typing import Any, Iterable
+
+from ..errors import ScenarioError
+from ..runner import RunInterrupted, StopRequest
+from .executors import WorkerDied, make_executor
+from .plan import RECORD_MODES, Job, make_plan
+from .table import KEY_COLUMN, RowTable, read_table, typed
+from .worker import METRIC_COLUMNS, run_job
+
+#: columns of every row besides the grid columns, in table order around them
+LEADING_COLUMNS = ("scenario",)
+TRAILING_COLUMNS = ("seed", "controller", "status", "message") + METRIC_COLUMNS + (
+    "version", "scenario_hash", "recording", "job_s", KEY_COLUMN)
+
+
+def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
+          seeds: int | Iterable[int] | str | None = None,
+          controllers: str | Iterable[str] | None = None, jobs: int | None = None,
+          dask: str | None = None, out: str | Path | None = None, record: str = "none",
+          progress: bool = False, executor: Any = None,
+          stop: StopRequest | None = None):
+    """Run every combination of scenario, grid point, seed and controller; one row each.
+
+    See the module docstring for the arguments and the columns.  ``stop`` (a
+    :class:`tspend.runner.StopRequest` set by a signal handler) ends the sweep after
+    keeping every finished row; :class:`RunInterrupted` is then raised.
+    """
+    import pandas as pd
+
+    from ..progress import SweepProgress
+
+    out_path = Path(out) if out is not None else None
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise ScenarioError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+    if record not in RECORD_MODES:
+        raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
+    record_dir = None
+    if record != "none":
+        record_dir = (out_path.with_name(out_path.stem + ".recordings") if out_path is not None
+                      else Path("runs") / f"sweep-{time.strftime('%Y%m%d-%H%M%S')}")
+    plan = make_plan(scenarios, grid, seeds, controllers, record, record_dir)
+    order = {job.key: job.index for job in plan}
+
+    table = None
+    done_keys: set[str] = set()
+    if out_path is not None:
+        table = RowTable(out_path)
+        table.check_writable()
+        existing = read_table(out_path)
+        _check_compatible(existing, plan, out_path)
+        if len(existing):
+            done_keys = set(existing[KEY_COLUMN])
+    todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
+
+    rows: list[dict[str, Any]] = []
+    shown = SweepProgress(len(todo), skipped=len(plan) - len(todo), enabled=progress)
+    owned = executor is None and bool(todo)
+    try:
+        if todo:
+            if executor is None:
+                executor = make_executor(jobs, dask)
+            shown.start(executor.workers, executor.name)
+            for row in _execute(executor, todo, stop):
+                if table is not None:
+                    table.append(row)
+                rows.append(row)
+                shown.update(row)
+    finally:
+        shown.close()
+        if owned and executor is not None:
+            executor.close(cancel=True)
+        if table is not None:
+            table.close(order)
+
+    if out_path is not None:
+        frame = read_table(out_path)
+        frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
+    else:
+        frame = typed(pd.DataFrame.from_records(rows))
+    if not len(frame):
+        return frame
+    frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")
+    return frame.drop(columns="_rank").reset_index(drop=True)
+
+
+def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
+    """Rows of ``todo`` as they finish; a job whose worker process dies becomes a row too.
+
+    A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
+    million small Job records in the parent, not a million queued tasks.  When a local
+    worker dies, the pool fails every job in flight and cannot tell which one killed it;
+    those jobs are then run again one at a time, so a death is pinned on its own job (a
+    ``failed`` row) and the others finish normally.  Dask retries a task whose worker
+    died by itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.
+    """
+    waiting = deque(todo)
+    alone: deque[Job] = deque()           # to run by themselves after a worker died
+    window = max(16, 4 * getattr(executor, "workers", 1))
+    pending: dict[Any, Job] = {}
+    ran_alone: set[str] = set()
+    retries_itself = getattr(executor, "retries_itself", False)
+
+    def top_up() -> None:
+        if alone:
+            if not pending:
+                job = alone.popleft()
+                ran_alone.add(job.key)
+                pending[executor.submit(run_job, job)] = job
+            return
+        while waiting and len(pending) < window:
+            job = waiting.popleft()
+            pending[executor.submit(run_job, job)] = job
+
+    top_up()
+    while pending:
+        if stop is not None and stop.signal_name is not None:
+            raise RunInterrupted(stop.signal_name, stop.exit_status)
+        done = executor.wait(pending, timeout=0.25)
+        lost: list[Job] = []
+        broken = False
+        for future in done:
+            job = pending.pop(future)
+            try:
+                yield executor.result(future)
+            except WorkerDied as exc:
+                broken = not retries_itself
+                if job.key in ran_alone or retries_itself:
+                    yield _died_row(job, str(exc))
+                else:
+                    lost.append(job)
+        if broken:
+            # the local pool has failed every job in flight and refuses more: a fresh pool
+            # runs them, one at a time
+            alone.extend(lost + list(pending.values()))
+            pending.clear()
+            executor.restart()
+        top_up()
+
+
+def _died_row(job: Job, why: str) -> dict[str, Any]:
+    from .. import __version__
+
+    row: dict[str, Any] = {"scenario": job.label}
+    row.update(job.grid)
+    row.update(seed=job.seed, controller=job.controller, status="failed",
+               message=f"the worker process died while running it ({why})".strip())
+    row.update({k: None for k in METRIC_COLUMNS})
+    row.update(version=__version__, scenario_hash=job.scenario_hash, recording=None,
+               job_s=None, run_key=job.key)
+    return row
+
+
+def _unused_recording_path(job: Job) -> Job:
+    """The job, its recording path moved aside if a file is there (never overwritten)."""
+    if job.record_path is None or not Path(job.record_path).exists():
+        return job
+    from dataclasses import replace
+
+    base = Path(job.record_path)
+    n = 2
+    while (candidate := base.with_name(f"{base.stem}-{n}{base.suffix}")).exists():
+        n += 1
+    return replace(job, record_path=str(candidate))
+
+
+def _check_compatible(existing, plan: list[Job], path: Path) -> None:
+    """Refuse to mix rows of another grid or of an edited scenario into one table."""
+    if not len(existing) or not plan:
+        return
+    fixed = set(LEADING_COLUMNS) | set(TRAILING_COLUMNS)
+    theirs = [c for c in existing.columns if c not in fixed]
+    ours = [k for k, _ in plan[0].grid]
+    if sorted(theirs) != sorted(ours):
+        raise ScenarioError(f"--out {path}: the table holds a sweep over grid keys "
+                            f"({', '.join(theirs) or 'none'}), this one is over "
+                            f"({', '.join(ours) or 'none'}); choose another --out")
+    hashes = dict(zip(existing["scenario"], existing["scenario_hash"]))
+    for job in plan:
+        old = hashes.get(job.label)
+        if old is not None and old != job.scenario_hash:
+            raise ScenarioError(f"--out {path}: its '{job.label}' rows were run from another "
+                                f"version of that scenario (hash {old}, now "
+                                f"{job.scenario_hash}); choose another --out")
+
+
+class _CallableModule(types.ModuleType):
+    """``tspend.sweep(...)`` calls :func:`sweep`, while ``tspend.sweep`` stays this module."""
+
+    def __call__(self, *args: Any, **kwargs: Any):
+        return sweep(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
+
+__all__ = ["sweep", "read_table", "make_executor", "make_plan", "Job"]

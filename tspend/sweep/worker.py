@@ -1,0 +1,118 @@
+"""One run of a sweep, in a worker process: :func:`run_job` turns a :class:`Job` into
+its row.
+
+A worker process is reused for many runs, so the controller kernel is compiled or loaded
+from numba's cache once per worker.  Nothing a run does can end the sweep: a diverged run
+is a row with its metrics up to the stop, an exception is a ``failed`` row with its
+message.  With ``record="failed"`` a run that did not complete is run once more with a
+recorder attached; runs are deterministic, so the recording shows exactly that run.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..metrics import METRIC_KEYS
+from .plan import Job
+
+#: metric columns of a row (the seed has its own column already)
+METRIC_COLUMNS = tuple(k for k in METRIC_KEYS if k != "seed")
+
+
+def _seeded(job: Job):
+    """The job's scenario with its seed (applied here, in parallel, not in the parent)."""
+    from ..scenario import override
+
+    if job.seed == job.scenario.run.seed:
+        return job.scenario
+    return override(job.scenario, **{"run.seed": job.seed})
+
+
+def _recorded_run(job: Job, path: Path):
+    from ..recorder import RerunSink, close_recording, open_recording
+    from ..simulation import run
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rec = open_recording(f"tspend_sweep_{job.label}", path=path)
+    try:
+        return run(_seeded(job), sinks=[RerunSink(rec)], keep_history=False,
+                   controller=job.run_kind)
+    finally:
+        close_recording(rec)
+
+
+def _attempt(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
+    from ..simulation import run
+
+    try:
+        result = (_recorded_run(job, record_to) if record_to is not None else
+                  run(_seeded(job), keep_history=False, controller=job.run_kind))
+    except Exception as exc:  # a failed run is a row, never the end of the sweep
+        return "failed", f"{type(exc).__name__}: {exc}", {}
+    end = result.end
+    return end.status, end.message, end.metrics
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """The row of ``job``: its identity, how it ended, every metric, where it is recorded."""
+    started = time.perf_counter()
+    if job.cwd and job.cwd != os.getcwd() and os.path.isdir(job.cwd):
+        os.chdir(job.cwd)  # a worker started before the caller changed directory
+    recording = None
+    if job.record == "all":
+        recording = Path(job.record_path)
+        status, message, metrics = _attempt(job, recording)
+    else:
+        status, message, metrics = _attempt(job, None)
+        if job.record == "failed" and status != "completed":
+            recording = Path(job.record_path)
+            _attempt(job, recording)
+    row: dict[str, Any] = {"scenario": job.label}
+    row.update(job.grid)
+    row.update(seed=job.seed, controller=job.controller, status=status, message=message)
+    row.update({k: metrics.get(k) for k in METRIC_COLUMNS})
+    row.update(version=__version__, scenario_hash=job.scenario_hash,
+               recording=str(recording) if recording is not None else None,
+               job_s=time.perf_counter() - started, run_key=job.key)
+    return row
+
+
+# -- worker process set-up -----------------------------------------------------------------
+def _exit_with_parent(parent: int) -> None:
+    # a sweep killed with SIGKILL cannot stop its pool: the workers notice and leave
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def init_worker() -> None:
+    """Pool initialiser: Ctrl-C is the parent's to handle; leave when the parent is gone
+    (the parent of a forkserver worker is the fork server, which ends with the sweep).
+
+    Each worker is a session of its own: Linux's autogroup scheduler shares the CPU between
+    sessions, so workers left in the sweep's session would share one session's share
+    between them on a busy machine, and W workers would run no faster than one.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    try:
+        os.setsid()
+    except (AttributeError, OSError):  # not POSIX, or already a session leader
+        pass
+
+
+def warm(_: int = 0) -> int:
+    """Load the controller kernel in this worker (what the first run would otherwise pay)."""
+    from ..scenario import load_scenario, project_root
+    from ..simulation import build_controller
+
+    # the project's own file, whatever the caller's directory holds
+    build_controller(load_scenario(project_root() / "scenarios" / "ex3_pendulum_ode.toml"))
+    return os.getpid()
