@@ -160,7 +160,7 @@ class _Reader:
         if choices is not None and v not in choices:
             close = difflib.get_close_matches(v, choices, n=1)
             did = f" (did you mean '{close[0]}'?)" if close else ""
-            raise self.error(key, f"'{v}' is not allowed{did}; allowed: {', '.join(choices)}")
+            raise self.error(key, f"{v!r} is not allowed{did}; allowed: {', '.join(choices)}")
         return v
 
     def numbers(self, key: str, length: int | None = None,
