@@ -86,8 +86,10 @@ def test_signal_flushes_recording(tmp_path, sig, code):
          "--out", str(rrd), "--metrics", str(mj)],
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
-    # wait until the run is under way: the recording holds some blocks
-    while time.time() < deadline and (not rrd.exists() or rrd.stat().st_size < 200_000):
+    # wait until the run is under way: the recording (written beside its target until
+    # the run ends) holds some blocks
+    partial = tmp_path / "s.partial.rrd"
+    while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 200_000):
         time.sleep(0.2)
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)
@@ -97,6 +99,7 @@ def test_signal_flushes_recording(tmp_path, sig, code):
     assert m["status"] == "interrupted" and m["steps"] > 0
     t, theta = _pole_angle(rrd)
     assert len(theta) == m["steps"] and np.all(np.isfinite(theta))
+    assert not partial.exists()
 
 
 def test_missing_viewer_runs_headless(tmp_path, capsys):

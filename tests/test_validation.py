@@ -94,7 +94,7 @@ def test_unwritable_output_reported_before_run(tmp_path, capsys):
                    str(blocker / "sub" / "m.json"), "--no-record"])
     assert status == 2
     err = capsys.readouterr().err
-    assert "cannot create directory" in err and "m.json" in err
+    assert "is not a directory" in err and "m.json" in err
 
 
 def test_debug_shows_traceback(capsys):
@@ -108,7 +108,7 @@ def test_unwritable_recording_reported_before_run(tmp_path, capsys):
     status = main(["run", "ex2_duffing", "--duration", "0.01", "--out", str(blocker / "r.rrd")])
     assert status == 2
     err = capsys.readouterr().err
-    assert "recording" in err and "cannot create directory" in err
+    assert "--out" in err and "is not a directory" in err
 
 
 def test_every_controller_field_has_a_scenario_key():

@@ -1,165 +1,320 @@
 """The ``tspend`` command: run scenarios headless or live, list them, cross-check backends.
 
-Exit status: 0 success; 1 cross-check out of tolerance or an internal error; 2 bad
-input (scenario, model, command line, output path); 3 the closed loop diverged; 130
-interrupted by Ctrl-C (SIGINT); 143 terminated (SIGTERM).  Errors print one line;
-``--debug`` shows the traceback.  A run that stops early still writes its recording
-and its metrics up to that point.
+Exit status (the ``EXIT_*`` constants):
+
+====  =====================================================================================
+0     success
+1     ``crosscheck``: the backends differ by more than ``--tol``
+2     bad input: command line, scenario, model file, output path, a size bound exceeded
+3     the closed loop diverged (recording and metrics kept up to the divergence)
+4     the cart reached the end of a finite rail (``[effects]``; outputs kept up to it)
+5     an output could not be completed (disk full, I/O error); the file it would have
+      replaced is untouched and the metrics are printed to stdout as JSON as well
+70    internal error (a bug: please report it with the ``--debug`` traceback)
+129   SIGHUP, 130 SIGINT (Ctrl-C), 143 SIGTERM: outputs completed up to the stop
+====  =====================================================================================
+
+Every error is one line on stderr, ``tspend: error: ...``, with control characters
+escaped; ``--debug`` adds the traceback.
+
+A command that writes files does its work in this order, so that a rejected command
+writes nothing and a failed one replaces nothing: (1) check everything: arguments,
+scenario, the plant and controller built, and the output paths against each other and
+against every input; (2) claim the outputs (an exclusive partial file beside each, see
+:mod:`tspend.outputs`); (3) print the banner; (4) run; (5) complete the outputs, each
+renamed into place only when whole.  Signal handlers are installed before any of it,
+before numpy, MuJoCo or Rerun are imported (:mod:`tspend.interrupts`).
+
+Adding a subcommand: write ``tspend/cli_<name>.py`` with ``add_parser(subparsers)``
+(adds its subparser) and ``cmd(args) -> int``, and add ``"<name>"`` to :data:`COMMANDS`.
+Keep the module's top-level imports light (stdlib, ``tspend.cli``); import the heavy
+parts inside ``cmd``.  The machinery below is for those modules:
+:func:`add_scenario_options`, :func:`load_with_overrides`, :func:`plan`, :class:`Claimed`
+(outputs), ``args.guard`` (the :class:`~tspend.interrupts.SignalGuard`), :func:`printable`,
+:func:`print_metrics`, and the ``EXIT_*`` statuses.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
+import importlib
 import json
 import math
 import os
 import re
-import signal
 import sys
-import time
 import traceback
-from contextlib import contextmanager
+import warnings
 from pathlib import Path
-from typing import Any, Iterator
+from contextlib import contextmanager
+from typing import Any, Iterable, Iterator, Sequence
 
-from . import __version__, cli_inspect
-from . import cli_export, cli_sweep
-from . import cli_compare, cli_figures
-from .errors import ScenarioError, TspendError
-from .plants.mjcf_warning import print_as_one_line
-from .progress import RunProgress
-from .runner import RunInterrupted, StopRequest
+from . import __version__
+from .errors import OutputError, ScenarioError, TspendError
+from .interrupts import Interrupted, SignalGuard, StopRequest
+from .outputs import Output, OutputRequest, PlannedOutput, claim, display, plan_outputs
+
+#: the subcommands, each the module ``tspend/cli_<name>.py``, in ``--help`` order
+COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "figures")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
+EXIT_OK = 0
+EXIT_TOLERANCE = 1
+EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
+EXIT_RAIL_END = 4
+EXIT_WRITE_FAILED = 5
+EXIT_INTERNAL = 70
+#: the largest value accepted by options taking a count (--record-every)
+MAX_COUNT = 10**9
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="tspend", description=__doc__.split("\n")[0])
+class UsageError(ScenarioError):
+    """A command-line problem argparse found (exit 2, one line)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="tspend", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"tspend {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
-
-    r = sub.add_parser("run", help="run a scenario (default: the MuJoCo pendulum) headless")
-    r.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO,
-                   help="scenario name (see 'tspend list') or path to a .toml file")
-    _common(r)
-    r.add_argument("--controller", metavar="KIND",
-                   help="run another controller kind on the scenario (default: the scenario's "
-                        "own; 'tspend run --controller help' lists the kinds)")
-    r.add_argument("--metrics", metavar="PATH", help="write the metrics as one JSON object")
-
-    c = sub.add_parser("crosscheck", help="run a cart-pole scenario on MuJoCo and on the ODE")
-    c.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO)
-    _common(c)
-    c.add_argument("--json", metavar="PATH", help="write the cross-check figures as JSON")
-    c.add_argument("--tol", type=float, default=1e-8,
-                   help="open-loop tolerance on max |dtheta| in rad (default 1e-8)")
-    c.add_argument("--open-loop-duration", type=float, default=10.0, metavar="S",
-                   help="length of the open-loop comparison (default 10 s)")
-
-    sub.add_parser("list", help="list the scenarios with their descriptions")
-    cli_inspect.add_parser(sub)
-    cli_sweep.add_parser(sub)
-    cli_export.add_parser(sub)
-    cli_compare.add_parser(sub)
-    cli_figures.add_parser(sub)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        module = importlib.import_module(f".cli_{name}", __package__)
+        known = set(sub.choices)
+        module.add_parser(sub)
+        for added in set(sub.choices) - known:  # whatever names the module registered
+            sub.choices[added].set_defaults(handler=module.cmd)
     return p
 
 
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
-    p.add_argument("--seed", type=int, metavar="N", help="override run.seed")
+# -- options and values shared by the commands -------------------------------------------
+def finite(low: float = 0.0, high: float = math.inf, strict: bool = True):
+    """An argparse type: a finite float in (low, high] (``strict``) or [low, high]."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
+        ok = math.isfinite(v) and (v > low if strict else v >= low) and v <= high
+        if not ok:
+            span = f"{'>' if strict else '>='} {low:g}" + (f" and <= {high:g}" if high < math.inf
+                                                          else "")
+            raise argparse.ArgumentTypeError(f"must be a finite number {span}, got {text[:40]}")
+        return v
+    return parse
+
+
+def bounded_int(low: int, high: int):
+    """An argparse type: an integer in [low, high], read without converting huge digit strings."""
+    def parse(text: str) -> int:
+        t = text.strip()
+        if not re.fullmatch(r"[+-]?\d{1,30}", t):
+            shown = t if len(t) <= 40 else f"{t[:20]}... ({len(t)} characters)"
+            raise argparse.ArgumentTypeError(f"must be an integer from {low} to {high}, got "
+                                             f"{shown!r}")
+        v = int(t)
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"must be an integer from {low} to {high}, got {v}")
+        return v
+    return parse
+
+
+def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> None:
+    """The options of every command that runs a scenario: overrides and recording."""
+    from .bounds import MAX_SEED
+
+    p.add_argument("--duration", type=finite(), metavar="S", help="override run.duration")
+    p.add_argument("--seed", type=bounded_int(0, MAX_SEED), metavar="N",
+                   help="override run.seed")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any field, e.g. --set controller.eta=0.01 (repeatable)")
-    out = p.add_mutually_exclusive_group()
-    out.add_argument("--out", metavar="PATH.rrd",
-                     help="recording file (default runs/<scenario>-<timestamp>.rrd)")
-    out.add_argument("--no-record", action="store_true", help="record nothing")
-    p.add_argument("--record-every", type=int, default=1, metavar="N",
-                   help="record every Nth sample of the time series (default 1: every one, "
-                        "exact); 10 makes long recordings ten times smaller")
-    p.add_argument("--spawn", action="store_true", help="also stream to a live Rerun viewer")
-    p.add_argument("--connect", metavar="URL", help="also stream to a running Rerun viewer")
+    if recording:
+        out = p.add_mutually_exclusive_group()
+        out.add_argument("--out", metavar="PATH.rrd",
+                         help="recording file (default runs/<scenario>-<time>-s<seed>.rrd, a "
+                              "new name for every run); an existing file is replaced only "
+                              "by a complete recording")
+        out.add_argument("--no-record", action="store_true", help="record nothing")
+        p.add_argument("--record-every", type=bounded_int(1, MAX_COUNT), default=1, metavar="N",
+                       help="record every Nth sample of the time series (default 1: every "
+                            "one, exact); 10 makes long recordings ten times smaller")
+        p.add_argument("--spawn", action="store_true", help="also stream to a live Rerun viewer")
+        p.add_argument("--connect", metavar="URL",
+                       help="also stream to a running Rerun viewer "
+                            "(e.g. rerun+http://127.0.0.1:9876/proxy)")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 
 
-# -- helpers -----------------------------------------------------------------------------
-def _parse_value(text: str) -> Any:
-    """A --set value: TOML-ish scalars and lists (numbers, true/false, strings)."""
+def parse_set_value(item: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of --set: the value in TOML (a bare word is a string), on one line."""
     import tomllib
 
+    from .scenario import check_nesting
+
+    key, sep, text = item.partition("=")
+    if not sep or not key.strip():
+        raise ScenarioError(f"--set {item[:80]}: expected KEY=VALUE, e.g. controller.eta=0.01")
+    if "\n" in text or "\r" in text or "\x00" in text:
+        raise ScenarioError(f"--set {key.strip()[:80]}: the value must be one line of TOML "
+                            f"(it contains a line break or a NUL byte)")
+    text = text.strip()
     try:
-        return tomllib.loads(f"v = {text}")["v"]
+        parsed = tomllib.loads(f"v = {text}")
     except tomllib.TOMLDecodeError:
-        return text
+        return key.strip(), text  # a bare word, e.g. controller.adaptation=first
+    except RecursionError:
+        raise ScenarioError(f"--set {key.strip()[:80]}: the value is nested too deeply") from None
+    except ValueError as exc:  # e.g. more digits than Python converts
+        raise ScenarioError(f"--set {key.strip()[:80]}: {str(exc)[:120]}") from None
+    if list(parsed) != ["v"]:
+        raise ScenarioError(f"--set {key.strip()[:80]}: one value expected, got more TOML after it")
+    check_nesting(parsed["v"], f"--set {key.strip()[:80]}")
+    return key.strip(), parsed["v"]
 
 
 def load_with_overrides(args: argparse.Namespace):
+    """The scenario named by ``args.scenario`` with --duration, --seed and --set applied."""
     from .scenario import load_scenario, override
 
     scn = load_scenario(args.scenario)
     changes: dict[str, Any] = {}
     if args.duration is not None:
-        if not (args.duration > 0 and math.isfinite(args.duration)):
-            raise ScenarioError(f"--duration: must be a positive number of seconds, got "
-                                f"{args.duration}")
         changes["run.duration"] = float(args.duration)
     if args.seed is not None:
-        if args.seed < 0:
-            raise ScenarioError(f"--seed: must be >= 0, got {args.seed}")
         changes["run.seed"] = int(args.seed)
     for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ScenarioError(f"--set {item}: expected KEY=VALUE, e.g. controller.eta=0.01")
-        changes[key.strip()] = _parse_value(value.strip())
+        key, value = parse_set_value(item)
+        changes[key] = value
     return override(scn, **changes) if changes else scn
 
 
-def check_writable(path: Path, what: str) -> None:
-    """Fail before the run if ``path`` cannot be written (directory created if needed)."""
-    parent = path.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ScenarioError(f"{what} {path}: cannot create directory {parent}: "
-                            f"{exc.strerror or exc}") from None
-    if path.is_dir():
-        raise ScenarioError(f"{what} {path}: is a directory")
-    if not os.access(parent, os.W_OK):
-        raise ScenarioError(f"{what} {path}: directory {parent} is not writable")
+def uses_mujoco(scn) -> bool:
+    """Whether the scenario's plant is a MuJoCo model (its configuration names a model file)."""
+    return hasattr(scn.plant, "model")
 
 
-def default_recording_path(name: str) -> Path:
-    return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
+def scenario_inputs(scn) -> list[str]:
+    """Every file a run reads: outputs must never be one of them."""
+    from .scenario import resolve_model_path
+
+    inputs = [scn.path] if scn.path and scn.path != "<string>" else []
+    if uses_mujoco(scn):
+        inputs.append(str(resolve_model_path(scn)))
+    return inputs
 
 
-@contextmanager
-def stop_on_signals() -> Iterator[StopRequest]:
-    """SIGINT and SIGTERM ask the run to stop at the next sample (it then flushes).
-
-    A second Ctrl-C interrupts at once, for a run stuck outside the loop.
-    """
-    stop = StopRequest()
-
-    def on_signal(signum, frame):
-        if signum == signal.SIGINT and stop.signal_name == "SIGINT":
-            raise KeyboardInterrupt
-        stop.request(*{signal.SIGINT: ("SIGINT", 130), signal.SIGTERM: ("SIGTERM", 143)}[signum])
-
-    try:
-        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    except ValueError:  # not the main thread: signals stay as they are
-        yield stop
+def check_model_size(scn, limit: int = 10_000_000, kind: str | None = None) -> None:
+    """An MJCF larger than ``limit`` bytes is refused before MuJoCo reads it."""
+    if not (uses_mujoco(scn) or (kind and "mujoco" in kind)):
         return
+    from .scenario import resolve_model_path
+
+    path = resolve_model_path(scn)
     try:
-        yield stop
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        size = os.stat(path).st_size
+    except (OSError, ValueError):
+        return  # the plant reports a missing file with its own message
+    if size > limit:
+        raise ScenarioError(f"{path}: the model file is {size} bytes, more than {limit}")
 
 
-def _fmt(v: Any) -> str:
+def check_viewer_url(url: str | None) -> None:
+    if url is None:
+        return
+    from .recorder.stream import viewer_url_problem  # light: no Rerun call at import time
+
+    problem = viewer_url_problem(url)
+    if problem:
+        raise ScenarioError(f"--connect {url[:200]}: {problem}")
+
+
+# -- outputs -----------------------------------------------------------------------------
+def recording_request(args: argparse.Namespace, stem: str) -> OutputRequest | None:
+    """The recording of a command with the scenario options, or None (--no-record)."""
+    if args.no_record:
+        return None
+    return OutputRequest("--out", "recording", ".rrd", args.out, default_stem=stem)
+
+
+def plan(requests: Iterable[OutputRequest | None], inputs: Iterable[str] = ()) -> list[PlannedOutput]:
+    """Check the outputs against each other and the inputs; writes nothing (exit 2 if bad)."""
+    return plan_outputs([r for r in requests if r is not None], inputs)
+
+
+class Claimed:
+    """The outputs of one command, claimed together and completed or removed together.
+
+    ``with Claimed(plans, seed) as outs:`` creates every partial file (or none);
+    ``outs[option]`` is the :class:`~tspend.outputs.Output` of that option (or None);
+    :meth:`complete` renames them into place; whatever is not completed when the block
+    ends is removed.  Enter it inside ``args.guard.deferred()``.
+    """
+
+    def __init__(self, plans: Sequence[PlannedOutput], seed: int | None = None) -> None:
+        self._plans, self._seed = plans, seed
+        self.outputs: list[Output] = []
+
+    def __enter__(self) -> "Claimed":
+        self.outputs = claim(self._plans, self._seed)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for out in self.outputs:
+            if not out.committed:
+                out.discard()
+
+    def __getitem__(self, option: str) -> Output | None:
+        return next((o for o in self.outputs if o.plan.request.option == option), None)
+
+    def complete(self, output: Output | None, problem: str = "") -> str:
+        """Rename ``output`` into place; returns "" or the one-line reason it failed.
+
+        ``problem``: the writer already knows the file is incomplete; it is removed.
+        """
+        if output is None:
+            return ""
+        if problem:
+            output.discard()
+            return (f"{output.what} {display(output.target)}: could not be completed "
+                    f"({problem}); nothing was replaced")
+        try:
+            output.commit()
+        except OutputError as exc:
+            return str(exc)
+        return ""
+
+    def write_json(self, output: Output | None, obj: dict) -> str:
+        """Write ``obj`` as JSON to ``output`` and complete it; "" or why it failed."""
+        if output is None:
+            return ""
+        try:
+            output.write((json.dumps(obj, indent=2) + "\n").encode())
+        except OutputError as exc:
+            output.discard()
+            return str(exc)
+        return self.complete(output)
+
+
+# -- printing ----------------------------------------------------------------------------
+_CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+_LONG_TOKEN = re.compile(r"\S{161,}")
+
+
+def printable(text: object, limit: int = 2000) -> str:
+    """``text`` on one line, safe for a terminal: controls escaped, long runs elided."""
+    s = " ".join(str(text).split("\n"))
+    s = s.replace("\t", " ").replace("\r", " ")
+    s = _CONTROL.sub(lambda m: repr(m.group())[1:-1], s)
+    s = _LONG_TOKEN.sub(lambda m: f"{m.group()[:100]}...({len(m.group())} characters)", s)
+    return s if len(s) <= limit else s[:limit] + "..."
+
+
+def format_value(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.6g}"
     return "n/a" if v is None else str(v)
@@ -172,7 +327,7 @@ def print_metrics(metrics: dict, stream=None) -> None:
     width = max(len(k) for k in keys)
     for k in keys:
         if k in metrics:
-            print(f"  {k:<{width}}  {_fmt(metrics[k])}", file=stream)
+            print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
 def metrics_document(scn, end) -> dict:
@@ -182,172 +337,155 @@ def metrics_document(scn, end) -> dict:
                 overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
 
 
+@contextmanager
+def stop_on_signals() -> Iterator[StopRequest]:
+    """For a command called without the CLI's ``args.guard`` (from Python): signals only
+    request a stop while the block runs; the previous handlers are put back after."""
+    guard = SignalGuard().install()
+    try:
+        with guard.deferred() as stop:
+            yield stop
+    finally:
+        guard.restore()
+
+
+def check_writable(path: Path, what: str) -> None:
+    """Check one JSON output before the work (a command with several outputs uses
+    :func:`plan` and :class:`Claimed`)."""
+    plan_outputs([OutputRequest(f"--{what}", what, ".json", str(path))])
+
+
 def write_json(path: Path, obj: dict) -> None:
-    path.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+    """Write ``obj`` to ``path`` atomically: a partial file beside it, renamed when whole.
+
+    Raises OutputError (exit 5) if it cannot be completed; ``path`` is then untouched.
+    """
+    plans = plan_outputs([OutputRequest("--json", "json", ".json", str(path))])
+    with Claimed(plans) as outs:
+        problem = outs.write_json(outs["--json"], obj)
+    if problem:
+        raise OutputError(problem)
 
 
-# -- recording ---------------------------------------------------------------------------
-def open_sinks(args: argparse.Namespace, name: str, prefixes: tuple[str, ...] = ("",)):
-    """The recording stream and one Rerun sink per prefix (none with --no-record)."""
-    if args.record_every < 1:
-        raise ScenarioError(f"--record-every: must be >= 1, got {args.record_every}")
-    if args.no_record and not (args.spawn or args.connect):
-        return None, None, []
-    from .recorder import RerunSink, open_recording
+def release_warnings(args: argparse.Namespace) -> None:
+    """Print the warnings held so far, one ``tspend: warning:`` line each.
 
-    path = None if args.no_record else Path(args.out or default_recording_path(name))
-    if path is not None:
-        check_writable(path, "recording")
-    app_id = "tspend_" + re.sub(r"[^A-Za-z0-9_-]", "_", name)  # Rerun entry-name rules
-    rec = open_recording(app_id, path=path, spawn=args.spawn, connect=args.connect)
-    if rec is None:  # no viewer reachable and nothing to save: the run goes on headless
-        return None, None, []
-    sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None,
-                       curves_every=args.record_every)
-             for i, p in enumerate(prefixes)]
-    return rec, path, sinks
+    Warnings are held while a command checks its input, so that bad input stays one line;
+    a command calls this once the input is accepted (before its banner).
+    """
+    held = getattr(args, "warnings", None)
+    if held:
+        for message in dict.fromkeys(str(w.message) for w in held):
+            say(f"warning: {message}")
+        held.clear()
 
 
-# -- commands ----------------------------------------------------------------------------
-def cmd_list(args: argparse.Namespace) -> int:
-    from .scenario import available_scenarios, load_scenario
-
-    for path in available_scenarios():
-        try:
-            desc = load_scenario(path).description
-        except TspendError as exc:
-            desc = f"(invalid: {exc})"
-        mark = " (default)" if path.stem == DEFAULT_SCENARIO else ""
-        print(f"{path.stem}{mark}\n    {desc}")
-    return 0
-
-
-def cmd_run(args: argparse.Namespace) -> int:
-    from .simulation import run
-
-    from .controllers import KINDS
-
-    scn = load_with_overrides(args)
-    if args.controller is not None and args.controller not in KINDS:
-        raise ScenarioError(f"--controller {args.controller}: unknown kind; allowed: "
-                            f"{', '.join(KINDS)}")
-    metrics_path = Path(args.metrics) if args.metrics else None
-    if metrics_path is not None:
-        check_writable(metrics_path, "metrics")
-    rec, rrd, sinks = open_sinks(args, scn.name)
-    sinks = [*sinks, RunProgress()]  # a bar on a terminal once the run takes a few seconds
-    print(f"tspend {__version__}: {scn.name} ({scn.plant.kind}), {scn.run.duration:g} s at "
-          f"dt = {scn.run.dt:g} s, seed {scn.run.seed}"
-          + (f", recording to {rrd}" if rrd else ""), flush=True)
-    # signals only set a flag from here on, so closing the recording cannot be cut short
-    with stop_on_signals() as stop:
-        try:
-            result = run(scn, sinks=sinks, keep_history=False, stop=stop,
-                         controller=args.controller)
-        except RunInterrupted as exc:
-            if metrics_path is not None and exc.end is not None:
-                write_json(metrics_path, metrics_document(scn, exc.end))
-            print(f"tspend: interrupted by {exc.signal_name}; recording"
-                  f"{' ' + str(rrd) if rrd else ''} and metrics kept up to the stop",
-                  file=sys.stderr)
-            return exc.exit_status
-        finally:
-            if rec is not None:
-                _close(rec)
-    end = result.end
-    if metrics_path is not None:
-        write_json(metrics_path, metrics_document(scn, end))
-    if stop.signal_name is not None:  # arrived after the last sample: the run is whole
-        print(f"tspend: {stop.signal_name} after the run completed; results kept",
-              file=sys.stderr)
-        return stop.exit_status
-    print(f"{end.status}: {end.steps_done} steps" + (f" ({end.message})" if end.message else ""))
-    print_metrics(end.metrics)
-    if rrd:
-        print(f"recording: {rrd}  (open with: rerun {rrd})")
-    if end.status == "diverged":
-        print(f"tspend: {end.message}", file=sys.stderr)
-        return EXIT_DIVERGED
-    if end.status == "rail_end":  # tspend.effects.RailEnd
-        print(f"tspend: {end.message}", file=sys.stderr)
-        return 4
-    return 0
-
-
-def _close(rec) -> None:
-    from .recorder import close_recording
-
+def say(message: str) -> None:
+    """One line on stderr, ``tspend: ...``; a vanished terminal (SIGHUP) is not an error."""
     try:
-        close_recording(rec)
-    except Exception as exc:  # the run's result stands; say what happened to the file
-        print(f"tspend: warning: closing the recording failed: {exc}", file=sys.stderr)
+        print(f"tspend: {printable(message)}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
-def cmd_crosscheck(args: argparse.Namespace) -> int:
-    from .crosscheck import crosscheck
+class _ReaderGoneTolerant:
+    """stdout that goes quiet once its reader has gone (``tspend list | head -1``, a
+    closed terminal): the command carries on and its files are completed."""
 
-    scn = load_with_overrides(args)
-    json_path = Path(args.json) if args.json else None
-    if json_path is not None:
-        check_writable(json_path, "json")
-    if not (args.tol > 0 and math.isfinite(args.tol)):
-        raise ScenarioError(f"--tol: must be a positive number, got {args.tol}")
-    rec, rrd, sinks = open_sinks(args, f"{scn.name}-crosscheck", prefixes=("mujoco/", "ode/"))
-    from .recorder.crosscheck import crosscheck_sinks, record_verdict
-    sinks = crosscheck_sinks(sinks)
-    with stop_on_signals() as stop:
-        try:
-            report = crosscheck(scn, sinks=sinks, open_loop_duration=args.open_loop_duration,
-                                stop=stop)
-            report["tolerance"] = args.tol
-            report["open_loop_ok"] = report["open_loop_max_dtheta"] <= args.tol
-            record_verdict(sinks, report)
-        except RunInterrupted as exc:
-            print(f"tspend: cross-check interrupted by {exc.signal_name}", file=sys.stderr)
-            return exc.exit_status
-        finally:
-            if rec is not None:
-                _close(rec)
-    for k, v in report.items():
-        if not isinstance(v, dict):
-            print(f"  {k:<34} {_fmt(v)}")
-    if json_path is not None:
-        write_json(json_path, report)
-    if rrd:
-        print(f"recording: {rrd}  (open with: rerun {rrd})")
-    if not report["open_loop_ok"]:
-        from .crosscheck import failure_reason
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.reader_gone = False
 
-        print(f"tspend: cross-check failed: max |dtheta| = {report['open_loop_max_dtheta']:.3g} "
-              f"rad > {args.tol:g}; {failure_reason(report)}", file=sys.stderr)
-    return 0 if report["open_loop_ok"] else 1
+    def _gone(self) -> None:
+        self.reader_gone = True
+        try:  # so the interpreter's final flush cannot fail either
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, self._stream.fileno())
+            os.close(devnull)
+        except (OSError, ValueError, AttributeError):
+            pass
+
+    def write(self, text: str) -> int:
+        if not self.reader_gone:
+            try:
+                return self._stream.write(text)
+            except OSError as exc:
+                if exc.errno not in (errno.EPIPE, errno.EIO, errno.EINVAL):
+                    raise
+                self._gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.reader_gone:
+            try:
+                self._stream.flush()
+            except OSError as exc:
+                if exc.errno not in (errno.EPIPE, errno.EIO, errno.EINVAL):
+                    raise
+                self._gone()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
 
 
+# -- entry point -------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    commands = {"run": cmd_run, "list": cmd_list, "crosscheck": cmd_crosscheck,
-                "inspect": cli_inspect.cmd}
-    commands["sweep"] = cli_sweep.cmd
-    commands["export"] = cli_export.cmd
-    commands["compare"] = cli_compare.cmd
-    commands["figures"] = cli_figures.cmd
-    print_as_one_line()
+    guard = SignalGuard().install()  # first: a signal from here on has its exit status
+    real_stdout = sys.stdout
+    sys.stdout = _ReaderGoneTolerant(real_stdout)
+    args: argparse.Namespace | None = None
     try:
-        return commands[args.command](args)
+        from .native_logs import quiet_rerun
+
+        quiet_rerun()
+        args = build_parser().parse_args(argv)
+        args.guard = guard
+        # warnings (numpy's overflow on the way to a bad value, say) would add lines to
+        # the one-line error: kept, and printed after a command that succeeds
+        with warnings.catch_warnings(record=True) as caught:
+            args.warnings = caught
+            status = args.handler(args)
+        release_warnings(args)
+        return status
+    except Interrupted as exc:
+        guard.hold()
+        say(f"interrupted by {exc.signal_name} before any output was written")
+        return exc.exit_status
     except TspendError as exc:
+        guard.hold()
         if getattr(args, "debug", False):
             traceback.print_exc()
-        print(f"tspend: error: {exc}", file=sys.stderr)
+        say(f"error: {exc}")
         return exc.exit_status
-    except KeyboardInterrupt:
-        print("tspend: interrupted", file=sys.stderr)
+    except KeyboardInterrupt:  # handlers not installed (not the main thread)
+        guard.hold()
+        say("interrupted")
         return 130
     except Exception as exc:  # a bug: still one line, the traceback on request
+        guard.hold()
+        if guard.stop.signal_name is not None:
+            # the signal's exception, turned into another by the code it interrupted (an
+            # extension module being imported reports "ImportError: initialization failed")
+            say(f"interrupted by {guard.stop.signal_name} before any output was written")
+            return guard.stop.exit_status
         if getattr(args, "debug", False):
             traceback.print_exc()
-        print(f"tspend: internal error: {type(exc).__name__}: {exc} (--debug shows the "
-              f"traceback)", file=sys.stderr)
-        return 1
+        say(f"internal error: {type(exc).__name__}: {exc} (--debug shows the traceback)")
+        return EXIT_INTERNAL
+    finally:
+        guard.hold()  # from here a signal is only noted: the exit cannot be cut short
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError):
+            pass
+        sys.stdout = real_stdout
+        if argv is not None:  # called from Python (tests, notebooks): handlers back
+            guard.restore()
+        else:
+            # the program itself: the interpreter's shutdown resets Python handlers to the
+            # default action, so a late second signal would kill the process and lose the
+            # exit status.  Its work is done: ignore them for the last milliseconds.
+            guard.ignore_from_now_on()
 
 
 if __name__ == "__main__":

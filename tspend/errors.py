@@ -22,3 +22,13 @@ class DivergenceError(TspendError):
     """The closed loop left the region where it is meaningful (non-finite or out of bounds)."""
 
     exit_status = 3
+
+
+class OutputError(TspendError):
+    """An output file could not be completed (disk full, I/O error, size limit).
+
+    The file it would have replaced is untouched; the message names the file.
+    """
+
+    exit_status = 5
+

@@ -26,6 +26,7 @@ import numpy as np
 from .controllers.base import Controller, Diagnostic, check_diagnostics
 from .errors import DivergenceError
 from .fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
+from .interrupts import StopRequest
 from .plants.base import Plant
 from .signals import Disturbance, Reference
 from .sinks import Block, RunEnd, RunInfo, Sink
@@ -40,22 +41,6 @@ class RunInterrupted(Exception):
         self.exit_status = exit_status
         #: how the run ended (metrics up to the stop), set by the runner
         self.end: RunEnd | None = None
-
-
-class StopRequest:
-    """A request to stop, set by a signal handler and honoured between two samples.
-
-    Raising from the handler itself could land in the middle of handing a block to the
-    sinks (some would have it, some not); the loop checks this flag before each sample
-    instead, where everything before is complete.
-    """
-
-    def __init__(self) -> None:
-        self.signal_name: str | None = None
-        self.exit_status = 0
-
-    def request(self, signal_name: str, exit_status: int) -> None:
-        self.signal_name, self.exit_status = signal_name, exit_status
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,8 @@ from typing import Any, Callable
 import numpy as np
 
 from . import signals
+from .bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST, MAX_NAME,
+                     MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
 from .config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
                      ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from .control_law import is_hurwitz
@@ -36,9 +38,6 @@ REFERENCE_KINDS: dict[str, type] = {
 DISTURBANCE_KINDS: dict[str, type] = {
     "square": signals.SquareWave, "zero": signals.NoDisturbance, "sine": signals.SineDisturbance,
 }
-
-#: longest run accepted, in samples (10^9 samples is days of wall time)
-MAX_STEPS = 1e9
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
             "controllers", "effects")
@@ -78,12 +77,18 @@ def available_scenarios() -> list[Path]:
 def find_scenario(name_or_path: str | Path) -> Path:
     """A scenario file from a path, or from a bare name such as ``ex2_duffing``."""
     p = Path(name_or_path)
-    if p.is_file():
-        return p
-    for d in scenario_dirs():
-        for cand in (d / p.name, d / f"{p.name}.toml"):
-            if cand.is_file():
-                return cand
+    if "\x00" in str(p):
+        raise ScenarioError(f"{str(p)!r}: a scenario name or path cannot contain a NUL byte")
+    try:
+        if p.is_file():
+            return p
+        for d in scenario_dirs():
+            for cand in (d / p.name, d / f"{p.name}.toml"):
+                if cand.is_file():
+                    return cand
+    except OSError as exc:  # e.g. a name longer than the file system allows
+        raise ScenarioError(f"{str(p)[:200]}: cannot look for a scenario file there: "
+                            f"{exc.strerror or exc}") from None
     names = [s.stem for s in available_scenarios()]
     hint = difflib.get_close_matches(p.stem, names, n=1)
     did = f" (did you mean '{hint[0]}'?)" if hint else ""
@@ -128,7 +133,8 @@ class _Reader:
             raise self.error(key, f"must be {'>' if strict else '>='} {low:g}, got {v:g}")
         return v
 
-    def integer(self, key: str, default: int | None = None, *, low: int = 0) -> int:
+    def integer(self, key: str, default: int | None = None, *, low: int = 0,
+                high: int | None = None) -> int:
         if key not in self.table:
             if default is None:
                 raise self.error(key, "missing (an integer is required)")
@@ -136,8 +142,10 @@ class _Reader:
         v = self.table[key]
         if isinstance(v, bool) or not isinstance(v, int):
             raise self.error(key, f"must be an integer, got {type(v).__name__} {v!r}")
-        if v < low:
-            raise self.error(key, f"must be >= {low}, got {v}")
+        if v < low or (high is not None and v > high):
+            allowed = f">= {low}" if high is None else f"from {low} to {high}"
+            shown = str(v) if abs(v) < 10**15 else f"an integer of {len(str(abs(v)))} digits"
+            raise self.error(key, f"must be {allowed}, got {shown}")
         return v
 
     def string(self, key: str, default: str | None = None,
@@ -152,7 +160,7 @@ class _Reader:
         if choices is not None and v not in choices:
             close = difflib.get_close_matches(v, choices, n=1)
             did = f" (did you mean '{close[0]}'?)" if close else ""
-            raise self.error(key, f"'{v}' is not allowed{did}; allowed: {', '.join(choices)}")
+            raise self.error(key, f"{v!r} is not allowed{did}; allowed: {', '.join(choices)}")
         return v
 
     def numbers(self, key: str, length: int | None = None,
@@ -167,6 +175,8 @@ class _Reader:
             raise self.error(key, f"must be a list of numbers, got {v!r}")
         if length is not None and len(v) != length:
             raise self.error(key, f"must have {length} entries, got {len(v)}")
+        if len(v) > MAX_LIST:
+            raise self.error(key, f"at most {MAX_LIST} entries, got {len(v)}")
         out = tuple(float(a) for a in v)
         if not all(math.isfinite(a) for a in out):
             raise self.error(key, f"must be finite, got {v!r}")
@@ -196,7 +206,7 @@ def _run(r: _Reader) -> RunConfig:
     return RunConfig(
         duration=r.number("duration", d.duration, low=0.0, strict=True),
         dt=r.number("dt", d.dt, low=0.0, strict=True),
-        seed=r.integer("seed", d.seed, low=0),
+        seed=r.integer("seed", d.seed, low=0, high=MAX_SEED),
         snapshot_every=r.number("snapshot_every", d.snapshot_every, low=0.0),
         control_bound=r.number("control_bound", d.control_bound, low=0.0),
     )
@@ -298,7 +308,7 @@ def _sets(r: _Reader, key: str, default: SetSpec) -> SetSpec:
 
 def _set_spec(s: _Reader) -> SetSpec:
     s.check_keys(SET_KEYS)
-    terms = s.integer("terms", None, low=1)
+    terms = s.integer("terms", None, low=1, high=MAX_TERMS)
     lo, hi = s.number("lo"), s.number("hi")
     if lo >= hi:
         raise s.error("lo", f"interval needs lo < hi, got lo = {lo:g}, hi = {hi:g}")
@@ -314,8 +324,8 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
                                 f"(all roots in Re s < 0); {list(lam)} is not")
     Q = _matrix(r, "Q", n, d.Q if n == 2 else tuple(tuple(10.0 * (i == j) for j in range(n))
                                                       for i in range(n)))
-    order = r.integer("bspline_order", d.bspline_order, low=2)
-    cps = r.integer("control_points", d.control_points, low=1)
+    order = r.integer("bspline_order", d.bspline_order, low=2, high=MAX_BSPLINE_ORDER)
+    cps = r.integer("control_points", d.control_points, low=1, high=MAX_CONTROL_POINTS)
     if cps < order:
         raise r.error("control_points", f"must be >= bspline_order ({order}), got {cps}")
     sets = r.table_of("sets")
@@ -323,6 +333,11 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
     state_sets = _state_sets(sets, n, d.state_sets)
     eta = r.number("eta", d.eta, low=0.0, strict=True)
     op = r.string("operating_point", d.operating_point, ("fixed", "state"))
+    u_sets = _sets(sets, "u", d.u_sets)
+    e_delta_sets = _sets(sets, "e_delta", d.e_delta_sets)
+    x_norm_sets = _sets(sets, "x_norm", d.x_norm_sets)
+    _check_rules(sets, "states", (*state_sets, u_sets), "T-S model (states x u)")
+    _check_rules(sets, "e_delta", (e_delta_sets, x_norm_sets), "compensator (e_delta x x_norm)")
     init_c = r.interval("init_consequents", d.init_consequents)
     init_q = r.interval("init_compensator", d.init_compensator)
     return ControllerConfig(
@@ -332,9 +347,7 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
         adaptation=r.string("adaptation", d.adaptation, ("second", "first")),
         bspline_order=order, control_points=cps,
         state_sets=state_sets,
-        u_sets=_sets(sets, "u", d.u_sets),
-        e_delta_sets=_sets(sets, "e_delta", d.e_delta_sets),
-        x_norm_sets=_sets(sets, "x_norm", d.x_norm_sets),
+        u_sets=u_sets, e_delta_sets=e_delta_sets, x_norm_sets=x_norm_sets,
         init_consequents=init_c, init_compensator=init_q,
         b_min=r.number("b_min", d.b_min, low=0.0, strict=True),
         norm_radius=r.number("norm_radius", d.norm_radius, low=0.0),
@@ -348,6 +361,13 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
         gain_sign=r.string("gain_sign", d.gain_sign, ("plant", "positive", "negative")),
         shape_projection=r.string("shape_projection", d.shape_projection, ("off", "unimodal")),
     )
+
+
+def _check_rules(sets: _Reader, key: str, specs: tuple[SetSpec, ...], what: str) -> None:
+    rules = math.prod(s.terms for s in specs)
+    if rules > MAX_RULES:
+        raise sets.error(key, f"the {what} would have {rules} rules, more than {MAX_RULES}; "
+                              f"use fewer terms per set")
 
 
 def _state_sets(sets: _Reader, n: int, default: tuple[SetSpec, ...]) -> tuple[SetSpec, ...]:
@@ -388,16 +408,14 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ``overrides`` are ``(dotted.key, value)`` pairs applied to the parsed TOML before
     validation, so an override is checked exactly like a key of the file.
     """
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    raw = parse_toml(text, path)
     where = path
     for key, value in overrides:
         _set_dotted(raw, key, value, path)
         where = f"{path} (with overrides)"
     top = _Reader(where, raw, "")
     top.check_keys(TOP_KEYS)
+    _check_name(top)
     plant_r = top.table_of("plant", required=True)
     plant = _plant(plant_r)
     n = PLANT_ORDERS[plant.kind]
@@ -412,6 +430,9 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     if run.duration / run.dt > MAX_STEPS:
         raise top.error("run.dt", f"duration / dt = {run.duration / run.dt:.3g} samples is more "
                                   f"than {MAX_STEPS:.0e}; use a larger dt or a shorter duration")
+    if run.snapshot_every and not run.dt <= run.snapshot_every <= MAX_STEPS * run.dt:
+        raise top.error("run.snapshot_every", f"must be 0 (no snapshots) or from dt ({run.dt:g}) "
+                                              f"to {MAX_STEPS:.0e} dt, got {run.snapshot_every:g}")
     return Scenario(
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
@@ -420,8 +441,51 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
 
 
+def parse_toml(text: str, path: str) -> dict:
+    """TOML text as a dict, within :data:`MAX_NESTING`; every failure a ScenarioError."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: tables or arrays nested more than {MAX_NESTING} "
+                            f"levels deep") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise ScenarioError(f"{path}: not valid TOML: {str(exc).splitlines()[0][:200]}") from None
+    check_nesting(raw, path)
+    return raw
+
+
+def check_nesting(value: Any, where: str, limit: int = MAX_NESTING) -> None:
+    """Raise ScenarioError if tables/arrays in ``value`` nest deeper than ``limit``."""
+    level: list[tuple[Any, int]] = [(value, 0)]
+    while level:
+        node, depth = level.pop()
+        if depth > limit:
+            raise ScenarioError(f"{where}: tables or arrays nested more than {limit} levels deep")
+        children = node.values() if isinstance(node, dict) else node if isinstance(node, list) else ()
+        level.extend((c, depth + 1) for c in children if isinstance(c, (dict, list)))
+
+
+def _check_name(top: _Reader) -> None:
+    for key in ("name", "description"):
+        v = top.table.get(key)
+        if not isinstance(v, str):
+            continue  # the typed readers report it
+        bad = next((c for c in v if (ord(c) < 32 and (key == "name" or c not in "\n\t"))
+                    or 127 <= ord(c) < 160), None)
+        if bad is not None:
+            raise top.error(key, f"contains the control character {bad!r}; use printable text")
+    name = top.table.get("name")
+    if isinstance(name, str) and not 0 < len(name) <= MAX_NAME:
+        raise top.error("name", f"must be 1 to {MAX_NAME} characters, got {len(name)}")
+
+
 def _set_dotted(raw: dict, key: str, value: Any, path: str) -> None:
     parts = key.split(".")
+    if len(parts) > MAX_NESTING:
+        raise ScenarioError(f"{path}: override '{key[:80]}': more than {MAX_NESTING} levels")
+    check_nesting(value, f"{path}: override '{key[:80]}'")
     if not all(parts):
         raise ScenarioError(f"{path}: override '{key}': expected a dotted key such as "
                             f"controller.eta")
@@ -447,9 +511,14 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     """Load and validate a scenario by path or by name (``ex3_pendulum_ode``)."""
     path = find_scenario(name_or_path)
     try:
-        text = path.read_text()
+        with open(path, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise ScenarioError(f"{_display(path)}: larger than {MAX_FILE_BYTES} bytes; a "
+                                f"scenario file is a few kB")
+        text = data.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+        raise ScenarioError(f"{_display(path)}: cannot read: {exc}") from None
     return parse_scenario(text, _display(path))
 
 

@@ -136,6 +136,24 @@ class RunResult:
         return history_frame(self.history, self.controller.diagnostics)
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """A plant and a controller built (and so checked) before anything is run or written."""
+
+    scenario: Scenario   # with what the plant decides resolved (controller.gain_sign)
+    plant: Plant
+    controller: Controller
+
+
+def prepare(scenario: Scenario, plant_kind: str | None = None,
+            controller: str | None = None) -> Prepared:
+    """Build the plant (model file, joint names, timestep) and the controller without
+    running: every error a scenario can still raise surfaces here, as a ScenarioError."""
+    plant = build_plant(scenario, plant_kind)
+    scenario = with_gain_sign(scenario, plant)
+    return Prepared(scenario, plant, build_controller(scenario, kind=controller))
+
+
 def steps_of(scenario: Scenario) -> int:
     return int(round(scenario.run.duration / scenario.run.dt))
 
@@ -143,18 +161,20 @@ def steps_of(scenario: Scenario) -> int:
 def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
         plant_kind: str | None = None, block_size: int = 1000,
         stop: StopRequest | None = None,
-        controller: str | None = None, compiled: bool = True) -> RunResult:
+        controller: str | None = None, prepared: Prepared | None = None,
+        compiled: bool = True) -> RunResult:
     """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
 
     ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
     MuJoCo scenario, say), which is what the cross-check does.  ``stop``, set from a
     signal handler, ends the run cleanly at the next sample (RunInterrupted is raised
-    after the sinks have finished).  ``compiled=False`` runs the generic Python loop even
-    where the compiled one applies (:mod:`tspend.fastloop`; the results are the same).
+    after the sinks have finished).  ``prepared``: the plant and controller of
+    :func:`prepare`, built before the caller opened its outputs.  ``compiled=False`` runs
+    the generic Python loop even where the compiled one applies (:mod:`tspend.fastloop`;
+    the results are the same).
     """
-    plant = build_plant(scenario, plant_kind)
-    scenario = with_gain_sign(scenario, plant)
-    ctrl = build_controller(scenario, kind=controller)
+    parts = prepared or prepare(scenario, plant_kind, controller)
+    scenario, plant, ctrl = parts.scenario, parts.plant, parts.controller
     steps = steps_of(scenario)
     dt = scenario.run.dt
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0

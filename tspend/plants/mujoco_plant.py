@@ -195,6 +195,9 @@ class MujocoCartPole:
             self.model: mujoco.MjModel = spec.compile()
         except ValueError as exc:
             raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        if not (self.model.opt.timestep > 0.0 and math.isfinite(self.model.opt.timestep)):
+            raise ScenarioError(f"{where}: option timestep must be a positive number, got "
+                                f"{self.model.opt.timestep!r}")
         self.data: mujoco.MjData = mujoco.MjData(self.model)
         self._scratch: mujoco.MjData | None = None
         self.slide_joint, self.hinge_joint, self.actuator = slide_joint, hinge_joint, actuator

@@ -1,5 +1,7 @@
 """Recording streams: :func:`open_recording` (file, spawned or connected viewer, and the
-fallbacks when a viewer cannot be reached) and :func:`close_recording`."""
+fallbacks when a viewer cannot be reached) and :func:`close_recording`, which says
+whether the saved file is complete (the CLI writes to a partial file and renames it
+into place only then, see :mod:`tspend.outputs`)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ import rerun as rr
 
 
 DEFAULT_VIEWER_PORT = 9876
+VIEWER_SCHEMES = ("rerun+http", "rerun+https", "rerun", "http", "https")
 #: longest wait for data to reach the sink at finish/close
 FLUSH_TIMEOUT_S = 30.0
 
@@ -38,6 +41,25 @@ def _port_open(host: str, port: int, timeout: float = 1.0) -> bool:
             return True
     except OSError:
         return False
+
+
+def viewer_url_problem(url: str) -> str:
+    """Why ``url`` cannot address a Rerun viewer (``rerun+http://HOST:PORT/proxy``), or ""."""
+    if any(ord(c) < 32 or ord(c) == 127 for c in url):
+        return "contains control characters"
+    try:
+        parsed = urlparse(url)
+    except ValueError as exc:  # e.g. an unclosed IPv6 bracket
+        return str(exc)
+    if parsed.scheme not in VIEWER_SCHEMES:
+        return f"scheme must be one of {', '.join(VIEWER_SCHEMES)}, e.g. rerun+http://127.0.0.1:9876/proxy"
+    try:
+        parsed.port
+    except ValueError:
+        return "the port must be a number from 1 to 65535"
+    if not parsed.hostname:
+        return "no host name"
+    return ""
 
 
 def _grpc_endpoint(url: str | None) -> tuple[str, int]:
@@ -133,15 +155,53 @@ def open_recording(app_id: str, mode: str | None = None, path: PathLike | None =
     return rec
 
 
-def flush(rec: rr.RecordingStream, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
-    """Flush, bounded in time: a vanished viewer must not hang the end of a run."""
+def flush(rec: rr.RecordingStream, timeout_s: float = FLUSH_TIMEOUT_S) -> str:
+    """Flush, bounded in time: a vanished viewer must not hang the end of a run.
+
+    Returns "" when every sink took the data, else what went wrong.
+    """
     try:
         rec.flush(timeout_sec=timeout_s)
-    except Exception as exc:  # noqa: BLE001 - the run's own outcome matters more
-        _warn(f"Rerun flush did not complete ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})")
+    except Exception as exc:  # noqa: BLE001 - the caller decides what the failure means
+        return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return ""
 
 
-def close_recording(rec: rr.RecordingStream) -> None:
-    """Flush and close every sink of ``rec`` (writes the ``.rrd`` footer)."""
-    flush(rec)
+#: how a complete ``.rrd`` saved with a footer ends: the footer's magic and its version
+_FOOTER_MAGIC = b"RRF2FOOT"
+
+
+def saved_file_problem(path: PathLike) -> str:
+    """Why the ``.rrd`` at ``path`` (saved with a footer) is not complete, or "".
+
+    The footer is written last, when the file sink closes; a writer that failed on the
+    way (disk full, I/O error, a file size limit) never writes it.
+    """
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - 12))
+            tail = f.read()
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    if len(tail) < 12 or tail[:8] != _FOOTER_MAGIC:
+        return "the file ends before the recording's footer"
+    return ""
+
+
+def close_recording(rec: rr.RecordingStream, path: PathLike | None = None) -> str:
+    """Flush and close every sink of ``rec`` (writes the ``.rrd`` footer).
+
+    With ``path``, the file the recording was saved to with a footer: returns why that
+    file is incomplete ("" when it is whole), so the caller never presents a truncated
+    file as a result.  A viewer that could not take the data only earns a warning.
+    """
+    problem = flush(rec)
     rec.disconnect()
+    incomplete = saved_file_problem(path) if path is not None else ""
+    if incomplete:
+        return f"{problem}; {incomplete}" if problem else incomplete
+    if problem:
+        _warn(f"Rerun flush did not complete ({problem})")
+    return ""

@@ -1,0 +1,26 @@
+"""The documented size bounds of a scenario and of the command line (docs/reliability.md).
+
+A scenario inside them fits in memory and starts at once; every message that enforces one
+names it.  Only constants: the CLI reads them before anything heavy is imported.
+"""
+
+#: longest run accepted, in samples (10^9 samples is days of wall time)
+MAX_STEPS = 1e9
+
+#: largest scenario file read, in bytes
+MAX_FILE_BYTES = 1_000_000
+#: deepest nesting of tables and arrays in a scenario file or a --set value
+MAX_NESTING = 32
+#: longest list of numbers (x0, the sum-of-sines components, ...)
+MAX_LIST = 1000
+#: fuzzy sets per input, B-spline order and control points per set
+MAX_TERMS = 50
+MAX_BSPLINE_ORDER = 10
+MAX_CONTROL_POINTS = 64
+#: rules of the T-S model (product of the state and u sets) and of the compensator
+MAX_RULES = 10_000
+#: seeds are 63-bit integers (what every numpy seed and JSON reader handles)
+MAX_SEED = 2**63 - 1
+#: a scenario name: printed and used in file names
+MAX_NAME = 200
+
