@@ -58,7 +58,7 @@ def _list(text: str | None) -> list[str] | None:
 
 def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
-    from .cli import _parse_value, check_writable
+    from .cli import check_writable, parse_set_value
     from .controllers import KINDS
     from .stats import COMPARED_METRICS, DEFAULT_METRICS
     from .sweep.plan import parse_seeds
@@ -78,10 +78,8 @@ def parse_options(args: argparse.Namespace) -> dict:
     seeds = parse_seeds(args.seeds)
     grid: dict[str, list] = {}
     for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ScenarioError(f"--set {item}: expected KEY=VALUE, e.g. controller.eta=0.01")
-        grid[key.strip()] = [_parse_value(value.strip())]
+        key, value = parse_set_value(item)
+        grid[key] = [value]
     if args.duration is not None:
         if not args.duration > 0:
             raise ScenarioError(f"--duration: must be a positive number of seconds, got "
@@ -91,7 +89,7 @@ def parse_options(args: argparse.Namespace) -> dict:
         raise ScenarioError(f"--resamples: at least 100, got {args.resamples}")
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
-        check_writable(json_path, "--json")
+        check_writable(json_path, "json")
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
     return dict(kinds=kinds, metrics=metrics, seeds=seeds, grid=grid or None,

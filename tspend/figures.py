@@ -89,11 +89,11 @@ class Figures:
     def check(self, names: Iterable[str]) -> None:
         """Fail before drawing when a file would be replaced (and --overwrite is not given)
         or the directory cannot be written."""
-        from .cli import check_writable
+        from .outputs import OutputRequest, plan_outputs
 
         for name in names:
             for p in self.paths(name):
-                check_writable(p, "figure")
+                plan_outputs([OutputRequest("--out", "figure", p.suffix, str(p))])
                 if p.exists() and not self.overwrite:
                     raise ScenarioError(f"figure {p}: exists; choose another --out or pass "
                                         f"--overwrite")
