@@ -72,10 +72,16 @@ def recording_frame(path: str | os.PathLike[str]):
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*no footer.*")
         found: dict[str, list[str] | None] = {}
+        keys: dict[str, list[str]] = {}
         for chunk in RrdReader(path).stream().filter(
-                components=["Scalars:scalars", "SeriesLines:names"]).to_chunks():
+                components=["Scalars:scalars", "SeriesLines:names", "series_keys"]).to_chunks():
             batch = chunk.to_record_batch()
             entity = chunk.entity_path
+            if "series_keys" in batch.schema.names:  # the stable names (x1, e_1, ...)
+                rows = batch.column(batch.schema.get_field_index("series_keys")).to_pylist()
+                if rows and rows[-1]:
+                    keys[entity] = [str(n) for n in rows[-1]]
+                    found.setdefault(entity, None)
             if "SeriesLines:names" in batch.schema.names:
                 rows = batch.column(batch.schema.get_field_index("SeriesLines:names")).to_pylist()
                 if rows and rows[-1]:
@@ -84,6 +90,7 @@ def recording_frame(path: str | os.PathLike[str]):
                 found.setdefault(entity, None)
     frames, names, qualifiers = [], [], []
     for entity, labels in found.items():
+        labels = keys.get(entity, labels)
         try:
             t, values = read_scalar_series(path, entity)
         except KeyError:  # names without any data (a run that stopped at once)

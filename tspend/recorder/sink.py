@@ -201,6 +201,10 @@ class RerunSink:
             self.rec.log(self._path(spec.entity), rr.SeriesLines(
                 names=[self._series_name(n) for n in spec.names], colors=[self._color(c) for c in spec.colors],
                 aggregation_policy=policy), static=True)
+            # the stable names of the columns (x1, e_1, b_hat ...), so an export of the
+            # recording names its columns as RunResult.to_pandas() does
+            self.rec.log(self._path(spec.entity), rr.AnyValues(series_keys=[
+                f"log10 {k}" if spec.log10 else k for k in spec.lookup]), static=True)
         self._log_fuzzy_styles(info)
         self._geometry = cartpole_geometry(info.drawing) if is_cartpole(info) else None
         self._info_theta_sign = info.drawing.theta_sign if info.drawing is not None else 1.0
