@@ -35,7 +35,7 @@ from numba import njit
 
 from .bspline import JIT
 from .config import ControllerConfig
-from .rules import Firing, Grid, membership_gradient, move_control_points
+from .rules import Firing, Grid, membership_gradient, move_control_points, weighted_output
 
 
 class CompensatorSettings(NamedTuple):
@@ -75,11 +75,8 @@ def switching(e_delta: float, boundary_layer: float) -> float:
 
 @njit(**JIT)
 def estimate(tau: np.ndarray, q: np.ndarray) -> float:
-    """(23): ``d_hat = sum_i tau^i q^i``."""
-    acc = 0.0
-    for i in range(tau.size):
-        acc += tau[i] * q[i]
-    return acc
+    """(23): ``d_hat = sum_i tau^i q^i``, the compensator rule base's weighted output."""
+    return weighted_output(tau, q)
 
 
 @njit(**JIT)

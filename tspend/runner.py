@@ -199,13 +199,9 @@ class ClosedLoop:
                 self._emit(sinks, start, buf, t, ref, dist, i)
                 self._done = start + i
                 raise
-            bad = self._first_non_finite(D[:k]) if D.shape[1] else None
-            if bad is not None:
-                return self._diverged(sinks, start, buf, t, ref, dist, bad,
-                                      f"diverged at t = {t[bad]:.4f} s: a parameter or "
-                                      f"estimate is not finite")
-            self._emit(sinks, start, buf, t, ref, dist, k)
-            self._done = start + k
+            ended = self._end_block(sinks, start, buf, t, ref, dist, k)
+            if ended is not None:
+                return ended
         return s.steps, "completed", ""
 
     def _segments(self, sinks: list[Sink], segment: Segment, buf: BlockBuffer,
@@ -247,14 +243,24 @@ class ClosedLoop:
                 self._emit(sinks, start, buf, t, ref, dist, i)
                 self._done = start + i
                 raise
-            bad = self._first_non_finite(D[:k]) if D.shape[1] else None
-            if bad is not None:
-                return self._diverged(sinks, start, buf, t, ref, dist, bad,
-                                      f"diverged at t = {t[bad]:.4f} s: a parameter or "
-                                      f"estimate is not finite")
-            self._emit(sinks, start, buf, t, ref, dist, k)
-            self._done = start + k
+            ended = self._end_block(sinks, start, buf, t, ref, dist, k)
+            if ended is not None:
+                return ended
         return s.steps, "completed", ""
+
+    def _end_block(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                   ref: np.ndarray, dist: np.ndarray, k: int) -> tuple[int, str, str] | None:
+        """Deliver a full block, or end the run as diverged at its first non-finite
+        diagnostic (the samples before it delivered)."""
+        D = buf.diag[:k]
+        bad = self._first_non_finite(D) if D.shape[1] else None
+        if bad is not None:
+            return self._diverged(sinks, start, buf, t, ref, dist, bad,
+                                  f"diverged at t = {t[bad]:.4f} s: a parameter or "
+                                  f"estimate is not finite")
+        self._emit(sinks, start, buf, t, ref, dist, k)
+        self._done = start + k
+        return None
 
     def _plant_failed(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
                       ref: np.ndarray, dist: np.ndarray, i: int,
