@@ -218,3 +218,35 @@ def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
     assert not partial.exists()
     assert_intact(tmp_path, {k: v for k, v in before.items() if not k.startswith("K.")},
                   allow_new=("K.",))
+
+
+def test_a_signal_inside_an_unraisable_callback_is_dropped_quietly(monkeypatch):
+    """A signal landing in a callback Python cannot raise from (an import lock's weakref
+    callback) must not print "Exception ignored": the stop is recorded and the command
+    ends at its next check with its one line.  Any other unraisable error still reaches
+    the hook that was there before."""
+    import gc
+    import sys
+    import weakref
+
+    from tspend.interrupts import Interrupted, SignalGuard
+
+    seen: list[BaseException] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
+    guard = SignalGuard().install()
+    try:
+        class Thing:
+            pass
+
+        for error in (Interrupted("SIGTERM", 143), RuntimeError("a real bug")):
+            def callback(_ref, error=error):
+                raise error
+
+            thing = Thing()
+            ref = weakref.ref(thing, callback)
+            del thing
+            gc.collect()
+            assert ref() is None
+    finally:
+        guard.restore()
+    assert [type(e) for e in seen] == [RuntimeError]

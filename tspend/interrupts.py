@@ -14,6 +14,7 @@ numpy, MuJoCo, numba or Rerun are loaded.
 from __future__ import annotations
 
 import signal
+import sys
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -68,12 +69,27 @@ class SignalGuard:
                 self._previous[signum] = signal.signal(signum, self._on_signal)
         except ValueError:  # not the main thread (an embedding app): signals stay theirs
             self.restore()
+            return self
+        self._previous_hook = sys.unraisablehook
+        sys.unraisablehook = self._unraisable
         return self
 
     def restore(self) -> None:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
+        if getattr(self, "_previous_hook", None) is not None:
+            sys.unraisablehook = self._previous_hook
+            self._previous_hook = None
+
+    def _unraisable(self, unraisable) -> None:
+        """A signal that lands inside a callback Python cannot raise from (an import
+        lock's weakref callback, a finaliser) would print "Exception ignored" and a
+        traceback.  The stop is already recorded, and :meth:`raise_if_stopped` ends the
+        command at the next check, so that one exception is dropped quietly."""
+        if isinstance(unraisable.exc_value, Interrupted):
+            return
+        (self._previous_hook or sys.__unraisablehook__)(unraisable)
 
     def ignore_from_now_on(self) -> None:
         """Ignore these signals until the process exits (for the program's last moments)."""
