@@ -29,7 +29,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from tspend.config import ControllerConfig, SetSpec  # noqa: E402
-from tspend.controller import make_controller  # noqa: E402
+from tspend.controllers.paper.controller import make_controller  # noqa: E402
 
 #: the target of the benchmark: a controller step costs at most this many mj_steps
 TARGET_RATIO = 0.6
@@ -61,7 +61,7 @@ STARTUP_CODE = """
 import time
 t0 = time.perf_counter()
 import numpy as np
-from tspend.controller import make_controller
+from tspend.controllers.paper.controller import make_controller
 from tspend.config import ControllerConfig
 c = make_controller(ControllerConfig())
 c.reset(np.random.default_rng(0))
@@ -215,7 +215,7 @@ def main() -> int:
         print()
         first, second, inner = startup_time()
         good = second < STARTUP_LIMIT_S
-        print("start-up: fresh interpreter, import tspend.controller, build, one step")
+        print("start-up: fresh interpreter, import tspend.controllers.paper.controller, build, one step")
         print(f"  first run {first:.3f} s, second run (warm cache) {second:.3f} s "
               f"(of which in-process {inner:.3f} s)   (limit {STARTUP_LIMIT_S:g} s: "
               f"{'met' if good else 'MISSED'})")

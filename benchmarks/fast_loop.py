@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from tspend import load_scenario, override, run
-from tspend.simulation import build_controller, build_plant, with_gain_sign
+from tspend.loop.simulation import build_controller, build_plant, with_gain_sign
 
 STEPS = 20_000
 

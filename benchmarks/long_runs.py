@@ -18,7 +18,7 @@ Runs execute in a process pool (``--jobs``).  Written to ``--out``: ``runs.csv``
 row per run), ``windows.csv`` (one row per run and window), ``norm_q.png`` (+ CSV) and a
 Markdown summary on stdout: per option, how many runs diverged and when (time to
 divergence: median, min, max), |q| at 120 s, 300 s and the end, the RMS error over the
-last 300 s, and paired comparisons of every option against ``paper`` (tspend.stats).
+last 300 s, and paired comparisons of every option against ``paper`` (tspend.studies.stats).
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     import pandas as pd
 
     from tspend.config import ControllerConfig
-    from tspend.stats import compare, markdown
+    from tspend.studies.stats import compare, markdown
     from tspend.sweep.plan import parse_seeds
 
     seeds = parse_seeds(args.seeds)
@@ -194,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _figure(windows, runs, out: Path, duration: float) -> None:
     try:
-        from tspend.figures import PALETTE, Figures, new_figure
+        from tspend.studies.figures import PALETTE, Figures, new_figure
     except Exception:
         return
     opts = list(dict.fromkeys(runs.option))

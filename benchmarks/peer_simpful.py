@@ -21,7 +21,7 @@ Why it is a like-for-like comparison:
 A simpful rule has one consequent, so p1, p2, p3 take three copies of the rule base
 (225 rules); p1 alone (75 rules) is timed too.  The headline simpful figure uses a
 scalar pure-Python B-spline membership (the cheapest faithful one); memberships calling
-the compiled ``tspend.bspline`` and a zero-cost membership (simpful's own floor) are timed too.
+the compiled ``tspend.controllers.paper.bspline`` and a zero-cost membership (simpful's own floor) are timed too.
 Figures: median over blocks of the mean cost of one call, inputs cycling through the
 test points; simpful with its Python call overhead, tspend evaluated in a compiled loop
 over the same inputs (a closed loop in numba calls it so; from Python, passing the
@@ -50,17 +50,17 @@ except ImportError:
     print("simpful is not installed: pip install -e '.[bench]'")
     sys.exit(0)
 
-from tspend.bspline import basis, memberships  # noqa: E402
+from tspend.controllers.paper.bspline import basis, memberships  # noqa: E402
 from tspend.config import ControllerConfig  # noqa: E402
-from tspend.controller import make_controller  # noqa: E402
-from tspend.rules import VARPI_EPS, fire  # noqa: E402
-from tspend.ts_model import model_output  # noqa: E402
+from tspend.controllers.paper.controller import make_controller  # noqa: E402
+from tspend.controllers.paper.rules import VARPI_EPS, fire  # noqa: E402
+from tspend.controllers.paper.ts_model import model_output  # noqa: E402
 
 OUTPUTS = ("p1", "p2", "p3")
 
 
 class BSplineMF(sf.MF_object):
-    """Term t of a tspend input, B = sum_l c_l N_l(x), in scalar Python (as tspend.bspline.basis)."""
+    """Term t of a tspend input, B = sum_l c_l N_l(x), in scalar Python (as tspend.controllers.paper.bspline.basis)."""
 
     def __init__(self, knots: np.ndarray, d: int, c: np.ndarray) -> None:
         self.t, self.d, self.r = [float(k) for k in knots], d, len(c)
@@ -84,7 +84,7 @@ class BSplineMF(sf.MF_object):
 
 
 class TspendMF(sf.MF_object):
-    """The same term through the compiled ``tspend.bspline`` functions (one point per call)."""
+    """The same term through the compiled ``tspend.controllers.paper.bspline`` functions (one point per call)."""
 
     def __init__(self, knots: np.ndarray, d: int, c: np.ndarray) -> None:
         self.knots, self.d, self.c = knots, d, c[None, :]
@@ -168,7 +168,7 @@ def per_call(fn, zs, calls: int, blocks: int) -> float:
 
 
 def main() -> int:
-    from tspend import rules
+    from tspend.controllers.paper import rules
 
     ctrl = make_controller(ControllerConfig())
     ctrl.reset(np.random.default_rng(0))
@@ -206,7 +206,7 @@ def main() -> int:
     guard = VARPI_EPS * (P.mean(axis=0) - p_sf) / (varpi + VARPI_EPS)[:, None]
     print(f"max |mu simpful - mu tspend| over {len(zs)} inputs, all sets: {mf_err:.2e}")
     print(f"max |p simpful - p tspend| : {np.abs(p_sf - p_ts).max():.2e}"
-          f"  (MFs via tspend.bspline, 10 inputs: {np.abs(p_sf_np - p_ts[:10]).max():.2e}; "
+          f"  (MFs via tspend.controllers.paper.bspline, 10 inputs: {np.abs(p_sf_np - p_ts[:10]).max():.2e}; "
           f"eps guard predicts {np.abs(guard).max():.2e}, varpi in [{varpi.min():.3f}, {varpi.max():.3f}])")
     print(f"max |p simpful + eps guard - p tspend| : {np.abs(p_sf + guard - p_ts).max():.2e}")
     ok = np.abs(p_sf - p_ts).max() < 1e-9
@@ -224,7 +224,7 @@ def main() -> int:
     print("\nper evaluation of p at one input (median over blocks):")
     print(f"simpful 75-rule inference (p1..p3, 225 rules): {t_sf * us:10.1f} us/eval")
     for label, t in (("simpful p1 only (75 rules)", t_sf1),
-                     ("simpful p1..p3, MFs via tspend.bspline", t_sfn),
+                     ("simpful p1..p3, MFs via tspend.controllers.paper.bspline", t_sfn),
                      ("simpful p1..p3, zero-cost MFs (floor)", t_sfc)):
         print(f"  ({label + '):':<43} {t * us:10.1f} us/eval")
     print(f"tspend compiled (rules.fire + model_output, in a compiled loop): {t_nb * us:8.3f} us/eval"

@@ -11,7 +11,7 @@ It runs (through ``tspend.sweep``, resumable: the tables are kept in ``--out``):
 2. a heat map sweep of Example 2 over eta x gamma, second and first type, 5 seeds
    (``heatmap.parquet``);
 
-then compares them (``tspend.stats``: median [Q1, Q3], paired bootstrap intervals,
+then compares them (``tspend.studies.stats``: median [Q1, Q3], paired bootstrap intervals,
 Wilcoxon p, win rates; ``comparison.json``), draws the figures (``figures/``, PNG + CSV)
 and writes the page.  Every sentence of the page's verdicts is generated from the
 statistics, so rerunning it can never leave a claim the numbers no longer support.
@@ -35,7 +35,7 @@ HEATMAP = ("ex2_duffing", {"controller.eta": [0.1, 0.5, 2.0], "controller.gamma"
 
 def verdict_sentences(comp, scenario: str, a: str, b: str) -> list[str]:
     """One sentence per metric: who is lower at how many seeds, by what ratio, how sure."""
-    from tspend.stats import fmt, fmt_ratio, _fmt_p
+    from tspend.studies.stats import fmt, fmt_ratio, _fmt_p
 
     pairs = comp.pairs
     rows = pairs[(pairs.scenario == scenario) & (pairs.a == a) & (pairs.b == b)]
@@ -72,20 +72,20 @@ def shape_available() -> bool:
 
     from tspend.config import ControllerConfig
 
-    return (importlib.util.find_spec("tspend.membership_shape") is not None
+    return (importlib.util.find_spec("tspend.controllers.paper.membership_shape") is not None
             and any(f.name == "shape_projection" for f in fields(ControllerConfig)))
 
 
 def interpretability_section(seeds, jobs, out: Path, fig, rel) -> list[str]:
     """Example 2, second type with free sets against the shape-preserving projection:
-    the sets' shape after 20 s (tspend.membership_shape) and the paired accuracy cost."""
+    the sets' shape after 20 s (tspend.controllers.paper.membership_shape) and the paired accuracy cost."""
     import pandas as pd
 
     from tspend import load_scenario, override, run
-    from tspend.cli_compare import seeds_text
-    from tspend.figures import SetsCapture, membership_figure
-    from tspend.membership_shape import membership_shape
-    from tspend.stats import compare, fmt, markdown
+    from tspend.cli.compare import seeds_text
+    from tspend.studies.figures import SetsCapture, membership_figure
+    from tspend.controllers.paper.membership_shape import membership_shape
+    from tspend.studies.stats import compare, fmt, markdown
     from tspend.sweep import sweep
 
     scn_name, key = "ex2_duffing", "controller.shape_projection"
@@ -114,7 +114,7 @@ def interpretability_section(seeds, jobs, out: Path, fig, rel) -> list[str]:
                             f"{scn.run.seed}")
     lines = ["## Interpretability: do the adapted sets stay fuzzy sets?", "",
              "The second type moves the B-spline control points freely, so a set can grow "
-             "a second hump or overtake its neighbour. `tspend.membership_shape` scores the "
+             "a second hump or overtake its neighbour. `tspend.controllers.paper.membership_shape` scores the "
              "sets after the run: the fraction of sets that are unimodal and in order (1 "
              "for the initial sets). The option `controller.shape_projection = "
              "\"unimodal\"` projects the control points so that the score stays 1. "
@@ -152,11 +152,11 @@ def main(argv: list[str] | None = None) -> int:
 
     import tspend
     from tspend.controllers import KINDS
-    from tspend.figures import Figures, box_figure, heatmap_figure, paper_figures
-    from tspend.stats import compare, markdown, to_json
+    from tspend.studies.figures import Figures, box_figure, heatmap_figure, paper_figures
+    from tspend.studies.stats import compare, markdown, to_json
     from tspend.sweep import sweep
     from tspend.sweep.plan import parse_seeds
-    from tspend.cli_compare import seeds_text
+    from tspend.cli.compare import seeds_text
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

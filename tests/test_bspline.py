@@ -5,9 +5,7 @@ import pytest
 from oracles.numpy_bspline import basis_matrix as numpy_basis_matrix
 from scipy.interpolate import BSpline
 
-from tspend.bspline import (BSplineInput, basis, greville_abscissae, membership_curves,
-                            memberships, open_uniform_knots, peak_windows, project_unimodal,
-                            triangle_control_points, unsaturated)
+from tspend.controllers.paper.bspline import BSplineInput, basis, greville_abscissae, membership_curves, memberships, open_uniform_knots, peak_windows, project_unimodal, triangle_control_points, unsaturated
 
 
 def basis_matrix(z: np.ndarray, knots: np.ndarray, d: int) -> np.ndarray:

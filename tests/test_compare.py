@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("tspend.sweep")
 
-from tspend.cli import main  # noqa: E402
+from tspend.cli.main import main  # noqa: E402
 
 
 def test_compare_prints_table_and_json_that_follow_the_runs(tmp_path, capsys):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_lyapunov
 
-from tspend.control_law import (companion, control, control_law_settings, is_hurwitz,
-                                lyapunov_gamma, lyapunov_tracking, tracking_error)
+from tspend.controllers.paper.control_law import (companion, control, control_law_settings,
+    is_hurwitz, lyapunov_gamma, lyapunov_tracking, tracking_error)
 
 
 @pytest.mark.parametrize("lam,Q", [

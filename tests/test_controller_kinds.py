@@ -18,14 +18,14 @@ from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 from scipy.optimize import brentq
 
 from tspend import load_scenario, override, run
-from tspend.cli import main
+from tspend.cli.main import main
 from tspend.controllers import KINDS, SETTINGS, build
 from tspend.controllers.base import Controller, check_diagnostics
 from tspend.controllers.feedback_linearization import solve_for_u
 from tspend.controllers.gaussian_basis import basis, gaussian_grid
 from tspend.controllers.plant_model import plant_model
 from tspend.errors import ScenarioError
-from tspend.metrics import METRIC_KEYS
+from tspend.loop.metrics import METRIC_KEYS
 
 BASELINES = ("pd", "lqr", "feedback_linearization", "sliding_mode", "wang_indirect")
 ADAPTIVE = ("second_type", "first_type", "wang_indirect")

@@ -14,10 +14,10 @@ import numpy as np
 
 from tspend.controllers.base import Controller, diag_width, diagnostics
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series, series_location
-from tspend.runner import ClosedLoop, LoopSettings
+from tspend.loop.runner import ClosedLoop, LoopSettings
 from tspend.scenario import load_scenario
-from tspend.simulation import History, build_plant, run_info, steps_of
-from tspend.metrics import MetricsAccumulator
+from tspend.loop.simulation import History, build_plant, run_info, steps_of
+from tspend.loop.metrics import MetricsAccumulator
 
 
 class FixedGain:

@@ -5,8 +5,8 @@ import json
 import pytest
 
 from tspend import load_scenario, override
-from tspend.cli import main
-from tspend.crosscheck import closed_loop, open_loop
+from tspend.cli.main import main
+from tspend.studies.crosscheck import closed_loop, open_loop
 from tspend.recorder import read_scalar_series, series_location
 
 KEYS = ("open_loop_max_dtheta", "open_loop_max_dthetadot", "closed_loop_max_dtheta",

@@ -17,15 +17,15 @@ import pytest
 from scipy import stats
 
 from tspend import load_scenario, override, run
-from tspend.cli import main
+from tspend.cli.main import main
 from tspend.config import EffectsConfig, ParameterChange
-from tspend.crosscheck_openloop import chirp_force, open_loop_compare
-from tspend.effects import EffectsPlant, Measurement
+from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
+from tspend.plants.effects import EffectsPlant, Measurement
 from tspend.plants.analytic import cartpole_ode_plant
 from tspend.plants.cartpole import CartPoleParams
 from tspend.plants.mjcf_warning import ModelWarning
 from tspend.scenario import available_scenarios
-from tspend.simulation import build_plant
+from tspend.loop.simulation import build_plant
 
 NEW = {"pendulum_payload_step", "pendulum_sensor_noise", "pendulum_saturated",
        "pendulum_friction", "pendulum_finite_rail"}

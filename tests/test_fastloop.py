@@ -1,4 +1,4 @@
-"""The compiled closed loop (tspend.fastloop) against the generic Python loop.
+"""The compiled closed loop (tspend.loop.fastloop) against the generic Python loop.
 
 The generic loop is the oracle: every key of every block, the snapshots, and how a run
 ends must be the same, bit for bit, on each plant the compiled loop covers; where it does
@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import tspend.runner as runner_module
+import tspend.loop.runner as runner_module
 from tspend import load_scenario, override, run
-from tspend.runner import RunInterrupted, StopRequest
-from tspend.sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from tspend.loop.runner import RunInterrupted, StopRequest
+from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 
 COVERED = ["ex1_nonaffine_case1", "ex2_duffing", "ex3_pendulum_ode", "third_order",
            "pendulum_mujoco"]

@@ -13,7 +13,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from tspend import load_scenario, override, run
-from tspend.cli import main
+from tspend.cli.main import main
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series, series_location
 
 ROOT = Path(__file__).resolve().parents[1]

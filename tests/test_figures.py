@@ -8,10 +8,10 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from tspend import figures  # noqa: E402
-from tspend.cli import main  # noqa: E402
+from tspend.studies import figures  # noqa: E402
+from tspend.cli.main import main  # noqa: E402
 from tspend.scenario import load_scenario, override  # noqa: E402
-from tspend.simulation import run  # noqa: E402
+from tspend.loop.simulation import run  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -3,12 +3,13 @@
 import numpy as np
 import pytest
 
-from tspend import rules
-from tspend.bspline import BSplineInput
-from tspend.compensator import CompensatorSettings, compensator_law, estimate, sets_gradient
-from tspend.rules import fire
-from tspend.ts_model import (ModelSettings, antecedent_gradient, antecedent_law, consequent_law,
-                             initial_consequents, model_output)
+from tspend.controllers.paper import rules
+from tspend.controllers.paper.bspline import BSplineInput
+from tspend.controllers.paper.compensator import (CompensatorSettings, compensator_law, estimate,
+    sets_gradient)
+from tspend.controllers.paper.rules import fire
+from tspend.controllers.paper.ts_model import (ModelSettings, antecedent_gradient, antecedent_law,
+    consequent_law, initial_consequents, model_output)
 
 H = 1e-6
 

@@ -229,7 +229,7 @@ def test_a_signal_inside_an_unraisable_callback_is_dropped_quietly(monkeypatch):
     import sys
     import weakref
 
-    from tspend.interrupts import Interrupted, SignalGuard
+    from tspend.runtime.interrupts import Interrupted, SignalGuard
 
     seen: list[BaseException] = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))

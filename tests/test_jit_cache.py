@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tspend.jit_cache import STAMP, invalidate_stale_cache, sources_digest
+from tspend.runtime.jit import STAMP, invalidate_stale_cache, sources_digest
 
 
 def _package(tmp_path: Path) -> Path:

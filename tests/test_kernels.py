@@ -14,7 +14,7 @@ from numba import njit
 from oracles.numpy_controller import NumpyController
 
 from tspend.config import ControllerConfig, SetSpec
-from tspend.controller import AdaptiveFuzzyController, diag_layout
+from tspend.controllers.paper.controller import AdaptiveFuzzyController, diag_layout
 
 RTOL, ATOL = 1e-10, 1e-12
 STEPS = 2000

@@ -6,8 +6,8 @@ from scipy.signal import find_peaks
 
 from tspend import load_scenario, override, run
 from tspend.config import ControllerConfig
-from tspend.controller import AdaptiveFuzzyController
-from tspend.membership_shape import humps, membership_shape
+from tspend.controllers.paper.controller import AdaptiveFuzzyController
+from tspend.controllers.paper.membership_shape import humps, membership_shape
 
 
 def test_humps_agree_with_scipy_find_peaks():

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from cartpole_oracle import ReferenceCartPole
-from tspend.crosscheck_openloop import OpenLoopComparison, chirp_force, open_loop_compare
+from tspend.studies.crosscheck_openloop import OpenLoopComparison, chirp_force, open_loop_compare
 from tspend.signals import SquareWave
 
 _SQUARE = SquareWave(amplitude=0.05)

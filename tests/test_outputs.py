@@ -20,9 +20,9 @@ import pytest
 from rerun.chunk import RrdReader
 
 from cli_harness import assert_intact, snapshot, spawn, tspend, user_files
-from tspend import outputs
+from tspend.runtime import outputs
 from tspend.errors import OutputError, ScenarioError
-from tspend.outputs import OutputRequest, claim, plan_outputs
+from tspend.runtime.outputs import OutputRequest, claim, plan_outputs
 from tspend.recorder import read_scalar_series, series_location
 
 SHORT = ("--duration", "0.05")

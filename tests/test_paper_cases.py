@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tspend import load_scenario, override, run
-from tspend.cli import main
+from tspend.cli.main import main
 
 GOLDEN = Path(__file__).with_name("golden_metrics.json")
 

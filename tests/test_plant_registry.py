@@ -12,7 +12,7 @@ from tspend.config import AnalyticPlantConfig, CartPoleConfig, MujocoCartPoleCon
 from tspend.errors import ScenarioError
 from tspend.plants.base import CartPoleDrawing
 from tspend.plants.registry import PLANT_KINDS
-from tspend.simulation import build_plant, run_info
+from tspend.loop.simulation import build_plant, run_info
 
 
 def test_each_kind_has_its_own_configuration() -> None:

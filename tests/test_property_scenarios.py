@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from tspend.errors import ScenarioError
 from tspend.scenario import parse_scenario
-from tspend.simulation import run
+from tspend.loop.simulation import run
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))

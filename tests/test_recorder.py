@@ -23,8 +23,8 @@ from tspend.recorder import (
     read_scalar_series,
     series_location,
 )
-from tspend.controller import paper_diagnostics
-from tspend.sinks import Block, FuzzyInputInfo, InnerSnapshot, RunEnd, RunInfo
+from tspend.controllers.paper.controller import paper_diagnostics
+from tspend.loop.sinks import Block, FuzzyInputInfo, InnerSnapshot, RunEnd, RunInfo
 
 SCENARIO = '[plant]\nkind = "cartpole_ode"\nM = 10.0\n\n[run]\nduration = 3.0\n'
 TERMS = ("NB", "NS", "Z", "PS", "PB")
@@ -44,7 +44,7 @@ def make_info(order: int = 2, plant_kind: str = "cartpole_ode", steps: int = 300
 
 
 def make_run(order: int, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """Synthetic per-step arrays with the shapes of the block table in ``tspend.sinks``."""
+    """Synthetic per-step arrays with the shapes of the block table in ``tspend.loop.sinks``."""
     rng = np.random.default_rng(seed)
     t = np.arange(steps) * DT
     n = order

@@ -16,11 +16,11 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 import tspend
-from tspend.cli import main
+from tspend.cli.main import main
 from tspend.recorder import read_scalar_series
 from tspend.recorder.crosscheck import VERDICT, diff_entity, read_verdict
 from tspend.recorder.series import series_specs
-from tspend.controller import paper_diagnostics
+from tspend.controllers.paper.controller import paper_diagnostics
 
 
 def static_components(path: Path) -> dict[str, dict[str, list]]:

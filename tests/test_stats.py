@@ -1,4 +1,4 @@
-"""tspend.stats against hand-computed cases and scipy's published examples."""
+"""tspend.studies.stats against hand-computed cases and scipy's published examples."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tspend import stats
+from tspend.studies import stats
 
 
 def frame(rows):

@@ -144,7 +144,7 @@ def test_table_refuses_another_grid(tmp_path):
 
 
 def test_without_dask_the_error_names_the_extra(tmp_path, monkeypatch, capsys):
-    from tspend.cli import main
+    from tspend.cli.main import main
 
     monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if not installed
     out = tmp_path / "d.parquet"

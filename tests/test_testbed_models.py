@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from tspend import load_scenario, override, run
-from tspend.cli import main
-from tspend.crosscheck import failure_reason, open_loop
+from tspend.cli.main import main
+from tspend.studies.crosscheck import failure_reason, open_loop
 from tspend.errors import ScenarioError
 from tspend.plants.cartpole import CartPoleParams
 from tspend.plants.mjcf_warning import ModelWarning
 from tspend.plants.mujoco_plant import MujocoCartPole
-from tspend.simulation import build_plant
+from tspend.loop.simulation import build_plant
 
 MODELS = Path(__file__).with_name("models")
 REVERSED = MODELS / "cartpole_reversed.xml"

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 import tspend
-from tspend.progress import RunProgress, SweepProgress
+from tspend.runtime.progress import RunProgress, SweepProgress
 from tspend.recorder import RerunSink, close_recording, open_recording
 
 

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from tspend.cli import main
+from tspend.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 ODE = (ROOT / "scenarios" / "ex3_pendulum_ode.toml").read_text()

@@ -20,9 +20,9 @@ __version__ = "0.1.0"
 
 from pathlib import Path as _Path
 
-from .jit_cache import invalidate_stale_cache as _invalidate_stale_cache
+from tspend.runtime.jit import invalidate_stale_cache as _invalidate_stale_cache
 
-# before any compiled function loads from numba's cache (see tspend/jit_cache.py)
+# before any compiled function loads from numba's cache (see tspend/runtime/jit.py)
 _invalidate_stale_cache(_Path(__file__).resolve().parent)
 
 __all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller",
@@ -32,11 +32,11 @@ __all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "bu
 def __getattr__(name: str):
     # keep `import tspend` light: MuJoCo, numba and Rerun load only when used
     if name in ("load_scenario", "override"):
-        from . import scenario
+        from tspend import scenario
 
         return getattr(scenario, name)
     if name in ("run", "build_plant", "build_controller"):
-        from . import simulation
+        from tspend.loop import simulation
 
         return getattr(simulation, name)
     if name in ("recorder", "sweep"):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .signals import Disturbance, Reference
+from tspend.signals import Disturbance, Reference
 
 
 @dataclass(frozen=True)

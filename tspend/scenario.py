@@ -17,15 +17,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import signals
-from .bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST, MAX_NAME,
-                     MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
-from .config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
-                     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
-from .control_law import is_hurwitz
-from .controllers.settings import parse_kind_tables
-from .errors import ScenarioError
-from .plants.registry import PLANT_KINDS
+from tspend import signals
+from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
+    MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
+from tspend.config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
+    ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
+from tspend.controllers.paper.control_law import is_hurwitz
+from tspend.controllers.settings import parse_kind_tables
+from tspend.errors import ScenarioError
+from tspend.plants.registry import PLANT_KINDS
 
 #: plant kinds and their order n
 PLANT_ORDERS = {kind: k.order for kind, k in PLANT_KINDS.items()}

@@ -1,6 +1,6 @@
 """Test oracle: the B-spline basis (3)-(4) and memberships (5) vectorised in numpy.
 
-The step-by-step reference the compiled :mod:`tspend.bspline` is checked against (and
+The step-by-step reference the compiled :mod:`tspend.controllers.paper.bspline` is checked against (and
 itself checked against scipy's BSpline).
 """
 

@@ -1,4 +1,4 @@
-"""Test oracle (numpy) of :mod:`tspend.compensator`. The fuzzy error compensator, eq. (21)-(24), and its adaptive law (27).
+"""Test oracle (numpy) of :mod:`tspend.controllers.paper.compensator`. The fuzzy error compensator, eq. (21)-(24), and its adaptive law (27).
 
 Rules (22): IF e_Delta is F_e^i AND ||x|| is F_x^i THEN d_hat^i = q^i; the estimate of
 the lumped error d~ is ``d_hat = sum_i tau^i q^i`` (23) and the compensator is
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tspend.bspline import BSplineInput
+from tspend.controllers.paper.bspline import BSplineInput
 
 from .numpy_rules import Firing, RuleBase
 

@@ -1,6 +1,6 @@
 """Test oracle: one controller sample step by step in numpy (the pre-numba reference).
 
-The compiled :class:`tspend.controller.AdaptiveFuzzyController` must match it to rounding
+The compiled :class:`tspend.controllers.paper.controller.AdaptiveFuzzyController` must match it to rounding
 at every step (tests/test_kernels.py).
 """
 
@@ -11,8 +11,9 @@ from typing import NamedTuple
 import numpy as np
 
 from tspend.config import ControllerConfig
-from tspend.control_law import lyapunov_gamma
-from tspend.controller import compensator_inputs, diag_layout, diag_size, model_inputs
+from tspend.controllers.paper.control_law import lyapunov_gamma
+from tspend.controllers.paper.controller import (compensator_inputs, diag_layout, diag_size,
+    model_inputs)
 
 from .numpy_compensator import FuzzyCompensator
 from .numpy_ts_model import TSModel

@@ -1,4 +1,4 @@
-"""Test oracle (numpy) of :mod:`tspend.rules`. The grid rule base: every combination of the inputs' terms is a rule, eq. (8)-(12).
+"""Test oracle (numpy) of :mod:`tspend.controllers.paper.rules`. The grid rule base: every combination of the inputs' terms is a rule, eq. (8)-(12).
 
 Rule i fires with ``prod_j mu_{F_j^i}(z_j)``; normalised by ``varpi``, the sum over
 rules, it is ``w^i`` (12).  On a grid the unnormalised strengths are the outer product
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tspend.bspline import BSplineInput
+from tspend.controllers.paper.bspline import BSplineInput
 
 from .numpy_bspline import BasisEvaluator, memberships
 

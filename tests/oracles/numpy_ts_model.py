@@ -1,4 +1,4 @@
-"""Test oracle (numpy) of :mod:`tspend.ts_model`. The T-S fuzzy model of the plant and its second type adaptive laws, eq. (9)-(16), (25)-(26).
+"""Test oracle (numpy) of :mod:`tspend.controllers.paper.ts_model`. The T-S fuzzy model of the plant and its second type adaptive laws, eq. (9)-(16), (25)-(26).
 
 Rule i (13): IF x_o1 is F_1^i AND .. AND u_o is F_{n+1}^i
 THEN x_n' = p_1^i x_delta1 + .. + p_n^i x_deltan + p_{n+1}^i u_delta.
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tspend.bspline import BSplineInput
+from tspend.controllers.paper.bspline import BSplineInput
 
 from .numpy_rules import Firing, RuleBase
 

@@ -14,16 +14,16 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
-from . import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
-from .base import Controller, Diagnostic
+from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
+from tspend.controllers.base import Controller, Diagnostic
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 def _paper(adaptation: str | None) -> Callable[..., Controller]:
     def build(scenario: "Scenario") -> Controller:
-        from ..controller import make_controller
+        from tspend.controllers.paper.controller import make_controller
 
         cfg = scenario.controller
         if adaptation is not None and cfg.adaptation != adaptation:

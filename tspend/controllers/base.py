@@ -97,7 +97,7 @@ class Controller(Protocol):
 
     Optional capabilities, looked up with ``getattr`` by whoever wants them:
 
-    * ``snapshot(t, step, x) -> tspend.sinks.InnerSnapshot``: the inner state for
+    * ``snapshot(t, step, x) -> tspend.loop.sinks.InnerSnapshot``: the inner state for
       recorders (fuzzy sets, firing strengths, consequents), asked for every
       ``run.snapshot_every`` seconds only when a sink draws it;
     * ``fuzzy_inputs() -> dict[str, tuple[FuzzyInputInfo, ...]]``: the rule bases'

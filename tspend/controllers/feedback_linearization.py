@@ -35,13 +35,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..control_law import is_hurwitz
-from .base import diag_width, diagnostics
-from .plant_model import PlantModel, plant_model
-from .settings import setting, settings_for
+from tspend.controllers.paper.control_law import is_hurwitz
+from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.plant_model import PlantModel, plant_model
+from tspend.controllers.settings import setting, settings_for
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 @dataclass(frozen=True)

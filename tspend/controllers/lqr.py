@@ -31,13 +31,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import ScenarioError
-from .base import diag_width, diagnostics
-from .plant_model import plant_model
-from .settings import setting, settings_for
+from tspend.errors import ScenarioError
+from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.plant_model import plant_model
+from tspend.controllers.settings import setting, settings_for
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 @dataclass(frozen=True)

@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .base import diag_width, diagnostics
-from .plant_model import plant_model
-from .settings import finite_or, setting, settings_for
+from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.plant_model import plant_model
+from tspend.controllers.settings import finite_or, setting, settings_for
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 @dataclass(frozen=True)

@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..plants.analytic import (Accel, CartPoleParams, cartpole_accel_fn, duffing_accel,
-                               nonaffine_accel, third_order_accel)
+from tspend.plants.analytic import (Accel, CartPoleParams, cartpole_accel_fn, duffing_accel,
+    nonaffine_accel, third_order_accel)
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 #: relative step of the central differences (see the module docstring)
 FD_STEP = 1e-6
@@ -98,7 +98,7 @@ def cartpole_params_of(scenario: "Scenario") -> CartPoleParams:
     """
     from dataclasses import replace
 
-    from ..plants import registry
+    from tspend.plants import registry
 
     params = registry.build(scenario).params  # type: ignore[attr-defined]
     return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,

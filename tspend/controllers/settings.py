@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 #: the paper controller's kinds: their settings live in [controller]
 PAPER_KINDS = ("second_type", "first_type")
@@ -119,7 +119,7 @@ def _matrix(r: TableReader, key: str, n: int) -> tuple[tuple[float, ...], ...]:
 
 
 def _sets(r: TableReader, key: str, n: int):
-    from ..config import SetSpec
+    from tspend.config import SetSpec
 
     v = r.table[key]
     if not (isinstance(v, list) and len(v) == n and all(isinstance(t, dict) for t in v)):
@@ -138,7 +138,7 @@ def _sets(r: TableReader, key: str, n: int):
 
 def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
     """The ``[controllers]`` table: ``(kind, settings)`` pairs, validated for order ``n``."""
-    from . import SETTINGS
+    from tspend.controllers import SETTINGS
 
     out = []
     for kind in r.table:
@@ -165,7 +165,7 @@ def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
 
 def settings_for(scenario: "Scenario", kind: str):
     """The scenario's settings of ``kind``: its ``[controllers.KIND]`` table, else defaults."""
-    from . import SETTINGS
+    from tspend.controllers import SETTINGS
 
     for k, s in getattr(scenario, "controllers", ()):
         if k == kind:

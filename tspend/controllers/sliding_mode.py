@@ -39,13 +39,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .base import diag_width, diagnostics
-from .pd import gains_from_poles
-from .plant_model import plant_model
-from .settings import finite_or, setting, settings_for
+from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.pd import gains_from_poles
+from tspend.controllers.plant_model import plant_model
+from tspend.controllers.settings import finite_or, setting, settings_for
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 #: switching gain k by plant kind (see the module docstring for the reasons)
 DEFAULT_SWITCHING_GAIN = {"nonaffine": 2.0, "duffing": 20.0, "cartpole_ode": 0.5,

@@ -21,7 +21,7 @@ and approximated by fuzzy systems on a fixed grid of Gaussian sets
   ``|f| <= f^U``, ``0 < g_L <= g <= g^U``.
 * Error dynamics: ``e' = Lambda e + b [(f - f_hat) + (g - g_hat) u_c + g u_s + d]``.
   ``P`` solves ``Lambda^T P + P Lambda = -Q`` (the Gamma of Lemma 1,
-  :func:`tspend.control_law.lyapunov_gamma`) and ``e_Delta = e^T P b``.
+  :func:`tspend.controllers.paper.control_law.lyapunov_gamma`) and ``e_Delta = e^T P b``.
 * With ``V = 1/2 e^T P e + |theta_f* - theta_f|^2 / (2 gamma_f)
   + |theta_g* - theta_g|^2 / (2 gamma_g)``, the laws
 
@@ -58,16 +58,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config import SetSpec
-from ..control_law import is_hurwitz, lyapunov_gamma
-from ..errors import ScenarioError
-from .base import diag_width, diagnostics
-from .gaussian_basis import GaussianGrid, basis, gaussian_grid
-from .plant_model import plant_model
-from .settings import finite_or, setting, settings_for
+from tspend.config import SetSpec
+from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
+from tspend.errors import ScenarioError
+from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.gaussian_basis import GaussianGrid, basis, gaussian_grid
+from tspend.controllers.plant_model import plant_model
+from tspend.controllers.settings import finite_or, setting, settings_for
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 @dataclass(frozen=True)

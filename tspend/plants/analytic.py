@@ -14,9 +14,9 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 from numba.extending import overload, register_jitable
 
-from ..bspline import JIT
-from . import cartpole
-from .cartpole import CartPoleParams
+from tspend.runtime.jit import JIT
+from tspend.plants import cartpole
+from tspend.plants.cartpole import CartPoleParams
 
 Accel = Callable[[float, np.ndarray, float, float], float]
 
@@ -81,7 +81,7 @@ def rk4_step(params: Any, t: float, s: np.ndarray, u: float, d: float, dt: float
     :func:`plant_rhs` of ``params`` gives the derivative.
 
     Plain Python from Python (the generic loop, where a blow-up in ``math`` raises) and
-    inlined into compiled code (:mod:`tspend.fastloop`): one integrator, two callers.
+    inlined into compiled code (:mod:`tspend.loop.fastloop`): one integrator, two callers.
     """
     h2 = 0.5 * dt
     N = s.size

@@ -104,7 +104,7 @@ def machine_accelerations(p: CartPoleMachine, theta: float, w: float, cart_vel: 
     """``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``).
 
     Plain Python when called from Python; compiled inline when called from numba code
-    (the compiled closed loop, :mod:`tspend.fastloop`).
+    (the compiled closed loop, :mod:`tspend.loop.fastloop`).
     """
     s_th = p.theta_sign
     th, om = s_th * theta, s_th * w

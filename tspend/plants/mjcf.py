@@ -22,8 +22,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from ..errors import ScenarioError
-from .cartpole import CartPoleParams
+from tspend.errors import ScenarioError
+from tspend.plants.cartpole import CartPoleParams
 
 #: MuJoCo integrators by their MJCF names
 INTEGRATOR_NAMES = {mujoco.mjtIntegrator.mjINT_RK4: "RK4", mujoco.mjtIntegrator.mjINT_EULER: "Euler",

@@ -56,7 +56,7 @@ BodyPose = tuple[np.ndarray, np.ndarray]
 
 
 class MujocoLink(NamedTuple):
-    """One model and its data as compiled code steps them (:mod:`tspend.fastloop`): the
+    """One model and its data as compiled code steps them (:mod:`tspend.loop.fastloop`): the
     addresses of mjModel and mjData for ``mj_step``, MjData's arrays in place, the indices
     of theta, theta', the cart and the motor, and the step's constants."""
 

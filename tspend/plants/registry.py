@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from ..config import AnalyticPlantConfig, CartPoleConfig, MujocoCartPoleConfig, PlantConfig
-from . import analytic
-from .base import CartPoleDrawing, Plant
-from .cartpole import CartPoleParams
+from tspend.config import AnalyticPlantConfig, CartPoleConfig, MujocoCartPoleConfig, PlantConfig
+from tspend.plants import analytic
+from tspend.plants.base import CartPoleDrawing, Plant
+from tspend.plants.cartpole import CartPoleParams
 
 if TYPE_CHECKING:
-    from ..config import Scenario
+    from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,7 @@ def cartpole_params(cfg: CartPoleConfig) -> CartPoleParams:
 
 
 def _mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
-    from .mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
+    from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
 
     if not isinstance(cfg, MujocoCartPoleConfig):
         cfg = MujocoCartPoleConfig(**{k: getattr(cfg, k) for k in CartPoleConfig.__dataclass_fields__})
@@ -75,7 +75,7 @@ def build(scenario: "Scenario", kind: str | None = None) -> Plant:
     The ODE of a MuJoCo scenario is the compiled model's (masses, inertia, damping, gear
     and angle sign read back), so both backends describe one machine.
     """
-    from ..scenario import resolve_model_path
+    from tspend.scenario import resolve_model_path
 
     own = scenario.plant.kind
     kind = kind or own
@@ -90,7 +90,7 @@ def drawing(plant: Plant, scenario: "Scenario") -> CartPoleDrawing | None:
     params = getattr(plant, "params", None)
     if not isinstance(params, CartPoleParams):
         return None
-    from ..scenario import resolve_model_path
+    from tspend.scenario import resolve_model_path
 
     mjcf = str(resolve_model_path(scenario)) if hasattr(plant, "model") else ""
     return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,

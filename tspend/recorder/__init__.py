@@ -1,4 +1,4 @@
-"""Rerun recorder: a :class:`~tspend.sinks.Sink` that streams a closed-loop run to Rerun.
+"""Rerun recorder: a :class:`~tspend.loop.sinks.Sink` that streams a closed-loop run to Rerun.
 
 What is logged (entity paths relative to the sink's ``prefix``):
 
@@ -48,23 +48,17 @@ Where things are:
 
 from __future__ import annotations
 
-from .blueprint import build_blueprint
-from .cartpole import (
-    CART_SIZE,
-    DEFAULT_POLE_HALF_LENGTH,
-    POLE_RADIUS,
-    CartPoleGeometry,
-    CartPolePoses,
-    cartpole_geometry,
-    cartpole_poses,
-    is_cartpole,
-)
-from .common import TIMELINE, Color, join_path, prefix_label
-from .documents import metrics_markdown, run_markdown, scenario_markdown, status_markdown
-from .readback import read_scalar_series
-from .series import SeriesSpec, series_location, series_specs
-from .sink import DECIMATED_ROWS, FRAME_HZ, MAX_LATENCY_S, RerunSink
-from .stream import DEFAULT_VIEWER_PORT, FLUSH_TIMEOUT_S, PathLike, close_recording, open_recording
+from tspend.recorder.blueprint import build_blueprint
+from tspend.recorder.cartpole import (CART_SIZE, DEFAULT_POLE_HALF_LENGTH, POLE_RADIUS,
+    CartPoleGeometry, CartPolePoses, cartpole_geometry, cartpole_poses, is_cartpole)
+from tspend.recorder.common import TIMELINE, Color, join_path, prefix_label
+from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
+    status_markdown)
+from tspend.recorder.readback import read_scalar_series
+from tspend.recorder.series import SeriesSpec, series_location, series_specs
+from tspend.recorder.sink import DECIMATED_ROWS, FRAME_HZ, MAX_LATENCY_S, RerunSink
+from tspend.recorder.stream import (DEFAULT_VIEWER_PORT, FLUSH_TIMEOUT_S, PathLike,
+    close_recording, open_recording)
 
 __all__ = [
     "CART_SIZE",

@@ -18,8 +18,8 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from ..errors import TspendError
-from .common import TIMELINE
+from tspend.errors import TspendError
+from tspend.recorder.common import TIMELINE
 
 
 def _durations(t: np.ndarray | Sequence[float]) -> np.ndarray:

@@ -14,11 +14,11 @@ from typing import Sequence
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..sinks import FuzzyInputInfo, RunInfo
-from .cartpole import is_cartpole
-from .common import BMF_WIDTH, TIMELINE, join_path, prefix_label
-from .labels import plant_labels
-from .series import SeriesSpec, series_specs
+from tspend.loop.sinks import FuzzyInputInfo, RunInfo
+from tspend.recorder.cartpole import is_cartpole
+from tspend.recorder.common import BMF_WIDTH, TIMELINE, join_path, prefix_label
+from tspend.recorder.labels import plant_labels
+from tspend.recorder.series import SeriesSpec, series_specs
 
 #: the time axis runs this fraction past the end of the run: the legends sit there
 LEGEND_MARGIN = 0.22

@@ -7,9 +7,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..plants.base import CartPoleDrawing
-from ..sinks import RunInfo
-from .common import Color
+from tspend.plants.base import CartPoleDrawing
+from tspend.loop.sinks import RunInfo
+from tspend.recorder.common import Color
 
 
 #: default cart box (x, y, z) in metres

@@ -17,13 +17,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
-from .arrow import time_column
-from .blueprint import cartpole_view, document_views, panels, series_view
-from .common import PALETTE
-from .labels import Quantity, extra_quantity, plant_labels
-from .series import series_location
-from .sink import RerunSink
+from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from tspend.recorder.arrow import time_column
+from tspend.recorder.blueprint import cartpole_view, document_views, panels, series_view
+from tspend.recorder.common import PALETTE
+from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
+from tspend.recorder.series import series_location
+from tspend.recorder.sink import RerunSink
 
 VERDICT = "crosscheck/verdict"
 DIFF = "crosscheck/diff"

@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..sinks import RunEnd, RunInfo
+from tspend.loop.sinks import RunEnd, RunInfo
 
 
 def _json_default(obj: object) -> object:

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pyarrow as pa
 
-from .common import TIMELINE
+from tspend.recorder.common import TIMELINE
 
 
 def read_scalar_series(path: str | os.PathLike[str], entity: str,

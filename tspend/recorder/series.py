@@ -15,9 +15,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..controllers.base import Diagnostic
-from .common import PALETTE, Color, join_path
-from .labels import Quantity, extra_quantity, plant_labels
+from tspend.controllers.base import Diagnostic
+from tspend.recorder.common import PALETTE, Color, join_path
+from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
 
 #: floor of a ``log`` diagnostic before its log10 is taken (a norm may start at 0)
 LOG_FLOOR = 1e-12

@@ -1,4 +1,4 @@
-""":class:`RerunSink`, the :class:`~tspend.sinks.Sink` that streams a run, and its snapshot buffer."""
+""":class:`RerunSink`, the :class:`~tspend.loop.sinks.Sink` that streams a run, and its snapshot buffer."""
 
 from __future__ import annotations
 
@@ -9,16 +9,19 @@ from typing import Literal, Sequence
 import numpy as np
 import rerun as rr
 
-from ..sinks import Block, InnerSnapshot, RunEnd, RunInfo
-from .arrow import check_tensor_type, points_column, strips_column, tensor_column, time_column
-from .blueprint import build_blueprint
-from .cartpole import CartPoleGeometry, cartpole_geometry, cartpole_poses, is_cartpole
-from .common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
-from .documents import metrics_markdown, run_markdown, scenario_markdown, status_markdown
-from .fuzzy_axes import axis_parts, term_label_positions
-from .series import SeriesSpec, series_specs
-from .world import log_world, readout_labels
-from .stream import close_recording, flush
+from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from tspend.recorder.arrow import (check_tensor_type, points_column, strips_column, tensor_column,
+    time_column)
+from tspend.recorder.blueprint import build_blueprint
+from tspend.recorder.cartpole import (CartPoleGeometry, cartpole_geometry, cartpole_poses,
+    is_cartpole)
+from tspend.recorder.common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
+from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
+    status_markdown)
+from tspend.recorder.fuzzy_axes import axis_parts, term_label_positions
+from tspend.recorder.series import SeriesSpec, series_specs
+from tspend.recorder.world import log_world, readout_labels
+from tspend.recorder.stream import close_recording, flush
 
 
 #: rate of the 3D cart-pole frames (Hz of simulated time)

@@ -1,7 +1,7 @@
 """Recording streams: :func:`open_recording` (file, spawned or connected viewer, and the
 fallbacks when a viewer cannot be reached) and :func:`close_recording`, which says
 whether the saved file is complete (the CLI writes to a partial file and renames it
-into place only then, see :mod:`tspend.outputs`)."""
+into place only then, see :mod:`tspend.runtime.outputs`)."""
 
 from __future__ import annotations
 

@@ -8,8 +8,8 @@ from typing import Callable
 import numpy as np
 import rerun as rr
 
-from .cartpole import CartPoleGeometry
-from .common import Color
+from tspend.recorder.cartpole import CartPoleGeometry
+from tspend.recorder.common import Color
 
 #: the rail runs over [-RAIL_M, RAIL_M]: cart-poles drift tens of metres in a long run
 RAIL_M = 100.0

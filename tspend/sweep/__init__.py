@@ -41,7 +41,7 @@ one per run, columns:
 - ``scenario``; one column per grid key (named by the key, e.g. ``controller.eta``,
   holding the value; lists and tables as JSON text); ``seed``; ``controller`` (the kind);
 - ``status`` (``completed``, ``diverged`` or ``failed``) and ``message`` (why);
-- every metric of :data:`tspend.metrics.METRIC_KEYS` (``rmse_ss``, ..., ``wall_s``, the
+- every metric of :data:`tspend.loop.metrics.METRIC_KEYS` (``rmse_ss``, ..., ``wall_s``, the
   loop's wall time), NaN where undefined (a run that failed before its first sample);
 - ``version`` (tspend's), ``scenario_hash`` (SHA-256 of the scenario's text, 16 hex
   digits), ``recording`` (path or None), ``job_s`` (the worker's whole time for the run)
@@ -62,12 +62,12 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Iterable
 
-from ..errors import ScenarioError
-from ..runner import RunInterrupted, StopRequest
-from .executors import WorkerDied, make_executor
-from .plan import RECORD_MODES, Job, make_plan
-from .table import KEY_COLUMN, RowTable, read_table, typed
-from .worker import METRIC_COLUMNS, run_job
+from tspend.errors import ScenarioError
+from tspend.loop.runner import RunInterrupted, StopRequest
+from tspend.sweep.executors import WorkerDied, make_executor
+from tspend.sweep.plan import RECORD_MODES, Job, make_plan
+from tspend.sweep.table import KEY_COLUMN, RowTable, read_table, typed
+from tspend.sweep.worker import METRIC_COLUMNS, run_job
 
 #: columns of every row besides the grid columns, in table order around them
 LEADING_COLUMNS = ("scenario",)
@@ -84,12 +84,12 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
-    :class:`tspend.runner.StopRequest` set by a signal handler) ends the sweep after
+    :class:`tspend.loop.runner.StopRequest` set by a signal handler) ends the sweep after
     keeping every finished row; :class:`RunInterrupted` is then raised.
     """
     import pandas as pd
 
-    from ..progress import SweepProgress
+    from tspend.runtime.progress import SweepProgress
 
     out_path = Path(out) if out is not None else None
     if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
@@ -200,7 +200,7 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
 
 
 def _died_row(job: Job, why: str) -> dict[str, Any]:
-    from .. import __version__
+    from tspend import __version__
 
     row: dict[str, Any] = {"scenario": job.label}
     row.update(job.grid)

@@ -16,8 +16,8 @@ from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterable
 
-from ..errors import ScenarioError, TspendError
-from .worker import init_worker, warm
+from tspend.errors import ScenarioError, TspendError
+from tspend.sweep.worker import init_worker, warm
 
 DASK_EXTRA = "pip install 'tspend[dask]'"
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from ..config import Scenario
-from ..errors import ScenarioError
+from tspend.config import Scenario
+from tspend.errors import ScenarioError
 
 #: where a run's recording is kept: never, only when it did not complete, always
 RECORD_MODES = ("failed", "all", "none")
@@ -43,7 +43,7 @@ class Job:
 
 def scenario_hash(scenario: Scenario) -> str:
     """16 hex digits of SHA-256 over the scenario's text with its fixed overrides."""
-    from ..simulation import scenario_text
+    from tspend.loop.simulation import scenario_text
 
     return hashlib.sha256(scenario_text(scenario).encode()).hexdigest()[:16]
 
@@ -140,7 +140,7 @@ def _seed_list(seeds: int | Iterable[int] | None) -> list[int] | None:
 
 
 def _controller_list(controllers: str | Iterable[str] | None) -> list[str | None]:
-    from ..controllers import KINDS
+    from tspend.controllers import KINDS
 
     if controllers is None:
         return [None]
@@ -155,7 +155,7 @@ def _controller_list(controllers: str | Iterable[str] | None) -> list[str | None
 
 
 def resolve_scenarios(scenarios: Any) -> list[Scenario]:
-    from ..scenario import load_scenario
+    from tspend.scenario import load_scenario
 
     items = scenarios if isinstance(scenarios, (list, tuple)) else [scenarios]
     if not items:
@@ -187,7 +187,7 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
               controllers: str | Iterable[str] | None = None, record: str = "none",
               record_dir: Path | None = None) -> list[Job]:
     """Every run of the sweep, in table order: scenario, grid point, seed, controller."""
-    from ..scenario import override
+    from tspend.scenario import override
 
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")

@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import ScenarioError
-from .worker import METRIC_COLUMNS
+from tspend.errors import ScenarioError
+from tspend.sweep.worker import METRIC_COLUMNS
 
 NUMERIC_COLUMNS = METRIC_COLUMNS + ("job_s",)
 

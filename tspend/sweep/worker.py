@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
-from ..metrics import METRIC_KEYS
-from .plan import Job
+from tspend import __version__
+from tspend.loop.metrics import METRIC_KEYS
+from tspend.sweep.plan import Job
 
 #: metric columns of a row (the seed has its own column already)
 METRIC_COLUMNS = tuple(k for k in METRIC_KEYS if k != "seed")
@@ -27,7 +27,7 @@ METRIC_COLUMNS = tuple(k for k in METRIC_KEYS if k != "seed")
 
 def _seeded(job: Job):
     """The job's scenario with its seed (applied here, in parallel, not in the parent)."""
-    from ..scenario import override
+    from tspend.scenario import override
 
     if job.seed == job.scenario.run.seed:
         return job.scenario
@@ -35,8 +35,8 @@ def _seeded(job: Job):
 
 
 def _recorded_run(job: Job, path: Path):
-    from ..recorder import RerunSink, close_recording, open_recording
-    from ..simulation import run
+    from tspend.recorder import RerunSink, close_recording, open_recording
+    from tspend.loop.simulation import run
 
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = open_recording(f"tspend_sweep_{job.label}", path=path)
@@ -48,7 +48,7 @@ def _recorded_run(job: Job, path: Path):
 
 
 def _attempt(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
-    from ..simulation import run
+    from tspend.loop.simulation import run
 
     try:
         result = (_recorded_run(job, record_to) if record_to is not None else
@@ -110,8 +110,8 @@ def init_worker() -> None:
 
 def warm(_: int = 0) -> int:
     """Load the controller kernel in this worker (what the first run would otherwise pay)."""
-    from ..scenario import load_scenario, project_root
-    from ..simulation import build_controller
+    from tspend.scenario import load_scenario, project_root
+    from tspend.loop.simulation import build_controller
 
     # the project's own file, whatever the caller's directory holds
     build_controller(load_scenario(project_root() / "scenarios" / "ex3_pendulum_ode.toml"))

@@ -1,0 +1,137 @@
+"""``tspend compare``: every controller on every scenario at the same seeds, paired by seed.
+
+The runs are a sweep (:func:`tspend.sweep.sweep`: local worker pool or a Dask cluster,
+resumable with ``--out``); the statistics are :mod:`tspend.studies.stats` (median [Q1, Q3] per
+controller; per pair the median paired difference with a bootstrap 95% interval, the
+win rate and the Wilcoxon signed-rank p-value).  The Markdown table goes to stdout,
+``--json`` writes the same figures, ``--out`` keeps the sweep's Parquet table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tspend.errors import ScenarioError
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "compare", help="compare controller kinds over seeds, paired (Markdown table)",
+        description="Every controller kind on every scenario at the same seeds, paired by "
+                    "seed: median [Q1, Q3] per kind; per pair the median difference with a "
+                    "bootstrap 95% interval, the win rate and the Wilcoxon p-value.")
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
+                   help="scenario names (see 'tspend list') or .toml paths")
+    p.add_argument("--controller", metavar="K1,K2,...",
+                   help="controller kinds, compared in this order (default: every kind)")
+    p.add_argument("--seeds", default="0:20", metavar="A:B",
+                   help="seeds A to B-1 (or N1,N2,...); default 0:20")
+    p.add_argument("--metrics", metavar="M1,M2,...",
+                   help="metrics to compare (default: rmse,rmse_ss,max_abs_e_ss,"
+                        "control_energy,tv_u_per_s; an unknown name lists them)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key for every run (repeatable)")
+    p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
+    p.add_argument("--json", metavar="PATH", help="write the statistics as JSON")
+    p.add_argument("--out", metavar="PATH.parquet",
+                   help="keep the sweep's table of runs (rerunning resumes it)")
+    p.add_argument("--jobs", type=int, metavar="N", help="worker processes (default: cores)")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run on a Dask cluster ('local' starts one on this machine)")
+    p.add_argument("--resamples", type=int, default=9999, metavar="N",
+                   help="bootstrap resamples (default 9999)")
+    p.add_argument("--stats-seed", type=int, default=0, metavar="N",
+                   help="seed of the bootstrap's generator (default 0)")
+    p.add_argument("--progress", action="store_true", help="show the sweep's progress")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    return p
+
+
+def _list(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    return items or None
+
+
+def parse_options(args: argparse.Namespace) -> dict:
+    """Everything checked before a single run starts (bad input: ScenarioError)."""
+    from tspend.cli.main import check_writable, parse_set_value
+    from tspend.controllers import KINDS
+    from tspend.studies.stats import COMPARED_METRICS, DEFAULT_METRICS
+    from tspend.sweep.plan import parse_seeds
+
+    kinds = _list(args.controller) or list(KINDS)
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        raise ScenarioError(f"--controller {','.join(unknown)}: unknown kind; allowed: "
+                            f"{', '.join(KINDS)}")
+    if len(set(kinds)) < 2:
+        raise ScenarioError("--controller: name at least two different kinds to compare")
+    metrics = _list(args.metrics) or list(DEFAULT_METRICS)
+    bad = [m for m in metrics if m not in COMPARED_METRICS]
+    if bad:
+        raise ScenarioError(f"--metrics {','.join(bad)}: unknown metric; allowed: "
+                            f"{', '.join(COMPARED_METRICS)}")
+    seeds = parse_seeds(args.seeds)
+    grid: dict[str, list] = {}
+    for item in args.set:
+        key, value = parse_set_value(item)
+        grid[key] = [value]
+    if args.duration is not None:
+        if not args.duration > 0:
+            raise ScenarioError(f"--duration: must be a positive number of seconds, got "
+                                f"{args.duration}")
+        grid["run.duration"] = [float(args.duration)]
+    if args.resamples < 100:
+        raise ScenarioError(f"--resamples: at least 100, got {args.resamples}")
+    json_path = Path(args.json) if args.json else None
+    if json_path is not None:
+        check_writable(json_path, "json")
+    if args.jobs is not None and args.jobs < 1:
+        raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
+    return dict(kinds=kinds, metrics=metrics, seeds=seeds, grid=grid or None,
+                json_path=json_path)
+
+
+def seeds_text(seeds: list[int]) -> str:
+    if seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else str(seeds[0])
+    return ",".join(map(str, seeds))
+
+
+def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, jobs=None,
+                   dask=None, progress=False, resamples=9999, stats_seed=0):
+    """Sweep every kind over ``seeds`` on ``scenarios`` and compare them: (table, Comparison)."""
+    from tspend.studies.stats import compare
+    from tspend.sweep import sweep
+
+    table = sweep(scenarios, grid=grid, seeds=seeds, controllers=kinds, jobs=jobs, dask=dask,
+                  out=out, record="none", progress=progress)
+    # a resumed --out table may hold other runs too: compare what was asked for
+    table = table[table["controller"].isin(kinds) & table["seed"].isin(seeds)]
+    return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples)
+
+
+def cmd(args: argparse.Namespace) -> int:
+    import json
+
+    from tspend.studies.stats import to_json
+    from tspend.studies.stats import markdown
+
+    opts = parse_options(args)
+    table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"],
+                                 grid=opts["grid"], out=args.out, jobs=args.jobs,
+                                 dask=args.dask, progress=args.progress,
+                                 resamples=args.resamples, stats_seed=args.stats_seed)
+    sys.stdout.write(markdown(comp, seeds_text(opts["seeds"])))
+    if opts["json_path"] is not None:
+        doc = to_json(comp)
+        doc["seeds"] = opts["seeds"]
+        doc["scenarios"] = list(args.scenarios)
+        opts["json_path"].write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    if args.out:
+        print(f"runs: {args.out}", file=sys.stderr)
+    return 0

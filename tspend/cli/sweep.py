@@ -1,0 +1,135 @@
+"""``tspend sweep``: many runs of one or more scenarios, one row each in a Parquet table.
+
+The cartesian product of ``--grid`` values, ``--seeds`` and ``--controller`` kinds runs
+on a local pool of worker processes (``--jobs``) or a Dask cluster (``--dask``).  Rows
+are written as runs finish; the same command after a kill runs only what is missing.
+A diverged or failed run is a row (and, by default, a recording), never the end of the
+sweep.  The Python API is :func:`tspend.sweep.sweep`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tspend.errors import ScenarioError
+from tspend.loop.runner import RunInterrupted
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("sweep", help="run a grid of scenario values x seeds x controllers, "
+                                     "one table row per run",
+                       description="Run the product of --grid values, --seeds and --controller "
+                                   "kinds, one row per run in a Parquet table (--out); the "
+                                   "same command after a kill runs only what is missing.")
+    p.add_argument("scenario", nargs="+", help="scenario name(s) or .toml path(s)")
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="sweep a scenario key over values (TOML, as for --set; repeatable: the "
+                        "product of all grids), e.g. --grid controller.eta=0.001,0.01")
+    p.add_argument("--seeds", metavar="A:B",
+                   help="seeds A to B-1 (e.g. 0:20), or N, or N1,N2,... (default: the "
+                        "scenario's seed)")
+    p.add_argument("--controller", metavar="K1,K2,...",
+                   help="controller kinds to run (default: the scenario's own; "
+                        "'tspend run --controller help' lists them)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key for every run, e.g. --set run.duration=10 (repeatable)")
+    p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
+    p.add_argument("--out", metavar="PATH.parquet",
+                   help="the table: rows are added as runs finish and rows already there are "
+                        "not run again (default: print the summary only)")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="worker processes (default: one per core)")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run on the Dask scheduler at ADDRESS, or 'local' for a LocalCluster "
+                        "(needs pip install 'tspend[dask]')")
+    p.add_argument("--record", choices=("failed", "all", "none"), default="failed",
+                   help="keep a Rerun recording of the runs that diverged or failed (default), "
+                        "of all runs, or of none; the path is in the row")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+
+
+def _scenarios(args: argparse.Namespace) -> list:
+    from tspend.scenario import load_scenario, override
+    from tspend.sweep.plan import parse_value
+
+    changes = {}
+    if args.duration is not None:
+        if not args.duration > 0:
+            raise ScenarioError(f"--duration: must be a positive number of seconds, got "
+                                f"{args.duration}")
+        changes["run.duration"] = float(args.duration)
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ScenarioError(f"--set {item}: expected KEY=VALUE, e.g. controller.eta=0.01")
+        changes[key.strip()] = parse_value(value.strip())
+    scenarios = [load_scenario(s) for s in args.scenario]
+    return [override(s, **changes) if changes else s for s in scenarios]
+
+
+def summary(frame, grid_keys: list[str]):
+    """Per scenario, grid point and controller: runs by status, median and IQR of rmse_ss."""
+    import pandas as pd
+
+    keys = ["scenario", *grid_keys, "controller"]
+    groups = frame.groupby(keys, sort=False, dropna=False)
+    out = groups["status"].value_counts().unstack(fill_value=0)
+    for status in ("completed", "diverged", "failed"):
+        if status not in out.columns:
+            out[status] = 0
+    out = out[["completed", "diverged", "failed"]]
+    ss = groups["rmse_ss"]
+    out["rmse_ss median"] = ss.median()
+    out["IQR"] = ss.quantile(0.75) - ss.quantile(0.25)
+    return out.reset_index() if isinstance(out, pd.DataFrame) else out
+
+
+def _stop_requests(args: argparse.Namespace):
+    """A context giving the StopRequest that SIGINT/SIGTERM set while the sweep runs."""
+    guard = getattr(args, "guard", None)  # the CLI's signal guard, when it provides one
+    if guard is not None:
+        return guard.deferred()
+    from tspend.cli.main import stop_on_signals
+
+    return stop_on_signals()
+
+
+def cmd(args: argparse.Namespace) -> int:
+    from tspend import __version__
+    from tspend.sweep import plan as sweep_plan, read_table, sweep
+
+    scenarios = _scenarios(args)
+    grid = sweep_plan.parse_grid(args.grid)
+    seeds = sweep_plan.parse_seeds(args.seeds) if args.seeds is not None else None
+    if args.jobs is not None and args.jobs < 1:
+        raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
+    names = ", ".join(s.name for s in scenarios)
+    print(f"tspend {__version__}: sweep of {names}" + (f", table {args.out}" if args.out else ""),
+          flush=True)
+    with _stop_requests(args) as stop:
+        try:
+            frame = sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
+                          jobs=args.jobs, dask=args.dask, out=args.out, record=args.record,
+                          progress=True, stop=stop)
+        except RunInterrupted as exc:
+            kept = len(read_table(args.out)) if args.out else 0
+            where = (f"{kept} rows kept in {args.out}; the same command finishes the rest"
+                     if args.out else "nothing kept (no --out)")
+            print(f"tspend: sweep interrupted by {exc.signal_name}; {where}", file=sys.stderr)
+            return exc.exit_status
+    if not len(frame):
+        print("nothing to run")
+        return 0
+    import pandas as pd
+
+    with pd.option_context("display.max_rows", 200, "display.width", 160,
+                           "display.float_format", "{:.4g}".format):
+        print(summary(frame, list(grid)).to_string(index=False))
+    recorded = frame["recording"].dropna()
+    if len(recorded):
+        print(f"recordings: {len(recorded)} in {Path(recorded.iloc[0]).parent}")
+    if args.out:
+        print(f"table: {args.out} ({len(frame)} rows of this sweep)")
+    return 0

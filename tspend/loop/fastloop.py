@@ -1,0 +1,243 @@
+"""The closed loop's samples in compiled code, when the plant and the controller allow it.
+
+:class:`tspend.loop.runner.ClosedLoop` runs a block's samples through a *segment*: a stretch
+of samples ``[a, b)`` of the block, run without Python between them.  This module is the
+one place that decides whether a loop gets one (:func:`segment_runner`): the controller
+must offer ``compiled()`` (a :class:`tspend.controllers.paper.controller.CompiledController`), the plant a
+``compiled()`` step, and no per-sample hook may be on (sensor noise, delay, the outer
+loop: :mod:`tspend.plants.effects`); otherwise the generic Python loop runs, sample by sample.
+Everything else (the blocks, the divergence messages, stop requests, snapshots, sinks)
+stays with the runner, which calls a segment between two of these events, so they happen
+at the same samples as in the generic loop.
+
+Two kinds of segment:
+
+* :class:`CompiledSegment` (analytic plants, :class:`tspend.plants.analytic.CompiledPlant`):
+  controller step, RK4 and the block buffers in one ``@njit`` loop;
+* :class:`MujocoCompiledSegment` (a MuJoCo plant offering ``compiled_mujoco(dt)``): the
+  same loop calling MuJoCo's C ``mj_step`` (through ctypes) on the plant's own mjModel and
+  mjData, so nothing of Python runs per sample.  A huge input or MuJoCo's instability
+  reset ends the segment and the plant's own Python ``step`` / check says why, as in the
+  generic loop.  (Other routes: a tight Python loop of the compiled sample and
+  ``mj_step`` was measured at 2.3x bare ``mj_step``; ``mujoco.set_mjcb_control`` with a
+  numba cfunc was not taken: the callback is process-global, shared by threads, and
+  could reach the controller's arrays only through a cfunc compiled per run.)
+
+The arithmetic is the generic loop's, in the same order, so blocks are equal bit for bit
+(tests/test_fastloop.py).  One difference in kind: where Python's ``math`` raises on an
+overflow inside the plant (the generic loop then ends "the plant failed"), compiled code
+carries inf/NaN into the next sample, which ends "the state is not finite"; the samples
+kept are the same.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, NamedTuple, Protocol
+
+import numpy as np
+from numba import njit
+from numba.extending import overload
+
+from tspend.runtime.jit import JIT
+from tspend.plants.analytic import rk4_step
+
+#: what a segment reports: every sample ran, or it stopped at a sample to look at; the
+#: plant-level codes are handled inside this module (they become SampleFailed)
+RAN, CHECK, BAD_INPUT, UNSTABLE = 0, 1, 2, 3
+
+
+class Bounds(NamedTuple):
+    """The runner's divergence bounds (0 = only non-finite values stop the run)."""
+
+    state: float
+    control: float
+
+
+class Buffers(NamedTuple):
+    """The block's arrays the segment writes (:class:`tspend.loop.runner.BlockBuffer`'s)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    D: np.ndarray
+    E: np.ndarray
+
+
+class Segment(Protocol):
+    def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
+                 dt: float) -> tuple[int, int]:
+        """Run samples ``a .. b-1`` of the block; ``(b, RAN)``, or ``(i, CHECK)`` when
+        sample i's u is not finite or out of bounds (recorded; the plant not stepped)."""
+
+
+#: compiled controller steps by the type of their settings (``CompiledController``), filled
+#: as loops are built: compiled code picks the step by type, so the loop caches on disk
+_CONTROLLER_STEPS: dict[type, Callable] = {}
+
+
+def controller_sample(settings, state, scratch, x, ref, dt, diag) -> float:
+    """One compiled controller sample, the step chosen by the type of ``settings``
+    (compiled code only)."""
+    raise TypeError("controller_sample is for compiled code")
+
+
+@overload(controller_sample, jit_options=JIT)
+def _controller_sample(settings, state, scratch, x, ref, dt, diag):
+    step = _CONTROLLER_STEPS.get(getattr(settings, "instance_class", None))
+    if step is None:
+        return None
+
+    def impl(settings, state, scratch, x, ref, dt, diag):
+        return step(settings, state, scratch, x, ref, dt, diag)
+
+    return impl
+
+
+@njit(**JIT)
+def _out_of_bounds(x: np.ndarray, u: float, bounds: Bounds) -> bool:
+    if not math.isfinite(u):
+        return True
+    if bounds.control > 0.0 and abs(u) > bounds.control:
+        return True
+    if bounds.state > 0.0:
+        for j in range(x.size):
+            # NaN compares False: a non-finite state reaches u first (the runner's rule)
+            if abs(x[j]) > bounds.state:
+                return True
+    return False
+
+
+@njit(**JIT)
+def _analytic_samples(settings, state, scratch, params, s, clock, work,
+                      x, diag, buf: Buffers, a: int, b: int, t: np.ndarray, ref: np.ndarray,
+                      dist: np.ndarray, dt: float, bounds: Bounds) -> tuple[int, int]:
+    """Samples ``a .. b-1``: what :meth:`tspend.loop.runner.ClosedLoop._loop` does per sample."""
+    n = x.size
+    hidden = s.size - n
+    for i in range(a, b):
+        for j in range(n):
+            x[j] = s[j]
+        u = controller_sample(settings, state, scratch, x, ref[i], dt, diag)
+        for j in range(n):
+            buf.X[i, j] = x[j]
+        buf.U[i] = u
+        for j in range(diag.size):
+            buf.D[i, j] = diag[j]
+        for j in range(hidden):
+            buf.E[i, j] = s[n + j]
+        if _out_of_bounds(x, u, bounds):
+            return i, CHECK
+        rk4_step(params, clock[0], s, u, dist[i], dt, work)
+        clock[0] += dt
+    return b, RAN
+
+
+class CompiledSegment:
+    """An analytic plant and a compiled controller in one compiled loop."""
+
+    def __init__(self, compiled_controller: Any, compiled_plant: Any, diag: np.ndarray,
+                 buffers: Buffers, bounds: Bounds, order: int) -> None:
+        c, p = compiled_controller, compiled_plant
+        _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
+        self._args = (c.settings, c.state, c.scratch, p.params, p.state,
+                      p.clock, p.work, np.zeros(order), diag, buffers)
+        self._bounds = bounds
+
+    def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
+                 dt: float) -> tuple[int, int]:
+        return _analytic_samples(*self._args, a, b, t, ref, dist, dt, self._bounds)
+
+
+class SampleFailed(Exception):
+    """The plant's step failed at sample ``i`` of the block (recorded): the runner ends the
+    run as its generic loop does on the plant's exception ``error``."""
+
+    def __init__(self, i: int, error: BaseException) -> None:
+        super().__init__(str(error))
+        self.i, self.error = i, error
+
+
+@njit(**JIT)
+def _mujoco_samples(settings, state, scratch, mj_step, link, x, diag, buf: Buffers,
+                    a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray, dt: float,
+                    bounds: Bounds) -> tuple[int, int]:
+    """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoCartPole.step`
+    with MuJoCo's C ``mj_step`` called from here."""
+    qpos, qvel, numbers = link.qpos, link.qvel, link.warning_number
+    for i in range(a, b):
+        x[0] = qpos[link.theta]
+        x[1] = qvel[link.omega]
+        u = controller_sample(settings, state, scratch, x, ref[i], dt, diag)
+        buf.X[i, 0] = x[0]
+        buf.X[i, 1] = x[1]
+        buf.U[i] = u
+        for j in range(diag.size):
+            buf.D[i, j] = diag[j]
+        buf.E[i, 0] = qpos[link.cart_pos]
+        buf.E[i, 1] = qvel[link.cart_vel]
+        if _out_of_bounds(x, u, bounds):
+            return i, CHECK
+        d = dist[i]
+        if not (abs(u) < link.max_input and abs(d) < link.max_input):
+            return i, BAD_INPUT
+        link.ctrl[link.actuator] = u
+        link.qfrc[link.omega] = link.d_to_tau * d
+        for _ in range(link.nstep):
+            mj_step(link.model_address, link.data_address)
+        if numbers[link.bad_qpos] or numbers[link.bad_qvel] or numbers[link.bad_qacc]:
+            return i, UNSTABLE
+    return b, RAN
+
+
+class MujocoCompiledSegment:
+    """A MuJoCo plant (its ``compiled_mujoco(dt)``) and a compiled controller in one
+    compiled loop calling MuJoCo's C ``mj_step``."""
+
+    def __init__(self, compiled_controller: Any, plant: Any, link: Any, mj_step: Any,
+                 diag: np.ndarray, buffers: Buffers, bounds: Bounds) -> None:
+        c = compiled_controller
+        _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
+        self._plant, self._buf = plant, buffers
+        self._args = (c.settings, c.state, c.scratch, mj_step, link, np.zeros(2), diag, buffers)
+        self._bounds = bounds
+
+    def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
+                 dt: float) -> tuple[int, int]:
+        i, code = _mujoco_samples(*self._args, a, b, t, ref, dist, dt, self._bounds)
+        if code == BAD_INPUT:
+            # the plant's own step refuses the input and says why
+            try:
+                self._plant.step(float(self._buf.U[i]), float(dist[i]), dt)
+            except Exception as exc:
+                raise SampleFailed(i, exc) from exc
+            return i + 1, RAN  # the plant took it after all: sample i is complete
+        if code == UNSTABLE:
+            error = self._plant.instability(float(t[i]))
+            raise SampleFailed(i, error)
+        return i, code
+
+
+def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bounds: Bounds,
+                   dt: float) -> Segment | None:
+    """A compiled segment for this loop, or None: the generic loop runs (module docstring)."""
+    if hook is not None:
+        return None
+    compiled_controller = getattr(controller, "compiled", None)
+    if compiled_controller is None:
+        return None
+    order = int(controller.order)
+    compiled_plant = getattr(plant, "compiled", None)
+    if compiled_plant is not None:
+        p = compiled_plant()
+        if p is not None and buffers.E.shape[1] == p.state.size - order:
+            return CompiledSegment(compiled_controller(), p, controller.diag, buffers, bounds,
+                                   order)
+    compiled_mujoco = getattr(plant, "compiled_mujoco", None)
+    if compiled_mujoco is not None and order == 2 and buffers.E.shape[1] == 2:
+        from tspend.plants.mujoco_plant import mj_step_pointer
+
+        link = compiled_mujoco(dt)
+        if link is not None:
+            return MujocoCompiledSegment(compiled_controller(), plant, link, mj_step_pointer(),
+                                         controller.diag, buffers, bounds)
+    return None

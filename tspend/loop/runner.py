@@ -1,0 +1,313 @@
+"""The closed-loop runner: plant, controller, reference and disturbance, sample by sample.
+
+It knows nothing of Rerun or MuJoCo: a plant satisfies :class:`tspend.plants.base.Plant`
+and every output goes to sinks (:mod:`tspend.loop.sinks`).  Samples are gathered in blocks
+of fixed size, preallocated once, and each full block is handed to the sinks, so a long
+run keeps only one block in memory.
+
+A run ends ``completed``; ``diverged`` when the state, control or a parameter stops
+being finite or leaves its configured bound (the block up to the last finite sample is
+still delivered); ``interrupted`` when a :class:`StopRequest` is set (the CLI's SIGINT/SIGTERM handlers
+do that; the loop honours it between samples) or on KeyboardInterrupt; then
+:class:`RunInterrupted` is raised after the sinks have finished, so the caller can set
+the exit status.  Sinks always get :meth:`finish`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Diagnostic, check_diagnostics
+from tspend.errors import DivergenceError
+from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
+from tspend.runtime.interrupts import StopRequest
+from tspend.plants.base import Plant
+from tspend.signals import Disturbance, Reference
+from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
+
+
+class RunInterrupted(Exception):
+    """A request to stop the run (a signal); carries the exit status to use."""
+
+    def __init__(self, signal_name: str, exit_status: int) -> None:
+        super().__init__(f"interrupted by {signal_name}")
+        self.signal_name = signal_name
+        self.exit_status = exit_status
+        #: how the run ended (metrics up to the stop), set by the runner
+        self.end: RunEnd | None = None
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    dt: float
+    steps: int
+    block_size: int = 1000
+    snapshot_every: int = 20          # steps between inner snapshots (0 = never)
+    state_bound: float = 0.0          # 0 = only non-finite values stop the run
+    control_bound: float = 0.0
+    #: run stretches of samples in compiled code when plant and controller offer it
+    #: (:mod:`tspend.loop.fastloop`); False forces the generic loop (same results)
+    compiled: bool = True
+
+
+class BlockBuffer:
+    """Preallocated arrays of one block; ``view(k)`` exposes the first k samples.
+
+    The runner's own keys (``t x ref e u d``), then each of the controller's declared
+    diagnostics under its name, then the plant's extras as ``extra/NAME``.
+    """
+
+    def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...],
+                 diagnostics: tuple[Diagnostic, ...] = ()) -> None:
+        self.n = n
+        self.x = np.zeros((size, n))
+        self.u = np.zeros(size)
+        self.diag = np.zeros((size, diag_width))
+        self.extra_names = extras
+        self.extra = np.zeros((size, len(extras)))
+        self.diagnostics = diagnostics
+
+    def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
+        D, X = self.diag[:k], self.x[:k]
+        data = {"t": t[:k], "x": X, "ref": ref[:k], "e": X - ref[:k, :self.n], "u": self.u[:k],
+                "d": d[:k]}
+        for diagnostic in self.diagnostics:
+            data[diagnostic.name] = D[:, diagnostic.columns]
+        for j, name in enumerate(self.extra_names):
+            data[f"extra/{name}"] = self.extra[:k, j]
+        return data
+
+
+class ClosedLoop:
+    """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``."""
+
+    def __init__(self, plant: Plant, controller: Controller, reference: Reference,
+                 disturbance: Disturbance, settings: LoopSettings,
+                 stop: StopRequest | None = None,
+                 hook: "Callable[[float, np.ndarray, np.ndarray], np.ndarray] | None" = None
+                 ) -> None:
+        if plant.order != controller.order:
+            raise ValueError(f"plant order {plant.order} != controller order {controller.order}")
+        check_diagnostics(controller.diagnostics, controller.diag)
+        self.plant = plant
+        self.controller = controller
+        self.reference = reference
+        self.disturbance = disturbance
+        self.s = settings
+        self.stop = stop if stop is not None else StopRequest()
+        #: per-sample hook (t, x, ref row) -> the state the controller sees; it may shape
+        #: the reference row in place (tspend.plants.effects: sensor noise, delay, outer loop)
+        self.hook = hook
+        self._done = 0
+        self.end: RunEnd | None = None
+        #: which loop ran: "compiled" (:mod:`tspend.loop.fastloop`) or "generic"
+        self.path = ""
+
+    def run(self, info: RunInfo, sinks: list[Sink]) -> RunEnd:
+        for sink in sinks:
+            sink.start(info)
+        started = time.perf_counter()
+        done, status, message = 0, "completed", ""
+        try:
+            # overflow on the way to a divergence is expected: it is detected and reported
+            with np.errstate(over="ignore", invalid="ignore"):
+                done, status, message = self._loop(sinks)
+        except (KeyboardInterrupt, RunInterrupted) as exc:
+            stop = exc if isinstance(exc, RunInterrupted) else RunInterrupted("SIGINT", 130)
+            stop.end = self._finish(sinks, "interrupted", str(stop), self._done, started)
+            raise stop from None
+        except Exception as exc:  # a bug or a plant failure: keep what was recorded
+            self._finish(sinks, "failed", f"{type(exc).__name__}: {exc}", self._done, started)
+            raise
+        return self._finish(sinks, status, message, done, started)
+
+    def _finish(self, sinks: list[Sink], status: str, message: str, done: int,
+                started: float) -> RunEnd:
+        wall = time.perf_counter() - started
+        metrics = {}
+        for sink in sinks:
+            if hasattr(sink, "result"):
+                metrics = sink.result(wall_s=wall)
+        end = RunEnd(status=status, message=message, steps_done=done, metrics=metrics)
+        for sink in sinks:
+            try:
+                sink.finish(end)
+            except Exception as exc:  # one failing sink must not cost the others their data
+                warnings.warn(f"sink {type(sink).__name__} failed to finish: {exc}",
+                              RuntimeWarning, stacklevel=2)
+        self.end = end
+        return end
+
+    def _loop(self, sinks: list[Sink]) -> tuple[int, str, str]:
+        s, plant, ctrl = self.s, self.plant, self.controller
+        n, dt = ctrl.order, s.dt
+        extras = tuple(plant.extras().keys())
+        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras, ctrl.diagnostics)
+        X, U, D, E = buf.x, buf.u, buf.diag, buf.extra
+        diag = ctrl.diag
+        # inner snapshots cost a numpy evaluation each: only for sinks that draw them, and
+        # only from controllers that have an inner state to show
+        snapshot = getattr(ctrl, "snapshot", None)
+        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)] if snapshot else []
+        snap_every = s.snapshot_every if snap_sinks else 0
+        bounded = s.state_bound > 0.0 or s.control_bound > 0.0
+        isfinite = math.isfinite
+        stop, hook = self.stop, self.hook
+        segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E),
+                                 Bounds(s.state_bound, s.control_bound), dt) \
+            if s.compiled else None
+        self.path = "generic" if segment is None else "compiled"
+        if segment is not None:
+            return self._segments(sinks, segment, buf, snap_sinks, snap_every)
+        for start in range(0, s.steps, s.block_size):
+            k = min(s.block_size, s.steps - start)
+            t = (start + np.arange(k)) * dt
+            ref = self.reference.derivatives(t, n)
+            dist = self.disturbance(t)
+            i = 0
+            try:
+                for i in range(k):
+                    if stop.signal_name is not None:
+                        raise RunInterrupted(stop.signal_name, stop.exit_status)
+                    x = plant.state()
+                    u = ctrl.step(x if hook is None else hook(t[i], x, ref[i]), ref[i], dt)
+                    X[i] = x
+                    U[i] = u
+                    D[i] = diag
+                    if extras:
+                        E[i] = tuple(plant.extras().values())
+                    # a non-finite state or parameter reaches u within the sample
+                    if not isfinite(u) or (bounded and self._out_of_bounds(x, u)):
+                        problem, kept = self._diagnose(x, u, t[i])
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
+                    try:
+                        plant.step(u, dist[i], dt)
+                    except (ArithmeticError, ValueError, DivergenceError) as exc:
+                        return self._plant_failed(sinks, start, buf, t, ref, dist, i, exc)
+                    if snap_every and (start + i) % snap_every == 0:
+                        snap = snapshot(float(t[i]), start + i, x)
+                        for sink in snap_sinks:
+                            sink.inner(snap)
+            except BaseException:
+                # interrupted or failed inside sample i: the samples before it are complete
+                self._emit(sinks, start, buf, t, ref, dist, i)
+                self._done = start + i
+                raise
+            ended = self._end_block(sinks, start, buf, t, ref, dist, k)
+            if ended is not None:
+                return ended
+        return s.steps, "completed", ""
+
+    def _segments(self, sinks: list[Sink], segment: Segment, buf: BlockBuffer,
+                  snap_sinks: list[Sink], snap_every: int) -> tuple[int, str, str]:
+        """:meth:`_loop` with each stretch of samples between two events (a snapshot, a
+        divergence, a stop check, the block's end) run by a compiled ``segment``
+        (:mod:`tspend.loop.fastloop`): the same samples, blocks, snapshots and endings."""
+        s, n, dt, X, U, D = self.s, self.controller.order, self.s.dt, buf.x, buf.u, buf.diag
+        stop = self.stop
+        snapshot = getattr(self.controller, "snapshot", None)
+        for start in range(0, s.steps, s.block_size):
+            k = min(s.block_size, s.steps - start)
+            t = (start + np.arange(k)) * dt
+            ref = self.reference.derivatives(t, n)
+            dist = self.disturbance(t)
+            i = 0
+            try:
+                while i < k:
+                    if stop.signal_name is not None:
+                        raise RunInterrupted(stop.signal_name, stop.exit_status)
+                    snap = i + (-(start + i)) % snap_every if snap_every else k
+                    try:
+                        i, code = segment(i, min(k, snap + 1), t, ref, dist, dt)
+                    except SampleFailed as failed:
+                        i = failed.i
+                        if not isinstance(failed.error, (ArithmeticError, ValueError,
+                                                         DivergenceError)):
+                            raise failed.error from None
+                        return self._plant_failed(sinks, start, buf, t, ref, dist, i,
+                                                  failed.error)
+                    if code == CHECK:
+                        problem, kept = self._diagnose(X[i], float(U[i]), t[i])
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
+                    if i == snap + 1:
+                        inner = snapshot(float(t[snap]), start + snap, X[snap].copy())
+                        for sink in snap_sinks:
+                            sink.inner(inner)
+            except BaseException:
+                self._emit(sinks, start, buf, t, ref, dist, i)
+                self._done = start + i
+                raise
+            ended = self._end_block(sinks, start, buf, t, ref, dist, k)
+            if ended is not None:
+                return ended
+        return s.steps, "completed", ""
+
+    def _end_block(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                   ref: np.ndarray, dist: np.ndarray, k: int) -> tuple[int, str, str] | None:
+        """Deliver a full block, or end the run as diverged at its first non-finite
+        diagnostic (the samples before it delivered)."""
+        D = buf.diag[:k]
+        bad = self._first_non_finite(D) if D.shape[1] else None
+        if bad is not None:
+            return self._diverged(sinks, start, buf, t, ref, dist, bad,
+                                  f"diverged at t = {t[bad]:.4f} s: a parameter or "
+                                  f"estimate is not finite")
+        self._emit(sinks, start, buf, t, ref, dist, k)
+        self._done = start + k
+        return None
+
+    def _plant_failed(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                      ref: np.ndarray, dist: np.ndarray, i: int,
+                      exc: BaseException) -> tuple[int, str, str]:
+        """The plant's step raised at sample i (math.exp overflow, sin(inf), MuJoCo's own
+        instability check): sample i is kept, the run ends."""
+        if getattr(exc, "status", None):  # e.g. the end of a finite rail
+            return self._diverged(sinks, start, buf, t, ref, dist, i + 1, str(exc),
+                                  exc.status)  # type: ignore[attr-defined]
+        return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
+                              f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
+
+    def _diverged(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+                  ref: np.ndarray, dist: np.ndarray, kept: int,
+                  message: str, status: str = "diverged") -> tuple[int, str, str]:
+        """Deliver the block's first ``kept`` samples and end the run as diverged."""
+        self._emit(sinks, start, buf, t, ref, dist, kept)
+        self._done = start + kept
+        return self._done, status, message
+
+    @staticmethod
+    def _first_non_finite(D: np.ndarray) -> int | None:
+        ok = np.isfinite(D).all(axis=1)
+        return None if ok.all() else int(np.argmin(ok))
+
+    def _out_of_bounds(self, x: np.ndarray, u: float) -> bool:
+        return ((self.s.state_bound > 0.0 and float(np.abs(x).max()) > self.s.state_bound)
+                or (self.s.control_bound > 0.0 and abs(u) > self.s.control_bound))
+
+    def _diagnose(self, x: np.ndarray, u: float, t: float) -> tuple[str, int]:
+        """What went wrong at time t, and whether that sample is kept (1: finite) or not."""
+        if not np.all(np.isfinite(x)):
+            return f"diverged at t = {t:.4f} s: the state is not finite", 0
+        if not math.isfinite(u):
+            return f"diverged at t = {t:.4f} s: the control u is not finite", 0
+        if self.s.state_bound > 0.0:
+            worst = int(np.argmax(np.abs(x)))
+            if abs(x[worst]) > self.s.state_bound:
+                return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} "
+                        f"exceeds state_bound {self.s.state_bound:g}", 1)
+        return (f"diverged at t = {t:.4f} s: |u| = {abs(u):.4g} exceeds "
+                f"control_bound {self.s.control_bound:g}", 1)
+
+    def _emit(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
+              ref: np.ndarray, dist: np.ndarray, k: int) -> None:
+        if k <= 0:
+            return
+        block = Block(start=start, data=buf.view(k, t, ref, dist))
+        for sink in sinks:
+            sink.block(block)

@@ -1,0 +1,192 @@
+"""Build a closed loop from a scenario and run it: the Python API behind the CLI.
+
+>>> from tspend import load_scenario, override, run
+>>> s = override(load_scenario("ex2_duffing"), **{"run.duration": 5.0})
+>>> result = run(s)
+>>> result.metrics["rmse_ss"], result.history["x"].shape      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from tspend import __version__
+from tspend.config import Scenario
+from tspend.controllers import build as build_controller_kind
+from tspend.controllers.base import Controller
+from tspend.loop.metrics import MetricsAccumulator
+from tspend.plants.effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
+from tspend.plants import registry as plant_registry
+from tspend.plants.base import Plant
+from tspend.plants.mjcf_warning import ModelWarning
+from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
+from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
+
+
+def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
+    """The scenario's plant (or the same machine on backend ``kind``), reset to x0, with
+    the scenario's real-world effects on the actuator, rail and parameters.
+
+    A MuJoCo model's departures from the paper's ODE are warned about here, once, as
+    :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
+    """
+    plant = plant_registry.build(scenario, kind)
+    check = getattr(plant, "check_sample_time", None)
+    if check is not None:
+        check(scenario.run.dt)
+        for line in plant.departures(scenario.run.dt):  # type: ignore[attr-defined]
+            warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
+    if needs_plant_wrapper(scenario.effects):
+        plant = EffectsPlant(plant, scenario.effects)
+    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+    return plant
+
+
+def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
+    """Resolve ``controller.gain_sign = "plant"`` to the sign the plant measures."""
+    if scenario.controller.gain_sign != "plant":
+        return scenario
+    sign = getattr(plant, "gain_sign", 1)
+    return replace(scenario, controller=replace(
+        scenario.controller, gain_sign="negative" if sign < 0 else "positive"))
+
+
+def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
+                     kind: str | None = None) -> Controller:
+    """The controller ``kind`` (default: the scenario's own), reset with ``rng``
+    (default: a generator seeded with the scenario's seed).
+    """
+    ctrl = build_controller_kind(scenario, kind)
+    ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
+    return ctrl
+
+
+def scenario_text(scenario: Scenario) -> str:
+    """The file's text, with the overrides applied on top written after it as comments."""
+    if not scenario.overrides:
+        return scenario.text
+    lines = "\n".join(f"#   {k} = {v!r}" for k, v in scenario.overrides)
+    return f"{scenario.text.rstrip()}\n\n# overrides applied on top of this file:\n{lines}\n"
+
+
+def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None,
+             controller: Controller | None = None) -> RunInfo:
+    kind = kind or scenario.plant.kind
+    fuzzy_inputs = getattr(controller, "fuzzy_inputs", None)
+    fuzzy = fuzzy_inputs() if fuzzy_inputs else {}
+    return RunInfo(
+        scenario_name=scenario.name, scenario_text=scenario_text(scenario),
+        scenario_path=scenario.path,
+        seed=scenario.run.seed, version=__version__, plant_kind=kind,
+        order=plant.order, dt=scenario.run.dt, duration=steps * scenario.run.dt, steps=steps,
+        model_inputs=fuzzy.get("model", ()), compensator_inputs=fuzzy.get("compensator", ()),
+        extras=tuple(plant.extras().keys()), drawing=plant_registry.drawing(plant, scenario),
+        controller_kind=getattr(controller, "kind", ""),
+        diagnostics=tuple(getattr(controller, "diagnostics", ())))
+
+
+class History:
+    """A sink that keeps every sample (for the Python API; memory grows with the run)."""
+
+    def __init__(self) -> None:
+        self.blocks: list[dict[str, np.ndarray]] = []
+
+    def start(self, info: RunInfo) -> None:
+        pass
+
+    def block(self, block: Block) -> None:
+        self.blocks.append({k: np.array(v, copy=True) for k, v in block.data.items()})
+
+    def inner(self, snap: InnerSnapshot) -> None:
+        pass
+
+    def finish(self, end: RunEnd) -> None:
+        pass
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        if not self.blocks:
+            return {}
+        return {k: np.concatenate([b[k] for b in self.blocks]) for k in self.blocks[0]}
+
+
+@dataclass
+class RunResult:
+    scenario: Scenario
+    end: RunEnd
+    history: dict[str, np.ndarray]
+    controller: Controller
+    plant: Plant
+
+    @property
+    def metrics(self) -> dict:
+        return self.end.metrics
+
+    @property
+    def status(self) -> str:
+        return self.end.status
+
+    def to_pandas(self):
+        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.studies.timeseries`)."""
+        from tspend.studies.timeseries import history_frame
+
+        return history_frame(self.history, self.controller.diagnostics)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A plant and a controller built (and so checked) before anything is run or written."""
+
+    scenario: Scenario   # with what the plant decides resolved (controller.gain_sign)
+    plant: Plant
+    controller: Controller
+
+
+def prepare(scenario: Scenario, plant_kind: str | None = None,
+            controller: str | None = None) -> Prepared:
+    """Build the plant (model file, joint names, timestep) and the controller without
+    running: every error a scenario can still raise surfaces here, as a ScenarioError."""
+    plant = build_plant(scenario, plant_kind)
+    scenario = with_gain_sign(scenario, plant)
+    return Prepared(scenario, plant, build_controller(scenario, kind=controller))
+
+
+def steps_of(scenario: Scenario) -> int:
+    return int(round(scenario.run.duration / scenario.run.dt))
+
+
+def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = True,
+        plant_kind: str | None = None, block_size: int = 1000,
+        stop: StopRequest | None = None,
+        controller: str | None = None, prepared: Prepared | None = None,
+        compiled: bool = True) -> RunResult:
+    """Run the scenario's closed loop; ``sinks`` (e.g. a Rerun recorder) see every block.
+
+    ``plant_kind`` runs the same scenario on another backend (``cartpole_ode`` for a
+    MuJoCo scenario, say), which is what the cross-check does.  ``stop``, set from a
+    signal handler, ends the run cleanly at the next sample (RunInterrupted is raised
+    after the sinks have finished).  ``prepared``: the plant and controller of
+    :func:`prepare`, built before the caller opened its outputs.  ``compiled=False`` runs
+    the generic Python loop even where the compiled one applies (:mod:`tspend.loop.fastloop`;
+    the results are the same).
+    """
+    parts = prepared or prepare(scenario, plant_kind, controller)
+    scenario, plant, ctrl = parts.scenario, parts.plant, parts.controller
+    steps = steps_of(scenario)
+    dt = scenario.run.dt
+    snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
+    settings = LoopSettings(dt=dt, steps=steps, block_size=block_size, snapshot_every=snap_every,
+                            state_bound=scenario.plant.state_bound,
+                            control_bound=scenario.run.control_bound, compiled=compiled)
+    hook = Measurement(scenario.effects, plant, dt, scenario.run.seed) \
+        if needs_hook(scenario.effects) else None
+    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
+                      hook=hook)
+    metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
+    history = History()
+    all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
+    end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl), all_sinks)
+    return RunResult(scenario, end, history.arrays(), ctrl, plant)

@@ -1,0 +1,466 @@
+"""Figures from runs and sweeps: the paper's figures redrawn, membership functions before
+and after adaptation, box plots of a comparison across seeds, heat maps of a two-key sweep.
+
+Every figure is written as PNG (and PDF on request) with the data it draws beside it as
+CSV (same name, ``.csv``), so a reader can check or replot any curve.  One style for all
+(:data:`STYLE`, applied with ``matplotlib.rc_context``: no global state), one colour per
+controller kind, axis labels with units.  matplotlib is an optional extra
+(``pip install 'tspend[plot]'``); figures are drawn on ``matplotlib.figure.Figure``
+objects with the Agg canvas, never through pyplot, so no display is needed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from tspend.errors import ScenarioError
+
+STYLE = {
+    "figure.dpi": 100, "savefig.dpi": 150, "font.size": 9, "axes.titlesize": 10,
+    "axes.labelsize": 9, "legend.fontsize": 8, "xtick.labelsize": 8, "ytick.labelsize": 8,
+    "axes.grid": True, "grid.alpha": 0.3, "grid.linewidth": 0.6, "lines.linewidth": 1.2,
+    "axes.spines.top": False, "axes.spines.right": False, "legend.frameon": False,
+    "savefig.bbox": "tight",
+}
+#: one colour per controller kind, the same in every figure (Okabe-Ito, colour-blind safe)
+PALETTE = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442",
+           "#000000")
+#: line styles that tell kinds apart in grey print too
+DASHES = ("-", "--", "-.", ":")
+#: the paper's figures: scenario, title, which figures
+PAPER_CASES = (("ex1_nonaffine_case1", "Example 1, case 1 (nonaffine plant)"),
+               ("ex1_nonaffine_case2", "Example 1, case 2 (nonaffine plant)"),
+               ("ex2_duffing", "Example 2 (Duffing oscillator)"),
+               ("ex3_pendulum_ode", "Example 3 (cart-pole, ODE)"))
+
+
+def state_units(plant_kind: str, order: int) -> tuple[tuple[str, ...], str]:
+    """(symbol [unit] of each state, of u) for a plant kind's axis labels."""
+    if plant_kind.startswith("cartpole"):
+        return ("θ [rad]", "θ' [rad/s]"), "u [N]"
+    return tuple(f"x{i + 1} [–]" for i in range(order)), "u [–]"
+
+
+def _matplotlib():
+    try:
+        import matplotlib
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise ScenarioError("figures need matplotlib: pip install 'tspend[plot]'") from None
+    return matplotlib, Figure, FigureCanvasAgg
+
+
+def kind_colour(kind: str, kinds: Sequence[str] | None = None) -> str:
+    """The colour of a controller kind: its place in the registry, so it never changes
+    between figures."""
+    from tspend.controllers import KINDS
+
+    order = list(KINDS) + [k for k in (kinds or ()) if k not in KINDS]
+    i = order.index(kind) if kind in order else len(order)
+    return PALETTE[i % len(PALETTE)]
+
+
+def kind_dash(kind: str) -> str:
+    from tspend.controllers import KINDS
+
+    order = list(KINDS)
+    return DASHES[(order.index(kind) if kind in order else 0) % len(DASHES)]
+
+
+@dataclass
+class Figures:
+    """Where figures go: ``out`` directory, PDF too or not, may existing files be replaced."""
+
+    out: Path
+    pdf: bool = False
+    overwrite: bool = False
+    written: list[Path] = field(default_factory=list)
+
+    def paths(self, name: str) -> list[Path]:
+        exts = (".png", ".csv") + ((".pdf",) if self.pdf else ())
+        return [self.out / f"{name}{e}" for e in exts]
+
+    def check(self, names: Iterable[str]) -> None:
+        """Fail before drawing when a file would be replaced (and --overwrite is not given)
+        or the directory cannot be written."""
+        from tspend.runtime.outputs import OutputRequest, plan_outputs
+
+        for name in names:
+            for p in self.paths(name):
+                plan_outputs([OutputRequest("--out", "figure", p.suffix, str(p))])
+                if p.exists() and not self.overwrite:
+                    raise ScenarioError(f"figure {p}: exists; choose another --out or pass "
+                                        f"--overwrite")
+
+    def save(self, fig, data, name: str) -> Path:
+        """Write ``fig`` as PNG (and PDF) and ``data`` (a DataFrame) as CSV; the PNG path."""
+        mpl, _, Canvas = _matplotlib()
+        self.out.mkdir(parents=True, exist_ok=True)
+        png, csv = self.out / f"{name}.png", self.out / f"{name}.csv"
+        Canvas(fig)
+        with mpl.rc_context(STYLE):
+            fig.savefig(png)
+            if self.pdf:
+                fig.savefig(self.out / f"{name}.pdf")
+        data.to_csv(csv, index=False)
+        self.written += [png, csv] + ([self.out / f"{name}.pdf"] if self.pdf else [])
+        return png
+
+
+def new_figure(rows: int, cols: int, size: tuple[float, float]):
+    """A Figure with a grid of axes in the common style (no pyplot)."""
+    mpl, Figure, _ = _matplotlib()
+    with mpl.rc_context(STYLE):
+        fig = Figure(figsize=size, layout="constrained")
+        axes = fig.subplots(rows, cols, squeeze=False)
+    return fig, axes
+
+
+# -- time series -------------------------------------------------------------------------
+def _series_frame(runs: dict, columns: dict, every: int, t_max: float | None = None):
+    """One table of t, the reference columns and each run's columns, sampled every
+    ``every`` samples (runs that stopped early are padded with empty cells)."""
+    import pandas as pd
+
+    longest = max(runs.values(), key=lambda r: r.history["t"].size)
+    t = longest.history["t"]
+    keep = np.arange(0, t.size, every)
+    if t_max is not None:
+        keep = keep[t[keep] <= t_max + 1e-12]
+    out = {"t": t[keep]}
+    ref = longest.history["ref"]
+    out["r"] = ref[keep, 0]
+    out["r_dot"] = ref[keep, 1]
+    for kind, res in runs.items():
+        h = res.history
+        for col, pick in columns.items():
+            v = np.full(keep.size, np.nan)
+            k = keep[keep < h["t"].size]
+            v[:k.size] = pick(h)[k]
+            out[f"{col}_{kind}"] = v
+    return pd.DataFrame(out)
+
+
+def tracking_figure(fig_out: Figures, runs: dict, name: str, title: str, every: int = 1):
+    """x1 against r and x2 against r' for each run (the paper's tracking figures)."""
+    first = next(iter(runs.values()))
+    labels, _ = state_units(first.scenario.plant.kind, 2)
+    data = _series_frame(runs, {"x1": lambda h: h["x"][:, 0], "x2": lambda h: h["x"][:, 1]},
+                         every)
+    fig, axes = new_figure(2, 1, (6.4, 4.6))
+    for ax, i, ref_col, ref_label in ((axes[0, 0], 1, "r", "r"), (axes[1, 0], 2, "r_dot", "r'")):
+        ax.plot(data["t"], data[ref_col], color="0.35", lw=1.0, ls=":", label=f"reference {ref_label}")
+        for kind in runs:
+            ax.plot(data["t"], data[f"x{i}_{kind}"], color=kind_colour(kind), ls=kind_dash(kind),
+                    label=_kind_label(kind, runs[kind]))
+        ax.set_ylabel(labels[i - 1])
+    axes[1, 0].set_xlabel("t [s]")
+    axes[0, 0].legend(ncols=len(runs) + 1, loc="lower right", bbox_to_anchor=(1.0, 1.0),
+                      fontsize=7)
+    seed = first.scenario.run.seed
+    fig.suptitle(f"{title}, seed {seed}")
+    return fig_out.save(fig, data, name)
+
+
+def _kind_label(kind: str, res) -> str:
+    return kind if res.status == "completed" else f"{kind} ({res.status})"
+
+
+def control_figure(fig_out: Figures, runs: dict, name: str, title: str,
+                   t_max: float | None = None):
+    """u over time for each run (every sample: u chatters at the sample rate)."""
+    first = next(iter(runs.values()))
+    _, u_label = state_units(first.scenario.plant.kind, 2)
+    data = _series_frame(runs, {"u": lambda h: h["u"]}, 1, t_max)
+    data = data.drop(columns=["r", "r_dot"])
+    fig, axes = new_figure(len(runs), 1, (6.4, 1.9 * len(runs) + 0.6))
+    for ax, kind in zip(axes[:, 0], runs):
+        ax.plot(data["t"], data[f"u_{kind}"], color=kind_colour(kind), lw=0.5,
+                label=_kind_label(kind, runs[kind]))
+        ax.set_ylabel(u_label)
+        ax.legend(loc="upper right")
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(f"{title}, seed {first.scenario.run.seed}")
+    return fig_out.save(fig, data, name)
+
+
+# -- membership functions -------------------------------------------------------------------
+class SetsCapture:
+    """A sink that keeps the controller's first and last inner snapshot (membership
+    curves with the adapted control points) and the names of the inputs and terms."""
+
+    wants_inner = True
+
+    def __init__(self) -> None:
+        self.first = self.last = None
+        self.model_inputs = self.compensator_inputs = ()
+        self.plant_kind = ""
+
+    def start(self, info) -> None:
+        self.model_inputs, self.compensator_inputs = info.model_inputs, info.compensator_inputs
+        self.plant_kind = info.plant_kind
+
+    def block(self, block) -> None:
+        pass
+
+    def inner(self, snap) -> None:
+        if self.first is None:
+            self.first = snap
+        self.last = snap
+
+    def finish(self, end) -> None:
+        pass
+
+
+def _input_label(name: str, plant_kind: str) -> str:
+    """An antecedent input with its unit: x_oj as the state j, u_o as u."""
+    states, u = state_units(plant_kind, 9)
+    if name.startswith("x_o") and name[3:].isdigit():
+        return f"{name} {states[int(name[3:]) - 1].split(' ', 1)[1]}"
+    if name == "u_o":
+        return f"u_o {u.split(' ', 1)[1]}"
+    return name  # e_delta and |x| mix the states' units
+
+
+def membership_frame(capture: SetsCapture):
+    """Long table: base (model/compensator), input, term, z, mu_first, mu_last."""
+    import pandas as pd
+
+    parts = []
+    for base, infos, attr in (("model", capture.model_inputs, "model_sets"),
+                              ("compensator", capture.compensator_inputs, "compensator_sets")):
+        for j, info in enumerate(infos):
+            grid, before = getattr(capture.first, attr)[j][:2]
+            _, after = getattr(capture.last, attr)[j][:2]
+            for k, term in enumerate(info.terms):
+                parts.append(pd.DataFrame({"base": base, "input": info.name, "term": term,
+                                           "z": grid, "mu_first": before[k],
+                                           "mu_last": after[k]}))
+    return pd.concat(parts, ignore_index=True)
+
+
+def membership_figure(fig_out: Figures, capture: SetsCapture, name: str, title: str):
+    """Every input's membership functions at the first snapshot (dashed) and the last
+    (solid), one panel per input, one colour per term."""
+    if capture.first is None:
+        raise ValueError("no inner snapshot was taken: the controller has no sets, or "
+                         "run.snapshot_every is 0")
+    data = membership_frame(capture)
+    inputs = list(dict.fromkeys(zip(data["base"], data["input"])))
+    cols = min(3, len(inputs))
+    rows = math.ceil(len(inputs) / cols)
+    fig, axes = new_figure(rows, cols, (3.1 * cols, 2.4 * rows + 0.5))
+    for ax in axes.flat[len(inputs):]:
+        ax.set_visible(False)
+    for ax, (base, inp) in zip(axes.flat, inputs):
+        part = data[(data["base"] == base) & (data["input"] == inp)]
+        for k, (term, sets) in enumerate(part.groupby("term", sort=False)):
+            c = PALETTE[k % len(PALETTE)]
+            ax.plot(sets["z"], sets["mu_first"], color=c, ls="--", lw=0.9)
+            ax.plot(sets["z"], sets["mu_last"], color=c, lw=1.4, label=term)
+        ax.set_title(f"{inp} ({base})")
+        ax.set_xlabel(_input_label(inp, capture.plant_kind))
+        ax.set_ylabel("membership μ [–]")
+        ax.set_ylim(-0.03, 1.18)
+        ax.legend(ncols=len(part["term"].unique()), fontsize=6, loc="upper center",
+                  handlelength=1.2, columnspacing=0.8)
+    t0, t1 = capture.first.t, capture.last.t
+    fig.suptitle(f"{title}\nmembership functions at t = {t0:g} s (dashed) and "
+                 f"t = {t1:g} s (solid)")
+    return fig_out.save(fig, data, name)
+
+
+# -- comparisons across seeds ----------------------------------------------------------------
+def box_figure(fig_out: Figures, table, metric: str, name: str,
+               controllers: Sequence[str] | None = None, title: str | None = None):
+    """One panel per scenario (and grid point): the metric across seeds, one box per
+    controller; diverged runs are counted above their box and drawn as crosses at the
+    top (they have no finite value), failed runs are counted."""
+    import pandas as pd
+
+    from tspend.studies.stats import _group_columns, _ordered_controllers, outcome_values
+
+    kinds = _ordered_controllers(table, controllers)
+    groups = _group_columns(table)
+    table = table[table["controller"].isin(kinds)]
+    data = table[groups + ["controller", "seed", "status"]].copy()
+    data[metric] = outcome_values(table, metric)
+    keys = list(dict.fromkeys(map(tuple, data[groups].astype(str).to_numpy())))
+    cols = min(3, len(keys))
+    rows = math.ceil(len(keys) / cols)
+    fig, axes = new_figure(rows, cols, (max(2.0, 0.9 * len(kinds) + 1.0) * cols, 3.0 * rows + 0.4))
+    for ax in axes.flat[len(keys):]:
+        ax.set_visible(False)
+    for ax, key in zip(axes.flat, keys):
+        sel = np.all(data[groups].astype(str).to_numpy() == np.array(key), axis=1)
+        part = data[sel]
+        finite_all = part[metric][np.isfinite(part[metric])]
+        for i, kind in enumerate(kinds):
+            v = part.loc[part["controller"] == kind, metric].to_numpy(dtype=float)
+            ok = v[np.isfinite(v)]
+            c = kind_colour(kind)
+            if ok.size:
+                ax.boxplot(ok, positions=[i], widths=0.6, patch_artist=True, showfliers=False,
+                           medianprops=dict(color="black"),
+                           boxprops=dict(facecolor=c, alpha=0.45, edgecolor=c),
+                           whiskerprops=dict(color=c), capprops=dict(color=c))
+                jitter = np.linspace(-0.15, 0.15, ok.size) if ok.size > 1 else np.zeros(1)
+                ax.scatter(i + jitter, ok, s=7, color=c, zorder=3)
+            n_div = int(np.isposinf(v).sum())
+            n_fail = int(np.isnan(v).sum())
+            note = ", ".join(s for s in (f"{n_div} div." if n_div else "",
+                                         f"{n_fail} failed" if n_fail else "") if s)
+            if note:
+                ax.annotate(note, (i, 1.0), xycoords=("data", "axes fraction"), ha="center",
+                            va="bottom", fontsize=7, color="#D55E00")
+            if n_div:
+                ax.scatter([i] * n_div, [0.97] * n_div, marker="x", color="#D55E00",
+                           transform=ax.get_xaxis_transform(), zorder=4)
+        if finite_all.size and finite_all.min() > 0 and finite_all.max() / finite_all.min() > 50:
+            ax.set_yscale("log")
+        ax.set_xticks(range(len(kinds)), kinds, rotation=30, ha="right")
+        ax.set_title(", ".join(key), pad=12)
+        ax.set_ylabel(metric_label(metric, part))
+    fig.suptitle(title or f"{metric} across seeds")
+    data = data.rename(columns={metric: "value"}).assign(metric=metric)
+    return fig_out.save(fig, pd.DataFrame(data), name)
+
+
+#: each metric's unit as powers of (the error's unit, u's unit, seconds)
+METRIC_DIMENSIONS = {"rmse": (1, 0, 0), "rmse_ss": (1, 0, 0), "max_abs_e": (1, 0, 0),
+                     "max_abs_e_ss": (1, 0, 0), "iae": (1, 0, 1), "ise": (2, 0, 1),
+                     "itae": (1, 0, 2), "control_energy": (0, 2, 1), "max_abs_u": (0, 1, 0),
+                     "tv_u_per_s": (0, 1, -1)}
+
+
+def _plant_kind(scenario: str) -> str:
+    from tspend.scenario import load_scenario
+
+    try:
+        return load_scenario(scenario).plant.kind
+    except Exception:  # a table from elsewhere: its scenario may not be at hand
+        return ""
+
+
+def metric_label(metric: str, part=None) -> str:
+    """``rmse_ss [rad]``, ``control_energy [N²·s]``; ``[–]`` for a dimensionless plant's;
+    no unit when the scenarios of ``part`` are unknown or differ in units."""
+    kinds = {_plant_kind(s) for s in set(part["scenario"])} if part is not None else {""}
+    if len(kinds) != 1 or "" in kinds or metric not in METRIC_DIMENSIONS:
+        return metric
+    kind = kinds.pop()
+    e_unit, u_unit = ("rad", "N") if kind.startswith("cartpole") else ("", "")
+    power = {1: "", 2: "²", -1: "⁻¹"}
+    parts = [f"{unit}{power.get(k, k)}" for unit, k in
+             zip((e_unit, u_unit, "s"), METRIC_DIMENSIONS[metric]) if unit and k]
+    return f"{metric} [{'·'.join(parts) or '–'}]"
+
+
+def heatmap_figure(fig_out: Figures, table, x: str, y: str, metric: str, name: str,
+                   controllers: Sequence[str] | None = None, title: str | None = None):
+    """The median of ``metric`` over seeds at each (x, y) grid point of a sweep, one panel
+    per controller; cells where the median run diverged are marked."""
+    import pandas as pd
+    from matplotlib.colors import LogNorm, Normalize
+
+    from tspend.studies.stats import _ordered_controllers, outcome_values, quartiles
+
+    for key in (x, y):
+        if key not in table.columns:
+            raise ScenarioError(f"--x/--y {key}: not a column of the table; grid columns: "
+                                f"{', '.join(c for c in table.columns if '.' in c) or 'none'}")
+    if "scenario" in table.columns and table["scenario"].nunique() > 1:
+        raise ScenarioError(f"a heat map shows one scenario; the table has "
+                            f"{', '.join(map(str, table['scenario'].unique()))}")
+    kinds = _ordered_controllers(table, controllers)
+    t = table[table["controller"].isin(kinds)].copy()
+    t["_v"] = outcome_values(t, metric)
+    recs = []
+    for (kind, xv, yv), part in t.groupby(["controller", x, y], sort=True):
+        v = part["_v"].to_numpy(dtype=float)
+        v = v[~np.isnan(v)]
+        q1, med, q3 = quartiles(v) if v.size else (math.nan,) * 3
+        recs.append({"controller": kind, x: xv, y: yv, "median": med, "q1": q1, "q3": q3,
+                     "runs": len(part), "diverged": int((part["status"] == "diverged").sum())})
+    data = pd.DataFrame.from_records(recs)
+    finite = data["median"][np.isfinite(data["median"])]
+    use_log = finite.size and finite.min() > 0 and finite.max() / finite.min() > 20
+    norm = (LogNorm(finite.min(), finite.max()) if use_log else
+            Normalize(finite.min(), finite.max()) if finite.size else Normalize(0, 1))
+    xs, ys = sorted(data[x].unique()), sorted(data[y].unique())
+    fig, axes = new_figure(1, len(kinds), (3.4 * len(kinds) + 0.8, 3.2))
+    for ax, kind in zip(axes[0], kinds):
+        grid = np.full((len(ys), len(xs)), np.nan)
+        part = data[data["controller"] == kind]
+        for r in part.to_dict("records"):
+            grid[ys.index(r[y]), xs.index(r[x])] = r["median"]
+        shown = np.where(np.isfinite(grid), grid, np.nan)
+        im = ax.imshow(shown, origin="lower", aspect="auto", cmap="viridis", norm=norm)
+        for i in range(len(ys)):
+            for j in range(len(xs)):
+                v = grid[i, j]
+                ax.text(j, i, "div." if np.isposinf(v) else ("" if np.isnan(v) else f"{v:.2g}"),
+                        ha="center", va="center", fontsize=7,
+                        color="white" if np.isfinite(v) and norm(v) < 0.6 else "black")
+        ax.set_xticks(range(len(xs)), [f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
+        ax.set_yticks(range(len(ys)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ys])
+        ax.set_xlabel(x)
+        ax.set_ylabel(y)
+        ax.set_title(kind)
+        ax.grid(False)
+    fig.colorbar(im, ax=axes[0].tolist(), label=f"median {metric_label(metric, table)}")
+    fig.suptitle(title or f"median {metric} over seeds")
+    return fig_out.save(fig, data, name)
+
+
+# -- the paper's figures ---------------------------------------------------------------------
+def paper_runs(scenario_name: str, kinds: Sequence[str], seed: int | None = None,
+               duration: float | None = None, capture_sets: bool = False):
+    """Run one paper case with each kind at one seed: ({kind: RunResult}, SetsCapture of
+    the first kind or None)."""
+    from tspend.scenario import load_scenario, override
+    from tspend.loop.simulation import run
+
+    changes = {}
+    if seed is not None:
+        changes["run.seed"] = seed
+    if duration is not None:
+        changes["run.duration"] = duration
+    scn = load_scenario(scenario_name)
+    scn = override(scn, **changes) if changes else scn
+    runs, capture = {}, None
+    for i, kind in enumerate(kinds):
+        sinks = []
+        if capture_sets and i == 0:
+            capture = SetsCapture()
+            sinks = [capture]
+        runs[kind] = run(scn, sinks=sinks, controller=kind)
+    return runs, capture
+
+
+def paper_figures(fig_out: Figures, kinds: Sequence[str] = ("second_type", "first_type"),
+                  seed: int | None = None, duration: float | None = None,
+                  every: int = 10) -> list[Path]:
+    """The paper's figures redrawn: x1, x2 against the reference for Example 1 cases 1-2,
+    Example 2 and Example 3; u of Example 2 over 0-15 s; Example 2's membership functions
+    before and after adaptation (the first kind's)."""
+    names = [f"{s}_tracking" for s, _ in PAPER_CASES] + ["ex2_duffing_u",
+                                                         "ex2_duffing_memberships"]
+    fig_out.check(names)
+    pngs = []
+    for scenario, title in PAPER_CASES:
+        duffing = scenario == "ex2_duffing"
+        runs, capture = paper_runs(scenario, kinds, seed, duration, capture_sets=duffing)
+        pngs.append(tracking_figure(fig_out, runs, f"{scenario}_tracking", title, every))
+        if duffing:
+            pngs.append(control_figure(fig_out, runs, "ex2_duffing_u", title, t_max=15.0))
+            pngs.append(membership_figure(fig_out, capture, "ex2_duffing_memberships",
+                                          f"{title}, {kinds[0]}, seed "
+                                          f"{runs[kinds[0]].scenario.run.seed}"))
+    return pngs

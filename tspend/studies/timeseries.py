@@ -1,0 +1,111 @@
+"""A run's time series as a pandas table, one column per series, indexed by time ``t`` (s).
+
+Two sources, one naming: :func:`history_frame` for a run kept in memory
+(``RunResult.to_pandas()``) and :func:`recording_frame` for an ``.rrd`` file
+(``tspend export``).  A column is named as the recording names the series (``r``,
+``x1``, ``e_1``, ``u``, ``d``, each diagnostic's labels such as ``u_s``, ``b_hat``), so
+a run and its recording give the same columns where both have them.  The history has
+more: every state (``x1 .. xn``) and the reference's derivatives (``r_d1 .. r_dn``).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import Sequence
+
+import numpy as np
+
+from tspend.controllers.base import Diagnostic
+
+
+def _unique(names: list[str], qualifiers: list[str]) -> list[str]:
+    """Names as they are where unique, else prefixed by their qualifier."""
+    counts: dict[str, int] = {}
+    for n in names:
+        counts[n] = counts.get(n, 0) + 1
+    return [n if counts[n] == 1 else f"{q}/{n}" for n, q in zip(names, qualifiers)]
+
+
+def history_frame(history: dict[str, np.ndarray], diagnostics: Sequence[Diagnostic] = ()):
+    """The in-memory history of a run (:attr:`tspend.loop.simulation.RunResult.history`)."""
+    import pandas as pd
+
+    if not history:
+        return pd.DataFrame(index=pd.Index([], name="t", dtype=float))
+    columns: list[np.ndarray] = []
+    names: list[str] = []
+    sources: list[str] = []
+
+    def add(key: str, labels: Sequence[str]) -> None:
+        values = np.asarray(history[key], dtype=float)
+        values = values[:, None] if values.ndim == 1 else values
+        for j, label in enumerate(labels):
+            columns.append(values[:, j])
+            names.append(label)
+            sources.append(key)
+
+    n = history["x"].shape[1]
+    add("x", [f"x{i + 1}" for i in range(n)])
+    add("ref", ["r"] + [f"r_d{i}" for i in range(1, history["ref"].shape[1])])
+    add("e", [f"e_{i + 1}" for i in range(n)])
+    add("u", ["u"])
+    add("d", ["d"])
+    for diag in diagnostics:
+        if diag.name in history:
+            add(diag.name, list(diag.column_labels))
+    for key in history:
+        if key.startswith("extra/"):
+            add(key, [key.removeprefix("extra/")])
+    index = pd.Index(np.asarray(history["t"], dtype=float), name="t")
+    return pd.DataFrame(dict(zip(_unique(names, sources), columns)), index=index)
+
+
+def recording_frame(path: str | os.PathLike[str]):
+    """Every scalar series of the recording at ``path`` (``series/...`` entities and any
+    other ``Scalars``), joined on ``sim_time``; a time an entity lacks is NaN."""
+    import pandas as pd
+    from rerun.chunk import RrdReader
+
+    from tspend.recorder.readback import read_scalar_series
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        found: dict[str, list[str] | None] = {}
+        keys: dict[str, list[str]] = {}
+        for chunk in RrdReader(path).stream().filter(
+                components=["Scalars:scalars", "SeriesLines:names", "series_keys"]).to_chunks():
+            batch = chunk.to_record_batch()
+            entity = chunk.entity_path
+            if "series_keys" in batch.schema.names:  # the stable names (x1, e_1, ...)
+                rows = batch.column(batch.schema.get_field_index("series_keys")).to_pylist()
+                if rows and rows[-1]:
+                    keys[entity] = [str(n) for n in rows[-1]]
+                    found.setdefault(entity, None)
+            if "SeriesLines:names" in batch.schema.names:
+                rows = batch.column(batch.schema.get_field_index("SeriesLines:names")).to_pylist()
+                if rows and rows[-1]:
+                    found[entity] = [str(n) for n in rows[-1]]
+            if "Scalars:scalars" in batch.schema.names:
+                found.setdefault(entity, None)
+    frames, names, qualifiers = [], [], []
+    for entity, labels in found.items():
+        labels = keys.get(entity, labels)
+        try:
+            t, values = read_scalar_series(path, entity)
+        except KeyError:  # names without any data (a run that stopped at once)
+            continue
+        values = values[:, None] if values.ndim == 1 else values
+        if labels is None or len(labels) != values.shape[1]:
+            leaf = entity.strip("/").split("/")[-1]
+            labels = [leaf] if values.shape[1] == 1 else [f"{leaf}_{j}" for j in
+                                                          range(values.shape[1])]
+        frame = pd.DataFrame(values, index=pd.Index(t, name="t"))
+        frames.append(frame)
+        names += labels
+        qualifiers += [entity.strip("/")] * len(labels)
+    if not frames:
+        raise ValueError(f"{path}: no scalar time series in this recording")
+    table = pd.concat(frames, axis=1, join="outer").sort_index()
+    table.columns = _unique(names, qualifiers)
+    return table
