@@ -38,7 +38,16 @@ class OpenLoopComparison:
     state_b: np.ndarray  #: (N + 1, S) full state of the second plant at each sample
 
     def max_of(self, name: str) -> float:
+        """max |a - b| of state ``name``."""
         return float(self.max_diff[self.names.index(name)])
+
+    def of_a(self, name: str) -> np.ndarray:
+        """State ``name`` of the first plant at each sample."""
+        return self.state_a[:, self.names.index(name)]
+
+    def of_b(self, name: str) -> np.ndarray:
+        """State ``name`` of the second plant at each sample."""
+        return self.state_b[:, self.names.index(name)]
 
 
 def open_loop_compare(plant_a: Plant, plant_b: Plant, x0: np.ndarray,
