@@ -263,25 +263,35 @@ def test_open_loop_matches_solve_ivp(open_loop, which):
 
 
 # -- linearisation -------------------------------------------------------------------------
-def _mujoco_jacobian(m: mujoco.MjModel, x0: np.ndarray, h: float = 1e-6):
-    """Central differences of mj_forward's qacc around x0 at u = 0."""
+def _mujoco_jacobian(m: mujoco.MjModel, x0: np.ndarray, u0: float, h: float = 1e-6):
+    """Central differences of mj_forward's qacc around (x0, u0)."""
     d = mujoco.MjData(m)
     A = np.zeros((4, 4))
     A[0, 2] = A[1, 3] = 1.0
     for i in range(4):
         e = np.zeros(4)
         e[i] = h
-        A[2:, i] = (_qacc(m, d, x0 + e, 0.0, 0.0) - _qacc(m, d, x0 - e, 0.0, 0.0)) / (2 * h)
+        A[2:, i] = (_qacc(m, d, x0 + e, u0, 0.0) - _qacc(m, d, x0 - e, u0, 0.0)) / (2 * h)
     B = np.zeros((4, 1))
-    B[2:, 0] = (_qacc(m, d, x0, h, 0.0) - _qacc(m, d, x0, -h, 0.0)) / (2 * h)
+    B[2:, 0] = (_qacc(m, d, x0, u0 + h, 0.0) - _qacc(m, d, x0, u0 - h, 0.0)) / (2 * h)
     return A, B
 
 
-@pytest.mark.parametrize("alpha", [0.0, math.pi])
-def test_linearize_matches_mujoco_central_differences(alpha):
-    m = _model()
-    A, B = fp.linearize(fp.params_from_model(m), pendulum=alpha)
-    A_mj, B_mj = _mujoco_jacobian(m, np.array([0.0, alpha, 0.0, 0.0]))
+@pytest.mark.parametrize("awkward, arm, alpha, volts", [
+    (False, 0.0, 0.0, 0.0),           # upright
+    (False, 0.0, math.pi, 0.0),       # hanging
+    (False, 0.3, 0.7, 2.0),           # not an equilibrium: dM/dal q'' enters
+    (True, 0.2, 0.4, 1.0),            # position bias, gear 2, skewed axes
+])
+def test_linearize_matches_mujoco_central_differences(awkward, arm, alpha, volts):
+    if awkward:
+        m = mujoco.MjModel.from_xml_string(AWKWARD)
+        p = fp.params_from_model(m, arm="shaft", pendulum="swing", actuator="drive")
+    else:
+        m = _model()
+        p = fp.params_from_model(m)
+    A, B = fp.linearize(p, pendulum=alpha, arm=arm, u=volts)
+    A_mj, B_mj = _mujoco_jacobian(m, np.array([arm, alpha, 0.0, 0.0]), volts)
     np.testing.assert_allclose(A, A_mj, rtol=1e-6, atol=1e-6 * np.max(np.abs(A_mj)))
     np.testing.assert_allclose(B, B_mj, rtol=1e-6, atol=1e-6 * np.max(np.abs(B_mj)))
 
