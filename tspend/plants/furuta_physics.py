@@ -81,8 +81,9 @@ _QUBE_PENDULUM_TRANSVERSE = QUBE_PENDULUM_MASS_KG * QUBE_PENDULUM_LENGTH_M ** 2 
 class FurutaParams:
     """One Furuta pendulum, by default the QUBE-Servo 2 with its rotary pendulum module.
 
-    Vectors are in the arm's frame at ``arm = pendulum = 0`` (for the QUBE: z up along the
-    motor axis, x along the arm).  Only what the dynamics see is kept: the arm body enters
+    Vectors are in one fixed frame at ``arm = pendulum = 0``, where the arm's frame is
+    taken (the world's in :func:`params_from_model`; for the QUBE: z up along the motor
+    axis, x along the arm).  Only what the dynamics see is kept: the arm body enters
     through its inertia about the motor axis alone.
 
     Attributes
