@@ -16,6 +16,7 @@ from numba.extending import overload, register_jitable
 
 from tspend.runtime.jit import JIT
 from tspend.plants import cartpole
+from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole import CartPoleParams
 
 Accel = Callable[[float, np.ndarray, float, float], float]
@@ -169,34 +170,66 @@ class CompiledPlant(NamedTuple):
     """What a compiled closed loop needs to step a plant without Python.
 
     Inside ``@njit`` code: ``rk4_step(plant_rhs, params, clock[0], state, u, d, dt, work)``
-    then ``clock[0] += dt``; ``state`` (the full state, x first, then hidden states) and
-    ``clock`` are the plant's own arrays, so the plant is where the loop left it.
+    then ``clock[0] += dt``; ``state`` (the integrated vector, x first, then hidden
+    states) and ``clock`` are the plant's own arrays, so the plant is where the loop left
+    it; the full state is ``state[full_order]``.
     """
 
     params: Any
     state: np.ndarray
     clock: np.ndarray
     work: RK4Work
+    full_order: np.ndarray
 
 
-class AnalyticPlant:
+class AnalyticPlant(Plant):
     """A plant of the form (6), stepped by classical RK4 with u and d held constant.
 
     ``hidden`` extra states may ride along (the cart of the cart-pole ODE); the
-    controller sees only the first ``order`` entries, ``extras`` reports the rest.
+    default view is the first ``order`` entries, ``extras`` reports the rest.  The full
+    state is named ``x1 .. xn`` (then the hidden names) unless ``state_names`` says
+    otherwise; ``full_order`` gives, for each entry of the full state, its place in the
+    integrated vector ``s`` (identity unless a domain orders its state differently).
     """
 
     def __init__(self, accel: Accel, order: int, name: str = "analytic",
                  hidden_rhs: Callable[[float, np.ndarray, float, float, float], np.ndarray] | None = None,
-                 hidden_names: tuple[str, ...] = ()) -> None:
+                 hidden_names: tuple[str, ...] = (), domain: str = "",
+                 state_names: tuple[str, ...] = (), state_units: tuple[str, ...] = (),
+                 full_order: tuple[int, ...] = ()) -> None:
         self.accel = accel
         self.order = int(order)
         self.name = name
+        self.domain = domain or name
         self.hidden_rhs = hidden_rhs
         self.hidden_names = hidden_names
         self._clock = np.zeros(1)
         self.s = np.zeros(self.order + len(hidden_names))
         self._work = rk4_work(self.s.size)
+        self._names = state_names or (tuple(f"x{i + 1}" for i in range(self.order))
+                                      + tuple(hidden_names))
+        self._units = state_units or ("",) * len(self._names)
+        self._full_order = np.asarray(full_order or range(self.s.size), dtype=np.intp)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self._names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self._units
+
+    def full_state(self) -> np.ndarray:
+        return self.s[self._full_order]
+
+    @property
+    def full_order(self) -> np.ndarray:
+        """Index of each full-state entry in the integrated vector (for compiled loops)."""
+        return self._full_order
+
+    def default_task(self) -> TaskDefaults:
+        return TaskDefaults(view=tuple(self.state_names[i] for i in self._full_order.argsort()
+                                       [: self.order]))
 
     @property
     def t(self) -> float:
@@ -238,20 +271,59 @@ class AnalyticPlant:
         chain = _CHAIN_OF.get(self.accel)
         if chain is None or self.hidden_rhs is not None:
             return None
-        return CompiledPlant(chain(), self.s, self._clock, self._work)
+        return CompiledPlant(chain(), self.s, self._clock, self._work, self._full_order)
 
     def extras(self) -> dict[str, float]:
         return {name: float(v) for name, v in zip(self.hidden_names, self.s[self.order:])}
 
+    def extras_index(self) -> np.ndarray:
+        """The hidden states' places in the full state."""
+        return np.argsort(self._full_order)[self.order:].astype(np.intp)
+
+
+def cartpole_parameters(p: CartPoleParams) -> dict[str, float]:
+    """The cart-pole's physical parameters as a plant reports them (:meth:`Plant.parameters`)."""
+    return {"M": p.M, "m": p.m, "l": p.l, "g": p.g, "J": p.pole_inertia_pivot,
+            "cart_damping": p.cart_damping, "hinge_damping": p.hinge_damping,
+            "cart_friction": p.cart_friction, "hinge_friction": p.hinge_friction,
+            "gear": p.gear, "theta_sign": p.theta_sign}
+
+
+#: the cart-pole's joints when nobody names them (models/cartpole.xml's names)
+CARTPOLE_JOINTS = (JointInfo("slider", "slide", "m"), JointInfo("hinge", "hinge", "rad"))
+
 
 class CartPoleODE(AnalyticPlant):
     """The cart-pole ODE (C1)-(C2) of :mod:`tspend.plants.cartpole`, with the cart as
-    hidden states, so the ODE backend can draw the cart and meet a finite rail too."""
+    hidden states, so the ODE backend can draw the cart and meet a finite rail too.
 
-    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
+    Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
+    ``(slide, hinge, slide_dot, hinge_dot)``, named after ``joints`` (the slide joint
+    first, then the hinge; a MuJoCo scenario's ODE takes the model's joints and ranges).
+    """
+
+    def __init__(self, params: CartPoleParams = CartPoleParams(),
+                 joints: tuple[JointInfo, JointInfo] = CARTPOLE_JOINTS) -> None:
+        slide, hinge = joints
+        names = (slide.name, hinge.name, velocity_name(slide.name), velocity_name(hinge.name))
         super().__init__(lambda t, s, u, d: cartpole.accelerations(self._machine, s[0], s[1], s[3], u, d)[0],
-                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"))
+                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
+                         domain="cartpole", state_names=names,
+                         state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
+        self._joints = (slide, hinge)
         self.set_params(params)
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return self._joints
+
+    def default_task(self) -> TaskDefaults:
+        hinge = self._joints[1].name
+        return TaskDefaults(view=(hinge, velocity_name(hinge)), pole=hinge,
+                            fall_angle=math.pi / 2)
+
+    def parameters(self) -> dict[str, float]:
+        return cartpole_parameters(self.params)
 
     @property
     def gain_sign(self) -> int:
@@ -265,9 +337,8 @@ class CartPoleODE(AnalyticPlant):
     def _rhs_params(self) -> Any:
         return self._machine
 
-
     def compiled(self) -> CompiledPlant:
-        return CompiledPlant(self._machine, self.s, self._clock, self._work)
+        return CompiledPlant(self._machine, self.s, self._clock, self._work, self._full_order)
 
 
 _CHAIN_ACCEL: dict[type, Callable] = {NonaffineChain: nonaffine_accel,
@@ -288,5 +359,6 @@ def third_order_plant() -> AnalyticPlant:
     return AnalyticPlant(third_order_accel, 3, "third_order")
 
 
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
-    return CartPoleODE(params)
+def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(),
+                       joints: tuple[JointInfo, JointInfo] = CARTPOLE_JOINTS) -> CartPoleODE:
+    return CartPoleODE(params, joints)

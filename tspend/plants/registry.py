@@ -81,7 +81,7 @@ def build(scenario: "Scenario", kind: str | None = None) -> Plant:
     kind = kind or own
     if kind == "cartpole_ode" and own == "cartpole_mujoco":
         mj = PLANT_KINDS[own].build(scenario.plant, resolve_model_path(scenario))
-        return analytic.cartpole_ode_plant(mj.params)  # type: ignore[attr-defined]
+        return analytic.cartpole_ode_plant(mj.params, mj.cart_joints)  # type: ignore[attr-defined]
     return PLANT_KINDS[kind].build(scenario.plant, resolve_model_path(scenario))
 
 
