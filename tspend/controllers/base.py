@@ -24,12 +24,9 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterable, NamedTuple
+from typing import Any, Callable, Iterable, NamedTuple
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from tspend.loop.sinks import FuzzyInputInfo, InnerSnapshot
 
 __all__ = ["CompiledController", "Controller", "Diagnostic", "Observation", "RESERVED", "chain_observation",
            "check_diagnostics", "diag_width", "diagnostics"]
@@ -187,15 +184,16 @@ class Controller(ABC):
         """Copies of every adapted parameter (empty for a fixed controller)."""
         return {}
 
-    def snapshot(self, t: float, step: int, x: np.ndarray) -> "InnerSnapshot | None":
-        """The inner state for recorders after the sample at ``t`` (None: nothing to show);
+    def snapshot(self, t: float, step: int, x: np.ndarray) -> Any:
+        """The inner state for recorders after the sample at ``t``, a
+        :class:`tspend.loop.sinks.InnerSnapshot` (None: nothing to show);
         asked for every ``run.snapshot_every`` seconds only when :attr:`has_snapshots`
         and a sink draws it."""
         return None
 
-    def fuzzy_inputs(self) -> "dict[str, tuple[FuzzyInputInfo, ...]]":
-        """The rule bases' antecedent inputs, so a recorder can lay out their views before
-        the first snapshot (empty: no rule base)."""
+    def fuzzy_inputs(self) -> dict[str, tuple[Any, ...]]:
+        """The rule bases' antecedent inputs (:class:`tspend.loop.sinks.FuzzyInputInfo`), so a
+        recorder can lay out their views before the first snapshot (empty: no rule base)."""
         return {}
 
     def compiled(self) -> CompiledController | None:

@@ -34,14 +34,14 @@ import numpy as np
 from tspend.errors import ScenarioError
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class LQRSettings:
+class LQRSettings(KindSettings):
     """``[controllers.lqr]``."""
 
     Q: tuple[tuple[float, ...], ...] | None = setting(
@@ -106,7 +106,7 @@ class LQRController(Controller):
 
 
 def build(scenario: "Scenario") -> LQRController:
-    s: LQRSettings = settings_for(scenario, "lqr")
+    s: LQRSettings = settings_for(scenario, LQRSettings)
     model = plant_model(scenario)
     A, B = model.state_space()
     b = float(B[-1, 0])

@@ -22,8 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CartPoleDrawing", "InputInfo", "JointInfo", "Plant", "TaskDefaults",
-           "velocity_name"]
+__all__ = ["InputInfo", "JointInfo", "Plant", "TaskDefaults", "velocity_name"]
 
 
 def velocity_name(position: str) -> str:
@@ -54,17 +53,22 @@ class InputInfo:
 
 @dataclass(frozen=True)
 class TaskDefaults:
-    """What a plant's domain proposes as the task when ``[task]`` does not say.
+    """A domain's default task: the view the paper's controllers see and when a run ends.
 
     ``view``: the state names the paper's controllers see (tracked output and its
-    derivatives); ``pole``: the state that is an angle from the upright, which
-    ``fall_angle`` watches ("" when the domain balances nothing); ``fall_angle``: rad
-    from upright that ends the run (0 = off).
+    derivatives); ``fall_angle``: rad from upright that ends the run (0 = off), on the
+    state ``pole``, an angle from the upright ("" when the domain balances nothing).
+    A plant's :meth:`Plant.default_task` is its domain's, with the plant's own joint names.
     """
 
     view: tuple[str, ...]
-    pole: str = ""
     fall_angle: float = 0.0
+    pole: str = ""
+
+    def renamed(self, names: dict[str, str]) -> "TaskDefaults":
+        """This task with state names replaced by ``names`` (a plant's own joint names)."""
+        return TaskDefaults(tuple(names.get(v, v) for v in self.view), self.fall_angle,
+                            names.get(self.pole, self.pole))
 
 
 class Plant(ABC):
@@ -171,17 +175,3 @@ class Plant(ABC):
         except ValueError:
             raise ValueError(f"{self.name}: no state named {name!r} (states: "
                              f"{', '.join(self.state_names)})") from None
-
-
-@dataclass(frozen=True)
-class CartPoleDrawing:
-    """What a recorder needs to draw a cart-pole: its parameters and, for MuJoCo, the MJCF
-    whose geoms to draw.  ``theta_sign`` is -1 when the model's positive angle leans the
-    pole toward +x."""
-
-    M: float
-    m: float
-    l: float
-    g: float
-    mjcf: str = ""
-    theta_sign: float = 1.0

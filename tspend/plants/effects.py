@@ -180,8 +180,7 @@ class Measurement:
         self.past: deque[np.ndarray] = deque(maxlen=cfg.delay + 1)
         ol = cfg.outer_loop
         on = ol is not None and (ol.k_x != 0.0 or ol.k_v != 0.0)
-        sign = float(getattr(getattr(plant, "params", None), "theta_sign", 1.0))
-        self.outer = OuterLoop(ol, n, dt, sign) if on else None
+        self.outer = OuterLoop(ol, n, dt, plant.params.theta_sign) if on else None  # type: ignore[attr-defined]
 
     def __call__(self, t: float, x: np.ndarray, ref_row: np.ndarray) -> np.ndarray:
         if self.outer is not None:

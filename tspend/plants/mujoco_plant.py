@@ -30,9 +30,8 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
-from tspend.plants.analytic import cartpole_parameters
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
-from tspend.plants.cartpole import CartPoleParams
+from tspend.plants.cartpole_physics import CartPoleParams
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
 INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
@@ -133,6 +132,9 @@ class MujocoCartPole(Plant):
         ``"implicitfast"``; only for the cross-check's contrast figures.
     timestep:
         overrides the model's physics timestep.
+    task_defaults:
+        the domain's default task, its states named by the roles ``slider``/``hinge``
+        (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
 
     Raises
     ------
@@ -150,9 +152,10 @@ class MujocoCartPole(Plant):
                  overrides: CartPoleParams | None = None,
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
-                 cart_friction: float | None = None, hinge_friction: float | None = None
-                 ) -> None:
+                 cart_friction: float | None = None, hinge_friction: float | None = None,
+                 task_defaults: TaskDefaults | None = None) -> None:
         self.model_path = Path(model_path)
+        self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
@@ -350,8 +353,8 @@ class MujocoCartPole(Plant):
         return self._inputs
 
     def parameters(self) -> dict[str, float]:
-        """The cart-pole's parameters as the compiled model simulates them (read back)."""
-        return cartpole_parameters(self._params)
+        """The machine as compiled (:attr:`params`: read back from the compiled model)."""
+        return {k: float(v) for k, v in self._params.__dict__.items()}
 
     @property
     def cart_joints(self) -> tuple[JointInfo, JointInfo]:
@@ -360,8 +363,11 @@ class MujocoCartPole(Plant):
         return by_name[self.slide_joint], by_name[self.hinge_joint]
 
     def default_task(self) -> TaskDefaults:
-        return TaskDefaults(view=(self.hinge_joint, velocity_name(self.hinge_joint)),
-                            pole=self.hinge_joint, fall_angle=math.pi / 2)
+        """The domain's task (``task_defaults``, in the model's ``slider``/``hinge`` roles),
+        on this model's joints."""
+        return self._task_defaults.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
+                                    "slider_dot": velocity_name(self.slide_joint),
+                                    "hinge_dot": velocity_name(self.hinge_joint)})
 
 
     @property
