@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
@@ -62,7 +62,7 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float) -> tuple[np.
     return (B.T @ P) / R, P
 
 
-class LQRController:
+class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "lqr"
@@ -90,7 +90,8 @@ class LQRController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         r = ref[:n]
         e = x - r

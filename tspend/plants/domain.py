@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants.base import Plant
+from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -63,18 +63,6 @@ class PlantLabels(NamedTuple):
 
     def extra(self, name: str) -> Quantity:
         return self.extras.get(name, Quantity(name))
-
-
-@dataclass(frozen=True)
-class TaskDefaults:
-    """A domain's default task: the view the paper's controllers see and when a run ends.
-
-    ``fall_angle`` (rad from upright, 0 = off) applies to the state ``pole`` (a state name).
-    """
-
-    view: tuple[str, ...]
-    fall_angle: float = 0.0
-    pole: str = ""
 
 
 @dataclass(frozen=True)
