@@ -25,7 +25,7 @@ import numpy as np
 from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
-from tspend.plants.base import Plant
+from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
     TaskDefaults)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
@@ -75,16 +75,29 @@ class FurutaODE(AnalyticPlant):
 
     def __init__(self, params: FurutaParams = FurutaParams(), arm: str = "arm",
                  pendulum: str = "pendulum") -> None:
-        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"))
+        # integrated in the machine's order, which is the full state's: [arm, pendulum,
+        # arm_dot, pendulum_dot]; the view is entries 1 and 3 (reset, state, extras below)
+        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"),
+                         domain="furuta", state_names=_names(arm, pendulum),
+                         state_units=STATE_UNITS)
         self.params, self._machine = params, params.machine()
         self.arm_joint, self.pendulum_joint = arm, pendulum
 
     @property
-    def state_names(self) -> tuple[str, ...]:
-        a, p = self.arm_joint, self.pendulum_joint
-        return (a, p, f"{a}_dot", f"{p}_dot")
+    def joints(self) -> tuple[JointInfo, ...]:
+        return (JointInfo(self.arm_joint, "hinge", "rad"),
+                JointInfo(self.pendulum_joint, "hinge", "rad"))
 
-    state_units = STATE_UNITS
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        return (InputInfo("u", "V", *self.params.ctrl_range),)
+
+    def default_task(self) -> TaskDefaults:
+        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
+                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
 
     def reset(self, x0: np.ndarray) -> None:
         x0 = np.asarray(x0, dtype=float)
@@ -120,14 +133,17 @@ class FurutaODE(AnalyticPlant):
         return 1 if a >= b else -1
 
 
-class MujocoFuruta:
+def _names(arm: str, pendulum: str) -> tuple[str, ...]:
+    return (arm, pendulum, velocity_name(arm), velocity_name(pendulum))
+
+
+class MujocoFuruta(Plant):
     """The Furuta MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the
     generalised force on the pendulum joint; joint roles by name."""
 
     order = 2
     name = "furuta_mujoco"
     domain = "furuta"
-    state_units = STATE_UNITS
 
     def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
                  actuator: str = "motor", timestep: float | None = None) -> None:
@@ -178,8 +194,35 @@ class MujocoFuruta:
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        a, p = self.arm_joint, self.pendulum_joint
-        return (a, p, f"{a}_dot", f"{p}_dot")
+        return _names(self.arm_joint, self.pendulum_joint)
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return STATE_UNITS
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        m = self.model
+        out = []
+        for name in (self.arm_joint, self.pendulum_joint):
+            j = m.joint(name).id
+            rng = (float(m.jnt_range[j][0]), float(m.jnt_range[j][1])) if m.jnt_limited[j] else None
+            out.append(JointInfo(name, "hinge", "rad", rng))
+        return tuple(out)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        m, a = self.model, self._act
+        lo, hi = (float(m.actuator_ctrlrange[a][0]), float(m.actuator_ctrlrange[a][1])) \
+            if m.actuator_ctrllimited[a] else (-math.inf, math.inf)
+        return (InputInfo("u", "V", lo, hi),)
+
+    def default_task(self) -> TaskDefaults:
+        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
+                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
 
     @property
     def timestep(self) -> float:
@@ -238,12 +281,6 @@ class MujocoFuruta:
 
     def extras(self) -> dict[str, float]:
         return {"arm": float(self.data.qpos[self._qa]), "arm_dot": float(self.data.qvel[self._va])}
-
-    def compiled(self) -> None:
-        return None
-
-    def compiled_mujoco(self, dt: float) -> None:
-        return None
 
     @property
     def gain_sign(self) -> int:
