@@ -100,6 +100,8 @@ def test_furuta_crosscheck_and_lqr_from_the_cli(tmp_path) -> None:
 def test_inspect_reports_the_furuta(capsys) -> None:
     from tspend.cli.main import main
 
-    assert main(["inspect", "models/furuta.xml"]) == 0
+    from pathlib import Path
+
+    assert main(["inspect", str(Path(__file__).parents[1] / "models" / "furuta.xml")]) == 0
     out = capsys.readouterr().out
     assert "a furuta model" in out and "no departure from the furuta ODE" in out
