@@ -25,7 +25,7 @@ import numpy as np
 from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
-from tspend.plants.base import Plant
+from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
     TaskDefaults)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
@@ -64,6 +64,13 @@ class FurutaMujocoConfig(FurutaConfig):
     timestep: float = field(default=0.0, metadata={"low": 0.0})
 
 
+def _named_task(arm: str, pendulum: str) -> TaskDefaults:
+    """The domain's task on a plant whose joints are called ``arm`` and ``pendulum``."""
+    return DOMAIN.task.renamed({"arm": arm, "pendulum": pendulum,
+                                "arm_dot": velocity_name(arm),
+                                "pendulum_dot": velocity_name(pendulum)})
+
+
 class FurutaODE(AnalyticPlant):
     """The Furuta ODE of :mod:`tspend.plants.furuta_physics` stepped by the analytic RK4.
 
@@ -85,6 +92,17 @@ class FurutaODE(AnalyticPlant):
         return (a, p, f"{a}_dot", f"{p}_dot")
 
     state_units = STATE_UNITS
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return (JointInfo(self.arm_joint, "hinge", "rad"),
+                JointInfo(self.pendulum_joint, "hinge", "rad"))
+
+    def default_task(self) -> TaskDefaults:
+        return _named_task(self.arm_joint, self.pendulum_joint)
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
 
     def reset(self, x0: np.ndarray) -> None:
         x0 = np.asarray(x0, dtype=float)
@@ -120,7 +138,7 @@ class FurutaODE(AnalyticPlant):
         return 1 if a >= b else -1
 
 
-class MujocoFuruta:
+class MujocoFuruta(Plant):
     """The Furuta MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the
     generalised force on the pendulum joint; joint roles by name."""
 
@@ -180,6 +198,31 @@ class MujocoFuruta:
     def state_names(self) -> tuple[str, ...]:
         a, p = self.arm_joint, self.pendulum_joint
         return (a, p, f"{a}_dot", f"{p}_dot")
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """The arm and the pendulum, with the compiled model's ranges when limited."""
+        m = self.model
+        out = []
+        for name in (self.arm_joint, self.pendulum_joint):
+            j = m.joint(name).id
+            rng = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
+            out.append(JointInfo(name, "hinge", "rad", rng))
+        return tuple(out)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor's voltage, bounded by its ctrlrange when ``ctrllimited``."""
+        m, a = self.model, self._act
+        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
+            else (-math.inf, math.inf)
+        return (InputInfo(self.actuator, "V", lo, hi),)
+
+    def default_task(self) -> TaskDefaults:
+        return _named_task(self.arm_joint, self.pendulum_joint)
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
 
     @property
     def timestep(self) -> float:
