@@ -138,16 +138,17 @@ def _sets(r: TableReader, key: str, n: int):
 
 def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
     """The ``[controllers]`` table: ``(kind, settings)`` pairs, validated for order ``n``."""
-    from tspend.controllers import SETTINGS
+    from tspend.controllers import SETTINGS, settings_class
 
     out = []
     for kind in r.table:
         if kind in PAPER_KINDS:
             raise r.error(kind, "the paper controller's settings live in [controller]; "
                                 f"[controllers.KIND] tables are for: {', '.join(SETTINGS)}")
-        if kind not in SETTINGS:
-            raise r.error(kind, f"unknown controller kind; allowed: {', '.join(SETTINGS)}")
-        cls = SETTINGS[kind]
+        cls = settings_class(kind)
+        if cls is None:
+            raise r.error(kind, f"unknown controller kind; allowed: {', '.join(SETTINGS)}, or "
+                                f"a plug-in's kind when it is named by --controller")
         sub = r.table_of(kind)
         fields = dataclasses.fields(cls)
         sub.check_keys(tuple(key_of(f) for f in fields), f"for kind '{kind}'")
@@ -163,14 +164,15 @@ def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
     return tuple(out)
 
 
-def settings_for(scenario: "Scenario", kind: str):
-    """The scenario's settings of ``kind``: its ``[controllers.KIND]`` table, else defaults."""
+def settings_for(scenario: "Scenario", kind: str, cls: type | None = None):
+    """The scenario's settings of ``kind``: its ``[controllers.KIND]`` table, else the
+    defaults of ``cls`` (default: the built-in kind's settings class)."""
     from tspend.controllers import SETTINGS
 
     for k, s in getattr(scenario, "controllers", ()):
         if k == kind:
             return s
-    return SETTINGS[kind]()
+    return (cls or SETTINGS[kind])()
 
 
 def finite_or(value: float | None, fallback: float) -> float:

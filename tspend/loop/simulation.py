@@ -129,11 +129,23 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
-    def to_pandas(self):
-        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.studies.timeseries`)."""
-        from tspend.studies.timeseries import history_frame
+    def to_pandas(self, units: bool = True):
+        """The time series as a pandas DataFrame indexed by time, ``[unit]`` in the column
+        names (``units=False``: the recording's plain names; :mod:`tspend.studies.timeseries`)."""
+        from tspend.studies.timeseries import history_frame, view_units, with_units
 
-        return history_frame(self.history, self.controller.diagnostics)
+        frame = history_frame(self.history, self.controller.diagnostics)
+        if not units:
+            return frame
+        state_units, control_unit = view_units(self.scenario.plant.kind, self.plant.order)
+        return with_units(frame, state_units, control_unit, self.controller.diagnostics)
+
+    def plot(self, every: int = 1):
+        """The run in the paper's panels (states against references, then u): a matplotlib
+        Figure (needs the ``plot`` extra)."""
+        from tspend.studies.figures import run_figure
+
+        return run_figure(self, every)
 
 
 @dataclass(frozen=True)
