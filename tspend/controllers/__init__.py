@@ -154,7 +154,10 @@ def available() -> list[Kind]:
     kinds = [resolve(k) for k in KINDS]
     for name in plugins.entry_point_names(ENTRY_POINT_GROUP):
         try:
-            kinds.append(resolve(name))
+            found = resolve(name)
+            # listed by the name one types; the kind it reports, when another, in the line
+            summary = found.summary + (f" (kind {found.name})" if found.name != name else "")
+            kinds.append(replace(found, name=name, summary=summary))
         except ScenarioError as exc:
             kinds.append(Kind(name, lambda s: None, None, f"(cannot be loaded: {exc})"))  # type: ignore[arg-type, return-value]
     return kinds
