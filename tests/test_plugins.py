@@ -48,7 +48,8 @@ def test_example_runs_through_the_cli_and_the_metrics_say_what_ran(workdir: Path
     assert doc["status"] == "completed"
     assert doc["controller"]["kind"] == "saturated_pd"
     assert doc["controller"]["spec"] == EXAMPLE
-    assert doc["controller"]["settings"] == {"kp": 2500.0, "kd": 500.0, "u_max": 300.0}
+    assert doc["controller"]["settings"] == {"kp": 2500.0, "kd": 500.0, "k_cart": 0.0,
+                                             "u_max": 300.0}
 
 
 def test_example_computes_its_documented_law() -> None:
@@ -63,7 +64,7 @@ def test_example_computes_its_documented_law() -> None:
         os.chdir(old)
     h = res.history
     e = h["x"] - h["ref"][:, :2]
-    law = -(2000.0 * e[:, 0] + 500.0 * e[:, 1])
+    law = -(2000.0 * e[:, 0] + 500.0 * e[:, 1])  # k_cart = 0 by default
     np.testing.assert_allclose(h["u_unclipped"], law, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(h["u"], np.clip(law, -20.0, 20.0))
     assert np.any(np.abs(law) > 20.0)  # the clip was exercised
@@ -76,7 +77,9 @@ def test_package_module_spec_and_entry_point(tmp_path: Path, monkeypatch, capsys
     (pkg / "ctl.py").write_text(textwrap.dedent('''
         import numpy as np
 
-        class Zero:
+        from tspend.controllers.base import Controller
+
+        class Zero(Controller):
             """u = 0 always."""
             kind = "zero_force"
 
@@ -88,11 +91,8 @@ def test_package_module_spec_and_entry_point(tmp_path: Path, monkeypatch, capsys
             def reset(self, rng):
                 pass
 
-            def step(self, x, ref, dt):
+            def step(self, obs, dt):
                 return 0.0
-
-            def parameters(self):
-                return {}
         '''))
     # an installed distribution's metadata, as pip would write it
     dist = tmp_path / "site" / "mypkg-1.0.dist-info"

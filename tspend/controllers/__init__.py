@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable
 
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
 from tspend.controllers.base import Controller, Diagnostic
+from tspend.controllers.settings import KindSettings
 from tspend.errors import ScenarioError
 from tspend.runtime import plugins
 
@@ -99,14 +101,16 @@ def _summary(kind: str) -> str:
 def _plugin_kind(obj: object, spec: str, option: str) -> Kind:
     """The :class:`Kind` of a user's class or factory function."""
     if isinstance(obj, type):
-        if not all(callable(getattr(obj, m, None)) for m in ("step", "reset", "parameters")):
-            raise ScenarioError(f"{option} {spec}: {obj.__name__} is not a Controller (it needs "
-                                f"reset, step and parameters; see docs/writing-a-controller.md)")
-        name = getattr(obj, "kind", None)
-        name = name if isinstance(name, str) and name else obj.__name__
-        settings = getattr(obj, "Settings", None)
-        if settings is not None and not dataclasses.is_dataclass(settings):
-            raise ScenarioError(f"{option} {spec}: {obj.__name__}.Settings must be a dataclass")
+        if not issubclass(obj, Controller):
+            raise ScenarioError(f"{option} {spec}: {obj.__name__} is not a Controller (subclass "
+                                f"tspend.controllers.base.Controller; see "
+                                f"docs/writing-a-controller.md)")
+        name = obj.kind or obj.__name__
+        settings = getattr(obj, "Settings", None)  # optional: a plug-in's own attribute
+        if settings is not None and not (dataclasses.is_dataclass(settings)
+                                         and issubclass(settings, KindSettings)):
+            raise ScenarioError(f"{option} {spec}: {obj.__name__}.Settings must be a dataclass "
+                                f"subclassing tspend.controllers.settings.KindSettings")
         doc = (obj.__doc__ or "").strip().splitlines()
         cls = obj
 
@@ -115,7 +119,7 @@ def _plugin_kind(obj: object, spec: str, option: str) -> Kind:
                 return cls(scenario)
             from tspend.controllers.settings import settings_for
 
-            return cls(scenario, settings_for(scenario, name, settings))
+            return cls(scenario, settings_for(scenario, settings))
     elif callable(obj):
         name = getattr(obj, "kind", None) or getattr(obj, "__name__", "plugin")
         settings = getattr(obj, "Settings", None)
@@ -189,6 +193,28 @@ def settings_class(name: str) -> type | None:
     return None
 
 
+class _KindSettingsView(Mapping):
+    """Kind name -> settings class, over :func:`settings_class` (for the scenario reader)."""
+
+    def __getitem__(self, name: str) -> type:
+        cls = settings_class(name)
+        if cls is None:
+            raise KeyError(name)
+        return cls
+
+    def __iter__(self):
+        return iter([*SETTINGS, *_LOADED])
+
+    def __len__(self) -> int:
+        return len(SETTINGS) + len(_LOADED)
+
+
+def settings_classes() -> Mapping[str, type]:
+    """Every kind's settings class by name, plug-ins included (see :func:`settings_class`);
+    what the scenario reader validates ``[controllers.KIND]`` tables against."""
+    return _KindSettingsView()
+
+
 #: plug-in kind name -> its settings dataclass, for plug-ins loaded by :func:`load`.  A
 #: cache of what this process imported (like ``sys.modules``), so the scenario reader
 #: can validate their tables; it changes no result.
@@ -218,7 +244,7 @@ def settings_of(scenario: "Scenario", kind_name: str | None) -> dict[str, Any]:
     cls = settings_class(kind_name)
     if cls is None:
         return {}
-    return _plain(dataclasses.asdict(settings_for(scenario, kind_name, cls)))
+    return _plain(dataclasses.asdict(settings_for(scenario, cls)))
 
 
 def _plain(value: Any) -> Any:
@@ -256,4 +282,4 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
 
 __all__ = ["KINDS", "SETTINGS", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
-           "settings_of"]
+           "settings_classes", "settings_of"]

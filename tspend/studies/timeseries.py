@@ -61,13 +61,6 @@ def history_frame(history: dict[str, np.ndarray], diagnostics: Sequence[Diagnost
     return pd.DataFrame(dict(zip(_unique(names, sources), columns)), index=index)
 
 
-def view_units(plant_kind: str, order: int) -> tuple[tuple[str, ...], str]:
-    """(unit of each state of the task's view, unit of u) of a plant kind ("" = none)."""
-    if plant_kind.startswith("cartpole"):
-        return ("rad", "rad/s") + tuple(f"rad/s^{k}" for k in range(2, order)), "N"
-    return ("",) * order, ""
-
-
 def _derivative_unit(unit: str, k: int) -> str:
     if not unit or k == 0:
         return unit
