@@ -196,3 +196,35 @@ def test_list_prints_one_line_per_scenario(tmp_path: Path) -> None:
     lines = r.out.splitlines()
     assert len(lines) == len(names)
     assert [line.split()[0] for line in lines] == names
+
+
+def test_installed_plant_domain_runs_like_a_builtin(tmp_path: Path) -> None:
+    """A package registers a domain under ``tspend.plants``: a scenario names its kind.
+
+    The domain here is Duffing's physics under another name, so its run must give
+    Duffing's metrics exactly; a clashing registration is left out with a warning.
+    """
+    site = tmp_path / "site"
+    (site / "myplants").mkdir(parents=True)
+    (site / "myplants" / "__init__.py").write_text(textwrap.dedent('''
+        from tspend.plants.analytic import DUFFING, ChainDomain, duffing_accel
+
+        MY_DUFFING = ChainDomain("my_duffing", duffing_accel, 2, True, 20.0, DUFFING.labels)
+        CLASH = ChainDomain("duffing", duffing_accel, 2, True, 20.0, DUFFING.labels)
+        '''))
+    dist = site / "myplants-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: myplants\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(
+        "[tspend.plants]\nmy_duffing = myplants:MY_DUFFING\nclash = myplants:CLASH\n")
+    text = (ROOT / "scenarios" / "ex2_duffing.toml").read_text()
+    assert 'kind = "duffing"' in text
+    (tmp_path / "mine.toml").write_text(text.replace('kind = "duffing"', 'kind = "my_duffing"'))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(ROOT)]))
+    for scenario, out in (("mine.toml", "mine.json"), ("ex2_duffing", "theirs.json")):
+        r = tspend("run", scenario, "--duration", "1", "--no-record", "--metrics", out,
+                   cwd=tmp_path, env=env)
+        assert r.status == 0, r.err
+        assert "plant plug-in left out: [tspend.plants] clash: duffing already taken" in r.err
+    mine, theirs = (json.loads((tmp_path / f).read_text()) for f in ("mine.json", "theirs.json"))
+    assert mine["rmse"] == theirs["rmse"] and mine["control_energy"] == theirs["control_energy"]

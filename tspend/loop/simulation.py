@@ -137,8 +137,10 @@ class RunResult:
             return frame
         units = dict(zip(self.plant.state_names, self.plant.state_units))
         view = scenario_task(self.scenario, self.plant).view
-        return with_units(frame, [units[v] for v in view], self.plant.inputs[0].unit,
-                          self.controller.diagnostics)
+        # the ODE backends name no actuator: the domain's label carries u's unit
+        control = (self.plant.inputs[0].unit
+                   or plant_registry.domain_of(self.scenario.plant.kind).labels.control.unit)
+        return with_units(frame, [units[v] for v in view], control, self.controller.diagnostics)
 
     def plot(self, every: int = 1):
         """The run in the paper's panels (states against references, then u): a matplotlib

@@ -461,8 +461,9 @@ def paper_runs(scenario_name: str, kinds: Sequence[str], seed: int | None = None
                duration: float | None = None, capture_sets: bool = False):
     """Run one paper case with each kind at one seed: ({kind: RunResult}, SetsCapture of
     the first kind or None)."""
+    # through the package's facade: RunResult.plot() draws with this module
+    from tspend import run
     from tspend.scenario import load_scenario, override
-    from tspend.loop.simulation import run
 
     changes = {}
     if seed is not None:
