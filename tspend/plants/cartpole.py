@@ -421,6 +421,13 @@ class CartPoleDomain(Domain):
         return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,
                                theta_sign=params.theta_sign)
 
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        return "slide" in joint_types
+
+    def view_names(self, plant: Plant) -> tuple[str, ...]:
+        hinge = plant.state_names[1]  # the MJCF's own name of the pole's hinge
+        return (hinge, f"{hinge}_dot")
+
     def chirp_amplitude(self, plant: Plant) -> float:
         """100 N on the paper's 11 kg machine, scaled with the total mass (per unit gear)."""
         p: CartPoleParams = plant.params  # type: ignore[attr-defined]

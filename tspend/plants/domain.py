@@ -221,6 +221,20 @@ class Domain(ABC):
         """The domain's analytic plant kind (the cross-check's second backend), or None."""
         return next((k for k, b in self.kinds.items() if not b.mujoco), None)
 
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        """Whether an MJCF with these joint types ("slide", "hinge", ...) looks like this
+        domain's machine (``tspend inspect`` picks the domain by it)."""
+        return False
+
+    def inspect(self, model_path: str) -> tuple[dict[str, Any], list[str]]:
+        """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``)."""
+        raise NotImplementedError(f"domain {self.name!r} does not read MJCF files")
+
+    def view_names(self, plant: Plant) -> tuple[str, ...]:
+        """The full-state names of ``plant``'s view (the task's, under the plant's own
+        joint names)."""
+        return self.task.view
+
     def chirp_amplitude(self, plant: Plant) -> float:
         """The amplitude of the cross-check's open-loop chirp input on ``plant``: large
         enough to swing the machine through its whole range, in units of u."""

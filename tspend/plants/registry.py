@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants import analytic, cartpole
+from tspend.plants import analytic, cartpole, furuta
 from tspend.plants.base import Plant
 from tspend.plants.domain import Domain, Drawing
 
@@ -64,7 +64,7 @@ def installed_domains(builtin: tuple[Domain, ...]) -> tuple[Domain, ...]:
     return tuple(found)
 
 
-_BUILTIN: tuple[Domain, ...] = (*analytic.DOMAINS, cartpole.DOMAIN)
+_BUILTIN: tuple[Domain, ...] = (*analytic.DOMAINS, cartpole.DOMAIN, furuta.DOMAIN)
 #: domain name -> domain (the built-in ones, then the installed ones)
 DOMAINS: dict[str, Domain] = {d.name: d for d in (*_BUILTIN, *installed_domains(_BUILTIN))}
 
