@@ -179,7 +179,9 @@ def test_compare_runs_a_plugin_and_names_it_by_its_kind(workdir: Path, monkeypat
     monkeypatch.chdir(workdir)
     status, out, err = in_process(capsys, "compare", "ex2_duffing", "--seeds", "0:3",
                                   "--controller", f"{EXAMPLE},pd", "--duration", "0.5",
-                                  "--jobs", "1", "--resamples", "100", "--out", "c.parquet")
+                                  "--jobs", "1", "--resamples", "100", "--out", "c.parquet",
+                                  # the plug-in's settings travel to the worker processes
+                                  "--set", "controllers.saturated_pd.u_max=250")
     assert status == 0, err
     assert "saturated_pd" in out
     table = pd.read_parquet(workdir / "c.parquet")  # the sweep's rows, by kind

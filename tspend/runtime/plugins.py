@@ -16,6 +16,8 @@ loads it once for all its runs).
 
 from __future__ import annotations
 
+import copyreg
+import dataclasses
 import importlib
 import importlib.util
 import re
@@ -54,7 +56,28 @@ def _module_from_file(path: str, mtime_ns: int) -> ModuleType:
         sys.modules.pop(name, None)
         raise ScenarioError(f"{path}: importing it failed: {type(exc).__name__}: "
                             f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    # a sweep's worker unpickles a scenario holding the file's settings dataclass; the
+    # module's name means nothing there, so such objects travel as (path, class, fields)
+    for obj in vars(module).values():
+        if (isinstance(obj, type) and obj.__module__ == name and dataclasses.is_dataclass(obj)):
+            copyreg.pickle(obj, _reduce_by_path)
     return module
+
+
+def _reduce_by_path(obj: object):
+    cls = type(obj)
+    path = sys.modules[cls.__module__].__file__
+    fields = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj) if f.init}
+    return _rebuild_from_file, (path, cls.__qualname__, fields)
+
+
+def _rebuild_from_file(path: str, qualname: str, fields: dict) -> object:
+    """The inverse of :func:`_reduce_by_path`, in any process."""
+    resolved = Path(path)
+    obj: object = _module_from_file(str(resolved), resolved.stat().st_mtime_ns)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj(**fields)  # type: ignore[operator]
 
 
 def _module(where: str, option: str) -> ModuleType:
