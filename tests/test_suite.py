@@ -67,9 +67,14 @@ def test_every_kind_runs_on_every_domain(plant_kind: str, controller: str, tmp_p
     result = run(scn, sinks=[sink], controller=controller)
     sink.close()
     close_recording(rec)
-    assert result.status == "completed", result.message
+    # a controller that drops the pole is a result, not a failure of the suite: the task
+    # ends the run (docs/architecture.md); anything else (diverged, failed) is a defect
+    assert result.status in ("completed", "fell"), result.message
     h = result.history
-    assert h["x"].shape == (1000, PLANT_KINDS[plant_kind].order)
+    steps = h["x"].shape[0]
+    assert h["x"].shape[1] == PLANT_KINDS[plant_kind].order and 0 < steps <= 1000
+    assert result.status == "fell" or steps == 1000
     assert np.isfinite(h["x"]).all() and np.isfinite(h["u"]).all()
     t, x1 = read_scalar_series(path, "series/tracking", 1)
-    assert np.array_equal(x1, h["x"][:, 0]) and t.size == 1000
+    assert np.array_equal(x1, h["x"][:, 0]) and t.size == steps
+

@@ -82,7 +82,8 @@ class FurutaODE(AnalyticPlant):
 
     def __init__(self, params: FurutaParams = FurutaParams(), arm: str = "arm",
                  pendulum: str = "pendulum") -> None:
-        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"))
+        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"),
+                         domain="furuta")
         self.params, self._machine = params, params.machine()
         self.arm_joint, self.pendulum_joint = arm, pendulum
 
