@@ -21,7 +21,7 @@ def test_run_to_pandas_equals_its_exported_recording(tmp_path):
     rec = open_recording("test", path=rrd)
     result = tspend.run(scn, sinks=[RerunSink(rec)])
     close_recording(rec)
-    frame = result.to_pandas()
+    frame = result.to_pandas(units=False)
     assert frame.index.name == "t" and len(frame) == 400
     np.testing.assert_array_equal(frame[["x1", "x2"]].to_numpy(), result.history["x"])
     np.testing.assert_array_equal(frame["b_hat"].to_numpy(), result.history["p"][:, -1])

@@ -10,10 +10,12 @@ Lemma 1), ``controller`` (one controller sample), ``plants`` (analytic and MuJoC
 Python API::
 
     import tspend
-    from tspend import load_scenario, override, run
-    result = run(override(load_scenario("ex2_duffing"), **{"controller.eta": 0.2}))
-    result.metrics["rmse_ss"], result.history["x"]
+    result = tspend.run("pendulum_mujoco", controller="lqr", seed=3,
+                        overrides={"run.duration": 5.0})
+    result.metrics["rmse_ss"]; result.to_pandas(); result.plot()
     table = tspend.sweep("ex2_duffing", seeds=range(20), controllers=["second_type", "first_type"])
+
+``import tspend`` is light: MuJoCo, numba, Rerun and matplotlib load when first used.
 """
 
 __version__ = "0.1.0"
@@ -29,13 +31,61 @@ __all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "bu
            "sweep"]
 
 
+def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | None = None,
+        overrides: dict | None = None, duration: float | None = None, **options):
+    """Run one closed loop and return its :class:`~tspend.loop.simulation.RunResult`.
+
+    Parameters
+    ----------
+    scenario : str, path or Scenario
+        A scenario name (``tspend list``), a path to a ``.toml`` file, or a
+        :class:`~tspend.config.Scenario` (from :func:`load_scenario`).
+    controller : str, optional
+        A kind (``"lqr"``; ``tspend run --controller help`` lists them) or a plug-in spec
+        (``"my_file.py:MyController"``, ``"package.module:Class"``); default: the
+        scenario's own.
+    seed : int, optional
+        Overrides ``run.seed``.
+    overrides : dict, optional
+        Dotted scenario keys to values, validated like the file:
+        ``{"run.duration": 5.0, "controllers.lqr.R": 0.01}``.
+    duration : float, optional
+        Overrides ``run.duration`` (s).
+    **options
+        Passed on to :func:`tspend.loop.simulation.run` (``sinks``, ``keep_history``,
+        ``plant_kind``, ...).
+
+    Returns
+    -------
+    RunResult
+        ``.metrics``, ``.status``, ``.history``, ``.to_pandas()``, ``.plot()``.
+    """
+    from tspend.config import Scenario
+    from tspend.loop import simulation
+    from tspend.scenario import load_scenario, override
+
+    if controller is not None:
+        from tspend.controllers import load
+
+        load(controller)  # a plug-in's [controllers.KIND] table is then known to the reader
+    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    changes = dict(overrides or {})
+    if seed is not None:
+        changes["run.seed"] = seed
+    if duration is not None:
+        changes["run.duration"] = duration
+    if changes:
+        scn = override(scn, **changes)
+    return simulation.run(scn, controller=controller, **options)
+
+
 def __getattr__(name: str):
     # keep `import tspend` light: MuJoCo, numba and Rerun load only when used
     if name in ("load_scenario", "override"):
         from tspend import scenario
 
         return getattr(scenario, name)
-    if name in ("run", "build_plant", "build_controller"):
+    if name in ("build_plant", "build_controller"):
         from tspend.loop import simulation
 
         return getattr(simulation, name)

@@ -23,7 +23,7 @@ from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FI
 from tspend.config import (ControllerConfig, EffectsConfig, OuterLoopConfig, TaskConfig,
     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from tspend.controllers.paper.control_law import is_hurwitz
-from tspend.controllers import SETTINGS
+from tspend.controllers import settings_classes
 from tspend.controllers.settings import parse_kind_tables
 from tspend.errors import ScenarioError
 from tspend.tables import Table, read_fields
@@ -265,7 +265,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ref = _signal(top.table_of("reference", required=True), REFERENCE_KINDS, "sine")
     dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
     ctrl = _controller(top.table_of("controller", required=True), n)
-    kind_settings = parse_kind_tables(top.table_of("controllers"), n, SETTINGS)
+    kind_settings = parse_kind_tables(top.table_of("controllers"), n, settings_classes())
     effects = _effects(top.table_of("effects"), n)
     task = _task(top.table_of("task"), n)
     if run.dt > run.duration:

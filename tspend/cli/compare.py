@@ -25,7 +25,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
                    help="scenario names (see 'tspend list') or .toml paths")
     p.add_argument("--controller", metavar="K1,K2,...",
-                   help="controller kinds, compared in this order (default: every kind)")
+                   help="controller kinds, compared in this order (default: every built-in "
+                        "kind), or path/to/file.py:Class, package.module:Class; "
+                        "'--controller help' lists them")
     p.add_argument("--seeds", default="0:20", metavar="A:B",
                    help="seeds A to B-1 (or N1,N2,...); default 0:20")
     p.add_argument("--metrics", metavar="M1,M2,...",
@@ -59,15 +61,13 @@ def _list(text: str | None) -> list[str] | None:
 def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
     from tspend.cli.main import check_writable, parse_set_value
-    from tspend.controllers import KINDS
+    from tspend.controllers import KINDS, load
     from tspend.studies.stats import COMPARED_METRICS, DEFAULT_METRICS
     from tspend.sweep.plan import parse_seeds
 
-    kinds = _list(args.controller) or list(KINDS)
-    unknown = [k for k in kinds if k not in KINDS]
-    if unknown:
-        raise ScenarioError(f"--controller {','.join(unknown)}: unknown kind; allowed: "
-                            f"{', '.join(KINDS)}")
+    specs = _list(args.controller) or list(KINDS)
+    # rows and statistics name a plug-in (file.py:Class) by its kind
+    kinds = [load(spec).name for spec in specs]
     if len(set(kinds)) < 2:
         raise ScenarioError("--controller: name at least two different kinds to compare")
     metrics = _list(args.metrics) or list(DEFAULT_METRICS)
@@ -92,7 +92,7 @@ def parse_options(args: argparse.Namespace) -> dict:
         check_writable(json_path, "json")
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
-    return dict(kinds=kinds, metrics=metrics, seeds=seeds, grid=grid or None,
+    return dict(kinds=kinds, specs=specs, metrics=metrics, seeds=seeds, grid=grid or None,
                 json_path=json_path)
 
 
@@ -103,12 +103,16 @@ def seeds_text(seeds: list[int]) -> str:
 
 
 def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, jobs=None,
-                   dask=None, progress=False, resamples=9999, stats_seed=0):
-    """Sweep every kind over ``seeds`` on ``scenarios`` and compare them: (table, Comparison)."""
+                   dask=None, progress=False, resamples=9999, stats_seed=0, specs=None):
+    """Sweep every kind over ``seeds`` on ``scenarios`` and compare them: (table, Comparison).
+
+    ``specs``: what runs, when it differs from the kinds' names (plug-ins, ``file.py:Class``).
+    """
     from tspend.studies.stats import compare
     from tspend.sweep import sweep
 
-    table = sweep(scenarios, grid=grid, seeds=seeds, controllers=kinds, jobs=jobs, dask=dask,
+    table = sweep(scenarios, grid=grid, seeds=seeds, controllers=specs or kinds, jobs=jobs,
+                  dask=dask,
                   out=out, record="none", progress=progress)
     # a resumed --out table may hold other runs too: compare what was asked for
     table = table[table["controller"].isin(kinds) & table["seed"].isin(seeds)]
@@ -118,14 +122,18 @@ def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, job
 def cmd(args: argparse.Namespace) -> int:
     import json
 
+    from tspend.cli.main import controller_help
     from tspend.studies.stats import to_json
     from tspend.studies.stats import markdown
 
+    if controller_help(args):
+        return 0
     opts = parse_options(args)
     table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"],
                                  grid=opts["grid"], out=args.out, jobs=args.jobs,
                                  dask=args.dask, progress=args.progress,
-                                 resamples=args.resamples, stats_seed=args.stats_seed)
+                                 resamples=args.resamples, stats_seed=args.stats_seed,
+                                 specs=opts["specs"])
     sys.stdout.write(markdown(comp, seeds_text(opts["seeds"])))
     if opts["json_path"] is not None:
         doc = to_json(comp)

@@ -79,18 +79,19 @@ def _read(path: str):
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.controllers import KINDS
+    from tspend.cli.main import controller_help
+    from tspend.controllers import load
     from tspend.studies.figures import Figures, box_figure, heatmap_figure, paper_figures
     from tspend.studies.stats import COMPARED_METRICS
 
+    if controller_help(args):
+        return 0
     out = Figures(Path(args.out), pdf=args.pdf, overwrite=args.overwrite)
     kinds = _kinds(args.controller)
     if args.figure == "paper":
         kinds = kinds or ["second_type", "first_type"]
-        bad = [k for k in kinds if k not in KINDS]
-        if bad:
-            raise ScenarioError(f"--controller {','.join(bad)}: unknown kind; allowed: "
-                                f"{', '.join(KINDS)}")
+        for kind in kinds:
+            load(kind)  # a built-in kind, file.py:Class or package.module:Class (exit 2 if not)
         if args.every < 1:
             raise ScenarioError(f"--every: must be >= 1, got {args.every}")
         if args.duration is not None and not args.duration > 0:

@@ -339,11 +339,33 @@ def print_metrics(metrics: dict, stream=None) -> None:
             print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
-def metrics_document(scn, end) -> dict:
-    """The metrics JSON: the figures, how the run ended, and what produced it."""
-    return dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
-                version=__version__, scenario_path=scn.path,
-                overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict:
+    """The metrics JSON: the figures, how the run ended, and what produced it.
+
+    ``controller``: the controller that ran; ``spec``: what ``--controller`` named (None:
+    the scenario's own).  ``controller`` records its kind, the spec and its settings.
+    """
+    doc = dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
+               version=__version__, scenario_path=scn.path,
+               overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+    if controller is not None:
+        from tspend.controllers import settings_of
+
+        kind = getattr(controller, "kind", "") or type(controller).__name__
+        paper = kind in ("second_type", "first_type") and spec is None
+        doc["controller"] = {"kind": kind, "spec": spec or kind,
+                             "settings": settings_of(scn, None if paper else kind)}
+    return doc
+
+
+def controller_help(args: argparse.Namespace) -> bool:
+    """``--controller help``: print every kind, one line each (the command then exits 0)."""
+    if getattr(args, "controller", None) != "help":
+        return False
+    from tspend.controllers import help_text
+
+    sys.stdout.write(help_text())
+    return True
 
 
 @contextmanager

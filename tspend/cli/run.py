@@ -8,7 +8,7 @@ import re
 
 from tspend import __version__
 from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_TERMINATED, Claimed,
-    add_scenario_options, check_model_size, check_viewer_url, load_with_overrides,
+    add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
     metrics_document, plan, print_metrics, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
 from tspend.errors import OutputError, ScenarioError
@@ -22,7 +22,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_scenario_options(r)
     r.add_argument("--controller", metavar="KIND",
                    help="run another controller kind on the scenario (default: the scenario's "
-                        "own; 'tspend run --controller help' lists the kinds)")
+                        "own), or your own: path/to/file.py:Class or package.module:Class; "
+                        "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
     return r
@@ -57,13 +58,15 @@ def close_sinks(rec, path) -> str:
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.controllers import KINDS
     from tspend.runtime.native_logs import mujoco_warnings_in_errors
 
+    if controller_help(args):
+        return EXIT_OK
+    if args.controller is not None:
+        from tspend.controllers import load
+
+        load(args.controller)  # before the scenario: it may carry the plug-in's table
     scn = load_with_overrides(args)
-    if args.controller is not None and args.controller not in KINDS:
-        raise ScenarioError(f"--controller {args.controller}: unknown kind; allowed: "
-                            f"{', '.join(KINDS)}")
     check_viewer_url(args.connect)
     check_model_size(scn)
     stem = f"{slug(scn.name)}"
@@ -101,7 +104,8 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
         problem = close_sinks(rec, recording.partial if recording else None)
     failures = [outs.complete(recording, problem)]
     if end is not None:
-        failures.append(outs.write_json(metrics_out, metrics_document(scn, end)))
+        failures.append(outs.write_json(metrics_out, metrics_document(
+            prepared.scenario, end, prepared.controller, args.controller)))
     failures = [f for f in failures if f]
 
     if end is not None:
@@ -113,7 +117,8 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
               f"(open with: rerun {printable(display(recording.target))})")
     if failures:
         if end is not None:  # the figures of a finished run are never lost
-            print(json.dumps(metrics_document(scn, end), indent=2))
+            print(json.dumps(metrics_document(prepared.scenario, end, prepared.controller,
+                                              args.controller), indent=2))
         raise OutputError("; ".join(failures) + "; the metrics are on stdout")
     if interrupted is not None:
         kept = [display(o.target) for o in (recording, metrics_out) if o is not None]

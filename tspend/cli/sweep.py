@@ -31,8 +31,9 @@ def add_parser(sub) -> None:
                    help="seeds A to B-1 (e.g. 0:20), or N, or N1,N2,... (default: the "
                         "scenario's seed)")
     p.add_argument("--controller", metavar="K1,K2,...",
-                   help="controller kinds to run (default: the scenario's own; "
-                        "'tspend run --controller help' lists them)")
+                   help="controller kinds to run (default: the scenario's own), or "
+                        "path/to/file.py:Class, package.module:Class; "
+                        "'--controller help' lists them")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key for every run, e.g. --set run.duration=10 (repeatable)")
     p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
@@ -104,8 +105,12 @@ def _stop_requests(args: argparse.Namespace):
 
 def cmd(args: argparse.Namespace) -> int:
     from tspend import __version__
+    from tspend.cli.main import controller_help
     from tspend.sweep import plan as sweep_plan, read_table, sweep
 
+    if controller_help(args):
+        return 0
+    sweep_plan.controller_list(args.controller)  # plug-ins first: scenarios may hold their tables
     scenarios = _scenarios(args)
     grid = sweep_plan.parse_grid(args.grid)
     seeds = sweep_plan.parse_seeds(args.seeds) if args.seeds is not None else None

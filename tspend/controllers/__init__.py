@@ -7,15 +7,29 @@ to compare them with, one module each (``pd``, ``lqr``, ``feedback_linearization
 scenario and the keyword options, and returns a controller that has not been reset yet.
 ``SETTINGS`` maps each baseline kind to its settings dataclass, read from the scenario's
 ``[controllers.KIND]`` table (:mod:`.settings`).
+
+A controller of one's own is named like a kind, by a spec (:func:`resolve`):
+``path/to/file.py:Class``, ``package.module:Class``, or the name an installed package
+registers under the entry-point group ``tspend.controllers``.  ``Class`` is a
+:class:`Controller` built as ``Class(scenario, settings)`` when it declares a ``Settings``
+dataclass (read from ``[controllers.<Class.kind>]``, see :mod:`.settings`), else as
+``Class(scenario)``; a function ``f(scenario) -> Controller`` works too.
+``examples/custom_controller.py`` and docs/writing-a-controller.md show one.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
-from typing import TYPE_CHECKING, Callable
+import dataclasses
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Callable
 
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
 from tspend.controllers.base import Controller, Diagnostic
+from tspend.controllers.settings import KindSettings
+from tspend.errors import ScenarioError
+from tspend.runtime import plugins
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -54,15 +68,218 @@ SETTINGS: dict[str, type] = {
 }
 
 
+
+#: the entry-point group of installed controller packages (``name = "module:Class"``)
+ENTRY_POINT_GROUP = "tspend.controllers"
+
+_PAPER_SUMMARY = {
+    "second_type": "the paper's controller: T-S consequents and B-spline membership "
+                   "functions adapt on-line (settings: [controller])",
+    "first_type": "the paper's controller with the membership functions fixed: consequents "
+                  "adapt (settings: [controller])",
+}
+
+
+@dataclass(frozen=True)
+class Kind:
+    """A controller kind, built in or a plug-in, as :func:`resolve` finds it."""
+
+    name: str                                  # what ``controller.kind`` records
+    build: Callable[["Scenario"], Controller]  # the scenario -> a controller, not reset
+    settings: type | None                      # its [controllers.NAME] dataclass, if any
+    summary: str                               # one line for ``--controller help``
+    source: str = ""                           # the spec it came from ("" if built in)
+
+
+def _summary(kind: str) -> str:
+    if kind in _PAPER_SUMMARY:
+        return _PAPER_SUMMARY[kind]
+    doc = (sys.modules[KINDS[kind].__module__].__doc__ or "").strip().splitlines()
+    return doc[0].split(": ", 1)[-1].rstrip(".") if doc else ""
+
+
+def _plugin_kind(obj: object, spec: str, option: str) -> Kind:
+    """The :class:`Kind` of a user's class or factory function."""
+    if isinstance(obj, type):
+        if not issubclass(obj, Controller):
+            raise ScenarioError(f"{option} {spec}: {obj.__name__} is not a Controller (subclass "
+                                f"tspend.controllers.base.Controller; see "
+                                f"docs/writing-a-controller.md)")
+        name = obj.kind or obj.__name__
+        settings = getattr(obj, "Settings", None)  # optional: a plug-in's own attribute
+        if settings is not None and not (dataclasses.is_dataclass(settings)
+                                         and issubclass(settings, KindSettings)):
+            raise ScenarioError(f"{option} {spec}: {obj.__name__}.Settings must be a dataclass "
+                                f"subclassing tspend.controllers.settings.KindSettings")
+        doc = (obj.__doc__ or "").strip().splitlines()
+        cls = obj
+
+        def build(scenario: "Scenario") -> Controller:
+            if settings is None:
+                return cls(scenario)
+            from tspend.controllers.settings import settings_for
+
+            return cls(scenario, settings_for(scenario, settings))
+    elif callable(obj):
+        name = getattr(obj, "kind", None) or getattr(obj, "__name__", "plugin")
+        settings = getattr(obj, "Settings", None)
+        doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
+        build = obj  # type: ignore[assignment]
+    else:
+        raise ScenarioError(f"{option} {spec}: is a {type(obj).__name__}, not a Controller "
+                            f"class or a function returning one")
+    if name in KINDS:
+        raise ScenarioError(f"{option} {spec}: its kind {name!r} is a built-in kind's name; "
+                            f"give the class another 'kind'")
+    return Kind(name, build, settings, doc[0] if doc else "", spec)
+
+
+def resolve(spec: str, option: str = "--controller") -> Kind:
+    """The kind ``spec`` names: a built-in kind, ``path/to/file.py:Class``,
+    ``package.module:Class`` or an installed ``tspend.controllers`` entry point.
+
+    Raises ScenarioError (one line) for anything else.
+    """
+    if spec in KINDS:
+        return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec))
+    if plugins.is_spec(spec):
+        return _plugin_kind(plugins.load_object(spec, option), spec, option)
+    obj = plugins.load_entry_point(ENTRY_POINT_GROUP, spec, option)
+    if obj is not None:
+        return _plugin_kind(obj, spec, option)
+    installed = plugins.entry_point_names(ENTRY_POINT_GROUP)
+    raise ScenarioError(f"{option} {spec}: unknown kind; allowed: {', '.join([*KINDS, *installed])}"
+                        f", or path/to/file.py:Class, or package.module:Class "
+                        f"('--controller help' lists them)")
+
+
+def available() -> list[Kind]:
+    """Every kind by name: the built-in ones, then those installed packages register."""
+    kinds = [resolve(k) for k in KINDS]
+    for name in plugins.entry_point_names(ENTRY_POINT_GROUP):
+        try:
+            found = resolve(name)
+            # listed by the name one types; the kind it reports, when another, in the line
+            summary = found.summary + (f" (kind {found.name})" if found.name != name else "")
+            kinds.append(replace(found, name=name, summary=summary))
+        except ScenarioError as exc:
+            kinds.append(Kind(name, lambda s: None, None, f"(cannot be loaded: {exc})"))  # type: ignore[arg-type, return-value]
+    return kinds
+
+
+def help_text() -> str:
+    """``--controller help``: one line per kind, and how to name one's own."""
+    kinds = available()
+    width = max(len(k.name) for k in kinds)
+    lines = [f"{k.name:<{width}}  {k.summary}" for k in kinds]
+    lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
+                 f" also package.module:Class)")
+    return "\n".join(lines) + "\n"
+
+
+def settings_class(name: str) -> type | None:
+    """The settings dataclass of the kind called ``name``, or None when no kind is.
+
+    Besides the built-in kinds: installed entry points, and the plug-ins this process has
+    loaded (so a plug-in named on the command line has its ``[controllers.NAME]`` table
+    and ``--set`` overrides validated like a built-in kind's).
+    """
+    if name in SETTINGS:
+        return SETTINGS[name]
+    if name in _LOADED:
+        return _LOADED[name]
+    if name in plugins.entry_point_names(ENTRY_POINT_GROUP):
+        return resolve(name, f"[controllers.{name}]").settings
+    return None
+
+
+class _KindSettingsView(Mapping):
+    """Kind name -> settings class, over :func:`settings_class` (for the scenario reader)."""
+
+    def __getitem__(self, name: str) -> type:
+        cls = settings_class(name)
+        if cls is None:
+            raise KeyError(name)
+        return cls
+
+    def __iter__(self):
+        return iter([*SETTINGS, *_LOADED])
+
+    def __len__(self) -> int:
+        return len(SETTINGS) + len(_LOADED)
+
+
+def settings_classes() -> Mapping[str, type]:
+    """Every kind's settings class by name, plug-ins included (see :func:`settings_class`);
+    what the scenario reader validates ``[controllers.KIND]`` tables against."""
+    return _KindSettingsView()
+
+
+#: plug-in kind name -> its settings dataclass, for plug-ins loaded by :func:`load`.  A
+#: cache of what this process imported (like ``sys.modules``), so the scenario reader
+#: can validate their tables; it changes no result.
+_LOADED: dict[str, type] = {}
+
+
+def load(spec: str, option: str = "--controller") -> Kind:
+    """:func:`resolve`, remembering a plug-in's settings class for the scenario reader.
+
+    Call it before the scenario is read when the scenario may carry the plug-in's table.
+    """
+    kind = resolve(spec, option)
+    if kind.source and kind.settings is not None:
+        _LOADED[kind.name] = kind.settings
+    return kind
+
+
+def settings_of(scenario: "Scenario", kind_name: str | None) -> dict[str, Any]:
+    """The settings the kind runs with, as plain values (for the metrics JSON)."""
+    from tspend.controllers.settings import settings_for
+
+    if kind_name is None or kind_name in _PAPER_SUMMARY:
+        cfg = scenario.controller
+        if kind_name is not None:
+            cfg = replace(cfg, adaptation="first" if kind_name == "first_type" else "second")
+        return _plain(dataclasses.asdict(cfg))
+    cls = settings_class(kind_name)
+    if cls is None:
+        return {}
+    return _plain(dataclasses.asdict(settings_for(scenario, cls)))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
+
 def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
-    """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller)."""
+    """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller).
+
+    ``kind`` is any spec :func:`resolve` accepts.
+    """
     if kind is None:
         return _paper(None)(scenario, **options)
+    found = load(kind)
+    if not found.source:
+        return found.build(scenario, **options)
     try:
-        builder = KINDS[kind]
-    except KeyError:
-        raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}") from None
-    return builder(scenario, **options)
+        ctrl = found.build(scenario, **options)
+    except ScenarioError:
+        raise
+    except Exception as exc:  # the user's code: one line, exit 2, nothing written yet
+        raise ScenarioError(f"--controller {kind}: building it failed: {type(exc).__name__}: "
+                            f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    if not isinstance(ctrl, Controller):
+        raise ScenarioError(f"--controller {kind}: built a {type(ctrl).__name__}, not a "
+                            f"Controller (see docs/writing-a-controller.md)")
+    return ctrl
 
 
-__all__ = ["KINDS", "SETTINGS", "Controller", "Diagnostic", "build"]
+__all__ = ["KINDS", "SETTINGS", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
+           "available", "build", "help_text", "load", "resolve", "settings_class",
+           "settings_classes", "settings_of"]

@@ -127,11 +127,27 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
-    def to_pandas(self):
-        """The time series as a pandas DataFrame indexed by time (see :mod:`tspend.studies.timeseries`)."""
-        from tspend.studies.timeseries import history_frame
+    def to_pandas(self, units: bool = True):
+        """The time series as a pandas DataFrame indexed by time, ``[unit]`` in the column
+        names (``units=False``: the recording's plain names; :mod:`tspend.studies.timeseries`)."""
+        from tspend.studies.timeseries import history_frame, with_units
 
-        return history_frame(self.history, self.controller.diagnostics)
+        frame = history_frame(self.history, self.controller.diagnostics)
+        if not units:
+            return frame
+        units = dict(zip(self.plant.state_names, self.plant.state_units))
+        view = scenario_task(self.scenario, self.plant).view
+        # the ODE backends name no actuator: the domain's label carries u's unit
+        control = (self.plant.inputs[0].unit
+                   or plant_registry.domain_of(self.scenario.plant.kind).labels.control.unit)
+        return with_units(frame, [units[v] for v in view], control, self.controller.diagnostics)
+
+    def plot(self, every: int = 1):
+        """The run in the paper's panels (states against references, then u): a matplotlib
+        Figure (needs the ``plot`` extra)."""
+        from tspend.studies.figures import run_figure
+
+        return run_figure(self, every)
 
 
 def scenario_task(scenario: Scenario, plant: Plant) -> Task:

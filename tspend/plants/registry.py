@@ -4,6 +4,9 @@ Each domain lives in its own module under ``tspend/plants/`` (:mod:`.cartpole`,
 :mod:`.furuta`, the paper's chains in :mod:`.analytic`) and declares its plant kinds,
 each with its configuration class and builder (:class:`~tspend.plants.domain.Domain`).
 A new domain is one module and one entry in :data:`DOMAINS`; nothing else names it.
+An installed package adds domains without touching tspend: it registers a
+:class:`~tspend.plants.domain.Domain` (an instance or a class) under the entry-point
+group ``tspend.plants`` (:func:`installed_domains`).
 """
 
 from __future__ import annotations
@@ -25,9 +28,45 @@ if TYPE_CHECKING:
 __all__ = ["DOMAINS", "PLANT_KINDS", "PlantKind", "build", "domain_of", "drawing", "reset",
            "resolve_model_path"]
 
-#: domain name -> domain
-DOMAINS: dict[str, Domain] = {d.name: d for d in (*analytic.DOMAINS, cartpole.DOMAIN,
-                                                    furuta.DOMAIN)}
+#: the entry-point group of installed plant domains (``name = "package.module:DOMAIN"``)
+ENTRY_POINT_GROUP = "tspend.plants"
+
+
+def installed_domains(builtin: tuple[Domain, ...]) -> tuple[Domain, ...]:
+    """The domains installed packages register under ``tspend.plants``.
+
+    A broken or clashing one is left out with a one-line warning, so that one bad package
+    cannot stop every command.
+    """
+    import warnings
+
+    from tspend.errors import ScenarioError
+    from tspend.runtime import plugins
+
+    taken = {kind for d in builtin for kind in d.kinds} | {d.name for d in builtin}
+    found: list[Domain] = []
+    for name in plugins.entry_point_names(ENTRY_POINT_GROUP):
+        try:
+            obj = plugins.load_entry_point(ENTRY_POINT_GROUP, name, f"[{ENTRY_POINT_GROUP}]")
+            domain = obj() if isinstance(obj, type) and issubclass(obj, Domain) else obj
+            if not isinstance(domain, Domain):
+                raise ScenarioError(f"[{ENTRY_POINT_GROUP}] {name}: a {type(obj).__name__}, "
+                                    f"not a tspend.plants.domain.Domain")
+            clash = sorted(({domain.name} | set(domain.kinds)) & taken)
+            if clash:
+                raise ScenarioError(f"[{ENTRY_POINT_GROUP}] {name}: {', '.join(clash)} already "
+                                    f"taken")
+        except ScenarioError as exc:
+            warnings.warn(f"plant plug-in left out: {exc}", stacklevel=2)
+            continue
+        taken |= {domain.name} | set(domain.kinds)
+        found.append(domain)
+    return tuple(found)
+
+
+_BUILTIN: tuple[Domain, ...] = (*analytic.DOMAINS, cartpole.DOMAIN, furuta.DOMAIN)
+#: domain name -> domain (the built-in ones, then the installed ones)
+DOMAINS: dict[str, Domain] = {d.name: d for d in (*_BUILTIN, *installed_domains(_BUILTIN))}
 
 
 @dataclass(frozen=True)

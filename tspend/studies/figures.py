@@ -174,6 +174,34 @@ def tracking_figure(fig_out: Figures, runs: dict, name: str, title: str, every: 
     return fig_out.save(fig, data, name)
 
 
+def run_figure(result, every: int = 1):
+    """One run in the paper's panels: each state of the task's view against its
+    reference (x1 and r, x2 and r', ...), then the control u; a matplotlib Figure
+    (``RunResult.plot()``)."""
+    h = result.history
+    if not h:
+        raise ValueError("the run kept no history (run it with keep_history=True)")
+    n = h["x"].shape[1]
+    labels, u_label = state_units(result.scenario.plant.kind, n)
+    kind = getattr(result.controller, "kind", "")
+    keep = slice(None, None, max(1, int(every)))
+    t = h["t"][keep]
+    fig, axes = new_figure(n + 1, 1, (6.4, 1.6 * (n + 1) + 0.6))
+    colour = kind_colour(kind) if kind else PALETTE[0]
+    for i in range(n):
+        ax = axes[i, 0]
+        ref = "r" + "'" * i
+        ax.plot(t, h["ref"][keep, i], color="0.35", lw=1.0, ls=":", label=f"reference {ref}")
+        ax.plot(t, h["x"][keep, i], color=colour, label=_kind_label(kind or "x", result))
+        ax.set_ylabel(labels[i] if i < len(labels) else f"x{i + 1}")
+    axes[0, 0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, fontsize=7)
+    axes[n, 0].plot(t, h["u"][keep], color=colour, lw=0.5)
+    axes[n, 0].set_ylabel(u_label)
+    axes[n, 0].set_xlabel("t [s]")
+    fig.suptitle(f"{result.scenario.name}, {kind}, seed {result.scenario.run.seed}")
+    return fig
+
+
 def _kind_label(kind: str, res) -> str:
     return kind if res.status == "completed" else f"{kind} ({res.status})"
 
@@ -433,8 +461,9 @@ def paper_runs(scenario_name: str, kinds: Sequence[str], seed: int | None = None
                duration: float | None = None, capture_sets: bool = False):
     """Run one paper case with each kind at one seed: ({kind: RunResult}, SetsCapture of
     the first kind or None)."""
+    # through the package's facade: RunResult.plot() draws with this module
+    from tspend import run
     from tspend.scenario import load_scenario, override
-    from tspend.loop.simulation import run
 
     changes = {}
     if seed is not None:

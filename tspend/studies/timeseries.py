@@ -61,6 +61,32 @@ def history_frame(history: dict[str, np.ndarray], diagnostics: Sequence[Diagnost
     return pd.DataFrame(dict(zip(_unique(names, sources), columns)), index=index)
 
 
+def _derivative_unit(unit: str, k: int) -> str:
+    if not unit or k == 0:
+        return unit
+    return f"{unit}/s" if k == 1 else f"{unit}/s^{k}"
+
+
+def with_units(frame, state_units: Sequence[str], control_unit: str,
+               diagnostics: Sequence[Diagnostic] = ()):
+    """``frame`` (of :func:`history_frame`) with ``[unit]`` after every column name that has
+    one, and the index named ``t [s]``.  The reference's derivative ``r_dk`` has the unit
+    of the k-th state (``r`` of the first), ``d`` that of the last state's derivative."""
+    n = len(state_units)
+    units: dict[str, str] = {"u": control_unit, "r": state_units[0] if n else "",
+                             "d": _derivative_unit(state_units[0], n) if n else ""}
+    for i, unit in enumerate(state_units):
+        units[f"x{i + 1}"] = units[f"e_{i + 1}"] = unit
+    for k in range(1, n + 1):
+        units[f"r_d{k}"] = _derivative_unit(state_units[0], k) if state_units else ""
+    for diag in diagnostics:
+        for label in diag.column_labels:
+            units.setdefault(label, diag.unit)
+    out = frame.rename(columns=lambda c: f"{c} [{units[c]}]" if units.get(c) else c)
+    out.index = out.index.rename("t [s]")
+    return out
+
+
 def recording_frame(path: str | os.PathLike[str]):
     """Every scalar series of the recording at ``path`` (``series/...`` entities and any
     other ``Scalars``), joined on ``sim_time``; a time an entity lacks is NaN."""

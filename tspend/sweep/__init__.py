@@ -15,7 +15,8 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
 ``seeds``
     an int, an iterable of ints, or ``"A:B"`` (A to B-1); ``None``: the scenario's seed.
 ``controllers``
-    controller kinds of :data:`tspend.controllers.KINDS` (a list, or ``"k1,k2"``);
+    controller kinds of :data:`tspend.controllers.KINDS` or plug-in specs
+    (``file.py:Class``, ``package.module:Class``; a list, or ``"k1,k2"``);
     ``None``: the scenario's own controller.
 ``jobs``, ``dask``
     ``jobs`` worker processes on this machine (default: one per core), or a Dask

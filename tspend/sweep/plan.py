@@ -139,19 +139,18 @@ def _seed_list(seeds: int | Iterable[int] | None) -> list[int] | None:
     return out
 
 
-def _controller_list(controllers: str | Iterable[str] | None) -> list[str | None]:
-    from tspend.controllers import KINDS
+def controller_list(controllers: str | Iterable[str] | None) -> list[tuple[str | None, str | None]]:
+    """(what run() is asked for, the kind the row names) per controller: a plug-in spec
+    ``file.py:Class`` runs as itself and is named by its kind."""
+    from tspend.controllers import load
 
     if controllers is None:
-        return [None]
+        return [(None, None)]
     kinds = [c.strip() for c in controllers.split(",")] if isinstance(controllers, str) \
         else list(controllers)
-    for kind in kinds:
-        if kind not in KINDS:
-            raise ScenarioError(f"--controller {kind}: unknown kind; allowed: {', '.join(KINDS)}")
     if not kinds:
         raise ScenarioError("--controller: no kind given")
-    return list(dict.fromkeys(kinds))
+    return [(spec, load(spec).name) for spec in dict.fromkeys(kinds)]
 
 
 def resolve_scenarios(scenarios: Any) -> list[Scenario]:
@@ -201,7 +200,7 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
         if not grid[key]:
             raise ScenarioError(f"grid {key}: no values")
     seed_list = _seed_list(seeds)
-    kinds = _controller_list(controllers)
+    kinds = controller_list(controllers)
     keys = list(grid)
     cwd = os.getcwd()
     jobs: list[Job] = []
@@ -216,8 +215,8 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
                 raise ScenarioError(f"--grid: {exc}") from None
             columns = tuple((k, column_value(v)) for k, v in changes.items())
             for seed in seed_list if seed_list is not None else [base.run.seed]:
-                for kind in kinds:
-                    label_kind = kind if kind is not None else own_kind(base)
+                for kind, name in kinds:
+                    label_kind = name if name is not None else own_kind(base)
                     key = row_key(base.name, columns, seed, label_kind)
                     if key in seen:
                         continue

@@ -27,8 +27,11 @@ METRIC_COLUMNS = tuple(k for k in METRIC_KEYS if k != "seed")
 
 def _seeded(job: Job):
     """The job's scenario with its seed (applied here, in parallel, not in the parent)."""
+    from tspend.controllers import load
     from tspend.scenario import override
 
+    if job.run_kind is not None:
+        load(job.run_kind)  # a plug-in's [controllers.KIND] table is then known here too
     if job.seed == job.scenario.run.seed:
         return job.scenario
     return override(job.scenario, **{"run.seed": job.seed})

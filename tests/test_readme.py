@@ -1,0 +1,99 @@
+"""The README is a short front page whose every command works.
+
+Each ``tspend`` line of the README and of docs/reference/cli.md is checked against the
+command's parser; the README's are then run, in order, in a scratch directory, with
+short durations and few seeds (the only edits: ``--duration``, ``--seeds``, ``--jobs``,
+``--resamples``), and its Python blocks are executed as they are.  The quick-start
+commands are the two the project promises, and ``.ci/run`` runs the second.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from cli_harness import ROOT
+from tspend.cli.main import build_parser, main
+
+README = ROOT / "README.md"
+QUICK_START = (
+    "python3 -m venv .venv && .venv/bin/pip install -e . && .venv/bin/tspend run",
+    "python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && "
+    ".venv/bin/python -m pytest -q",
+)
+#: how each command is shortened: options appended (the last of a repeated option wins)
+SHORT = {
+    "run": ["--duration", "0.3"],
+    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.3"],
+    "sweep": ["--duration", "0.3", "--jobs", "1"],
+    "compare": ["--duration", "0.3", "--jobs", "1", "--resamples", "100"],
+    "figures": ["--duration", "0.3"],
+}
+
+
+def blocks(path: Path, language: str = "") -> list[str]:
+    """The fenced code blocks of ``path`` in ``language`` ("" = none given)."""
+    text = path.read_text()
+    return re.findall(rf"^```{language}\n(.*?)^```", text, flags=re.S | re.M)
+
+
+def tspend_lines(path: Path) -> list[list[str]]:
+    """Every ``tspend ...`` line of the plain code blocks, as argv (comments dropped)."""
+    out = []
+    for block in blocks(path):
+        for line in block.splitlines():
+            if line.startswith("tspend "):
+                out.append(shlex.split(line, comments=True)[1:])
+    return out
+
+
+def test_readme_is_short_and_keeps_the_quick_start() -> None:
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    assert [b.strip() for b in blocks(README)[:2]] == list(QUICK_START)
+    assert QUICK_START[1] in (ROOT / ".ci" / "run").read_text()
+
+
+def test_readme_links_and_pictures_exist() -> None:
+    targets = re.findall(r"\]\(([^)#]+)\)", README.read_text())
+    assert any(t.startswith("docs/img/") for t in targets)
+    assert any(t.startswith("docs/results/figures/") for t in targets)
+    missing = [t for t in targets if not t.startswith("http") and not (ROOT / t).exists()]
+    assert not missing, missing
+
+
+@pytest.mark.parametrize("doc", ["README.md", "docs/reference/cli.md"])
+def test_every_command_parses(doc: str) -> None:
+    lines = tspend_lines(ROOT / doc)
+    assert len(lines) >= 8
+    parser = build_parser()
+    for argv in lines:
+        parser.parse_args(argv)  # a bad option raises UsageError
+
+
+def shortened(argv: list[str]) -> list[str]:
+    argv = ["0:2" if prev == "--seeds" else a for prev, a in zip([""] + argv, argv)]
+    return argv + SHORT.get(argv[0], [])
+
+
+def test_readme_commands_run(tmp_path: Path, monkeypatch, capsys) -> None:
+    for name in ("examples", "models"):
+        os.symlink(ROOT / name, tmp_path / name)
+    monkeypatch.chdir(tmp_path)
+    for argv in tspend_lines(README):
+        status = main(shortened(argv))
+        err = capsys.readouterr().err
+        assert status == 0, (argv, err)
+    assert (tmp_path / "m.json").exists() and (tmp_path / "duffing.csv").exists()
+
+
+def test_readme_python_runs(tmp_path: Path, monkeypatch) -> None:
+    pytest.importorskip("matplotlib")
+    monkeypatch.chdir(tmp_path)
+    for block in blocks(README, "python"):
+        namespace: dict = {"__name__": "readme"}
+        exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own README
