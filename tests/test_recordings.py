@@ -145,9 +145,10 @@ def test_layout_follows_the_declared_diagnostics() -> None:
     specs = {s.entity: s for s in series_specs(2, ("cart_pos",), diags, "cartpole_ode")}
     assert specs["series/sliding"].minmax and specs["series/sliding"].names == ("s",)
     assert specs["series/sliding_log10"].names == ("log10 gain_1", "log10 gain_2")
-    assert specs["series/tracking"].names == ("r", "theta") and "rad" in specs["series/tracking"].title
+    assert specs["series/tracking"].names == ("r (rad)", "theta (rad)") and "rad" in specs["series/tracking"].title
     assert "N" in specs["series/control"].title and specs["series/control"].minmax
     assert specs["series/plant/cart_pos"].title == "cart position x_c (m)"
+    assert specs["series/plant/cart_pos"].names == ("x_c (m)",)
 
 
 def test_recorder_reachable_from_the_package() -> None:
