@@ -70,8 +70,9 @@ def series_view(name: str, contents: Sequence[str], duration: float, legend: Seq
 
 
 def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
-    """``"model: x_o1 = theta (rad)"``: short enough for a view a third of the screen wide
-    (the axis under the curves gives the interval)."""
+    """``"x_o1 = theta (rad)"`` (the model's), ``"comp.: e_delta"`` (the compensator's):
+    short enough for a view a fifth of the screen wide (the axis under the curves gives
+    the interval; the tab's name says faint curves are the initial ones)."""
     labels = plant_labels(info.plant_kind, info.order)
     quantity = None
     if inp.name.startswith("x_o") and inp.name[3:].isdigit() and int(inp.name[3:]) <= len(labels.states):
@@ -79,7 +80,7 @@ def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
     elif inp.name == "u_o":
         quantity = labels.control
     meaning = f" = {quantity.with_unit()}" if quantity is not None and quantity.symbol != inp.name else ""
-    return f"{group}: {inp.name}{meaning}"
+    return f"{inp.name}{meaning}" if group == "model" else f"comp.: {inp.name}{meaning}"
 
 
 def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list[rrb.View], list[rrb.View]]:
@@ -171,7 +172,7 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
         bmf_views += bmf
         firing_views += firing
         doc_views += document_views(p, sfx)
-    fuzzy_tabs = [rrb.Grid(*bmf_views, grid_columns=2, name="membership functions"),
+    fuzzy_tabs = [rrb.Grid(*bmf_views, grid_columns=2, name="membership functions (faint: initial)"),
                   rrb.Grid(*firing_views, grid_columns=2, name="firing and consequents")] if bmf_views else []
     tabs = rrb.Tabs(*fuzzy_tabs, rrb.Tabs(*doc_views, name="run info"))
     left: list[rrb.Container | rrb.View] = []

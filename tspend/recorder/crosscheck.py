@@ -246,7 +246,7 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
             overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE", both(key),
                                   info.duration, names(key))
         states += [overlay, series_view(
-            f"log10 |MuJoCo - ODE| of {q.with_unit()}, floor {DIFF_FLOOR:g}",
+            f"log10 |MuJoCo - ODE|, {q.with_unit()}",
             ["/" + log10_diff_entity(key)], info.duration, None, y_range=LOG10_RANGE)]
     control = [series_view("control u (N): MuJoCo and ODE", both("u"), info.duration, names("u"))]
     try:

@@ -210,8 +210,8 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
         if key == "error" and labels.states:
             # the number the paper is about: the error once the transient is over, on its own scale
             specs.append(SeriesSpec(
-                "series/error_steady", f"steady-state error {_error_name(s0, 0)}, t >= {STEADY_FROM:g} T "
-                f"(the rmse_ss window){_unit_suffix([s0.unit])}", (e_names[0],), (PALETTE[0],),
+                "series/error_steady", f"steady-state error {_error_name(s0, 0)}{_unit_suffix([s0.unit])}, "
+                f"t >= {STEADY_FROM:g} T", (e_names[0],), (PALETTE[0],),
                 _stack(_col("e", 0)), keys=("e_1_steady",), steady=True))
     # the compensator's share of u right after u
     shares = [i for i, spec in enumerate(specs) if spec.entity == "series/compensator_share"]
