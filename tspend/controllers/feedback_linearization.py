@@ -36,16 +36,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.paper.control_law import is_hurwitz
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import PlantModel, plant_model
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class FeedbackLinearizationSettings:
+class FeedbackLinearizationSettings(KindSettings):
     """``[controllers.feedback_linearization]``."""
 
     lam: tuple[float, ...] | None = setting(
@@ -99,7 +99,7 @@ def solve_for_u(model: PlantModel, t: float, x: np.ndarray, v: float, u0: float,
                        f"(residual {res:.3g})")
 
 
-class FeedbackLinearizationController:
+class FeedbackLinearizationController(Controller):
     """The ``feedback_linearization`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "feedback_linearization"
@@ -125,7 +125,8 @@ class FeedbackLinearizationController:
         self.k = 0
         self.u_prev = self.model.u_op
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         t = self.k * dt
         self.k += 1
@@ -146,6 +147,6 @@ class FeedbackLinearizationController:
 
 
 def build(scenario: "Scenario") -> FeedbackLinearizationController:
-    s: FeedbackLinearizationSettings = settings_for(scenario, "feedback_linearization")
+    s: FeedbackLinearizationSettings = settings_for(scenario, FeedbackLinearizationSettings)
     lam = np.asarray(s.lam if s.lam is not None else scenario.controller.lam)
     return FeedbackLinearizationController(plant_model(scenario), lam, s.tol, s.max_iter)

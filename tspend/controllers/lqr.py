@@ -32,16 +32,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class LQRSettings:
+class LQRSettings(KindSettings):
     """``[controllers.lqr]``."""
 
     Q: tuple[tuple[float, ...], ...] | None = setting(
@@ -62,7 +62,7 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float) -> tuple[np.
     return (B.T @ P) / R, P
 
 
-class LQRController:
+class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "lqr"
@@ -90,7 +90,8 @@ class LQRController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         r = ref[:n]
         e = x - r
@@ -105,7 +106,7 @@ class LQRController:
 
 
 def build(scenario: "Scenario") -> LQRController:
-    s: LQRSettings = settings_for(scenario, "lqr")
+    s: LQRSettings = settings_for(scenario, LQRSettings)
     model = plant_model(scenario)
     A, B = model.state_space()
     b = float(B[-1, 0])

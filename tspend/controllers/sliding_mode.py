@@ -20,7 +20,8 @@ Defaults (:class:`SlidingModeSettings`):
 
 * ``c``: Slotine's ``s = (d/dt + surface_pole)^(n-1) e``, ``surface_pole = 5 rad/s``,
   five times the references' frequency;
-* ``k`` by plant, a margin over ``|Delta|`` on the paper's operating regions:
+* ``k`` by plant domain (``PlantModel.switching_gain``, the domain says why), a margin
+  over ``|Delta|`` on the paper's operating regions:
   Example 1 ``2`` (disturbance 0.1 plus the input gain's variation away from the
   origin), Duffing ``20`` (``12 cos t`` and ``x1^3`` with ``|x1| <= 1.5`` are outside the
   linear model: about 15.5), the cart-pole ``0.5 rad/s^2`` (the disturbance is ``0.05 /
@@ -39,23 +40,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import finite_or, setting, settings_for
+from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
-#: switching gain k by plant kind (see the module docstring for the reasons)
-DEFAULT_SWITCHING_GAIN = {"nonaffine": 2.0, "duffing": 20.0, "cartpole_ode": 0.5,
-                          "cartpole_mujoco": 0.5, "third_order": 2.0}
 #: phi = k / LAYER_RATE when phi is not given
 LAYER_RATE = 50.0
 
 
 @dataclass(frozen=True)
-class SlidingModeSettings:
+class SlidingModeSettings(KindSettings):
     """``[controllers.sliding_mode]``."""
 
     c: tuple[float, ...] | None = setting(
@@ -81,7 +79,7 @@ def sat(z: float) -> float:
     return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
 
 
-class SlidingModeController:
+class SlidingModeController(Controller):
     """The ``sliding_mode`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "sliding_mode"
@@ -108,7 +106,8 @@ class SlidingModeController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         e = x - ref[:n]
         s = float(self.c @ e)
@@ -124,12 +123,12 @@ class SlidingModeController:
 
 
 def build(scenario: "Scenario") -> SlidingModeController:
-    st: SlidingModeSettings = settings_for(scenario, "sliding_mode")
+    st: SlidingModeSettings = settings_for(scenario, SlidingModeSettings)
     model = plant_model(scenario)
     n = model.order
     a, b = model.linearisation()
     c = np.asarray(st.c) if st.c is not None else gains_from_poles(n - 1, st.surface_pole)
-    k = finite_or(st.k, DEFAULT_SWITCHING_GAIN[model.name])
+    k = finite_or(st.k, model.switching_gain)
     phi = finite_or(st.phi, k / LAYER_RATE)
     if st.nominal == "none":
         a = np.zeros(n)
