@@ -37,6 +37,7 @@ def test_paper_figures_match_independent_runs(tmp_path):
     for png in pngs:
         assert_png(png)
         assert png.with_suffix(".csv").stat().st_size > 0
+        assert png.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"
     # the same runs again, independently: the CSVs hold exactly their arrays
     scn = override(load_scenario("ex2_duffing"), **{"run.seed": 2, "run.duration": 0.5})
     capture = figures.SetsCapture()
@@ -60,7 +61,9 @@ def test_paper_figures_match_independent_runs(tmp_path):
     np.testing.assert_array_equal(x_o2["mu_first"], capture.first.model_sets[1][1][1])
     e1 = read_csv(tmp_path / "ex1_nonaffine_case1_tracking.csv")
     assert list(e1.columns) == ["t", "r", "r_dot", "x1_second_type", "x2_second_type",
-                                "x1_first_type", "x2_first_type"]
+                                "x1_first_type", "x2_first_type", "abs_e1_second_type",
+                                "abs_e1_first_type"]
+    np.testing.assert_array_equal(track["abs_e1_first_type"], np.abs(h1["x"][::10, 0] - h2["ref"][::10, 0]))
 
 
 def sweep_table():
@@ -120,3 +123,44 @@ def test_cli_figures_never_replaces_a_file(tmp_path, capsys):
     assert main(["figures", "heatmap", str(path), "--x", "controller.gamma", "--y", "nope",
                  "--out", str(tmp_path / "g")]) == 2
     assert main(["figures", "box", str(path), "--metrics", "speed"]) == 2
+
+
+def test_box_plot_fits_a_paper_column_and_counts_runs_that_are_not_data(tmp_path, monkeypatch):
+    """Issue 24: 3.5 in wide, every text >= 8 pt (read from the matplotlib figure); runs
+    that diverged or fell are markers in the band above the axes, not points among the
+    data; PNG, PDF and CSV written, the CSV's plotted rows being exactly what is drawn."""
+    from matplotlib.collections import PathCollection
+    from matplotlib.text import Text
+
+    t = sweep_table()
+    one = t[(t["controller.eta"] == 0.1) & (t["controller.gamma"] == 2.0)].drop(
+        columns=["controller.eta", "controller.gamma"]).reset_index(drop=True)
+    one.loc[0, "status"] = "fell"          # a second_type run that ended early: not data
+    kept = {}
+    save = figures.Figures.save
+
+    def keep(self, fig, data, name):
+        kept["fig"] = fig
+        return save(self, fig, data, name)
+
+    monkeypatch.setattr(figures.Figures, "save", keep)
+    png = figures.box_figure(figures.Figures(tmp_path), one, "rmse_ss", "box")
+    for suffix, magic in ((".png", PNG_MAGIC), (".pdf", b"%PDF-")):
+        assert png.with_suffix(suffix).read_bytes()[:len(magic)] == magic
+    assert not list(tmp_path.glob("*partial*"))
+    fig = kept["fig"]
+    assert fig.get_size_inches()[0] == pytest.approx(figures.COLUMN_WIDTH_IN)
+    texts = [x for x in fig.findobj(Text) if x.get_visible() and x.get_text().strip()]
+    assert texts and min(x.get_fontsize() for x in texts) >= 8.0
+    box = read_csv(tmp_path / "box.csv")
+    ax = fig.axes[0]
+    # the points drawn inside the axes are exactly the CSV's plotted rows
+    drawn = np.concatenate([c.get_offsets()[:, 1] for c in ax.collections
+                            if isinstance(c, PathCollection) and c.get_offset_transform() == ax.transData])
+    plotted = box[box["plotted"]]
+    np.testing.assert_array_equal(np.sort(drawn), np.sort(plotted["value"].to_numpy()))
+    assert set(box.loc[~box["plotted"], "status"]) == {"fell", "diverged"}
+    assert "fell" not in set(plotted["status"]) and np.isfinite(plotted["value"]).all()
+    # the counts are written beside their markers
+    counts = [x.get_text() for x in ax.texts]
+    assert counts.count("1") == 2

@@ -145,9 +145,10 @@ def test_layout_follows_the_declared_diagnostics() -> None:
     specs = {s.entity: s for s in series_specs(2, ("cart_pos",), diags, "cartpole_ode")}
     assert specs["series/sliding"].minmax and specs["series/sliding"].names == ("s",)
     assert specs["series/sliding_log10"].names == ("log10 gain_1", "log10 gain_2")
-    assert specs["series/tracking"].names == ("r", "theta") and "rad" in specs["series/tracking"].title
+    assert specs["series/tracking"].names == ("r (rad)", "theta (rad)") and "rad" in specs["series/tracking"].title
     assert "N" in specs["series/control"].title and specs["series/control"].minmax
     assert specs["series/plant/cart_pos"].title == "cart position x_c (m)"
+    assert specs["series/plant/cart_pos"].names == ("x_c (m)",)
 
 
 def test_recorder_reachable_from_the_package() -> None:
@@ -178,3 +179,57 @@ def test_tensor_columns_match_the_sdk_or_fail_clearly(monkeypatch) -> None:
         arrow.check_tensor_type()
     monkeypatch.undo()
     arrow.check_tensor_type.cache_clear()
+
+
+def _entities(rrd: Path) -> set[str]:
+    return {chunk.entity_path for chunk in RrdReader(rrd).stream().to_chunks()}
+
+
+def test_initial_membership_functions_beside_the_adapted_ones(default_run: Path) -> None:
+    """Issue 24: every input's first curves under /fuzzy/.../initial, equal to the first
+    curves the run sent (read back), so adaptation shows as a distance between two sets."""
+    initial = sorted(e for e in _entities(default_run) if e.startswith("/fuzzy/") and "initial" in e)
+    assert "/fuzzy/model/in0/initial" in initial and "/fuzzy/compensator/in0/initial" in initial
+    first = None
+    for chunk in RrdReader(default_run).stream().to_chunks():
+        if chunk.entity_path == "/fuzzy/model/in0" and "sim_time" in chunk.timeline_names:
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+            if "LineStrips2D:strips" in names:
+                first = batch.column(names.index("LineStrips2D:strips")).to_pylist()[0]
+                break
+    stored = static_components(default_run)["/fuzzy/model/in0/initial"]["LineStrips2D:strips"][0]
+    assert first is not None and len(stored) == len(first)
+    np.testing.assert_array_equal(np.asarray(stored, dtype=float), np.asarray(first, dtype=float))
+
+
+def test_crosscheck_differences_on_a_log10_scale(crosscheck_run) -> None:
+    """Issue 24: under /crosscheck/ a log10 |MuJoCo - ODE| per state, floored at 1e-16,
+    equal to log10 of the signed difference read back."""
+    from tspend.recorder.crosscheck import DIFF_FLOOR, log10_diff_entity
+
+    rrd, _ = crosscheck_run
+    logs = {e for e in _entities(rrd) if e.startswith("/crosscheck/") and "log10" in e}
+    assert {"/" + log10_diff_entity(k) for k in ("x1", "x2", "cart_pos")} <= logs
+    for key in ("x1", "x2", "cart_pos"):
+        t_log, log_d = read_scalar_series(rrd, log10_diff_entity(key))
+        t, d = read_scalar_series(rrd, diff_entity(key))
+        np.testing.assert_array_equal(t_log, t)
+        np.testing.assert_allclose(log_d, np.log10(np.maximum(np.abs(d), DIFF_FLOOR)), rtol=0, atol=1e-12)
+        assert log_d.min() >= np.log10(DIFF_FLOOR)
+
+
+def test_steady_state_and_compensator_share_series(default_run: Path) -> None:
+    """The steady-state view holds e_1 from T/2 on only; the compensator's share of u is
+    -u_s / b_hat of the recorded series (u's unit), not u_s itself."""
+    diags = paper_diagnostics(2)
+    specs = {s.entity: s for s in series_specs(2, ("cart_pos", "cart_vel"), diags, "cartpole_mujoco")}
+    t_ss, e_ss = read_scalar_series(default_run, "series/error_steady")
+    t, e1 = read_scalar_series(default_run, "series/error", 0)
+    assert t_ss[0] >= 0.5 * 1.0 - 1e-9 and t_ss.size < t.size
+    np.testing.assert_array_equal(e_ss, e1[-t_ss.size:])
+    _, share = read_scalar_series(default_run, "series/compensator_share")
+    _, u_s = read_scalar_series(default_run, "series/compensator")
+    _, b_hat = read_scalar_series(default_run, "series/params", 2)
+    np.testing.assert_allclose(share, -u_s / b_hat, rtol=1e-12)
+    assert "(N)" in specs["series/compensator_share"].title and "N" not in specs["series/compensator"].title

@@ -1,5 +1,5 @@
 """``tspend figures``: the paper's figures redrawn from runs, box plots of a comparison
-and heat maps of a two-key sweep, as PNG (PDF with ``--pdf``) with their data as CSV.
+and heat maps of a two-key sweep, as PNG and PDF with their data as CSV.
 
     tspend figures paper [--seed N] [--duration S] [--controller K1,K2]
     tspend figures box RUNS.parquet [--metrics M1,M2] [--controller K1,K2]
@@ -19,9 +19,9 @@ from tspend.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("figures", help="draw figures (PNG/PDF + CSV) from runs or "
+    p = subparsers.add_parser("figures", help="draw figures (PNG, PDF and CSV) from runs or "
                               "a sweep table (needs the [plot] extra)",
-                              description="Figures as PNG (PDF with --pdf) with their data "
+                              description="Figures as PNG and PDF with their data "
                                           "as CSV: the paper's, box plots of a comparison, "
                                           "heat maps of a two-key sweep.")
     sub = p.add_subparsers(dest="figure", required=True)
@@ -29,7 +29,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     def common(q):
         q.add_argument("--out", default="figures", metavar="DIR",
                        help="directory for the files (default: figures)")
-        q.add_argument("--pdf", action="store_true", help="also write PDF")
+        q.add_argument("--pdf", action="store_true", help="(PDF is always written; kept for old scripts)")
         q.add_argument("--overwrite", action="store_true", help="replace existing files")
         q.add_argument("--controller", metavar="K1,K2,...", help="controller kinds to draw")
         q.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -86,7 +86,7 @@ def cmd(args: argparse.Namespace) -> int:
 
     if controller_help(args):
         return 0
-    out = Figures(Path(args.out), pdf=args.pdf, overwrite=args.overwrite)
+    out = Figures(Path(args.out), overwrite=args.overwrite)
     kinds = _kinds(args.controller)
     if args.figure == "paper":
         kinds = kinds or ["second_type", "first_type"]

@@ -7,14 +7,18 @@ What is logged (entity paths relative to the sink's ``prefix``):
 - ``info/status``, ``info/metrics``: static markdown at :meth:`RerunSink.finish`
 - ``events``: a ``TextLog`` at the last time when a run does not complete
 - ``series/<panel>``: multi-instance ``Scalars`` (u and chattering panels with min/max
-  aggregation, ``log`` diagnostics as log10), ``series/plant/<extra>``; see :func:`series_specs`
+  aggregation, ``log`` diagnostics as log10), ``series/error_steady`` (the steady-state
+  window only), ``series/compensator_share`` (-u_s / b_hat, in u's unit),
+  ``series/plant/<extra>``; see :func:`series_specs`
 - ``world/cart``, ``world/pole``: static ``Boxes3D`` / ``Capsules3D`` and a
   ``Transform3D`` per body at ~50 Hz; ``world/rail`` with metre ticks and labelled marks,
   ``world/cart/readout`` the cart position as text (cart-poles only)
-- ``crosscheck/verdict``, ``crosscheck/diff/<key>``: the cross-check's verdict and
-  MuJoCo-minus-ODE series (:mod:`.crosscheck`)
+- ``crosscheck/verdict``, ``crosscheck/diff/<key>``, ``crosscheck/log10_abs_diff/<key>``:
+  the cross-check's verdict, the MuJoCo-minus-ODE series and their log10 |difference|
+  (floored at 1e-16, drawn on a fixed range) (:mod:`.crosscheck`)
 - ``fuzzy/model/in<j>``, ``fuzzy/compensator/in<j>``: membership curves
-  (``LineStrips2D``, one strip per term) and the operating point (``Points2D``)
+  (``LineStrips2D``, one strip per term) and the operating point (``Points2D``);
+  ``.../in<j>/initial``: the first curves, faint and behind the adapted ones (static)
 - ``fuzzy/firing``, ``fuzzy/compensator_firing``, ``fuzzy/q``: ``BarChart``;
   ``fuzzy/consequents``: ``Tensor`` (k x rule), ``fuzzy/consequent_<k>``: ``BarChart`` per output
 

@@ -2,7 +2,9 @@
 layout shares.
 
 Read without clicking: every view is titled in full with its unit; legends sit at the
-top right over a margin kept free after the end of the run (never over its start);
+top right over a margin kept free after the end of the run, wide enough for their names
+(never over the curves), and a view of a single series has none (its title names it);
+at most six series views share a tab, so a 1280x800 viewer keeps their tick labels;
 side panels are folded so the plots get the room; the fuzzy views appear only for a
 controller with rule bases.
 """
@@ -17,31 +19,59 @@ import rerun.blueprint as rrb
 from tspend.loop.sinks import FuzzyInputInfo, RunInfo
 from tspend.recorder.common import BMF_WIDTH, TIMELINE, join_path, prefix_label
 from tspend.recorder.labels import plant_labels
-from tspend.recorder.series import SeriesSpec, series_specs
+from tspend.recorder.series import STEADY_FROM, SeriesSpec, series_specs
 
-#: the time axis runs this fraction past the end of the run: the legends sit there
+#: the tabs of the series views, by :attr:`SeriesSpec.group`
+GROUP_TITLES = {"tracking": "tracking and control", "internals": "controller internals",
+                "plant": "plant"}
+
+#: the time axis runs past the end of the run by at least this fraction: the legend sits there
 LEGEND_MARGIN = 0.22
+#: what the legend's width is judged against: a plot about this wide (px), as a series
+#: view is in a 1280x800 viewer (two columns in three fifths of the window) ...
+PLOT_WIDTH_PX = 330.0
+#: ... and the width of a legend's character and of its swatch and frame (px)
+LEGEND_CHAR_PX, LEGEND_FRAME_PX = 7.0, 36.0
 
 
 def _abs(prefix: str, path: str) -> str:
     return "/" + join_path(prefix, path)
 
 
-def time_axis(duration: float) -> rrb.TimeAxis:
-    """0 .. duration plus the legend's margin."""
-    end = max(duration, 1e-3) * (1.0 + LEGEND_MARGIN)
-    return rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.absolute(seconds=0.0),
+def legend_margin(names: Sequence[str]) -> float:
+    """How far past the run's end the time axis must go for a legend of ``names`` in the
+    top right corner to sit beside the curves rather than over them."""
+    if not names:
+        return 0.02
+    legend = LEGEND_FRAME_PX + LEGEND_CHAR_PX * max(len(n) for n in names)
+    share = min(0.45, legend / PLOT_WIDTH_PX)       # of the plot's width
+    return max(LEGEND_MARGIN, share / (1.0 - share))
+
+
+def time_axis(duration: float, margin: float = LEGEND_MARGIN, start: float = 0.0) -> rrb.TimeAxis:
+    """``start`` .. duration plus ``margin`` of the shown span for the legend."""
+    end = max(duration, 1e-3)
+    end += (end - start) * margin
+    return rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.absolute(seconds=start),
                                                 end=rr.TimeRangeBoundary.absolute(seconds=end)))
 
 
-def series_view(name: str, contents: Sequence[str], duration: float) -> rrb.TimeSeriesView:
-    return rrb.TimeSeriesView(origin="/", contents=list(contents), name=name, axis_x=time_axis(duration),
-                              plot_legend=rrb.PlotLegend(rrb.components.Corner2D.RightTop, visible=True))
+def series_view(name: str, contents: Sequence[str], duration: float, legend: Sequence[str] | None = (),
+                *, start: float = 0.0, y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
+    """A time-series view titled ``name``; ``legend`` the names it shows (``None``: no legend,
+    ``()``: a legend of unknown names, given the default margin)."""
+    shown = legend is not None
+    margin = legend_margin(legend) if legend else LEGEND_MARGIN if shown else 0.02
+    return rrb.TimeSeriesView(origin="/", contents=list(contents), name=name,
+                              axis_x=time_axis(duration, margin, start),
+                              axis_y=rrb.ScalarAxis(range=y_range, zoom_lock=True) if y_range else None,
+                              plot_legend=rrb.PlotLegend(rrb.components.Corner2D.RightTop, visible=shown))
 
 
 def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
-    """``"model: x_o1 = theta (rad)"``: short enough for a view a third of the screen wide
-    (the axis under the curves gives the interval)."""
+    """``"x_o1 = theta (rad)"`` (the model's), ``"comp.: e_delta"`` (the compensator's):
+    short enough for a view a fifth of the screen wide (the axis under the curves gives
+    the interval; the tab's name says faint curves are the initial ones)."""
     labels = plant_labels(info.plant_kind, info.order)
     quantity = None
     if inp.name.startswith("x_o") and inp.name[3:].isdigit() and int(inp.name[3:]) <= len(labels.states):
@@ -49,7 +79,7 @@ def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
     elif inp.name == "u_o":
         quantity = labels.control
     meaning = f" = {quantity.with_unit()}" if quantity is not None and quantity.symbol != inp.name else ""
-    return f"{group}: {inp.name}{meaning}"
+    return f"{inp.name}{meaning}" if group == "model" else f"comp.: {inp.name}{meaning}"
 
 
 def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list[rrb.View], list[rrb.View]]:
@@ -114,8 +144,13 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
     multi = len(prefixes) > 1
     suffixes = [f" [{prefix_label(p)}]" if multi else "" for p in prefixes]
     specs: list[SeriesSpec] = series_specs(info.order, info.extras, info.diagnostics, info.plant_kind)
-    series_views: list[rrb.View] = [
-        series_view(spec.title, [_abs(p, spec.entity) for p in prefixes], info.duration) for spec in specs]
+    series_tabs: dict[str, list[rrb.View]] = {}
+    for spec in specs:
+        names = [n + sfx for n in spec.names for sfx in suffixes]
+        start = STEADY_FROM * info.duration if spec.steady else 0.0
+        series_tabs.setdefault(spec.group, []).append(series_view(
+            spec.title, [_abs(p, spec.entity) for p in prefixes], info.duration,
+            names if spec.legend or multi else None, start=start))
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
     doc_views: list[rrb.View] = []
@@ -124,7 +159,7 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
         bmf_views += bmf
         firing_views += firing
         doc_views += document_views(p, sfx)
-    fuzzy_tabs = [rrb.Grid(*bmf_views, grid_columns=2, name="membership functions"),
+    fuzzy_tabs = [rrb.Grid(*bmf_views, grid_columns=2, name="membership functions (faint: initial)"),
                   rrb.Grid(*firing_views, grid_columns=2, name="firing and consequents")] if bmf_views else []
     tabs = rrb.Tabs(*fuzzy_tabs, rrb.Tabs(*doc_views, name="run info"))
     left: list[rrb.Container | rrb.View] = []
@@ -132,9 +167,13 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
         views3d = [plant_view(info, p, sfx) for p, sfx in zip(prefixes, suffixes)]
         left.append(rrb.Horizontal(*views3d) if multi else views3d[0])
     left.append(tabs)
+    # at most six series views at once (three rows of two): each keeps its tick labels in
+    # a 1280x800 viewer; the controller's internals and the plant's extras in their own tabs
+    right = rrb.Tabs(*(rrb.Grid(*views, grid_columns=2, name=GROUP_TITLES.get(group, group))
+                       for group, views in series_tabs.items()))
     root = rrb.Horizontal(
         rrb.Vertical(*left, row_shares=[2, 3]) if len(left) > 1 else left[0],
-        rrb.Grid(*series_views, grid_columns=2),
+        right,
         column_shares=[2, 3],
     )
     return rrb.Blueprint(root, *panels(), collapse_panels=False)

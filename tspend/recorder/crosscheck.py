@@ -22,16 +22,36 @@ from tspend.recorder.arrow import time_column
 from tspend.recorder.blueprint import document_views, panels, plant_view, series_view
 from tspend.recorder.common import PALETTE
 from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
-from tspend.recorder.series import series_location
+from tspend.recorder.series import COMPENSATOR_SHARE, series_location, series_specs
 from tspend.recorder.sink import RerunSink
 
 VERDICT = "crosscheck/verdict"
 DIFF = "crosscheck/diff"
+LOG10_DIFF = "crosscheck/log10_abs_diff"
+#: |difference| is floored here before its log10: an exact 0 is drawn at log10 = -16
+DIFF_FLOOR = 1e-16
+#: the fixed y range of the log10 |difference| views: from the floor to 10 (1e-16 .. 1e1),
+#: so 1e-14 (round-off) and 1e-3 (a modelling difference) sit at plainly different heights
+LOG10_RANGE = (-16.5, 1.0)
 
 
 def diff_entity(key: str) -> str:
     """Entity of the difference series of ``key`` (``x1``, ``x2``, ``cart_pos``)."""
     return f"{DIFF}/{key}"
+
+
+def log10_diff_entity(key: str) -> str:
+    """Entity of ``log10(max(|difference|, DIFF_FLOOR))`` of ``key``: what the layout draws."""
+    return f"{LOG10_DIFF}/{key}"
+
+
+def log10_abs(diff: np.ndarray) -> np.ndarray:
+    """``log10 |diff|`` floored at :data:`DIFF_FLOOR`."""
+    return np.log10(np.maximum(np.abs(np.asarray(diff, dtype=np.float64)), DIFF_FLOOR))
+
+
+def _diff_name(q: Quantity) -> str:
+    return f"log10 |{q.symbol} MuJoCo - ODE|" + (f" ({q.unit})" if q.unit else "")
 
 
 class _MujocoSide:
@@ -87,9 +107,14 @@ class _Pair:
         if self.rec is None:
             return
         for i, (key, q) in enumerate(self.keys):
+            color = PALETTE[(4 + i) % len(PALETTE)]
             self.rec.log(diff_entity(key), rr.SeriesLines(
-                names=[f"{q.symbol}: MuJoCo - ODE"], colors=[PALETTE[(4 + i) % len(PALETTE)]],
+                names=[f"{q.symbol}: MuJoCo - ODE" + (f" ({q.unit})" if q.unit else "")], colors=[color],
                 aggregation_policy=rr.components.AggregationPolicy.MinMax), static=True)
+            # the largest difference must survive thinning: max aggregation of the log
+            self.rec.log(log10_diff_entity(key), rr.SeriesLines(
+                names=[_diff_name(q)], colors=[color],
+                aggregation_policy=rr.components.AggregationPolicy.Max), static=True)
         self.rec.send_blueprint(crosscheck_blueprint(info, self.keys))
         self.rec.send_recording_name(f"{info.scenario_name}: cross-check MuJoCo vs ODE (seed {info.seed})")
 
@@ -123,8 +148,10 @@ class _Pair:
             if rows.size == 0:
                 continue
             diff = mujoco[start + rows] - ode[rows]
-            self.rec.send_columns(diff_entity(key), indexes=[time_column(t[rows])],
-                                  columns=rr.Scalars.columns(scalars=diff))
+            times = time_column(t[rows])
+            self.rec.send_columns(diff_entity(key), indexes=[times], columns=rr.Scalars.columns(scalars=diff))
+            self.rec.send_columns(log10_diff_entity(key), indexes=[times],
+                                  columns=rr.Scalars.columns(scalars=log10_abs(diff)))
 
 
 def crosscheck_sinks(sinks: Sequence[RerunSink]) -> list:
@@ -162,7 +189,10 @@ def verdict_markdown(report: dict) -> str:
                   f"tolerance {_fmt(tol)}: **{_fmt(bool(ok))}**.", "",
                   "Closed loop (the scenario's controller on each backend; the plots MuJoCo minus ODE "
                   f"show it sample by sample): {closed} "
-                  "(reported, not judged: sign() in the compensator may amplify round-off).", ""]
+                  "(reported, not judged: sign() in the compensator may amplify round-off).", "",
+                  f"The views log10 |MuJoCo - ODE| draw log10 of the absolute difference, floored at "
+                  f"{DIFF_FLOOR:g}, on the fixed range {LOG10_RANGE[0]:g} .. {LOG10_RANGE[1]:g}: "
+                  "-16 to -13 is round-off, a real modelling difference sits far higher.", ""]
     lines += ["| figure | value |", "| --- | --- |"]
     flat = {k: v for k, v in report.items() if not isinstance(v, dict)}
     lines += [f"| {k} | {_fmt(v)} |" for k, v in flat.items()]
@@ -189,32 +219,43 @@ def read_verdict(text: str) -> dict:
 
 def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
                          prefixes: Sequence[str] = ("mujoco/", "ode/")) -> rrb.Blueprint:
-    """Each state's overlay (MuJoCo and ODE) beside its difference; u, u_s and V overlaid;
-    the two 3D scenes; the verdict first among the documents."""
+    """Each state's overlay (MuJoCo and ODE) beside its log10 |difference| on a fixed
+    range; u and the compensator's share of u overlaid in a second tab; the two 3D
+    scenes; the verdict first among the documents."""
     order, extras, diags = info.order, info.extras, info.diagnostics
+    labels = [f" [{p.strip('/')}]" for p in prefixes]
 
     def both(name: str) -> list[str]:
         return ["/" + series_location(name, order, extras, p, diags)[0] for p in prefixes]
 
-    views: list[rrb.View] = []
+    specs = series_specs(order, extras, diags, info.plant_kind)
+
+    def names(key: str) -> list[str]:
+        """The legend of the overlay of series ``key``: each name once per backend."""
+        spec = next(s for s in specs if key in s.lookup)
+        return [n + label for n in spec.names for label in labels]
+
+    states: list[rrb.View] = []
     for key, q in keys:
         if key == "x1":
-            overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()} and reference: MuJoCo and ODE",
-                                  both("x1"), info.duration)
+            overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE",
+                                  both("x1"), info.duration, names("x1"))
         elif key.startswith("x"):
             # x2.. are not plotted per run; the error view holds e_2 = x_2 - r' for both
             overlay = series_view(f"tracking error (e_2 = {q.symbol} - r'): MuJoCo and ODE",
-                                  both("e_1"), info.duration)
+                                  both("e_1"), info.duration, names("e_1"))
         else:
             overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE", both(key),
-                                  info.duration)
-        views += [overlay, series_view(f"MuJoCo minus ODE: {q.symbol}" + (f" ({q.unit})" if q.unit else ""),
-                                       ["/" + diff_entity(key)], info.duration)]
+                                  info.duration, names(key))
+        states += [overlay, series_view(
+            f"log10 |MuJoCo - ODE|, {q.with_unit()}",
+            ["/" + log10_diff_entity(key)], info.duration, None, y_range=LOG10_RANGE)]
     u = plant_labels(info.plant_kind, order).control
-    views.append(series_view(f"control {u.with_unit()}: MuJoCo and ODE", both("u"), info.duration))
+    control = [series_view(f"control {u.with_unit()}: MuJoCo and ODE", both("u"), info.duration, names("u"))]
     try:
-        views.append(series_view(f"compensator part {u.with_unit('u_s')}: MuJoCo and ODE", both("u_s"),
-                                 info.duration))
+        control.append(series_view(f"compensator share of u, -u_s / b_hat{' (' + u.unit + ')' if u.unit else ''}"
+                                   ": MuJoCo and ODE",
+                                   both(COMPENSATOR_SHARE), info.duration, names(COMPENSATOR_SHARE)))
     except KeyError:
         pass  # a controller without a compensator
     left: list = ([rrb.Horizontal(*(plant_view(info, p, f" [{p.strip('/')}]") for p in prefixes))]
@@ -223,11 +264,12 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
     for p in prefixes:
         docs += document_views(p, f" [{p.strip('/')}]")
     left.append(rrb.Tabs(*docs, name="verdict and run info"))
-    root = rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3]) if len(left) > 1 else left[0],
-                          rrb.Grid(*views, grid_columns=2),
+    right = rrb.Tabs(rrb.Grid(*states, grid_columns=2, name="states: MuJoCo, ODE and their difference"),
+                     rrb.Grid(*control, grid_columns=1, name="control: MuJoCo and ODE"))
+    root = rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3]) if len(left) > 1 else left[0], right,
                           column_shares=[2, 3])
     return rrb.Blueprint(root, *panels(), collapse_panels=False)
 
 
-__all__ = ["VERDICT", "crosscheck_blueprint", "crosscheck_sinks", "diff_entity", "read_verdict",
-           "record_verdict", "verdict_markdown"]
+__all__ = ["DIFF_FLOOR", "LOG10_RANGE", "VERDICT", "crosscheck_blueprint", "crosscheck_sinks", "diff_entity",
+           "log10_abs", "log10_diff_entity", "read_verdict", "record_verdict", "verdict_markdown"]

@@ -3,9 +3,15 @@
 
 Every series has a stable *key* (``r``, ``x1``, ``e_1``, ``u``, a diagnostic's column
 label, an extra's name) by which code finds it again, and a display *name* with the
-plant's physical symbol (``theta``, ``e_theta``) shown in legends.  A view's title
-carries the unit.  Diagnostics declared ``log`` are recorded as ``log10`` of their
-value (Rerun's plots have no logarithmic axis); the key stays the diagnostic's label.
+plant's physical symbol and unit (``theta (rad)``, ``e_theta (rad)``) shown in legends.
+A view's title carries the unit too.  Diagnostics declared ``log`` are recorded as
+``log10`` of their value (Rerun's plots have no logarithmic axis); the key stays the
+diagnostic's label.
+
+Two series are derived for the reader: ``series/error_steady``, the tracked output's
+error over the steady-state window only (so its own scale, not the transient's, sets
+the axis), and ``series/compensator_share``, the compensator's share ``-u_s / b_hat`` of
+``u`` in ``u``'s unit (``u_s`` itself is in the unit of ``x^(n)``, not a force).
 """
 
 from __future__ import annotations
@@ -38,6 +44,16 @@ class SeriesSpec:
     #: min/max aggregation when the viewer thins the series (u and chattering signals)
     minmax: bool = False
     log10: bool = False
+    #: the tab of the layout it goes to: "tracking", "internals" (the controller's own
+    #: quantities) or "plant" (the plant's extras)
+    group: str = "tracking"
+    #: only the steady-state window (t >= duration / 2, the window of rmse_ss) is sent
+    steady: bool = False
+
+    @property
+    def legend(self) -> bool:
+        """A legend only where several series share the view (a single one is named by the title)."""
+        return len(self.names) > 1
 
     @property
     def lookup(self) -> tuple[str, ...]:
@@ -68,10 +84,21 @@ def _log10(getter: Extractor) -> Extractor:
 #: the runner's own panels (entity name, and the panel name diagnostics join them by)
 STANDARD_PANELS = ("tracking", "error", "control", "disturbance")
 #: titles of panels the paper controller declares; any other panel is titled by its name
-PANEL_TITLES = {"compensator": "compensator part u_s of u", "lyapunov": "Lyapunov function V",
-                "norms": "parameter norms", "params": "model output p and gain estimate b_hat"}
+PANEL_TITLES = {"compensator": "compensator output u_s", "lyapunov": "Lyapunov function V",
+                "norms": "parameter norms",
+                "params": "model output p and gain estimate b_hat"}
+#: titles of one part of a panel (its linear or its log10 part)
+KEY_TITLES = {"norms": "smallest gain consequent min_i p_(n+1)^i (projection keeps it >= b_min)",
+              "norms/log10": "parameter norms ||P||, ||q||"}
 #: panels whose diagnostics are parts of u, hence in u's unit whatever they declare
-CONTROL_PANELS = ("control", "compensator")
+CONTROL_PANELS = ("control",)
+#: the compensator's output u_s is in the unit of x^(n); its share of u (19) is drawn
+#: from it and the model's gain estimate (the diagnostic columns of these names)
+COMPENSATOR_OUTPUT, GAIN_ESTIMATE = "u_s", "b_hat"
+#: key of the compensator's share of u, -u_s / b_hat
+COMPENSATOR_SHARE = "u_s_share"
+#: the steady-state window starts at this fraction of the run (as rmse_ss's, loop.metrics)
+STEADY_FROM = 0.5
 
 
 def _unit_suffix(units: Sequence[str]) -> str:
@@ -81,6 +108,28 @@ def _unit_suffix(units: Sequence[str]) -> str:
 
 def _error_name(state: Quantity, i: int) -> str:
     return f"e_{i + 1}" if state.symbol == f"x{i + 1}" else f"e_{state.symbol}"
+
+
+def _named(symbol: str, unit: str) -> str:
+    """A legend entry: ``"theta (rad)"``; the bare symbol for a dimensionless quantity."""
+    return f"{symbol} ({unit})" if unit else symbol
+
+
+def derivative_unit(unit: str) -> str:
+    """The unit of a quantity's time derivative: ``rad/s`` -> ``rad/s²``, ``m`` -> ``m/s``."""
+    if not unit:
+        return ""
+    if unit.endswith("/s"):
+        return unit + "²"
+    if unit.endswith("/s²"):
+        return unit[:-1] + "³"
+    return unit + "/s"
+
+
+def _share_of_u(u_s: Extractor, b_hat: Extractor) -> Extractor:
+    from tspend.controllers.paper.control_law import compensator_share
+
+    return lambda d: compensator_share(u_s(d), b_hat(d))
 
 
 @dataclass
@@ -110,47 +159,71 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     labels = plant_labels(plant_kind, order)
     s0 = labels.states[0]
     control = labels.control
+    e_names = [_named(_error_name(s, i), s.unit) for i, s in enumerate(labels.states)]
     panels: dict[str, _Panel] = {
         "tracking": _Panel(f"{s0.meaning or 'output'} {s0.symbol} and reference r{_unit_suffix([s0.unit])}",
-                           ["r", s0.symbol], ["r", "x1"], [(150, 150, 150), (31, 119, 180)],
-                           [_col("ref", 0), _col("x", 0)]),
-        "error": _Panel("tracking error e = x - r",
-                        [_error_name(s, i) + (f" ({s.unit})" if s.unit else "") for i, s in enumerate(labels.states)],
-                        [f"e_{i + 1}" for i in range(order)], list(PALETTE[:order]), [_col("e")],
-                        unit_in_title=False),
+                           [_named("r", s0.unit), _named(s0.symbol, s0.unit)], ["r", "x1"],
+                           [(150, 150, 150), (31, 119, 180)], [_col("ref", 0), _col("x", 0)]),
+        "error": _Panel("tracking error e = x - r", e_names, [f"e_{i + 1}" for i in range(order)],
+                        list(PALETTE[:order]), [_col("e")], unit_in_title=False),
         "control": _Panel(f"control {control.symbol}{_unit_suffix([control.unit])}"
                           + (f", {control.meaning}" if control.meaning else ""),
-                          ["u"], ["u"], [(214, 39, 40)], [_col("u")], minmax=True),
+                          [_named("u", control.unit)], ["u"], [(214, 39, 40)], [_col("u")], minmax=True),
         "disturbance": _Panel("disturbance d and its estimates", ["d"], ["d"], [(127, 127, 127)], [_col("d")]),
     }
+    x_n_unit = derivative_unit(labels.states[-1].unit) if labels.states else ""
+    share: dict[str, Extractor] = {}
     for diag in diagnostics:
         panel = diag.panel or diag.name
         key = panel if not diag.log or panel in STANDARD_PANELS else f"{panel}/log10"
         if key not in panels:
             log = key.endswith("/log10")
-            title = PANEL_TITLES.get(panel, panel.replace("_", " "))
+            title = KEY_TITLES.get(key) or PANEL_TITLES.get(panel, panel.replace("_", " "))
             panels[key] = _Panel(title + (", log10 scale" if log else ""), log10=log)
         target = panels[key]
-        unit = control.unit if panel in CONTROL_PANELS else diag.unit
+        unit = (control.unit if panel in CONTROL_PANELS
+                else x_n_unit if diag.name == COMPENSATOR_OUTPUT else diag.unit)
         target.units.append(unit)
         target.minmax |= diag.chattering
-        for label in diag.column_labels:
-            target.names.append(f"log10 {label}" if target.log10 else label)
+        for j, label in enumerate(diag.column_labels):
+            target.names.append(f"log10 {label}" if target.log10 else _named(label, unit))
             target.keys.append(label)
             offset = 3 if panel in STANDARD_PANELS else 0
             target.colors.append(PALETTE[(len(target.colors) + offset) % len(PALETTE)])
+            if label in (COMPENSATOR_OUTPUT, GAIN_ESTIMATE):
+                share[label] = _col(diag.name, None if diag.width == 1 else j)
         getter = _col(diag.name)
         target.getters.append(_log10(getter) if target.log10 else getter)
+    if len(share) == 2:
+        # what the compensator does to the plant: its share of u, in u's unit, beside u
+        panels["compensator_share"] = _Panel(
+            f"compensator share of u: -u_s / b_hat{_unit_suffix([control.unit])}",
+            [_named("-u_s/b_hat", control.unit)], [COMPENSATOR_SHARE], [(44, 160, 44)],
+            [_share_of_u(share[COMPENSATOR_OUTPUT], share[GAIN_ESTIMATE])], minmax=True, unit_in_title=False)
     specs = []
     for key, p in panels.items():
         title = p.title + (_unit_suffix(p.units) if p.unit_in_title and key not in ("tracking", "control") else "")
+        group = "tracking" if key in STANDARD_PANELS or key == "compensator_share" else "internals"
         specs.append(SeriesSpec(f"series/{_entity_name(key, panels)}", title, tuple(p.names), tuple(p.colors),
-                                _stack(*p.getters), keys=tuple(p.keys), minmax=p.minmax, log10=p.log10))
+                                _stack(*p.getters), keys=tuple(p.keys), minmax=p.minmax, log10=p.log10,
+                                group=group))
+        if key == "error" and labels.states:
+            # the number the paper is about: the error once the transient is over, on its own scale
+            specs.append(SeriesSpec(
+                "series/error_steady", f"steady-state error {_error_name(s0, 0)}{_unit_suffix([s0.unit])}, "
+                f"t >= {STEADY_FROM:g} T", (e_names[0],), (PALETTE[0],),
+                _stack(_col("e", 0)), keys=("e_1_steady",), steady=True))
+    # the compensator's share of u right after u
+    shares = [i for i, spec in enumerate(specs) if spec.entity == "series/compensator_share"]
+    if shares:
+        after = next(i for i, spec in enumerate(specs) if spec.entity == "series/control")
+        specs.insert(after + 1, specs.pop(shares[0]))
     for i, name in enumerate(extras):
         q = extra_quantity(labels, name)
         specs.append(SeriesSpec(
             f"series/plant/{name}", (q.meaning or "plant extra") + f" {q.with_unit()}",
-            (q.symbol,), (PALETTE[(9 + i) % len(PALETTE)],), _stack(_col(f"extra/{name}")), keys=(name,)))
+            (_named(q.symbol, q.unit),), (PALETTE[(9 + i) % len(PALETTE)],), _stack(_col(f"extra/{name}")),
+            keys=(name,), group="plant"))
     return specs
 
 

@@ -18,7 +18,7 @@ from tspend.recorder.common import BMF_WIDTH, PALETTE, Color, join_path, prefix_
 from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
     status_markdown)
 from tspend.recorder.fuzzy_axes import axis_parts, term_label_positions
-from tspend.recorder.series import SeriesSpec, series_specs
+from tspend.recorder.series import STEADY_FROM, SeriesSpec, series_specs
 from tspend.recorder.stream import close_recording, flush
 
 
@@ -265,15 +265,21 @@ class RerunSink:
     # -- block parts
 
     def _send_series(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
-        rows = slice((-start) % self.curves_every, None, self.curves_every)
+        rows = np.arange((-start) % self.curves_every, t.size, self.curves_every)
         times = time_column(t[rows])
+        assert self.info is not None
+        steady_from = STEADY_FROM * self.info.duration - 0.5 * self.info.dt
+        steady_rows = rows[t[rows] >= steady_from]
         for spec in self._specs:
+            picked, index = (steady_rows, None) if spec.steady else (rows, times)
+            if picked.size == 0:
+                continue
             try:
                 values = spec.extract(data)
             except KeyError:
                 continue  # e.g. an extra the plant did not report in this block
-            values = np.ascontiguousarray(values[rows])
-            self.rec.send_columns(self._path(spec.entity), indexes=[times],
+            values = np.ascontiguousarray(values[picked])
+            self.rec.send_columns(self._path(spec.entity), indexes=[index if index is not None else time_column(t[picked])],
                                   columns=rr.Scalars.columns(scalars=values[:, 0] if values.shape[1] == 1 else values))
 
     def _buffer_frames(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
@@ -370,6 +376,8 @@ class RerunSink:
         strips = np.empty((rows.size, terms, points, 2))
         strips[..., 0] = self._display_x(key, grid[rows])[:, None, :]
         strips[..., 1] = -curves[rows]
+        if previous is None:
+            self._log_initial_curves(key, strips[0])
         times = time_column(buf.get("t")[rows])
         curves_column = [strips_column(strips.reshape(-1, points, 2), terms)]
         every_row = rows.size == count
@@ -379,6 +387,15 @@ class RerunSink:
         self.rec.send_columns(self._path(f"fuzzy/{key}/terms"), indexes=[times],
                               columns=[points_column(term_label_positions(strips), terms)])
         return every_row
+
+    def _log_initial_curves(self, key: str, strips: np.ndarray) -> None:
+        """The first membership functions, faint and behind, so adaptation shows as the
+        distance between them and the current ones (Rerun draws no dashed lines)."""
+        terms = strips.shape[0]
+        colors = [_lighten(self._color(PALETTE[k % len(PALETTE)]), 0.55) for k in range(terms)]
+        self.rec.log(self._path(f"fuzzy/{key}/initial"),
+                     rr.LineStrips2D([s.copy() for s in strips], colors=colors, radii=[-1.0], draw_order=-10.0),
+                     static=True)
 
     # -- static parts
 

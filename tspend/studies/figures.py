@@ -1,8 +1,8 @@
 """Figures from runs and sweeps: the paper's figures redrawn, membership functions before
 and after adaptation, box plots of a comparison across seeds, heat maps of a two-key sweep.
 
-Every figure is written as PNG (and PDF on request) with the data it draws beside it as
-CSV (same name, ``.csv``), so a reader can check or replot any curve.  One style for all
+Every figure is written as PNG and PDF with the data it draws beside it as CSV (same
+name, ``.csv``), each file atomically, so a reader can check or replot any curve.  One style for all
 (:data:`STYLE`, applied with ``matplotlib.rc_context``: no global state), one colour per
 controller kind, axis labels with units.  matplotlib is an optional extra
 (``pip install 'tspend[plot]'``); figures are drawn on ``matplotlib.figure.Figure``
@@ -22,7 +22,7 @@ from tspend.errors import ScenarioError
 
 STYLE = {
     "figure.dpi": 100, "savefig.dpi": 150, "font.size": 9, "axes.titlesize": 10,
-    "axes.labelsize": 9, "legend.fontsize": 8, "xtick.labelsize": 8, "ytick.labelsize": 8,
+    "axes.labelsize": 9, "legend.fontsize": 8, "figure.titlesize": 10, "xtick.labelsize": 8, "ytick.labelsize": 8,
     "axes.grid": True, "grid.alpha": 0.3, "grid.linewidth": 0.6, "lines.linewidth": 1.2,
     "axes.spines.top": False, "axes.spines.right": False, "legend.frameon": False,
     "savefig.bbox": "tight",
@@ -32,6 +32,14 @@ PALETTE = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F
            "#000000")
 #: line styles that tell kinds apart in grey print too
 DASHES = ("-", "--", "-.", ":")
+#: every figure is written in these formats: the picture twice and what it plots
+FORMATS = (".png", ".pdf", ".csv")
+#: a paper column (inches): the box plots are this wide
+COLUMN_WIDTH_IN = 3.5
+#: the smallest font a figure uses (points): legible at a paper column
+MIN_FONT_PT = 8.0
+#: the tracking figures' error panel: |e| below this is drawn at it (a log axis has no 0)
+ERROR_FLOOR = 1e-12
 #: the paper's figures: scenario, title, which figures
 PAPER_CASES = (("ex1_nonaffine_case1", "Example 1, case 1 (nonaffine plant)"),
                ("ex1_nonaffine_case2", "Example 1, case 2 (nonaffine plant)"),
@@ -81,16 +89,21 @@ def kind_dash(kind: str) -> str:
 
 @dataclass
 class Figures:
-    """Where figures go: ``out`` directory, PDF too or not, may existing files be replaced."""
+    """Where figures go: ``out`` directory, may existing files be replaced.
+
+    Every figure is written as PNG, PDF and the CSV of what it plots, each through a
+    partial file renamed when complete (:mod:`tspend.runtime.outputs`): an existing file
+    is only ever replaced by a whole new one.  ``pdf`` is kept for old callers (PDF is
+    always written).
+    """
 
     out: Path
-    pdf: bool = False
+    pdf: bool = True
     overwrite: bool = False
     written: list[Path] = field(default_factory=list)
 
     def paths(self, name: str) -> list[Path]:
-        exts = (".png", ".csv") + ((".pdf",) if self.pdf else ())
-        return [self.out / f"{name}{e}" for e in exts]
+        return [self.out / f"{name}{e}" for e in FORMATS]
 
     def check(self, names: Iterable[str]) -> None:
         """Fail before drawing when a file would be replaced (and --overwrite is not given)
@@ -105,18 +118,33 @@ class Figures:
                                         f"--overwrite")
 
     def save(self, fig, data, name: str) -> Path:
-        """Write ``fig`` as PNG (and PDF) and ``data`` (a DataFrame) as CSV; the PNG path."""
+        """Write ``fig`` as PNG and PDF and ``data`` (a DataFrame) as CSV; the PNG path."""
+        import io
+
+        from tspend.runtime.outputs import OutputRequest, claim, plan_outputs
+
         mpl, _, Canvas = _matplotlib()
         self.out.mkdir(parents=True, exist_ok=True)
-        png, csv = self.out / f"{name}.png", self.out / f"{name}.csv"
+        paths = self.paths(name)
         Canvas(fig)
+        contents = []
         with mpl.rc_context(STYLE):
-            fig.savefig(png)
-            if self.pdf:
-                fig.savefig(self.out / f"{name}.pdf")
-        data.to_csv(csv, index=False)
-        self.written += [png, csv] + ([self.out / f"{name}.pdf"] if self.pdf else [])
-        return png
+            for path in paths[:2]:
+                buf = io.BytesIO()
+                fig.savefig(buf, format=path.suffix[1:])
+                contents.append(buf.getvalue())
+        contents.append(data.to_csv(index=False).encode())
+        outputs = claim(plan_outputs([OutputRequest("--out", "figure", p.suffix, str(p)) for p in paths]))
+        try:
+            for output, content in zip(outputs, contents):
+                output.write(content)
+            self.written += [output.commit() for output in outputs]
+        except BaseException:
+            for output in outputs:
+                if not output.committed:
+                    output.discard()
+            raise
+        return self.written[-3]
 
 
 def new_figure(rows: int, cols: int, size: tuple[float, float]):
@@ -154,21 +182,31 @@ def _series_frame(runs: dict, columns: dict, every: int, t_max: float | None = N
 
 
 def tracking_figure(fig_out: Figures, runs: dict, name: str, title: str, every: int = 1):
-    """x1 against r and x2 against r' for each run (the paper's tracking figures)."""
+    """x1 against r and x2 against r' for each run (the paper's tracking figures), and
+    under them |e_1| = |x1 - r| on a log axis: where the lines above lie on top of each
+    other, the error tells the kinds apart (down to :data:`ERROR_FLOOR`)."""
     first = next(iter(runs.values()))
     labels, _ = state_units(first.scenario.plant.kind, 2)
     data = _series_frame(runs, {"x1": lambda h: h["x"][:, 0], "x2": lambda h: h["x"][:, 1]},
                          every)
-    fig, axes = new_figure(2, 1, (6.4, 4.6))
+    for kind in runs:
+        data[f"abs_e1_{kind}"] = np.abs(data[f"x1_{kind}"] - data["r"])
+    fig, axes = new_figure(3, 1, (6.4, 6.2))
     for ax, i, ref_col, ref_label in ((axes[0, 0], 1, "r", "r"), (axes[1, 0], 2, "r_dot", "r'")):
         ax.plot(data["t"], data[ref_col], color="0.35", lw=1.0, ls=":", label=f"reference {ref_label}")
         for kind in runs:
             ax.plot(data["t"], data[f"x{i}_{kind}"], color=kind_colour(kind), ls=kind_dash(kind),
                     label=_kind_label(kind, runs[kind]))
         ax.set_ylabel(labels[i - 1])
-    axes[1, 0].set_xlabel("t [s]")
-    axes[0, 0].legend(ncols=len(runs) + 1, loc="lower right", bbox_to_anchor=(1.0, 1.0),
-                      fontsize=7)
+    err = axes[2, 0]
+    unit = labels[0].split(" ", 1)[1] if " " in labels[0] else ""
+    for kind in runs:
+        err.plot(data["t"], np.maximum(data[f"abs_e1_{kind}"], ERROR_FLOOR), color=kind_colour(kind),
+                 ls=kind_dash(kind), lw=1.0, label=_kind_label(kind, runs[kind]))
+    err.set_yscale("log")
+    err.set_ylabel(f"|e₁| = |x₁ − r| {unit}".strip())
+    err.set_xlabel("t [s]")
+    axes[0, 0].legend(ncols=len(runs) + 1, loc="lower right", bbox_to_anchor=(1.0, 1.0))
     seed = first.scenario.run.seed
     fig.suptitle(f"{title}, seed {seed}")
     return fig_out.save(fig, data, name)
@@ -302,7 +340,7 @@ def membership_figure(fig_out: Figures, capture: SetsCapture, name: str, title: 
         ax.set_xlabel(_input_label(inp, capture.plant_kind))
         ax.set_ylabel("membership μ [–]")
         ax.set_ylim(-0.03, 1.18)
-        ax.legend(ncols=len(part["term"].unique()), fontsize=6, loc="upper center",
+        ax.legend(ncols=len(part["term"].unique()), fontsize=MIN_FONT_PT, loc="upper center",
                   handlelength=1.2, columnspacing=0.8)
     t0, t1 = capture.first.t, capture.last.t
     fig.suptitle(f"{title}\nmembership functions at t = {t0:g} s (dashed) and "
@@ -311,11 +349,20 @@ def membership_figure(fig_out: Figures, capture: SetsCapture, name: str, title: 
 
 
 # -- comparisons across seeds ----------------------------------------------------------------
+#: how a run that did not complete is drawn in a box plot: (marker, colour); a run that
+#: failed or was interrupted has no marker, it is only counted
+OUTCOME_MARKERS = {"diverged": ("x", "#D55E00"), "fell": ("v", "#CC79A7"),
+                   "rail_end": ("v", "#CC79A7"), "joint_limit": ("v", "#CC79A7"),
+                   "state_bound": ("v", "#CC79A7")}
+
+
 def box_figure(fig_out: Figures, table, metric: str, name: str,
                controllers: Sequence[str] | None = None, title: str | None = None):
-    """One panel per scenario (and grid point): the metric across seeds, one box per
-    controller; diverged runs are counted above their box and drawn as crosses at the
-    top (they have no finite value), failed runs are counted."""
+    """One panel per scenario (and grid point), a paper column wide
+    (:data:`COLUMN_WIDTH_IN`, fonts >= :data:`MIN_FONT_PT`): the metric across seeds, one
+    box per controller, over the runs that completed only.  A run that diverged or ended
+    early (fell, rail end, ...) is not data: it is drawn as a marker in a band above the
+    boxes, its count written beside it; failed runs are counted."""
     import pandas as pd
 
     from tspend.studies.stats import _group_columns, _ordered_controllers, outcome_values
@@ -325,45 +372,68 @@ def box_figure(fig_out: Figures, table, metric: str, name: str,
     table = table[table["controller"].isin(kinds)]
     data = table[groups + ["controller", "seed", "status"]].copy()
     data[metric] = outcome_values(table, metric)
+    # what a box is drawn from: completed runs' finite values (the CSV says which rows)
+    data["plotted"] = (data["status"] == "completed") & np.isfinite(data[metric].to_numpy(dtype=float))
     keys = list(dict.fromkeys(map(tuple, data[groups].astype(str).to_numpy())))
-    cols = min(3, len(keys))
-    rows = math.ceil(len(keys) / cols)
-    fig, axes = new_figure(rows, cols, (max(2.0, 0.9 * len(kinds) + 1.0) * cols, 3.0 * rows + 0.4))
-    for ax in axes.flat[len(keys):]:
-        ax.set_visible(False)
-    for ax, key in zip(axes.flat, keys):
-        sel = np.all(data[groups].astype(str).to_numpy() == np.array(key), axis=1)
-        part = data[sel]
-        finite_all = part[metric][np.isfinite(part[metric])]
-        for i, kind in enumerate(kinds):
-            v = part.loc[part["controller"] == kind, metric].to_numpy(dtype=float)
-            ok = v[np.isfinite(v)]
-            c = kind_colour(kind)
-            if ok.size:
-                ax.boxplot(ok, positions=[i], widths=0.6, patch_artist=True, showfliers=False,
-                           medianprops=dict(color="black"),
-                           boxprops=dict(facecolor=c, alpha=0.45, edgecolor=c),
-                           whiskerprops=dict(color=c), capprops=dict(color=c))
-                jitter = np.linspace(-0.15, 0.15, ok.size) if ok.size > 1 else np.zeros(1)
-                ax.scatter(i + jitter, ok, s=7, color=c, zorder=3)
-            n_div = int(np.isposinf(v).sum())
-            n_fail = int(np.isnan(v).sum())
-            note = ", ".join(s for s in (f"{n_div} div." if n_div else "",
-                                         f"{n_fail} failed" if n_fail else "") if s)
-            if note:
-                ax.annotate(note, (i, 1.0), xycoords=("data", "axes fraction"), ha="center",
-                            va="bottom", fontsize=7, color="#D55E00")
-            if n_div:
-                ax.scatter([i] * n_div, [0.97] * n_div, marker="x", color="#D55E00",
-                           transform=ax.get_xaxis_transform(), zorder=4)
-        if finite_all.size and finite_all.min() > 0 and finite_all.max() / finite_all.min() > 50:
-            ax.set_yscale("log")
-        ax.set_xticks(range(len(kinds)), kinds, rotation=30, ha="right")
-        ax.set_title(", ".join(key), pad=12)
-        ax.set_ylabel(metric_label(metric, part))
-    fig.suptitle(title or f"{metric} across seeds")
+    rows = len(keys)
+    fig, axes = new_figure(rows, 1, (COLUMN_WIDTH_IN, 2.5 * rows + 0.35))
+    with _matplotlib()[0].rc_context(STYLE):
+        for ax, key in zip(axes.flat, keys):
+            sel = np.all(data[groups].astype(str).to_numpy() == np.array(key), axis=1)
+            _box_panel(ax, data[sel], metric, kinds)
+            ax.set_title(", ".join(key), fontsize=MIN_FONT_PT + 1, pad=14)
+        fig.suptitle(title or f"{metric} across seeds", fontsize=MIN_FONT_PT + 1)
     data = data.rename(columns={metric: "value"}).assign(metric=metric)
     return fig_out.save(fig, pd.DataFrame(data), name)
+
+
+def _box_panel(ax, part, metric: str, kinds: Sequence[str]) -> None:
+    """The boxes of one scenario, and the runs that are not data counted above them."""
+    shown = part[part["plotted"]]
+    values = shown[metric].to_numpy(dtype=float)
+    labels: list[str] = []
+    present: set[str] = set()
+    for i, kind in enumerate(kinds):
+        v = shown.loc[shown["controller"] == kind, metric].to_numpy(dtype=float)
+        c = kind_colour(kind)
+        if v.size:
+            ax.boxplot(v, positions=[i], widths=0.6, patch_artist=True, showfliers=False,
+                       medianprops=dict(color="black"),
+                       boxprops=dict(facecolor=c, alpha=0.45, edgecolor=c),
+                       whiskerprops=dict(color=c), capprops=dict(color=c))
+            jitter = np.linspace(-0.15, 0.15, v.size) if v.size > 1 else np.zeros(1)
+            ax.scatter(i + jitter, v, s=9, color=c, zorder=3)
+        others = part[(part["controller"] == kind) & ~part["plotted"]]
+        uncounted = []
+        slots = 0
+        for status, count in others["status"].value_counts(sort=False).items():
+            marker = OUTCOME_MARKERS.get(status)
+            if marker is None:  # failed, interrupted: no value at all, counted under the name
+                uncounted.append(f"{count} {status}")
+                continue
+            # in a band above the data area: a marker and the count, never a value
+            x = i - 0.18 + 0.36 * slots
+            slots += 1
+            ax.scatter([x], [1.05], marker=marker[0], s=26, color=marker[1], clip_on=False,
+                       transform=ax.get_xaxis_transform(), zorder=4)
+            ax.annotate(str(count), (x + 0.08, 1.05), xycoords=("data", "axes fraction"), ha="left",
+                        va="center", fontsize=MIN_FONT_PT, color=marker[1], annotation_clip=False)
+        labels.append(kind + "".join(f"\n({note})" for note in uncounted))
+        present |= {s for s in others["status"] if s in OUTCOME_MARKERS}
+    if values.size and values.min() > 0 and values.max() / values.min() > 50:
+        ax.set_yscale("log")
+    ax.set_xlim(-0.6, len(kinds) - 0.4)
+    ax.set_xticks(range(len(kinds)), labels, rotation=30, ha="right", rotation_mode="anchor")
+    ax.tick_params(labelsize=MIN_FONT_PT)
+    if present:
+        from matplotlib.lines import Line2D
+
+        handles = [Line2D([], [], ls="", marker=OUTCOME_MARKERS[s][0], color=OUTCOME_MARKERS[s][1],
+                          label=s) for s in sorted(present)]
+        ax.legend(handles=handles, loc="lower left", bbox_to_anchor=(1.0, 1.0), ncols=1,
+                  fontsize=MIN_FONT_PT, title="runs counted\n(not data)", title_fontsize=MIN_FONT_PT,
+                  handletextpad=0.2, borderaxespad=0.0, alignment="left")
+    ax.set_ylabel(metric_label(metric, part), fontsize=MIN_FONT_PT + 1)
 
 
 #: each metric's unit as powers of (the error's unit, u's unit, seconds)
@@ -443,7 +513,7 @@ def heatmap_figure(fig_out: Figures, table, x: str, y: str, metric: str, name: s
             for j in range(len(xs)):
                 v = grid[i, j]
                 ax.text(j, i, "div." if np.isposinf(v) else ("" if np.isnan(v) else f"{v:.2g}"),
-                        ha="center", va="center", fontsize=7,
+                        ha="center", va="center", fontsize=MIN_FONT_PT,
                         color="white" if np.isfinite(v) and norm(v) < 0.6 else "black")
         ax.set_xticks(range(len(xs)), [f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
         ax.set_yticks(range(len(ys)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ys])

@@ -102,3 +102,12 @@ def control(p: np.ndarray, x_delta: np.ndarray, r_n: float, lam: np.ndarray,
         px += p[k] * x_delta[k]
         le += lam[k] * e[k]
     return (-px + r_n - le - u_s) / p[n] + u_o
+
+
+def compensator_share(u_s: np.ndarray, b_hat: np.ndarray) -> np.ndarray:
+    """The compensator's part of ``u`` in (19): ``-u_s / p_{n+1}``, in ``u``'s unit.
+
+    ``u_s`` itself is in the unit of ``x^(n)`` (it cancels the uncertainty of (14)); what
+    it does to the plant's input is this share, drawn by the recorder beside ``u``.
+    """
+    return -np.asarray(u_s, dtype=np.float64) / np.asarray(b_hat, dtype=np.float64)
