@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
-from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
+from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
 from tspend.controllers.base import Controller, Diagnostic
 
 if TYPE_CHECKING:
@@ -42,6 +42,7 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "feedback_linearization": feedback_linearization.build,
     "sliding_mode": sliding_mode.build,
     "wang_indirect": wang_indirect.build,
+    "swingup": swingup.build,
 }
 
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
@@ -51,6 +52,7 @@ SETTINGS: dict[str, type] = {
     "feedback_linearization": feedback_linearization.FeedbackLinearizationSettings,
     "sliding_mode": sliding_mode.SlidingModeSettings,
     "wang_indirect": wang_indirect.WangSettings,
+    "swingup": swingup.SwingUpSettings,
 }
 
 
