@@ -23,6 +23,7 @@ class ReferenceCartPole:
 
     order: int = 2
     name: str = "cartpole_reference"
+    state_names = ("slider", "hinge", "slider_dot", "hinge_dot")
 
     def __init__(self, params: CartPoleParams = CartPoleParams(), rtol: float = 1e-12,
                  atol: float = 1e-13, method: str = "DOP853") -> None:
@@ -50,6 +51,9 @@ class ReferenceCartPole:
 
     def state(self) -> np.ndarray:
         return self.s[:2].copy()
+
+    def full_state(self) -> np.ndarray:
+        return self.s[[2, 0, 3, 1]].copy()
 
     def step(self, u: float, d: float, dt: float) -> None:
         sol = solve_ivp(self._rhs, (self.t, self.t + dt), self.s, method=self.method,

@@ -9,7 +9,7 @@ from tspend.cli.main import main
 from tspend.studies.crosscheck import closed_loop, open_loop
 from tspend.recorder import read_scalar_series, series_location
 
-KEYS = ("open_loop_max_dtheta", "open_loop_max_dthetadot", "closed_loop_max_dtheta",
+KEYS = ("open_loop_max_dhinge", "open_loop_max_dhinge_dot", "closed_loop_max_dhinge",
         "closed_loop_rmse_ss_mujoco", "closed_loop_rmse_ss_ode")
 
 
@@ -21,8 +21,8 @@ def test_cli_crosscheck_json_and_recording(tmp_path, capsys):
     report = json.loads(js.read_text())
     for key in KEYS:
         assert key in report
-    assert report["open_loop_max_dtheta"] < 1e-8          # 10 s, disturbance on, RK4 at 1 ms
-    assert report["closed_loop_max_dtheta"] < 1e-8
+    assert report["open_loop_max_dhinge"] < 1e-8          # 10 s, disturbance on, RK4 at 1 ms
+    assert report["closed_loop_max_dhinge"] < 1e-8
     # both backends side by side in one recording
     _, a = read_scalar_series(rrd, *series_location("x1", 2, prefix="mujoco/"))
     _, b = read_scalar_series(rrd, *series_location("x1", 2, prefix="ode/"))
@@ -35,9 +35,9 @@ def test_crosscheck_holds_with_other_machines(M, m, l):
     scn = override(load_scenario("pendulum_mujoco"),
                    **{"plant.M": M, "plant.m": m, "plant.l": l, "run.duration": 2.0})
     ol = open_loop(scn, duration=10.0)
-    assert ol["open_loop_max_dtheta"] < 1e-8, ol
+    assert ol["open_loop_max_dhinge"] < 1e-8, ol
     cl = closed_loop(scn)
-    assert cl["closed_loop_max_dtheta"] < 1e-8, cl
+    assert cl["closed_loop_max_dhinge"] < 1e-8, cl
 
 
 def test_crosscheck_fails_beyond_tolerance_with_euler(capsys):
@@ -67,6 +67,6 @@ def test_any_mjcf_cartpole_with_named_joints_runs(tmp_path):
     scn = override(load_scenario("pendulum_mujoco"), **{
         "plant.model": str(tmp_path / "mine.xml"), "plant.slide_joint": "cart_x",
         "plant.hinge_joint": "pole_angle", "plant.actuator": "push", "run.duration": 2.0})
-    assert open_loop(scn, duration=2.0)["open_loop_max_dtheta"] < 1e-8
+    assert open_loop(scn, duration=2.0)["open_loop_max_dhinge"] < 1e-8
     cl = closed_loop(scn)
-    assert cl["closed_loop_status_mujoco"] == "completed" and cl["closed_loop_max_dtheta"] < 1e-8
+    assert cl["closed_loop_status_mujoco"] == "completed" and cl["closed_loop_max_dhinge"] < 1e-8

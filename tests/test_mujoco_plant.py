@@ -28,7 +28,7 @@ def square_disturbance(t: float) -> float:
     """The paper's +/-0.05 square wave of period 2 pi, at one time."""
     return float(_SQUARE(np.array([t]))[0])
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.analytic import CartPoleParams, cartpole_ode_plant
+from tspend.plants.cartpole import CartPoleParams, cartpole_ode_plant
 from tspend.plants.base import Plant
 from tspend.plants.mujoco_plant import MujocoCartPole
 
@@ -74,10 +74,10 @@ def test_matches_solve_ivp_oracle(overrides: CartPoleParams | None) -> None:
         assert dataclasses.replace(p, J=0.0) == pytest.approx(overrides)
         assert p.J == pytest.approx(4.0 / 3.0 * p.m * p.l ** 2, rel=1e-12)
     r = run(mj, ReferenceCartPole(p), p)
-    assert np.ptp(r.theta_a) > 1.0  # the pole really moved (it falls and swings)
-    assert r.max_dtheta < TOL, r.max_dtheta
-    assert r.max_dthetadot < 10 * TOL
-    assert r.max_dcart_pos < 10 * TOL
+    assert np.ptp(r.of_a("hinge")) > 1.0  # the pole really moved (it falls and swings)
+    assert r.max_of("hinge") < TOL, r.max_of("hinge")
+    assert r.max_of("hinge_dot") < 10 * TOL
+    assert r.max_of("slider") < 10 * TOL
 
 
 @pytest.mark.parametrize("overrides", [None, *OVERRIDES], ids=["default", "5-0.5-1", "20-2-0.5"])
@@ -85,8 +85,8 @@ def test_matches_analytic_rk4(overrides: CartPoleParams | None) -> None:
     """(b), (c): MuJoCo RK4 vs tspend's analytic RK4 plant built from ``params``."""
     mj = MujocoCartPole(MODEL, overrides=overrides)
     r = run(mj, cartpole_ode_plant(mj.params), mj.params)
-    assert r.max_dtheta < TOL, r.max_dtheta
-    assert r.max_dcart_pos < 10 * TOL
+    assert r.max_of("hinge") < TOL, r.max_of("hinge")
+    assert r.max_of("slider") < 10 * TOL
 
 
 def test_disturbance_has_the_odes_effect(default_plant: MujocoCartPole) -> None:
@@ -95,8 +95,8 @@ def test_disturbance_has_the_odes_effect(default_plant: MujocoCartPole) -> None:
     ode = cartpole_ode_plant(p)
     on = run(default_plant, ode, p, square_disturbance)
     off = run(default_plant, ode, p, no_disturbance)
-    effect_mj = on.theta_a - off.theta_a
-    effect_ode = on.theta_b - off.theta_b
+    effect_mj = on.of_a("hinge") - off.of_a("hinge")
+    effect_ode = on.of_b("hinge") - off.of_b("hinge")
     assert np.max(np.abs(effect_mj)) > 1e-2  # the disturbance matters ...
     assert np.max(np.abs(effect_mj - effect_ode)) < TOL  # ... and identically in both
 
@@ -196,7 +196,7 @@ def test_integrator_override_changes_the_physics() -> None:
     assert euler.model.opt.integrator == 0  # mjINT_EULER
     r = open_loop_compare(euler, cartpole_ode_plant(euler.params), X0, chirp_for(euler.params),
                           square_disturbance, 2.0, DT)
-    assert r.max_dtheta > 1e-6  # first order: visibly off the RK4 solution
+    assert r.max_of("hinge") > 1e-6  # first order: visibly off the RK4 solution
 
 
 def test_overrides_stretch_the_pole_and_keep_a_rod() -> None:

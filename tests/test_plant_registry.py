@@ -8,9 +8,9 @@ import dataclasses
 import pytest
 
 from tspend import load_scenario, override
-from tspend.config import AnalyticPlantConfig, CartPoleConfig, MujocoCartPoleConfig
+from tspend.config import AnalyticPlantConfig
+from tspend.plants.cartpole import CartPoleConfig, CartPoleDrawing, MujocoCartPoleConfig
 from tspend.errors import ScenarioError
-from tspend.plants.base import CartPoleDrawing
 from tspend.plants.registry import PLANT_KINDS
 from tspend.loop.simulation import build_plant, run_info
 

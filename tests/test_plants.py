@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from tspend.plants.analytic import (CartPoleParams, cartpole_ode_plant, duffing_plant,
-                                    nonaffine_plant, third_order_plant)
+from tspend.plants.analytic import duffing_plant, nonaffine_plant, third_order_plant
+from tspend.plants.cartpole import CartPoleParams, cartpole_ode_plant
 
 DT = 1e-3
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tspend.plants.base import CartPoleDrawing
+from tspend.plants.cartpole import CartPoleDrawing, cartpole_poses
 import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
@@ -15,10 +15,7 @@ from rerun.chunk import RrdReader
 from tspend.recorder import (
     RerunSink,
     build_blueprint,
-    cartpole_geometry,
-    cartpole_poses,
     close_recording,
-    is_cartpole,
     open_recording,
     read_scalar_series,
     series_location,
@@ -327,9 +324,7 @@ def test_cartpole_poses() -> None:
 
 
 def test_cartpole_detection_and_mjcf_geometry(tmp_path: Path) -> None:
-    assert is_cartpole(make_info())
-    assert not is_cartpole(make_info(order=3, plant_kind="third_order"))
-    assert cartpole_geometry(CartPoleDrawing(10.0, 1.0, 2.0, 9.8)).l == 2.0
+    assert CartPoleDrawing(10.0, 1.0, 2.0, 9.8).geometry().l == 2.0
     mjcf = tmp_path / "cp.xml"
     mjcf.write_text(  # a rail box and a pivot cylinder come first: they must not be taken for cart and pole
         '<mujoco><asset><material name="pole" rgba="0 1 0 1"/></asset><worldbody><geom type="plane" size="5 5 .1"/>'
@@ -337,10 +332,10 @@ def test_cartpole_detection_and_mjcf_geometry(tmp_path: Path) -> None:
         '<body name="cart"><joint type="slide" axis="1 0 0"/><geom type="box" size=".4 .25 .15" rgba="1 0 0 1"/>'
         '<body name="pole"><joint type="hinge" axis="0 1 0"/><geom type="cylinder" size=".09 .2"/>'
         '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" material="pole"/></body></body></worldbody></mujoco>')
-    geom = cartpole_geometry(CartPoleDrawing(10.0, 1.0, 0.5, 9.8, mjcf=str(mjcf)))
+    geom = CartPoleDrawing(10.0, 1.0, 0.5, 9.8, mjcf=str(mjcf)).geometry()
     assert geom.cart_half_sizes == pytest.approx((0.4, 0.25, 0.15)) and geom.cart_color == (255, 0, 0)
     assert geom.pole_radius == pytest.approx(0.03) and geom.pole_color == (0, 255, 0) and geom.l == 0.5
-    assert cartpole_geometry(CartPoleDrawing(10.0, 1.0, 3.0, 9.8, mjcf=str(tmp_path / "missing.xml"))).pole_radius > 0  # falls back
+    assert CartPoleDrawing(10.0, 1.0, 3.0, 9.8, mjcf=str(tmp_path / "missing.xml")).geometry().pole_radius > 0  # falls back
 
 
 def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch) -> None:

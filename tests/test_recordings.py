@@ -107,7 +107,7 @@ def test_crosscheck_differences_equal_the_reported_figures(crosscheck_run) -> No
     """MuJoCo minus ODE, sample by sample: the recorded difference is exactly the two
     runs' recorded states subtracted, and its maximum is the report's figure."""
     rrd, report = crosscheck_run
-    for key, column, figure in (("x1", 1, "closed_loop_max_dtheta"), ("x2", None, "closed_loop_max_dthetadot")):
+    for key, column, figure in (("x1", 1, "closed_loop_max_dhinge"), ("x2", None, "closed_loop_max_dhinge_dot")):
         t, diff = read_scalar_series(rrd, diff_entity(key))
         assert t.size == 1000
         assert np.abs(diff).max() == report[figure]

@@ -182,8 +182,8 @@ def test_damped_model_against_its_own_ode() -> None:
     assert report["ode_params"]["cart_damping"] == 5.0
     assert report["ode_params"]["hinge_damping"] == 0.8
     assert report["ode_params"]["M"] == pytest.approx(10.5)        # armature counts as mass
-    assert report["open_loop_max_dtheta"] < 1e-8
-    assert report["open_loop_max_dcart_pos"] < 1e-8
+    assert report["open_loop_max_dhinge"] < 1e-8
+    assert report["open_loop_max_dslider"] < 1e-8
 
 
 def test_failing_crosscheck_names_the_departures(capsys) -> None:

@@ -115,41 +115,6 @@ class AnalyticPlantConfig(PlantConfig):
 
 
 @dataclass(frozen=True)
-class CartPoleConfig(PlantConfig):
-    """The cart-pole (C1)-(C2) of tspend/plants/cartpole.py, on either backend."""
-
-    M: float = field(default=10.0, metadata=_positive())
-    m: float = field(default=1.0, metadata=_positive())
-    l: float = field(default=3.0, metadata=_positive())
-    g: float = field(default=9.8, metadata=_at_least_zero())
-    #: pole inertia about the pivot, kg m^2 (0 = the uniform rod's 4/3 m l^2)
-    J: float = field(default=0.0, metadata=_at_least_zero())
-    #: viscous damping (N s/m, N m s/rad) and dry friction (N, N m) at cart and hinge
-    cart_damping: float = field(default=0.0, metadata=_at_least_zero())
-    hinge_damping: float = field(default=0.0, metadata=_at_least_zero())
-    cart_friction: float = field(default=0.0, metadata=_at_least_zero())
-    hinge_friction: float = field(default=0.0, metadata=_at_least_zero())
-
-
-@dataclass(frozen=True)
-class MujocoCartPoleConfig(CartPoleConfig):
-    """A cart-pole MJCF stepped by MuJoCo; M, m, l, J, g and friction are written into it."""
-
-    #: model file (relative to the cwd, the scenario or the project root) and its names
-    model: str = "models/cartpole.xml"
-    slide_joint: str = "slider"
-    hinge_joint: str = "hinge"
-    actuator: str = "force"
-    #: "" keeps the model's integrator
-    integrator: str = field(default="", metadata={"choices": ("", "RK4", "Euler", "implicit",
-                                                              "implicitfast")})
-    #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
-    timestep: float = field(default=0.0, metadata=_at_least_zero())
-    #: false keeps the model's own masses, COM and inertia (M, m, l, J are then ignored)
-    override_inertials: bool = True
-
-
-@dataclass(frozen=True)
 class ParameterChange:
     """A change of the machine at time ``at`` (a payload picked up); 0 keeps a value."""
 

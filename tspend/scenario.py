@@ -20,12 +20,15 @@ import numpy as np
 from tspend import signals
 from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
     MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
-from tspend.config import (ControllerConfig, EffectsConfig, MujocoCartPoleConfig, OuterLoopConfig,
+from tspend.config import (ControllerConfig, EffectsConfig, OuterLoopConfig,
     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from tspend.controllers.paper.control_law import is_hurwitz
+from tspend.controllers import SETTINGS
 from tspend.controllers.settings import parse_kind_tables
 from tspend.errors import ScenarioError
-from tspend.plants.registry import PLANT_KINDS
+from tspend.tables import Table, read_fields
+from tspend.plants.domain import project_root
+from tspend.plants.registry import PLANT_KINDS, resolve_model_path
 
 #: plant kinds and their order n
 PLANT_ORDERS = {kind: k.order for kind, k in PLANT_KINDS.items()}
@@ -41,7 +44,6 @@ DISTURBANCE_KINDS: dict[str, type] = {
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
             "controllers", "effects")
-SET_KEYS = ("terms", "lo", "hi")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
@@ -49,11 +51,6 @@ CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspli
                    "norm_radius", "boundary_layer", "leakage", "leakage_mode", "operating_point", "x_o",
                    "u_o", "u_o_fraction", "shape_projection", "gain_sign", "sets")
 SETS_KEYS = ("states", "u", "e_delta", "x_norm")
-
-
-def project_root() -> Path:
-    """The checkout that holds ``models/`` and ``scenarios/`` (the package's parent)."""
-    return Path(__file__).resolve().parents[1]
 
 
 def scenario_dirs() -> list[Path]:
@@ -97,110 +94,8 @@ def find_scenario(name_or_path: str | Path) -> Path:
 
 
 # -- small typed readers ---------------------------------------------------------------
-class _Reader:
-    """Reads keys of one table, each error naming the file and the dotted key."""
-
-    def __init__(self, path: str, table: dict, prefix: str) -> None:
-        self.path, self.table, self.prefix = path, table, prefix
-
-    def error(self, key: str, problem: str) -> ScenarioError:
-        return ScenarioError(f"{self.path}: {self.prefix}{key}: {problem}")
-
-    def check_keys(self, allowed: tuple[str, ...], context: str = "") -> None:
-        for key in self.table:
-            if key not in allowed:
-                close = difflib.get_close_matches(key, allowed, n=1)
-                did = f" (did you mean '{close[0]}'?)" if close else ""
-                where = f" {context}" if context else ""
-                raise self.error(key, f"unknown key{did}; allowed{where}: {', '.join(allowed)}")
-
-    def has(self, key: str) -> bool:
-        return key in self.table
-
-    def number(self, key: str, default: float | None = None, *, low: float | None = None,
-               strict: bool = False) -> float:
-        if key not in self.table:
-            if default is None:
-                raise self.error(key, "missing (a number is required)")
-            return default
-        v = self.table[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(key, f"must be a number, got {type(v).__name__} {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise self.error(key, f"must be finite, got {v}")
-        if low is not None and (v <= low if strict else v < low):
-            raise self.error(key, f"must be {'>' if strict else '>='} {low:g}, got {v:g}")
-        return v
-
-    def integer(self, key: str, default: int | None = None, *, low: int = 0,
-                high: int | None = None) -> int:
-        if key not in self.table:
-            if default is None:
-                raise self.error(key, "missing (an integer is required)")
-            return default
-        v = self.table[key]
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"must be an integer, got {type(v).__name__} {v!r}")
-        if v < low or (high is not None and v > high):
-            allowed = f">= {low}" if high is None else f"from {low} to {high}"
-            shown = str(v) if abs(v) < 10**15 else f"an integer of {len(str(abs(v)))} digits"
-            raise self.error(key, f"must be {allowed}, got {shown}")
-        return v
-
-    def string(self, key: str, default: str | None = None,
-               choices: tuple[str, ...] | None = None) -> str:
-        if key not in self.table:
-            if default is None:
-                raise self.error(key, "missing (a string is required)")
-            return default
-        v = self.table[key]
-        if not isinstance(v, str):
-            raise self.error(key, f"must be a string, got {type(v).__name__} {v!r}")
-        if choices is not None and v not in choices:
-            close = difflib.get_close_matches(v, choices, n=1)
-            did = f" (did you mean '{close[0]}'?)" if close else ""
-            raise self.error(key, f"{v!r} is not allowed{did}; allowed: {', '.join(choices)}")
-        return v
-
-    def numbers(self, key: str, length: int | None = None,
-                default: tuple[float, ...] | None = None) -> tuple[float, ...]:
-        if key not in self.table:
-            if default is None:
-                raise self.error(key, "missing (a list of numbers is required)")
-            return default
-        v = self.table[key]
-        if not isinstance(v, list) or any(isinstance(a, bool) or not isinstance(a, (int, float))
-                                          for a in v):
-            raise self.error(key, f"must be a list of numbers, got {v!r}")
-        if length is not None and len(v) != length:
-            raise self.error(key, f"must have {length} entries, got {len(v)}")
-        if len(v) > MAX_LIST:
-            raise self.error(key, f"at most {MAX_LIST} entries, got {len(v)}")
-        out = tuple(float(a) for a in v)
-        if not all(math.isfinite(a) for a in out):
-            raise self.error(key, f"must be finite, got {v!r}")
-        return out
-
-    def interval(self, key: str, default: tuple[float, float]) -> tuple[float, float]:
-        lo, hi = self.numbers(key, 2, default)
-        if lo > hi:
-            raise self.error(key, f"interval [lo, hi] needs lo <= hi, got [{lo:g}, {hi:g}]")
-        return lo, hi
-
-    def table_of(self, key: str, required: bool = False) -> "_Reader":
-        v = self.table.get(key, None)
-        if v is None:
-            if required:
-                raise self.error(key, "missing table")
-            v = {}
-        if not isinstance(v, dict):
-            raise self.error(key, f"must be a table, got {type(v).__name__}")
-        return _Reader(self.path, v, f"{self.prefix}{key}.")
-
-
 # -- sections --------------------------------------------------------------------------
-def _run(r: _Reader) -> RunConfig:
+def _run(r: Table) -> RunConfig:
     r.check_keys(tuple(f.name for f in dataclasses.fields(RunConfig)))
     d = RunConfig()
     return RunConfig(
@@ -212,45 +107,17 @@ def _run(r: _Reader) -> RunConfig:
     )
 
 
-def _plant(r: _Reader) -> PlantConfig:
+def _plant(r: Table) -> PlantConfig:
     """``[plant]`` onto the kind's own configuration class (tspend.plants.registry)."""
     kind = r.string("kind", None, tuple(PLANT_KINDS))
     cls = PLANT_KINDS[kind].config
-    values = _fields(r, cls, f"for plant kind '{kind}'", skip=("kind", "x0"))
+    values = read_fields(r, cls, f"for plant kind '{kind}'", skip=("kind", "x0"))
     n = PLANT_ORDERS[kind]
     return cls(kind=kind, x0=r.numbers("x0", n, (0.0,) * n), **values)
 
 
-def _fields(r: _Reader, cls: type, context: str, skip: tuple[str, ...] = ()) -> dict[str, Any]:
-    """Every field of dataclass ``cls`` present in the table, read by its type and checked
-    by its metadata (``low``, ``strict``, ``choices``); unknown keys are errors."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    r.check_keys(tuple(fields), context)
-    values: dict[str, Any] = {}
-    for name, f in fields.items():
-        if name in skip or not r.has(name):
-            continue
-        meta, default = f.metadata, f.default
-        if isinstance(default, bool):
-            v = r.table[name]
-            if not isinstance(v, bool):
-                raise r.error(name, f"must be true or false, got {v!r}")
-            values[name] = v
-        elif isinstance(default, int) and not isinstance(default, bool) and f.type in ("int", int):
-            values[name] = r.integer(name, None, low=int(meta.get("low", 0)))
-        elif isinstance(default, float):
-            values[name] = r.number(name, None, low=meta.get("low"), strict=meta.get("strict", False))
-        elif isinstance(default, str):
-            values[name] = r.string(name, None, meta.get("choices"))
-        elif isinstance(default, tuple):
-            values[name] = r.numbers(name)
-            if any(v < 0 for v in values[name]) and "low" in meta:
-                raise r.error(name, f"entries must be >= {meta['low']:g}")
-    return values
-
-
-def _effects(r: _Reader, n: int) -> EffectsConfig:
-    values = _fields(r, EffectsConfig, "in [effects]", skip=("change", "outer_loop"))
+def _effects(r: Table, n: int) -> EffectsConfig:
+    values = read_fields(r, EffectsConfig, "in [effects]", skip=("change", "outer_loop"))
     if any(v < 0 for v in values.get("noise_std", ())):
         raise r.error("noise_std", "standard deviations must be >= 0")
     if "noise_std" in values and len(values["noise_std"]) != n:
@@ -258,15 +125,15 @@ def _effects(r: _Reader, n: int) -> EffectsConfig:
                                    f"{len(values['noise_std'])}")
     if r.has("change"):
         c = r.table_of("change")
-        values["change"] = ParameterChange(**_fields(c, ParameterChange, "in [effects.change]"))
+        values["change"] = ParameterChange(**read_fields(c, ParameterChange, "in [effects.change]"))
     if r.has("outer_loop"):
         o = r.table_of("outer_loop")
-        values["outer_loop"] = OuterLoopConfig(**_fields(o, OuterLoopConfig,
+        values["outer_loop"] = OuterLoopConfig(**read_fields(o, OuterLoopConfig,
                                                          "in [effects.outer_loop]"))
     return EffectsConfig(**values)
 
 
-def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
+def _signal(r: Table, kinds: dict[str, type], default_kind: str) -> Any:
     """A reference or disturbance: ``kind`` picks the class, the other keys its fields."""
     kind = r.string("kind", default_kind, tuple(kinds))
     cls = kinds[kind]
@@ -287,8 +154,7 @@ def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
         if len(lengths) != 1:
             raise r.error("amplitudes", "amplitudes, omegas and phases must have the same length")
     if kind in ("steps", "csv"):
-        check = getattr(cls, "validate", None)
-        problem = check(values, r.path) if check else None
+        problem = cls.validate(values, r.path)
         if problem:
             raise r.error(problem[0], problem[1])
     if kind == "square" and values.get("period", 1.0) <= 0.0:
@@ -296,33 +162,14 @@ def _signal(r: _Reader, kinds: dict[str, type], default_kind: str) -> Any:
     return cls(**values)
 
 
-def _sets(r: _Reader, key: str, default: SetSpec) -> SetSpec:
-    if not r.has(key):
-        return default
-    t = r.table[key]
-    if not isinstance(t, dict):
-        raise r.error(key, f"must be a table {{terms = .., lo = .., hi = ..}}, got {t!r}")
-    s = _Reader(r.path, t, f"{r.prefix}{key}.")
-    return _set_spec(s)
-
-
-def _set_spec(s: _Reader) -> SetSpec:
-    s.check_keys(SET_KEYS)
-    terms = s.integer("terms", None, low=1, high=MAX_TERMS)
-    lo, hi = s.number("lo"), s.number("hi")
-    if lo >= hi:
-        raise s.error("lo", f"interval needs lo < hi, got lo = {lo:g}, hi = {hi:g}")
-    return SetSpec(terms, lo, hi)
-
-
-def _controller(r: _Reader, n: int) -> ControllerConfig:
+def _controller(r: Table, n: int) -> ControllerConfig:
     r.check_keys(CONTROLLER_KEYS)
     d = ControllerConfig()
     lam = r.numbers("lambda", n, (1.0, 2.0) if n == 2 else None)
     if not is_hurwitz(np.asarray(lam)):
         raise r.error("lambda", f"s^{n} + lambda_n s^{n - 1} + .. + lambda_1 must be Hurwitz "
                                 f"(all roots in Re s < 0); {list(lam)} is not")
-    Q = _matrix(r, "Q", n, d.Q if n == 2 else tuple(tuple(10.0 * (i == j) for j in range(n))
+    Q = r.matrix("Q", n, d.Q if n == 2 else tuple(tuple(10.0 * (i == j) for j in range(n))
                                                       for i in range(n)))
     order = r.integer("bspline_order", d.bspline_order, low=2, high=MAX_BSPLINE_ORDER)
     cps = r.integer("control_points", d.control_points, low=1, high=MAX_CONTROL_POINTS)
@@ -333,9 +180,9 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
     state_sets = _state_sets(sets, n, d.state_sets)
     eta = r.number("eta", d.eta, low=0.0, strict=True)
     op = r.string("operating_point", d.operating_point, ("fixed", "state"))
-    u_sets = _sets(sets, "u", d.u_sets)
-    e_delta_sets = _sets(sets, "e_delta", d.e_delta_sets)
-    x_norm_sets = _sets(sets, "x_norm", d.x_norm_sets)
+    u_sets = sets.set_spec("u") if sets.has("u") else d.u_sets
+    e_delta_sets = sets.set_spec("e_delta") if sets.has("e_delta") else d.e_delta_sets
+    x_norm_sets = sets.set_spec("x_norm") if sets.has("x_norm") else d.x_norm_sets
     _check_rules(sets, "states", (*state_sets, u_sets), "T-S model (states x u)")
     _check_rules(sets, "e_delta", (e_delta_sets, x_norm_sets), "compensator (e_delta x x_norm)")
     init_c = r.interval("init_consequents", d.init_consequents)
@@ -363,41 +210,19 @@ def _controller(r: _Reader, n: int) -> ControllerConfig:
     )
 
 
-def _check_rules(sets: _Reader, key: str, specs: tuple[SetSpec, ...], what: str) -> None:
+def _check_rules(sets: Table, key: str, specs: tuple[SetSpec, ...], what: str) -> None:
     rules = math.prod(s.terms for s in specs)
     if rules > MAX_RULES:
         raise sets.error(key, f"the {what} would have {rules} rules, more than {MAX_RULES}; "
                               f"use fewer terms per set")
 
 
-def _state_sets(sets: _Reader, n: int, default: tuple[SetSpec, ...]) -> tuple[SetSpec, ...]:
+def _state_sets(sets: Table, n: int, default: tuple[SetSpec, ...]) -> tuple[SetSpec, ...]:
     if not sets.has("states"):
         if len(default) != n:
             raise sets.error("states", f"missing: give {n} set tables, one per state")
         return default
-    v = sets.table["states"]
-    if not isinstance(v, list) or len(v) != n or not all(isinstance(t, dict) for t in v):
-        raise sets.error("states", f"must be a list of {n} tables {{terms, lo, hi}} (one per "
-                                   f"state), got {v!r}")
-    return tuple(_set_spec(_Reader(sets.path, t, f"{sets.prefix}states[{i}].")) for i, t in
-                 enumerate(v))
-
-
-def _matrix(r: _Reader, key: str, n: int, default) -> tuple[tuple[float, ...], ...]:
-    if not r.has(key):
-        return default
-    v = r.table[key]
-    ok = (isinstance(v, list) and len(v) == n and all(isinstance(row, list) and len(row) == n
-                                                      for row in v))
-    if not ok:
-        raise r.error(key, f"must be an {n}x{n} list of lists, got {v!r}")
-    rows = tuple(_Reader(r.path, {key: row}, r.prefix).numbers(key, n) for row in v)
-    Q = np.array(rows)
-    if not np.allclose(Q, Q.T):
-        raise r.error(key, "must be symmetric")
-    if np.linalg.eigvalsh(Q).min() <= 0.0:
-        raise r.error(key, f"must be positive definite (eigenvalues {np.linalg.eigvalsh(Q)})")
-    return rows
+    return sets.set_specs("states", n)
 
 
 # -- entry points ----------------------------------------------------------------------
@@ -413,7 +238,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     for key, value in overrides:
         _set_dotted(raw, key, value, path)
         where = f"{path} (with overrides)"
-    top = _Reader(where, raw, "")
+    top = Table(where, raw, "")
     top.check_keys(TOP_KEYS)
     _check_name(top)
     plant_r = top.table_of("plant", required=True)
@@ -423,7 +248,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ref = _signal(top.table_of("reference", required=True), REFERENCE_KINDS, "sine")
     dist = _signal(top.table_of("disturbance"), DISTURBANCE_KINDS, "zero")
     ctrl = _controller(top.table_of("controller", required=True), n)
-    kind_settings = parse_kind_tables(top.table_of("controllers"), n)
+    kind_settings = parse_kind_tables(top.table_of("controllers"), n, SETTINGS)
     effects = _effects(top.table_of("effects"), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
@@ -467,7 +292,7 @@ def check_nesting(value: Any, where: str, limit: int = MAX_NESTING) -> None:
         level.extend((c, depth + 1) for c in children if isinstance(c, (dict, list)))
 
 
-def _check_name(top: _Reader) -> None:
+def _check_name(top: Table) -> None:
     for key in ("name", "description"):
         v = top.table.get(key)
         if not isinstance(v, str):
@@ -540,18 +365,3 @@ def override(scenario: Scenario, **changes: Any) -> Scenario:
     merged = dict(scenario.overrides)
     merged.update(changes)
     return parse_scenario(scenario.text, scenario.path, scenario.name, tuple(merged.items()))
-
-
-def resolve_model_path(scenario: Scenario) -> Path:
-    """The MJCF of a MuJoCo scenario: as given, else next to the scenario, else the project's."""
-    p = Path(getattr(scenario.plant, "model", MujocoCartPoleConfig.model))
-    if p.is_absolute():
-        return p
-    bases = [Path.cwd()]
-    if scenario.path and scenario.path != "<string>":
-        bases.append(Path(scenario.path).resolve().parent)
-    bases.append(project_root())
-    for base in bases:
-        if (base / p).is_file():
-            return base / p
-    return p

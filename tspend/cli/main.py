@@ -195,8 +195,10 @@ def load_with_overrides(args: argparse.Namespace):
 
 
 def uses_mujoco(scn) -> bool:
-    """Whether the scenario's plant is a MuJoCo model (its configuration names a model file)."""
-    return hasattr(scn.plant, "model")
+    """Whether the scenario's plant is a MuJoCo model (its domain's backend steps an MJCF)."""
+    from tspend.plants.registry import PLANT_KINDS
+
+    return PLANT_KINDS[scn.plant.kind].mujoco
 
 
 def scenario_inputs(scn) -> list[str]:
@@ -211,7 +213,9 @@ def scenario_inputs(scn) -> list[str]:
 
 def check_model_size(scn, limit: int = 10_000_000, kind: str | None = None) -> None:
     """An MJCF larger than ``limit`` bytes is refused before MuJoCo reads it."""
-    if not (uses_mujoco(scn) or (kind and "mujoco" in kind)):
+    from tspend.plants.registry import PLANT_KINDS
+
+    if not (uses_mujoco(scn) or (kind and PLANT_KINDS[kind].mujoco)):
         return
     from tspend.scenario import resolve_model_path
 

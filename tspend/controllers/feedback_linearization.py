@@ -38,14 +38,14 @@ import numpy as np
 from tspend.controllers.paper.control_law import is_hurwitz
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.plant_model import PlantModel, plant_model
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class FeedbackLinearizationSettings:
+class FeedbackLinearizationSettings(KindSettings):
     """``[controllers.feedback_linearization]``."""
 
     lam: tuple[float, ...] | None = setting(
@@ -146,6 +146,6 @@ class FeedbackLinearizationController:
 
 
 def build(scenario: "Scenario") -> FeedbackLinearizationController:
-    s: FeedbackLinearizationSettings = settings_for(scenario, "feedback_linearization")
+    s: FeedbackLinearizationSettings = settings_for(scenario, FeedbackLinearizationSettings)
     lam = np.asarray(s.lam if s.lam is not None else scenario.controller.lam)
     return FeedbackLinearizationController(plant_model(scenario), lam, s.tol, s.max_iter)

@@ -7,7 +7,7 @@ cart-pole ``("slider", "hinge", "slider_dot", "hinge_dot")``), one input ``u`` a
 ``q'' = accel(s, u)`` taken from the domain's own equations (written once, in the
 domain's module; here only called).  The equations are built twice from that one
 source: over ``math`` for numbers and over CasADi for symbols
-(:func:`tspend.plants.cartpole.accelerations_factory`), so the MPC's model is the
+(:func:`tspend.plants.cartpole_physics.accelerations_factory`), so the MPC's model is the
 simulated one, not a copy.
 
 Derived, each documented as such:
@@ -144,7 +144,7 @@ class FullModel:
 
 def _cartpole(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
               rail: float, params: dict) -> FullModel:
-    from tspend.plants.cartpole import accelerations_factory
+    from tspend.plants.cartpole_physics import accelerations_factory
 
     def factory(sin, cos, tanh):
         accel = accelerations_factory(sin, cos, tanh)

@@ -61,7 +61,7 @@ import numpy as np
 from tspend.errors import ScenarioError
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -76,7 +76,7 @@ DESIGNS = ("full", "view")
 
 
 @dataclass(frozen=True)
-class LQRSettings:
+class LQRSettings(KindSettings):
     """``[controllers.lqr]``."""
 
     Q: tuple[tuple[float, ...], ...] | None = setting(
@@ -161,6 +161,7 @@ class LQRController:
         return {}
 
 
+<<<<<<< HEAD
 class FullStateLQR:
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
@@ -276,6 +277,10 @@ def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
                                 f"plant with a full state (cartpole_ode, cartpole_mujoco); "
                                 f"plant '{scenario.plant.kind}' has only the view: use 'view'")
         return build_full(scenario, s)
+=======
+def build(scenario: "Scenario") -> LQRController:
+    s: LQRSettings = settings_for(scenario, LQRSettings)
+>>>>>>> core-b
     model = plant_model(scenario)
     A, B = model.state_space()
     b = float(B[-1, 0])

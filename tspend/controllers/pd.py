@@ -26,14 +26,14 @@ import numpy as np
 
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import finite_or, setting, settings_for
+from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class PDSettings:
+class PDSettings(KindSettings):
     """``[controllers.pd]``."""
 
     gains: tuple[float, ...] | None = setting(
@@ -85,7 +85,7 @@ class PDController:
 
 
 def build(scenario: "Scenario") -> PDController:
-    s: PDSettings = settings_for(scenario, "pd")
+    s: PDSettings = settings_for(scenario, PDSettings)
     model = plant_model(scenario)
     gains = np.asarray(s.gains) if s.gains else gains_from_poles(model.order, s.bandwidth)
     b0 = finite_or(s.b0, model.linearisation()[1])

@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+from tspend.tables import Table
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -32,31 +32,12 @@ if TYPE_CHECKING:
 PAPER_KINDS = ("second_type", "first_type")
 
 
-class TableReader(Protocol):
-    """What :func:`parse_kind_tables` needs of ``tspend.scenario._Reader``."""
+class KindSettings:
+    """Base of every kind's settings dataclass: :meth:`check` validates across fields."""
 
-    path: str
-    table: dict
-    prefix: str
-
-    def error(self, key: str, problem: str) -> Exception: ...
-
-    def check_keys(self, allowed: tuple[str, ...], context: str = "") -> None: ...
-
-    def has(self, key: str) -> bool: ...
-
-    def number(self, key: str, default: float | None = None, *, low: float | None = None,
-               strict: bool = False) -> float: ...
-
-    def integer(self, key: str, default: int | None = None, *, low: int = 0) -> int: ...
-
-    def string(self, key: str, default: str | None = None,
-               choices: tuple[str, ...] | None = None) -> str: ...
-
-    def numbers(self, key: str, length: int | None = None,
-                default: tuple[float, ...] | None = None) -> tuple[float, ...]: ...
-
-    def table_of(self, key: str, required: bool = False) -> "TableReader": ...
+    def check(self, n: int) -> tuple[str, str] | None:
+        """``(key, problem)`` when the settings do not fit a plant of order ``n``."""
+        return None
 
 
 def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
@@ -71,7 +52,7 @@ def setting(default: Any, doc: str, *, kind: str = "number", low: float | None =
     return dataclasses.field(default=default, metadata=meta)
 
 
-def _value(r: TableReader, f: dataclasses.Field, n: int) -> Any:
+def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
     meta, key = f.metadata, key_of(f)
     kind = meta["kind"]
     if kind == "number":
@@ -94,7 +75,7 @@ def _value(r: TableReader, f: dataclasses.Field, n: int) -> Any:
             raise r.error(key, f"every entry must be {op} {meta['low']:g}, got {list(values)}")
         return values
     if kind == "matrix":
-        return _matrix(r, key, n)
+        return r.matrix(key, n)
     if kind == "list":
         # a length the plant decides (the full state's): checked when the kind is built
         values = r.numbers(key)
@@ -102,7 +83,7 @@ def _value(r: TableReader, f: dataclasses.Field, n: int) -> Any:
             raise r.error(key, f"every entry must be >= {meta['low']:g}, got {list(values)}")
         return values
     if kind == "sets":
-        return _sets(r, key, n)
+        return r.set_specs(key, n, min_terms=2)
     raise AssertionError(f"unknown setting kind {kind!r}")
 
 
@@ -111,72 +92,38 @@ def key_of(f: dataclasses.Field) -> str:
     return f.metadata.get("name") or f.name
 
 
-def _matrix(r: TableReader, key: str, n: int) -> tuple[tuple[float, ...], ...]:
-    v = r.table[key]
-    if not (isinstance(v, list) and len(v) == n and all(isinstance(row, list) for row in v)):
-        raise r.error(key, f"must be an {n}x{n} list of lists, got {v!r}")
-    rows = tuple(type(r)(r.path, {key: row}, r.prefix).numbers(key, n) for row in v)
-    M = np.array(rows)
-    if not np.allclose(M, M.T):
-        raise r.error(key, "must be symmetric")
-    if np.linalg.eigvalsh(M).min() <= 0.0:
-        raise r.error(key, f"must be positive definite, eigenvalues {np.linalg.eigvalsh(M)}")
-    return rows
-
-
-def _sets(r: TableReader, key: str, n: int):
-    from tspend.config import SetSpec
-
-    v = r.table[key]
-    if not (isinstance(v, list) and len(v) == n and all(isinstance(t, dict) for t in v)):
-        raise r.error(key, f"must be a list of {n} tables {{terms, lo, hi}} (one per state), "
-                           f"got {v!r}")
-    out = []
-    for i, t in enumerate(v):
-        s = type(r)(r.path, t, f"{r.prefix}{key}[{i}].")
-        s.check_keys(("terms", "lo", "hi"))
-        terms, lo, hi = s.integer("terms", low=2), s.number("lo"), s.number("hi")
-        if not lo < hi:
-            raise s.error("lo", f"interval needs lo < hi, got lo = {lo:g}, hi = {hi:g}")
-        out.append(SetSpec(terms, lo, hi))
-    return tuple(out)
-
-
-def parse_kind_tables(r: TableReader, n: int) -> tuple[tuple[str, Any], ...]:
-    """The ``[controllers]`` table: ``(kind, settings)`` pairs, validated for order ``n``."""
-    from tspend.controllers import SETTINGS
-
+def parse_kind_tables(r: Table, n: int, kinds: dict[str, type[KindSettings]]
+                      ) -> tuple[tuple[str, KindSettings], ...]:
+    """The ``[controllers]`` table: ``(kind, settings)`` pairs, validated for order ``n``;
+    ``kinds`` maps each kind to its settings class (``tspend.controllers.SETTINGS``)."""
     out = []
     for kind in r.table:
         if kind in PAPER_KINDS:
             raise r.error(kind, "the paper controller's settings live in [controller]; "
-                                f"[controllers.KIND] tables are for: {', '.join(SETTINGS)}")
-        if kind not in SETTINGS:
-            raise r.error(kind, f"unknown controller kind; allowed: {', '.join(SETTINGS)}")
-        cls = SETTINGS[kind]
+                                f"[controllers.KIND] tables are for: {', '.join(kinds)}")
+        if kind not in kinds:
+            raise r.error(kind, f"unknown controller kind; allowed: {', '.join(kinds)}")
+        cls = kinds[kind]
         sub = r.table_of(kind)
         fields = dataclasses.fields(cls)
         sub.check_keys(tuple(key_of(f) for f in fields), f"for kind '{kind}'")
         values = {f.name: _value(sub, f, n) for f in fields if sub.has(key_of(f))}
         settings = cls(**values)
-        check = getattr(settings, "check", None)
-        if check is not None:
-            problem = check(n)
-            if problem:
-                key, message = problem
-                raise sub.error(key, message)
+        problem = settings.check(n)
+        if problem:
+            key, message = problem
+            raise sub.error(key, message)
         out.append((kind, settings))
     return tuple(out)
 
 
-def settings_for(scenario: "Scenario", kind: str):
-    """The scenario's settings of ``kind``: its ``[controllers.KIND]`` table, else defaults."""
-    from tspend.controllers import SETTINGS
-
-    for k, s in getattr(scenario, "controllers", ()):
-        if k == kind:
+def settings_for(scenario: "Scenario", cls: type[KindSettings]) -> Any:
+    """The scenario's settings of class ``cls``: its ``[controllers.KIND]`` table, else
+    the defaults."""
+    for _, s in scenario.controllers:
+        if isinstance(s, cls):
             return s
-    return SETTINGS[kind]()
+    return cls()
 
 
 def finite_or(value: float | None, fallback: float) -> float:

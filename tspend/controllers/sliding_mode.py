@@ -20,7 +20,8 @@ Defaults (:class:`SlidingModeSettings`):
 
 * ``c``: Slotine's ``s = (d/dt + surface_pole)^(n-1) e``, ``surface_pole = 5 rad/s``,
   five times the references' frequency;
-* ``k`` by plant, a margin over ``|Delta|`` on the paper's operating regions:
+* ``k`` by plant domain (``PlantModel.switching_gain``, the domain says why), a margin
+  over ``|Delta|`` on the paper's operating regions:
   Example 1 ``2`` (disturbance 0.1 plus the input gain's variation away from the
   origin), Duffing ``20`` (``12 cos t`` and ``x1^3`` with ``|x1| <= 1.5`` are outside the
   linear model: about 15.5), the cart-pole ``0.5 rad/s^2`` (the disturbance is ``0.05 /
@@ -42,20 +43,17 @@ import numpy as np
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import finite_or, setting, settings_for
+from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
-#: switching gain k by plant kind (see the module docstring for the reasons)
-DEFAULT_SWITCHING_GAIN = {"nonaffine": 2.0, "duffing": 20.0, "cartpole_ode": 0.5,
-                          "cartpole_mujoco": 0.5, "third_order": 2.0}
 #: phi = k / LAYER_RATE when phi is not given
 LAYER_RATE = 50.0
 
 
 @dataclass(frozen=True)
-class SlidingModeSettings:
+class SlidingModeSettings(KindSettings):
     """``[controllers.sliding_mode]``."""
 
     c: tuple[float, ...] | None = setting(
@@ -124,12 +122,12 @@ class SlidingModeController:
 
 
 def build(scenario: "Scenario") -> SlidingModeController:
-    st: SlidingModeSettings = settings_for(scenario, "sliding_mode")
+    st: SlidingModeSettings = settings_for(scenario, SlidingModeSettings)
     model = plant_model(scenario)
     n = model.order
     a, b = model.linearisation()
     c = np.asarray(st.c) if st.c is not None else gains_from_poles(n - 1, st.surface_pole)
-    k = finite_or(st.k, DEFAULT_SWITCHING_GAIN[model.name])
+    k = finite_or(st.k, model.switching_gain)
     phi = finite_or(st.phi, k / LAYER_RATE)
     if st.nominal == "none":
         a = np.zeros(n)

@@ -64,14 +64,14 @@ from tspend.errors import ScenarioError
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.gaussian_basis import GaussianGrid, basis, gaussian_grid
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import finite_or, setting, settings_for
+from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
 
 @dataclass(frozen=True)
-class WangSettings:
+class WangSettings(KindSettings):
     """``[controllers.wang_indirect]``."""
 
     lam: tuple[float, ...] | None = setting(
@@ -208,7 +208,7 @@ class WangIndirectController:
 
 
 def build(scenario: "Scenario") -> WangIndirectController:
-    s: WangSettings = settings_for(scenario, "wang_indirect")
+    s: WangSettings = settings_for(scenario, WangSettings)
     cfg = scenario.controller
     model = plant_model(scenario)
     b0 = model.linearisation()[1]

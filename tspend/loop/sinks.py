@@ -34,7 +34,7 @@ from typing import Protocol
 import numpy as np
 
 from tspend.controllers.base import Diagnostic
-from tspend.plants.base import CartPoleDrawing
+from tspend.plants.domain import Drawing
 
 
 @dataclass(frozen=True)
@@ -68,8 +68,8 @@ class RunInfo:
     #: which controller runs, and the diagnostics it declared
     controller_kind: str = ""
     diagnostics: tuple[Diagnostic, ...] = ()
-    #: what to draw of the plant in 3D (a cart-pole's parameters and MJCF), or None
-    drawing: CartPoleDrawing | None = None
+    #: what to draw of the plant in 3D (its domain's drawing), or None
+    drawing: Drawing | None = None
 
 
 @dataclass(frozen=True)

@@ -9,14 +9,18 @@ plant itself (Duffing's forcing) are evaluated at each RK4 stage.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.core import types
 from numba.extending import overload, register_jitable
 
+from tspend.config import AnalyticPlantConfig
+from tspend.plants.domain import Backend, Domain, PlantLabels, PlantModel, Quantity, TaskDefaults
 from tspend.runtime.jit import JIT
-from tspend.plants import cartpole
-from tspend.plants.cartpole import CartPoleParams
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
 
 Accel = Callable[[float, np.ndarray, float, float], float]
 
@@ -48,16 +52,6 @@ def third_order_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     x1, x2, x3 = x[0], x[1], x[2]
     return (-x1 - 2.0 * x2 - 1.5 * x3 + 0.5 * math.sin(x1) * x2
             + (1.5 + math.cos(x1)) * (u + 0.2 * math.tanh(u)) + d)
-
-
-def cartpole_accel_fn(p: CartPoleParams) -> Accel:
-    """theta'' of the cart-pole (C1)-(C2) (:mod:`tspend.plants.cartpole`) as ``f(t, x, u, d)``,
-    with the cart at rest (its velocity enters only through cart damping)."""
-
-    def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
-        return cartpole.accelerations(p, x[0], x[1], 0.0, u, d)[0]
-
-    return accel
 
 
 class RK4Work(NamedTuple):
@@ -140,6 +134,12 @@ class ThirdOrderChain(NamedTuple):
         chain_rhs(third_order_accel, t, s, u, d, sdot)
 
 
+#: parameter structure type -> its compiled right-hand side ``rhs(params, t, s, u, d, sdot)``;
+#: a domain with its own compiled machine registers it here (the cart-pole's
+#: ``CartPoleMachine``, the Furuta's ``FurutaMachine``)
+COMPILED_RHS: dict[type, Callable] = {}
+
+
 def plant_rhs(params: Any, t: float, s: np.ndarray, u: float, d: float,
               sdot: np.ndarray) -> None:
     """The right-hand side of the plant ``params`` stands for, into ``sdot``: in Python its
@@ -149,10 +149,12 @@ def plant_rhs(params: Any, t: float, s: np.ndarray, u: float, d: float,
 
 @overload(plant_rhs, jit_options=JIT)
 def _plant_rhs(params, t, s, u, d, sdot):
-    cls = getattr(params, "instance_class", None)
-    if cls is cartpole.CartPoleMachine:
+    cls = params.instance_class if isinstance(params, types.BaseNamedTuple) else None
+    if cls in COMPILED_RHS:
+        rhs = COMPILED_RHS[cls]
+
         def impl(params, t, s, u, d, sdot):
-            cartpole.machine_rhs(params, t, s, u, d, sdot)
+            rhs(params, t, s, u, d, sdot)
 
         return impl
     if cls in _CHAIN_ACCEL:
@@ -213,6 +215,25 @@ class AnalyticPlant:
     def state(self) -> np.ndarray:
         return self.s[: self.order].copy()
 
+    @property
+    def domain(self) -> str:
+        return self.name
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """The chain's states ``x1 .. xn`` (a domain with hidden states names its own)."""
+        return tuple(f"x{i + 1}" for i in range(self.order))
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return ("",) * len(self.state_names)
+
+    def full_state(self) -> np.ndarray:
+        return self.s.copy()
+
+    def parameters(self) -> dict[str, float]:
+        return {}
+
     def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
         """Full derivative: the chain of integrators, accel last, then hidden states."""
         sdot = np.empty_like(s)
@@ -244,49 +265,56 @@ class AnalyticPlant:
         return {name: float(v) for name, v in zip(self.hidden_names, self.s[self.order:])}
 
 
-class CartPoleODE(AnalyticPlant):
-    """The cart-pole ODE (C1)-(C2) of :mod:`tspend.plants.cartpole`, with the cart as
-    hidden states, so the ODE backend can draw the cart and meet a finite rail too."""
-
-    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
-        super().__init__(lambda t, s, u, d: cartpole.accelerations(self._machine, s[0], s[1], s[3], u, d)[0],
-                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"))
-        self.set_params(params)
-
-    @property
-    def gain_sign(self) -> int:
-        return int(cartpole.gain_sign(self.params))
-
-    def set_params(self, params: CartPoleParams) -> None:
-        """Change the machine while it runs (a payload picked up); the state is kept."""
-        self.params = params
-        self._machine = params.machine()
-
-    def _rhs_params(self) -> Any:
-        return self._machine
-
-
-    def compiled(self) -> CompiledPlant:
-        return CompiledPlant(self._machine, self.s, self._clock, self._work)
-
-
 _CHAIN_ACCEL: dict[type, Callable] = {NonaffineChain: nonaffine_accel,
                                       DuffingChain: duffing_accel,
                                       ThirdOrderChain: third_order_accel}
 _CHAIN_OF = {accel: chain for chain, accel in _CHAIN_ACCEL.items()}
 
 
+# -- the paper's chain plants as domains -------------------------------------------------
+class ChainDomain(Domain):
+    """One of the paper's chain plants (6): a single analytic kind whose whole state is the
+    task's view, with the plant's own ``f`` as the controllers' model."""
+
+    def __init__(self, name: str, accel: Accel, order: int, affine_in_u: bool,
+                 switching_gain: float, labels: PlantLabels) -> None:
+        self.name, self.accel, self.affine_in_u = name, accel, affine_in_u
+        self.switching_gain = switching_gain
+        self.labels = labels
+        self.task = TaskDefaults(view=tuple(f"x{i + 1}" for i in range(order)))
+        self.kinds = {name: Backend(AnalyticPlantConfig, lambda cfg, path: self.make())}
+
+    def make(self) -> AnalyticPlant:
+        return AnalyticPlant(self.accel, self.order, self.name)
+
+    def plant_model(self, scenario: "Scenario") -> PlantModel:
+        return PlantModel(self.name, self.order, self.accel, affine_in_u=self.affine_in_u,
+                          x_op=(0.0,) * self.order, switching_gain=self.switching_gain)
+
+
+# sliding mode's k is a margin over the model error |Delta| on the paper's operating
+# regions (docs/controllers.md): Example 1 2 (disturbance 0.1 plus the input gain's
+# variation away from the origin), Duffing 20 (12 cos t and x1^3 with |x1| <= 1.5 are
+# outside the linear model: about 15.5), the third-order plant 2
+NONAFFINE = ChainDomain("nonaffine", nonaffine_accel, 2, False, 2.0, PlantLabels(
+    (Quantity("x1", "", "state"), Quantity("x2", "", "state")), Quantity("u", "", "control"), {}))
+DUFFING = ChainDomain("duffing", duffing_accel, 2, True, 20.0, PlantLabels(
+    (Quantity("x", "", "Duffing position"), Quantity("x'", "", "Duffing velocity")),
+    Quantity("u", "", "forcing control"), {}))
+THIRD_ORDER = ChainDomain("third_order", third_order_accel, 3, False, 2.0, PlantLabels(
+    (), Quantity("u", "", "control"), {}).padded(3))
+
+#: the paper's chain domains
+DOMAINS: tuple[ChainDomain, ...] = (NONAFFINE, DUFFING, THIRD_ORDER)
+
+
 def nonaffine_plant() -> AnalyticPlant:
-    return AnalyticPlant(nonaffine_accel, 2, "nonaffine")
+    return NONAFFINE.make()
 
 
 def duffing_plant() -> AnalyticPlant:
-    return AnalyticPlant(duffing_accel, 2, "duffing")
+    return DUFFING.make()
 
 
 def third_order_plant() -> AnalyticPlant:
-    return AnalyticPlant(third_order_accel, 3, "third_order")
-
-
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
-    return CartPoleODE(params)
+    return THIRD_ORDER.make()

@@ -7,7 +7,6 @@ runner only sees this protocol, so backends are interchangeable.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -31,17 +30,3 @@ class Plant(Protocol):
 
     def extras(self) -> dict[str, float]:
         """Quantities outside x worth recording (cart position, ...); may be empty."""
-
-
-@dataclass(frozen=True)
-class CartPoleDrawing:
-    """What a recorder needs to draw a cart-pole: its parameters and, for MuJoCo, the MJCF
-    whose geoms to draw.  ``theta_sign`` is -1 when the model's positive angle leans the
-    pole toward +x."""
-
-    M: float
-    m: float
-    l: float
-    g: float
-    mjcf: str = ""
-    theta_sign: float = 1.0

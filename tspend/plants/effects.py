@@ -37,9 +37,14 @@ class RailEnd(DivergenceError):
 class EffectsPlant:
     """``plant`` seen through an actuator and a rail, and changed at a given time."""
 
-    def __init__(self, plant: Plant, cfg: EffectsConfig) -> None:
+    def __init__(self, plant: Plant, cfg: EffectsConfig, rail_state: str | None = None) -> None:
+        """``rail_state``: the state (a slide joint's position, by name) that
+        ``cfg.rail`` bounds; by default the plant's first state, the cart-pole's slider."""
         self.inner, self.cfg = plant, cfg
         self.order = plant.order
+        names = tuple(plant.state_names)
+        self._rail_index = names.index(rail_state) if rail_state else 0
+        self._rail_name = names[self._rail_index]
         self._u_prev = 0.0
         self._t = 0.0
         self._changed = False
@@ -81,9 +86,9 @@ class EffectsPlant:
         self._t += dt
         rail = self.cfg.rail
         if rail > 0.0:
-            x = self.inner.extras().get("cart_pos", 0.0)
+            x = float(self.inner.full_state()[self._rail_index])
             if abs(x) >= rail:
-                raise RailEnd(f"the cart reached the end of the rail at x = {x:+.4g} m "
+                raise RailEnd(f"{self._rail_name} reached the end of the rail at {x:+.4g} m "
                               f"(half-length {rail:g} m) at t = {self._t:.4f} s")
 
     def extras(self) -> dict[str, float]:
@@ -142,8 +147,7 @@ class Measurement:
         self.past: deque[np.ndarray] = deque(maxlen=cfg.delay + 1)
         ol = cfg.outer_loop
         on = ol is not None and (ol.k_x != 0.0 or ol.k_v != 0.0)
-        sign = float(getattr(getattr(plant, "params", None), "theta_sign", 1.0))
-        self.outer = OuterLoop(ol, n, dt, sign) if on else None
+        self.outer = OuterLoop(ol, n, dt, plant.params.theta_sign) if on else None  # type: ignore[attr-defined]
 
     def __call__(self, t: float, x: np.ndarray, ref_row: np.ndarray) -> np.ndarray:
         if self.outer is not None:

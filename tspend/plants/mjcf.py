@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.plants.cartpole import CartPoleParams
+from tspend.plants.cartpole_physics import CartPoleParams
 
 #: MuJoCo integrators by their MJCF names
 INTEGRATOR_NAMES = {mujoco.mjtIntegrator.mjINT_RK4: "RK4", mujoco.mjtIntegrator.mjINT_EULER: "Euler",

@@ -30,7 +30,7 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
-from tspend.plants.cartpole import CartPoleParams
+from tspend.plants.cartpole_physics import CartPoleParams
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
 INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
@@ -141,6 +141,7 @@ class MujocoCartPole:
 
     order: int = 2
     name: str = "cartpole_mujoco"
+    domain: str = "cartpole"
 
     def __init__(self, model_path: str | Path, slide_joint: str = "slider",
                  hinge_joint: str = "hinge", actuator: str = "force",
@@ -354,6 +355,22 @@ class MujocoCartPole:
 
     def state(self) -> np.ndarray:
         return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Every joint's position then velocity, named after the MJCF's joints."""
+        return (self.slide_joint, self.hinge_joint, f"{self.slide_joint}_dot",
+                f"{self.hinge_joint}_dot")
+
+    state_units = ("m", "rad", "m/s", "rad/s")
+
+    def full_state(self) -> np.ndarray:
+        q, v = self._qpos, self._qvel
+        return np.array((q[self._q_cart], q[self._q_th], v[self._v_cart], v[self._v_th]))
+
+    def parameters(self) -> dict[str, float]:
+        """The machine as compiled (:attr:`params`)."""
+        return {k: float(v) for k, v in self._params.__dict__.items()}
 
     def compiled_mujoco(self, dt: float) -> MujocoLink | None:
         """This plant for a compiled closed loop stepping it at sample time ``dt`` (None

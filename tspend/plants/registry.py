@@ -1,8 +1,9 @@
-"""Plant kinds: each with its order, its typed configuration and its builder.
+"""Plant domains and kinds: the one map from a scenario's ``plant.kind`` to its domain.
 
-The scenario reader parses ``[plant]`` into the kind's configuration class (its fields
-are exactly the allowed keys); :func:`build` makes the plant.  A new plant kind is one
-entry here and one configuration class in :mod:`tspend.config`.
+Each domain lives in its own module under ``tspend/plants/`` (:mod:`.cartpole`,
+:mod:`.furuta`, the paper's chains in :mod:`.analytic`) and declares its plant kinds,
+each with its configuration class and builder (:class:`~tspend.plants.domain.Domain`).
+A new domain is one module and one entry in :data:`DOMAINS`; nothing else names it.
 """
 
 from __future__ import annotations
@@ -13,88 +14,60 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from tspend.config import AnalyticPlantConfig, CartPoleConfig, MujocoCartPoleConfig, PlantConfig
-from tspend.plants import analytic
-from tspend.plants.base import CartPoleDrawing, Plant
-from tspend.plants.cartpole import CartPoleParams
+from tspend.config import PlantConfig
+from tspend.plants import analytic, cartpole
+from tspend.plants.base import Plant
+from tspend.plants.domain import Domain, Drawing
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
+__all__ = ["DOMAINS", "PLANT_KINDS", "PlantKind", "build", "domain_of", "drawing", "reset",
+           "resolve_model_path"]
+
+#: domain name -> domain
+DOMAINS: dict[str, Domain] = {d.name: d for d in (*analytic.DOMAINS, cartpole.DOMAIN)}
+
 
 @dataclass(frozen=True)
 class PlantKind:
+    """One plant kind: its domain, the order of its task's view, its configuration class
+    and its builder."""
+
+    domain: Domain
     order: int
     config: type[PlantConfig]
     build: Callable[[PlantConfig, Path], Plant]
+    #: True when the kind steps an MJCF
+    mujoco: bool = False
 
 
-def cartpole_params(cfg: CartPoleConfig) -> CartPoleParams:
-    """The machine a cart-pole configuration describes."""
-    return CartPoleParams(M=cfg.M, m=cfg.m, l=cfg.l, g=cfg.g, J=cfg.J,
-                          cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
-                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction)
-
-
-def _mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
-    from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
-
-    if not isinstance(cfg, MujocoCartPoleConfig):
-        cfg = MujocoCartPoleConfig(**{k: getattr(cfg, k) for k in CartPoleConfig.__dataclass_fields__})
-    friction = {k: (getattr(cfg, k) or None) for k in
-                ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
-    return MujocoCartPole(model_path, slide_joint=cfg.slide_joint, hinge_joint=cfg.hinge_joint,
-                          actuator=cfg.actuator,
-                          overrides=cartpole_params(cfg) if cfg.override_inertials else None,
-                          integrator=cfg.integrator or None, timestep=cfg.timestep or None,
-                          **friction)
-
-
-def _ode(cfg: PlantConfig, model_path: Path) -> Plant:
-    assert isinstance(cfg, CartPoleConfig)
-    return analytic.cartpole_ode_plant(cartpole_params(cfg))
-
-
-def _analytic(make: Callable[[], Plant]) -> Callable[[PlantConfig, Path], Plant]:
-    return lambda cfg, model_path: make()
-
-
-#: plant kind -> its order, configuration class and builder
+#: plant kind -> its domain, order, configuration class and builder
 PLANT_KINDS: dict[str, PlantKind] = {
-    "nonaffine": PlantKind(2, AnalyticPlantConfig, _analytic(analytic.nonaffine_plant)),
-    "duffing": PlantKind(2, AnalyticPlantConfig, _analytic(analytic.duffing_plant)),
-    "third_order": PlantKind(3, AnalyticPlantConfig, _analytic(analytic.third_order_plant)),
-    "cartpole_ode": PlantKind(2, CartPoleConfig, _ode),
-    "cartpole_mujoco": PlantKind(2, MujocoCartPoleConfig, _mujoco),
-}
+    kind: PlantKind(d, d.order, backend.config, backend.build, backend.mujoco)
+    for d in DOMAINS.values() for kind, backend in d.kinds.items()}
+
+
+def domain_of(kind: str) -> Domain:
+    """The domain of plant kind ``kind`` (KeyError for an unknown kind)."""
+    return PLANT_KINDS[kind].domain
+
+
+def resolve_model_path(scenario: "Scenario") -> Path:
+    """The MJCF of a scenario's domain (:meth:`Domain.model_path`)."""
+    return domain_of(scenario.plant.kind).model_path(scenario)
 
 
 def build(scenario: "Scenario", kind: str | None = None) -> Plant:
-    """The scenario's plant, or the same machine on backend ``kind``, not yet reset.
-
-    The ODE of a MuJoCo scenario is the compiled model's (masses, inertia, damping, gear
-    and angle sign read back), so both backends describe one machine.
-    """
-    from tspend.scenario import resolve_model_path
-
-    own = scenario.plant.kind
-    kind = kind or own
-    if kind == "cartpole_ode" and own == "cartpole_mujoco":
-        mj = PLANT_KINDS[own].build(scenario.plant, resolve_model_path(scenario))
-        return analytic.cartpole_ode_plant(mj.params)  # type: ignore[attr-defined]
-    return PLANT_KINDS[kind].build(scenario.plant, resolve_model_path(scenario))
+    """The scenario's plant, or the same machine on backend ``kind`` of its domain, not yet
+    reset.  The ODE of a MuJoCo scenario is the compiled model's, so both backends
+    describe one machine."""
+    return domain_of(scenario.plant.kind).build(scenario, kind)
 
 
-def drawing(plant: Plant, scenario: "Scenario") -> CartPoleDrawing | None:
+def drawing(plant: Plant, scenario: "Scenario") -> Drawing | None:
     """What a recorder draws of ``plant`` (None: nothing in 3D)."""
-    params = getattr(plant, "params", None)
-    if not isinstance(params, CartPoleParams):
-        return None
-    from tspend.scenario import resolve_model_path
-
-    mjcf = str(resolve_model_path(scenario)) if hasattr(plant, "model") else ""
-    return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,
-                           theta_sign=params.theta_sign)
+    return domain_of(scenario.plant.kind).drawing(plant, scenario)
 
 
 def reset(plant: Plant, scenario: "Scenario") -> Plant:

@@ -35,11 +35,11 @@ Where things are:
 - :mod:`.stream`: :func:`open_recording` / :func:`close_recording`, viewer spawn/connect
   and their fallbacks
 - :mod:`.series`: which per-step series go to which entity (:func:`series_specs`)
-- :mod:`.cartpole`: 3D cart-pole poses and geometry (from the MJCF geoms)
 - :mod:`.blueprint`: the default viewer layout (:func:`build_blueprint`)
 - :mod:`.documents`: the markdown documents (run, scenario, status, metrics), relative paths only
 - :mod:`.labels`: physical names and units of a plant's states, control and extras
-- :mod:`.fuzzy_axes`, :mod:`.world`: membership-function axes and term labels; the 3D rail
+- :mod:`.fuzzy_axes`: membership-function axes and term labels
+- the plant in 3D is its domain's :class:`~tspend.plants.domain.Drawing`
 - :mod:`.crosscheck`: the cross-check recording (differences, verdict, layout)
 - :mod:`.arrow`: the columns built directly in Arrow
 - :mod:`.readback`: reading series back from an ``.rrd`` (:func:`read_scalar_series`)
@@ -49,8 +49,6 @@ Where things are:
 from __future__ import annotations
 
 from tspend.recorder.blueprint import build_blueprint
-from tspend.recorder.cartpole import (CART_SIZE, DEFAULT_POLE_HALF_LENGTH, POLE_RADIUS,
-    CartPoleGeometry, CartPolePoses, cartpole_geometry, cartpole_poses, is_cartpole)
 from tspend.recorder.common import TIMELINE, Color, join_path, prefix_label
 from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
     status_markdown)
@@ -61,26 +59,18 @@ from tspend.recorder.stream import (DEFAULT_VIEWER_PORT, FLUSH_TIMEOUT_S, PathLi
     close_recording, open_recording)
 
 __all__ = [
-    "CART_SIZE",
     "DECIMATED_ROWS",
-    "DEFAULT_POLE_HALF_LENGTH",
     "DEFAULT_VIEWER_PORT",
     "FLUSH_TIMEOUT_S",
     "FRAME_HZ",
     "MAX_LATENCY_S",
-    "POLE_RADIUS",
     "TIMELINE",
-    "CartPoleGeometry",
-    "CartPolePoses",
     "Color",
     "PathLike",
     "RerunSink",
     "SeriesSpec",
     "build_blueprint",
-    "cartpole_geometry",
-    "cartpole_poses",
     "close_recording",
-    "is_cartpole",
     "join_path",
     "metrics_markdown",
     "open_recording",

@@ -15,7 +15,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from tspend.loop.sinks import FuzzyInputInfo, RunInfo
-from tspend.recorder.cartpole import is_cartpole
 from tspend.recorder.common import BMF_WIDTH, TIMELINE, join_path, prefix_label
 from tspend.recorder.labels import plant_labels
 from tspend.recorder.series import SeriesSpec, series_specs
@@ -85,22 +84,10 @@ def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list
     return bmf, firing
 
 
-def cartpole_view(info: RunInfo, prefix: str = "", suffix: str = "") -> rrb.Spatial3DView:
-    """The cart-pole seen from the side, the camera following the cart.
-
-    The cart travels tens of metres in a long run while the pole is 2 l long, so the
-    camera tracks the cart; the drift shows as the rail's metre marks passing by and in
-    the readout under the cart.
-    """
-    l = info.drawing.l if info.drawing is not None else 3.0
-    return rrb.Spatial3DView(
-        origin=_abs(prefix, "world"),
-        # side by side (the cross-check) a view is half as wide: the short title
-        name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marks every 10 m, readout: cart position)",
-        line_grid=rrb.LineGrid3D(visible=False),
-        eye_controls=rrb.EyeControls3D(
-            position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],
-            eye_up=[0.0, 0.0, 1.0], tracking_entity=_abs(prefix, "world/cart")))
+def plant_view(info: RunInfo, prefix: str = "", suffix: str = "") -> rrb.View:
+    """The plant in 3D as its domain draws it (:meth:`tspend.plants.domain.Drawing.view`)."""
+    assert info.drawing is not None
+    return info.drawing.view(_abs(prefix, "world"), suffix)
 
 
 def document_views(prefix: str = "", suffix: str = "") -> list[rrb.View]:
@@ -116,12 +103,12 @@ def panels() -> list[rrb.BlueprintPart]:
 
 
 def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
-                    cartpole: bool | None = None) -> rrb.Blueprint:
-    """The default layout: 3D cart-pole and fuzzy internals beside the time series.
+                    draw: bool | None = None) -> rrb.Blueprint:
+    """The default layout: the plant in 3D and fuzzy internals beside the time series.
 
     With several ``prefixes`` (side-by-side runs in one recording) every time-series
-    view overlays all runs; 3D and fuzzy views are per run.  ``cartpole`` defaults to
-    :func:`is_cartpole` of ``info``.
+    view overlays all runs; 3D and fuzzy views are per run.  ``draw`` defaults to whether
+    the plant's domain draws it (``info.drawing``).
     """
     prefixes = list(prefixes) or [""]
     multi = len(prefixes) > 1
@@ -141,8 +128,8 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
                   rrb.Grid(*firing_views, grid_columns=2, name="firing and consequents")] if bmf_views else []
     tabs = rrb.Tabs(*fuzzy_tabs, rrb.Tabs(*doc_views, name="run info"))
     left: list[rrb.Container | rrb.View] = []
-    if is_cartpole(info) if cartpole is None else cartpole:
-        views3d = [cartpole_view(info, p, sfx) for p, sfx in zip(prefixes, suffixes)]
+    if info.drawing is not None and (draw is None or draw):
+        views3d = [plant_view(info, p, sfx) for p, sfx in zip(prefixes, suffixes)]
         left.append(rrb.Horizontal(*views3d) if multi else views3d[0])
     left.append(tabs)
     root = rrb.Horizontal(

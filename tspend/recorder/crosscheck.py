@@ -19,7 +19,7 @@ import rerun.blueprint as rrb
 
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 from tspend.recorder.arrow import time_column
-from tspend.recorder.blueprint import cartpole_view, document_views, panels, series_view
+from tspend.recorder.blueprint import document_views, panels, plant_view, series_view
 from tspend.recorder.common import PALETTE
 from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
 from tspend.recorder.series import series_location
@@ -82,8 +82,8 @@ class _Pair:
     def start(self, info: RunInfo) -> None:
         labels = plant_labels(info.plant_kind, info.order)
         self.keys = [(f"x{i + 1}", q) for i, q in enumerate(labels.states)]
-        if "cart_pos" in info.extras:
-            self.keys.append(("cart_pos", extra_quantity(labels, "cart_pos")))
+        self.keys += [(name, extra_quantity(labels, name)) for name in info.extras
+                      if name in labels.extras]
         if self.rec is None:
             return
         for i, (key, q) in enumerate(self.keys):
@@ -153,19 +153,20 @@ def verdict_markdown(report: dict) -> str:
     head = "PASS" if ok else "FAIL" if ok is not None else "no verdict (no tolerance given)"
     lines = [f"# Cross-check {report.get('scenario', '')}: {head}", ""]
     if tol is not None:
-        lines += [f"Open loop (same chirp force and disturbance on both backends for "
-                  f"{_fmt(report.get('open_loop_duration'))} s): max |theta_MuJoCo - theta_ODE| = "
-                  f"{_fmt(report.get('open_loop_max_dtheta'))} rad against the tolerance {_fmt(tol)} rad: "
-                  f"**{_fmt(bool(ok))}**.", "",
+        tracked = report.get("open_loop_tracked", "x1")
+        closed = ", ".join(f"max |d {k.removeprefix('closed_loop_max_d')}| = {_fmt(v)}"
+                           for k, v in report.items() if k.startswith("closed_loop_max_d"))
+        lines += [f"Open loop (same chirp input and disturbance on both backends for "
+                  f"{_fmt(report.get('open_loop_duration'))} s): max |{tracked}_MuJoCo - "
+                  f"{tracked}_ODE| = {_fmt(report.get('open_loop_max_tracked'))} against the "
+                  f"tolerance {_fmt(tol)}: **{_fmt(bool(ok))}**.", "",
                   "Closed loop (the scenario's controller on each backend; the plots MuJoCo minus ODE "
-                  "show it sample by sample): "
-                  f"max |d theta| = {_fmt(report.get('closed_loop_max_dtheta'))} rad, "
-                  f"max |d theta'| = {_fmt(report.get('closed_loop_max_dthetadot'))} rad/s "
+                  f"show it sample by sample): {closed} "
                   "(reported, not judged: sign() in the compensator may amplify round-off).", ""]
     lines += ["| figure | value |", "| --- | --- |"]
     flat = {k: v for k, v in report.items() if not isinstance(v, dict)}
     lines += [f"| {k} | {_fmt(v)} |" for k, v in flat.items()]
-    body = json.dumps(flat, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o),
+    body = json.dumps(flat, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o),
                       allow_nan=True)
     lines += ["", "```json", body, "```", ""]
     return "\n".join(lines)
@@ -208,17 +209,21 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
                                   info.duration)
         views += [overlay, series_view(f"MuJoCo minus ODE: {q.symbol}" + (f" ({q.unit})" if q.unit else ""),
                                        ["/" + diff_entity(key)], info.duration)]
-    views.append(series_view("control u (N): MuJoCo and ODE", both("u"), info.duration))
+    u = plant_labels(info.plant_kind, order).control
+    views.append(series_view(f"control {u.with_unit()}: MuJoCo and ODE", both("u"), info.duration))
     try:
-        views.append(series_view("compensator part u_s (N): MuJoCo and ODE", both("u_s"), info.duration))
+        views.append(series_view(f"compensator part {u.with_unit('u_s')}: MuJoCo and ODE", both("u_s"),
+                                 info.duration))
     except KeyError:
         pass  # a controller without a compensator
-    left = [rrb.Horizontal(*(cartpole_view(info, p, f" [{p.strip('/')}]") for p in prefixes))]
+    left: list = ([rrb.Horizontal(*(plant_view(info, p, f" [{p.strip('/')}]") for p in prefixes))]
+                  if info.drawing is not None else [])
     docs = [rrb.TextDocumentView(origin="/" + VERDICT, name="cross-check verdict")]
     for p in prefixes:
         docs += document_views(p, f" [{p.strip('/')}]")
     left.append(rrb.Tabs(*docs, name="verdict and run info"))
-    root = rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3]), rrb.Grid(*views, grid_columns=2),
+    root = rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3]) if len(left) > 1 else left[0],
+                          rrb.Grid(*views, grid_columns=2),
                           column_shares=[2, 3])
     return rrb.Blueprint(root, *panels(), collapse_panels=False)
 

@@ -79,7 +79,7 @@ def run_markdown(info: RunInfo) -> str:
     ]
     if info.drawing is not None:
         rows += [(f"plant: {k}", portable_path(v) if k == "mjcf" else v)
-                 for k, v in dataclasses.asdict(info.drawing).items()]
+                 for k, v in info.drawing.document().items()]
     return f"# Run: {info.scenario_name}\n\n" + _md_table(rows)
 
 

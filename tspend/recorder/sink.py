@@ -10,17 +10,15 @@ import numpy as np
 import rerun as rr
 
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
+from tspend.plants.domain import Drawing
 from tspend.recorder.arrow import (check_tensor_type, points_column, strips_column, tensor_column,
     time_column)
 from tspend.recorder.blueprint import build_blueprint
-from tspend.recorder.cartpole import (CartPoleGeometry, cartpole_geometry, cartpole_poses,
-    is_cartpole)
 from tspend.recorder.common import BMF_WIDTH, PALETTE, Color, join_path, prefix_label
 from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
     status_markdown)
 from tspend.recorder.fuzzy_axes import axis_parts, term_label_positions
 from tspend.recorder.series import SeriesSpec, series_specs
-from tspend.recorder.world import log_world, readout_labels
 from tspend.recorder.stream import close_recording, flush
 
 
@@ -159,11 +157,10 @@ class RerunSink:
         self.info: RunInfo | None = None
         self._specs: list[SeriesSpec] = []
         self._frame_every = 1
-        self._geometry: CartPoleGeometry | None = None
-        self._info_theta_sign = 1.0
+        self._drawing: Drawing | None = None
         self._snaps = _SnapshotBuffer()
         self._sent_curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self._frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []   # (t, cart_pos, theta)
+        self._frames: list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = []  # (t, x, extras)
         self._frame_rows = 0
         self._last_flush = time.monotonic()
         self._last_t = 0.0
@@ -209,11 +206,12 @@ class RerunSink:
             self.rec.log(self._path(spec.entity), rr.AnyValues(series_keys=[
                 f"log10 {k}" if spec.log10 else k for k in spec.lookup]), static=True)
         self._log_fuzzy_styles(info)
-        self._geometry = cartpole_geometry(info.drawing) if is_cartpole(info) else None
-        self._info_theta_sign = info.drawing.theta_sign if info.drawing is not None else 1.0
-        if self._geometry is not None:
-            log_world(self.rec, self._path("world"), self._geometry, self._color)
-            self._send_poses([0.0], np.zeros(1), np.zeros(1))  # drawn before the first block arrives
+        self._drawing = info.drawing
+        if self._drawing is not None:
+            self._drawing.log_static(self.rec, self._path("world"), self._color)
+            # drawn before the first block arrives
+            self._drawing.log_frames(self.rec, self._path("world"), time_column([0.0]),
+                                     np.zeros((1, info.order)), {})
         if self.blueprint_prefixes is not None:
             self.rec.send_blueprint(build_blueprint(info, self.blueprint_prefixes))
         if not self.prefix:
@@ -229,7 +227,7 @@ class RerunSink:
         if t.size:
             self._last_t = float(t[-1])
             self._send_series(block.start, data, t)
-            if self._geometry is not None:
+            if self._drawing is not None:
                 self._buffer_frames(block.start, data, t)
         if self._decimated_due():
             self._flush_decimated()
@@ -281,13 +279,13 @@ class RerunSink:
     def _buffer_frames(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
         """Keep the block's frame rows (every ``1 / frame_hz`` s of sim time) until the next flush."""
         rows = slice((-start) % self._frame_every, None, self._frame_every)
-        theta = np.array(data["x"][rows, 0], dtype=np.float64)
-        if theta.size == 0:
+        x = np.array(data["x"][rows], dtype=np.float64)
+        if x.shape[0] == 0:
             return
-        cart = data.get("extra/cart_pos")
-        cart_pos = np.zeros_like(theta) if cart is None else np.array(cart[rows], dtype=np.float64)
-        self._frames.append((t[rows].copy(), cart_pos, theta))
-        self._frame_rows += theta.size
+        extras = {key.removeprefix("extra/"): np.array(v[rows], dtype=np.float64)
+                  for key, v in data.items() if key.startswith("extra/")}
+        self._frames.append((t[rows].copy(), x, extras))
+        self._frame_rows += x.shape[0]
 
     def _decimated_due(self) -> bool:
         """Frames and snapshots go out in batches of ``decimated_rows`` rows (chunks have a fixed
@@ -296,26 +294,15 @@ class RerunSink:
         return rows >= self.decimated_rows or (rows > 0 and time.monotonic() - self._last_flush >= self.max_latency_s)
 
     def _flush_decimated(self) -> None:
-        if self._frames:
-            t, cart_pos, theta = (np.concatenate(parts) for parts in zip(*self._frames))
+        if self._frames and self._drawing is not None:
+            t = np.concatenate([f[0] for f in self._frames])
+            x = np.concatenate([f[1] for f in self._frames])
+            names = set.intersection(*(set(f[2]) for f in self._frames))
+            extras = {k: np.concatenate([f[2][k] for f in self._frames]) for k in names}
             self._frames, self._frame_rows = [], 0
-            # a model whose positive angle leans the pole toward +x is drawn as it moves
-            sign = self._info_theta_sign
-            self._send_poses(t, cart_pos, theta if sign == 1.0 else sign * theta)
+            self._drawing.log_frames(self.rec, self._path("world"), time_column(t), x, extras)
         self._flush_snapshots()
         self._last_flush = time.monotonic()
-
-    def _send_poses(self, t: np.ndarray | Sequence[float], cart_pos: np.ndarray, theta: np.ndarray) -> None:
-        assert self._geometry is not None
-        poses = cartpole_poses(cart_pos, theta, self._geometry.l, 2.0 * self._geometry.cart_half_sizes[2])
-        times = time_column(t)
-        self.rec.send_columns(self._path("world/cart"), indexes=[times],
-                              columns=rr.Transform3D.columns(translation=poses.cart_translation))
-        self.rec.send_columns(self._path("world/cart/readout"), indexes=[times],
-                              columns=rr.Points3D.columns(labels=readout_labels(cart_pos)))
-        self.rec.send_columns(self._path("world/pole"), indexes=[times],
-                              columns=rr.Transform3D.columns(translation=poses.pole_translation,
-                                                             quaternion=poses.pole_quaternion))
 
     def _flush_snapshots(self) -> None:
         buf = self._snaps

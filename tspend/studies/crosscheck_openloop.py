@@ -1,4 +1,4 @@
-"""Open-loop cross-check of cart-pole backends (docs/paper-notes.md section 7, the paper's Example 3).
+"""Open-loop cross-check of two backends of one plant domain (docs/paper-notes.md section 7).
 
 Before trusting closed-loop results on the MuJoCo cart-pole, drive it and the analytic
 ODE with the same zero-order-hold force and disturbance and compare the trajectories.
@@ -12,7 +12,6 @@ oracle and lives in ``tests/cartpole_oracle.py``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -32,46 +31,49 @@ def chirp_force(t: float, amplitude: float, f0: float, f1: float, duration: floa
 class OpenLoopComparison:
     """How far two backends drifted apart under the same open-loop inputs."""
 
-    max_dtheta: float  #: max |theta_a - theta_b| over the run, rad
-    max_dthetadot: float  #: max |theta'_a - theta'_b|, rad/s
-    max_dcart_pos: float  #: max |cart_a - cart_b|, m (nan if a plant has no cart_pos)
+    names: tuple[str, ...]  #: the full state's names (both plants name it alike)
+    max_diff: np.ndarray  #: max |a - b| of each state over the run
     t: np.ndarray  #: sample times, s, including t = 0
-    theta_a: np.ndarray  #: theta of the first plant at each sample
-    theta_b: np.ndarray  #: theta of the second plant at each sample
+    state_a: np.ndarray  #: (N + 1, S) full state of the first plant at each sample
+    state_b: np.ndarray  #: (N + 1, S) full state of the second plant at each sample
+
+    def max_of(self, name: str) -> float:
+        """max |a - b| of state ``name``."""
+        return float(self.max_diff[self.names.index(name)])
+
+    def of_a(self, name: str) -> np.ndarray:
+        """State ``name`` of the first plant at each sample."""
+        return self.state_a[:, self.names.index(name)]
+
+    def of_b(self, name: str) -> np.ndarray:
+        """State ``name`` of the second plant at each sample."""
+        return self.state_b[:, self.names.index(name)]
 
 
-def open_loop_compare(mujoco_plant: Plant, ode_plant: Plant, x0: np.ndarray,
+def open_loop_compare(plant_a: Plant, plant_b: Plant, x0: np.ndarray,
                       force_fn: TimeFn, disturbance_fn: TimeFn, duration: float,
                       dt: float) -> OpenLoopComparison:
     """Run both plants from ``x0`` for ``duration`` under ``u = force_fn(t_k)``,
-    ``d = disturbance_fn(t_k)`` held over each sample ``[t_k, t_k + dt)``.
+    ``d = disturbance_fn(t_k)`` held over each sample ``[t_k, t_k + dt)``, comparing their
+    full states (ValueError when the plants name their states differently).
 
-    Any two Plant objects work (MuJoCo vs ODE, MuJoCo vs reference, ODE vs reference).
+    Any two Plant objects of one domain work (MuJoCo vs ODE, either vs a reference).
     """
+    if tuple(plant_a.state_names) != tuple(plant_b.state_names):
+        raise ValueError(f"the plants name their states differently: {plant_a.state_names} "
+                         f"and {plant_b.state_names}")
     n = int(round(duration / dt))
     t = np.arange(n + 1) * dt
-    th_a, th_b = np.empty(n + 1), np.empty(n + 1)
-    dthd = dcart = 0.0
-    mujoco_plant.reset(x0)
-    ode_plant.reset(x0)
-
-    def record(k: int) -> None:
-        nonlocal dthd, dcart
-        xa, xb = mujoco_plant.state(), ode_plant.state()
-        th_a[k], th_b[k] = xa[0], xb[0]
-        dthd = max(dthd, abs(float(xa[1] - xb[1])))
-        ca = mujoco_plant.extras().get("cart_pos", math.nan)
-        cb = ode_plant.extras().get("cart_pos", math.nan)
-        diff = abs(ca - cb)
-        # a plant without a cart poisons the cart column rather than faking agreement
-        dcart = math.nan if math.isnan(diff) or math.isnan(dcart) else max(dcart, diff)
-
-    record(0)
+    plant_a.reset(x0)
+    plant_b.reset(x0)
+    size = len(plant_a.state_names)
+    sa, sb = np.empty((n + 1, size)), np.empty((n + 1, size))
+    sa[0], sb[0] = plant_a.full_state(), plant_b.full_state()
     for k in range(n):
         u, d = force_fn(float(t[k])), disturbance_fn(float(t[k]))
-        mujoco_plant.step(u, d, dt)
-        ode_plant.step(u, d, dt)
-        record(k + 1)
-    return OpenLoopComparison(max_dtheta=float(np.max(np.abs(th_a - th_b))),
-                              max_dthetadot=dthd, max_dcart_pos=dcart,
-                              t=t, theta_a=th_a, theta_b=th_b)
+        plant_a.step(u, d, dt)
+        plant_b.step(u, d, dt)
+        sa[k + 1], sb[k + 1] = plant_a.full_state(), plant_b.full_state()
+    return OpenLoopComparison(names=tuple(plant_a.state_names),
+                              max_diff=np.max(np.abs(sa - sb), axis=0), t=t, state_a=sa,
+                              state_b=sb)

@@ -41,9 +41,15 @@ PAPER_CASES = (("ex1_nonaffine_case1", "Example 1, case 1 (nonaffine plant)"),
 
 def state_units(plant_kind: str, order: int) -> tuple[tuple[str, ...], str]:
     """(symbol [unit] of each state, of u) for a plant kind's axis labels."""
-    if plant_kind.startswith("cartpole"):
-        return ("θ [rad]", "θ' [rad/s]"), "u [N]"
-    return tuple(f"x{i + 1} [–]" for i in range(order)), "u [–]"
+    from tspend.recorder.labels import plant_labels
+
+    labels = plant_labels(plant_kind, order)
+    greek = {"theta": "θ", "theta'": "θ'", "alpha": "α", "alpha'": "α'"}
+
+    def axis(q) -> str:
+        return f"{greek.get(q.symbol, q.symbol)} [{q.unit or '–'}]"
+
+    return tuple(axis(q) for q in labels.states), axis(labels.control)
 
 
 def _matplotlib():
@@ -355,7 +361,10 @@ def metric_label(metric: str, part=None) -> str:
     if len(kinds) != 1 or "" in kinds or metric not in METRIC_DIMENSIONS:
         return metric
     kind = kinds.pop()
-    e_unit, u_unit = ("rad", "N") if kind.startswith("cartpole") else ("", "")
+    from tspend.recorder.labels import plant_labels
+
+    labels = plant_labels(kind, 1)
+    e_unit, u_unit = labels.states[0].unit, labels.control.unit
     power = {1: "", 2: "²", -1: "⁻¹"}
     parts = [f"{unit}{power.get(k, k)}" for unit, k in
              zip((e_unit, u_unit, "s"), METRIC_DIMENSIONS[metric]) if unit and k]
