@@ -15,6 +15,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
+from tspend.controllers import mpc
 from tspend.controllers.base import Controller, Diagnostic
 
 if TYPE_CHECKING:
@@ -43,6 +44,7 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "sliding_mode": sliding_mode.build,
     "wang_indirect": wang_indirect.build,
     "swingup": swingup.build,
+    "mpc": mpc.build,
 }
 
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
@@ -53,6 +55,7 @@ SETTINGS: dict[str, type] = {
     "sliding_mode": sliding_mode.SlidingModeSettings,
     "wang_indirect": wang_indirect.WangSettings,
     "swingup": swingup.SwingUpSettings,
+    "mpc": mpc.MPCSettings,
 }
 
 

@@ -161,7 +161,6 @@ class LQRController:
         return {}
 
 
-<<<<<<< HEAD
 class FullStateLQR:
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
@@ -269,7 +268,7 @@ def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
 
 
 def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
-    s: LQRSettings = settings_for(scenario, "lqr")
+    s: LQRSettings = settings_for(scenario, LQRSettings)
     design = s.design or ("full" if has_full_state(scenario) else "view")
     if design == "full":
         if not has_full_state(scenario):
@@ -277,10 +276,6 @@ def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
                                 f"plant with a full state (cartpole_ode, cartpole_mujoco); "
                                 f"plant '{scenario.plant.kind}' has only the view: use 'view'")
         return build_full(scenario, s)
-=======
-def build(scenario: "Scenario") -> LQRController:
-    s: LQRSettings = settings_for(scenario, LQRSettings)
->>>>>>> core-b
     model = plant_model(scenario)
     A, B = model.state_space()
     b = float(B[-1, 0])

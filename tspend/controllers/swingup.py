@@ -159,8 +159,8 @@ def build(scenario: "Scenario") -> SwingUpController:
         raise ScenarioError(f"{scenario.path}: controller 'swingup' needs a pendulum with a "
                             f"full state (cartpole_ode, cartpole_mujoco); plant "
                             f"'{scenario.plant.kind}' has none")
-    s: SwingUpSettings = settings_for(scenario, "swingup")
-    lqr_settings: LQRSettings = settings_for(scenario, "lqr")
+    s: SwingUpSettings = settings_for(scenario, SwingUpSettings)
+    lqr_settings: LQRSettings = settings_for(scenario, LQRSettings)
     model = full_model(scenario)
     return SwingUpController(model, s, build_full(scenario, lqr_settings),
                              order=len(scenario.plant.x0))
