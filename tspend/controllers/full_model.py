@@ -35,7 +35,11 @@ from tspend.errors import ScenarioError
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
-__all__ = ["FullModel", "full_model", "wrap_angle", "FD_STEP"]
+__all__ = ["FullModel", "full_model", "has_full_state", "wrap_angle", "FD_STEP",
+           "FULL_STATE_DOMAINS"]
+
+#: the domains whose full-state model this module builds
+FULL_STATE_DOMAINS = ("cartpole",)
 
 #: step of the central differences (see the module docstring)
 FD_STEP = 1e-6
@@ -170,14 +174,15 @@ def full_model(scenario: "Scenario") -> FullModel:
     it lands), with the actuator's range and the rail or joint ranges as bounds."""
     from dataclasses import asdict
 
-    from tspend.controllers.plant_model import cartpole_params_of
+    from tspend.plants.registry import domain_of
 
     kind = scenario.plant.kind
-    if kind not in ("cartpole_ode", "cartpole_mujoco"):
+    domain = domain_of(kind)
+    if domain.name not in FULL_STATE_DOMAINS:
         raise ScenarioError(f"{scenario.path}: plant '{kind}' has no full state to design on "
-                            f"(full-state kinds need a mechanical domain: cartpole_ode, "
-                            f"cartpole_mujoco)")
-    params = cartpole_params_of(scenario)
+                            f"(full-state kinds need a mechanical domain: "
+                            f"{', '.join(FULL_STATE_DOMAINS)})")
+    params = domain.params_of_scenario(scenario)  # type: ignore[attr-defined]
     u_lo, u_hi = actuator_range(scenario)
     effects = getattr(scenario, "effects", None)
     rail = float(getattr(effects, "rail", 0.0) or 0.0) if effects is not None else 0.0
@@ -186,6 +191,13 @@ def full_model(scenario: "Scenario") -> FullModel:
         u_lo, u_hi = max(u_lo, -sat), min(u_hi, sat)
     names = ("slider", "hinge", "slider_dot", "hinge_dot")
     return _cartpole(params.machine(), names, u_lo, u_hi, rail, asdict(params))
+
+
+def has_full_state(scenario: "Scenario") -> bool:
+    """Whether the scenario's plant has a full-state model here."""
+    from tspend.plants.registry import domain_of
+
+    return domain_of(scenario.plant.kind).name in FULL_STATE_DOMAINS
 
 
 def actuator_range(scenario: "Scenario") -> tuple[float, float]:

@@ -241,10 +241,6 @@ def reference_omega_of(scenario: "Scenario") -> float:
     return float(ref.omega) if isinstance(ref, Sine) else 0.0
 
 
-def has_full_state(scenario: "Scenario") -> bool:
-    return scenario.plant.kind in ("cartpole_ode", "cartpole_mujoco")
-
-
 def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
     from tspend.controllers.full_model import full_model
 
@@ -268,6 +264,8 @@ def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
 
 
 def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
+    from tspend.controllers.full_model import has_full_state
+
     s: LQRSettings = settings_for(scenario, LQRSettings)
     design = s.design or ("full" if has_full_state(scenario) else "view")
     if design == "full":

@@ -39,7 +39,7 @@ import numpy as np
 
 from tspend.controllers.base import diag_width, diagnostics
 from tspend.controllers.full_model import FullModel, wrap_angle
-from tspend.controllers.settings import setting, settings_for
+from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
@@ -53,7 +53,7 @@ SWING, CATCH = 0.0, 1.0
 
 
 @dataclass(frozen=True)
-class SwingUpSettings:
+class SwingUpSettings(KindSettings):
     """``[controllers.swingup]``."""
 
     energy_gain: float = setting(1.0, "k_E, (unit of a)/(J s^2): a = k_E (E_0 - E) sign(...)",
@@ -153,7 +153,8 @@ class SwingUpController:
 
 def build(scenario: "Scenario") -> SwingUpController:
     from tspend.controllers.full_model import full_model
-    from tspend.controllers.lqr import LQRSettings, build_full, has_full_state
+    from tspend.controllers.full_model import has_full_state
+    from tspend.controllers.lqr import LQRSettings, build_full
 
     if not has_full_state(scenario):
         raise ScenarioError(f"{scenario.path}: controller 'swingup' needs a pendulum with a "
