@@ -7,7 +7,7 @@ Run from the project root::
 The baseline is one ``mujoco.mj_step`` of ``models/cartpole.xml`` (RK4, 1 ms), measured
 in this process.  Each kind is built for ``pendulum_mujoco`` (and the oracle also for
 Example 1, where it runs Newton's method) and called as the runner calls it,
-``controller.step(x, ref, dt)`` with states and references near the operating region;
+``controller.step(obs, dt)`` (an Observation whose full state is the view) with states and references near the operating region;
 each figure is the median over blocks of the mean cost of one call in the block.
 """
 
@@ -26,6 +26,7 @@ if str(ROOT) not in sys.path:
 
 from tspend import load_scenario  # noqa: E402
 from tspend.controllers import KINDS, build  # noqa: E402
+from tspend.controllers.base import chain_observation  # noqa: E402
 
 
 def median_cost(call, items: list, blocks: int, per_block: int) -> float:
@@ -68,10 +69,11 @@ def kind_cost(scenario_name: str, kind: str, blocks: int, per_block: int) -> flo
     scale = 0.1 if s.plant.kind.startswith("cartpole") else 0.5
     t = rng.uniform(0, 20, 256)
     refs = s.reference.derivatives(t, n)
-    items = [(refs[i, :n] + rng.normal(scale=0.1 * scale, size=n), refs[i]) for i in range(256)]
+    items = [chain_observation(refs[i, :n] + rng.normal(scale=0.1 * scale, size=n), refs[i])
+             for i in range(256)]
     dt = s.run.dt
     step = ctrl.step
-    return median_cost(lambda it: step(it[0], it[1], dt), items, blocks, per_block)
+    return median_cost(lambda obs: step(obs, dt), items, blocks, per_block)
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ Run from the project root::
 Everything is measured in this process: the baseline is one ``mujoco.mj_step`` of
 ``models/cartpole.xml`` (or, if that file is missing, a minimal inline cart-pole MJCF with
 RK4), then the whole controller sample (T-S model + compensator + both adaptive laws,
-``ControllerConfig()`` = Example 3 sizes) through ``controller.step(x, ref, dt)``, Python
+``ControllerConfig()`` = Example 3 sizes) through ``controller.sample(x, ref, dt)``, Python
 call included.  Each figure is the median over blocks of the mean cost of one call in
 the block.  Then the scaling table (sets per state input, plant order) and the start-up
 time of a fresh interpreter that imports the controller, builds it and takes one
@@ -65,7 +65,7 @@ from tspend.controllers.paper.controller import make_controller
 from tspend.config import ControllerConfig
 c = make_controller(ControllerConfig())
 c.reset(np.random.default_rng(0))
-c.step(np.array([0.1, 0.0]), np.array([0.0, 0.0, 0.0]), 1e-3)
+c.sample(np.array([0.1, 0.0]), np.array([0.0, 0.0, 0.0]), 1e-3)
 print(time.perf_counter() - t0)
 """
 
@@ -123,7 +123,7 @@ def step_cost(cfg: ControllerConfig, blocks: int, per_block: int, seed: int = 1)
     ctrl = make_controller(cfg)
     ctrl.reset(np.random.default_rng(seed))
     items = signals(cfg)
-    step = ctrl.step
+    step = ctrl.sample
     dt = 1e-3
     return median_cost(lambda it: step(it[0], it[1], dt), items, blocks, per_block,
                        lambda: ctrl.reset(np.random.default_rng(seed)))
@@ -137,7 +137,7 @@ def kernel_only_cost(cfg: ControllerConfig, steps: int = 100_000) -> float:
     def loop(count, step, settings, state, scratch, x, ref, dt, diag):
         u = 0.0
         for _ in range(count):
-            u = step(settings, state, scratch, x, ref, dt, diag)
+            u = step(settings, state, scratch, 0.0, x, x, ref, dt, diag)
         return u
 
     c = make_controller(cfg)

@@ -32,7 +32,7 @@ STEPS = 20_000
 def _controller_samples(step, settings, state, scratch, x, ref, dt, diag, steps):
     u = 0.0
     for _ in range(steps):
-        u = step(settings, state, scratch, x, ref, dt, diag)
+        u = step(settings, state, scratch, 0.0, x, x, ref, dt, diag)
     return u
 
 

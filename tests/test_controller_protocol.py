@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tspend.controllers.base import Controller, diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series, series_location
 from tspend.loop.runner import ClosedLoop, LoopSettings
 from tspend.scenario import load_scenario
@@ -20,7 +20,7 @@ from tspend.loop.simulation import History, build_plant, run_info, steps_of
 from tspend.loop.metrics import MetricsAccumulator
 
 
-class FixedGain:
+class FixedGain(Controller):
     """u = (r^(2) - k^T e) / b0 on the Duffing oscillator, a test-only controller."""
 
     kind = "fixed_gain_test"
@@ -38,7 +38,8 @@ class FixedGain:
     def reset(self, rng: np.random.Generator) -> None:
         self.resets += 1
 
-    def step(self, x, ref, dt) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         e = x - ref[:2]
         feedback = -float(self.k @ e)
         self.diag[0] = feedback / self.b0

@@ -47,9 +47,9 @@ def test_crosscheck_fails_beyond_tolerance_with_euler(capsys):
     assert "open_loop_ok" in capsys.readouterr().out
 
 
-def test_crosscheck_needs_a_cartpole(capsys):
+def test_crosscheck_needs_a_domain_with_both_backends(capsys):
     assert main(["crosscheck", "ex2_duffing", "--no-record"]) == 2
-    assert "cart-pole" in capsys.readouterr().err
+    assert "a MuJoCo and an analytic backend" in capsys.readouterr().err
 
 
 def test_any_mjcf_cartpole_with_named_joints_runs(tmp_path):

@@ -106,7 +106,7 @@ def test_kernel_matches_numpy_every_step(name: str) -> None:
     b_cols, col_norms = [], []
     for k in range(STEPS):
         ua = a.step(X[k], R[k], dt)
-        ub = b.step(X[k], R[k], dt)
+        ub = b.sample(X[k], R[k], dt)
         assert isinstance(ub, float)
         assert ub == pytest.approx(ua, rel=RTOL, abs=ATOL), f"u at step {k}"
         _compare(a, b, k)
@@ -137,7 +137,7 @@ def test_non_contiguous_inputs_and_snapshot() -> None:
     Xf, Rf = np.asfortranarray(X), np.asfortranarray(R)   # rows are strided views
     for k in range(50):
         a.step(X[k], R[k], 1e-3)
-        b.step(Xf[k], Rf[k], 1e-3)
+        b.sample(Xf[k], Rf[k], 1e-3)
         _compare(a, b, k)
     fa, sb = a.last_firing(X[-1]), b.snapshot(0.05, 50, X[-1])
     np.testing.assert_allclose(sb.firing, fa[0].w, rtol=RTOL, atol=ATOL)
@@ -158,7 +158,7 @@ def test_last_firing_matches_numpy_reference():
     for _ in range(50):
         x, ref = rng.normal(0, 0.2, 2), rng.normal(0, 0.2, 3)
         a.step(x, ref, 1e-3)
-        b.step(x, ref, 1e-3)
+        b.sample(x, ref, 1e-3)
         for fa, fb in zip(a.last_firing(x), b.last_firing(x)):
             np.testing.assert_allclose(fa.z, fb.z, atol=1e-12)
             np.testing.assert_allclose(fa.w, fb.w, atol=1e-12)
@@ -173,7 +173,7 @@ def test_last_firing_matches_numpy_reference():
 @njit
 def _closed_loop_samples(step, settings, state, scratch, X, R, dt, diag, out):
     for k in range(X.shape[0]):
-        out[k] = step(settings, state, scratch, X[k], R[k], dt, diag)
+        out[k] = step(settings, state, scratch, 0.0, X[k], X[k], R[k], dt, diag)
 
 
 def test_compiled_entry_from_a_numba_loop_matches_step():
@@ -183,7 +183,7 @@ def test_compiled_entry_from_a_numba_loop_matches_step():
     a.reset(np.random.default_rng(11))
     b.reset(np.random.default_rng(11))
     X, R = _signals(cfg, 11, steps=300)
-    ua = np.array([a.step(X[k], R[k], 1e-3) for k in range(300)])
+    ua = np.array([a.sample(X[k], R[k], 1e-3) for k in range(300)])
     ub = np.empty(300)
     c = b.compiled()
     _closed_loop_samples(c.step, c.settings, c.state, c.scratch, X, R, 1e-3, b.diag, ub)

@@ -162,6 +162,27 @@ class EffectsConfig:
 
 
 @dataclass(frozen=True)
+class TaskConfig:
+    """``[task]``: what the controllers track and what ends a run (tspend/task.py).
+
+    Every field left at its default takes the plant domain's own (the cart-pole: view
+    ``("hinge", "hinge_dot")``, fall at pi/2 from upright).
+    """
+
+    #: the state names the paper's controllers see: the tracked output and its
+    #: derivatives up to the relative degree (empty = the domain's)
+    view: tuple[str, ...] = ()
+    #: rad from upright on the domain's pole angle that ends the run "fell"
+    #: (None = the domain's: pi/2 for balancing domains; 0 = off)
+    fall_angle: float | None = field(default=None, metadata=_at_least_zero())
+    #: every limited joint's range ends the run ("rail_end" for a slide joint,
+    #: "joint_limit" for another)
+    joint_limits: bool = True
+    #: (state name, bound) pairs: |value| > bound ends the run "state_bound"
+    state_bounds: tuple[tuple[str, float], ...] = ()
+
+
+@dataclass(frozen=True)
 class RunConfig:
     duration: float = 20.0
     dt: float = 0.001
@@ -184,6 +205,8 @@ class Scenario:
     controller: ControllerConfig
     #: real-world effects (all off unless the scenario's [effects] table sets them)
     effects: EffectsConfig = EffectsConfig()
+    #: the task: tracked view and termination (defaults from the plant's domain)
+    task: TaskConfig = TaskConfig()
     #: where it came from, and its text (logged with every run)
     path: str = ""
     text: str = ""

@@ -20,7 +20,7 @@ import numpy as np
 from tspend import signals
 from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
     MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
-from tspend.config import (ControllerConfig, EffectsConfig, OuterLoopConfig,
+from tspend.config import (ControllerConfig, EffectsConfig, OuterLoopConfig, TaskConfig,
     ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
 from tspend.controllers.paper.control_law import is_hurwitz
 from tspend.controllers import SETTINGS
@@ -43,7 +43,7 @@ DISTURBANCE_KINDS: dict[str, type] = {
 }
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
-            "controllers", "effects")
+            "controllers", "effects", "task")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
@@ -226,6 +226,23 @@ def _state_sets(sets: Table, n: int, default: tuple[SetSpec, ...]) -> tuple[SetS
 
 
 # -- entry points ----------------------------------------------------------------------
+def _task(r: Table, n: int) -> TaskConfig:
+    """``[task]``: names are checked against the plant's states when the run is built
+    (:func:`tspend.task.build_task`), the shapes and numbers here."""
+    r.check_keys(tuple(f.name for f in dataclasses.fields(TaskConfig)), "in [task]")
+    d = TaskConfig()
+    view = r.strings("view", d.view)
+    if view and len(view) != n:
+        raise r.error("view", f"must name {n} states (the tracked output and its "
+                              f"derivatives, one per state of the plant's order), got {len(view)}")
+    fall = r.number("fall_angle", low=0.0) if r.has("fall_angle") else d.fall_angle
+    bounds = r.table_of("state_bounds")
+    return TaskConfig(view=view, fall_angle=fall,
+                      joint_limits=r.boolean("joint_limits", d.joint_limits),
+                      state_bounds=tuple((str(k), bounds.number(k, low=0.0, strict=True))
+                                         for k in bounds.table))
+
+
 def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
                    overrides: tuple[tuple[str, Any], ...] = ()) -> Scenario:
     """A validated :class:`Scenario` from TOML text (``path`` is used in messages).
@@ -250,6 +267,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     ctrl = _controller(top.table_of("controller", required=True), n)
     kind_settings = parse_kind_tables(top.table_of("controllers"), n, SETTINGS)
     effects = _effects(top.table_of("effects"), n)
+    task = _task(top.table_of("task"), n)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
     if run.duration / run.dt > MAX_STEPS:
@@ -262,7 +280,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         name=top.string("name", name or Path(path).stem),
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
-        effects=effects,
+        effects=effects, task=task,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
 
 

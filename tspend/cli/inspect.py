@@ -36,6 +36,9 @@ def cmd(args: argparse.Namespace) -> int:
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
         check_writable(json_path, "json")
+    domain = _domain_of(args.model)
+    if domain is not None:
+        return _inspect_domain(domain, args.model, json_path, write_json)
     slide, hinge, actuator = guess_names(args.model, args.slide, args.hinge, args.actuator)
     plant = MujocoCartPole(args.model, slide_joint=slide, hinge_joint=hinge, actuator=actuator)
     facts = plant.facts
@@ -59,4 +62,36 @@ def cmd(args: argparse.Namespace) -> int:
         print("no departure from the paper's cart-pole ODE")
     if json_path is not None:
         write_json(json_path, json.loads(json.dumps(data)))
+    return 0
+
+
+def _domain_of(model: str):
+    """The domain another than the cart-pole whose machine the MJCF looks like, or None
+    (the cart-pole's own reading below then runs, with its messages)."""
+    import mujoco
+
+    from tspend.plants.registry import DOMAINS
+
+    try:
+        spec = mujoco.MjSpec.from_file(str(model))
+    except (ValueError, OSError):
+        return None  # the cart-pole reader reports it
+    kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
+    return next((d for d in DOMAINS.values() if d.fits_mjcf(kinds) and d.name != "cartpole"),
+                None)
+
+
+def _inspect_domain(domain, model: str, json_path, write_json) -> int:
+    facts, departures = domain.inspect(model)
+    print(f"{model}: a {domain.name} model")
+    for key, value in facts.items():
+        print(f"  {key:<20} {value}")
+    if departures:
+        print(f"departures from the {domain.name} ODE:")
+        for line in departures:
+            print(f"  - {line}")
+    else:
+        print(f"no departure from the {domain.name} ODE")
+    if json_path is not None:
+        write_json(json_path, json.loads(json.dumps({**facts, "departures": departures})))
     return 0

@@ -7,7 +7,9 @@ Exit status (the ``EXIT_*`` constants):
 1     ``crosscheck``: the backends differ by more than ``--tol``
 2     bad input: command line, scenario, model file, output path, a size bound exceeded
 3     the closed loop diverged (recording and metrics kept up to the divergence)
-4     the cart reached the end of a finite rail (``[effects]``; outputs kept up to it)
+4     the task ended the run (``[task]``, tspend/task.py): ``fell`` (the pole passed
+      ``fall_angle``), ``rail_end`` (a slide joint's range, or ``effects.rail``),
+      ``joint_limit`` (another joint's range), ``state_bound``; outputs kept up to the end
 5     an output could not be completed (disk full, I/O error); the file it would have
       replaced is untouched and the metrics are printed to stdout as JSON as well
 70    internal error (a bug: please report it with the ``--debug`` traceback)
@@ -64,7 +66,9 @@ EXIT_OK = 0
 EXIT_TOLERANCE = 1
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
-EXIT_RAIL_END = 4
+#: the task ended the run: fell, rail_end, joint_limit, state_bound (tspend.task.TERMINATIONS)
+EXIT_TERMINATED = 4
+EXIT_RAIL_END = EXIT_TERMINATED  # the name before [task]: a rail end is one termination
 EXIT_WRITE_FAILED = 5
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)

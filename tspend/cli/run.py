@@ -7,7 +7,7 @@ import json
 import re
 
 from tspend import __version__
-from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_RAIL_END, Claimed,
+from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_TERMINATED, Claimed,
     add_scenario_options, check_model_size, check_viewer_url, load_with_overrides,
     metrics_document, plan, print_metrics, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
@@ -82,6 +82,7 @@ def cmd(args: argparse.Namespace) -> int:
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     from tspend.runtime.progress import RunProgress  # a bar on a terminal once the run takes a few seconds
     from tspend.loop.runner import RunInterrupted
+    from tspend.task import TERMINATIONS
 
     recording, metrics_out = outs["--out"], outs["--metrics"]
     rec, sinks = open_sinks(args, scn.name, recording.partial if recording else None)
@@ -125,7 +126,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end.status == "diverged":
         say(end.message)
         return EXIT_DIVERGED
-    if end.status == "rail_end":  # tspend.plants.effects.RailEnd
+    if end.status in TERMINATIONS:  # fell, rail_end, joint_limit, state_bound
         say(end.message)
-        return EXIT_RAIL_END
+        return EXIT_TERMINATED
     return EXIT_OK

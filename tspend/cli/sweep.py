@@ -70,15 +70,21 @@ def _scenarios(args: argparse.Namespace) -> list:
 
 
 def summary(frame, grid_keys: list[str]):
-    """Per scenario, grid point and controller: runs by status, median and IQR of rmse_ss."""
+    """Per scenario, grid point and controller: runs by status (``diverged`` counts the
+    runs the task ended too), median and IQR of rmse_ss."""
     import pandas as pd
 
     keys = ["scenario", *grid_keys, "controller"]
     groups = frame.groupby(keys, sort=False, dropna=False)
+    from tspend.task import TERMINATIONS
+
     out = groups["status"].value_counts().unstack(fill_value=0)
-    for status in ("completed", "diverged", "failed"):
+    for status in ("completed", "diverged", "failed", *TERMINATIONS):
         if status not in out.columns:
             out[status] = 0
+    # a run the task ended (the pole fell, the cart left its rail ...) is the controller's
+    # failure as a divergence is: one column for both
+    out["diverged"] = out["diverged"] + out[list(TERMINATIONS)].sum(axis=1)
     out = out[["completed", "diverged", "failed"]]
     ss = groups["rmse_ss"]
     out["rmse_ss median"] = ss.median()

@@ -1,13 +1,20 @@
-"""The controller protocol: what the runner, the metrics and the recorders need of any controller.
+"""The controller interface: what the runner, the metrics and the recorders need of any controller.
 
-A controller of order ``n`` maps the measured state ``x`` (n,) and the reference with its
-derivatives ``ref = [r, r', ..., r^(n)]`` to a scalar control ``u``, once per sample.
-Besides ``u`` it may report named diagnostics every sample (its parts of ``u``, the
-estimates it adapts, its Lyapunov or sliding variable): it declares them once as a tuple
-of :class:`Diagnostic`, each naming the columns of the controller's ``diag`` vector that
-:meth:`Controller.step` writes.  The runner copies ``diag`` after every sample and hands
-the columns to the sinks under the diagnostic's name, so nothing downstream knows which
-controller produced them.
+Once per sample a controller receives one :class:`Observation`: the time, the plant's
+FULL named state (``state``, in the plant's ``state_names`` order), the task's view
+``x`` (the tracked output and its derivatives, n entries: what the paper's controllers
+see) and the reference with its derivatives ``ref = [r, r', ..., r^(n)]``;
+:meth:`Controller.step` returns the scalar control ``u``.  Besides ``u`` it may report
+named diagnostics every sample (its parts of ``u``, the estimates it adapts, its Lyapunov
+or sliding variable): it declares them once as a tuple of :class:`Diagnostic`, each
+naming the columns of the controller's ``diag`` vector that :meth:`Controller.step`
+writes.  The runner copies ``diag`` after every sample and hands the columns to the
+sinks under the diagnostic's name, so nothing downstream knows which controller
+produced them.
+
+:class:`Controller` is an abstract base class: ``reset`` and ``step`` are abstract, the
+optional features (inner snapshots, fuzzy inputs, a compiled step, adapted parameters)
+are methods with defaults, so nobody asks a controller with ``getattr``.
 
 The runner itself provides ``t``, ``x``, ``ref``, ``e = x - r``, ``u`` and the disturbance
 ``d``; a diagnostic may not reuse those names (:data:`RESERVED`).
@@ -15,10 +22,14 @@ The runner itself provides ``t``, ``x``, ``ref``, ``e = x - r``, ``u`` and the d
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Iterable, Protocol, runtime_checkable
+from typing import Any, Callable, Iterable, NamedTuple
 
 import numpy as np
+
+__all__ = ["CompiledController", "Controller", "Diagnostic", "Observation", "RESERVED", "chain_observation",
+           "check_diagnostics", "diag_width", "diagnostics"]
 
 #: block keys the runner writes itself; no diagnostic may take one of these names
 RESERVED = ("t", "x", "ref", "e", "u", "d")
@@ -91,33 +102,101 @@ def check_diagnostics(diags: Iterable[Diagnostic], diag: np.ndarray) -> None:
         seen.add(d.name)
 
 
-@runtime_checkable
-class Controller(Protocol):
-    """A controller of order ``n``, one call of :meth:`step` per sample.
+class Observation(NamedTuple):
+    """What a controller sees at one sample.
 
-    Optional capabilities, looked up with ``getattr`` by whoever wants them:
+    ``t`` the sample's time (s); ``state`` the plant's full state (its ``state_names``,
+    positions then velocities); ``x`` the task's view (n,): the tracked output and its
+    derivatives (on the cart-pole ``[hinge, hinge_dot]``); ``ref`` (n+1,) the reference
+    and its derivatives; ``names`` the full state's names.  The arrays are the runner's:
+    a controller that keeps one must copy it.
+    """
 
-    * ``snapshot(t, step, x) -> tspend.loop.sinks.InnerSnapshot``: the inner state for
-      recorders (fuzzy sets, firing strengths, consequents), asked for every
-      ``run.snapshot_every`` seconds only when a sink draws it;
-    * ``fuzzy_inputs() -> dict[str, tuple[FuzzyInputInfo, ...]]``: the rule bases'
-      antecedent inputs, so a recorder can lay out their views before the first snapshot.
+    t: float
+    state: np.ndarray
+    x: np.ndarray
+    ref: np.ndarray
+    names: tuple[str, ...] = ()
+
+    def get(self, name: str) -> float:
+        """The full state's entry called ``name`` (KeyError if the plant has none)."""
+        try:
+            return float(self.state[self.names.index(name)])
+        except ValueError:
+            raise KeyError(f"no state named {name!r} (states: {', '.join(self.names)})") from None
+
+
+def chain_observation(x: np.ndarray, ref: np.ndarray, t: float = 0.0) -> Observation:
+    """An observation whose full state is the view itself (``x1 .. xn``): for tests and
+    tools that drive a controller without a plant."""
+    x = np.asarray(x, dtype=float)
+    return Observation(t, x, x, np.asarray(ref, dtype=float),
+                       tuple(f"x{i + 1}" for i in range(x.size)))
+
+
+class CompiledController(NamedTuple):
+    """What a compiled closed loop needs to take one controller sample without Python.
+
+    Inside an ``@njit`` function::
+
+        u = c.step(c.settings, c.state, c.scratch, t, full, x, ref, dt, diag)
+
+    with ``t`` and ``dt`` floats, ``full`` the full state and ``x`` (n,), ``ref`` (n+1,)
+    float64 arrays (as in :class:`Observation`) and ``diag`` a float64 array of the
+    controller's ``diag`` size.  ``state`` is the controller's own (stepping here adapts
+    it); ``settings`` must be an instance of a module-level NamedTuple class, which
+    compiled code dispatches on (:mod:`tspend.loop.fastloop`).
+    """
+
+    step: Callable
+    settings: Any
+    state: Any
+    scratch: Any
+
+
+class Controller(ABC):
+    """A controller of order ``n``: one call of :meth:`step` per sample.
+
+    Subclasses set ``kind``, ``order``, ``diagnostics`` and ``diag`` and define
+    :meth:`reset` and :meth:`step`; the optional features below have defaults.
     """
 
     #: the controller kind, as chosen on the command line (``second_type``, ``lqr``, ...)
-    kind: str
+    kind: str = ""
     #: plant order n: x has n entries, ref has n + 1
     order: int
     #: the per-sample diagnostics, located in ``diag``
-    diagnostics: tuple[Diagnostic, ...]
+    diagnostics: tuple[Diagnostic, ...] = ()
     #: written by every :meth:`step`; the runner copies it after each sample
     diag: np.ndarray
+    #: True when :meth:`snapshot` has an inner state to show (fuzzy sets, firing ...)
+    has_snapshots: bool = False
 
+    @abstractmethod
     def reset(self, rng: np.random.Generator) -> None:
         """Forget everything adapted and draw the initial parameters from ``rng``."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
-        """One sample: the control u for state ``x`` and reference derivatives ``ref``."""
+    @abstractmethod
+    def step(self, obs: Observation, dt: float) -> float:
+        """One sample: the control u for the observation ``obs`` over sample time ``dt``."""
 
     def parameters(self) -> dict[str, np.ndarray]:
         """Copies of every adapted parameter (empty for a fixed controller)."""
+        return {}
+
+    def snapshot(self, t: float, step: int, x: np.ndarray) -> Any:
+        """The inner state for recorders after the sample at ``t``, a
+        :class:`tspend.loop.sinks.InnerSnapshot` (None: nothing to show);
+        asked for every ``run.snapshot_every`` seconds only when :attr:`has_snapshots`
+        and a sink draws it."""
+        return None
+
+    def fuzzy_inputs(self) -> dict[str, tuple[Any, ...]]:
+        """The rule bases' antecedent inputs (:class:`tspend.loop.sinks.FuzzyInputInfo`), so a
+        recorder can lay out their views before the first snapshot (empty: no rule base)."""
+        return {}
+
+    def compiled(self) -> CompiledController | None:
+        """The compiled step and its structures for a closed loop in numba (None: the
+        generic loop calls :meth:`step`)."""
+        return None

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.paper.control_law import is_hurwitz
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import PlantModel, plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
@@ -99,7 +99,7 @@ def solve_for_u(model: PlantModel, t: float, x: np.ndarray, v: float, u0: float,
                        f"(residual {res:.3g})")
 
 
-class FeedbackLinearizationController:
+class FeedbackLinearizationController(Controller):
     """The ``feedback_linearization`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "feedback_linearization"
@@ -125,7 +125,8 @@ class FeedbackLinearizationController:
         self.k = 0
         self.u_prev = self.model.u_op
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         t = self.k * dt
         self.k += 1

@@ -59,7 +59,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
@@ -119,7 +119,7 @@ def lqr_full_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray,
     return np.asarray(K, dtype=float), np.asarray(P, dtype=float)
 
 
-class LQRController:
+class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "lqr"
@@ -147,7 +147,8 @@ class LQRController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         r = ref[:n]
         e = x - r
@@ -161,7 +162,7 @@ class LQRController:
         return {}
 
 
-class FullStateLQR:
+class FullStateLQR(Controller):
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
     kind = "lqr"
@@ -218,7 +219,7 @@ class FullStateLQR:
         d[0], d[1], d[2], d[3] = u_ff, u_fb, float(e @ self.P @ e), s_r[self.model.actuated]
         return u_ff + u_fb
 
-    def step(self, obs, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
         return self.act(obs.state, obs.ref)
 
     def parameters(self) -> dict[str, np.ndarray]:

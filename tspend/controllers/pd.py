@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
@@ -55,7 +55,7 @@ def gains_from_poles(n: int, pole: float) -> np.ndarray:
     return np.array([comb(n, i) * pole ** (n - i) for i in range(n)], dtype=float)
 
 
-class PDController:
+class PDController(Controller):
     """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "pd"
@@ -72,7 +72,8 @@ class PDController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         e = x - ref[:n]
         u_ff = ref[n] / self.b0

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
@@ -79,7 +79,7 @@ def sat(z: float) -> float:
     return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
 
 
-class SlidingModeController:
+class SlidingModeController(Controller):
     """The ``sliding_mode`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "sliding_mode"
@@ -106,7 +106,8 @@ class SlidingModeController:
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         e = x - ref[:n]
         s = float(self.c @ e)

@@ -61,7 +61,7 @@ import numpy as np
 from tspend.config import SetSpec
 from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
 from tspend.errors import ScenarioError
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.gaussian_basis import GaussianGrid, basis, gaussian_grid
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
@@ -117,7 +117,7 @@ class Supervisor:
     V_bar: float
 
 
-class WangIndirectController:
+class WangIndirectController(Controller):
     """The ``wang_indirect`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "wang_indirect"
@@ -173,7 +173,8 @@ class WangIndirectController:
         size = (abs(f_hat) + sv.f_upper + abs(g_hat * u_c) + sv.g_upper * abs(u_c)) / sv.g_lower
         return -math.copysign(size, e_delta)
 
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        x, ref = obs.x, obs.ref
         n = self.order
         e = x - ref[:n]
         e_delta = float(self.p_row @ e)

@@ -3,8 +3,8 @@
 :class:`tspend.loop.runner.ClosedLoop` runs a block's samples through a *segment*: a stretch
 of samples ``[a, b)`` of the block, run without Python between them.  This module is the
 one place that decides whether a loop gets one (:func:`segment_runner`): the controller
-must offer ``compiled()`` (a :class:`tspend.controllers.paper.controller.CompiledController`), the plant a
-``compiled()`` step, and no per-sample hook may be on (sensor noise, delay, the outer
+must offer ``compiled()`` (a :class:`tspend.controllers.base.CompiledController`), the plant a
+``compiled()`` step (or ``compiled_mujoco(dt)``) and ``extras_index()``, and no per-sample hook may be on (sensor noise, delay, the outer
 loop: :mod:`tspend.plants.effects`); otherwise the generic Python loop runs, sample by sample.
 Everything else (the blocks, the divergence messages, stop requests, snapshots, sinks)
 stays with the runner, which calls a segment between two of these events, so they happen
@@ -22,6 +22,11 @@ Two kinds of segment:
   ``mj_step`` was measured at 2.3x bare ``mj_step``; ``mujoco.set_mjcb_control`` with a
   numba cfunc was not taken: the callback is process-global, shared by threads, and
   could reach the controller's arrays only through a cfunc compiled per run.)
+
+Each sample reads the plant's full state, takes the task's view ``x`` out of it
+(:class:`Reading`: indices, so the loop knows no plant), calls the controller with both,
+records, and ends the segment at the first sample whose state crosses the task's bounds
+(``lo < s < hi``, :mod:`tspend.task`) or whose u is not finite or out of bounds.
 
 The arithmetic is the generic loop's, in the same order, so blocks are equal bit for bit
 (tests/test_fastloop.py).  One difference in kind: where Python's ``math`` raises on an
@@ -54,6 +59,16 @@ class Bounds(NamedTuple):
     control: float
 
 
+class Reading(NamedTuple):
+    """How a sample reads the full state ``s``: the task's view ``x[k] = s[view_index[k]]``,
+    the plant's extras ``E[k] = s[extra_index[k]]``, and the task's bounds ``lo < s < hi``."""
+
+    view_index: np.ndarray   # not "view": numba takes .view for ndarray.view
+    extra_index: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
 class Buffers(NamedTuple):
     """The block's arrays the segment writes (:class:`tspend.loop.runner.BlockBuffer`'s)."""
 
@@ -67,7 +82,10 @@ class Segment(Protocol):
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
                  dt: float) -> tuple[int, int]:
         """Run samples ``a .. b-1`` of the block; ``(b, RAN)``, or ``(i, CHECK)`` when
-        sample i's u is not finite or out of bounds (recorded; the plant not stepped)."""
+        sample i's u is not finite or out of bounds, or its state crosses the task's
+        bounds (recorded; the plant not stepped; the full state left in ``full``)."""
+
+    full: np.ndarray
 
 
 #: compiled controller steps by the type of their settings (``CompiledController``), filled
@@ -75,20 +93,21 @@ class Segment(Protocol):
 _CONTROLLER_STEPS: dict[type, Callable] = {}
 
 
-def controller_sample(settings, state, scratch, x, ref, dt, diag) -> float:
+def controller_sample(settings, state, scratch, t, full, x, ref, dt, diag) -> float:
     """One compiled controller sample, the step chosen by the type of ``settings``
     (compiled code only)."""
     raise TypeError("controller_sample is for compiled code")
 
 
 @overload(controller_sample, jit_options=JIT)
-def _controller_sample(settings, state, scratch, x, ref, dt, diag):
+def _controller_sample(settings, state, scratch, t, full, x, ref, dt, diag):
+    # numba's own attribute of a NamedTuple type: the class compiled code dispatches on
     step = _CONTROLLER_STEPS.get(getattr(settings, "instance_class", None))
     if step is None:
         return None
 
-    def impl(settings, state, scratch, x, ref, dt, diag):
-        return step(settings, state, scratch, x, ref, dt, diag)
+    def impl(settings, state, scratch, t, full, x, ref, dt, diag):
+        return step(settings, state, scratch, t, full, x, ref, dt, diag)
 
     return impl
 
@@ -108,24 +127,47 @@ def _out_of_bounds(x: np.ndarray, u: float, bounds: Bounds) -> bool:
 
 
 @njit(**JIT)
-def _analytic_samples(settings, state, scratch, params, s, clock, work,
-                      x, diag, buf: Buffers, a: int, b: int, t: np.ndarray, ref: np.ndarray,
-                      dist: np.ndarray, dt: float, bounds: Bounds) -> tuple[int, int]:
+def _beyond(full: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """The task's termination check: any ``s[j]`` outside ``(lo[j], hi[j])`` (NaN: none)."""
+    for j in range(full.size):
+        v = full[j]
+        if v < lo[j] or v > hi[j]:
+            return True
+    return False
+
+
+@njit(**JIT)
+def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading: Reading,
+                 i: int, t: np.ndarray, ref: np.ndarray, dt: float,
+                 bounds: Bounds) -> tuple[float, bool]:
+    """Sample i from the full state ``full``: the view, the controller, the block's row;
+    returns u and whether the runner must look at this sample (it ends the run)."""
+    view, extra = reading.view_index, reading.extra_index
+    for j in range(view.size):
+        x[j] = full[view[j]]
+    u = controller_sample(settings, state, scratch, t[i], full, x, ref[i], dt, diag)
+    for j in range(x.size):
+        buf.X[i, j] = x[j]
+    buf.U[i] = u
+    for j in range(diag.size):
+        buf.D[i, j] = diag[j]
+    for j in range(extra.size):
+        buf.E[i, j] = full[extra[j]]
+    return u, _out_of_bounds(x, u, bounds) or _beyond(full, reading.lo, reading.hi)
+
+
+@njit(**JIT)
+def _analytic_samples(settings, state, scratch, params, s, clock, work, full_order,
+                      full, x, diag, buf: Buffers, reading: Reading, a: int, b: int,
+                      t: np.ndarray, ref: np.ndarray, dist: np.ndarray, dt: float,
+                      bounds: Bounds) -> tuple[int, int]:
     """Samples ``a .. b-1``: what :meth:`tspend.loop.runner.ClosedLoop._loop` does per sample."""
-    n = x.size
-    hidden = s.size - n
     for i in range(a, b):
-        for j in range(n):
-            x[j] = s[j]
-        u = controller_sample(settings, state, scratch, x, ref[i], dt, diag)
-        for j in range(n):
-            buf.X[i, j] = x[j]
-        buf.U[i] = u
-        for j in range(diag.size):
-            buf.D[i, j] = diag[j]
-        for j in range(hidden):
-            buf.E[i, j] = s[n + j]
-        if _out_of_bounds(x, u, bounds):
+        for j in range(full.size):
+            full[j] = s[full_order[j]]
+        u, check = _take_sample(settings, state, scratch, full, x, diag, buf, reading, i, t,
+                                ref, dt, bounds)
+        if check:
             return i, CHECK
         rk4_step(params, clock[0], s, u, dist[i], dt, work)
         clock[0] += dt
@@ -135,12 +177,15 @@ def _analytic_samples(settings, state, scratch, params, s, clock, work,
 class CompiledSegment:
     """An analytic plant and a compiled controller in one compiled loop."""
 
-    def __init__(self, compiled_controller: Any, compiled_plant: Any, diag: np.ndarray,
-                 buffers: Buffers, bounds: Bounds, order: int) -> None:
+    def __init__(self, compiled_controller: Any, compiled_plant: Any, full_order: np.ndarray,
+                 diag: np.ndarray, buffers: Buffers, reading: Reading, bounds: Bounds,
+                 order: int) -> None:
         c, p = compiled_controller, compiled_plant
         _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
+        self.full = np.zeros(full_order.size)
         self._args = (c.settings, c.state, c.scratch, p.params, p.state,
-                      p.clock, p.work, np.zeros(order), diag, buffers)
+                      p.clock, p.work, full_order, self.full, np.zeros(order), diag, buffers,
+                      reading)
         self._bounds = bounds
 
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
@@ -158,24 +203,21 @@ class SampleFailed(Exception):
 
 
 @njit(**JIT)
-def _mujoco_samples(settings, state, scratch, mj_step, link, x, diag, buf: Buffers,
-                    a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray, dt: float,
-                    bounds: Bounds) -> tuple[int, int]:
+def _mujoco_samples(settings, state, scratch, mj_step, link, full, x, diag, buf: Buffers,
+                    reading: Reading, a: int, b: int, t: np.ndarray, ref: np.ndarray,
+                    dist: np.ndarray, dt: float, bounds: Bounds) -> tuple[int, int]:
     """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoCartPole.step`
-    with MuJoCo's C ``mj_step`` called from here."""
+    with MuJoCo's C ``mj_step`` called from here; the full state is [qpos; qvel]."""
     qpos, qvel, numbers = link.qpos, link.qvel, link.warning_number
+    nq = qpos.size
     for i in range(a, b):
-        x[0] = qpos[link.theta]
-        x[1] = qvel[link.omega]
-        u = controller_sample(settings, state, scratch, x, ref[i], dt, diag)
-        buf.X[i, 0] = x[0]
-        buf.X[i, 1] = x[1]
-        buf.U[i] = u
-        for j in range(diag.size):
-            buf.D[i, j] = diag[j]
-        buf.E[i, 0] = qpos[link.cart_pos]
-        buf.E[i, 1] = qvel[link.cart_vel]
-        if _out_of_bounds(x, u, bounds):
+        for j in range(nq):
+            full[j] = qpos[j]
+        for j in range(qvel.size):
+            full[nq + j] = qvel[j]
+        u, check = _take_sample(settings, state, scratch, full, x, diag, buf, reading, i, t,
+                                ref, dt, bounds)
+        if check:
             return i, CHECK
         d = dist[i]
         if not (abs(u) < link.max_input and abs(d) < link.max_input):
@@ -194,11 +236,14 @@ class MujocoCompiledSegment:
     compiled loop calling MuJoCo's C ``mj_step``."""
 
     def __init__(self, compiled_controller: Any, plant: Any, link: Any, mj_step: Any,
-                 diag: np.ndarray, buffers: Buffers, bounds: Bounds) -> None:
+                 diag: np.ndarray, buffers: Buffers, reading: Reading, bounds: Bounds,
+                 order: int) -> None:
         c = compiled_controller
         _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
         self._plant, self._buf = plant, buffers
-        self._args = (c.settings, c.state, c.scratch, mj_step, link, np.zeros(2), diag, buffers)
+        self.full = np.zeros(link.qpos.size + link.qvel.size)
+        self._args = (c.settings, c.state, c.scratch, mj_step, link, self.full,
+                      np.zeros(order), diag, buffers, reading)
         self._bounds = bounds
 
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
@@ -218,26 +263,30 @@ class MujocoCompiledSegment:
 
 
 def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bounds: Bounds,
-                   dt: float) -> Segment | None:
-    """A compiled segment for this loop, or None: the generic loop runs (module docstring)."""
+                   dt: float, task: Any) -> Segment | None:
+    """A compiled segment for this loop, or None: the generic loop runs (module docstring).
+
+    ``task`` is the run's :class:`tspend.task.Task` (its view and bounds)."""
     if hook is not None:
         return None
-    compiled_controller = getattr(controller, "compiled", None)
+    compiled_controller = controller.compiled()
     if compiled_controller is None:
         return None
+    extra = plant.extras_index()
+    if extra is None or extra.size != buffers.E.shape[1]:
+        return None
+    reading = Reading(np.ascontiguousarray(task.view_index, dtype=np.intp),
+                      np.ascontiguousarray(extra, dtype=np.intp), task.lo, task.hi)
     order = int(controller.order)
-    compiled_plant = getattr(plant, "compiled", None)
-    if compiled_plant is not None:
-        p = compiled_plant()
-        if p is not None and buffers.E.shape[1] == p.state.size - order:
-            return CompiledSegment(compiled_controller(), p, controller.diag, buffers, bounds,
-                                   order)
-    compiled_mujoco = getattr(plant, "compiled_mujoco", None)
-    if compiled_mujoco is not None and order == 2 and buffers.E.shape[1] == 2:
+    p = plant.compiled()
+    if p is not None:
+        full_order = np.ascontiguousarray(p.full_order, dtype=np.intp)
+        return CompiledSegment(compiled_controller, p, full_order, controller.diag, buffers,
+                               reading, bounds, order)
+    link = plant.compiled_mujoco(dt)
+    if link is not None:
         from tspend.plants.mujoco_plant import mj_step_pointer
 
-        link = compiled_mujoco(dt)
-        if link is not None:
-            return MujocoCompiledSegment(compiled_controller(), plant, link, mj_step_pointer(),
-                                         controller.diag, buffers, bounds)
+        return MujocoCompiledSegment(compiled_controller, plant, link, mj_step_pointer(),
+                                     controller.diag, buffers, reading, bounds, order)
     return None

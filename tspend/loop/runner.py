@@ -5,7 +5,13 @@ and every output goes to sinks (:mod:`tspend.loop.sinks`).  Samples are gathered
 of fixed size, preallocated once, and each full block is handed to the sinks, so a long
 run keeps only one block in memory.
 
-A run ends ``completed``; ``diverged`` when the state, control or a parameter stops
+Every sample the controller gets one :class:`tspend.controllers.base.Observation`: the
+plant's full state and the task's view of it (:class:`tspend.task.Task`).
+
+A run ends ``completed``; with the task's termination status (``fell``, ``rail_end``,
+``joint_limit``, ``state_bound``: :data:`tspend.task.TERMINATIONS`) at the first sample
+whose full state crosses the task's bounds (that sample recorded, its control never
+applied); ``diverged`` when the state, control or a parameter stops
 being finite or leaves its configured bound (the block up to the last finite sample is
 still delivered); ``interrupted`` when a :class:`StopRequest` is set (the CLI's SIGINT/SIGTERM handlers
 do that; the loop honours it between samples) or on KeyboardInterrupt; then
@@ -23,13 +29,14 @@ from typing import Callable
 
 import numpy as np
 
-from tspend.controllers.base import Controller, Diagnostic, check_diagnostics
+from tspend.controllers.base import Controller, Diagnostic, Observation, check_diagnostics
 from tspend.errors import DivergenceError
 from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
 from tspend.runtime.interrupts import StopRequest
 from tspend.plants.base import Plant
 from tspend.signals import Disturbance, Reference
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
+from tspend.task import Task, build_task
 
 
 class RunInterrupted(Exception):
@@ -85,16 +92,22 @@ class BlockBuffer:
 
 
 class ClosedLoop:
-    """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``."""
+    """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``.
+
+    ``task``: the view the controller tracks and the bounds that end the run (default:
+    the plant domain's task, :func:`tspend.task.build_task`).
+    """
 
     def __init__(self, plant: Plant, controller: Controller, reference: Reference,
                  disturbance: Disturbance, settings: LoopSettings,
                  stop: StopRequest | None = None,
-                 hook: "Callable[[float, np.ndarray, np.ndarray], np.ndarray] | None" = None
-                 ) -> None:
+                 hook: "Callable[[float, np.ndarray, np.ndarray], np.ndarray] | None" = None,
+                 task: Task | None = None) -> None:
         if plant.order != controller.order:
             raise ValueError(f"plant order {plant.order} != controller order {controller.order}")
         check_diagnostics(controller.diagnostics, controller.diag)
+        self.task = task if task is not None else build_task(
+            plant, reference=reference, disturbance=disturbance)
         self.plant = plant
         self.controller = controller
         self.reference = reference
@@ -153,14 +166,17 @@ class ClosedLoop:
         diag = ctrl.diag
         # inner snapshots cost a numpy evaluation each: only for sinks that draw them, and
         # only from controllers that have an inner state to show
-        snapshot = getattr(ctrl, "snapshot", None)
-        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)] if snapshot else []
+        snapshot = ctrl.snapshot
+        snap_sinks = [sk for sk in sinks if getattr(sk, "wants_inner", False)] \
+            if ctrl.has_snapshots else []
         snap_every = s.snapshot_every if snap_sinks else 0
         bounded = s.state_bound > 0.0 or s.control_bound > 0.0
         isfinite = math.isfinite
-        stop, hook = self.stop, self.hook
+        stop, hook, task = self.stop, self.hook, self.task
+        view, names, watched = task.view_index, task.names, bool(task.watched)
+        crossed = task.ended
         segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E),
-                                 Bounds(s.state_bound, s.control_bound), dt) \
+                                 Bounds(s.state_bound, s.control_bound), dt, task) \
             if s.compiled else None
         self.path = "generic" if segment is None else "compiled"
         if segment is not None:
@@ -175,17 +191,21 @@ class ClosedLoop:
                 for i in range(k):
                     if stop.signal_name is not None:
                         raise RunInterrupted(stop.signal_name, stop.exit_status)
-                    x = plant.state()
-                    u = ctrl.step(x if hook is None else hook(t[i], x, ref[i]), ref[i], dt)
+                    full = plant.full_state()
+                    x = full[view]
+                    seen = x if hook is None else hook(t[i], x, ref[i])
+                    u = ctrl.step(Observation(t[i], full, seen, ref[i], names), dt)
                     X[i] = x
                     U[i] = u
                     D[i] = diag
                     if extras:
                         E[i] = tuple(plant.extras().values())
                     # a non-finite state or parameter reaches u within the sample
-                    if not isfinite(u) or (bounded and self._out_of_bounds(x, u)):
-                        problem, kept = self._diagnose(x, u, t[i])
-                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
+                    if (not isfinite(u) or (bounded and self._out_of_bounds(x, u))
+                            or (watched and crossed(full))):
+                        problem, kept, status = self._diagnose(x, u, t[i], full)
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem,
+                                              status)
                     try:
                         plant.step(u, dist[i], dt)
                     except (ArithmeticError, ValueError, DivergenceError) as exc:
@@ -211,7 +231,7 @@ class ClosedLoop:
         (:mod:`tspend.loop.fastloop`): the same samples, blocks, snapshots and endings."""
         s, n, dt, X, U, D = self.s, self.controller.order, self.s.dt, buf.x, buf.u, buf.diag
         stop = self.stop
-        snapshot = getattr(self.controller, "snapshot", None)
+        snapshot = self.controller.snapshot
         for start in range(0, s.steps, s.block_size):
             k = min(s.block_size, s.steps - start)
             t = (start + np.arange(k)) * dt
@@ -233,8 +253,10 @@ class ClosedLoop:
                         return self._plant_failed(sinks, start, buf, t, ref, dist, i,
                                                   failed.error)
                     if code == CHECK:
-                        problem, kept = self._diagnose(X[i], float(U[i]), t[i])
-                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem)
+                        problem, kept, status = self._diagnose(X[i], float(U[i]), t[i],
+                                                               segment.full)
+                        return self._diverged(sinks, start, buf, t, ref, dist, i + kept, problem,
+                                              status)
                     if i == snap + 1:
                         inner = snapshot(float(t[snap]), start + snap, X[snap].copy())
                         for sink in snap_sinks:
@@ -267,16 +289,13 @@ class ClosedLoop:
                       exc: BaseException) -> tuple[int, str, str]:
         """The plant's step raised at sample i (math.exp overflow, sin(inf), MuJoCo's own
         instability check): sample i is kept, the run ends."""
-        if getattr(exc, "status", None):  # e.g. the end of a finite rail
-            return self._diverged(sinks, start, buf, t, ref, dist, i + 1, str(exc),
-                                  exc.status)  # type: ignore[attr-defined]
         return self._diverged(sinks, start, buf, t, ref, dist, i + 1,
                               f"diverged at t = {t[i]:.4f} s: the plant failed ({exc})")
 
     def _diverged(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
                   ref: np.ndarray, dist: np.ndarray, kept: int,
                   message: str, status: str = "diverged") -> tuple[int, str, str]:
-        """Deliver the block's first ``kept`` samples and end the run as diverged."""
+        """Deliver the block's first ``kept`` samples and end the run as ``status``."""
         self._emit(sinks, start, buf, t, ref, dist, kept)
         self._done = start + kept
         return self._done, status, message
@@ -290,19 +309,26 @@ class ClosedLoop:
         return ((self.s.state_bound > 0.0 and float(np.abs(x).max()) > self.s.state_bound)
                 or (self.s.control_bound > 0.0 and abs(u) > self.s.control_bound))
 
-    def _diagnose(self, x: np.ndarray, u: float, t: float) -> tuple[str, int]:
-        """What went wrong at time t, and whether that sample is kept (1: finite) or not."""
+    def _diagnose(self, x: np.ndarray, u: float, t: float,
+                  full: np.ndarray) -> tuple[str, int, str]:
+        """What ended the run at time t, whether that sample is kept (1: finite) or not,
+        and the run's status."""
         if not np.all(np.isfinite(x)):
-            return f"diverged at t = {t:.4f} s: the state is not finite", 0
+            return f"diverged at t = {t:.4f} s: the state is not finite", 0, "diverged"
         if not math.isfinite(u):
-            return f"diverged at t = {t:.4f} s: the control u is not finite", 0
+            return f"diverged at t = {t:.4f} s: the control u is not finite", 0, "diverged"
         if self.s.state_bound > 0.0:
             worst = int(np.argmax(np.abs(x)))
             if abs(x[worst]) > self.s.state_bound:
                 return (f"diverged at t = {t:.4f} s: |x{worst + 1}| = {abs(x[worst]):.4g} "
-                        f"exceeds state_bound {self.s.state_bound:g}", 1)
-        return (f"diverged at t = {t:.4f} s: |u| = {abs(u):.4g} exceeds "
-                f"control_bound {self.s.control_bound:g}", 1)
+                        f"exceeds state_bound {self.s.state_bound:g}", 1, "diverged")
+        if self.s.control_bound > 0.0 and abs(u) > self.s.control_bound:
+            return (f"diverged at t = {t:.4f} s: |u| = {abs(u):.4g} exceeds "
+                    f"control_bound {self.s.control_bound:g}", 1, "diverged")
+        ended = self.task.termination(full, float(t))
+        assert ended is not None, "a sample was stopped with nothing to report"
+        status, message = ended
+        return message, 1, status
 
     def _emit(self, sinks: list[Sink], start: int, buf: BlockBuffer, t: np.ndarray,
               ref: np.ndarray, dist: np.ndarray, k: int) -> None:

@@ -25,6 +25,7 @@ from tspend.plants.base import Plant
 from tspend.plants.mjcf_warning import ModelWarning
 from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
+from tspend.task import Task, build_task
 
 
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
@@ -35,11 +36,9 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
     """
     plant = plant_registry.build(scenario, kind)
-    check = getattr(plant, "check_sample_time", None)
-    if check is not None:
-        check(scenario.run.dt)
-        for line in plant.departures(scenario.run.dt):  # type: ignore[attr-defined]
-            warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
+    plant.check_sample_time(scenario.run.dt)
+    for line in plant.departures(scenario.run.dt):
+        warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
     if needs_plant_wrapper(scenario.effects):
         plant = EffectsPlant(plant, scenario.effects)
     plant.reset(np.asarray(scenario.plant.x0, dtype=float))
@@ -50,7 +49,7 @@ def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
     """Resolve ``controller.gain_sign = "plant"`` to the sign the plant measures."""
     if scenario.controller.gain_sign != "plant":
         return scenario
-    sign = getattr(plant, "gain_sign", 1)
+    sign = plant.gain_sign
     return replace(scenario, controller=replace(
         scenario.controller, gain_sign="negative" if sign < 0 else "positive"))
 
@@ -76,8 +75,7 @@ def scenario_text(scenario: Scenario) -> str:
 def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None,
              controller: Controller | None = None) -> RunInfo:
     kind = kind or scenario.plant.kind
-    fuzzy_inputs = getattr(controller, "fuzzy_inputs", None)
-    fuzzy = fuzzy_inputs() if fuzzy_inputs else {}
+    fuzzy = controller.fuzzy_inputs() if controller is not None else {}
     return RunInfo(
         scenario_name=scenario.name, scenario_text=scenario_text(scenario),
         scenario_path=scenario.path,
@@ -85,8 +83,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         order=plant.order, dt=scenario.run.dt, duration=steps * scenario.run.dt, steps=steps,
         model_inputs=fuzzy.get("model", ()), compensator_inputs=fuzzy.get("compensator", ()),
         extras=tuple(plant.extras().keys()), drawing=plant_registry.drawing(plant, scenario),
-        controller_kind=getattr(controller, "kind", ""),
-        diagnostics=tuple(getattr(controller, "diagnostics", ())))
+        controller_kind=controller.kind if controller is not None else "",
+        diagnostics=tuple(controller.diagnostics) if controller is not None else ())
 
 
 class History:
@@ -136,22 +134,33 @@ class RunResult:
         return history_frame(self.history, self.controller.diagnostics)
 
 
+def scenario_task(scenario: Scenario, plant: Plant) -> Task:
+    """The scenario's ``[task]`` on ``plant`` (the domain's defaults where it says nothing),
+    with the scenario's reference, disturbance and ``effects.rail``."""
+    return build_task(plant, scenario.task, scenario.effects, scenario.reference,
+                      scenario.disturbance, where=scenario.path or scenario.name)
+
+
 @dataclass(frozen=True)
 class Prepared:
-    """A plant and a controller built (and so checked) before anything is run or written."""
+    """A plant, its task and a controller built (and so checked) before anything is run
+    or written."""
 
     scenario: Scenario   # with what the plant decides resolved (controller.gain_sign)
     plant: Plant
     controller: Controller
+    task: Task | None = None
 
 
 def prepare(scenario: Scenario, plant_kind: str | None = None,
             controller: str | None = None) -> Prepared:
-    """Build the plant (model file, joint names, timestep) and the controller without
-    running: every error a scenario can still raise surfaces here, as a ScenarioError."""
+    """Build the plant (model file, joint names, timestep), its task and the controller
+    without running: every error a scenario can still raise surfaces here, as a
+    ScenarioError."""
     plant = build_plant(scenario, plant_kind)
+    task = scenario_task(scenario, plant)
     scenario = with_gain_sign(scenario, plant)
-    return Prepared(scenario, plant, build_controller(scenario, kind=controller))
+    return Prepared(scenario, plant, build_controller(scenario, kind=controller), task)
 
 
 def steps_of(scenario: Scenario) -> int:
@@ -183,8 +192,9 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
                             control_bound=scenario.run.control_bound, compiled=compiled)
     hook = Measurement(scenario.effects, plant, dt, scenario.run.seed) \
         if needs_hook(scenario.effects) else None
+    task = parts.task if parts.task is not None else scenario_task(scenario, plant)
     loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
-                      hook=hook)
+                      hook=hook, task=task)
     metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)

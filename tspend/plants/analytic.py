@@ -16,7 +16,8 @@ from numba.core import types
 from numba.extending import overload, register_jitable
 
 from tspend.config import AnalyticPlantConfig
-from tspend.plants.domain import Backend, Domain, PlantLabels, PlantModel, Quantity, TaskDefaults
+from tspend.plants.base import Plant, TaskDefaults
+from tspend.plants.domain import Backend, Domain, PlantLabels, PlantModel, Quantity
 from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
@@ -179,26 +180,58 @@ class CompiledPlant(NamedTuple):
     state: np.ndarray
     clock: np.ndarray
     work: RK4Work
+    #: the full state is ``state[full_order]``
+    full_order: np.ndarray
 
 
-class AnalyticPlant:
+class AnalyticPlant(Plant):
     """A plant of the form (6), stepped by classical RK4 with u and d held constant.
 
     ``hidden`` extra states may ride along (the cart of the cart-pole ODE); the
-    controller sees only the first ``order`` entries, ``extras`` reports the rest.
+    default view is the first ``order`` entries, ``extras`` reports the rest.  The full
+    state is named ``x1 .. xn`` (then the hidden names) unless ``state_names`` says
+    otherwise; ``full_order`` gives, for each entry of the full state, its place in the
+    integrated vector ``s`` (identity unless a domain orders its state differently).
     """
 
     def __init__(self, accel: Accel, order: int, name: str = "analytic",
                  hidden_rhs: Callable[[float, np.ndarray, float, float, float], np.ndarray] | None = None,
-                 hidden_names: tuple[str, ...] = ()) -> None:
+                 hidden_names: tuple[str, ...] = (), domain: str = "",
+                 state_names: tuple[str, ...] = (), state_units: tuple[str, ...] = (),
+                 full_order: tuple[int, ...] = ()) -> None:
         self.accel = accel
         self.order = int(order)
         self.name = name
+        self.domain = domain or name
         self.hidden_rhs = hidden_rhs
         self.hidden_names = hidden_names
         self._clock = np.zeros(1)
         self.s = np.zeros(self.order + len(hidden_names))
         self._work = rk4_work(self.s.size)
+        self._names = state_names or (tuple(f"x{i + 1}" for i in range(self.order))
+                                      + tuple(hidden_names))
+        self._units = state_units or ("",) * len(self._names)
+        self._full_order = np.asarray(full_order or range(self.s.size), dtype=np.intp)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self._names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self._units
+
+    def full_state(self) -> np.ndarray:
+        return self.s[self._full_order]
+
+    @property
+    def full_order(self) -> np.ndarray:
+        """Index of each full-state entry in the integrated vector (for compiled loops)."""
+        return self._full_order
+
+    def default_task(self) -> TaskDefaults:
+        return TaskDefaults(view=tuple(self.state_names[i] for i in self._full_order.argsort()
+                                       [: self.order]))
 
     @property
     def t(self) -> float:
@@ -214,25 +247,6 @@ class AnalyticPlant:
 
     def state(self) -> np.ndarray:
         return self.s[: self.order].copy()
-
-    @property
-    def domain(self) -> str:
-        return self.name
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        """The chain's states ``x1 .. xn`` (a domain with hidden states names its own)."""
-        return tuple(f"x{i + 1}" for i in range(self.order))
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return ("",) * len(self.state_names)
-
-    def full_state(self) -> np.ndarray:
-        return self.s.copy()
-
-    def parameters(self) -> dict[str, float]:
-        return {}
 
     def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
         """Full derivative: the chain of integrators, accel last, then hidden states."""
@@ -259,10 +273,14 @@ class AnalyticPlant:
         chain = _CHAIN_OF.get(self.accel)
         if chain is None or self.hidden_rhs is not None:
             return None
-        return CompiledPlant(chain(), self.s, self._clock, self._work)
+        return CompiledPlant(chain(), self.s, self._clock, self._work, self._full_order)
 
     def extras(self) -> dict[str, float]:
         return {name: float(v) for name, v in zip(self.hidden_names, self.s[self.order:])}
+
+    def extras_index(self) -> np.ndarray:
+        """The hidden states' places in the full state."""
+        return np.argsort(self._full_order)[self.order:].astype(np.intp)
 
 
 _CHAIN_ACCEL: dict[type, Callable] = {NonaffineChain: nonaffine_accel,

@@ -1,32 +1,177 @@
-"""The plant protocol: what the closed-loop runner needs from any plant.
+"""The plant interface (Physics): what the closed loop, the task and the recorders need.
 
-A plant is the system (6) of the paper: ``x_1' = x_2, ..., x_n' = f(x, u) + d_d``.
-Analytic plants integrate their ODE; the MuJoCo plant steps a physics model.  The
-runner only sees this protocol, so backends are interchangeable.
+A plant is a machine driven by a scalar control ``u`` and a disturbance ``d_d``.  It
+exposes its FULL state, named like MuJoCo's qpos then qvel: a joint's position is named
+after the joint, its velocity ``<joint>_dot`` (the cart-pole: ``("slider", "hinge",
+"slider_dot", "hinge_dot")`` on both backends; the paper's chain plants ``("x1", "x2")``).
+The paper's companion-form view (the tracked output and its derivatives, ``order``
+entries) is the task's business (:mod:`tspend.task`); ``state()`` keeps giving the plant's
+own default view for the code that predates the full state.
+
+:class:`Plant` is an abstract base class: what every plant must define is abstract, the
+optional parts (joints, inputs, parameters, extras, a compiled step ...) have defaults,
+so nothing needs ``getattr`` to ask a plant for them.
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+__all__ = ["InputInfo", "JointInfo", "Plant", "TaskDefaults", "velocity_name"]
 
-@runtime_checkable
-class Plant(Protocol):
-    """A plant of order ``n`` driven by a scalar control ``u`` and disturbance ``d_d``."""
 
-    #: plant order n: the controller sees x = [x_1 .. x_n]
+def velocity_name(position: str) -> str:
+    """The state name of a joint's velocity: ``hinge`` -> ``hinge_dot``."""
+    return f"{position}_dot"
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """One joint: ``kind`` "slide" or "hinge", the unit of its position, and its range
+    ``(lo, hi)`` when it is limited (None: free)."""
+
+    name: str
+    kind: str
+    unit: str
+    range: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class InputInfo:
+    """One control input: its name, unit and bounds (+/-inf when unbounded)."""
+
+    name: str
+    unit: str = ""
+    lo: float = -math.inf
+    hi: float = math.inf
+
+
+@dataclass(frozen=True)
+class TaskDefaults:
+    """A domain's default task: the view the paper's controllers see and when a run ends.
+
+    ``view``: the state names the paper's controllers see (tracked output and its
+    derivatives); ``fall_angle``: rad from upright that ends the run (0 = off), on the
+    state ``pole``, an angle from the upright ("" when the domain balances nothing).
+    A plant's :meth:`Plant.default_task` is its domain's, with the plant's own joint names.
+    """
+
+    view: tuple[str, ...]
+    fall_angle: float = 0.0
+    pole: str = ""
+
+    def renamed(self, names: dict[str, str]) -> "TaskDefaults":
+        """This task with state names replaced by ``names`` (a plant's own joint names)."""
+        return TaskDefaults(tuple(names.get(v, v) for v in self.view), self.fall_angle,
+                            names.get(self.pole, self.pole))
+
+
+class Plant(ABC):
+    """A plant of order ``n`` (its default view) with a full named state.
+
+    Subclasses define :meth:`reset`, :meth:`state`, :meth:`full_state`, :meth:`step`,
+    ``order``, ``state_names`` and ``state_units``; everything else has a default.
+    """
+
+    #: the plant's domain ("cartpole", "duffing", "nonaffine", "third_order", ...)
+    domain: str = ""
+    #: plant kind name, used in messages
+    name: str = "plant"
+    #: plant order n: the default view has n entries
     order: int
 
+    # -- the full state ---------------------------------------------------------------
+    @property
+    @abstractmethod
+    def state_names(self) -> tuple[str, ...]:
+        """The full state's names: positions, then velocities (like qpos then qvel)."""
+
+    @property
+    @abstractmethod
+    def state_units(self) -> tuple[str, ...]:
+        """The unit of each entry of the full state ("m", "rad", "m/s", "rad/s", "")."""
+
+    @abstractmethod
+    def full_state(self) -> np.ndarray:
+        """The full state in :attr:`state_names` order; a copy the caller may keep."""
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """The machine's joints (none for an abstract ODE)."""
+        return ()
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The control inputs with their bounds (default: one unbounded input ``u``)."""
+        return (InputInfo("u"),)
+
+    def parameters(self) -> dict[str, float]:
+        """The physical parameters as simulated (empty for a plant that has none)."""
+        return {}
+
+    def default_task(self) -> TaskDefaults:
+        """The domain's task: the tracked view, and the pole angle a fall is judged on."""
+        return TaskDefaults(view=tuple(self.state_names[: self.order]))
+
+    # -- stepping ---------------------------------------------------------------------
+    @abstractmethod
     def reset(self, x0: np.ndarray) -> None:
-        """Set the state to ``x0`` (shape (n,)) and the plant's clock to zero."""
+        """Set the default view to ``x0`` (shape (n,)), the rest at rest, the clock to 0."""
 
+    @abstractmethod
     def state(self) -> np.ndarray:
-        """The current state x (shape (n,)); a copy the caller may keep."""
+        """The default view x (shape (n,)); a copy the caller may keep."""
 
+    @abstractmethod
     def step(self, u: float, d: float, dt: float) -> None:
         """Advance by ``dt`` with ``u`` and ``d`` held constant (zero-order hold)."""
 
     def extras(self) -> dict[str, float]:
-        """Quantities outside x worth recording (cart position, ...); may be empty."""
+        """Quantities worth recording besides the task's view (cart position, ...)."""
+        return {}
+
+    # -- optional capabilities ---------------------------------------------------------
+    @property
+    def gain_sign(self) -> int:
+        """Sign of d(x_n')/du at the operating point (the paper's Assumption 5)."""
+        return 1
+
+    def check_sample_time(self, dt: float) -> None:
+        """Raise ScenarioError when the plant cannot be stepped at sample time ``dt``."""
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        """How the plant departs from the paper's ODE (one line each; MJCF models)."""
+        return []
+
+    def compiled(self) -> Any:
+        """The plant for a compiled closed loop (:class:`tspend.plants.analytic.CompiledPlant`),
+        or None: the generic loop steps it."""
+        return None
+
+    def compiled_mujoco(self, dt: float) -> Any:
+        """A MuJoCo plant for a compiled closed loop (:class:`tspend.plants.mujoco_plant.MujocoLink`),
+        or None."""
+        return None
+
+    def extras_index(self) -> np.ndarray | None:
+        """Where each entry of :meth:`extras` sits in :meth:`full_state`, when every extra
+        is a state entry (compiled loops record them from the full state); None when
+        some are not."""
+        return None if self.extras() else np.zeros(0, dtype=np.intp)
+
+    def instability(self, t0: float) -> Exception | None:
+        """The error a compiled MuJoCo step ended on (None: none)."""
+        return None
+
+    def state_index(self, name: str) -> int:
+        """Where the state ``name`` sits in :meth:`full_state` (ValueError if nowhere)."""
+        try:
+            return self.state_names.index(name)
+        except ValueError:
+            raise ValueError(f"{self.name}: no state named {name!r} (states: "
+                             f"{', '.join(self.state_names)})") from None

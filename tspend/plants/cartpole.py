@@ -19,11 +19,10 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
-from tspend.plants.base import Plant
+from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, gain_sign, machine_accelerations, machine_rhs, rhs)
-from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
-    TaskDefaults)
+from tspend.plants.domain import Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -86,28 +85,36 @@ COMPILED_RHS[CartPoleMachine] = machine_rhs
 # -- the analytic backend ---------------------------------------------------------------
 class CartPoleODE(AnalyticPlant):
     """The cart-pole ODE (C1)-(C2), with the cart as hidden states, so the ODE backend can
-    draw the cart and meet a finite rail too.  Its joints take the MJCF's names when it
-    is built from a MuJoCo scenario (``slider``/``hinge`` by default)."""
+    draw the cart and meet a finite rail too.  Its joints take the MJCF's names (and
+    ranges) when it is built from a MuJoCo scenario (``slider``/``hinge`` by default).
 
-    domain = "cartpole"
+    Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
+    ``(slider, hinge, slider_dot, hinge_dot)``.
+    """
 
     def __init__(self, params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                 hinge_joint: str = "hinge") -> None:
+                 hinge_joint: str = "hinge",
+                 joint_ranges: dict[str, tuple[float, float]] | None = None) -> None:
+        names = (slide_joint, hinge_joint, velocity_name(slide_joint), velocity_name(hinge_joint))
         super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d)[0],
-                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"))
+                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
+                         domain="cartpole", state_names=names,
+                         state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
         self.slide_joint, self.hinge_joint = slide_joint, hinge_joint
+        ranges = joint_ranges or {}
+        self._joints = (JointInfo(slide_joint, "slide", "m", ranges.get(slide_joint)),
+                        JointInfo(hinge_joint, "hinge", "rad", ranges.get(hinge_joint)))
         self.set_params(params)
 
     @property
-    def state_names(self) -> tuple[str, ...]:
-        return (self.slide_joint, self.hinge_joint, f"{self.slide_joint}_dot",
-                f"{self.hinge_joint}_dot")
+    def joints(self) -> tuple[JointInfo, ...]:
+        return self._joints
 
-    state_units = ("m", "rad", "m/s", "rad/s")
-
-    def full_state(self) -> np.ndarray:
-        s = self.s
-        return np.array((s[2], s[0], s[3], s[1]))
+    def default_task(self) -> TaskDefaults:
+        """The cart-pole domain's task on this plant's joint names."""
+        return DOMAIN.task.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
+                                    "slider_dot": velocity_name(self.slide_joint),
+                                    "hinge_dot": velocity_name(self.hinge_joint)})
 
     @property
     def gain_sign(self) -> int:
@@ -125,12 +132,13 @@ class CartPoleODE(AnalyticPlant):
         return self._machine
 
     def compiled(self) -> CompiledPlant:
-        return CompiledPlant(self._machine, self.s, self._clock, self._work)
+        return CompiledPlant(self._machine, self.s, self._clock, self._work, self.full_order)
 
 
 def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                       hinge_joint: str = "hinge") -> CartPoleODE:
-    return CartPoleODE(params, slide_joint, hinge_joint)
+                       hinge_joint: str = "hinge",
+                       joint_ranges: dict[str, tuple[float, float]] | None = None) -> CartPoleODE:
+    return CartPoleODE(params, slide_joint, hinge_joint, joint_ranges)
 
 
 def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], float]:
@@ -163,7 +171,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
                           actuator=mj.actuator,
                           overrides=params_of(mj) if mj.override_inertials else None,
                           integrator=mj.integrator or None, timestep=mj.timestep or None,
-                          **friction)
+                          task_defaults=DOMAIN.task, **friction)
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -413,14 +421,23 @@ class CartPoleDomain(Domain):
         return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,
                                theta_sign=params.theta_sign)
 
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        return "slide" in joint_types
+
+    def view_names(self, plant: Plant) -> tuple[str, ...]:
+        hinge = plant.state_names[1]  # the MJCF's own name of the pole's hinge
+        return (hinge, f"{hinge}_dot")
+
     def chirp_amplitude(self, plant: Plant) -> float:
         """100 N on the paper's 11 kg machine, scaled with the total mass (per unit gear)."""
         p: CartPoleParams = plant.params  # type: ignore[attr-defined]
         return CHIRP_N_PER_KG * (p.M + p.m) / abs(p.gear)
 
     def ode_of(self, plant: Plant) -> Plant:
+        """The ODE of the MuJoCo ``plant``'s machine, with its joints' names and ranges."""
+        ranges = {j.name: j.range for j in plant.joints if j.range is not None}
         return cartpole_ode_plant(plant.params, plant.slide_joint,  # type: ignore[attr-defined]
-                                  plant.hinge_joint)  # type: ignore[attr-defined]
+                                  plant.hinge_joint, ranges)  # type: ignore[attr-defined]
 
 
 #: the cart-pole domain

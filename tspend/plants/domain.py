@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants.base import Plant
+from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -63,18 +63,6 @@ class PlantLabels(NamedTuple):
 
     def extra(self, name: str) -> Quantity:
         return self.extras.get(name, Quantity(name))
-
-
-@dataclass(frozen=True)
-class TaskDefaults:
-    """A domain's default task: the view the paper's controllers see and when a run ends.
-
-    ``fall_angle`` (rad from upright, 0 = off) applies to the state ``pole`` (a state name).
-    """
-
-    view: tuple[str, ...]
-    fall_angle: float = 0.0
-    pole: str = ""
 
 
 @dataclass(frozen=True)
@@ -232,6 +220,20 @@ class Domain(ABC):
     def ode_kind(self) -> str | None:
         """The domain's analytic plant kind (the cross-check's second backend), or None."""
         return next((k for k, b in self.kinds.items() if not b.mujoco), None)
+
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        """Whether an MJCF with these joint types ("slide", "hinge", ...) looks like this
+        domain's machine (``tspend inspect`` picks the domain by it)."""
+        return False
+
+    def inspect(self, model_path: str) -> tuple[dict[str, Any], list[str]]:
+        """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``)."""
+        raise NotImplementedError(f"domain {self.name!r} does not read MJCF files")
+
+    def view_names(self, plant: Plant) -> tuple[str, ...]:
+        """The full-state names of ``plant``'s view (the task's, under the plant's own
+        joint names)."""
+        return self.task.view
 
     def chirp_amplitude(self, plant: Plant) -> float:
         """The amplitude of the cross-check's open-loop chirp input on ``plant``: large

@@ -4,7 +4,9 @@ All are scenario options (``[effects]``), off by default, and act identically on
 backend because they sit outside it:
 
 * on the way in (:class:`EffectsPlant`, a Plant around the plant): actuator rate limit
-  then saturation, a change of M, m, l at a given time, a finite rail;
+  then saturation, a change of M, m, l at a given time;
+* a finite rail (``rail``) is a termination of the task: it overrides the slide joint's
+  range (:mod:`tspend.task`), and the run ends ``rail_end``;
 * on the way out (:class:`Measurement`, the runner's per-sample hook): a measurement
   delay of k samples, seeded white sensor noise per state from its own random stream,
   and the cart-centring outer loop that shapes the pole reference.
@@ -23,37 +25,74 @@ from typing import Any
 import numpy as np
 
 from tspend.config import EffectsConfig, OuterLoopConfig
-from tspend.errors import DivergenceError
-from tspend.plants.base import Plant
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 
 
-class RailEnd(DivergenceError):
-    """The cart reached the end of a finite rail: the run ends with status ``rail_end``."""
+class EffectsPlant(Plant):
+    """``plant`` seen through an actuator, and changed at a given time.
 
-    status = "rail_end"
-    exit_status = 4
+    Forwards the plant interface to the inner plant; the inputs' bounds are the
+    saturation's when it is tighter.
+    """
 
-
-class EffectsPlant:
-    """``plant`` seen through an actuator and a rail, and changed at a given time."""
-
-    def __init__(self, plant: Plant, cfg: EffectsConfig, rail_state: str | None = None) -> None:
-        """``rail_state``: the state (a slide joint's position, by name) that
-        ``cfg.rail`` bounds; by default the plant's first state, the cart-pole's slider."""
+    def __init__(self, plant: Plant, cfg: EffectsConfig) -> None:
         self.inner, self.cfg = plant, cfg
         self.order = plant.order
-        names = tuple(plant.state_names)
-        self._rail_index = names.index(rail_state) if rail_state else 0
-        self._rail_name = names[self._rail_index]
         self._u_prev = 0.0
         self._t = 0.0
         self._changed = False
 
-    # the inner plant's compiled step or state views would bypass the effects
-    compiled = compiled_mujoco = None
+    # the inner plant's compiled step would bypass the effects: the base's None stays
 
-    def __getattr__(self, name: str) -> Any:  # params, gain_sign, model, facts ...
+    def __getattr__(self, name: str) -> Any:  # params, model, facts ...
         return getattr(self.inner, name)
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return self.inner.name
+
+    @property
+    def domain(self) -> str:  # type: ignore[override]
+        return self.inner.domain
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.inner.state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.inner.state_units
+
+    def full_state(self) -> np.ndarray:
+        return self.inner.full_state()
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return self.inner.joints
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        sat = self.cfg.saturation
+        if sat <= 0.0:
+            return self.inner.inputs
+        return tuple(InputInfo(i.name, i.unit, max(i.lo, -sat), min(i.hi, sat))
+                     for i in self.inner.inputs)
+
+    def parameters(self) -> dict[str, float]:
+        return self.inner.parameters()
+
+    def default_task(self) -> TaskDefaults:
+        return self.inner.default_task()
+
+    @property
+    def gain_sign(self) -> int:
+        return self.inner.gain_sign
+
+    def check_sample_time(self, dt: float) -> None:
+        self.inner.check_sample_time(dt)
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        return self.inner.departures(dt)
 
     def reset(self, x0: np.ndarray) -> None:
         self.inner.reset(x0)
@@ -84,12 +123,6 @@ class EffectsPlant:
         self._u_prev = u
         self.inner.step(u, d, dt)
         self._t += dt
-        rail = self.cfg.rail
-        if rail > 0.0:
-            x = float(self.inner.full_state()[self._rail_index])
-            if abs(x) >= rail:
-                raise RailEnd(f"{self._rail_name} reached the end of the rail at {x:+.4g} m "
-                              f"(half-length {rail:g} m) at t = {self._t:.4f} s")
 
     def extras(self) -> dict[str, float]:
         out = dict(self.inner.extras())
@@ -171,4 +204,4 @@ def needs_hook(cfg: EffectsConfig) -> bool:
 
 
 def needs_plant_wrapper(cfg: EffectsConfig) -> bool:
-    return bool(cfg.saturation or cfg.rate_limit or cfg.change is not None or cfg.rail)
+    return bool(cfg.saturation or cfg.rate_limit or cfg.change is not None)

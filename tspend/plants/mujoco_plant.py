@@ -30,6 +30,7 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import CartPoleParams
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
@@ -113,7 +114,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / n if n > 0.0 else np.array([0.0, 0.0, 1.0])
 
 
-class MujocoCartPole:
+class MujocoCartPole(Plant):
     """Example 3's cart-pole as a MuJoCo model, behind the Plant protocol.
 
     Parameters
@@ -131,6 +132,9 @@ class MujocoCartPole:
         ``"implicitfast"``; only for the cross-check's contrast figures.
     timestep:
         overrides the model's physics timestep.
+    task_defaults:
+        the domain's default task, its states named by the roles ``slider``/``hinge``
+        (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
 
     Raises
     ------
@@ -148,9 +152,10 @@ class MujocoCartPole:
                  overrides: CartPoleParams | None = None,
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
-                 cart_friction: float | None = None, hinge_friction: float | None = None
-                 ) -> None:
+                 cart_friction: float | None = None, hinge_friction: float | None = None,
+                 task_defaults: TaskDefaults | None = None) -> None:
         self.model_path = Path(model_path)
+        self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
@@ -227,6 +232,7 @@ class MujocoCartPole:
         self._last_dt = math.nan
         self._last_k = 0
         self._bind_views()
+        self._describe_state()
         self.reset(np.zeros(2))
 
     # --- construction helpers -------------------------------------------------------
@@ -275,6 +281,41 @@ class MujocoCartPole:
                 continue
             geom.size = size
 
+    def _describe_state(self) -> None:
+        """Names, units and ranges of the full state [qpos; qvel], read off the compiled
+        model: a 1-DOF joint's position is named after it, its velocity ``<joint>_dot``;
+        a ball or free joint's coordinates get ``_<k>`` suffixes."""
+        m = self.model
+        kinds = {int(mujoco.mjtJoint.mjJNT_SLIDE): ("slide", "m", "m/s"),
+                 int(mujoco.mjtJoint.mjJNT_HINGE): ("hinge", "rad", "rad/s"),
+                 int(mujoco.mjtJoint.mjJNT_BALL): ("ball", "", "rad/s"),
+                 int(mujoco.mjtJoint.mjJNT_FREE): ("free", "", "")}
+        pos_names, vel_names = [""] * m.nq, [""] * m.nv
+        pos_units, vel_units = [""] * m.nq, [""] * m.nv
+        joints = []
+        for j in range(m.njnt):
+            name = m.joint(j).name or f"joint{j}"
+            kind, unit, vel_unit = kinds[int(m.jnt_type[j])]
+            qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+            nq = {"free": 7, "ball": 4}.get(kind, 1)
+            nv = {"free": 6, "ball": 3}.get(kind, 1)
+            for k in range(nq):
+                pos_names[qa + k] = name if nq == 1 else f"{name}_{k}"
+                pos_units[qa + k] = unit
+            for k in range(nv):
+                vel_names[va + k] = velocity_name(name) if nv == 1 else f"{name}_dot_{k}"
+                vel_units[va + k] = vel_unit
+            limited = bool(m.jnt_limited[j])
+            joints.append(JointInfo(name, kind, unit, (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1]))
+                                    if limited else None))
+        self._state_names = tuple(pos_names + vel_names)
+        self._state_units = tuple(pos_units + vel_units)
+        self._joints = tuple(joints)
+        a = self._act
+        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
+            else (-math.inf, math.inf)
+        self._inputs = (InputInfo(self.actuator, "N", lo, hi),)
+
     def _bind_views(self) -> None:
         # numpy views into MjData, taken once: fetching them through the binding costs
         # more per step than the physics of this 2-DOF model
@@ -287,7 +328,47 @@ class MujocoCartPole:
         self._warnings = [d.warning[int(k)] for k in
                           (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
 
-    # --- the Plant protocol ---------------------------------------------------------
+    # --- the Plant interface --------------------------------------------------------
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
+        return self._state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self._state_units
+
+    def full_state(self) -> np.ndarray:
+        return np.concatenate((self._qpos, self._qvel))
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """Every joint of the compiled model, its range when ``limited``."""
+        return self._joints
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``."""
+        return self._inputs
+
+    def parameters(self) -> dict[str, float]:
+        """The machine as compiled (:attr:`params`: read back from the compiled model)."""
+        return {k: float(v) for k, v in self._params.__dict__.items()}
+
+    @property
+    def cart_joints(self) -> tuple[JointInfo, JointInfo]:
+        """The slide joint and the hinge (what the cart-pole ODE of this model is named by)."""
+        by_name = {j.name: j for j in self._joints}
+        return by_name[self.slide_joint], by_name[self.hinge_joint]
+
+    def default_task(self) -> TaskDefaults:
+        """The domain's task (``task_defaults``, in the model's ``slider``/``hinge`` roles),
+        on this model's joints."""
+        return self._task_defaults.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
+                                    "slider_dot": velocity_name(self.slide_joint),
+                                    "hinge_dot": velocity_name(self.hinge_joint)})
+
 
     @property
     def params(self) -> CartPoleParams:
@@ -356,22 +437,6 @@ class MujocoCartPole:
     def state(self) -> np.ndarray:
         return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
 
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        """Every joint's position then velocity, named after the MJCF's joints."""
-        return (self.slide_joint, self.hinge_joint, f"{self.slide_joint}_dot",
-                f"{self.hinge_joint}_dot")
-
-    state_units = ("m", "rad", "m/s", "rad/s")
-
-    def full_state(self) -> np.ndarray:
-        q, v = self._qpos, self._qvel
-        return np.array((q[self._q_cart], q[self._q_th], v[self._v_cart], v[self._v_th]))
-
-    def parameters(self) -> dict[str, float]:
-        """The machine as compiled (:attr:`params`)."""
-        return {k: float(v) for k, v in self._params.__dict__.items()}
-
     def compiled_mujoco(self, dt: float) -> MujocoLink | None:
         """This plant for a compiled closed loop stepping it at sample time ``dt`` (None
         when MuJoCo's library cannot be found)."""
@@ -430,6 +495,10 @@ class MujocoCartPole:
     def extras(self) -> dict[str, float]:
         return {"cart_pos": float(self._qpos[self._q_cart]),
                 "cart_vel": float(self._qvel[self._v_cart])}
+
+    def extras_index(self) -> np.ndarray:
+        """The cart's position and velocity in the full state [qpos; qvel]."""
+        return np.array([self._q_cart, self.model.nq + self._v_cart], dtype=np.intp)
 
     # --- for a 3D recorder ----------------------------------------------------------
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants import analytic, cartpole
+from tspend.plants import analytic, cartpole, furuta
 from tspend.plants.base import Plant
 from tspend.plants.domain import Domain, Drawing
 
@@ -26,7 +26,8 @@ __all__ = ["DOMAINS", "PLANT_KINDS", "PlantKind", "build", "domain_of", "drawing
            "resolve_model_path"]
 
 #: domain name -> domain
-DOMAINS: dict[str, Domain] = {d.name: d for d in (*analytic.DOMAINS, cartpole.DOMAIN)}
+DOMAINS: dict[str, Domain] = {d.name: d for d in (*analytic.DOMAINS, cartpole.DOMAIN,
+                                                    furuta.DOMAIN)}
 
 
 @dataclass(frozen=True)

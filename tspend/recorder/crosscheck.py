@@ -174,7 +174,8 @@ def verdict_markdown(report: dict) -> str:
 
 def record_verdict(sinks: Sequence[object], report: dict) -> None:
     """Log the verdict document into the recording of ``sinks`` (none: nothing)."""
-    rec = next((getattr(getattr(s, "sink", s), "rec", None) for s in sinks), None)
+    rec = next((s.sink.rec if isinstance(s, (_MujocoSide, _OdeSide)) else s.rec
+                for s in sinks if isinstance(s, (_MujocoSide, _OdeSide, RerunSink))), None)
     if rec is None:
         return
     rec.log(VERDICT, rr.TextDocument(verdict_markdown(report), media_type=rr.MediaType.MARKDOWN), static=True)

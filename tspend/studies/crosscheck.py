@@ -60,10 +60,10 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
 
     cmp = open_loop_compare(mj, ode, np.asarray(scenario.plant.x0, dtype=float), force,
                             disturbance, duration, scenario.run.dt)
-    out: dict = {"open_loop_duration": duration, "open_loop_tracked": cmp.names[0]}
+    tracked = domain.view_names(mj)[0]
+    out: dict = {"open_loop_duration": duration, "open_loop_tracked": tracked}
     out.update({f"open_loop_max_d{name}": float(v) for name, v in zip(cmp.names, cmp.max_diff)})
-    out["open_loop_max_tracked"] = float(cmp.max_diff[cmp.names.index(domain.task.view[0])]
-                                         if domain.task.view[0] in cmp.names else cmp.max_diff[0])
+    out["open_loop_max_tracked"] = cmp.max_of(tracked)
     out["ode_params"] = ode.parameters()
     out["departures"] = mj.departures(scenario.run.dt)  # type: ignore[attr-defined]
     return out

@@ -12,6 +12,7 @@ oracle and lives in ``tests/cartpole_oracle.py``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 

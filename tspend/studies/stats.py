@@ -36,6 +36,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from tspend.loop.metrics import METRIC_KEYS
+from tspend.task import TERMINATIONS
 
 #: metrics a comparison can use (all "lower is better"); the rest of METRIC_KEYS
 #: describe the run (its length, wall time, seed), not the controller
@@ -48,6 +49,9 @@ ROW_COLUMNS = frozenset(("scenario", "controller", "seed", "status", "message", 
                          "steps") + COMPARED_METRICS)
 #: outcomes that say nothing about the controller: counted, never paired
 NOT_PAIRED = ("failed", "interrupted")
+#: outcomes that are the controller's failure, ranked worst (+inf): a divergence, or the
+#: task ending the run (the pole fell, the cart left the rail ...: tspend.task.TERMINATIONS)
+ENDED_EARLY = ("diverged",) + TERMINATIONS
 
 
 # -- order statistics that accept +-inf ---------------------------------------------------
@@ -87,14 +91,15 @@ def grid_columns(table) -> list[str]:
 
 
 def outcome_values(table, metric: str) -> np.ndarray:
-    """The metric of each row as a comparison sees it: diverged runs ``+inf``, runs that
-    failed or were interrupted ``nan`` (left out), a completed run's missing value nan."""
+    """The metric of each row as a comparison sees it: diverged runs and runs the task
+    ended (fell, rail_end ...) ``+inf``, runs that failed or were interrupted ``nan``
+    (left out), a completed run's missing value nan."""
     if metric not in COMPARED_METRICS:
         raise ValueError(f"unknown metric {metric!r}; allowed: {', '.join(COMPARED_METRICS)}")
     status = table["status"].to_numpy()
     values = table[metric].to_numpy(dtype=float, na_value=np.nan) if metric in table else \
         np.full(len(table), np.nan)
-    values = np.where(status == "diverged", np.inf, values)
+    values = np.where(np.isin(status, ENDED_EARLY), np.inf, values)
     return np.where(np.isin(status, NOT_PAIRED), np.nan, values)
 
 
@@ -119,8 +124,9 @@ def summarize(table, metrics: Sequence[str] = DEFAULT_METRICS,
               controllers: Iterable[str] | None = None):
     """Median and quartiles per scenario (and grid point), controller and metric.
 
-    One row each, with the counts ``runs``, ``completed``, ``diverged``, ``failed``
-    (failed or interrupted) and, over completed and diverged runs (diverged as ``+inf``),
+    One row each, with the counts ``runs``, ``completed``, ``diverged`` (diverged, or
+    ended by the task: fell, rail_end ...), ``failed`` (failed or interrupted) and, over
+    completed and diverged runs (diverged as ``+inf``),
     ``median``, ``q1``, ``q3``.
     """
     import pandas as pd
@@ -134,7 +140,7 @@ def summarize(table, metrics: Sequence[str] = DEFAULT_METRICS,
             rows = part[part["controller"] == kind]
             status = rows["status"].to_numpy()
             counts = dict(runs=len(rows), completed=int((status == "completed").sum()),
-                          diverged=int((status == "diverged").sum()),
+                          diverged=int(np.isin(status, ENDED_EARLY).sum()),
                           failed=int(np.isin(status, NOT_PAIRED).sum()))
             for metric in metrics:
                 v = outcome_values(rows, metric)

@@ -40,7 +40,8 @@ one per run, columns:
 
 - ``scenario``; one column per grid key (named by the key, e.g. ``controller.eta``,
   holding the value; lists and tables as JSON text); ``seed``; ``controller`` (the kind);
-- ``status`` (``completed``, ``diverged`` or ``failed``) and ``message`` (why);
+- ``status`` (``completed``, ``diverged``, ``failed``, or how the task ended it: ``fell``,
+  ``rail_end``, ``joint_limit``, ``state_bound``) and ``message`` (why);
 - every metric of :data:`tspend.loop.metrics.METRIC_KEYS` (``rmse_ss``, ..., ``wall_s``, the
   loop's wall time), NaN where undefined (a run that failed before its first sample);
 - ``version`` (tspend's), ``scenario_hash`` (SHA-256 of the scenario's text, 16 hex

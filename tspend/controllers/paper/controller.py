@@ -21,7 +21,9 @@ Its data are three named structures: :class:`Settings` (constants), :class:`Stat
 which also hold the sample's firing for snapshots).  :class:`AdaptiveFuzzyController`
 is the :class:`tspend.controllers.base.Controller` around them; :meth:`~AdaptiveFuzzyController.compiled`
 hands them to other compiled code (a closed loop in numba calls
-``u = step(settings, state, scratch, x, ref, dt, diag)``).
+``u = compiled_step(settings, state, scratch, t, full, x, ref, dt, diag)``, the interface of
+:class:`tspend.controllers.base.CompiledController`; this controller uses the task's view
+``x`` only).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from tspend.controllers.paper.compensator import (CompensatorSettings, compensat
 from tspend.config import ControllerConfig, SetSpec
 from tspend.controllers.paper.control_law import (ControlLawSettings, control,
     control_law_settings, lyapunov_tracking, tracking_error)
-from tspend.controllers.base import Diagnostic
+from tspend.controllers.base import CompiledController, Controller, Diagnostic, Observation
 from tspend.controllers.paper.rules import Firing, fire
 from tspend.loop.sinks import FuzzyInputInfo, InnerSnapshot
 from tspend.controllers.paper.ts_model import (ModelSettings, antecedent_gradient, antecedent_law,
@@ -352,19 +354,14 @@ _VECTOR = types.Array(types.float64, 1, "A")
 _FLOAT64 = np.dtype(np.float64)
 
 
-class CompiledController(NamedTuple):
-    """What a compiled closed loop needs to take one controller sample without Python.
-
-    Inside an ``@njit`` function: ``u = c.step(c.settings, c.state, c.scratch, x, ref, dt,
-    diag)`` with ``x`` (n,), ``ref`` (n+1,) float64 arrays, ``dt`` a float and ``diag`` a
-    float64 array of the controller's ``diag`` size.  ``state`` is the controller's own
-    (stepping here adapts the controller); ``step`` is :func:`controller_step`.
-    """
-
-    step: Callable
-    settings: Settings
-    state: State
-    scratch: Scratch
+@njit(**JIT)
+def compiled_step(settings: Settings, state: State, scratch: Scratch, t: float,
+                  full: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
+                  diag: np.ndarray) -> float:
+    """:func:`controller_step` behind the compiled controllers' common signature
+    (:class:`tspend.controllers.base.CompiledController`): the paper's controller sees the
+    task's view ``x`` only, not the full state."""
+    return controller_step(settings, state, scratch, x, ref, dt, diag)
 
 
 class FiringView(NamedTuple):
@@ -375,13 +372,16 @@ class FiringView(NamedTuple):
     w: np.ndarray
 
 
-class AdaptiveFuzzyController:
+class AdaptiveFuzzyController(Controller):
     """The controller of Theorem 1: a :class:`tspend.controllers.base.Controller`.
 
     Kind ``second_type`` (or ``first_type`` when the antecedents are fixed).  Build a new
     controller to change the configuration; the state arrays are updated in place and
-    never replaced.
+    never replaced.  It uses the observation's task view ``obs.x`` (the paper's
+    companion-form state); :meth:`sample` takes ``x`` and ``ref`` directly.
     """
+
+    has_snapshots = True
 
     def __init__(self, cfg: ControllerConfig) -> None:
         self.cfg = cfg
@@ -394,7 +394,15 @@ class AdaptiveFuzzyController:
         self.layout = diag_layout(n)
         self.diagnostics = paper_diagnostics(n)
         self.inputs = {"model": model_inputs(cfg), "compensator": compensator_inputs(cfg)}
-        self.step = self._compiled_sample()
+        self.sample = self._compiled_sample()
+        sample = self.sample
+
+        def step(obs: Observation, dt: float) -> float:
+            return sample(obs.x, obs.ref, dt)
+
+        step.__doc__ = AdaptiveFuzzyController.step.__doc__
+        # an attribute, not the method: one Python call fewer per sample
+        self.step = step  # type: ignore[method-assign]
 
     # -- set-up -----------------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
@@ -414,7 +422,13 @@ class AdaptiveFuzzyController:
         return {group: input_info(inputs) for group, inputs in self.inputs.items()}
 
     # -- one sample ---------------------------------------------------------------------
-    def step(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
+        """One controller sample at the task's view ``obs.x`` (n,) with reference
+        derivatives ``obs.ref`` (n+1,) (replaced in ``__init__`` by a closure over
+        :meth:`sample`)."""
+        return self.sample(obs.x, obs.ref, dt)  # pragma: no cover
+
+    def sample(self, x: np.ndarray, ref: np.ndarray, dt: float) -> float:
         """One controller sample at state ``x`` (n,) with reference derivatives ``ref`` (n+1,).
 
         (Replaced in ``__init__`` by the closure of :meth:`_compiled_sample`.)
@@ -422,7 +436,7 @@ class AdaptiveFuzzyController:
         raise NotImplementedError  # pragma: no cover
 
     def _compiled_sample(self) -> Callable[[np.ndarray, np.ndarray, float], float]:
-        """:meth:`step` as a closure over the compiled entry: the fewest Python operations.
+        """:meth:`sample` as a closure over the compiled entry: the fewest Python operations.
 
         The entry is the compiled overload of one fixed signature, called without numba's
         type dispatch (x and ref float64 vectors of any strides; anything else is
@@ -439,12 +453,12 @@ class AdaptiveFuzzyController:
                 ref = np.ascontiguousarray(ref, dtype=np.float64).reshape(-1)
             return entry(bound, x, ref, dt, diag)
 
-        step.__doc__ = AdaptiveFuzzyController.step.__doc__
+        step.__doc__ = AdaptiveFuzzyController.sample.__doc__
         return step
 
     def compiled(self) -> CompiledController:
         """The compiled step and this controller's structures, for a closed loop in numba."""
-        return CompiledController(controller_step, self.settings, self.state, self.scratch)
+        return CompiledController(compiled_step, self.settings, self.state, self.scratch)
 
     @property
     def u_prev(self) -> float:

@@ -1,0 +1,439 @@
+"""The Furuta (rotary inverted) pendulum domain: the QUBE-Servo 2 rig, on both backends.
+
+The equations of motion, the motor and the reading of a compiled model are
+:mod:`tspend.plants.furuta_physics` (docs/furuta.md derives them and gives every source);
+this module is what the rest of tspend asks about the machine: the scenario's ``[plant]``
+configuration (``furuta_ode``, ``furuta_mujoco``), the roles of the MJCF's joints (hinge
+``arm`` driven by the motor, hinge ``pendulum`` carried by the arm), both plants, the
+model the baselines assume, labels and units, the default task (view ``pendulum``,
+``pendulum_dot``; fall angle pi/2) and the 3D drawing.
+
+The state is MuJoCo's: ``[arm, pendulum, arm_dot, pendulum_dot]`` (rad, rad/s), the
+pendulum's angle measured from the upright.  ``u`` is the motor voltage (V, clipped to the
+amplifier's +/-10 V as MuJoCo clips ctrl), ``d`` a torque on the pendulum joint (N m).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from tspend.config import PlantConfig
+from tspend.errors import DivergenceError, ScenarioError
+from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
+from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
+from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
+    TaskDefaults)
+from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
+    machine_accelerations, machine_rhs, params_from_model)
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
+
+__all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
+           "FurutaDrawing", "DOMAIN"]
+
+COMPILED_RHS[FurutaMachine] = machine_rhs
+
+#: the state, as MuJoCo's qpos then qvel of models/furuta.xml
+STATE_UNITS = ("rad", "rad", "rad/s", "rad/s")
+
+
+@dataclass(frozen=True)
+class FurutaConfig(PlantConfig):
+    """The Furuta pendulum on the analytic backend: the QUBE-Servo 2's published numbers
+    (:class:`~tspend.plants.furuta_physics.FurutaParams`); ``x0`` is the view
+    ``[pendulum, pendulum_dot]``, the arm starting at rest at 0."""
+
+    x0: tuple[float, ...] = (0.05, 0.0)
+
+
+@dataclass(frozen=True)
+class FurutaMujocoConfig(FurutaConfig):
+    """A Furuta MJCF stepped by MuJoCo, read as it is (its ODE is read back from it)."""
+
+    model: str = "models/furuta.xml"
+    arm_joint: str = "arm"
+    pendulum_joint: str = "pendulum"
+    actuator: str = "motor"
+    #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
+    timestep: float = field(default=0.0, metadata={"low": 0.0})
+
+
+class FurutaODE(AnalyticPlant):
+    """The Furuta ODE of :mod:`tspend.plants.furuta_physics` stepped by the analytic RK4.
+
+    The controller's view is ``[pendulum, pendulum_dot]``; the arm rides along as the
+    extras ``arm`` and ``arm_dot``.
+    """
+
+    domain = "furuta"
+
+    def __init__(self, params: FurutaParams = FurutaParams(), arm: str = "arm",
+                 pendulum: str = "pendulum") -> None:
+        # integrated in the machine's order, which is the full state's: [arm, pendulum,
+        # arm_dot, pendulum_dot]; the view is entries 1 and 3 (reset, state, extras below)
+        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"),
+                         domain="furuta", state_names=_names(arm, pendulum),
+                         state_units=STATE_UNITS)
+        self.params, self._machine = params, params.machine()
+        self.arm_joint, self.pendulum_joint = arm, pendulum
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return (JointInfo(self.arm_joint, "hinge", "rad"),
+                JointInfo(self.pendulum_joint, "hinge", "rad"))
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        return (InputInfo("u", "V", *self.params.ctrl_range),)
+
+    def default_task(self) -> TaskDefaults:
+        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
+                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
+
+    def reset(self, x0: np.ndarray) -> None:
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (2,):
+            raise ValueError(f"{self.name}: initial state must have 2 entries, got {x0.shape}")
+        self.s[:] = (0.0, x0[0], 0.0, x0[1])
+        self._clock[0] = 0.0
+
+    def state(self) -> np.ndarray:
+        return self.s[[1, 3]].copy()
+
+    def full_state(self) -> np.ndarray:
+        return self.s.copy()
+
+    def extras(self) -> dict[str, float]:
+        return {"arm": float(self.s[0]), "arm_dot": float(self.s[2])}
+
+    def parameters(self) -> dict[str, float]:
+        return {k: float(v) for k, v in self._machine._asdict().items()}
+
+    def _rhs_params(self) -> Any:
+        return self._machine
+
+    def compiled(self) -> None:
+        """The compiled loop reads the view as the state's first entries; the Furuta's
+        view is not, so the generic loop runs."""
+        return None
+
+    @property
+    def gain_sign(self) -> int:
+        a = machine_accelerations(self._machine, np.zeros(4), 1.0, 0.0)[1]
+        b = machine_accelerations(self._machine, np.zeros(4), 0.0, 0.0)[1]
+        return 1 if a >= b else -1
+
+
+def _names(arm: str, pendulum: str) -> tuple[str, ...]:
+    return (arm, pendulum, velocity_name(arm), velocity_name(pendulum))
+
+
+class MujocoFuruta(Plant):
+    """The Furuta MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the
+    generalised force on the pendulum joint; joint roles by name."""
+
+    order = 2
+    name = "furuta_mujoco"
+    domain = "furuta"
+
+    def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
+                 actuator: str = "motor", timestep: float | None = None) -> None:
+        import mujoco
+
+        self.model_path = Path(model_path)
+        where = str(model_path)
+        if not self.model_path.is_file():
+            raise ScenarioError(f"{where}: model file not found")
+        try:
+            spec = mujoco.MjSpec.from_file(where)
+            if timestep:
+                spec.option.timestep = float(timestep)
+            self.model = spec.compile()
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        m = self.model
+        for joint in (arm, pendulum):
+            if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint) < 0:
+                names = ", ".join(m.joint(j).name for j in range(m.njnt)) or "none"
+                raise ScenarioError(f"{where}: no joint named {joint!r} (joints: {names})")
+        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator) < 0:
+            raise ScenarioError(f"{where}: no actuator named {actuator!r}")
+        self.arm_joint, self.pendulum_joint, self.actuator = arm, pendulum, actuator
+        self.data = mujoco.MjData(m)
+        ja, jp = m.joint(arm).id, m.joint(pendulum).id
+        self._qa, self._qp = int(m.jnt_qposadr[ja]), int(m.jnt_qposadr[jp])
+        self._va, self._vp = int(m.jnt_dofadr[ja]), int(m.jnt_dofadr[jp])
+        self._act = m.actuator(actuator).id
+        self._ts = float(m.opt.timestep)
+        self._mj_step = mujoco.mj_step
+        w = mujoco.mjtWarning
+        self._warnings = [self.data.warning[int(k)] for k in
+                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
+        try:
+            self._params: FurutaParams | None = params_from_model(m, arm, pendulum, actuator)
+            self._departures: list[str] = []
+        except ValueError as exc:
+            self._params, self._departures = None, [str(exc)]
+        self.reset(np.zeros(2))
+
+    @property
+    def params(self) -> FurutaParams:
+        """The ODE of the compiled model (ScenarioError when the model departs from it)."""
+        if self._params is None:
+            raise ScenarioError(f"{self.model_path}: {self._departures[0]}")
+        return self._params
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return _names(self.arm_joint, self.pendulum_joint)
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return STATE_UNITS
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        m = self.model
+        out = []
+        for name in (self.arm_joint, self.pendulum_joint):
+            j = m.joint(name).id
+            rng = (float(m.jnt_range[j][0]), float(m.jnt_range[j][1])) if m.jnt_limited[j] else None
+            out.append(JointInfo(name, "hinge", "rad", rng))
+        return tuple(out)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        m, a = self.model, self._act
+        lo, hi = (float(m.actuator_ctrlrange[a][0]), float(m.actuator_ctrlrange[a][1])) \
+            if m.actuator_ctrllimited[a] else (-math.inf, math.inf)
+        return (InputInfo("u", "V", lo, hi),)
+
+    def default_task(self) -> TaskDefaults:
+        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
+                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([0, 2], dtype=np.intp)
+
+    @property
+    def timestep(self) -> float:
+        return self._ts
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        """How this model departs from the Furuta ODE (empty: not at all)."""
+        out = list(self._departures)
+        if dt is not None and abs(round(dt / self._ts) * self._ts - dt) > 1e-9 * dt:
+            out.append(f"dt = {dt:g} s is not a whole multiple of the timestep {self._ts:g} s")
+        return out
+
+    def reset(self, x0: np.ndarray) -> None:
+        import mujoco
+
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (2,):
+            raise ValueError(f"{self.name}: initial state must have 2 entries, got {x0.shape}")
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self._qp] = x0[0]
+        self.data.qvel[self._vp] = x0[1]
+        mujoco.mj_forward(self.model, self.data)
+
+    def state(self) -> np.ndarray:
+        return np.array((self.data.qpos[self._qp], self.data.qvel[self._vp]))
+
+    def full_state(self) -> np.ndarray:
+        q, v = self.data.qpos, self.data.qvel
+        return np.array((q[self._qa], q[self._qp], v[self._va], v[self._vp]))
+
+    def parameters(self) -> dict[str, float]:
+        return {k: float(v) for k, v in self.params.machine()._asdict().items()}
+
+    def check_sample_time(self, dt: float) -> None:
+        self._substeps(dt)
+
+    def _substeps(self, dt: float) -> int:
+        k = round(dt / self._ts)
+        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
+            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
+                                f"multiple of the model timestep {self._ts!r}")
+        return int(k)
+
+    def step(self, u: float, d: float, dt: float) -> None:
+        if not (abs(u) < 1e10 and abs(d) < 1e10):
+            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
+                                  f"at t={self.data.time:.6g}")
+        t0 = self.data.time
+        self.data.ctrl[self._act] = u
+        self.data.qfrc_applied[self._vp] = d
+        self._mj_step(self.model, self.data, self._substeps(dt))
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
+                                  f"reset the simulation (step from t={t0:.6g})")
+
+    def extras(self) -> dict[str, float]:
+        return {"arm": float(self.data.qpos[self._qa]), "arm_dot": float(self.data.qvel[self._va])}
+
+    @property
+    def gain_sign(self) -> int:
+        return FurutaODE(self.params).gain_sign
+
+
+def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
+    if isinstance(cfg, FurutaMujocoConfig):
+        # the ODE of a MuJoCo scenario is the compiled model's: one machine, two backends
+        return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
+    return FurutaODE(FurutaParams())
+
+
+def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
+    mj = cfg if isinstance(cfg, FurutaMujocoConfig) else FurutaMujocoConfig(
+        kind="furuta_mujoco", x0=cfg.x0, state_bound=cfg.state_bound)
+    return MujocoFuruta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
+                        mj.timestep or None)
+
+
+# -- drawing ------------------------------------------------------------------------------
+def _quat_z(angle: np.ndarray) -> np.ndarray:
+    z = np.zeros_like(angle)
+    return np.column_stack([z, z, np.sin(0.5 * angle), np.cos(0.5 * angle)])
+
+
+def _quat_x(angle: np.ndarray) -> np.ndarray:
+    z = np.zeros_like(angle)
+    return np.column_stack([np.sin(0.5 * angle), z, z, np.cos(0.5 * angle)])
+
+
+@dataclass(frozen=True)
+class FurutaDrawing(Drawing):
+    """The QUBE seen from its front: base, the arm turning about z, the pendulum about
+    the arm (entity ``world/arm/pendulum``, so Rerun composes the two rotations)."""
+
+    arm_length: float
+    pendulum_length: float
+    arm_height: float = 0.16
+    title = "Furuta pendulum"
+
+    def document(self) -> dict[str, Any]:
+        return {"arm_length": self.arm_length, "pendulum_length": self.pendulum_length}
+
+    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
+        import rerun as rr
+
+        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(f"{world}/base", rr.Boxes3D(half_sizes=[[0.051, 0.051, 0.051]],
+                                            centers=[[0.0, 0.0, 0.051]],
+                                            colors=[shade((30, 30, 36))],
+                                            fill_mode=rr.components.FillMode.Solid), static=True)
+        rec.log(f"{world}/arm", rr.LineStrips3D([[[0.0, 0.0, 0.0], [self.arm_length, 0.0, 0.0]]],
+                                                radii=[0.0035], colors=[shade((178, 184, 191))]),
+                static=True)
+        rec.log(f"{world}/arm/pendulum", rr.Capsules3D(
+            lengths=[self.pendulum_length], radii=[0.003], colors=[shade((245, 158, 46))]),
+            static=True)
+
+    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
+                   extras: dict[str, np.ndarray]) -> None:
+        import rerun as rr
+
+        pendulum = np.asarray(x[:, 0], dtype=np.float64)
+        arm = np.asarray(extras.get("arm", np.zeros_like(pendulum)), dtype=np.float64)
+        n = pendulum.size
+        rec.send_columns(f"{world}/arm", indexes=[times], columns=rr.Transform3D.columns(
+            translation=np.tile([0.0, 0.0, self.arm_height], (n, 1)), quaternion=_quat_z(arm)))
+        rec.send_columns(f"{world}/arm/pendulum", indexes=[times], columns=rr.Transform3D.columns(
+            translation=np.tile([self.arm_length, 0.0, 0.0], (n, 1)),
+            quaternion=_quat_x(pendulum)))
+
+    def view(self, origin: str, suffix: str = "") -> Any:
+        import rerun.blueprint as rrb
+
+        return rrb.Spatial3DView(
+            origin=origin, name=f"Furuta pendulum{suffix}",
+            eye_controls=rrb.EyeControls3D(position=[0.35, -0.35, 0.3],
+                                           look_target=[0.0, 0.0, 0.16], eye_up=[0.0, 0.0, 1.0]))
+
+
+# -- the domain ---------------------------------------------------------------------------
+class FurutaDomain(Domain):
+    """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm."""
+
+    name = "furuta"
+    kinds = {"furuta_ode": Backend(FurutaConfig, _build_ode),
+             "furuta_mujoco": Backend(FurutaMujocoConfig, _build_mujoco, mujoco=True)}
+    labels = PlantLabels(
+        states=(Quantity("alpha", "rad", "pendulum angle"),
+                Quantity("alpha'", "rad/s", "pendulum angular velocity")),
+        control=Quantity("u", "V", "motor voltage"),
+        extras={"arm": Quantity("theta", "rad", "arm angle"),
+                "arm_dot": Quantity("theta'", "rad/s", "arm angular velocity")})
+    task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
+                        pole="pendulum")
+    default_model = FurutaMujocoConfig.model
+
+    def model_file(self, cfg: PlantConfig) -> str:
+        return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
+
+    def params_of_scenario(self, scenario: "Scenario") -> FurutaParams:
+        plant = self.build(scenario)
+        return plant.params  # type: ignore[attr-defined]
+
+    def plant_model(self, scenario: "Scenario") -> PlantModel:
+        """pendulum'' over the view with the arm at rest (the arm's motion enters only
+        through back-EMF and coupling, which a model of the view leaves out); affine in u
+        inside the amplifier's range."""
+        machine = self.params_of_scenario(scenario).machine()
+
+        def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
+            return machine_accelerations(machine, np.array((0.0, x[0], 0.0, x[1])), u, d)[1]
+
+        # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
+        # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
+        return PlantModel(scenario.plant.kind, 2, accel, affine_in_u=True, x_op=(0.0, 0.0),
+                          switching_gain=20.0)
+
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        return joint_types.count("hinge") == 2 and "slide" not in joint_types
+
+    def inspect(self, model_path: str) -> tuple[dict[str, Any], list[str]]:
+        """The model read back as the Furuta ODE's parameters, with the upright's
+        linearisation's open-loop poles."""
+        plant = MujocoFuruta(model_path)
+        departures = plant.departures()
+        facts: dict[str, Any] = {"domain": self.name, "joints": list(plant.state_names[:2]),
+                                 "actuator": plant.actuator, "timestep": plant.timestep}
+        if not departures:
+            p = plant.params
+            facts.update({k: (list(v) if isinstance(v, tuple) else v)
+                          for k, v in p.__dict__.items()})
+            A, _ = linearize(p)
+            facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
+        return facts, departures
+
+    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+        return linearize(self.params_of_scenario(scenario))
+
+    def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
+        p: FurutaParams = plant.params  # type: ignore[attr-defined]
+        return FurutaDrawing(arm_length=float(np.linalg.norm(p.pivot)),
+                             pendulum_length=2.0 * float(np.linalg.norm(p.pendulum_com)))
+
+    def chirp_amplitude(self, plant: Plant) -> float:
+        """3 V: a third of the amplifier's range, enough to throw the pendulum over."""
+        return 3.0
+
+    def ode_of(self, plant: Plant) -> Plant:
+        return FurutaODE(plant.params, plant.arm_joint,  # type: ignore[attr-defined]
+                         plant.pendulum_joint)  # type: ignore[attr-defined]
+
+
+#: the Furuta domain
+DOMAIN = FurutaDomain()
