@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
@@ -67,7 +67,7 @@ class MPCSettings(KindSettings):
     tolerance: float = setting(1e-6, "IPOPT's tol", low=0.0, strict=True)
 
 
-class MPCController:
+class MPCController(Controller):
     """The ``mpc`` kind (module docstring)."""
 
     kind = "mpc"
@@ -214,7 +214,7 @@ class MPCController:
         d[4] = self.references(ref)[1][0]
         return u
 
-    def step(self, obs, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
         return self.act(obs.state, obs.ref)
 
     def parameters(self) -> dict[str, np.ndarray]:

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.controllers.base import diag_width, diagnostics
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
@@ -79,7 +79,7 @@ class SwingUpSettings(KindSettings):
         return None
 
 
-class SwingUpController:
+class SwingUpController(Controller):
     """The ``swingup`` kind (module docstring)."""
 
     kind = "swingup"
@@ -144,7 +144,7 @@ class SwingUpController:
         d[0], d[1], d[2], d[3] = m.energy(state), self.mode, theta, a
         return u
 
-    def step(self, obs, dt: float) -> float:
+    def step(self, obs: Observation, dt: float) -> float:
         return self.act(obs.state, obs.ref)
 
     def parameters(self) -> dict[str, np.ndarray]:
