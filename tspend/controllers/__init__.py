@@ -62,6 +62,8 @@ SETTINGS: dict[str, type] = {
 def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
     """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller)."""
     if kind is None:
+        kind = scenario.run.controller or None   # the scenario's own kind ([run] controller)
+    if kind is None:
         return _paper(None)(scenario, **options)
     try:
         builder = KINDS[kind]
