@@ -37,7 +37,8 @@ from dataclasses import dataclass, field
 
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 
-__all__ = ["METRIC_KEYS", "MachineInfo", "MetricsAccumulator", "flatten"]
+__all__ = ["METRIC_KEYS", "MACHINE_PREFIXES", "MachineInfo", "MetricsAccumulator", "flatten",
+           "is_machine_column"]
 
 #: log-spaced bins of the controller's compute time (s): 1 ns .. 100 s, ~2 % wide
 _TIME_BINS = np.logspace(-9, 2, 1281)
@@ -52,6 +53,15 @@ class MachineInfo:
     parameters: dict = field(default_factory=dict)
     u_lo: float = -math.inf
     u_hi: float = math.inf
+
+
+#: the flattened machine metrics' columns start with one of these (sweep rows)
+MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction")
+
+
+def is_machine_column(name: str) -> bool:
+    """Whether a sweep row's column is a flattened machine metric."""
+    return name.startswith(MACHINE_PREFIXES)
 
 
 def flatten(metrics: dict, prefix: str = "") -> dict:
