@@ -221,3 +221,13 @@ def test_bad_settings_are_one_line_exit_2(args, expect, capsys):
     assert main(args + ["--no-record", "--duration", "0.01"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0], err
+
+
+@pytest.mark.parametrize("name", ["ex3_pendulum_ode", "pendulum_mujoco"])
+def test_full_lqr_compiled_equals_generic_bit_for_bit(name):
+    s = override(load_scenario(name), **{"run.duration": 1.0})
+    a = run(s, controller="lqr", compiled=True)
+    b = run(s, controller="lqr", compiled=False)
+    assert a.status == b.status == "completed"
+    for key in ("u", "x", "state", "V", "u_ff"):
+        np.testing.assert_array_equal(a.history[key], b.history[key])

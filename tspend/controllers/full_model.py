@@ -29,6 +29,7 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.errors import ScenarioError
 
@@ -45,12 +46,10 @@ FULL_STATE_DOMAINS = ("cartpole",)
 FD_STEP = 1e-6
 
 
+@register_jitable
 def wrap_angle(a: float) -> float:
     """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""
-    w = math.fmod(a + math.pi, 2.0 * math.pi)
-    if w <= 0.0:
-        w += 2.0 * math.pi
-    return w - math.pi
+    return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
 
 
 @dataclass(frozen=True)

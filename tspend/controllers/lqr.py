@@ -54,12 +54,19 @@ the design does not depend on the input's units (newtons on the cart-pole, where
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from numba import njit
+from numba.extending import register_jitable
+
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+    diagnostics)
+from tspend.controllers.full_model import wrap_angle
+from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
@@ -162,6 +169,61 @@ class LQRController(Controller):
         return {}
 
 
+class FullLQRLaw(NamedTuple):
+    """The full-state law's numbers, as compiled code reads them (:func:`full_lqr_law`)."""
+
+    K: np.ndarray          # (N,)
+    P: np.ndarray          # (N, N)
+    a_pole: np.ndarray     # (N,) the pole's acceleration row of A
+    b_pole: float
+    kappa: float
+    pole: int
+    actuated: int
+    dof: int
+    wraps: np.ndarray      # (N,) bool: angles whose error wraps
+    s_r: np.ndarray        # (N,) scratch: the reference state
+    e: np.ndarray          # (N,) scratch: the error
+
+
+@register_jitable
+def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
+    """``u = u_r - K (s - s_r)`` (module docstring), diagnostics into ``diag``; the one
+    implementation, plain Python in the generic loop, compiled in the compiled ones."""
+    s_r, e = law.s_r, law.e
+    r, rd, rdd = ref[0], ref[1], ref[2]
+    for j in range(s_r.size):
+        s_r[j] = 0.0
+    s_r[law.pole] = r
+    s_r[law.dof + law.pole] = rd
+    s_r[law.actuated] = law.kappa * r
+    s_r[law.dof + law.actuated] = law.kappa * rd
+    acc = 0.0
+    for j in range(s_r.size):
+        acc += law.a_pole[j] * s_r[j]
+    u_ff = (rdd - acc) / law.b_pole
+    u_fb = 0.0
+    for j in range(e.size):
+        d = full[j] - s_r[j]
+        e[j] = wrap_angle(d) if law.wraps[j] and abs(d) > math.pi else d
+        u_fb -= law.K[j] * e[j]
+    V = 0.0
+    for i in range(e.size):
+        for j in range(e.size):
+            V += e[i] * law.P[i, j] * e[j]
+    diag[0] = u_ff
+    diag[1] = u_fb
+    diag[2] = V
+    diag[3] = s_r[law.actuated]
+    return u_ff + u_fb
+
+
+@njit(**JIT)
+def full_lqr_step(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                  ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`full_lqr_law` behind the compiled controllers' common signature."""
+    return full_lqr_law(law, full, ref, diag)
+
+
 class FullStateLQR(Controller):
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
@@ -194,6 +256,10 @@ class FullStateLQR(Controller):
             ("x_ref", 1, {"panel": "state", "unit": "m",
                           "description": "the actuated joint's reference kappa r"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
+        N = model.size
+        self.law = FullLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a_pole.copy(),
+                              self.b_pole, float(self.kappa), pole, act, dof,
+                              np.array(model.angles, dtype=np.bool_), np.zeros(N), np.zeros(N))
 
     def closed_loop(self) -> np.ndarray:
         return self.A - self.B @ self.K[None, :]
@@ -212,12 +278,11 @@ class FullStateLQR(Controller):
 
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
         """u for the full ``state`` and the pole's reference row ``ref``."""
-        s_r, u_ff = self.reference_state(ref)
-        e = self.model.error(state, s_r)
-        u_fb = -float(self.K @ e)
-        d = self.diag
-        d[0], d[1], d[2], d[3] = u_ff, u_fb, float(e @ self.P @ e), s_r[self.model.actuated]
-        return u_ff + u_fb
+        return full_lqr_law(self.law, np.asarray(state, dtype=float), ref, self.diag)
+
+    def compiled(self) -> CompiledController:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
+        return CompiledController(full_lqr_step, self.law, None, None)
 
     def step(self, obs: Observation, dt: float) -> float:
         return self.act(obs.state, obs.ref)
