@@ -152,17 +152,21 @@ class MetricsAccumulator:
                     self.joint_max[name] = max(self.joint_max[name], float(np.abs(col).max()))
                     self.joint_final[name] = float(col[-1])
             self.saturated += int(np.count_nonzero((u < m.u_lo) | (u > m.u_hi)))
-        compute = data.get("compute_s")
-        if compute is not None:
-            c = compute[np.isfinite(compute)]
-            if c.size:
-                self.time_hist += np.bincount(np.searchsorted(_TIME_BINS, c),
-                                              minlength=self.time_hist.size)
-                self.time_max = max(self.time_max, float(c.max()))
-                self.timed += c.size
         for name in self.counter_names:
             if name in data and len(data[name]):
                 self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
+
+    #: the runner hands this sink the controller's wall time per sample
+    wants_compute_times = True
+
+    def compute_times(self, compute: np.ndarray) -> None:
+        """The controller's wall time (s) per sample of the last block (NaN: held)."""
+        c = compute[np.isfinite(compute)]
+        if c.size:
+            self.time_hist += np.bincount(np.searchsorted(_TIME_BINS, c),
+                                          minlength=self.time_hist.size)
+            self.time_max = max(self.time_max, float(c.max()))
+            self.timed += c.size
 
     def _median_ms(self) -> float | None:
         if not self.timed:

@@ -112,8 +112,7 @@ class BlockBuffer:
                 "d": d[:k]}
         if self.full.shape[1]:
             data["state"] = self.full[:k]
-        if self.timed:
-            data["compute_s"] = self.compute[:k]
+
         for diagnostic in self.diagnostics:
             data[diagnostic.name] = D[:, diagnostic.columns]
         for j, name in enumerate(self.extra_names):
@@ -395,3 +394,6 @@ class ClosedLoop:
         block = Block(start=start, data=buf.view(k, t, ref, dist))
         for sink in sinks:
             sink.block(block)
+            # wall times are not data (two runs differ): only to the sinks that time
+            if buf.timed and getattr(sink, "wants_compute_times", False):
+                sink.compute_times(buf.compute[:k])
