@@ -170,7 +170,7 @@ def test_finite_rail_ends_the_run_with_its_status_and_exit_code(tmp_path: Path) 
     scn = override(load_scenario("pendulum_finite_rail"),
                    **{"effects.outer_loop.k_x": 0.0, "effects.outer_loop.k_v": 0.0})
     r = run(scn, plant_kind="cartpole_ode")
-    assert r.status == "rail_end" and "end of the rail" in r.end.message
+    assert r.status == "rail_end" and "exceeds the rail's half-length" in r.end.message
     assert abs(r.history["extra/cart_pos"][-1]) >= 8.0 - 0.1
     metrics = tmp_path / "m.json"
     code = main(["run", "pendulum_finite_rail", "--no-record", "--metrics", str(metrics),

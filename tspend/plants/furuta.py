@@ -64,6 +64,13 @@ class FurutaMujocoConfig(FurutaConfig):
     timestep: float = field(default=0.0, metadata={"low": 0.0})
 
 
+def _named_task(arm: str, pendulum: str) -> TaskDefaults:
+    """The domain's task on a plant whose joints are called ``arm`` and ``pendulum``."""
+    return DOMAIN.task.renamed({"arm": arm, "pendulum": pendulum,
+                                "arm_dot": velocity_name(arm),
+                                "pendulum_dot": velocity_name(pendulum)})
+
+
 class FurutaODE(AnalyticPlant):
     """The Furuta ODE of :mod:`tspend.plants.furuta_physics` stepped by the analytic RK4.
 
@@ -75,26 +82,25 @@ class FurutaODE(AnalyticPlant):
 
     def __init__(self, params: FurutaParams = FurutaParams(), arm: str = "arm",
                  pendulum: str = "pendulum") -> None:
-        # integrated in the machine's order, which is the full state's: [arm, pendulum,
-        # arm_dot, pendulum_dot]; the view is entries 1 and 3 (reset, state, extras below)
         super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"),
-                         domain="furuta", state_names=_names(arm, pendulum),
-                         state_units=STATE_UNITS)
+                         domain="furuta")
         self.params, self._machine = params, params.machine()
         self.arm_joint, self.pendulum_joint = arm, pendulum
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        a, p = self.arm_joint, self.pendulum_joint
+        return (a, p, f"{a}_dot", f"{p}_dot")
+
+    state_units = STATE_UNITS
 
     @property
     def joints(self) -> tuple[JointInfo, ...]:
         return (JointInfo(self.arm_joint, "hinge", "rad"),
                 JointInfo(self.pendulum_joint, "hinge", "rad"))
 
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        return (InputInfo("u", "V", *self.params.ctrl_range),)
-
     def default_task(self) -> TaskDefaults:
-        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
-                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+        return _named_task(self.arm_joint, self.pendulum_joint)
 
     def extras_index(self) -> np.ndarray:
         return np.array([0, 2], dtype=np.intp)
@@ -133,10 +139,6 @@ class FurutaODE(AnalyticPlant):
         return 1 if a >= b else -1
 
 
-def _names(arm: str, pendulum: str) -> tuple[str, ...]:
-    return (arm, pendulum, velocity_name(arm), velocity_name(pendulum))
-
-
 class MujocoFuruta(Plant):
     """The Furuta MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the
     generalised force on the pendulum joint; joint roles by name."""
@@ -144,6 +146,7 @@ class MujocoFuruta(Plant):
     order = 2
     name = "furuta_mujoco"
     domain = "furuta"
+    state_units = STATE_UNITS
 
     def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
                  actuator: str = "motor", timestep: float | None = None) -> None:
@@ -194,32 +197,30 @@ class MujocoFuruta(Plant):
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        return _names(self.arm_joint, self.pendulum_joint)
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return STATE_UNITS
+        a, p = self.arm_joint, self.pendulum_joint
+        return (a, p, f"{a}_dot", f"{p}_dot")
 
     @property
     def joints(self) -> tuple[JointInfo, ...]:
+        """The arm and the pendulum, with the compiled model's ranges when limited."""
         m = self.model
         out = []
         for name in (self.arm_joint, self.pendulum_joint):
             j = m.joint(name).id
-            rng = (float(m.jnt_range[j][0]), float(m.jnt_range[j][1])) if m.jnt_limited[j] else None
+            rng = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
             out.append(JointInfo(name, "hinge", "rad", rng))
         return tuple(out)
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor's voltage, bounded by its ctrlrange when ``ctrllimited``."""
         m, a = self.model, self._act
-        lo, hi = (float(m.actuator_ctrlrange[a][0]), float(m.actuator_ctrlrange[a][1])) \
-            if m.actuator_ctrllimited[a] else (-math.inf, math.inf)
-        return (InputInfo("u", "V", lo, hi),)
+        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
+            else (-math.inf, math.inf)
+        return (InputInfo(self.actuator, "V", lo, hi),)
 
     def default_task(self) -> TaskDefaults:
-        return DOMAIN.task.renamed({"pendulum": self.pendulum_joint,
-                                    "pendulum_dot": velocity_name(self.pendulum_joint)})
+        return _named_task(self.arm_joint, self.pendulum_joint)
 
     def extras_index(self) -> np.ndarray:
         return np.array([0, 2], dtype=np.intp)
@@ -281,6 +282,12 @@ class MujocoFuruta(Plant):
 
     def extras(self) -> dict[str, float]:
         return {"arm": float(self.data.qpos[self._qa]), "arm_dot": float(self.data.qvel[self._va])}
+
+    def compiled(self) -> None:
+        return None
+
+    def compiled_mujoco(self, dt: float) -> None:
+        return None
 
     @property
     def gain_sign(self) -> int:
