@@ -231,3 +231,20 @@ def test_full_lqr_compiled_equals_generic_bit_for_bit(name):
     assert a.status == b.status == "completed"
     for key in ("u", "x", "state", "V", "u_ff"):
         np.testing.assert_array_equal(a.history[key], b.history[key])
+
+
+def test_full_lqr_on_the_furuta_pendulum_holds_the_arm():
+    # the Furuta domain's own linearisation (furuta_physics.linearize) is the oracle for A, B
+    from tspend.plants.furuta_physics import linearize
+    from tspend.plants.registry import domain_of
+
+    s = load_scenario("furuta_ode")
+    ctrl = build(s, "lqr")
+    A, B = linearize(domain_of("furuta_ode").params_of_scenario(s))[:2]
+    np.testing.assert_allclose(ctrl.A, A, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(ctrl.B.ravel(), np.ravel(B), rtol=1e-6)
+    P = solve_continuous_are(ctrl.A, ctrl.B, ctrl.Q, np.array([[ctrl.R]]))
+    np.testing.assert_allclose(ctrl.K, (ctrl.B.T @ P / ctrl.R)[0], rtol=1e-6)
+    r = run(s, controller="lqr")
+    assert r.status == "completed" and r.metrics["joints"]["arm"]["max_abs"] < 0.5
+    assert r.metrics["rmse_ss"] < 1e-3

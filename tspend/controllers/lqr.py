@@ -337,7 +337,7 @@ def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
     if design == "full":
         if not has_full_state(scenario):
             raise ScenarioError(f"{scenario.path}: controllers.lqr.design: 'full' needs a "
-                                f"plant with a full state (cartpole_ode, cartpole_mujoco); "
+                                f"plant with a full state (the cart-pole, the Furuta pendulum); "
                                 f"plant '{scenario.plant.kind}' has only the view: use 'view'")
         return build_full(scenario, s)
     model = plant_model(scenario)

@@ -228,19 +228,22 @@ def build(scenario: "Scenario") -> MPCController:
 
     if not has_full_state(scenario):
         raise ScenarioError(f"{scenario.path}: controller 'mpc' needs a plant with a full "
-                            f"state (cartpole_ode, cartpole_mujoco); plant "
+                            f"state (the cart-pole, the Furuta pendulum); plant "
                             f"'{scenario.plant.kind}' has none")
     try:
         import casadi  # noqa: F401
     except ImportError:  # pragma: no cover - the extra is in the test extra
         raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
     s: MPCSettings = settings_for(scenario, MPCSettings)
+    model = full_model(scenario)
+    if not model.symbolic_ok:
+        raise ScenarioError(f"{scenario.path}: controller 'mpc': the {model.domain} domain's "
+                            f"equations are not yet built over CasADi")
     dt = scenario.run.dt
     if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
         raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "
                             f"of run.dt = {dt:g} s, got {s.period:g}")
     lqr = build_full(scenario, settings_for(scenario, LQRSettings))
-    model = full_model(scenario)
     if s.state_weights is not None:
         if len(s.state_weights) != model.size:
             raise ScenarioError(f"{scenario.path}: controllers.mpc.state_weights: needs "

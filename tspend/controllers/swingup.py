@@ -158,7 +158,7 @@ def build(scenario: "Scenario") -> SwingUpController:
 
     if not has_full_state(scenario):
         raise ScenarioError(f"{scenario.path}: controller 'swingup' needs a pendulum with a "
-                            f"full state (cartpole_ode, cartpole_mujoco); plant "
+                            f"full state (the cart-pole, the Furuta pendulum); plant "
                             f"'{scenario.plant.kind}' has none")
     s: SwingUpSettings = settings_for(scenario, SwingUpSettings)
     lqr_settings: LQRSettings = settings_for(scenario, LQRSettings)
