@@ -38,8 +38,8 @@ KINDS = ("second_type", "lqr", "swingup", "mpc")
 #: (scenario, kind) pairs not run: MPC's 0.6 s horizon cannot plan a 4 s swing; the
 #: Furuta domain's equations are not yet built over CasADi
 SKIP = {("swingup_mujoco", "mpc"), ("furuta_mujoco", "mpc")}
-COLUMNS = (("rmse_ss", "rmse_ss (rad)"), ("actuated", "max |driven joint| (m, rad)"),
-           ("max_abs_u", "max |u| (N)"), ("controller_ms.median", "compute (ms)"))
+COLUMNS = (("rmse_ss", "rmse_ss (rad)"), ("actuated", "max abs driven joint (m, rad)"),
+           ("max_abs_u", "max abs u (N; V on Furuta)"), ("controller_ms.median", "compute (ms)"))
 BEGIN, END = "<!-- full-state results: begin -->", "<!-- full-state results: end -->"
 
 
