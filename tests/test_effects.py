@@ -28,7 +28,7 @@ from tspend.scenario import available_scenarios
 from tspend.loop.simulation import build_plant
 
 NEW = {"pendulum_payload_step", "pendulum_sensor_noise", "pendulum_saturated",
-       "pendulum_friction", "pendulum_finite_rail"}
+       "pendulum_friction", "pendulum_finite_rail", "swingup_mujoco"}
 
 
 def short(name: str, **changes) -> object:

@@ -191,6 +191,14 @@ class RunConfig:
     snapshot_every: float = 0.1
     #: divergence guard on |u| (0 = only non-finite values)
     control_bound: float = 0.0
+    #: sampled control (issue 20): the controller runs every control_period s (0 = every
+    #: dt, or the controller's own sample_period), its u held in between (zero-order
+    #: hold); control_delay physics steps pass before a computed u is applied
+    control_period: float = 0.0
+    control_delay: int = 0
+    #: the controller kind this scenario runs when none is chosen ("" = the paper's
+    #: [controller]; e.g. "swingup")
+    controller: str = ""
 
 
 @dataclass(frozen=True)

@@ -104,7 +104,31 @@ def _run(r: Table) -> RunConfig:
         seed=r.integer("seed", d.seed, low=0, high=MAX_SEED),
         snapshot_every=r.number("snapshot_every", d.snapshot_every, low=0.0),
         control_bound=r.number("control_bound", d.control_bound, low=0.0),
+        control_period=_control_period(r),
+        control_delay=r.integer("control_delay", d.control_delay, low=0),
+        controller=_default_kind(r),
     )
+
+
+def _default_kind(r: Table) -> str:
+    """``run.controller``: a controller kind, or "" for the paper's."""
+    if not r.has("controller"):
+        return ""
+    from tspend.controllers import KINDS
+
+    return r.string("controller", None, tuple(KINDS))
+
+
+def _control_period(r: Table) -> float:
+    """``run.control_period``: 0 or a whole multiple of ``run.dt``."""
+    period = r.number("control_period", 0.0, low=0.0)
+    dt = r.number("dt", RunConfig().dt, low=0.0, strict=True)
+    if period > 0.0:
+        ratio = period / dt
+        if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise r.error("control_period", f"must be a whole multiple of run.dt = {dt:g} s "
+                                            f"(or 0 = every step), got {period:g}")
+    return period
 
 
 def _plant(r: Table) -> PlantConfig:

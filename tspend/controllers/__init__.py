@@ -25,7 +25,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable
 
-from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, wang_indirect
+from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
+from tspend.controllers import mpc
 from tspend.controllers.base import Controller, Diagnostic
 from tspend.controllers.settings import KindSettings
 from tspend.errors import ScenarioError
@@ -56,6 +57,8 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "feedback_linearization": feedback_linearization.build,
     "sliding_mode": sliding_mode.build,
     "wang_indirect": wang_indirect.build,
+    "swingup": swingup.build,
+    "mpc": mpc.build,
 }
 
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
@@ -65,6 +68,8 @@ SETTINGS: dict[str, type] = {
     "feedback_linearization": feedback_linearization.FeedbackLinearizationSettings,
     "sliding_mode": sliding_mode.SlidingModeSettings,
     "wang_indirect": wang_indirect.WangSettings,
+    "swingup": swingup.SwingUpSettings,
+    "mpc": mpc.MPCSettings,
 }
 
 
@@ -262,6 +267,8 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
 
     ``kind`` is any spec :func:`resolve` accepts.
     """
+    if kind is None:
+        kind = scenario.run.controller or None   # the scenario's own kind ([run] controller)
     if kind is None:
         return _paper(None)(scenario, **options)
     found = load(kind)

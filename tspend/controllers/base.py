@@ -171,6 +171,10 @@ class Controller(ABC):
     diag: np.ndarray
     #: True when :meth:`snapshot` has an inner state to show (fuzzy sets, firing ...)
     has_snapshots: bool = False
+    #: the controller's own sample period (s; 0 = every physics step): the runner calls
+    #: :meth:`step` this often and holds ``u`` in between, unless ``run.control_period``
+    #: says otherwise (MPC: 20 ms)
+    sample_period: float = 0.0
 
     @abstractmethod
     def reset(self, rng: np.random.Generator) -> None:

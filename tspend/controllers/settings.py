@@ -44,7 +44,7 @@ def setting(default: Any, doc: str, *, kind: str = "number", low: float | None =
             strict: bool = False, length: str | None = None,
             choices: tuple[str, ...] = (), name: str | None = None) -> Any:
     """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``,
-    ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``matrix`` (n x n, symmetric positive
+    ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``list`` (numbers, any length), ``matrix`` (n x n, symmetric positive
     definite) or ``sets`` (n tables ``{terms, lo, hi}``); ``name`` is the key in the
     file when the field's name cannot be it (``lambda``)."""
     meta = {"doc": doc, "kind": kind, "low": low, "strict": strict, "length": length,
@@ -76,6 +76,12 @@ def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
         return values
     if kind == "matrix":
         return r.matrix(key, n)
+    if kind == "list":
+        # a length the plant decides (the full state's): checked when the kind is built
+        values = r.numbers(key)
+        if meta["low"] is not None and any(v < meta["low"] for v in values):
+            raise r.error(key, f"every entry must be >= {meta['low']:g}, got {list(values)}")
+        return values
     if kind == "sets":
         return r.set_specs(key, n, min_terms=2)
     raise AssertionError(f"unknown setting kind {kind!r}")

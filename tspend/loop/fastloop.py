@@ -76,6 +76,8 @@ class Buffers(NamedTuple):
     U: np.ndarray
     D: np.ndarray
     E: np.ndarray
+    #: the full state per sample (issue 20: the joints' metrics)
+    F: np.ndarray
 
 
 class Segment(Protocol):
@@ -153,6 +155,8 @@ def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading:
         buf.D[i, j] = diag[j]
     for j in range(extra.size):
         buf.E[i, j] = full[extra[j]]
+    for j in range(min(full.size, buf.F.shape[1])):
+        buf.F[i, j] = full[j]
     return u, _out_of_bounds(x, u, bounds) or _beyond(full, reading.lo, reading.hi)
 
 

@@ -9,6 +9,22 @@ constant at the sample rate), on the tracking error of the output ``e_1 = x_1 - 
 * ``iae`` = int |e1| dt, ``ise`` = int e1^2 dt, ``itae`` = int t |e1| dt;
 * ``control_energy`` = int u^2 dt, ``max_abs_u``;
 * ``tv_u_per_s``: chattering, the total variation of u per second of simulated time.
+
+Of the whole machine (issue 20; when the accumulator is given a :class:`MachineInfo`):
+
+* ``joints.<name>.max_abs``, ``joints.<name>.final``: every joint's position (m or rad)
+  from the block's full ``state``;
+* ``plant``: the plant's physical parameters as simulated (:meth:`Plant.parameters`);
+* ``saturated_fraction``: the fraction of samples whose u lay outside the actuator's
+  range (the command the actuator clipped);
+* ``controller_ms.median``, ``controller_ms.max``: the controller's wall time per
+  evaluation (generic loop only: a compiled loop does not time single samples; then
+  null).  The median comes from a log-spaced histogram (1 ns .. 100 s, 2 % bins), so
+  memory stays flat on long runs;
+* ``counters.<name>``: the last value of every diagnostic on the ``counters`` panel
+  (MPC's ``solve_failures``, ``solve_overruns``).
+
+:func:`flatten` turns the nested keys into ``joints.slider.max_abs`` columns (sweep rows).
 """
 
 from __future__ import annotations
@@ -17,7 +33,47 @@ import math
 
 import numpy as np
 
+from dataclasses import dataclass, field
+
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
+
+__all__ = ["METRIC_KEYS", "MACHINE_PREFIXES", "MachineInfo", "MetricsAccumulator", "flatten",
+           "is_machine_column"]
+
+#: log-spaced bins of the controller's compute time (s): 1 ns .. 100 s, ~2 % wide
+_TIME_BINS = np.logspace(-9, 2, 1281)
+
+
+@dataclass(frozen=True)
+class MachineInfo:
+    """What the machine metrics need of the plant: each joint's name and index in the
+    full state, the parameters as simulated, and the input's range."""
+
+    joints: tuple[tuple[str, int], ...] = ()
+    parameters: dict = field(default_factory=dict)
+    u_lo: float = -math.inf
+    u_hi: float = math.inf
+
+
+#: the flattened machine metrics' columns start with one of these (sweep rows)
+MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction")
+
+
+def is_machine_column(name: str) -> bool:
+    """Whether a sweep row's column is a flattened machine metric."""
+    return name.startswith(MACHINE_PREFIXES)
+
+
+def flatten(metrics: dict, prefix: str = "") -> dict:
+    """``{"joints": {"slider": {"max_abs": 1}}}`` -> ``{"joints.slider.max_abs": 1}``."""
+    out = {}
+    for k, v in metrics.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
 
 #: keys every metrics dictionary has (the CLI writes them as JSON)
 METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
@@ -27,7 +83,17 @@ METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "it
 class MetricsAccumulator:
     """A sink that folds each block into running sums; :meth:`result` gives the metrics."""
 
-    def __init__(self, dt: float, ss_start: float, seed: int = 0) -> None:
+    def __init__(self, dt: float, ss_start: float, seed: int = 0,
+                 machine: MachineInfo | None = None) -> None:
+        self.machine = machine
+        self.joint_max = {name: 0.0 for name, _ in machine.joints} if machine else {}
+        self.joint_final: dict[str, float] = {}
+        self.saturated = 0
+        self.time_hist = np.zeros(_TIME_BINS.size + 1, dtype=np.int64)
+        self.time_max = 0.0
+        self.timed = 0
+        self.counters: dict[str, float] = {}
+        self.counter_names: tuple[str, ...] = ()
         self.dt = dt
         self.ss_start = ss_start
         self.seed = seed
@@ -42,7 +108,7 @@ class MetricsAccumulator:
 
     # sink protocol ----------------------------------------------------------------------
     def start(self, info: RunInfo) -> None:
-        pass
+        self.counter_names = tuple(d.name for d in info.diagnostics if d.panel == "counters")
 
     def inner(self, snap: InnerSnapshot) -> None:
         pass
@@ -74,6 +140,57 @@ class MetricsAccumulator:
             self.tv_u += abs(float(u[0]) - self.u_last)
         self.tv_u += float(np.abs(np.diff(u)).sum())
         self.u_last = float(u[-1])
+        self._machine_block(block.data, u)
+
+    def _machine_block(self, data: dict, u: np.ndarray) -> None:
+        m = self.machine
+        if m is not None:
+            state = data.get("state")
+            if state is not None and state.shape[1]:
+                for name, j in m.joints:
+                    col = state[:, j]
+                    self.joint_max[name] = max(self.joint_max[name], float(np.abs(col).max()))
+                    self.joint_final[name] = float(col[-1])
+            self.saturated += int(np.count_nonzero((u < m.u_lo) | (u > m.u_hi)))
+        for name in self.counter_names:
+            if name in data and len(data[name]):
+                self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
+
+    #: the runner hands this sink the controller's wall time per sample
+    wants_compute_times = True
+
+    def compute_times(self, compute: np.ndarray) -> None:
+        """The controller's wall time (s) per sample of the last block (NaN: held)."""
+        c = compute[np.isfinite(compute)]
+        if c.size:
+            self.time_hist += np.bincount(np.searchsorted(_TIME_BINS, c),
+                                          minlength=self.time_hist.size)
+            self.time_max = max(self.time_max, float(c.max()))
+            self.timed += c.size
+
+    def _median_ms(self) -> float | None:
+        if not self.timed:
+            return None
+        k = int(np.searchsorted(np.cumsum(self.time_hist), (self.timed + 1) // 2))
+        lo = _TIME_BINS[k - 1] if k > 0 else _TIME_BINS[0]
+        hi = _TIME_BINS[min(k, _TIME_BINS.size - 1)]
+        return 1e3 * math.sqrt(lo * hi)
+
+    def machine_result(self) -> dict:
+        """The whole machine's metrics (module docstring); empty without a MachineInfo."""
+        out: dict = {}
+        m = self.machine
+        if m is not None:
+            out["joints"] = {name: {"max_abs": self.joint_max[name] if self.steps else None,
+                                    "final": self.joint_final.get(name)}
+                             for name, _ in m.joints}
+            out["plant"] = dict(m.parameters)
+            out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
+        out["controller_ms"] = {"median": self._median_ms(),
+                                "max": 1e3 * self.time_max if self.timed else None}
+        if self.counters:
+            out["counters"] = dict(self.counters)
+        return out
 
     def result(self, wall_s: float = 0.0) -> dict:
         """The metrics so far; quantities over an empty window are None (JSON null)."""
@@ -98,4 +215,5 @@ class MetricsAccumulator:
             "sim_s": sim_s,
             "steps": n,
             "seed": self.seed,
+            **self.machine_result(),
         }

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -61,6 +62,15 @@ class LoopSettings:
     #: run stretches of samples in compiled code when plant and controller offer it
     #: (:mod:`tspend.loop.fastloop`); False forces the generic loop (same results)
     compiled: bool = True
+    #: sampled control: the controller runs every ``control_every`` steps and its u is
+    #: held in between (zero-order hold); a computed u is applied ``control_delay`` steps
+    #: later (computation delay; 0 applied before the first one arrives)
+    control_every: int = 1
+    control_delay: int = 0
+
+    @property
+    def sampled(self) -> bool:
+        return self.control_every > 1 or self.control_delay > 0
 
 
 class BlockBuffer:
@@ -71,9 +81,19 @@ class BlockBuffer:
     """
 
     def __init__(self, size: int, n: int, diag_width: int, extras: tuple[str, ...],
-                 diagnostics: tuple[Diagnostic, ...] = ()) -> None:
+                 diagnostics: tuple[Diagnostic, ...] = (), full_size: int = 0,
+                 wraps: np.ndarray | None = None) -> None:
         self.n = n
         self.x = np.zeros((size, n))
+        #: the plant's full state per sample (``state`` in a block: the joints' metrics)
+        self.full = np.zeros((size, full_size))
+        #: the view's entries that are angles of a revolute joint: their error is wrapped
+        #: to (-pi, pi] (a pole swung up once is at 2 pi, not 2 pi off)
+        self.wraps = wraps if wraps is not None and wraps.any() else None
+        #: the controller's wall time per evaluation (s; NaN on held samples), filled by
+        #: the generic loop only (``timed``)
+        self.compute = np.full(size, np.nan)
+        self.timed = False
         self.u = np.zeros(size)
         self.diag = np.zeros((size, diag_width))
         self.extra_names = extras
@@ -82,8 +102,17 @@ class BlockBuffer:
 
     def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
         D, X = self.diag[:k], self.x[:k]
-        data = {"t": t[:k], "x": X, "ref": ref[:k], "e": X - ref[:k, :self.n], "u": self.u[:k],
+        e = X - ref[:k, :self.n]
+        if self.wraps is not None:
+            e = e.copy()
+            w = e[:, self.wraps]
+            # only where it turned over, so an unwrapped error keeps its exact value
+            e[:, self.wraps] = np.where(np.abs(w) > np.pi, np.mod(w + np.pi, 2 * np.pi) - np.pi, w)
+        data = {"t": t[:k], "x": X, "ref": ref[:k], "e": e, "u": self.u[:k],
                 "d": d[:k]}
+        if self.full.shape[1]:
+            data["state"] = self.full[:k]
+
         for diagnostic in self.diagnostics:
             data[diagnostic.name] = D[:, diagnostic.columns]
         for j, name in enumerate(self.extra_names):
@@ -161,8 +190,9 @@ class ClosedLoop:
         s, plant, ctrl = self.s, self.plant, self.controller
         n, dt = ctrl.order, s.dt
         extras = tuple(plant.extras().keys())
-        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras, ctrl.diagnostics)
-        X, U, D, E = buf.x, buf.u, buf.diag, buf.extra
+        buf = BlockBuffer(s.block_size, n, ctrl.diag.size, extras, ctrl.diagnostics,
+                          len(self.task.names), self._wraps())
+        X, U, D, E, F = buf.x, buf.u, buf.diag, buf.extra, buf.full
         diag = ctrl.diag
         # inner snapshots cost a numpy evaluation each: only for sinks that draw them, and
         # only from controllers that have an inner state to show
@@ -175,9 +205,16 @@ class ClosedLoop:
         stop, hook, task = self.stop, self.hook, self.task
         view, names, watched = task.view_index, task.names, bool(task.watched)
         crossed = task.ended
-        segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E),
+        # sampled control runs in the generic loop (the compiled loops step every sample)
+        segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E, F),
                                  Bounds(s.state_bound, s.control_bound), dt, task) \
-            if s.compiled else None
+            if s.compiled and not s.sampled else None
+        every, delay = s.control_every, s.control_delay
+        C, clock = buf.compute, time.perf_counter
+        buf.timed = segment is None
+        # u computed but not applied yet (computation delay): (step it applies from, u)
+        pending: deque[tuple[int, float]] = deque()
+        held = 0.0
         self.path = "generic" if segment is None else "compiled"
         if segment is not None:
             return self._segments(sinks, segment, buf, snap_sinks, snap_every)
@@ -193,9 +230,24 @@ class ClosedLoop:
                         raise RunInterrupted(stop.signal_name, stop.exit_status)
                     full = plant.full_state()
                     x = full[view]
-                    seen = x if hook is None else hook(t[i], x, ref[i])
-                    u = ctrl.step(Observation(t[i], full, seen, ref[i], names), dt)
+                    g = start + i
+                    if g % every == 0:
+                        seen = x if hook is None else hook(t[i], x, ref[i])
+                        c0 = clock()
+                        u_new = ctrl.step(Observation(t[i], full, seen, ref[i], names),
+                                          dt * every)
+                        C[i] = clock() - c0
+                        if delay:
+                            pending.append((g + delay, u_new))
+                        else:
+                            held = u_new
+                    else:
+                        C[i] = math.nan
+                    while pending and pending[0][0] <= g:
+                        held = pending.popleft()[1]
+                    u = held
                     X[i] = x
+                    F[i] = full
                     U[i] = u
                     D[i] = diag
                     if extras:
@@ -223,6 +275,11 @@ class ClosedLoop:
             if ended is not None:
                 return ended
         return s.steps, "completed", ""
+
+    def _wraps(self) -> np.ndarray:
+        """Which entries of the task's view are revolute joints' angles."""
+        hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
+        return np.array([name in hinges for name in self.task.view], dtype=bool)
 
     def _segments(self, sinks: list[Sink], segment: Segment, buf: BlockBuffer,
                   snap_sinks: list[Sink], snap_every: int) -> tuple[int, str, str]:
@@ -337,3 +394,6 @@ class ClosedLoop:
         block = Block(start=start, data=buf.view(k, t, ref, dist))
         for sink in sinks:
             sink.block(block)
+            # wall times are not data (two runs differ): only to the sinks that time
+            if buf.timed and getattr(sink, "wants_compute_times", False):
+                sink.compute_times(buf.compute[:k])

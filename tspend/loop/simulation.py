@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -15,10 +16,11 @@ from typing import Sequence
 import numpy as np
 
 from tspend import __version__
-from tspend.config import Scenario
+from tspend.config import RunConfig, Scenario
+from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers.base import Controller
-from tspend.loop.metrics import MetricsAccumulator
+from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants.effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
@@ -150,6 +152,32 @@ class RunResult:
         return run_figure(self, every)
 
 
+def machine_info(plant: Plant, task: Task, scenario: Scenario) -> MachineInfo:
+    """The joints, parameters and input range the machine metrics report."""
+    names = task.names
+    joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
+    lo, hi = -math.inf, math.inf
+    if plant.inputs:
+        lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
+    sat = scenario.effects.saturation
+    if sat > 0.0:
+        lo, hi = max(lo, -sat), min(hi, sat)
+    return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi)
+
+
+def control_every(run: "RunConfig", ctrl: Controller) -> int:
+    """Physics steps per controller sample: ``run.control_period`` when given, else the
+    controller's own ``sample_period`` (MPC's 20 ms), else every step."""
+    period = run.control_period or ctrl.sample_period
+    if period <= 0.0:
+        return 1
+    every = int(round(period / run.dt))
+    if every < 1 or abs(every * run.dt - period) > 1e-9 * period:
+        raise ScenarioError(f"control period {period:g} s (kind '{ctrl.kind}') is not a whole "
+                            f"multiple of run.dt = {run.dt:g} s")
+    return every
+
+
 def scenario_task(scenario: Scenario, plant: Plant) -> Task:
     """The scenario's ``[task]`` on ``plant`` (the domain's defaults where it says nothing),
     with the scenario's reference, disturbance and ``effects.rail``."""
@@ -205,13 +233,16 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     snap_every = int(round(scenario.run.snapshot_every / dt)) if scenario.run.snapshot_every else 0
     settings = LoopSettings(dt=dt, steps=steps, block_size=block_size, snapshot_every=snap_every,
                             state_bound=scenario.plant.state_bound,
-                            control_bound=scenario.run.control_bound, compiled=compiled)
+                            control_bound=scenario.run.control_bound, compiled=compiled,
+                            control_every=control_every(scenario.run, ctrl),
+                            control_delay=scenario.run.control_delay)
     hook = Measurement(scenario.effects, plant, dt, scenario.run.seed) \
         if needs_hook(scenario.effects) else None
     task = parts.task if parts.task is not None else scenario_task(scenario, plant)
     loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
                       hook=hook, task=task)
-    metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed)
+    metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed,
+                                 machine=machine_info(plant, task, scenario))
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
     end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl), all_sinks)

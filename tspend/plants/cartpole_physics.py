@@ -97,33 +97,44 @@ class CartPoleMachine(NamedTuple):
         machine_rhs(self, t, s, u, d, sdot)
 
 
-@register_jitable
-def _dry(force: float, v: float) -> float:
-    return force * math.tanh(v / DRY_FRICTION_SLIP) if force > 0.0 else 0.0
+def accelerations_factory(sin, cos, tanh):
+    """``(theta'', x'')`` of (C1)-(C2) built over the math functions ``(sin, cos, tanh)``.
 
-
-@register_jitable
-def machine_accelerations(p: CartPoleMachine, theta: float, w: float, cart_vel: float,
-                          u: float, d: float) -> tuple[float, float]:
-    """``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``).
-
-    Plain Python when called from Python; compiled inline when called from numba code
-    (the compiled closed loop, :mod:`tspend.loop.fastloop`).
+    The equations are written once, here: ``math``'s functions give
+    :func:`machine_accelerations` (plain Python, and inlined by numba into compiled
+    loops); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)`` give the same expressions
+    symbolically, for nonlinear MPC (:mod:`tspend.controllers.mpc`).  The parameters
+    ``p`` are numbers in both cases (the branch on a friction force is on a number).
     """
-    s_th = p.theta_sign
-    th, om = s_th * theta, s_th * w
-    sn, cs = math.sin(th), math.cos(th)
-    ml, mm = p.m * p.l, p.M + p.m
-    q_x = p.gear * u - p.cart_damping * cart_vel - _dry(p.cart_friction, cart_vel) - ml * sn * om * om
-    # the hinge's own torques act on the model's angle; in the paper's they change sign
-    q_model = p.disturbance_torque * d - p.hinge_damping * w - _dry(p.hinge_friction, w)
-    q_th = s_th * q_model + ml * p.g * sn
-    b = ml * cs
-    J = p.J
-    det = mm * J - b * b
-    thdd = (mm * q_th + b * q_x) / det
-    xdd = (J * q_x + b * q_th) / det
-    return s_th * thdd, xdd
+
+    @register_jitable
+    def dry(force, v):
+        return force * tanh(v / DRY_FRICTION_SLIP) if force > 0.0 else 0.0
+
+    def accelerations_of(p, theta, w, cart_vel, u, d):
+        s_th = p.theta_sign
+        th, om = s_th * theta, s_th * w
+        sn, cs = sin(th), cos(th)
+        ml, mm = p.m * p.l, p.M + p.m
+        q_x = p.gear * u - p.cart_damping * cart_vel - dry(p.cart_friction, cart_vel) - ml * sn * om * om
+        # the hinge's own torques act on the model's angle; in the paper's they change sign
+        q_model = p.disturbance_torque * d - p.hinge_damping * w - dry(p.hinge_friction, w)
+        q_th = s_th * q_model + ml * p.g * sn
+        b = ml * cs
+        J = p.J
+        det = mm * J - b * b
+        thdd = (mm * q_th + b * q_x) / det
+        xdd = (J * q_x + b * q_th) / det
+        return s_th * thdd, xdd
+
+    return accelerations_of
+
+
+#: ``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``), as
+#: ``machine_accelerations(p: CartPoleMachine, theta, w, cart_vel, u, d)``: plain Python
+#: when called from Python; compiled inline when called from numba code (the compiled
+#: closed loop, :mod:`tspend.loop.fastloop`)
+machine_accelerations = register_jitable(accelerations_factory(math.sin, math.cos, math.tanh))
 
 
 def accelerations(p: CartPoleParams | CartPoleMachine, theta: float, w: float,

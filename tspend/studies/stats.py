@@ -87,7 +87,10 @@ def quartiles(values: Sequence[float]) -> tuple[float, float, float]:
 # -- the rows ------------------------------------------------------------------------------
 def grid_columns(table) -> list[str]:
     """The sweep table's grid columns (every column that is not a fixed row column)."""
-    return [c for c in table.columns if c not in ROW_COLUMNS]
+    from tspend.loop.metrics import is_machine_column
+
+    # the flattened machine metrics (joints.slider.max_abs, plant.M ...) are outcomes
+    return [c for c in table.columns if c not in ROW_COLUMNS and not is_machine_column(c)]
 
 
 def outcome_values(table, metric: str) -> np.ndarray:

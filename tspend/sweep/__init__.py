@@ -69,6 +69,7 @@ from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
 from tspend.sweep.table import KEY_COLUMN, RowTable, read_table, typed
+from tspend.loop.metrics import is_machine_column
 from tspend.sweep.worker import METRIC_COLUMNS, run_job
 
 #: columns of every row besides the grid columns, in table order around them
@@ -232,8 +233,10 @@ def _check_compatible(existing, plan: list[Job], path: Path) -> None:
     if not len(existing) or not plan:
         return
     fixed = set(LEADING_COLUMNS) | set(TRAILING_COLUMNS)
-    theirs = [c for c in existing.columns if c not in fixed]
     ours = [k for k, _ in plan[0].grid]
+    # the flattened machine metrics (joints.slider.max_abs, plant.M ...) are no grid keys
+    theirs = [c for c in existing.columns
+              if c not in fixed and (not is_machine_column(c) or c in ours)]
     if sorted(theirs) != sorted(ours):
         raise ScenarioError(f"--out {path}: the table holds a sweep over grid keys "
                             f"({', '.join(theirs) or 'none'}), this one is over "

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from tspend import __version__
-from tspend.loop.metrics import METRIC_KEYS
+from tspend.loop.metrics import METRIC_KEYS, flatten
 from tspend.sweep.plan import Job
 
 #: metric columns of a row (the seed has its own column already)
@@ -80,6 +80,9 @@ def run_job(job: Job) -> dict[str, Any]:
     row.update(job.grid)
     row.update(seed=job.seed, controller=job.controller, status=status, message=message)
     row.update({k: metrics.get(k) for k in METRIC_COLUMNS})
+    # the whole machine's metrics, flattened: joints.slider.max_abs, plant.M, ...
+    row.update({k: v for k, v in flatten(metrics).items()
+                if k not in row and k not in METRIC_KEYS})
     row.update(version=__version__, scenario_hash=job.scenario_hash,
                recording=str(recording) if recording is not None else None,
                job_s=time.perf_counter() - started, run_key=job.key)

@@ -1,0 +1,256 @@
+"""``mpc``: nonlinear model-predictive control with CasADi (the ``mpc`` extra).
+
+Every control period ``h`` (default 20 ms, :attr:`MPCController.sample_period`; the
+runner holds ``u`` in between) it solves, by multiple shooting (Bock and Plitt, 1984;
+Rawlings, Mayne and Diehl, *Model Predictive Control*, 2nd ed., 2017, sec. 8.5),
+
+    min  h sum_{k<N} [(s_k - s_r,k)^T Q (s_k - s_r,k) + R (u_k - u_r,k)^2]
+         + (s_N - s_r,N)^T P (s_N - s_r,N)
+    s.t. s_0 = s(t),  s_{k+1} = F(s_k, u_k),  u_lo <= u_k <= u_hi,
+         q_lo + margin <= q_k <= q_hi - margin   (the rail, the joints' ranges)
+
+``F`` is ``substeps`` RK4 steps over ``h`` of the domain's own ODE, built symbolically
+from the one source of its equations (:mod:`.full_model`, e.g.
+:func:`tspend.plants.cartpole_physics.accelerations_factory` over CasADi's sin, cos,
+tanh): the model is the simulated machine, not a copy.  ``P`` is the full-state LQR's
+Riccati matrix (the terminal cost of the unconstrained tail), and the reference states
+``s_r, u_r`` over the horizon are the LQR's feedforward (:mod:`.lqr`) on the reference
+continued by its harmonic model (``r(t + tau) = r cos(omega tau) + r'/omega sin(omega tau)``,
+exact for the scenario's sine; ``r`` held when ``omega = 0``).
+
+The NLP is solved by IPOPT (``solver`` options as settings), warm-started from the last
+solution shifted by one period.  A solve that fails (IPOPT's status not success) or takes
+longer than the period (wall clock) is counted in the ``solve_failures`` and
+``solve_overruns`` diagnostics, which the metrics report (``counters.*``); after a failure
+the previous plan's next input is applied (the LQR's, clipped, if there is none).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.full_model import FullModel, wrap_angle
+from tspend.controllers.settings import KindSettings, setting, settings_for
+from tspend.errors import ScenarioError
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
+    from tspend.controllers.lqr import FullStateLQR
+
+__all__ = ["MPCSettings", "MPCController", "build"]
+
+#: a bound IPOPT treats as none
+_FREE = 1e19
+
+
+@dataclass(frozen=True)
+class MPCSettings(KindSettings):
+    """``[controllers.mpc]``."""
+
+    period: float = setting(0.02, "s: control period (a whole multiple of run.dt); "
+                                  "run.control_period overrides", low=0.0, strict=True)
+    horizon: int = setting(30, "N, shooting intervals of one period each", kind="integer",
+                           low=1)
+    substeps: int = setting(2, "RK4 steps per interval", kind="integer", low=1)
+    state_weights: tuple[float, ...] | None = setting(
+        None, "diagonal of Q on the full state (default: the full LQR's)", kind="list", low=0.0)
+    R: float | None = setting(None, "input weight (default: the full LQR's)", low=0.0,
+                              strict=True)
+    margin: float = setting(0.05, "kept from every position bound (m or rad)", low=0.0)
+    max_iter: int = setting(100, "IPOPT's iteration limit per solve", kind="integer", low=1)
+    tolerance: float = setting(1e-6, "IPOPT's tol", low=0.0, strict=True)
+
+
+class MPCController(Controller):
+    """The ``mpc`` kind (module docstring)."""
+
+    kind = "mpc"
+
+    def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
+                 Q: np.ndarray, R: float, order: int) -> None:
+        import casadi
+
+        self.model, self.s, self.lqr = model, settings, lqr
+        self.order = order
+        self.sample_period = settings.period
+        self.Q, self.R = np.asarray(Q, dtype=float), float(R)
+        N, nx, h = settings.horizon, model.size, settings.period
+        f = model.symbolic()
+        s_sym, u_sym = casadi.SX.sym("s", nx), casadi.SX.sym("u")
+        # F: substeps RK4 steps over h (u held): the same hold the plant sees
+        sk, dh = s_sym, h / settings.substeps
+        for _ in range(settings.substeps):
+            k1 = f(sk, u_sym)
+            k2 = f(sk + dh / 2 * k1, u_sym)
+            k3 = f(sk + dh / 2 * k2, u_sym)
+            k4 = f(sk + dh * k3, u_sym)
+            sk = sk + dh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        F = casadi.Function("F", [s_sym, u_sym], [sk])
+        S = casadi.SX.sym("S", nx, N + 1)
+        U = casadi.SX.sym("U", 1, N)
+        s0 = casadi.SX.sym("s0", nx)
+        Sr = casadi.SX.sym("Sr", nx, N + 1)
+        Ur = casadi.SX.sym("Ur", 1, N)
+        Qm, P = casadi.DM(self.Q), casadi.DM(lqr.P)
+        cost, g = 0, [S[:, 0] - s0]
+        for k in range(N):
+            e = S[:, k] - Sr[:, k]
+            # h x the stage: a rectangle sum of the LQR's integral cost, so P is its tail
+            cost += h * (casadi.mtimes([e.T, Qm, e]) + self.R * (U[0, k] - Ur[0, k]) ** 2)
+            g.append(S[:, k + 1] - F(S[:, k], U[0, k]))
+        eN = S[:, N] - Sr[:, N]
+        cost += casadi.mtimes([eN.T, P, eN])
+        # decision vector: [S (column by column), U]; the constraints all equalities
+        w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1))
+        p = casadi.vertcat(s0, casadi.reshape(Sr, -1, 1), casadi.reshape(Ur, -1, 1))
+        nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g)}
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tolerance}
+        self.solver = casadi.nlpsol("mpc", "ipopt", nlp, opts)
+        self.N, self.nx = N, nx
+        # bounds on the decision vector
+        lo_s = np.full(nx, -_FREE)
+        hi_s = np.full(nx, _FREE)
+        for j in range(model.dof):
+            lo, hi = model.q_lo[j], model.q_hi[j]
+            if math.isfinite(lo):
+                lo_s[j] = lo + settings.margin
+            if math.isfinite(hi):
+                hi_s[j] = hi - settings.margin
+        u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
+        u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
+        self.lbx = np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo)])
+        self.ubx = np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi)])
+        self.state_lo, self.state_hi, self.u_lo, self.u_hi = lo_s, hi_s, u_lo, u_hi
+        self.ng = nx * (N + 1)
+        self.diagnostics = diagnostics(
+            ("solve_ms", 1, {"panel": "solver", "unit": "ms",
+                             "description": "wall time of this sample's NLP solve"}),
+            ("solve_failures", 1, {"panel": "counters",
+                                   "description": "solves that did not succeed, so far"}),
+            ("solve_overruns", 1, {"panel": "counters",
+                                   "description": "solves longer than the period, so far"}),
+            ("iterations", 1, {"panel": "solver", "description": "IPOPT iterations"}),
+            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}))
+        self.diag = np.zeros(diag_width(self.diagnostics))
+        self.reset(None)
+
+    def reset(self, rng: np.random.Generator | None) -> None:
+        self.w0: np.ndarray | None = None
+        self.lam_g0: np.ndarray | None = None
+        self.failures = self.overruns = 0
+        #: the last solution: predicted states (nx, N+1) and inputs (N,), for tests
+        self.plan_states = np.zeros((self.nx, self.N + 1))
+        self.plan_inputs = np.zeros(self.N)
+        self._plan_age = self.N
+
+    def references(self, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(S_r (nx, N+1), U_r (N,))`` over the horizon from the reference row now."""
+        h, om, N = self.s.period, self.lqr.omega, self.N
+        r0, r1 = float(ref[0]), float(ref[1])
+        tau = h * np.arange(N + 1)
+        if om > 0.0:
+            c, s = np.cos(om * tau), np.sin(om * tau)
+            r, rd = r0 * c + r1 / om * s, -r0 * om * s + r1 * c
+            rdd = -om * om * r
+        else:
+            r, rd, rdd = np.full(N + 1, r0), np.zeros(N + 1), np.zeros(N + 1)
+        Sr = np.empty((self.nx, N + 1))
+        Ur = np.empty(N + 1)
+        for k in range(N + 1):
+            Sr[:, k], Ur[k] = self.lqr.reference_state(np.array([r[k], rd[k], rdd[k]]))
+        return Sr, Ur[:N]
+
+    def solve(self, state: np.ndarray, ref: np.ndarray) -> tuple[float, bool, float]:
+        """``(u, success, wall seconds)`` of one NLP solve from ``state``."""
+        m, N, nx = self.model, self.N, self.nx
+        s0 = np.asarray(state, dtype=float).copy()
+        # the pole's angle nearest the reference: a turned-over pole is not 2 pi off
+        s0[m.pole] = float(ref[0]) + wrap_angle(s0[m.pole] - float(ref[0]))
+        Sr, Ur = self.references(ref)
+        if self.w0 is None:
+            w0 = np.concatenate([np.tile(s0, N + 1), np.clip(Ur, self.u_lo, self.u_hi)])
+        else:
+            # shift the last plan by one period; repeat its last node
+            Sp = self.w0[:nx * (N + 1)].reshape(N + 1, nx)
+            Up = self.w0[nx * (N + 1):]
+            w0 = np.concatenate([np.vstack([s0, Sp[2:], Sp[-1:]]).ravel(),
+                                 np.concatenate([Up[1:], Up[-1:]])])
+        p = np.concatenate([s0, Sr.T.ravel(), Ur])
+        started = time.perf_counter()
+        sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=0.0, ubg=0.0)
+        wall = time.perf_counter() - started
+        stats = self.solver.stats()
+        ok = bool(stats.get("success", False))
+        self.diag[3] = float(stats.get("iter_count", 0))
+        if ok:
+            w = np.asarray(sol["x"]).ravel()
+            self.w0 = w
+            self.plan_states = w[:nx * (N + 1)].reshape(N + 1, nx).T.copy()
+            self.plan_inputs = w[nx * (N + 1):].copy()
+            self._plan_age = 0
+            return float(self.plan_inputs[0]), True, wall
+        return math.nan, False, wall
+
+    def act(self, state: np.ndarray, ref: np.ndarray) -> float:
+        u, ok, wall = self.solve(state, ref)
+        if not ok:
+            self.failures += 1
+            self._plan_age += 1
+            if self._plan_age < self.N:     # the previous plan's input for now
+                u = float(self.plan_inputs[self._plan_age])
+            else:
+                u = min(self.u_hi, max(self.u_lo, self.lqr.act(state, ref)))
+        if wall > self.s.period:
+            self.overruns += 1
+        d = self.diag
+        d[0], d[1], d[2] = 1e3 * wall, self.failures, self.overruns
+        d[4] = self.references(ref)[1][0]
+        return u
+
+    def step(self, obs: Observation, dt: float) -> float:
+        return self.act(obs.state, obs.ref)
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return {}
+
+
+def build(scenario: "Scenario") -> MPCController:
+    from tspend.controllers.full_model import full_model
+    from tspend.controllers.full_model import has_full_state
+    from tspend.controllers.lqr import LQRSettings, build_full
+
+    if not has_full_state(scenario):
+        raise ScenarioError(f"{scenario.path}: controller 'mpc' needs a plant with a full "
+                            f"state (the cart-pole, the Furuta pendulum); plant "
+                            f"'{scenario.plant.kind}' has none")
+    try:
+        import casadi  # noqa: F401
+    except ImportError:  # pragma: no cover - the extra is in the test extra
+        raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
+    s: MPCSettings = settings_for(scenario, MPCSettings)
+    model = full_model(scenario)
+    if not model.symbolic_ok:
+        raise ScenarioError(f"{scenario.path}: controller 'mpc': the {model.domain} domain's "
+                            f"equations are not yet built over CasADi")
+    dt = scenario.run.dt
+    if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
+        raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "
+                            f"of run.dt = {dt:g} s, got {s.period:g}")
+    lqr = build_full(scenario, settings_for(scenario, LQRSettings))
+    if s.state_weights is not None:
+        if len(s.state_weights) != model.size:
+            raise ScenarioError(f"{scenario.path}: controllers.mpc.state_weights: needs "
+                                f"{model.size} entries ({', '.join(model.state_names)}), "
+                                f"got {len(s.state_weights)}")
+        Q = np.diag(s.state_weights)
+    else:
+        Q = lqr.Q
+    R = s.R if s.R is not None else lqr.R
+    return MPCController(model, s, lqr, Q, R, order=len(scenario.plant.x0))
