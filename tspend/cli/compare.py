@@ -2,8 +2,11 @@
 
 The runs are a sweep (:func:`tspend.sweep.sweep`: local worker pool or a Dask cluster,
 resumable with ``--out``); the statistics are :mod:`tspend.studies.stats` (median [Q1, Q3] per
-controller; per pair the median paired difference with a bootstrap 95% interval, the
-win rate and the Wilcoxon signed-rank p-value).  The Markdown table goes to stdout,
+controller and the share of runs that ended badly; per pair the median paired difference
+with a bootstrap 95% interval, the win rate, on how many seeds each side was worse and
+its worst seed's ratio, the Wilcoxon signed-rank p-value and its Holm adjustment over the
+whole call, which the verdicts use, and McNemar's exact test on the outcomes; duplicate
+experiments flagged).  The Markdown table goes to stdout,
 ``--json`` writes the same figures, ``--out`` keeps the sweep's Parquet table.
 """
 
@@ -21,7 +24,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "compare", help="compare controller kinds over seeds, paired (Markdown table)",
         description="Every controller kind on every scenario at the same seeds, paired by "
                     "seed: median [Q1, Q3] per kind; per pair the median difference with a "
-                    "bootstrap 95% interval, the win rate and the Wilcoxon p-value.")
+                    "bootstrap 95% interval, the win rate, k-of-N worse seeds, the Wilcoxon "
+                    "p-value and its Holm adjustment (p_holm, over every pair, metric and "
+                    "scenario of the call; verdicts use it), and McNemar's exact test on runs "
+                    "that fell, diverged or failed.")
     p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
                    help="scenario names (see 'tspend list') or .toml paths")
     p.add_argument("--controller", metavar="K1,K2,...",
