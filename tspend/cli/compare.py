@@ -50,6 +50,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="bootstrap resamples (default 9999)")
     p.add_argument("--stats-seed", type=int, default=0, metavar="N",
                    help="seed of the bootstrap's generator (default 0)")
+    p.add_argument("--tune", type=int, metavar="N",
+                   help="equal budget: first tune every kind with N trials (Optuna TPE) on "
+                        "--tune-seeds, then compare the tuned kinds on --seeds")
+    p.add_argument("--tune-seeds", metavar="A:B",
+                   help="training seeds of --tune, disjoint from --seeds (default: the 5 "
+                        "seeds after the last of --seeds)")
+    p.add_argument("--tune-metric", metavar="M", help="the metric --tune minimises "
+                                                      "(default rmse)")
     p.add_argument("--progress", action="store_true", help="show the sweep's progress")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
@@ -98,8 +106,38 @@ def parse_options(args: argparse.Namespace) -> dict:
         check_writable(json_path, "json")
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
+    tune = None
+    if args.tune is not None:
+        tune = _tune_options(args, kinds, seeds)
     return dict(kinds=kinds, metrics=metrics, seeds=seeds, grid=grid or None,
-                json_path=json_path)
+                json_path=json_path, tune=tune)
+
+
+def _tune_options(args: argparse.Namespace, kinds: list[str], seeds: list[int]) -> dict:
+    from tspend.controllers.settings import search_space
+    from tspend.studies.stats import COMPARED_METRICS
+    from tspend.studies.tune import DEFAULT_METRIC, check_seeds
+    from tspend.sweep.plan import parse_seeds
+
+    if args.tune < 1:
+        raise ScenarioError(f"--tune: trials must be >= 1, got {args.tune}")
+    if args.out:
+        raise ScenarioError("--out: not with --tune (the tuned runs are not a resumable sweep)")
+    empty = [k for k in kinds if not search_space(k)]
+    if empty:
+        raise ScenarioError(f"--tune: {', '.join(empty)} declare(s) nothing to tune")
+    train = (parse_seeds(args.tune_seeds) if args.tune_seeds else
+             list(range(max(seeds) + 1, max(seeds) + 6)))
+    try:
+        check_seeds(train, seeds)
+    except ScenarioError:
+        raise ScenarioError("--tune-seeds: must be disjoint from --seeds (the tuned kinds are "
+                            "compared on seeds they were not tuned on)") from None
+    metric = args.tune_metric or DEFAULT_METRIC
+    if metric not in COMPARED_METRICS:
+        raise ScenarioError(f"--tune-metric {metric}: unknown metric; allowed: "
+                            f"{', '.join(COMPARED_METRICS)}")
+    return dict(trials=args.tune, seeds=train, metric=metric)
 
 
 def seeds_text(seeds: list[int]) -> str:
@@ -121,20 +159,65 @@ def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, job
     return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples)
 
 
+def run_tuned_comparison(scenarios, kinds, seeds, metrics, tune, *, grid=None, jobs=None,
+                         dask=None, progress=False, resamples=9999, stats_seed=0):
+    """Equal budget: tune every kind (``tune``: trials, seeds, metric) on every scenario,
+    then compare the tuned kinds on ``seeds``: (table, Comparison, tuned results)."""
+    from tspend.scenario import load_scenario, override
+    from tspend.studies.stats import compare
+    from tspend.studies.tune import equal_budget
+
+    loaded = []
+    for name in scenarios:
+        scn = load_scenario(name)
+        changes = {k: v[0] for k, v in (grid or {}).items()}
+        loaded.append(override(scn, **changes) if changes else scn)
+    table, tuned = equal_budget(loaded, kinds, trials=tune["trials"], train_seeds=tune["seeds"],
+                                test_seeds=seeds, metric=tune["metric"], jobs=jobs, dask=dask,
+                                progress=progress)
+    return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples), tuned
+
+
+def tuned_markdown(tuned: dict, tune: dict) -> str:
+    """The tuned settings and train scores, one row per scenario and kind."""
+    from tspend.studies.stats import fmt
+
+    lines = [f"### Tuned on an equal budget: {tune['trials']} trials per kind on training "
+             f"seeds {seeds_text(tune['seeds'])}, objective median {tune['metric']}", "",
+             "| scenario | controller | tuned settings | train score |", "|---|---|---|---:|"]
+    for (scn, kind), r in tuned.items():
+        values = ", ".join(f"{k} = {fmt(v, 4) if isinstance(v, float) else v}"
+                           for k, v in r.values.items())
+        lines.append(f"| {scn} | {kind} | {values} | {fmt(r.train_score, 4)} |")
+    return "\n".join(lines) + "\n\n"
+
+
 def cmd(args: argparse.Namespace) -> int:
     import json
 
-    from tspend.studies.stats import to_json
-    from tspend.studies.stats import markdown
+    from tspend.studies.stats import _json_number, markdown, to_json
 
     opts = parse_options(args)
-    table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"],
-                                 grid=opts["grid"], out=args.out, jobs=args.jobs,
-                                 dask=args.dask, progress=args.progress,
-                                 resamples=args.resamples, stats_seed=args.stats_seed)
+    tuned = None
+    if opts["tune"] is not None:
+        table, comp, tuned = run_tuned_comparison(
+            args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"], opts["tune"],
+            grid=opts["grid"], jobs=args.jobs, dask=args.dask, progress=args.progress,
+            resamples=args.resamples, stats_seed=args.stats_seed)
+        sys.stdout.write(tuned_markdown(tuned, opts["tune"]))
+    else:
+        table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"],
+                                     opts["metrics"], grid=opts["grid"], out=args.out,
+                                     jobs=args.jobs, dask=args.dask, progress=args.progress,
+                                     resamples=args.resamples, stats_seed=args.stats_seed)
     sys.stdout.write(markdown(comp, seeds_text(opts["seeds"])))
     if opts["json_path"] is not None:
         doc = to_json(comp)
+        if tuned is not None:
+            doc["tuned"] = [dict(scenario=scn, controller=kind, values=r.values,
+                                 train_score=_json_number(r.train_score), trials=r.trials,
+                                 train_seeds=r.train_seeds, metric=r.metric)
+                            for (scn, kind), r in tuned.items()]
         doc["seeds"] = opts["seeds"]
         doc["scenarios"] = list(args.scenarios)
         opts["json_path"].write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")

@@ -44,6 +44,9 @@ if TYPE_CHECKING:
 class LQRSettings:
     """``[controllers.lqr]``."""
 
+    #: what ``tspend tune`` searches: only Q/R matters, so R against the default Q
+    SEARCH = {"R": (1e-6, 1e6, "log")}
+
     Q: tuple[tuple[float, ...], ...] | None = setting(
         None, "state weight on e, n x n SPD (default diag(10^n, .., 100, 10))", kind="matrix")
     R: float | None = setting(None, "input weight (default 1 / b^2, b = df/du at the "
