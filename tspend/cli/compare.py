@@ -186,8 +186,15 @@ def tuned_markdown(tuned: dict, tune: dict) -> str:
              f"seeds {seeds_text(tune['seeds'])}, objective median {tune['metric']}", "",
              "| scenario | controller | tuned settings | train score |", "|---|---|---|---:|"]
     for (scn, kind), r in tuned.items():
-        values = ", ".join(f"{k} = {fmt(v, 4) if isinstance(v, float) else v}"
-                           for k, v in r.values.items())
+        def shown(v):
+            if isinstance(v, float):
+                return fmt(v, 4)
+            if isinstance(v, list):
+                return "[" + ", ".join(shown(x) for x in v) + "]"
+            return str(v)
+
+        values = ", ".join(f"{k} = {shown(v)}" for k, v in r.values.items()
+                           if k != "adaptation")
         lines.append(f"| {scn} | {kind} | {values} | {fmt(r.train_score, 4)} |")
     return "\n".join(lines) + "\n\n"
 
