@@ -113,7 +113,7 @@ def test_both_diverged_is_a_tie_and_failed_runs_are_counted_not_paired():
     assert summ.loc["A", "failed"] == 1 and summ.loc["A", "runs"] == 4
     assert summ.loc["A", "n"] == 3                       # diverged kept (as inf), failed out
     md = stats.markdown(comp)
-    assert "1 unpaired" in md and "| A | 4 | 1 | 1 |" in md
+    assert "1 unpaired" in md and "| A | 4 | 0 | 1 (25%) | 1 (25%) |" in md
     json.dumps(stats.to_json(comp), allow_nan=False)     # inf/nan encoded, valid JSON
 
 
@@ -159,3 +159,92 @@ def test_a_consistent_but_tiny_difference_is_flagged_negligible():
     assert r.verdict == "A" and r.negligible
     r = stats.paired_difference(b * 0.9, b, n_resamples=999)
     assert r.verdict == "A" and not r.negligible
+
+
+# -- Holm ---------------------------------------------------------------------------------
+def test_holm_hand_worked_example():
+    # m = 4 p-values; sorted 0.01, 0.02, 0.03, 0.04 scaled by 4, 3, 2, 1: 0.04, 0.06,
+    # 0.06, 0.04, then made monotone: 0.04, 0.06, 0.06, 0.06.  nan (no test) stays out of m.
+    p = [0.03, math.nan, 0.01, 0.04, 0.02]
+    adj = stats.holm(p)
+    assert math.isnan(adj[1])
+    assert adj[[2, 4, 0, 3]] == pytest.approx([0.04, 0.06, 0.06, 0.06], abs=1e-15)
+    assert stats.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])   # capped at 1
+    assert np.isnan(stats.holm([math.nan])).all() and stats.holm([]).size == 0
+
+
+def test_holm_equals_statsmodels_multipletests():
+    multipletests = pytest.importorskip("statsmodels.stats.multitest").multipletests
+    rng = np.random.default_rng(3)
+    for m in (1, 2, 7, 40):
+        p = np.concatenate([rng.uniform(0, 0.05, m // 2), rng.uniform(0, 1, m - m // 2)])
+        p[rng.integers(0, m)] = p[0]  # a tie
+        reject, expected, _, _ = multipletests(p, alpha=0.05, method="holm")
+        got = stats.holm(p)
+        assert got == pytest.approx(expected, rel=1e-13, abs=1e-15)
+        assert np.array_equal(got < 0.05, reject)
+
+
+# -- the exact test on outcomes -------------------------------------------------------------
+def test_outcome_test_is_the_binomial_on_discordant_seeds():
+    from scipy.stats import binomtest
+
+    a = np.array([1, 1, 1, 1, 1, 1, 0, 0, 1, 0], bool)   # A ended badly on 7 seeds
+    b = np.array([0, 0, 0, 0, 0, 0, 1, 0, 1, 0], bool)   # B on 2; both on seed 8
+    t = stats.outcome_test(a, b)
+    assert (t.pairs, t.a_bad, t.b_bad, t.a_only, t.b_only) == (10, 7, 2, 6, 1)
+    assert t.p_value == binomtest(6, 7, 0.5).pvalue
+    assert t.p_value == pytest.approx(2 * 8 / 128, abs=1e-15)   # P(X<=1)+P(X>=6), n = 7
+    assert math.isnan(stats.outcome_test(a, a).p_value)          # no discordant seed
+
+
+def test_terminations_score_worst_and_enter_the_outcome_test():
+    rows = [("s", "A", s, "completed", 1.0 + 0.01 * s) for s in range(8)]
+    rows += [("s", "B", s, "fell" if s < 6 else "completed", 0.5) for s in range(8)]
+    comp = stats.compare(frame(rows), ["A", "B"], ["rmse_ss"], n_resamples=200)
+    pair = comp.pairs.iloc[0]
+    assert pair.b_diverged == 6 and pair.a_worse == 2 and pair.b_worse == 6
+    assert pair.worst_ratio == pytest.approx(1.07 / 0.5) and pair.best_ratio == 0.0
+    out = comp.outcomes.iloc[0]
+    assert (out.a_only, out.b_only) == (0, 6) and out.p_value == pytest.approx(2 / 64)
+    assert comp.summary.set_index("controller").loc["B", "terminated"] == 6
+    md = stats.markdown(comp)
+    assert "| A vs B | 8 | 0 | 6 | 0 | 6 |" in md and "6/8 (worst ∞×)" in md
+
+
+def test_compare_adjusts_every_p_value_of_one_call_and_verdicts_follow_p_holm():
+    # two scenarios x 3 kinds x 2 metrics: one Holm family over all rows; a verdict that
+    # holds on the raw p but not on p_holm is dropped
+    rng = np.random.default_rng(0)
+    rows = []
+    for scen, shift in (("s1", 0.02), ("s2", 0.5)):
+        for seed in range(8):
+            base = rng.uniform(1, 2)
+            for kind, extra in (("A", 0.0), ("B", shift), ("C", rng.normal(0, 0.3))):
+                rows.append(("%s" % scen, kind, seed, "completed", base + extra + 0.01 * seed))
+    comp = stats.compare(frame(rows), ["A", "B", "C"], ["rmse_ss", "rmse"], n_resamples=300)
+    pairs = comp.pairs
+    tested = pairs[~pairs.p_value.isna()]
+    assert (tested.p_holm >= tested.p_value - 1e-15).all()
+    assert np.allclose(stats.holm(pairs.p_value.to_numpy()), pairs.p_holm, equal_nan=True)
+    for r in pairs.itertuples():
+        if r.verdict:
+            assert r.p_holm < 0.05
+    # s1: A vs B with 8 seeds all one sign, p = 2/256 raw; times ~12 tests it no longer holds
+    row = pairs[(pairs.scenario == "s1") & (pairs.a == "A") & (pairs.b == "B")].iloc[0]
+    assert row.p_value < 0.05 and row.verdict_unadjusted == "A"
+    assert row.p_holm > 0.05 and row.verdict == ""
+
+
+def test_duplicate_scenarios_are_flagged():
+    rows = []
+    for seed in range(4):
+        for k in ("A", "B"):
+            v = 1.0 + seed + (k == "B")
+            rows += [("ode", k, seed, "completed", v), ("mujoco", k, seed, "completed",
+                                                        v * (1 + 1e-14)),
+                     ("other", k, seed, "completed", v * (1 + 1e-9))]
+    comp = stats.compare(frame(rows), ["A", "B"], ["rmse_ss"], n_resamples=200)
+    assert [(d["a"], d["b"], d["runs"]) for d in comp.duplicates] == [("ode", "mujoco", 8)]
+    assert "Duplicate experiment:** ode and mujoco" in stats.markdown(comp)
+    assert stats.to_json(comp)["duplicates"][0]["a"] == "ode"

@@ -2,8 +2,11 @@
 
 The runs are a sweep (:func:`tspend.sweep.sweep`: local worker pool or a Dask cluster,
 resumable with ``--out``); the statistics are :mod:`tspend.studies.stats` (median [Q1, Q3] per
-controller; per pair the median paired difference with a bootstrap 95% interval, the
-win rate and the Wilcoxon signed-rank p-value).  The Markdown table goes to stdout,
+controller and the share of runs that ended badly; per pair the median paired difference
+with a bootstrap 95% interval, the win rate, on how many seeds each side was worse and
+its worst seed's ratio, the Wilcoxon signed-rank p-value and its Holm adjustment over the
+whole call, which the verdicts use, and McNemar's exact test on the outcomes; duplicate
+experiments flagged).  The Markdown table goes to stdout,
 ``--json`` writes the same figures, ``--out`` keeps the sweep's Parquet table.
 """
 
@@ -21,7 +24,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "compare", help="compare controller kinds over seeds, paired (Markdown table)",
         description="Every controller kind on every scenario at the same seeds, paired by "
                     "seed: median [Q1, Q3] per kind; per pair the median difference with a "
-                    "bootstrap 95% interval, the win rate and the Wilcoxon p-value.")
+                    "bootstrap 95% interval, the win rate, k-of-N worse seeds, the Wilcoxon "
+                    "p-value and its Holm adjustment (p_holm, over every pair, metric and "
+                    "scenario of the call; verdicts use it), and McNemar's exact test on runs "
+                    "that fell, diverged or failed.")
     p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
                    help="scenario names (see 'tspend list') or .toml paths")
     p.add_argument("--controller", metavar="K1,K2,...",
@@ -46,6 +52,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="bootstrap resamples (default 9999)")
     p.add_argument("--stats-seed", type=int, default=0, metavar="N",
                    help="seed of the bootstrap's generator (default 0)")
+    p.add_argument("--tune", type=int, metavar="N",
+                   help="equal budget: first tune every kind with N trials (Optuna TPE) on "
+                        "--tune-seeds, then compare the tuned kinds on --seeds")
+    p.add_argument("--tune-seeds", metavar="A:B",
+                   help="training seeds of --tune, disjoint from --seeds (default: the 5 "
+                        "seeds after the last of --seeds)")
+    p.add_argument("--tune-metric", metavar="M", help="the metric --tune minimises "
+                                                      "(default rmse)")
     p.add_argument("--progress", action="store_true", help="show the sweep's progress")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
@@ -92,8 +106,38 @@ def parse_options(args: argparse.Namespace) -> dict:
         check_writable(json_path, "json")
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
+    tune = None
+    if args.tune is not None:
+        tune = _tune_options(args, kinds, seeds)
     return dict(kinds=kinds, specs=specs, metrics=metrics, seeds=seeds, grid=grid or None,
-                json_path=json_path)
+                json_path=json_path, tune=tune)
+
+
+def _tune_options(args: argparse.Namespace, kinds: list[str], seeds: list[int]) -> dict:
+    from tspend.controllers.settings import search_space
+    from tspend.studies.stats import COMPARED_METRICS
+    from tspend.studies.tune import DEFAULT_METRIC, check_seeds
+    from tspend.sweep.plan import parse_seeds
+
+    if args.tune < 1:
+        raise ScenarioError(f"--tune: trials must be >= 1, got {args.tune}")
+    if args.out:
+        raise ScenarioError("--out: not with --tune (the tuned runs are not a resumable sweep)")
+    empty = [k for k in kinds if not search_space(k)]
+    if empty:
+        raise ScenarioError(f"--tune: {', '.join(empty)} declare(s) nothing to tune")
+    train = (parse_seeds(args.tune_seeds) if args.tune_seeds else
+             list(range(max(seeds) + 1, max(seeds) + 6)))
+    try:
+        check_seeds(train, seeds)
+    except ScenarioError:
+        raise ScenarioError("--tune-seeds: must be disjoint from --seeds (the tuned kinds are "
+                            "compared on seeds they were not tuned on)") from None
+    metric = args.tune_metric or DEFAULT_METRIC
+    if metric not in COMPARED_METRICS:
+        raise ScenarioError(f"--tune-metric {metric}: unknown metric; allowed: "
+                            f"{', '.join(COMPARED_METRICS)}")
+    return dict(trials=args.tune, seeds=train, metric=metric)
 
 
 def seeds_text(seeds: list[int]) -> str:
@@ -119,24 +163,76 @@ def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, job
     return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples)
 
 
+def run_tuned_comparison(scenarios, kinds, seeds, metrics, tune, *, grid=None, jobs=None,
+                         dask=None, progress=False, resamples=9999, stats_seed=0):
+    """Equal budget: tune every kind (``tune``: trials, seeds, metric) on every scenario,
+    then compare the tuned kinds on ``seeds``: (table, Comparison, tuned results)."""
+    from tspend.scenario import load_scenario, override
+    from tspend.studies.stats import compare
+    from tspend.studies.tune import equal_budget
+
+    loaded = []
+    for name in scenarios:
+        scn = load_scenario(name)
+        changes = {k: v[0] for k, v in (grid or {}).items()}
+        loaded.append(override(scn, **changes) if changes else scn)
+    table, tuned = equal_budget(loaded, kinds, trials=tune["trials"], train_seeds=tune["seeds"],
+                                test_seeds=seeds, metric=tune["metric"], jobs=jobs, dask=dask,
+                                progress=progress)
+    return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples), tuned
+
+
+def tuned_markdown(tuned: dict, tune: dict) -> str:
+    """The tuned settings and train scores, one row per scenario and kind."""
+    from tspend.studies.stats import fmt
+
+    lines = [f"### Tuned on an equal budget: {tune['trials']} trials per kind on training "
+             f"seeds {seeds_text(tune['seeds'])}, objective median {tune['metric']}", "",
+             "| scenario | controller | tuned settings | train score |", "|---|---|---|---:|"]
+    for (scn, kind), r in tuned.items():
+        def shown(v):
+            if isinstance(v, float):
+                return fmt(v, 4)
+            if isinstance(v, list):
+                return "[" + ", ".join(shown(x) for x in v) + "]"
+            return str(v)
+
+        values = ", ".join(f"{k} = {shown(v)}" for k, v in r.values.items()
+                           if k != "adaptation")
+        lines.append(f"| {scn} | {kind} | {values} | {fmt(r.train_score, 4)} |")
+    return "\n".join(lines) + "\n\n"
+
+
 def cmd(args: argparse.Namespace) -> int:
     import json
 
     from tspend.cli.main import controller_help
-    from tspend.studies.stats import to_json
-    from tspend.studies.stats import markdown
+    from tspend.studies.stats import _json_number, markdown, to_json
 
     if controller_help(args):
         return 0
     opts = parse_options(args)
-    table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"],
-                                 grid=opts["grid"], out=args.out, jobs=args.jobs,
-                                 dask=args.dask, progress=args.progress,
-                                 resamples=args.resamples, stats_seed=args.stats_seed,
-                                 specs=opts["specs"])
+    tuned = None
+    if opts["tune"] is not None:
+        table, comp, tuned = run_tuned_comparison(
+            args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"], opts["tune"],
+            grid=opts["grid"], jobs=args.jobs, dask=args.dask, progress=args.progress,
+            resamples=args.resamples, stats_seed=args.stats_seed)
+        sys.stdout.write(tuned_markdown(tuned, opts["tune"]))
+    else:
+        table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"],
+                                     opts["metrics"], grid=opts["grid"], out=args.out,
+                                     jobs=args.jobs, dask=args.dask, progress=args.progress,
+                                     resamples=args.resamples, stats_seed=args.stats_seed,
+                                     specs=opts["specs"])
     sys.stdout.write(markdown(comp, seeds_text(opts["seeds"])))
     if opts["json_path"] is not None:
         doc = to_json(comp)
+        if tuned is not None:
+            doc["tuned"] = [dict(scenario=scn, controller=kind, values=r.values,
+                                 train_score=_json_number(r.train_score), trials=r.trials,
+                                 train_seeds=r.train_seeds, metric=r.metric)
+                            for (scn, kind), r in tuned.items()]
         doc["seeds"] = opts["seeds"]
         doc["scenarios"] = list(args.scenarios)
         opts["json_path"].write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")

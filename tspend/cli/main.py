@@ -59,7 +59,8 @@ from tspend.runtime.outputs import (Output, OutputRequest, PlannedOutput, claim,
     plan_outputs)
 
 #: the subcommands, each the module ``tspend/cli/<name>.py``, in ``--help`` order
-COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "figures")
+COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "tune",
+            "figures")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0

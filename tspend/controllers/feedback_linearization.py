@@ -48,6 +48,9 @@ if TYPE_CHECKING:
 class FeedbackLinearizationSettings(KindSettings):
     """``[controllers.feedback_linearization]``."""
 
+    #: what ``tspend tune`` searches: lambda as (s + p)^n, so it stays Hurwitz
+    SEARCH = {"lambda": (0.2, 50.0, "log", "poles")}
+
     lam: tuple[float, ...] | None = setting(
         None, "lambda_1 .. lambda_n of the target error dynamics (default: the scenario's "
               "[controller] lambda)", kind="vector", length="n", name="lambda")

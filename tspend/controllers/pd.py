@@ -36,6 +36,9 @@ if TYPE_CHECKING:
 class PDSettings(KindSettings):
     """``[controllers.pd]``."""
 
+    #: what ``tspend tune`` searches (controllers.settings.Search: low, high, scale[, form])
+    SEARCH = {"bandwidth": (0.5, 100.0, "log")}
+
     gains: tuple[float, ...] | None = setting(
         None, "k_1 .. k_n on e_1 .. e_n (default: coefficients of (s + bandwidth)^n)",
         kind="vector", length="n", low=0.0, strict=True)

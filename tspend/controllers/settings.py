@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 from tspend.tables import Table
 
@@ -132,3 +132,61 @@ def finite_or(value: float | None, fallback: float) -> float:
     if not math.isfinite(out):
         raise ValueError(f"derived setting is not finite: {out}")
     return float(out)
+
+
+# -- what tspend tune searches ---------------------------------------------------------------
+class Search(NamedTuple):
+    """One tuned setting: a number drawn from ``[low, high]`` (on a log scale when ``log``)
+    and how it becomes the setting's value (``form``):
+
+    * ``"number"``: the value itself;
+    * ``"diagonal"``: ``value * I`` (n x n), a scale of an identity weight (Q);
+    * ``"poles"``: ``lambda_1 .. lambda_n`` with ``s^n + lambda_n s^(n-1) + .. + lambda_1 =
+      (s + value)^n``: every root at ``-value``, so the vector is Hurwitz by construction.
+
+    Each kind declares a table ``SEARCH = {key: (low, high, "log"|"linear"[, form])}`` on
+    its settings class (the paper's kinds: :data:`PAPER_SEARCH`), keyed by the name in
+    the scenario file.
+    """
+
+    low: float
+    high: float
+    log: bool = False
+    form: str = "number"
+
+    def value(self, x: float, n: int) -> Any:
+        """The setting's value in the scenario file for the drawn number ``x`` (order n)."""
+        if self.form == "number":
+            return float(x)
+        if self.form == "diagonal":
+            return [[float(x) if i == j else 0.0 for j in range(n)] for i in range(n)]
+        if self.form == "poles":
+            return [float(math.comb(n, i) * x ** (n - i)) for i in range(n)]
+        raise AssertionError(f"unknown search form {self.form!r}")
+
+
+#: what ``tspend tune`` searches for the paper's kinds ([controller]): the rates of
+#: (25)-(27), Q of Lemma 1 as a scale of the identity, lambda of (18) as (s + p)^n, and
+#: the boundary layer of (21) (0 = the paper's sign)
+PAPER_SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
+                "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, 10.0, "log", "poles"),
+                "boundary_layer": (0.0, 1.0, "linear")}
+
+
+def search_space(kind: str) -> dict[str, Search]:
+    """The declared search space of ``kind``: ``{key in the file: Search}``."""
+    from tspend.controllers import KINDS, SETTINGS
+
+    if kind in PAPER_KINDS:
+        table = PAPER_SEARCH
+    elif kind in SETTINGS:
+        table = getattr(SETTINGS[kind], "SEARCH", {})
+    else:
+        raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}")
+    out = {}
+    for key, spec in table.items():
+        low, high, scale, *form = spec
+        if scale not in ("log", "linear") or not low < high or (scale == "log" and low <= 0):
+            raise AssertionError(f"bad search declaration of {kind}.{key}: {spec!r}")
+        out[key] = Search(float(low), float(high), scale == "log", *form)
+    return out

@@ -56,6 +56,10 @@ LAYER_RATE = 50.0
 class SlidingModeSettings(KindSettings):
     """``[controllers.sliding_mode]``."""
 
+    #: what ``tspend tune`` searches (controllers.settings.Search: low, high, scale[, form])
+    SEARCH = {"surface_pole": (0.2, 50.0, "log"), "k": (0.01, 100.0, "log"),
+              "phi": (1e-4, 10.0, "log")}
+
     c: tuple[float, ...] | None = setting(
         None, "c_1 .. c_{n-1} of s = c^T e, c_n = 1 (default: (d/dt + surface_pole)^(n-1))",
         kind="vector", length="n-1", low=0.0, strict=True)

@@ -74,6 +74,9 @@ if TYPE_CHECKING:
 class WangSettings(KindSettings):
     """``[controllers.wang_indirect]``."""
 
+    #: what ``tspend tune`` searches: lambda as (s + p)^n (Hurwitz), the f rate
+    SEARCH = {"lambda": (0.2, 20.0, "log", "poles"), "gamma_f": (1.0, 1e4, "log")}
+
     lam: tuple[float, ...] | None = setting(
         None, "lambda_1 .. lambda_n (default: the scenario's [controller] lambda)",
         kind="vector", length="n", name="lambda")

@@ -133,3 +133,42 @@ class SweepProgress:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+class TuneProgress:
+    """Trials done out of the budget, with the best score so far (``tspend tune``)."""
+
+    def __init__(self, total: int, done: int = 0, label: str = "tune",
+                 stream: TextIO | None = None, every: float = 10.0,
+                 enabled: bool = True) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.total, self.done, self.label, self.every = total, done, label, every
+        self.enabled = enabled
+        self.best = float("nan")
+        self._started = self._last_line = time.monotonic()
+        self._bar = None
+        if enabled and _on_terminal(self.stream):
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, initial=done, file=self.stream, unit="trial",
+                             dynamic_ncols=True, desc=label)
+
+    def update(self, best: float) -> None:
+        self.done += 1
+        self.best = best
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.set_postfix_str(f"best {best:.4g}", refresh=False)
+            self._bar.update(1)
+            return
+        now = time.monotonic()
+        if now - self._last_line >= self.every or self.done == self.total:
+            self._last_line = now
+            print(f"{self.label}: {self.done}/{self.total} trials, best {best:.4g}, "
+                  f"{_duration(now - self._started)} elapsed", file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

@@ -1,0 +1,359 @@
+"""Tuning a controller kind on a scenario with Optuna, and the equal-budget comparison.
+
+:func:`tune` searches the kind's declared space (``SEARCH`` on its settings class, the
+paper's :data:`tspend.controllers.settings.PAPER_SEARCH`; see
+:class:`tspend.controllers.settings.Search`) with a seeded TPE sampler.  Each trial runs
+the kind on every training seed, through the sweep's executors (a local pool or Dask),
+and scores the **median of the metric over the training seeds**, a run that fell, ended
+on the rail or a joint limit, diverged or failed scoring ``+inf`` (worst), as in
+:mod:`tspend.studies.stats`.  Trials are asked one at a time: TPE's next choice depends
+on every earlier score, so the study, and the tuned value, are the same on any executor
+and number of workers; a trial's seeds run in parallel.  With a ``storage`` (an Optuna
+RDB URL such as ``sqlite:///tune.db``, or a path: a journal file) the study is resumable:
+the same call counts the trials already completed and runs only the rest.
+
+The result is a complete scenario: the original's tables with its overrides applied and
+the tuned values in ``[controllers.KIND]`` (``[controller]`` for the paper's kinds), as
+TOML text headed by comments giving the budget and the train and test scores
+(:func:`scenario_toml`).  :func:`equal_budget` tunes every kind with the same number of
+trials on the same training seeds and compares them on disjoint test seeds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+from tspend.errors import ScenarioError
+
+#: the metric a tuning minimises unless asked otherwise
+DEFAULT_METRIC = "rmse"
+#: the first line of a tuned scenario: what ``--out`` checks before replacing a file
+MARKER = re.compile(r'^# tspend tune: controller = "([A-Za-z0-9_]+)", scenario = "(.*)"$')
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """What :func:`tune` found; ``text`` is the tuned scenario as TOML."""
+
+    kind: str
+    metric: str
+    scenario: Any                        # the tuned tspend.config.Scenario
+    base_name: str                       # the scenario tuned
+    values: dict[str, Any]               # key in the file -> tuned value
+    drawn: dict[str, float]              # key -> the number the sampler drew
+    trials: int                          # completed trials in the study
+    train_seeds: list[int]
+    test_seeds: list[int]
+    train_score: float
+    test_score: float | None
+    default_train: float | None = None   # the kind's untuned settings on the same seeds
+    default_test: float | None = None
+    sampler_seed: int = 0
+    study_name: str = ""
+    text: str = field(default="", repr=False)
+
+
+def settings_prefix(kind: str) -> str:
+    """Where ``kind``'s settings live in a scenario: ``controller`` or ``controllers.KIND``."""
+    from tspend.controllers.settings import PAPER_KINDS
+
+    return "controller" if kind in PAPER_KINDS else f"controllers.{kind}"
+
+
+def _order(scenario) -> int:
+    return len(scenario.controller.lam)
+
+
+def tuned_changes(scenario, kind: str, drawn: dict[str, float]) -> dict[str, Any]:
+    """The dotted overrides that put the drawn numbers into ``scenario`` for ``kind``."""
+    from tspend.controllers.settings import PAPER_KINDS, search_space
+
+    space, n, prefix = search_space(kind), _order(scenario), settings_prefix(kind)
+    changes = {f"{prefix}.{key}": space[key].value(x, n) for key, x in drawn.items()}
+    if kind in PAPER_KINDS:  # the file's own controller is the tuned kind
+        changes["controller.adaptation"] = "first" if kind == "first_type" else "second"
+    return changes
+
+
+def score(rows, metric: str) -> float:
+    """The objective: the median of ``metric`` over the rows' seeds; a run that did not
+    complete because of the controller (fell, rail_end, joint_limit, state_bound,
+    diverged, failed) counts ``+inf``."""
+    import numpy as np
+
+    from tspend.studies.stats import BAD, median
+
+    status = rows["status"].to_numpy()
+    values = rows[metric].to_numpy(dtype=float, na_value=np.nan)
+    values = np.where(np.isin(status, BAD) | np.isnan(values), np.inf, values)
+    return median(values) if values.size else math.inf
+
+
+def check_seeds(train: Sequence[int], test: Sequence[int]) -> None:
+    shared = sorted(set(train) & set(test))
+    if shared:
+        raise ScenarioError(f"--test-seeds: must be disjoint from the training seeds; both "
+                            f"hold {', '.join(map(str, shared[:5]))}")
+
+
+def study_name(scenario, kind: str, metric: str, seeds: Sequence[int]) -> str:
+    """The study's identity in a storage: the scenario's text, kind, metric, seeds and
+    search space; any change starts another study."""
+    from tspend.controllers.settings import search_space
+    from tspend.loop.simulation import scenario_text
+
+    ident = json.dumps([scenario_text(scenario), kind, metric, list(seeds),
+                        {k: list(v) for k, v in search_space(kind).items()}], sort_keys=True)
+    return f"tspend-{scenario.name}-{kind}-{hashlib.sha256(ident.encode()).hexdigest()[:12]}"
+
+
+def _storage(url: str | None):
+    if url is None:
+        return None
+    if "://" in url:
+        return url
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    return JournalStorage(JournalFileBackend(url))
+
+
+def _sweep_score(scenario, kind, seeds, metric, executor, stop) -> float:
+    from tspend.sweep import sweep
+
+    rows = sweep(scenario, seeds=list(seeds), controllers=[kind], executor=executor,
+                 record="none", stop=stop)
+    return score(rows, metric)
+
+
+def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
+         test_seeds: Sequence[int] = (), metric: str = DEFAULT_METRIC, executor: Any = None,
+         jobs: int | None = None, dask: str | None = None, storage: str | None = None,
+         sampler_seed: int = 0, progress: bool = False, defaults: bool = True,
+         stop: Any = None, on_trial: Callable[[int, float], None] | None = None) -> TuneResult:
+    """Tune ``kind`` on ``scenario`` (a :class:`tspend.config.Scenario`): ``trials``
+    trials in all (counting those already in ``storage``), scored on ``seeds``; the best
+    is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings."""
+    import optuna
+
+    from tspend.controllers import KINDS
+    from tspend.controllers.settings import search_space
+    from tspend.runtime.progress import TuneProgress
+    from tspend.scenario import override
+    from tspend.studies.stats import COMPARED_METRICS
+    from tspend.sweep.executors import make_executor
+
+    if kind not in KINDS:
+        raise ScenarioError(f"--controller {kind}: unknown kind; allowed: {', '.join(KINDS)}")
+    if metric not in COMPARED_METRICS:
+        raise ScenarioError(f"--metric {metric}: unknown metric; allowed: "
+                            f"{', '.join(COMPARED_METRICS)}")
+    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
+        raise ScenarioError(f"--trials: must be an integer >= 1, got {trials!r}")
+    seeds, test_seeds = list(seeds), list(test_seeds)
+    if not seeds:
+        raise ScenarioError("--seeds: at least one training seed")
+    check_seeds(seeds, test_seeds)
+    space = search_space(kind)
+    if not space:
+        raise ScenarioError(f"--controller {kind}: the kind declares nothing to tune")
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    name = study_name(scenario, kind, metric, seeds)
+    study = optuna.create_study(study_name=name, storage=_storage(storage),
+                                load_if_exists=storage is not None, direction="minimize",
+                                sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+    done = sum(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+    owned = executor is None
+    if owned:
+        executor = make_executor(jobs, dask)
+    shown = TuneProgress(trials, done, f"tune {kind}", enabled=progress)
+    try:
+        for _ in range(max(0, trials - done)):
+            trial = study.ask()
+            drawn = {k: trial.suggest_float(k, s.low, s.high, log=s.log)
+                     for k, s in space.items()}
+            scn = override(scenario, **tuned_changes(scenario, kind, drawn))
+            value = _sweep_score(scn, kind, seeds, metric, executor, stop)
+            study.tell(trial, value)
+            shown.update(study.best_value)
+            if on_trial is not None:
+                on_trial(trial.number, value)
+        best = study.best_trial
+        drawn = {k: float(best.params[k]) for k in space}
+        changes = tuned_changes(scenario, kind, drawn)
+        tuned = override(scenario, **changes)
+        test = (_sweep_score(tuned, kind, test_seeds, metric, executor, stop)
+                if test_seeds else None)
+        d_train = d_test = None
+        if defaults:
+            d_train = _sweep_score(scenario, kind, seeds, metric, executor, stop)
+            d_test = (_sweep_score(scenario, kind, test_seeds, metric, executor, stop)
+                      if test_seeds else None)
+    finally:
+        shown.close()
+        if owned:
+            executor.close()
+    completed = sum(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+    prefix = settings_prefix(kind) + "."
+    values = {k[len(prefix):]: v for k, v in changes.items() if k.startswith(prefix)}
+    result = TuneResult(kind=kind, metric=metric, scenario=tuned, base_name=scenario.name,
+                        values=values, drawn=drawn, trials=completed, train_seeds=seeds,
+                        test_seeds=test_seeds, train_score=float(best.value),
+                        test_score=test, default_train=d_train, default_test=d_test,
+                        sampler_seed=sampler_seed, study_name=name)
+    return _with_text(result, scenario, changes)
+
+
+# -- the tuned scenario as TOML ---------------------------------------------------------------
+def _seeds_text(seeds: Sequence[int]) -> str:
+    s = list(seeds)
+    if s and s == list(range(s[0], s[-1] + 1)):
+        return f"{s[0]}-{s[-1]}" if len(s) > 1 else str(s[0])
+    return ",".join(map(str, s))
+
+
+def _num(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.10g}"
+
+
+def _with_text(result: TuneResult, base, changes: dict[str, Any]) -> TuneResult:
+    from dataclasses import replace
+
+    from tspend.scenario import _set_dotted
+
+    raw = tomllib.loads(base.text)
+    for key, value in list(base.overrides) + list(changes.items()):
+        _set_dotted(raw, key, value, base.path)
+    r = result
+    head = [
+        f'# tspend tune: controller = "{r.kind}", scenario = "{r.base_name}"',
+        f"# from {_shown_path(base.path)}" + (f" with {', '.join(f'{k} = {v!r}' for k, v in base.overrides)}"
+                                 if base.overrides else ""),
+        f"# budget: {r.trials} trials (Optuna TPE, sampler seed {r.sampler_seed}) x "
+        f"{len(r.train_seeds)} training seeds ({_seeds_text(r.train_seeds)}) = "
+        f"{r.trials * len(r.train_seeds)} runs",
+        f"# score: median {r.metric} over seeds (a run that fell, diverged or failed counts "
+        f"as worst); lower is better",
+        f"# train score (seeds {_seeds_text(r.train_seeds)}): {_num(r.train_score)}"
+        + (f"; untuned: {_num(r.default_train)}" if r.default_train is not None else ""),
+    ]
+    if r.test_seeds:
+        head.append(f"# test score (seeds {_seeds_text(r.test_seeds)}): {_num(r.test_score)}"
+                    + (f"; untuned: {_num(r.default_test)}" if r.default_test is not None
+                       else ""))
+    head.append(f"# tuned: {', '.join(f'{k} = {v}' for k, v in r.values.items())}")
+    text = "\n".join(head) + "\n\n" + dump_toml(raw)
+    if tomllib.loads(text) != raw:  # the writer must give back exactly what it was given
+        raise AssertionError("the tuned scenario does not read back as written")
+    return replace(result, text=text)
+
+
+def _shown_path(path: str) -> str:
+    """The scenario's path relative to the project (scenarios/x.toml) when it is in it."""
+    from pathlib import Path
+
+    from tspend.scenario import project_root
+
+    try:
+        return str(Path(path).resolve().relative_to(project_root()))
+    except (ValueError, OSError):
+        return str(path)
+
+
+_BARE = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _key(k: str) -> str:
+    return k if _BARE.match(k) else json.dumps(k)
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)  # the shortest text that reads back as the same double
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string is a JSON string for these characters
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def dump_toml(doc: dict, _path: tuple[str, ...] = ()) -> str:
+    """``doc`` (what ``tomllib`` reads) as TOML: scalars and arrays first, then each
+    sub-table under its ``[dotted.header]``; arrays of tables are written inline."""
+    lines = [f"{_key(k)} = {_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
+    out = "\n".join(lines) + ("\n" if lines else "")
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            path = _path + (k,)
+            body = dump_toml(v, path)
+            header = "[" + ".".join(_key(p) for p in path) + "]\n"
+            out += ("\n" if out else "") + header + body
+    return out
+
+
+def tuned_kind(text: str) -> tuple[str, str] | None:
+    """(kind, scenario) of a file written by :func:`tune`, from its first line; else None."""
+    first = text.split("\n", 1)[0]
+    m = MARKER.match(first)
+    return (m.group(1), m.group(2)) if m else None
+
+
+# -- equal budget --------------------------------------------------------------------------------
+def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
+                 train_seeds: Sequence[int], test_seeds: Sequence[int],
+                 metric: str = DEFAULT_METRIC, executor: Any = None, jobs: int | None = None,
+                 dask: str | None = None, storage: str | None = None, sampler_seed: int = 0,
+                 progress: bool = False, stop: Any = None):
+    """Tune every kind on every scenario with the same ``trials`` on the same
+    ``train_seeds``, then run each tuned kind on ``test_seeds`` (disjoint): (rows, tuned).
+
+    ``rows`` is a sweep table (one row per scenario, kind and test seed; the ``scenario``
+    column the original's name, so runs pair by seed as in ``tspend compare``); ``tuned``
+    maps (scenario name, kind) to its :class:`TuneResult`.
+    """
+    import pandas as pd
+
+    from tspend.sweep import sweep
+    from tspend.sweep.executors import make_executor
+
+    check_seeds(train_seeds, test_seeds)
+    owned = executor is None
+    if owned:
+        executor = make_executor(jobs, dask)
+    tuned: dict[tuple[str, str], TuneResult] = {}
+    frames = []
+    try:
+        for scn in scenarios:
+            for kind in kinds:
+                r = tune(scn, kind, trials=trials, seeds=train_seeds, metric=metric,
+                         executor=executor, storage=storage, sampler_seed=sampler_seed,
+                         progress=progress, defaults=False, stop=stop)
+                tuned[(scn.name, kind)] = r
+                rows = sweep(r.scenario, seeds=list(test_seeds), controllers=[kind],
+                             executor=executor, record="none", stop=stop)
+                frames.append(rows.assign(scenario=scn.name))
+    finally:
+        if owned:
+            executor.close()
+    return pd.concat(frames, ignore_index=True), tuned
+
+
+__all__ = ["TuneResult", "tune", "equal_budget", "score", "tuned_changes", "settings_prefix",
+           "dump_toml", "tuned_kind", "study_name", "DEFAULT_METRIC"]
