@@ -104,7 +104,7 @@ def test_every_scenario_reads_back_through_the_toml_writer():
 
 def test_every_kind_declares_a_search_space_that_builds():
     from tspend.controllers import KINDS
-    from tspend.controllers.settings import search_space
+    from tspend.controllers import search_space
 
     scn = load_scenario("ex3_pendulum_ode")
     for kind in KINDS:

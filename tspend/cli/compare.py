@@ -114,7 +114,7 @@ def parse_options(args: argparse.Namespace) -> dict:
 
 
 def _tune_options(args: argparse.Namespace, kinds: list[str], seeds: list[int]) -> dict:
-    from tspend.controllers.settings import search_space
+    from tspend.controllers import search_space
     from tspend.studies.stats import COMPARED_METRICS
     from tspend.studies.tune import DEFAULT_METRIC, check_seeds
     from tspend.sweep.plan import parse_seeds

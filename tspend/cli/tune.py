@@ -55,7 +55,7 @@ def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
     from tspend.cli.main import parse_set_value
     from tspend.controllers import KINDS
-    from tspend.controllers.settings import search_space
+    from tspend.controllers import search_space
     from tspend.scenario import load_scenario, override
     from tspend.studies.stats import COMPARED_METRICS
     from tspend.studies.tune import DEFAULT_METRIC, check_seeds

@@ -34,6 +34,7 @@ from tspend.runtime import plugins
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.controllers.settings import Search
 
 
 def _paper(adaptation: str | None) -> Callable[..., Controller]:
@@ -226,6 +227,17 @@ def settings_classes() -> Mapping[str, type]:
 _LOADED: dict[str, type] = {}
 
 
+def search_space(kind: str) -> "dict[str, Search]":
+    """The declared search space of ``kind``: ``{key in the file: Search}``."""
+    from tspend.controllers.settings import PAPER_KINDS, PAPER_SEARCH, search_table
+
+    if kind in PAPER_KINDS:
+        return search_table(kind, PAPER_SEARCH)
+    if kind in SETTINGS:
+        return search_table(kind, SETTINGS[kind].SEARCH)
+    raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}")
+
+
 def load(spec: str, option: str = "--controller") -> Kind:
     """:func:`resolve`, remembering a plug-in's settings class for the scenario reader.
 
@@ -287,6 +299,6 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     return ctrl
 
 
-__all__ = ["KINDS", "SETTINGS", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
+__all__ = ["KINDS", "SETTINGS", "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
            "settings_classes", "settings_of"]

@@ -53,6 +53,9 @@ _FREE = 1e19
 class MPCSettings(KindSettings):
     """``[controllers.mpc]``."""
 
+    #: what tspend tune searches: the input weight against the state weights
+    SEARCH = {"R": (1e-6, 1e2, "log")}
+
     period: float = setting(0.02, "s: control period (a whole multiple of run.dt); "
                                   "run.control_period overrides", low=0.0, strict=True)
     horizon: int = setting(30, "N, shooting intervals of one period each", kind="integer",

@@ -33,7 +33,10 @@ PAPER_KINDS = ("second_type", "first_type")
 
 
 class KindSettings:
-    """Base of every kind's settings dataclass: :meth:`check` validates across fields."""
+    """Base of every kind's settings dataclass: :meth:`check` validates across fields;
+    ``SEARCH`` declares what ``tspend tune`` searches (none by default)."""
+
+    SEARCH: dict = {}
 
     def check(self, n: int) -> tuple[str, str] | None:
         """``(key, problem)`` when the settings do not fit a plant of order ``n``."""
@@ -173,16 +176,9 @@ PAPER_SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
                 "boundary_layer": (0.0, 1.0, "linear")}
 
 
-def search_space(kind: str) -> dict[str, Search]:
-    """The declared search space of ``kind``: ``{key in the file: Search}``."""
-    from tspend.controllers import KINDS, SETTINGS
-
-    if kind in PAPER_KINDS:
-        table = PAPER_SEARCH
-    elif kind in SETTINGS:
-        table = getattr(SETTINGS[kind], "SEARCH", {})
-    else:
-        raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}")
+def search_table(kind: str, table: dict) -> dict[str, Search]:
+    """A kind's search declaration (``{key: (low, high, "log"|"linear", form?)}``) as
+    :class:`Search` entries, each checked."""
     out = {}
     for key, spec in table.items():
         low, high, scale, *form = spec

@@ -56,6 +56,9 @@ SWING, CATCH = 0.0, 1.0
 class SwingUpSettings(KindSettings):
     """``[controllers.swingup]``."""
 
+    #: what tspend tune searches: the energy pumping gain and the acceleration bound
+    SEARCH = {"energy_gain": (0.05, 20.0, "log"), "accel_max": (0.5, 20.0, "log")}
+
     energy_gain: float = setting(1.0, "k_E, (unit of a)/(J s^2): a = k_E (E_0 - E) sign(...)",
                                  low=0.0, strict=True)
     accel_max: float = setting(4.0, "a_max, the driven joint's acceleration bound while "

@@ -72,7 +72,8 @@ def _order(scenario) -> int:
 
 def tuned_changes(scenario, kind: str, drawn: dict[str, float]) -> dict[str, Any]:
     """The dotted overrides that put the drawn numbers into ``scenario`` for ``kind``."""
-    from tspend.controllers.settings import PAPER_KINDS, search_space
+    from tspend.controllers import search_space
+    from tspend.controllers.settings import PAPER_KINDS
 
     space, n, prefix = search_space(kind), _order(scenario), settings_prefix(kind)
     changes = {f"{prefix}.{key}": space[key].value(x, n) for key, x in drawn.items()}
@@ -105,7 +106,7 @@ def check_seeds(train: Sequence[int], test: Sequence[int]) -> None:
 def study_name(scenario, kind: str, metric: str, seeds: Sequence[int]) -> str:
     """The study's identity in a storage: the scenario's text, kind, metric, seeds and
     search space; any change starts another study."""
-    from tspend.controllers.settings import search_space
+    from tspend.controllers import search_space
     from tspend.loop.simulation import scenario_text
 
     ident = json.dumps([scenario_text(scenario), kind, metric, list(seeds),
@@ -143,7 +144,7 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
     import optuna
 
     from tspend.controllers import KINDS
-    from tspend.controllers.settings import search_space
+    from tspend.controllers import search_space
     from tspend.runtime.progress import TuneProgress
     from tspend.scenario import override
     from tspend.studies.stats import COMPARED_METRICS
