@@ -1,5 +1,6 @@
-"""``tspend inspect MODEL.xml``: what a compiled MJCF cart-pole holds, and how it departs
-from the paper's ODE (tspend/plants/mjcf.py)."""
+"""``tspend inspect MODEL.xml``: what a compiled MJCF holds, read by the plant domain
+whose machine it looks like (``Domain.fits_mjcf``, ``Domain.inspect``), and how it
+departs from that domain's ODE."""
 
 from __future__ import annotations
 
@@ -7,15 +8,10 @@ import argparse
 import json
 from pathlib import Path
 
-#: order of the printed facts
-_ROWS = ("cart_mass", "pole_mass", "pole_com", "pole_inertia_pivot", "rod_inertia_pivot",
-         "gain_sign", "theta_sign", "gear", "ctrl_range", "force_range", "actuator_type",
-         "timestep", "integrator", "contacts", "gravity")
-
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("inspect", help="read an MJCF cart-pole as it is and list how it "
-                                              "departs from the paper's ODE")
+    p = subparsers.add_parser("inspect", help="read an MJCF model as it is and list how it "
+                                              "departs from its domain's ODE")
     p.add_argument("model", help="MJCF file")
     p.add_argument("--slide", default=None, metavar="JOINT",
                    help="the cart's slide joint (default: the only slide joint)")
@@ -31,61 +27,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd(args: argparse.Namespace) -> int:
     from tspend.cli.main import check_writable, write_json
-    from tspend.plants.mujoco_plant import MujocoCartPole, guess_names
 
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
         check_writable(json_path, "json")
     domain = _domain_of(args.model)
-    if domain is not None:
-        return _inspect_domain(domain, args.model, json_path, write_json)
-    slide, hinge, actuator = guess_names(args.model, args.slide, args.hinge, args.actuator)
-    plant = MujocoCartPole(args.model, slide_joint=slide, hinge_joint=hinge, actuator=actuator)
-    facts = plant.facts
-    data = facts.to_json()
-    data.update(slide_joint=slide, hinge_joint=hinge, actuator=actuator)
-    if args.dt is not None:
-        data["departures"] = plant.departures(args.dt)
-    print(f"{args.model}: slide '{slide}', hinge '{hinge}', actuator '{actuator}'")
-    for key in _ROWS:
-        print(f"  {key:<20} {data[key]}")
-    for label in ("slide", "hinge"):
-        j = data[label]
-        print(f"  {label + ' joint':<20} damping {j['damping']:g}, frictionloss "
-              f"{j['frictionloss']:g}, armature {j['armature']:g}, stiffness {j['stiffness']:g}, "
-              f"limited {j['limited']} {list(j['range']) if j['limited'] else ''}")
-    if data["departures"]:
-        print("departures from the paper's cart-pole ODE:")
-        for line in data["departures"]:
-            print(f"  - {line}")
-    else:
-        print("no departure from the paper's cart-pole ODE")
-    if json_path is not None:
-        write_json(json_path, json.loads(json.dumps(data)))
-    return 0
-
-
-def _domain_of(model: str):
-    """The domain another than the cart-pole whose machine the MJCF looks like, or None
-    (the cart-pole's own reading below then runs, with its messages)."""
-    import mujoco
-
-    from tspend.plants.registry import DOMAINS
-
-    try:
-        spec = mujoco.MjSpec.from_file(str(model))
-    except (ValueError, OSError):
-        return None  # the cart-pole reader reports it
-    kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
-    return next((d for d in DOMAINS.values() if d.fits_mjcf(kinds) and d.name != "cartpole"),
-                None)
-
-
-def _inspect_domain(domain, model: str, json_path, write_json) -> int:
-    facts, departures = domain.inspect(model)
-    print(f"{model}: a {domain.name} model")
+    names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
+                               ("actuator", args.actuator)) if v is not None}
+    facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
+    print(f"{args.model}: a {domain.name} model")
     for key, value in facts.items():
-        print(f"  {key:<20} {value}")
+        print(f"  {key:<20} {_show(value)}")
     if departures:
         print(f"departures from the {domain.name} ODE:")
         for line in departures:
@@ -95,3 +47,33 @@ def _inspect_domain(domain, model: str, json_path, write_json) -> int:
     if json_path is not None:
         write_json(json_path, json.loads(json.dumps({**facts, "departures": departures})))
     return 0
+
+
+def _show(value) -> str:
+    if isinstance(value, dict):
+        return ", ".join(f"{k} {_show(v)}" for k, v in value.items())
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+        return "; ".join(value)
+    return str(value)
+
+
+def _domain_of(model: str):
+    """The domain whose machine the MJCF looks like (ScenarioError: none, or unreadable)."""
+    import mujoco
+
+    from tspend.errors import ScenarioError
+    from tspend.plants.registry import DOMAINS
+
+    if not Path(model).is_file():
+        raise ScenarioError(f"{model}: model file not found")
+    try:
+        spec = mujoco.MjSpec.from_file(str(model))
+    except ValueError as exc:
+        raise ScenarioError(f"{model}: cannot parse MJCF: {exc}") from exc
+    kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
+    found = next((d for d in DOMAINS.values() if d.fits_mjcf(kinds)), None)
+    if found is None:
+        readers = ", ".join(d.name for d in DOMAINS.values() if d.mujoco_kind() is not None)
+        raise ScenarioError(f"{model}: no plant domain reads a model with joints "
+                            f"({', '.join(kinds) or 'none'}) (domains reading MJCF: {readers})")
+    return found

@@ -407,8 +407,12 @@ def release_warnings(args: argparse.Namespace) -> None:
     """
     held = getattr(args, "warnings", None)
     if held:
+        # a command that builds its plant more than once (the cross-check) warns once
+        shown = args.__dict__.setdefault("warnings_shown", set())
         for message in dict.fromkeys(str(w.message) for w in held):
-            say(f"warning: {message}")
+            if message not in shown:
+                shown.add(message)
+                say(f"warning: {message}")
         held.clear()
 
 

@@ -152,12 +152,12 @@ def _cartpole(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
     from tspend.plants.cartpole_physics import accelerations_factory
 
     def factory(sin, cos, tanh):
-        accel = accelerations_factory(sin, cos, tanh)
+        accel = accelerations_factory(sin, cos, tanh)[0]
 
         def q_dd(s, u):
             # s = [slider, hinge, slider_dot, hinge_dot]; the domain's order is
             # (theta'', x''); no disturbance in a controller's model
-            thdd, xdd = accel(machine, s[1], s[3], s[2], u, 0.0)
+            thdd, xdd = accel(machine, s[1], s[3], s[0], s[2], u, 0.0)
             return xdd, thdd
 
         return q_dd
@@ -165,7 +165,8 @@ def _cartpole(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
     return FullModel(domain="cartpole", state_names=names, accel_factory=factory, pole=1,
                      actuated=0, angles=(False, True, False, False), u_lo=u_lo, u_hi=u_hi,
                      q_lo=q_lo, q_hi=q_hi,
-                     pole_inertia=machine.J, mgl=machine.m * machine.g * machine.l,
+                     pole_inertia=machine.J,
+                     mgl=machine.m * machine.g * machine.l * machine.gravity_coupling,
                      parameters=params)
 
 

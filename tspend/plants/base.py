@@ -148,6 +148,16 @@ class Plant(ABC):
         """How the plant departs from the paper's ODE (one line each; MJCF models)."""
         return []
 
+    def unmodelled(self, dt: float | None = None) -> list[str]:
+        """What the domain's ODE of this plant does not reproduce (the cross-check names
+        only these); by default every departure."""
+        return self.departures(dt)
+
+    def constraint_active(self) -> str:
+        """A constraint (a joint limit, a contact) the plant applies now, in words; ""
+        when none (an ODE has none): the cross-check compares open loop up to it."""
+        return ""
+
     def compiled(self) -> Any:
         """The plant for a compiled closed loop (:class:`tspend.plants.analytic.CompiledPlant`),
         or None: the generic loop steps it."""

@@ -60,10 +60,26 @@ class CartPoleConfig(PlantConfig):
     hinge_friction: float = field(default=0.0, metadata=_at_least_zero())
 
 
+#: the [plant] keys of cartpole_mujoco that write a number into the model (0: the model's own)
+MODEL_OVERRIDES = ("M", "m", "l", "J", "g")
+
+
 @dataclass(frozen=True)
 class MujocoCartPoleConfig(CartPoleConfig):
-    """A cart-pole MJCF stepped by MuJoCo; M, m, l, J, g and friction are written into it."""
+    """A cart-pole MJCF stepped by MuJoCo, as it is: its masses, geometry, actuator and
+    limits are the model's own.
 
+    ``M``, ``m``, ``l``, ``J`` and ``g`` are *overrides* (docs/third-party-models.md):
+    0, the default, keeps the model's value; a positive value is written into the model
+    before it compiles and verified on the compiled model (J: the uniform rod's 4/3 m l^2
+    when m or l is set and J is not).  The damping and friction keys likewise replace the
+    model's joint values when not 0.
+    """
+
+    M: float = field(default=0.0, metadata=_at_least_zero())
+    m: float = field(default=0.0, metadata=_at_least_zero())
+    l: float = field(default=0.0, metadata=_at_least_zero())
+    g: float = field(default=0.0, metadata=_at_least_zero())
     #: model file (relative to the cwd, the scenario or the project root) and its names
     model: str = "models/cartpole.xml"
     slide_joint: str = "slider"
@@ -74,9 +90,14 @@ class MujocoCartPoleConfig(CartPoleConfig):
                                                               "implicitfast")})
     #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
     timestep: float = field(default=0.0, metadata=_at_least_zero())
-    #: false keeps the model's own masses, COM and inertia (M, m, l, J are then ignored)
+    #: false ignores the override keys M, m, l, J, g (the model's own numbers)
     override_inertials: bool = True
 
+    def overrides(self) -> dict[str, float]:
+        """The override keys set (name -> value): what the model is changed by."""
+        if not self.override_inertials:
+            return {}
+        return {k: float(getattr(self, k)) for k in MODEL_OVERRIDES if getattr(self, k) > 0.0}
 
 
 COMPILED_RHS[CartPoleMachine] = machine_rhs
@@ -96,7 +117,7 @@ class CartPoleODE(AnalyticPlant):
                  hinge_joint: str = "hinge",
                  joint_ranges: dict[str, tuple[float, float]] | None = None) -> None:
         names = (slide_joint, hinge_joint, velocity_name(slide_joint), velocity_name(hinge_joint))
-        super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d)[0],
+        super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
                          2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
                          domain="cartpole", state_names=names,
                          state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
@@ -147,7 +168,7 @@ def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], f
     machine = p.machine()
 
     def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
-        return machine_accelerations(machine, x[0], x[1], 0.0, u, d)[0]
+        return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
 
     return accel
 
@@ -163,13 +184,16 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
 
     assert isinstance(cfg, CartPoleConfig)
-    mj = cfg if isinstance(cfg, MujocoCartPoleConfig) else MujocoCartPoleConfig(
-        **{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
+    if isinstance(cfg, MujocoCartPoleConfig):
+        mj, overrides = cfg, cfg.overrides()
+    else:
+        # an ODE scenario on the MJCF: its machine is explicit, every number written
+        mj = MujocoCartPoleConfig(**{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
+        overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
     return MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
-                          actuator=mj.actuator,
-                          overrides=params_of(mj) if mj.override_inertials else None,
+                          actuator=mj.actuator, overrides=overrides,
                           integrator=mj.integrator or None, timestep=mj.timestep or None,
                           task_defaults=DOMAIN.task, **friction)
 
@@ -379,6 +403,8 @@ class CartPoleDrawing(Drawing):
 
 #: the cross-check's open-loop chirp: amplitude per kg of total mass
 CHIRP_N_PER_KG = 100.0 / 11.0
+#: the chirp's first frequency, Hz (tspend.studies.crosscheck)
+CHIRP_F0_HZ = 0.1
 
 
 class CartPoleDomain(Domain):
@@ -424,14 +450,44 @@ class CartPoleDomain(Domain):
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return "slide" in joint_types
 
+    def inspect(self, model_path: str, names: dict[str, str] | None = None,
+                dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
+        """The compiled model's facts (:mod:`tspend.plants.mjcf`), what the ODE of it leaves
+        out (``unmodelled``) and the largest force its actuator can apply at rest; the
+        departures from the paper's ideal cart-pole.  ``names``: ``slide``, ``hinge``,
+        ``actuator`` (default: the model's only one of each)."""
+        from tspend.plants.mujoco_plant import MujocoCartPole, guess_names
+
+        names = names or {}
+        slide, hinge, actuator = guess_names(model_path, names.get("slide"), names.get("hinge"),
+                                             names.get("actuator"))
+        plant = MujocoCartPole(model_path, slide_joint=slide, hinge_joint=hinge,
+                               actuator=actuator)
+        facts = {"slide_joint": slide, "hinge_joint": hinge, "actuator_name": actuator,
+                 **plant.facts.to_json()}
+        facts.pop("departures")
+        facts["unmodelled"] = plant.unmodelled(dt)
+        act = plant.facts.actuator
+        facts["max_force_at_rest"] = act.max_force_at_rest() if act is not None else None
+        return facts, plant.departures(dt)
+
     def view_names(self, plant: Plant) -> tuple[str, ...]:
         hinge = plant.state_names[1]  # the MJCF's own name of the pole's hinge
         return (hinge, f"{hinge}_dot")
 
     def chirp_amplitude(self, plant: Plant) -> float:
-        """100 N on the paper's 11 kg machine, scaled with the total mass (per unit gear)."""
+        """100 N on the paper's 11 kg machine, scaled with the total mass (in units of u:
+        divided by the force per unit u); on a limited rail at most the force that swings
+        the cart over half its range at the chirp's first 0.1 Hz, so the comparison runs
+        longer before the cart meets the rail's end."""
         p: CartPoleParams = plant.params  # type: ignore[attr-defined]
-        return CHIRP_N_PER_KG * (p.M + p.m) / abs(p.gear)
+        force = CHIRP_N_PER_KG * (p.M + p.m)
+        slide = plant.state_names[0]
+        rail = next((j.range for j in plant.joints if j.name == slide and j.range), None)
+        if rail is not None:
+            half = 0.5 * (rail[1] - rail[0])
+            force = min(force, 0.5 * half * (p.M + p.m) * (2.0 * math.pi * CHIRP_F0_HZ) ** 2)
+        return force / abs(p.force_per_u)
 
     def ode_of(self, plant: Plant) -> Plant:
         """The ODE of the MuJoCo ``plant``'s machine, with its joints' names and ranges."""

@@ -1,18 +1,43 @@
-"""The cart-pole's equations of motion, written once (docs/paper-notes.md section 7).
+"""The cart-pole's equations of motion, written once (docs/paper-notes.md section 7,
+docs/third-party-models.md for the general geometry).
 
-Coordinates: cart position ``x`` along the rail, pole angle ``theta`` from the upright,
-``theta > 0`` leaning the pole toward -x.  With the pole's mass ``m`` at ``l`` from the
-pivot, its inertia ``J`` about the pivot and the cart's mass ``M``, Lagrange gives
+Coordinates: cart position ``x`` along the rail (the slide joint's axis ``s``), pole
+angle ``q`` (the hinge's own coordinate, axis ``a``).  The paper's angle is
+``theta = sigma q`` (``sigma = theta_sign``: +1 when ``q > 0`` leans the pole toward -x,
+the paper's convention).  The pole (mass ``m``, inertia ``J`` about the hinge axis,
+centre of mass ``c`` anywhere in its frame, at distance ``l`` from the axis) turns
+about ``a``, which may point anywhere not parallel to ``s``.  Its centre of mass then
+moves along the rail by ``X(q)`` and up (against gravity) by ``H(q)``:
 
-    (M + m) x''          - m l cos(theta) theta'' = Q_x     - m l sin(theta) theta'^2   (C1)
-    - m l cos(theta) x'' + J theta''              = Q_theta + m g l sin(theta)         (C2)
+    X(q) = -l k_r sin(sigma q + phi_r),      H(q) = l k_g cos(sigma q + phi_g)
 
-with the generalised forces ``Q_x = u - b_x x' - F_x dry(x')`` (the motor force, viscous
-and dry friction at the cart) and ``Q_theta = tau - b_th theta' - F_th dry(theta')``.
-For the paper's uniform rod ``J = 4/3 m l^2``, no friction and ``tau = -d_d m l / (M + m)``
-this is exactly Example 3's ODE
+``k_r`` is the part of the pole's rotation plane the rail sees (1 when ``a`` is
+perpendicular to ``s``), ``k_g`` the part gravity sees (1 for a horizontal axis),
+``phi_r``, ``phi_g`` the lean of the centre of mass off the pole's line (0 for a pole
+whose COM is on the line through the pivot).  With ``Mt = M + m`` (``M`` all the slider
+carries besides the pole, with the slide's armature; ``J`` with the hinge's), the
+Lagrangian ``T = 1/2 Mt x'^2 + m X'(q) x' q' + 1/2 J q'^2``, ``V = m g H(q) - Mt g_s x``
+(``g_s``: gravity along the rail) gives
+
+    Mt x''      + m X'(q) q'' = Q_x + Mt g_s + m X(q) q'^2                         (C1)
+    m X'(q) x'' + J q''       = Q_q - m g H'(q)                                    (C2)
+
+with ``Q_x = F(u, x, x') - b_x x' - F_x dry(x') - k_x (x - x_ref)`` (the actuator's
+force, viscous and dry friction, a spring at the cart) and ``Q_q = tau - b_q q' - F_q
+dry(q') - k_q (q - q_ref)``.  For the paper's machine (``k = 1``, ``phi = 0``, uniform
+rod ``J = 4/3 m l^2``, no friction, ``tau = -d_d m l / (M + m)``) this is exactly
+Example 3's ODE
 
     theta'' = (m l w^2 sin cos - (M+m) g sin - u cos + d_d) / (m l cos^2 - 4/3 l (M+m)).
+
+The actuator is MuJoCo's (``mjTRN_JOINT`` on the slide, no activation dynamics):
+
+    F = clip(gear clip((g0 + g1 L + g2 V) clip(u, ctrl) + b0 + b1 L + b2 V, force), joint)
+
+with ``L = gear x``, ``V = gear x'`` (a motor: ``g0 = 1``, the rest 0; a velocity
+actuator: ``g0 = kv``, ``b2 = -kv``; a position actuator: ``g0 = kp``, ``b1 = -kp``,
+``b2 = -kv``), clipped by ``ctrlrange``, ``forcerange`` and the joint's
+``actuatorfrcrange`` where each is set.
 
 Dry friction is smooth here, ``F tanh(v / v_s)``, so an RK4 step stays well defined; MuJoCo's
 ``frictionloss`` is a soft constraint instead, so on dry friction the two backends agree
@@ -22,27 +47,36 @@ in kind, not to rounding (the cross-check names it as a departure).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 import numpy as np
 from numba.extending import register_jitable
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
-           "gain_sign", "machine_accelerations", "machine_rhs", "rhs"]
+           "actuator_force", "gain_sign", "machine_accelerations", "machine_rhs", "rhs"]
 
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
 DRY_FRICTION_SLIP = 1e-3
+
+INF = math.inf
 
 
 @dataclass(frozen=True)
 class CartPoleParams:
     """One cart-pole machine: the paper's M, m, l, g, and what a real rig adds.
 
-    ``J`` is the pole's inertia about the pivot (0 = the uniform rod's 4/3 m l^2);
-    ``gear`` is the force in newtons per unit of u; ``theta_sign`` is -1 when the
-    model's positive angle leans the pole toward +x (a reversed hinge axis).
+    ``J`` is the pole's inertia about the hinge axis (0 = the uniform rod's 4/3 m l^2);
+    ``theta_sign`` is -1 when the model's positive angle leans the pole toward +x (a
+    reversed hinge axis).  ``rail_coupling``, ``rail_phase``, ``gravity_coupling``,
+    ``gravity_phase`` and ``rail_gravity`` are the geometry of the module docstring
+    (``k_r``, ``phi_r``, ``k_g``, ``phi_g``, ``g_s``; the paper's pole: 1, 0, 1, 0, 0).
+    The actuator: ``gear`` (transmission), ``gain`` (``g0``; the force per unit u of a
+    motor is ``gear gain``), ``gain_length``, ``gain_velocity`` (``g1``, ``g2``),
+    ``bias``, ``bias_length``, ``bias_velocity`` (``b0``, ``b1``, ``b2``) and its ranges
+    (``ctrl_*`` on u, ``force_*`` on the actuator's force, ``joint_force_*`` on the
+    force at the joint; +/-inf: none).
     """
 
     M: float = 10.0
@@ -56,6 +90,27 @@ class CartPoleParams:
     hinge_friction: float = 0.0
     gear: float = 1.0
     theta_sign: float = 1.0
+    rail_coupling: float = 1.0
+    rail_phase: float = 0.0
+    gravity_coupling: float = 1.0
+    gravity_phase: float = 0.0
+    rail_gravity: float = 0.0
+    cart_stiffness: float = 0.0
+    cart_spring_ref: float = 0.0
+    hinge_stiffness: float = 0.0
+    hinge_spring_ref: float = 0.0
+    gain: float = 1.0
+    gain_length: float = 0.0
+    gain_velocity: float = 0.0
+    bias: float = 0.0
+    bias_length: float = 0.0
+    bias_velocity: float = 0.0
+    ctrl_min: float = -INF
+    ctrl_max: float = INF
+    force_min: float = -INF
+    force_max: float = INF
+    joint_force_min: float = -INF
+    joint_force_max: float = INF
 
     @property
     def pole_inertia_pivot(self) -> float:
@@ -67,13 +122,21 @@ class CartPoleParams:
         enters the paper's numerator (exact for the rod, the paper's meaning otherwise)."""
         return -self.m * self.l / (self.M + self.m)
 
+    @property
+    def force_per_u(self) -> float:
+        """The cart force per unit u at rest, N (``gear gain``)."""
+        return self.gear * self.gain
+
+    def finite(self) -> dict[str, float]:
+        """The parameters as plain numbers, leaving out the ranges that are not set (inf)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)
+                if math.isfinite(getattr(self, f.name))}
+
     def machine(self) -> "CartPoleMachine":
         """These parameters as compiled code reads them (the properties resolved)."""
-        return CartPoleMachine(
-            M=self.M, m=self.m, l=self.l, g=self.g, J=self.pole_inertia_pivot,
-            disturbance_torque=self.disturbance_torque, cart_damping=self.cart_damping,
-            hinge_damping=self.hinge_damping, cart_friction=self.cart_friction,
-            hinge_friction=self.hinge_friction, gear=self.gear, theta_sign=self.theta_sign)
+        values = {f.name: float(getattr(self, f.name)) for f in fields(self)}
+        values["J"] = self.pole_inertia_pivot
+        return CartPoleMachine(disturbance_torque=self.disturbance_torque, **values)
 
 
 class CartPoleMachine(NamedTuple):
@@ -85,75 +148,139 @@ class CartPoleMachine(NamedTuple):
     l: float
     g: float
     J: float
-    disturbance_torque: float
     cart_damping: float
     hinge_damping: float
     cart_friction: float
     hinge_friction: float
     gear: float
     theta_sign: float
+    rail_coupling: float
+    rail_phase: float
+    gravity_coupling: float
+    gravity_phase: float
+    rail_gravity: float
+    cart_stiffness: float
+    cart_spring_ref: float
+    hinge_stiffness: float
+    hinge_spring_ref: float
+    gain: float
+    gain_length: float
+    gain_velocity: float
+    bias: float
+    bias_length: float
+    bias_velocity: float
+    ctrl_min: float
+    ctrl_max: float
+    force_min: float
+    force_max: float
+    joint_force_min: float
+    joint_force_max: float
+    disturbance_torque: float
 
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
         machine_rhs(self, t, s, u, d, sdot)
 
 
+def _clip_functions(tanh):
+    """``(fmin, fmax)`` over the numbers ``tanh`` works on: Python's for ``math``,
+    CasADi's for its symbols (a clip on a symbol cannot branch)."""
+    if tanh is math.tanh:
+        return min, max
+    import casadi
+
+    return casadi.fmin, casadi.fmax
+
+
 def accelerations_factory(sin, cos, tanh):
-    """``(theta'', x'')`` of (C1)-(C2) built over the math functions ``(sin, cos, tanh)``.
+    """``(q'', x'')`` of (C1)-(C2) built over the math functions ``(sin, cos, tanh)``.
 
     The equations are written once, here: ``math``'s functions give
     :func:`machine_accelerations` (plain Python, and inlined by numba into compiled
     loops); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)`` give the same expressions
     symbolically, for nonlinear MPC (:mod:`tspend.controllers.mpc`).  The parameters
-    ``p`` are numbers in both cases (the branch on a friction force is on a number).
+    ``p`` are numbers in both cases (the branches on a friction force or a range are on
+    numbers).
     """
+    fmin, fmax = _clip_functions(tanh)
 
     @register_jitable
     def dry(force, v):
         return force * tanh(v / DRY_FRICTION_SLIP) if force > 0.0 else 0.0
 
-    def accelerations_of(p, theta, w, cart_vel, u, d):
-        s_th = p.theta_sign
-        th, om = s_th * theta, s_th * w
-        sn, cs = sin(th), cos(th)
-        ml, mm = p.m * p.l, p.M + p.m
-        q_x = p.gear * u - p.cart_damping * cart_vel - dry(p.cart_friction, cart_vel) - ml * sn * om * om
-        # the hinge's own torques act on the model's angle; in the paper's they change sign
-        q_model = p.disturbance_torque * d - p.hinge_damping * w - dry(p.hinge_friction, w)
-        q_th = s_th * q_model + ml * p.g * sn
-        b = ml * cs
-        J = p.J
-        det = mm * J - b * b
-        thdd = (mm * q_th + b * q_x) / det
-        xdd = (J * q_x + b * q_th) / det
-        return s_th * thdd, xdd
+    @register_jitable
+    def clip(v, lo, hi):
+        if lo > -INF:
+            v = fmax(v, lo)
+        if hi < INF:
+            v = fmin(v, hi)
+        return v
 
-    return accelerations_of
+    def force_of(p, cart_pos, cart_vel, u):
+        length, speed = p.gear * cart_pos, p.gear * cart_vel
+        uc = clip(u, p.ctrl_min, p.ctrl_max)
+        force = ((p.gain + p.gain_length * length + p.gain_velocity * speed) * uc
+                 + p.bias + p.bias_length * length + p.bias_velocity * speed)
+        return clip(p.gear * clip(force, p.force_min, p.force_max),
+                    p.joint_force_min, p.joint_force_max)
+
+    def accelerations_of(p, q, w, cart_pos, cart_vel, u, d):
+        sg = p.theta_sign
+        ar, ag = sg * q + p.rail_phase, sg * q + p.gravity_phase
+        lr, lg = p.m * p.l * p.rail_coupling, p.m * p.l * p.gravity_coupling
+        mm = p.M + p.m
+        q_x = (force_of(p, cart_pos, cart_vel, u) - p.cart_damping * cart_vel
+               - dry(p.cart_friction, cart_vel) - p.cart_stiffness * (cart_pos - p.cart_spring_ref))
+        q_q = (p.disturbance_torque * d - p.hinge_damping * w - dry(p.hinge_friction, w)
+               - p.hinge_stiffness * (q - p.hinge_spring_ref))
+        b = -sg * lr * cos(ar)                               # m X'(q)
+        rhs_x = q_x + mm * p.rail_gravity - lr * sin(ar) * w * w
+        rhs_q = q_q + sg * lg * p.g * sin(ag)                # - m g H'(q)
+        det = mm * p.J - b * b
+        return (mm * rhs_q - b * rhs_x) / det, (p.J * rhs_x - b * rhs_q) / det
+
+    return accelerations_of, force_of
 
 
-#: ``(theta'', x'')`` of (C1)-(C2) in the model's angle convention (``theta_sign``), as
-#: ``machine_accelerations(p: CartPoleMachine, theta, w, cart_vel, u, d)``: plain Python
-#: when called from Python; compiled inline when called from numba code (the compiled
-#: closed loop, :mod:`tspend.loop.fastloop`)
-machine_accelerations = register_jitable(accelerations_factory(math.sin, math.cos, math.tanh))
+_numeric, _force = accelerations_factory(math.sin, math.cos, math.tanh)
+
+#: ``(q'', x'')`` of (C1)-(C2) in the model's angle convention, as
+#: ``machine_accelerations(p: CartPoleMachine, q, w, cart_pos, cart_vel, u, d)``: plain
+#: Python when called from Python; compiled inline when called from numba code (the
+#: compiled closed loop, :mod:`tspend.loop.fastloop`)
+machine_accelerations = register_jitable(_numeric)
+#: the actuator's force at the cart, ``F(u, x, x')`` of the module docstring
+machine_force = register_jitable(_force)
+
+
+def _as_machine(p: CartPoleParams | CartPoleMachine) -> CartPoleMachine:
+    return p if isinstance(p, CartPoleMachine) else p.machine()
 
 
 def accelerations(p: CartPoleParams | CartPoleMachine, theta: float, w: float,
-                  cart_vel: float, u: float, d: float) -> tuple[float, float]:
-    """``(theta'', x'')`` of (C1)-(C2), evaluated in Python (pass a :class:`CartPoleMachine`
+                  cart_vel: float, u: float, d: float, cart_pos: float = 0.0
+                  ) -> tuple[float, float]:
+    """``(q'', x'')`` of (C1)-(C2), evaluated in Python (pass a :class:`CartPoleMachine`
     when calling often: resolving the parameters each call costs more than the math)."""
-    machine = p if isinstance(p, CartPoleMachine) else p.machine()
-    return machine_accelerations(machine, theta, w, cart_vel, u, d)
+    return machine_accelerations(_as_machine(p), theta, w, cart_pos, cart_vel, u, d)
+
+
+def actuator_force(p: CartPoleParams | CartPoleMachine, u: float, cart_pos: float = 0.0,
+                   cart_vel: float = 0.0) -> float:
+    """The force the actuator applies at the cart, N (ranges applied)."""
+    return machine_force(_as_machine(p), cart_pos, cart_vel, u)
 
 
 def gain_sign(p: CartPoleParams) -> float:
-    """Sign of d(theta'')/du at the upright, at rest: Assumption 5's sign."""
-    return math.copysign(1.0, accelerations(p, 0.0, 0.0, 0.0, 1.0, 0.0)[0]
-                         - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
+    """Sign of d(q'')/du at the upright, at rest: Assumption 5's sign (0: u cannot
+    move the pole, a hinge parallel to the rail)."""
+    diff = (accelerations(p, 0.0, 0.0, 0.0, 1e-3, 0.0)[0]
+            - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
+    return 0.0 if diff == 0.0 else math.copysign(1.0, diff)
 
 
 def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) -> np.ndarray:
-    """Derivative of ``[theta, theta', x, x']``."""
-    thdd, xdd = accelerations(p, s[0], s[1], s[3], u, d)
+    """Derivative of ``[q, q', x, x']``."""
+    thdd, xdd = accelerations(p, s[0], s[1], s[3], u, d, s[2])
     return np.array([s[1], thdd, s[3], xdd])
 
 
@@ -161,10 +288,8 @@ def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) 
 def machine_rhs(p: CartPoleMachine, t: float, s: np.ndarray, u: float, d: float,
                 sdot: np.ndarray) -> None:
     """:func:`rhs` into ``sdot``, for :func:`tspend.plants.analytic.rk4_step`."""
-    thdd, xdd = machine_accelerations(p, s[0], s[1], s[3], u, d)
+    thdd, xdd = machine_accelerations(p, s[0], s[1], s[2], s[3], u, d)
     sdot[0] = s[1]
     sdot[1] = thdd
     sdot[2] = s[3]
     sdot[3] = xdd
-
-

@@ -226,8 +226,11 @@ class Domain(ABC):
         domain's machine (``tspend inspect`` picks the domain by it)."""
         return False
 
-    def inspect(self, model_path: str) -> tuple[dict[str, Any], list[str]]:
-        """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``)."""
+    def inspect(self, model_path: str, names: dict[str, str] | None = None,
+                dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
+        """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``;
+        ``names``: the joints and actuator by role, e.g. ``{"slide": "cart_x"}``; ``dt``:
+        the sample time to check the timestep against)."""
         raise NotImplementedError(f"domain {self.name!r} does not read MJCF files")
 
     def view_names(self, plant: Plant) -> tuple[str, ...]:

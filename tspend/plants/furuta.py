@@ -410,7 +410,8 @@ class FurutaDomain(Domain):
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
 
-    def inspect(self, model_path: str) -> tuple[dict[str, Any], list[str]]:
+    def inspect(self, model_path: str, names: dict[str, str] | None = None,
+                dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
         """The model read back as the Furuta ODE's parameters, with the upright's
         linearisation's open-loop poles."""
         plant = MujocoFuruta(model_path)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from dataclasses import replace
 from typing import Any, Final, NamedTuple
 
 import mujoco
@@ -32,6 +33,10 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import CartPoleParams
+
+#: the machine's numbers a scenario can write into a model (``[plant]`` keys of
+#: ``cartpole_mujoco``; docs/third-party-models.md)
+OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
 INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
@@ -54,6 +59,8 @@ _MJ_MAXVAL: Final[float] = 1e10
 _DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
 
 BodyPose = tuple[np.ndarray, np.ndarray]
+
+_ONE_DOF: Final[tuple[int, ...]] = (int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE))
 
 
 class MujocoLink(NamedTuple):
@@ -124,9 +131,11 @@ class MujocoCartPole(Plant):
     slide_joint, hinge_joint, actuator:
         names of the cart's slide joint, the pole's hinge and the motor on the slider.
     overrides:
-        if given, the model's M, m, l and g are replaced by these before compiling: the
-        pole's COM moves to ``l`` from the pivot along the pole, its inertia becomes the
-        uniform rod's ``m (2l)^2 / 12`` and the pole's visual geoms stretch with it.
+        what to write into the model before compiling (verified on the compiled model):
+        a dict of some of M, m, l, J, g (the rest stay the model's own), or a
+        :class:`CartPoleParams` for all of them.  The pole's COM moves to ``l`` from the
+        pivot along the pole, its inertia becomes J (the uniform rod's 4/3 m l^2 unless
+        given) and the pole's visual geoms stretch with it.  None: the model as it is.
     integrator:
         ``"RK4"`` (the model's default, matches the ODE), ``"Euler"``, ``"implicit"`` or
         ``"implicitfast"``; only for the cross-check's contrast figures.
@@ -149,7 +158,7 @@ class MujocoCartPole(Plant):
 
     def __init__(self, model_path: str | Path, slide_joint: str = "slider",
                  hinge_joint: str = "hinge", actuator: str = "force",
-                 overrides: CartPoleParams | None = None,
+                 overrides: CartPoleParams | dict[str, float] | None = None,
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
                  cart_friction: float | None = None, hinge_friction: float | None = None,
@@ -189,13 +198,15 @@ class MujocoCartPole(Plant):
                 joint.damping = [damping, 0.0, 0.0]
             if friction is not None:
                 joint.frictionloss = friction
-        if overrides is not None:
+        keys, target = self._override_keys(spec, overrides, slide_joint, hinge_joint,
+                                           actuator, where)
+        if keys:
             pivot = np.asarray(hinge.pos, dtype=float)
             axis = mjcf._pole_direction(hinge.parent, pivot)
             old_l = float(np.linalg.norm(np.asarray(hinge.parent.ipos, dtype=float) - pivot))
-            mjcf.apply_overrides(spec, slide.parent, hinge, overrides, where)
-            if old_l > 0.0 and overrides.l != old_l:
-                self._stretch_pole_geoms(hinge.parent, pivot, axis, overrides.l / old_l)
+            mjcf.apply_overrides(spec, slide.parent, hinge, target, where, keys)
+            if "l" in keys and old_l > 0.0 and target.l != old_l:
+                self._stretch_pole_geoms(hinge.parent, pivot, axis, target.l / old_l)
 
         try:
             self.model: mujoco.MjModel = spec.compile()
@@ -221,9 +232,12 @@ class MujocoCartPole(Plant):
         self._ts = float(m.opt.timestep)
 
         self.facts = mjcf.read_facts(m, slide_joint, hinge_joint, actuator, where)
-        if overrides is not None:
-            mjcf.verify_overrides(self.facts, overrides, m.body(self._cart_body).name,
-                                  m.body(self._pole_body).name, where)
+        if keys:
+            checked = keys | ({"J"} if keys & {"m", "l", "J"} else set())
+            mjcf.verify_overrides(self.facts, target, m.body(self._cart_body).name,
+                                  m.body(self._pole_body).name, where, frozenset(checked))
+        #: what the scenario wrote into the model (name -> value); empty: the model's own
+        self.overridden: dict[str, float] = {k: float(getattr(target, k)) for k in sorted(keys)}
         self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
         self._d_to_tau = self._params.disturbance_torque
@@ -249,6 +263,32 @@ class MujocoCartPole(Plant):
             raise ScenarioError(f"{where}: joint {name!r} is a {actual} joint, "
                                 f"expected a {kind} joint")
         return joint
+
+    @staticmethod
+    def _override_keys(spec: mujoco.MjSpec, overrides: "CartPoleParams | dict[str, float] | None",
+                       slide: str, hinge: str, actuator: str, where: str
+                       ) -> tuple[frozenset[str], CartPoleParams]:
+        """Which of M, m, l, J, g to write, and the machine they make: all of them for a
+        :class:`CartPoleParams`; for a dict the keys given, the model's own values for the
+        rest (J: the uniform rod's when m or l changes and J is not given)."""
+        if overrides is None or (isinstance(overrides, dict) and not overrides):
+            return frozenset(), CartPoleParams()
+        if isinstance(overrides, CartPoleParams):
+            return frozenset("MmlJg"), overrides
+        unknown = sorted(set(overrides) - set(OVERRIDABLE))
+        if unknown:
+            raise ScenarioError(f"{where}: cannot override {', '.join(unknown)} (overridable: "
+                                f"{', '.join(OVERRIDABLE)})")
+        try:
+            own = mjcf.read_facts(spec.compile(), slide, hinge, actuator, where)
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        base = CartPoleParams(M=own.cart_mass, m=own.pole_mass, l=own.pole_com, g=own.gravity,
+                              J=own.pole_inertia_pivot)
+        values = dict(overrides)
+        if ("m" in values or "l" in values) and "J" not in values:
+            values["J"] = 0.0
+        return frozenset(overrides), replace(base, **values)
 
     @staticmethod
     def _stretch_pole_geoms(pole: Any, pivot: np.ndarray, axis: np.ndarray, scale: float) -> None:
@@ -353,8 +393,31 @@ class MujocoCartPole(Plant):
         return self._inputs
 
     def parameters(self) -> dict[str, float]:
-        """The machine as compiled (:attr:`params`: read back from the compiled model)."""
-        return {k: float(v) for k, v in self._params.__dict__.items()}
+        """The machine as compiled (:attr:`params`: read back from the compiled model;
+        ranges that are not set left out)."""
+        return self._params.finite()
+
+    def unmodelled(self, dt: float | None = None) -> list[str]:
+        """What the ODE of this model (:attr:`params`) does not reproduce."""
+        return mjcf.unmodelled(self.facts, dt)
+
+    def constraint_active(self) -> str:
+        """What constraint MuJoCo applies now or at its next step ("" = none): a limited
+        joint at or beyond its range, or a contact (the last one found)."""
+        m, d = self.model, self.data
+        for j in range(m.njnt):
+            if m.jnt_limited[j] and int(m.jnt_type[j]) in _ONE_DOF:
+                q = float(d.qpos[m.jnt_qposadr[j]])
+                lo, hi = (float(v) for v in m.jnt_range[j])
+                margin = float(m.jnt_margin[j])
+                if q <= lo + margin or q >= hi - margin:
+                    return (f"joint '{m.joint(j).name}' reached its range [{lo:g}, {hi:g}] "
+                            f"(at {q:.6g})")
+        if d.ncon > 0:
+            c = d.contact[0]
+            return (f"contact between geoms '{m.geom(int(c.geom[0])).name}' and "
+                    f"'{m.geom(int(c.geom[1])).name}'")
+        return ""
 
     @property
     def cart_joints(self) -> tuple[JointInfo, JointInfo]:
@@ -410,7 +473,6 @@ class MujocoCartPole(Plant):
         m.body_mass[cart] = p.M - carried
         m.body_subtreemass[cart] = p.M + p.m
         m.body_subtreemass[pole] = p.m
-        from dataclasses import replace
         self._params = replace(self._params, M=p.M, m=p.m, l=p.l, J=p.J)
         self._d_to_tau = self._params.disturbance_torque
 

@@ -179,6 +179,8 @@ def verdict_markdown(report: dict) -> str:
     ok = report.get("open_loop_ok")
     head = "PASS" if ok else "FAIL" if ok is not None else "no verdict (no tolerance given)"
     lines = [f"# Cross-check {report.get('scenario', '')}: {head}", ""]
+    if report.get("verdict"):
+        lines += [str(report["verdict"]), ""]
     if tol is not None:
         tracked = report.get("open_loop_tracked", "x1")
         closed = ", ".join(f"max |d {k.removeprefix('closed_loop_max_d')}| = {_fmt(v)}"

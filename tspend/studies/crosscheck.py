@@ -41,7 +41,9 @@ def backends(scenario: Scenario) -> tuple[Domain, str, str]:
 
 def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
     """Max differences of every state between the backends under the same force and
-    disturbance: ``open_loop_max_d<state name>``."""
+    disturbance, ``open_loop_max_d<state name>``, up to the first time MuJoCo applies a
+    constraint the ODE does not have (a joint limit, a contact): ``open_loop_compared_s``
+    and ``open_loop_stopped_by`` say when and which."""
     domain, mj_kind, _ = backends(scenario)
     # the machine itself: effects (actuator, rail, noise) stay out of the open loop
     mj = build_plant(scenario, mj_kind)
@@ -61,17 +63,31 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
     cmp = open_loop_compare(mj, ode, np.asarray(scenario.plant.x0, dtype=float), force,
                             disturbance, duration, scenario.run.dt)
     tracked = domain.view_names(mj)[0]
-    out: dict = {"open_loop_duration": duration, "open_loop_tracked": tracked}
+    out: dict = {"open_loop_duration": duration, "open_loop_tracked": tracked,
+                 "open_loop_compared_s": cmp.compared_until,
+                 "open_loop_stopped_by": cmp.stopped_by}
     out.update({f"open_loop_max_d{name}": float(v) for name, v in zip(cmp.names, cmp.max_diff)})
     out["open_loop_max_tracked"] = cmp.max_of(tracked)
     out["ode_params"] = ode.parameters()
-    out["departures"] = mj.departures(scenario.run.dt)  # type: ignore[attr-defined]
+    # only what the ODE leaves out can explain a difference
+    out["departures"] = mj.unmodelled(scenario.run.dt)
     return out
 
 
+def parting(t: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float) -> tuple[float | None, float]:
+    """``(first time |a - b| > tol on any column, max |a - b|)``; None: they never part."""
+    if not len(t):
+        return None, math.nan
+    diff = np.abs(a - b).max(axis=1)
+    over = np.flatnonzero(~(diff <= tol))
+    return (float(t[over[0]]) if over.size else None), float(np.nanmax(diff))
+
+
 def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (),
-                stop: StopRequest | None = None) -> dict:
-    """The scenario's closed loop on both backends; sinks[0] sees MuJoCo, sinks[1] the ODE."""
+                stop: StopRequest | None = None, tol: float = 1e-8) -> dict:
+    """The scenario's closed loop on both backends; sinks[0] sees MuJoCo, sinks[1] the ODE.
+    ``closed_loop_parted_at_s``: the first time the views differ by more than ``tol``
+    (None: never), ``closed_loop_max_d<view name>`` the largest difference."""
     domain, mj_kind, ode_kind = backends(scenario)
     mj_sinks = [sinks[0]] if len(sinks) > 0 else []
     ode_sinks = [sinks[1]] if len(sinks) > 1 else []
@@ -80,7 +96,9 @@ def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (),
     k = min(len(a.history.get("t", ())), len(b.history.get("t", ())))
     xa, xb = a.history["x"][:k], b.history["x"][:k]
     diff = np.abs(xa - xb) if k else np.full((1, len(domain.task.view)), math.nan)
-    out: dict = {"closed_loop_duration": scenario.run.duration}
+    parted, _ = parting(a.history["t"][:k] if k else np.zeros(0), xa, xb, tol)
+    out: dict = {"closed_loop_duration": scenario.run.duration, "closed_loop_tol": tol,
+                 "closed_loop_parted_at_s": parted}
     out.update({f"closed_loop_max_d{name}": float(diff[:, i].max())
                 for i, name in enumerate(domain.task.view)})
     out.update({
@@ -93,18 +111,53 @@ def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (),
 
 
 def crosscheck(scenario: Scenario, sinks: Sequence[Sink] = (), open_loop_duration: float = 10.0,
-               stop: StopRequest | None = None) -> dict:
-    """Both parts of the cross-check as one flat report (the CLI's JSON)."""
+               stop: StopRequest | None = None, tol: float = 1e-8) -> dict:
+    """Both parts of the cross-check as one flat report (the CLI's JSON), with its verdict."""
     report = {"scenario": scenario.name, "dt": scenario.run.dt,
               "boundary_layer": scenario.controller.boundary_layer}
     report.update(open_loop(scenario, open_loop_duration))
-    report.update(closed_loop(scenario, sinks, stop))
+    report.update(closed_loop(scenario, sinks, stop, tol))
+    report["tolerance"] = tol
+    report["open_loop_ok"] = bool(report["open_loop_max_tracked"] <= tol)
+    report["verdict"] = verdict(report)
     return report
 
 
+def verdict(report: dict) -> str:
+    """The cross-check's finding in words: the open loop (how far it was compared, what
+    ended it), the closed loop (when and by how much the backends part) and, on a
+    failure, the departures the ODE leaves out."""
+    tol = report.get("tolerance", 1e-8)
+    tracked = report.get("open_loop_tracked", "x1")
+    worst = max((v for k, v in report.items() if k.startswith("open_loop_max_d")
+                 and isinstance(v, float)), default=math.nan)
+    open_part = (f"open loop {'agrees' if report.get('open_loop_ok') else 'DISAGREES'}: max "
+                 f"|d{tracked}| = {report.get('open_loop_max_tracked', math.nan):.3g} (every "
+                 f"state within {worst:.3g}) over {report.get('open_loop_compared_s', 0.0):.6g} s")
+    if report.get("open_loop_stopped_by"):
+        open_part += f", compared up to {report['open_loop_stopped_by']} (the ODE has no limits or contacts)"
+    parts = [open_part]
+    if not report.get("open_loop_ok"):
+        parts.append(failure_reason(report))
+    if "closed_loop_parted_at_s" in report:
+        parted = report["closed_loop_parted_at_s"]
+        status = (report.get("closed_loop_status_mujoco"), report.get("closed_loop_status_ode"))
+        biggest = max((v for k, v in report.items() if k.startswith("closed_loop_max_d")
+                       and isinstance(v, float)), default=math.nan)
+        if parted is None:
+            parts.append(f"closed loop: the backends stay within {tol:g} (max {biggest:.3g})")
+        else:
+            parts.append(f"closed loop: the backends part at t = {parted:.6g} s (difference > "
+                         f"{tol:g}) and differ by up to {biggest:.3g}")
+        if status[0] != status[1]:
+            parts.append(f"closed loop ends differ: MuJoCo {status[0]}, ODE {status[1]}")
+    return "; ".join(parts)
+
+
 def failure_reason(report: dict) -> str:
-    """Why an open-loop cross-check can fail: the model's departures the ODE cannot follow."""
+    """Why an open-loop cross-check can fail: what the ODE leaves out of the model."""
     lines = report.get("departures") or []
     if not lines:
-        return "no departure from the ODE found in the model: a bug in one of the backends"
-    return "the model departs from the ODE: " + "; ".join(lines)
+        return ("the model holds nothing the ODE leaves out: a bug in one of the backends "
+                "(no departure found)")
+    return "the ODE leaves out: " + "; ".join(lines)

@@ -37,6 +37,14 @@ class OpenLoopComparison:
     t: np.ndarray  #: sample times, s, including t = 0
     state_a: np.ndarray  #: (N + 1, S) full state of the first plant at each sample
     state_b: np.ndarray  #: (N + 1, S) full state of the second plant at each sample
+    #: what ended the comparison early ("" = it ran its whole length): a constraint the
+    #: first plant applies (a joint limit, a contact), which the second does not model
+    stopped_by: str = ""
+
+    @property
+    def compared_until(self) -> float:
+        """The last compared sample's time, s."""
+        return float(self.t[-1])
 
     def max_of(self, name: str) -> float:
         """max |a - b| of state ``name``."""
@@ -58,7 +66,10 @@ def open_loop_compare(plant_a: Plant, plant_b: Plant, x0: np.ndarray,
     ``d = disturbance_fn(t_k)`` held over each sample ``[t_k, t_k + dt)``, comparing their
     full states (ValueError when the plants name their states differently).
 
-    Any two Plant objects of one domain work (MuJoCo vs ODE, either vs a reference).
+    The comparison stops before the first sample at which ``plant_a`` applies a
+    constraint (:meth:`Plant.constraint_active`: a joint at its limit, a contact), since
+    the step into it already felt the constraint; ``stopped_by`` then says which, and
+    when.  Any two Plant objects of one domain work (MuJoCo vs ODE, either vs a reference).
     """
     if tuple(plant_a.state_names) != tuple(plant_b.state_names):
         raise ValueError(f"the plants name their states differently: {plant_a.state_names} "
@@ -70,11 +81,20 @@ def open_loop_compare(plant_a: Plant, plant_b: Plant, x0: np.ndarray,
     size = len(plant_a.state_names)
     sa, sb = np.empty((n + 1, size)), np.empty((n + 1, size))
     sa[0], sb[0] = plant_a.full_state(), plant_b.full_state()
-    for k in range(n):
+    stopped_by, last = "", n
+    active = plant_a.constraint_active()
+    if active:
+        stopped_by, last = f"{active} at t = 0 s: nothing compared", 0
+    for k in range(n if not active else 0):
         u, d = force_fn(float(t[k])), disturbance_fn(float(t[k]))
         plant_a.step(u, d, dt)
         plant_b.step(u, d, dt)
         sa[k + 1], sb[k + 1] = plant_a.full_state(), plant_b.full_state()
+        active = plant_a.constraint_active()
+        if active:
+            stopped_by, last = f"{active} at t = {t[k + 1]:.6g} s", k
+            break
+    sa, sb, t = sa[:last + 1], sb[:last + 1], t[:last + 1]
     return OpenLoopComparison(names=tuple(plant_a.state_names),
                               max_diff=np.max(np.abs(sa - sb), axis=0), t=t, state_a=sa,
-                              state_b=sb)
+                              state_b=sb, stopped_by=stopped_by)
