@@ -60,7 +60,8 @@ def default_plant() -> MujocoCartPole:
 
 
 def test_params_read_back(default_plant: MujocoCartPole) -> None:
-    assert default_plant.params == CartPoleParams(10.0, 1.0, 3.0, 9.8, J=pytest.approx(12.0, rel=1e-12))
+    assert default_plant.params == CartPoleParams(10.0, 1.0, 3.0, 9.8, J=pytest.approx(12.0, rel=1e-12),
+                                                  ctrl_min=-2000.0, ctrl_max=2000.0)
     assert default_plant.timestep == pytest.approx(1e-3)
     assert isinstance(default_plant, Plant)
 
@@ -71,7 +72,8 @@ def test_matches_solve_ivp_oracle(overrides: CartPoleParams | None) -> None:
     mj = MujocoCartPole(MODEL, overrides=overrides)
     p = mj.params
     if overrides is not None:
-        assert dataclasses.replace(p, J=0.0) == pytest.approx(overrides)
+        # the model's own motor range stays; the rest is what was asked for
+        assert dataclasses.replace(p, J=0.0, ctrl_min=-np.inf, ctrl_max=np.inf) == pytest.approx(overrides)
         assert p.J == pytest.approx(4.0 / 3.0 * p.m * p.l ** 2, rel=1e-12)
     r = run(mj, ReferenceCartPole(p), p)
     assert np.ptp(r.of_a("hinge")) > 1.0  # the pole really moved (it falls and swings)

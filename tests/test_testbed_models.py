@@ -206,4 +206,7 @@ def test_inspect_bad_input_is_one_line_and_status_2(tmp_path: Path, capsys) -> N
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("tspend: error:") and "2 hinge joints (hinge, twist)" in err[-1]
     assert "--hinge" in err[-1]
-    assert main(["inspect", str(two), "--hinge", "hinge"]) == 0
+    # named, the second hinge is still a third degree of freedom the ODE does not have
+    assert main(["inspect", str(two), "--hinge", "hinge"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "2 degrees of freedom" in err[-1] and "twist" in err[-1]

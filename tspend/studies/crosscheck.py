@@ -24,6 +24,7 @@ from tspend.plants.domain import Domain
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.registry import DOMAINS, domain_of
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
+from tspend.task import TERMINATIONS
 
 
 def backends(scenario: Scenario) -> tuple[Domain, str, str]:
@@ -94,13 +95,16 @@ def closed_loop(scenario: Scenario, sinks: Sequence[Sink] = (),
     a = run(scenario, sinks=mj_sinks, plant_kind=mj_kind, stop=stop)
     b = run(scenario, sinks=ode_sinks, plant_kind=ode_kind, stop=stop)
     k = min(len(a.history.get("t", ())), len(b.history.get("t", ())))
+    if k and (a.status in TERMINATIONS or b.status in TERMINATIONS):
+        # the step into a joint's limit already felt MuJoCo's constraint (the ODE has none)
+        k -= 1
     xa, xb = a.history["x"][:k], b.history["x"][:k]
     diff = np.abs(xa - xb) if k else np.full((1, len(domain.task.view)), math.nan)
     parted, _ = parting(a.history["t"][:k] if k else np.zeros(0), xa, xb, tol)
     out: dict = {"closed_loop_duration": scenario.run.duration, "closed_loop_tol": tol,
                  "closed_loop_parted_at_s": parted}
     out.update({f"closed_loop_max_d{name}": float(diff[:, i].max())
-                for i, name in enumerate(domain.task.view)})
+                for i, name in enumerate(domain.view_names(a.plant))})
     out.update({
         "closed_loop_status_mujoco": a.status, "closed_loop_status_ode": b.status,
         "closed_loop_rmse_ss_mujoco": a.metrics["rmse_ss"],
