@@ -203,6 +203,7 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     ScenarioError."""
     plant = build_plant(scenario, plant_kind)
     task = scenario_task(scenario, plant)
+    plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
     scenario = with_gain_sign(scenario, plant)
     return Prepared(scenario, plant, build_controller(scenario, kind=controller), task)
 

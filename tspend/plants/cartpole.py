@@ -21,11 +21,13 @@ from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
 from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, gain_sign, machine_accelerations, machine_rhs, rhs)
+    accelerations, actuator_force_range, gain_sign, inverse_dynamics, machine_accelerations,
+    machine_rhs, rhs)
 from tspend.plants.domain import Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.task import Task
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
            "CartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "DRY_FRICTION_SLIP",
@@ -171,6 +173,33 @@ def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], f
         return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
 
     return accel
+
+
+#: samples of r(t) the task check evaluates the need on (at most)
+NEED_SAMPLES = 4000
+
+
+def reference_force(p: CartPoleParams, scenario: "Scenario") -> tuple[float, float, float] | None:
+    """``(t, least, largest)`` cart force the ODE ``p`` needs to follow the scenario's
+    reference with its disturbance (``t``: when the larger need in size is); None when
+    the reference is not smooth enough to have ``r''``."""
+    n = int(min(NEED_SAMPLES, max(2, round(scenario.run.duration / scenario.run.dt))))
+    t = np.linspace(0.0, scenario.run.duration, n + 1)
+    try:
+        r = scenario.reference.derivatives(t, 2)
+    except (ValueError, NotImplementedError):
+        return None
+    d = np.asarray(scenario.disturbance(t), dtype=float)
+    machine = p.machine()
+    force = np.empty(n + 1)
+    v = 0.0
+    for k in range(n + 1):
+        force[k], x_dd = inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v, d[k])
+        if k < n and math.isfinite(x_dd):
+            v += x_dd * (t[k + 1] - t[k])
+    k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
+    k = k_hi if abs(force[k_hi]) >= abs(force[k_lo]) else k_lo
+    return float(t[k]), float(force[k_lo]), float(force[k_hi])
 
 
 def params_of(cfg: CartPoleConfig) -> CartPoleParams:
@@ -449,6 +478,42 @@ class CartPoleDomain(Domain):
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return "slide" in joint_types
+
+    def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
+        """Before a balancing run (the task ends on a fall): the force the reference and
+        the disturbance need against what the actuator can give.
+
+        The need is the inverse dynamics of the ODE (:func:`cartpole_physics.inverse_dynamics`)
+        along ``r(t)`` over the run, the cart's velocity integrated from rest: a lower
+        bound (a controller also has to bring x0 to r and hold the cart).  The actuator's
+        force is at rest, over ``ctrlrange`` (and ``effects.saturation``), ``forcerange``
+        and the joint's ``actuatorfrcrange``.  ScenarioError when the need exceeds it.
+        """
+        if not any(limit is not None and limit.status == "fell" for limit in task.lo_limits):
+            return
+        p: CartPoleParams = plant.params  # type: ignore[attr-defined]
+        sat = scenario.effects.saturation
+        lo, hi = actuator_force_range(p, -sat if sat > 0 else -math.inf,
+                                      sat if sat > 0 else math.inf)
+        if lo == -math.inf and hi == math.inf:
+            return
+        need = reference_force(p, scenario)
+        if need is None:
+            return
+        t, f_lo, f_hi = need
+        if f_hi <= hi and f_lo >= lo:
+            return
+        worst = f_hi if f_hi > hi else f_lo
+        name = plant.inputs[0].name if plant.inputs else "u"
+        from tspend.errors import ScenarioError
+
+        raise ScenarioError(
+            f"{scenario.path or scenario.name}: the task cannot be done: following the "
+            f"reference (with the disturbance) needs a cart force of {worst:.4g} N (at "
+            f"t = {t:.4g} s) and actuator '{name}' gives {lo:.4g} .. {hi:.4g} N at rest "
+            f"(gear {p.gear:g} x gain {p.gain:g} x u in [{max(p.ctrl_min, -sat if sat > 0 else -math.inf):g}, "
+            f"{min(p.ctrl_max, sat if sat > 0 else math.inf):g}]); lower reference.amplitude "
+            f"or widen the actuator's range")
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:

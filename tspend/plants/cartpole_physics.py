@@ -54,7 +54,8 @@ import numpy as np
 from numba.extending import register_jitable
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
-           "actuator_force", "gain_sign", "machine_accelerations", "machine_rhs", "rhs"]
+           "actuator_force", "actuator_force_range", "gain_sign", "inverse_dynamics",
+           "machine_accelerations", "machine_rhs", "rhs"]
 
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
@@ -268,6 +269,43 @@ def actuator_force(p: CartPoleParams | CartPoleMachine, u: float, cart_pos: floa
                    cart_vel: float = 0.0) -> float:
     """The force the actuator applies at the cart, N (ranges applied)."""
     return machine_force(_as_machine(p), cart_pos, cart_vel, u)
+
+
+def actuator_force_range(p: CartPoleParams | CartPoleMachine, u_lo: float = -INF,
+                         u_hi: float = INF) -> tuple[float, float]:
+    """The least and the largest force the actuator puts on the cart at rest (x = 0,
+    x' = 0) for u in ``[u_lo, u_hi]`` and its own ranges (+/-inf: unbounded)."""
+    machine = _as_machine(p)
+    lo, hi = max(u_lo, machine.ctrl_min), min(u_hi, machine.ctrl_max)
+    huge = 1e300   # an unbounded u: the force ranges, if any, bound the force
+    ends = [actuator_force(machine, v) for v in (max(lo, -huge), min(hi, huge))]
+    ends = [math.copysign(INF, f) if abs(f) >= 1e250 else f for f in ends]
+    return min(ends), max(ends)
+
+
+def inverse_dynamics(p: CartPoleParams | CartPoleMachine, q: float, w: float, q_dd: float,
+                     cart_vel: float, d: float) -> tuple[float, float]:
+    """``(F, x'')``: the actuator force and the cart acceleration that give the pole
+    ``q'' = q_dd`` at ``(q, q')`` with the cart moving at ``cart_vel`` ((C2) solved for x'',
+    then (C1) for F; the cart's spring is left out: the cart's position is free).
+    ``F`` is +/-inf where the rail cannot move the pole (``X'(q) = 0``)."""
+    m = _as_machine(p)
+    sg = m.theta_sign
+    ar, ag = sg * q + m.rail_phase, sg * q + m.gravity_phase
+    lr, lg = m.m * m.l * m.rail_coupling, m.m * m.l * m.gravity_coupling
+    mm = m.M + m.m
+    b = -sg * lr * math.cos(ar)
+    q_q = (m.disturbance_torque * d - m.hinge_damping * w
+           - (m.hinge_friction * math.tanh(w / DRY_FRICTION_SLIP) if m.hinge_friction > 0 else 0.0)
+           - m.hinge_stiffness * (q - m.hinge_spring_ref))
+    rhs_q = q_q + sg * lg * m.g * math.sin(ag)
+    if b == 0.0:
+        return math.copysign(INF, rhs_q - m.J * q_dd), math.nan
+    x_dd = (rhs_q - m.J * q_dd) / b
+    dry = m.cart_friction * math.tanh(cart_vel / DRY_FRICTION_SLIP) if m.cart_friction > 0 else 0.0
+    force = (mm * x_dd + b * q_dd - mm * m.rail_gravity + lr * math.sin(ar) * w * w
+             + m.cart_damping * cart_vel + dry)
+    return force, x_dd
 
 
 def gain_sign(p: CartPoleParams) -> float:

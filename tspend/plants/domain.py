@@ -25,6 +25,7 @@ from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.task import Task
 
 __all__ = ["Domain", "Backend", "Drawing", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "project_root"]
@@ -199,6 +200,10 @@ class Domain(ABC):
             raise ValueError(f"plant kind {kind!r} is not a backend of domain {self.name!r} "
                              f"(its kinds: {', '.join(self.kinds)})")
         return self.kinds[kind].build(scenario.plant, self.model_path(scenario))
+
+    def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
+        """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``
+        (the cart-pole: its actuator cannot give the force the reference needs)."""
 
     @abstractmethod
     def plant_model(self, scenario: "Scenario") -> PlantModel:

@@ -96,15 +96,10 @@ class ActuatorFacts:
 
     def max_force_at_rest(self) -> float:
         """The largest |force| it can put on the cart at x = 0, x' = 0, N (inf: unbounded)."""
-        from tspend.plants.cartpole_physics import actuator_force
+        from tspend.plants.cartpole_physics import actuator_force_range
 
-        p = self.params()
-        if self.ctrl_range is None:
-            ends = [actuator_force(p, v) for v in (-1e30, 1e30)]
-        else:
-            ends = [actuator_force(p, v) for v in self.ctrl_range]
-        biggest = max(abs(f) for f in ends)
-        return math.inf if biggest >= 1e29 else biggest
+        lo, hi = actuator_force_range(self.params())
+        return max(abs(lo), abs(hi))
 
     def params(self) -> CartPoleParams:
         """Just the actuator's part of a :class:`CartPoleParams`."""
