@@ -302,8 +302,10 @@ def collision_pairs(model: mujoco.MjModel) -> list[str]:
             wi, wj = int(model.body_weldid[bi]), int(model.body_weldid[bj])
             if wi == wj or frozenset((bi, bj)) in excluded:
                 continue
-            if filter_parent and (int(model.body_weldid[model.body_parentid[wi]]) == wj
-                                  or int(model.body_weldid[model.body_parentid[wj]]) == wi):
+            # MuJoCo's parent filter spares the world: a body touches the ground it hangs from
+            if filter_parent and wi and wj and (
+                    int(model.body_weldid[model.body_parentid[wi]]) == wj
+                    or int(model.body_weldid[model.body_parentid[wj]]) == wi):
                 continue
             if (int(model.geom_contype[i]) & int(model.geom_conaffinity[j])) or (
                     int(model.geom_contype[j]) & int(model.geom_conaffinity[i])):
