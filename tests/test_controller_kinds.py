@@ -42,8 +42,10 @@ def _hand_linearisation(scenario):
     if kind == "third_order":
         return np.array([-1.0, -2.0, -1.5]), (1.5 + 1.0) * 1.2
     p = scenario.plant        # cart-pole: theta'' ~ ((M+m) g theta + u) / (4/3 l (M+m) - m l)
-    den = 4.0 / 3.0 * p.l * (p.M + p.m) - p.m * p.l
-    return np.array([(p.M + p.m) * p.g / den, 0.0]), 1.0 / den
+    # a MuJoCo scenario's 0 keeps models/cartpole.xml's own M = 10, m = 1, l = 3, g = 9.8
+    M, m, l, g = (p.M or 10.0), (p.m or 1.0), (p.l or 3.0), (p.g or 9.8)
+    den = 4.0 / 3.0 * l * (M + m) - m * l
+    return np.array([(M + m) * g / den, 0.0]), 1.0 / den
 
 
 @pytest.mark.parametrize("name", ["ex1_nonaffine_case1", "ex2_duffing", "ex3_pendulum_ode",
