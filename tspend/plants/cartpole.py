@@ -149,7 +149,8 @@ class CartPoleODE(AnalyticPlant):
         self._machine = params.machine()
 
     def parameters(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self.params.__dict__.items()}
+        """The machine's parameters (ranges that are not set left out)."""
+        return self.params.finite()
 
     def _rhs_params(self) -> Any:
         return self._machine

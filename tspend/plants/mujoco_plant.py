@@ -354,7 +354,10 @@ class MujocoCartPole(Plant):
         a = self._act
         lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
             else (-math.inf, math.inf)
-        self._inputs = (InputInfo(self.actuator, "N", lo, hi),)
+        # u is what the actuator takes: a force for a motor, a speed or a position for a
+        # velocity or position servo
+        unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
+        self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
 
     def _bind_views(self) -> None:
         # numpy views into MjData, taken once: fetching them through the binding costs
