@@ -23,7 +23,9 @@ from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, actuator_force_range, gain_sign, inverse_dynamics, machine_accelerations,
     machine_rhs, rhs)
-from tspend.plants.domain import Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity
+from tspend.errors import ScenarioError
+from tspend.plants.domain import (CHIRP_F0_HZ, Backend, Domain, Drawing, PlantLabels, PlantModel,
+    Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -433,8 +435,6 @@ class CartPoleDrawing(Drawing):
 
 #: the cross-check's open-loop chirp: amplitude per kg of total mass
 CHIRP_N_PER_KG = 100.0 / 11.0
-#: the chirp's first frequency, Hz (tspend.studies.crosscheck)
-CHIRP_F0_HZ = 0.1
 
 
 class CartPoleDomain(Domain):
@@ -506,8 +506,6 @@ class CartPoleDomain(Domain):
             return
         worst = f_hi if f_hi > hi else f_lo
         name = plant.inputs[0].name if plant.inputs else "u"
-        from tspend.errors import ScenarioError
-
         raise ScenarioError(
             f"{scenario.path or scenario.name}: the task cannot be done: following the "
             f"reference (with the disturbance) needs a cart force of {worst:.4g} N (at "

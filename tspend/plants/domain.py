@@ -28,10 +28,15 @@ if TYPE_CHECKING:
     from tspend.task import Task
 
 __all__ = ["Domain", "Backend", "Drawing", "PlantLabels", "PlantModel", "Quantity",
-           "TaskDefaults", "FD_STEP", "project_root"]
+           "TaskDefaults", "FD_STEP", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root"]
 
 #: relative step of the central differences of :class:`PlantModel`
 FD_STEP = 1e-6
+
+#: the cross-check's open-loop chirp sweeps from CHIRP_F0_HZ to CHIRP_F1_HZ
+#: (:meth:`Domain.chirp_amplitude` sizes it)
+CHIRP_F0_HZ = 0.1
+CHIRP_F1_HZ = 2.0
 
 Accel = Callable[[float, np.ndarray, float, float], float]
 

@@ -20,7 +20,7 @@ from tspend.errors import ScenarioError
 from tspend.loop.runner import StopRequest
 from tspend.loop.simulation import build_plant, run
 from tspend.loop.sinks import Sink
-from tspend.plants.domain import Domain
+from tspend.plants.domain import CHIRP_F0_HZ, CHIRP_F1_HZ, Domain
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.registry import DOMAINS, domain_of
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
@@ -56,7 +56,7 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
     dist = scenario.disturbance
 
     def force(t: float) -> float:
-        return chirp_force(t, amplitude, 0.1, 2.0, duration)
+        return chirp_force(t, amplitude, CHIRP_F0_HZ, CHIRP_F1_HZ, duration)
 
     def disturbance(t: float) -> float:
         return float(dist(np.array([t]))[0])
