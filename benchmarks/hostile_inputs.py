@@ -251,13 +251,17 @@ def cases() -> list[Case]:
     add("MJCF missing", MJ + ["--set", 'plant.model="none.xml"'] + OUT)
     add("MJCF is a directory", MJ + ["--set", 'plant.model="sub"'] + OUT)
     add("MJCF 8 GB sparse", MJ + ["--set", 'plant.model="Big.xml"'] + OUT, setup="big_model")
-    for label, value in {"M 0": "0.0", "M nan": "nan", "M -1": "-1.0", "l 0": "0.0",
+    # (0 is no bad value here: on cartpole_mujoco it keeps the model's own number)
+    for label, value in {"M -1e-300": "-1e-300", "M nan": "nan", "M -1": "-1.0", "l -1": "-1.0",
                          "g -1": "-1.0", "m inf": "inf"}.items():
         key = label.split()[0]
         add(f"MJCF plant.{label}", MJ + ["--set", f"plant.{key}={value}"] + OUT)
-    # a finite but absurd machine is a valid input: the loop diverges at once (exit 3) and
-    # the recording of that is kept
-    add("MJCF plant.M 1e308 diverges", MJ + ["--set", "plant.M=1e308"] + OUT, expect=3,
+    # a finite but absurd machine is a valid input: balancing, the task check refuses it
+    # (the reference needs 5e291 N of its 2000 N motor); without a fall to avoid, the loop
+    # diverges at once (exit 3) and the recording of that is kept
+    add("MJCF plant.M 1e308 cannot balance", MJ + ["--set", "plant.M=1e308"] + OUT)
+    add("MJCF plant.M 1e308 diverges", MJ + ["--set", "plant.M=1e308", "--set",
+                                            "task.fall_angle=0.0"] + OUT, expect=3,
         may_write=("K.rrd", "K.json"))
     add("dt not a multiple of the timestep", MJ + ["--set", "run.dt=0.0015"] + OUT)
     add("joint names swapped", MJ + ["--set", 'plant.slide_joint="hinge"',
