@@ -155,6 +155,19 @@ def test_actuators_as_they_are() -> None:
     assert pos.actuator.max_force_at_rest() == pytest.approx(75.0)    # 150 x 0.5
     gen = MujocoCartPole(MODELS / "cartpole_general_actuator.xml", actuator="drive").facts
     assert gen.actuator_type == "general" and gen.actuator.joint_force_range == (-45.0, 45.0)
+    # the ranges are reported as well as applied
+    assert "clipped actuator: forcerange [-60, 60] N" in vel.departures
+    assert any(d.startswith("actuator 'drive' is a velocity actuator") for d in vel.departures)
+    assert "clipped actuator: slide joint actuatorfrcrange [-45, 45] N" in gen.departures
+
+
+def test_an_actuator_with_dynamics_is_refused_with_the_reason(tmp_path: Path) -> None:
+    filtered = tmp_path / "filtered.xml"
+    filtered.write_text((MODELS / "cartpole_limited_slide.xml").read_text().replace(
+        '<motor name="force" joint="slider"/>',
+        '<general name="force" joint="slider" dyntype="filter" dynprm="0.05"/>'))
+    with pytest.raises(ScenarioError, match="activation dynamics \\(dyntype filter\\)"):
+        MujocoCartPole(filtered)
 
 
 def test_limited_slide_ends_the_comparison_and_the_run() -> None:
