@@ -517,8 +517,8 @@ class CartPoleDomain(Domain):
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
         """The compiled model's facts (:mod:`tspend.plants.mjcf`), what the ODE of it leaves
-        out (``unmodelled``) and the largest force its actuator can apply at rest; the
-        departures from the paper's ideal cart-pole.  ``names``: ``slide``, ``hinge``,
+        out (``unmodelled``) and the largest force its actuator can apply at rest (None:
+        unbounded); the departures from the paper's ideal cart-pole.  ``names``: ``slide``, ``hinge``,
         ``actuator`` (default: the model's only one of each)."""
         from tspend.plants.mujoco_plant import MujocoCartPole, guess_names
 
@@ -532,7 +532,9 @@ class CartPoleDomain(Domain):
         facts.pop("departures")
         facts["unmodelled"] = plant.unmodelled(dt)
         act = plant.facts.actuator
-        facts["max_force_at_rest"] = act.max_force_at_rest() if act is not None else None
+        force = act.max_force_at_rest() if act is not None else math.inf
+        # JSON has no infinity: null is an actuator without any range
+        facts["max_force_at_rest"] = force if math.isfinite(force) else None
         return facts, plant.departures(dt)
 
     def view_names(self, plant: Plant) -> tuple[str, ...]:
