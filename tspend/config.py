@@ -222,3 +222,5 @@ class Scenario:
     overrides: tuple = ()
     #: (kind, settings) pairs from the [controllers.KIND] tables (tspend.controllers.settings)
     controllers: tuple = ()
+    #: what a seed draws of the plant ([randomize]; tspend.plants.randomize.Draw entries)
+    randomize: tuple = ()

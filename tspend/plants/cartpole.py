@@ -58,6 +58,8 @@ class CartPoleConfig(PlantConfig):
     hinge_damping: float = field(default=0.0, metadata=_at_least_zero())
     cart_friction: float = field(default=0.0, metadata=_at_least_zero())
     hinge_friction: float = field(default=0.0, metadata=_at_least_zero())
+    #: actuator gain, N of cart force per unit of u (0 = the model's gear; the ODE's 1)
+    gear: float = field(default=0.0, metadata=_at_least_zero())
 
 
 @dataclass(frozen=True)
@@ -156,7 +158,8 @@ def params_of(cfg: CartPoleConfig) -> CartPoleParams:
     """The machine a cart-pole configuration describes."""
     return CartPoleParams(M=cfg.M, m=cfg.m, l=cfg.l, g=cfg.g, J=cfg.J,
                           cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
-                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction)
+                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction,
+                          gear=cfg.gear or 1.0)
 
 
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -171,6 +174,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
                           actuator=mj.actuator,
                           overrides=params_of(mj) if mj.override_inertials else None,
                           integrator=mj.integrator or None, timestep=mj.timestep or None,
+                          gear=mj.gear or None,
                           task_defaults=DOMAIN.task, **friction)
 
 

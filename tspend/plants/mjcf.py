@@ -360,3 +360,28 @@ def verify_overrides(facts: ModelFacts, p: CartPoleParams, cart: str, pole: str,
             raise ScenarioError(f"{where}: {name} = {want:g} did not take effect on body "
                                 f"'{body}': the compiled model has {got:.9g} (check the "
                                 f"compiler's settotalmass, boundmass or a frame around it)")
+
+
+def _is_motor(act: Any) -> bool:
+    return (act.gaintype == mujoco.mjtGain.mjGAIN_FIXED and act.biastype == mujoco.mjtBias.mjBIAS_NONE
+            and act.dyntype == mujoco.mjtDyn.mjDYN_NONE)
+
+
+def apply_gear(act: Any, gear: float, where: str) -> None:
+    """Make the actuator's force per unit of u ``gear`` (what :func:`read_facts` reads as
+    ``gear``: gear x gain for a plain motor, the gear otherwise)."""
+    if not (math.isfinite(gear) and gear > 0.0):
+        raise ScenarioError(f"{where}: actuator gear must be positive, got {gear}")
+    gain = float(act.gainprm[0]) if _is_motor(act) else 1.0
+    if gain == 0.0:
+        raise ScenarioError(f"{where}: actuator '{act.name}' has gain 0: no gear makes it push")
+    value = np.zeros(6)
+    value[0] = gear / gain
+    act.gear = value
+
+
+def verify_gear(facts: ModelFacts, gear: float, actuator: str, where: str) -> None:
+    """The compiled model's actuator must have the requested gain."""
+    if abs(facts.gear - gear) > VERIFY_RTOL * max(abs(gear), 1.0):
+        raise ScenarioError(f"{where}: gear = {gear:g} did not take effect on actuator "
+                            f"'{actuator}': the compiled model has {facts.gear:.9g}")

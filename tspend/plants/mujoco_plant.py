@@ -132,6 +132,9 @@ class MujocoCartPole(Plant):
         ``"implicitfast"``; only for the cross-check's contrast figures.
     timestep:
         overrides the model's physics timestep.
+    gear:
+        if given, the actuator's gain (cart force per unit of u) written into the model
+        and read back from the compiled one.
     task_defaults:
         the domain's default task, its states named by the roles ``slider``/``hinge``
         (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
@@ -153,7 +156,7 @@ class MujocoCartPole(Plant):
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
                  cart_friction: float | None = None, hinge_friction: float | None = None,
-                 task_defaults: TaskDefaults | None = None) -> None:
+                 task_defaults: TaskDefaults | None = None, gear: float | None = None) -> None:
         self.model_path = Path(model_path)
         self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
@@ -189,6 +192,8 @@ class MujocoCartPole(Plant):
                 joint.damping = [damping, 0.0, 0.0]
             if friction is not None:
                 joint.frictionloss = friction
+        if gear is not None:
+            mjcf.apply_gear(act, gear, where)
         if overrides is not None:
             pivot = np.asarray(hinge.pos, dtype=float)
             axis = mjcf._pole_direction(hinge.parent, pivot)
@@ -224,6 +229,8 @@ class MujocoCartPole(Plant):
         if overrides is not None:
             mjcf.verify_overrides(self.facts, overrides, m.body(self._cart_body).name,
                                   m.body(self._pole_body).name, where)
+        if gear is not None:
+            mjcf.verify_gear(self.facts, gear, actuator, where)
         self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
         self._d_to_tau = self._params.disturbance_torque
