@@ -80,7 +80,7 @@ class Draw:
 
         q = float(rng.random())
         if self.dist == "uniform":
-            v = self.a + q * (self.b - self.a)
+            v = min(max(self.a * (1.0 - q) + self.b * q, self.a), self.b)  # no overflow
         else:
             lo = ndtr((self.low - self.a) / self.b)
             hi = ndtr((self.high - self.a) / self.b)
