@@ -80,7 +80,10 @@ class Draw:
 
         q = float(rng.random())
         if self.dist == "uniform":
-            v = min(max(self.a * (1.0 - q) + self.b * q, self.a), self.b)  # no overflow
+            width = self.b - self.a
+            v = (self.a + q * width if math.isfinite(width)
+                 else self.a * (1.0 - q) + self.b * q)  # a range wider than a double
+            v = min(max(v, self.a), self.b)
         else:
             lo = ndtr((self.low - self.a) / self.b)
             hi = ndtr((self.high - self.a) / self.b)
