@@ -121,6 +121,8 @@ def earlier_claims(comp, path: Path) -> tuple[list[str], list[str]]:
                    + (f"{n.verdict} better" if n.verdict else "no difference shown")
                    + f", median ratio {fmt_ratio(ratio)}, Holm p {_fmt_p(n.p_holm)}")
             held = n.verdict == r.verdict and not n.negligible
+            if n.verdict == r.verdict and n.negligible:
+                now += " (the same side, but by less than 1%: negligible)"
             late_holm = not r.deterministic and not (r.p_holm < 0.05)
             line = f"{had} → {now}" + ("; did not survive Holm even then" if late_holm else "")
             (holds if held else fails).append(line)
@@ -148,103 +150,161 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--metric", default="rmse", help="the metric the tuning minimises")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--fresh", action="store_true", help="forget the studies in --out")
+    ap.add_argument("--render", action="store_true",
+                    help="run nothing: rewrite the page from the runs and tuned settings "
+                         "kept in --out")
     args = ap.parse_args(argv)
 
+    import pandas as pd
+
     import tspend
-    from tspend.cli.compare import seeds_text
     from tspend.scenario import load_scenario
-    from tspend.studies.stats import compare, markdown, to_json
+    from tspend.studies.stats import compare, to_json
     from tspend.studies.tune import equal_budget, score
     from tspend.sweep.executors import make_executor
     from tspend.sweep.plan import parse_seeds
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    journal = out / "tune.journal"
-    if args.fresh:
-        journal.unlink(missing_ok=True)
-    scenarios = [load_scenario(s.strip()) for s in args.scenarios.split(",") if s.strip()]
-    kinds = [k.strip() for k in args.controller.split(",") if k.strip()]
-    train, test = parse_seeds(args.train_seeds), parse_seeds(args.test_seeds)
-    started = time.perf_counter()
-    runs = len(scenarios) * len(kinds) * (args.trials * len(train) + len(test))
-    print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds x ({args.trials} "
-          f"trials x {len(train)} train seeds + {len(test)} test seeds) = {runs} runs",
-          file=sys.stderr)
-    executor = make_executor(args.jobs)
-    try:
-        rows, tuned = equal_budget(scenarios, kinds, trials=args.trials, train_seeds=train,
-                                   test_seeds=test, metric=args.metric, executor=executor,
-                                   storage=str(journal), progress=True)
-    finally:
-        executor.close()
-    wall = time.perf_counter() - started
-    rows.to_parquet(out / "runs.parquet")
-    (out / "tuned").mkdir(exist_ok=True)
-    for (scn, kind), r in tuned.items():
-        (out / "tuned" / f"{scn}-{kind}.toml").write_text(r.text)
+    saved = out / "comparison.json"
+    if args.render:
+        doc = json.loads(saved.read_text())
+        rows = pd.read_parquet(out / "runs.parquet")
+        scenarios = [load_scenario(s) for s in doc["scenarios"]]
+        kinds, train, test = doc["controllers"], doc["train_seeds"], doc["test_seeds"]
+        budget = dict(trials=doc["trials"], metric=doc["metric"], wall_s=doc["wall_s"],
+                      jobs=doc.get("jobs", args.jobs), runs=doc["runs"])
+        tuned = {tuple(k.split("/")): v for k, v in doc["tuned"].items()}
+    else:
+        journal = out / "tune.journal"
+        if args.fresh:
+            journal.unlink(missing_ok=True)
+        scenarios = [load_scenario(s.strip()) for s in args.scenarios.split(",") if s.strip()]
+        kinds = [k.strip() for k in args.controller.split(",") if k.strip()]
+        train, test = parse_seeds(args.train_seeds), parse_seeds(args.test_seeds)
+        started = time.perf_counter()
+        runs = len(scenarios) * len(kinds) * (args.trials * len(train) + len(test))
+        print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds x "
+              f"({args.trials} trials x {len(train)} train seeds + {len(test)} test seeds) = "
+              f"{runs} runs", file=sys.stderr)
+        executor = make_executor(args.jobs)
+        try:
+            rows, results = equal_budget(scenarios, kinds, trials=args.trials,
+                                         train_seeds=train, test_seeds=test,
+                                         metric=args.metric, executor=executor,
+                                         storage=str(journal), progress=True)
+        finally:
+            executor.close()
+        budget = dict(trials=args.trials, metric=args.metric,
+                      wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs)
+        rows.to_parquet(out / "runs.parquet")
+        (out / "tuned").mkdir(exist_ok=True)
+        for (scn, kind), r in results.items():
+            (out / "tuned" / f"{scn}-{kind}.toml").write_text(r.text)
+        # the test score as tune states it: the median of the metric over the test seeds
+        tuned = {(scn, kind): {"values": r.values, "train_score": r.train_score,
+                               "test_score": score(rows[(rows.scenario == scn)
+                                                        & (rows.controller == kind)],
+                                                   args.metric)}
+                 for (scn, kind), r in results.items()}
 
-    # the test score as tune states it: the median of the metric over the test seeds
-    test_scores = {(scn, kind): score(rows[(rows.scenario == scn) & (rows.controller == kind)],
-                                      args.metric) for scn, kind in tuned}
     comp = compare(rows, kinds, METRICS)
     doc = to_json(comp)
-    doc.update(train_seeds=train, test_seeds=test, trials=args.trials, metric=args.metric,
-               scenarios=[s.name for s in scenarios], version=tspend.__version__,
-               wall_s=wall, runs=runs,
-               tuned={f"{s}/{k}": {"values": r.values, "train_score": r.train_score,
-                                   "test_score": test_scores[(s, k)]}
-                     for (s, k), r in tuned.items()})
-    (out / "comparison.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-
+    doc.update(train_seeds=train, test_seeds=test, scenarios=[s.name for s in scenarios],
+               version=tspend.__version__, **budget,
+               tuned={f"{s}/{k}": v for (s, k), v in tuned.items()})
+    saved.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
     page = Path(args.page)
+    section = render(comp, scenarios, tuned, train, test, budget, out, page)
+    old = page.read_text() if page.is_file() else "# Results\n"
+    page.write_text(splice(old, section))
+    print(f"wrote {page} ({budget['wall_s']:.0f} s of runs)", file=sys.stderr)
+    return 0
+
+
+def pair_table(comp, scenario: str) -> list[str]:
+    """Per pair of kinds, per metric: the better kind by the Holm-corrected verdict and the
+    median ratio of the worse to the better (— : no difference shown)."""
+    from tspend.studies.stats import _fmt_p, fmt_ratio
+
+    pairs = comp.pairs[comp.pairs.scenario == scenario]
+    lines = ["| A vs B | " + " | ".join(comp.metrics) + " |",
+             "|---|" + "---|" * len(comp.metrics)]
+    for (a, b), part in pairs.groupby(["a", "b"], sort=False):
+        cells = []
+        for m in comp.metrics:
+            r = part[part.metric == m].iloc[0]
+            if not r.verdict:
+                cells.append("—")
+                continue
+            ratio = r.median_ratio if r.verdict == a else 1.0 / r.median_ratio
+            cells.append(f"**{r.verdict}** {fmt_ratio(ratio)}× (p {_fmt_p(r.p_holm)})"
+                         + (", negligible" if r.negligible else ""))
+        lines.append(f"| {a} vs {b} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -> str:
+    """The page's section, every sentence from the statistics."""
+    import tspend
+    from tspend.cli.compare import seeds_text
+    from tspend.studies.stats import fmt, markdown
 
     def rel(p) -> str:
         return Path(os.path.relpath(Path(p).resolve(), page.parent.resolve())).as_posix()
 
-    from tspend.studies.stats import fmt
-
+    trials, metric = budget["trials"], budget["metric"]
     lines = [
         "## Fair comparison: every kind tuned on an equal budget, on randomised machines",
         "",
         f"Generated by `nice python benchmarks/fair_results.py` (tspend {tspend.__version__}; "
-        f"{wall / 60:.1f} min on a shared 2-core machine, `--jobs {args.jobs}`). Test runs: "
-        f"`{rel(out / 'runs.parquet')}`; statistics: `{rel(out / 'comparison.json')}`; the "
-        f"tuned scenarios, each runnable: `{rel(out / 'tuned')}/`.",
+        f"{budget['runs']} runs of 20 s in {budget['wall_s'] / 60:.1f} min on a shared 2-core "
+        f"machine, `--jobs {budget['jobs']}`; `--render` rewrites this section from the kept "
+        f"runs). Test runs: `{rel(out / 'runs.parquet')}`; statistics: "
+        f"`{rel(out / 'comparison.json')}`; the tuned scenarios, each runnable and headed by "
+        f"its budget and scores: `{rel(out / 'tuned')}/`.",
         "",
-        f"**Budget, the same for every kind:** {args.trials} Optuna TPE trials (sampler seed "
-        f"0) × {len(train)} training seeds ({seeds_text(train)}) = "
-        f"{args.trials * len(train)} runs of 20 s per kind and scenario, minimising the "
-        f"median `{args.metric}` over the training seeds (a run that fell or diverged scores "
-        f"worst); each kind searches its declared space (`tspend tune --controller KIND`, "
-        f"the paper's kinds over eta, gamma, Q, lambda and the boundary layer). The tuned "
-        f"kinds are then compared on the {len(test)} test seeds {seeds_text(test)}, disjoint "
-        f"from the training ones, paired by seed, over every pair of kinds, with Holm's "
-        f"correction over every pair, metric, scenario and outcome test of the comparison "
-        f"({comp.settings['correction']}). A verdict needs Holm-adjusted p < 0.05 and a 95% "
-        f"bootstrap interval of the median difference excluding 0.",
+        f"**Budget, the same for every kind:** {trials} Optuna TPE trials (sampler seed 0; "
+        f"TPE's first 10 trials are random, so this is a coarse search) × {len(train)} "
+        f"training seeds ({seeds_text(train)}) = {trials * len(train)} runs per kind and "
+        f"scenario, minimising the median `{metric}` over the training seeds (a run that fell "
+        f"or diverged scores worst); each kind searches its declared space (`tspend tune "
+        f"--controller KIND`; the paper's kinds over eta, gamma, Q, lambda and the boundary "
+        f"layer). The tuned kinds are then compared on the {len(test)} test seeds "
+        f"{seeds_text(test)}, disjoint from the training ones, paired by seed, over every "
+        f"pair of kinds, with Holm's correction ({comp.settings['correction']}). A verdict "
+        f"needs Holm-adjusted p < 0.05 and a 95% bootstrap interval of the median difference "
+        f"excluding 0. Every kind is tuned on `{metric}` alone, so a kind may buy accuracy "
+        f"with control effort (the `control_energy` and `tv_u_per_s` columns show the price), "
+        f"and two kinds with the same search space (`second_type`, `first_type`) draw the "
+        f"same trial points: where they end at different settings, their difference is the "
+        f"tuning's as much as the law's.",
         "",
-        "**What a seed varies here:** the seed draws the machine and its initial state "
-        "(`[randomize]`, docs/reference/scenario-file.md), the same for every kind at that "
-        "seed, as well as the adaptive controllers' initial parameters. The controllers are "
+        "**What a seed varies here:** the machine and its initial state (`[randomize]`, "
+        "[scenario-file.md](reference/scenario-file.md#randomize)), the same for every kind "
+        "at that seed, and the adaptive controllers' initial parameters. The controllers are "
         "designed on the nominal machine.",
         "",
     ]
     for s in scenarios:
         lines.append(f"- `{s.name}`: {draws_text(s)}.")
-    lines += ["", "### Tuned settings (train and test score: median rmse)", "",
+    lines += ["", f"### Tuned settings (train and test score: median {metric})", "",
               "| scenario | kind | tuned | train | test |", "|---|---|---|---:|---:|"]
-    for (scn, kind), r in tuned.items():
-        vals = ", ".join(f"{k} = {_short(v)}" for k, v in r.values.items())
-        lines.append(f"| {scn} | {kind} | {vals} | {fmt(r.train_score)} | "
-                     f"{fmt(test_scores[(scn, kind)])} |")
-    surviving = comp.pairs[(comp.pairs.verdict != "") & (~comp.pairs.negligible)]
-    surviving = surviving.sort_values("p_holm")
-    lines += ["", "### Verdicts that survive Holm's correction", ""]
-    if surviving.empty:
-        lines.append("None: no pair of tuned kinds differs at Holm-adjusted p < 0.05 on these "
-                     "seeds.")
-    lines += [f"- {sentence(r)}." for r in surviving.itertuples()]
+    for (scn, kind), t in tuned.items():
+        vals = ", ".join(f"{k} = {_short(v)}" for k, v in t["values"].items())
+        lines.append(f"| {scn} | {kind} | {vals} | {fmt(t['train_score'])} | "
+                     f"{fmt(t['test_score'])} |")
+    lines += ["", "### Verdicts that survive Holm's correction", "",
+              "Per pair and metric, the better kind, the median ratio worse/better over the "
+              "test seeds and the Holm-adjusted p (— : no difference shown).", ""]
+    for s in scenarios:
+        lines += [f"**{s.name}**", ""] + pair_table(comp, s.name) + [""]
+    paper = comp.pairs[(comp.pairs.verdict != "") & (~comp.pairs.negligible)
+                       & ((comp.pairs.a == "second_type") | (comp.pairs.b == "second_type"))]
+    if len(paper):
+        lines += ["The paper's controller (`second_type`) against each tuned kind, in words:",
+                  ""]
+        lines += [f"- {sentence(r)}." for r in paper.sort_values(["scenario", "b"]).itertuples()]
     holds, fails = earlier_claims(comp, ROOT / "docs" / "results" / "comparison.json")
     lines += ["", "### Earlier claims re-examined", "",
               "The verdicts below were stated on the fixed machine with hand-tuned baselines "
@@ -257,11 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     lines += [f"- {h}." for h in holds] or ["- none."]
     tables = ("\n" + markdown(comp, seeds_text(test))).replace("\n### ", "\n#### ").strip()
     lines += ["", "### Tables", "", tables]
-    section = "\n".join(lines)
-    old = page.read_text() if page.is_file() else "# Results\n"
-    page.write_text(splice(old, section))
-    print(f"wrote {page} ({wall:.0f} s)", file=sys.stderr)
-    return 0
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
