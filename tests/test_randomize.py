@@ -210,3 +210,20 @@ def test_run_seeds_draw_different_machines(tmp_path):
     assert docs[0]["drawn"] and docs[1]["drawn"] and docs[0]["drawn"] != docs[1]["drawn"]
     assert set(docs[0]["drawn"]) == set(docs[1]["drawn"])
     assert not math.isclose(docs[0]["drawn"]["m"], docs[1]["drawn"]["m"])
+
+
+def test_furuta_draws_its_initial_state_on_both_backends():
+    """The Furuta reads its machine from the MJCF (no numeric [plant] keys): x0 only."""
+    from tspend.scenario import parse_scenario
+
+    text = (ROOT / "scenarios" / "furuta_mujoco.toml").read_text() + (
+        '\n[randomize]\nx0 = [{dist = "uniform", low = -0.1, high = 0.1}, {}]\n')
+    scn = override(parse_scenario(text, "furuta.toml"), **{"run.seed": 2})
+    drawn = randomize.draw(scn).values
+    assert set(drawn) == {"x0[0]"} and -0.1 <= drawn["x0[0]"] <= 0.1
+    for kind in ("furuta_mujoco", "furuta_ode"):
+        s = dict(zip(*(lambda p: (p.state_names, p.full_state()))(build_plant(scn, kind))))
+        assert s["pendulum"] == drawn["x0[0]"] and s["pendulum_dot"] == scn.plant.x0[1]
+    with pytest.raises(Exception, match="randomize.m: unknown key"):
+        parse_scenario(text.replace("[randomize]\n", '[randomize]\nm = {dist = "uniform", '
+                                    'low = 0.1, high = 0.2}\n'), "furuta.toml")
