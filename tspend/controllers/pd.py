@@ -62,6 +62,8 @@ class PDController(Controller):
     """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "pd"
+    needs = ()
+    guarantees = "fixed gains on the view; no model, no guarantee beyond the linearisation's margins"
 
     def __init__(self, gains: np.ndarray, b0: float) -> None:
         self.k = np.asarray(gains, dtype=float)

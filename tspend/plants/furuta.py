@@ -26,10 +26,10 @@ from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
-    TaskDefaults)
-from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
-    machine_accelerations, machine_rhs, params_from_model)
+from tspend.plants.domain import (VIEW_MODEL, FULL_STATE, SYMBOLIC, Backend, Domain, Drawing, FullModel,
+    PlantLabels, PlantModel, Quantity, TaskDefaults)
+from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
+    linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -385,6 +385,7 @@ class FurutaDomain(Domain):
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
                         pole="pendulum")
     default_model = FurutaMujocoConfig.model
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
@@ -406,6 +407,32 @@ class FurutaDomain(Domain):
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
         return PlantModel(scenario.plant.kind, 2, accel, affine_in_u=True, x_op=(0.0, 0.0),
                           switching_gain=20.0)
+
+    def full_model(self, scenario: "Scenario") -> FullModel:
+        """The Furuta ODE over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
+        joint names), from :func:`~tspend.plants.furuta_physics.accelerations_factory`
+        (over CasADi with the identity clip: the MPC bounds u itself); the energy is
+        :func:`~tspend.plants.furuta_physics.pendulum_energy`."""
+        plant = self.build(scenario)
+        params: FurutaParams = plant.params  # type: ignore[attr-defined]
+        machine = params.machine()
+
+        def factory(sin, cos, tanh):
+            if sin is math.sin:
+                accel = machine_accelerations
+            else:
+                accel = accelerations_factory(sin, cos, tanh, clip=lambda v, lo, hi: v)[2]
+
+            def q_dd(s, u):
+                return accel(machine, s, u, 0.0)
+
+            return q_dd
+
+        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
+                         accel_factory=factory,
+                         energy=lambda s: pendulum_energy(machine, float(s[1]), float(s[3])),
+                         pole=1, actuated=0, angles=(True, True, False, False),
+                         parameters=dict(params.__dict__), accel_unit="rad/s^2")
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
