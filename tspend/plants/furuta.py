@@ -62,6 +62,10 @@ class FurutaMujocoConfig(FurutaConfig):
     actuator: str = "motor"
     #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
     timestep: float = field(default=0.0, metadata={"low": 0.0})
+    #: the pendulum joint's viscous damping, N m s/rad (negative keeps the model's, Quanser's
+    #: 0.0005); the least certain number of the rig (docs/furuta.md), so a scenario may
+    #: take another rig's identified value
+    pendulum_damping: float = -1.0
 
 
 def _named_task(arm: str, pendulum: str) -> TaskDefaults:
@@ -149,7 +153,8 @@ class MujocoFuruta(Plant):
     state_units = STATE_UNITS
 
     def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
-                 actuator: str = "motor", timestep: float | None = None) -> None:
+                 actuator: str = "motor", timestep: float | None = None,
+                 pendulum_damping: float | None = None) -> None:
         import mujoco
 
         self.model_path = Path(model_path)
@@ -160,6 +165,14 @@ class MujocoFuruta(Plant):
             spec = mujoco.MjSpec.from_file(where)
             if timestep:
                 spec.option.timestep = float(timestep)
+            if pendulum_damping is not None:
+                joint = spec.joint(pendulum)
+                if joint is None:
+                    raise ScenarioError(f"{where}: no joint named {pendulum!r}")
+                # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
+                damping = np.array(joint.damping, dtype=float)
+                damping[0] = float(pendulum_damping)
+                joint.damping = damping
             self.model = spec.compile()
         except ValueError as exc:
             raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
@@ -305,7 +318,8 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     mj = cfg if isinstance(cfg, FurutaMujocoConfig) else FurutaMujocoConfig(
         kind="furuta_mujoco", x0=cfg.x0, state_bound=cfg.state_bound)
     return MujocoFuruta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
-                        mj.timestep or None)
+                        mj.timestep or None,
+                        mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None)
 
 
 # -- drawing ------------------------------------------------------------------------------
