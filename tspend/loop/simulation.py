@@ -21,7 +21,8 @@ from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers.base import Controller
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
-from tspend.plants.effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
+from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+    unsupported as effects_unsupported)
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
 from tspend.plants.mjcf_warning import ModelWarning
@@ -37,6 +38,9 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
     :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
     """
+    refused = effects_unsupported(scenario.effects, plant_registry.domain_of(scenario.plant.kind))
+    if refused:
+        raise ScenarioError(f"{scenario.path}: {refused}")
     plant = plant_registry.build(scenario, kind)
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):

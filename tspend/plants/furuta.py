@@ -116,9 +116,6 @@ class FurutaODE(AnalyticPlant):
         self.s[:] = (0.0, x0[0], 0.0, x0[1])
         self._clock[0] = 0.0
 
-    def state(self) -> np.ndarray:
-        return self.s[[1, 3]].copy()
-
     def full_state(self) -> np.ndarray:
         return self.s.copy()
 
@@ -259,9 +256,6 @@ class MujocoFuruta(Plant):
         self.data.qpos[self._qp] = x0[0]
         self.data.qvel[self._vp] = x0[1]
         mujoco.mj_forward(self.model, self.data)
-
-    def state(self) -> np.ndarray:
-        return np.array((self.data.qpos[self._qp], self.data.qvel[self._vp]))
 
     def full_state(self) -> np.ndarray:
         q, v = self.data.qpos, self.data.qvel
