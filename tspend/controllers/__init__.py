@@ -197,6 +197,29 @@ def unsupported(scenario: "Scenario", kind: str, cls: type[Controller] | None = 
             f"(domain {domain.name}): {why}")
 
 
+def kinds_table() -> str:
+    """docs/controllers.md's table of built-in kinds x registered domains, in Markdown, from
+    what each kind declares (``needs``, ``domains``, ``guarantees``) and what each domain
+    provides: a cell says ``yes`` or what is missing (tests/test_furuta_control.py checks
+    the page against it)."""
+    from tspend.plants.domain import CAPABILITIES
+    from tspend.plants.registry import DOMAINS
+
+    names = list(DOMAINS)
+    lines = ["| kind | needs | " + " | ".join(names) + " | what it guarantees |",
+             "|---|---|" + "---|" * len(names) + "---|"]
+    for kind in KINDS:
+        cls = kind_class(kind)
+        needs = "; ".join(CAPABILITIES[n] for n in cls.needs) or "the view only"
+        cells = []
+        for d in DOMAINS.values():
+            missing = [n for n in cls.needs if n not in d.provides]
+            off = cls.domains and d.name not in cls.domains
+            cells.append("no (" + ", ".join(missing) + ")" if missing else "no" if off else "yes")
+        lines.append(f"| `{kind}` | {needs} | " + " | ".join(cells) + f" | {cls.guarantees} |")
+    return "\n".join(lines)
+
+
 def available() -> list[Kind]:
     """Every kind by name: the built-in ones, then those installed packages register."""
     kinds = [resolve(k) for k in KINDS]
@@ -340,6 +363,6 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     return ctrl
 
 
-__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "unsupported", "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
+__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "kinds_table", "unsupported", "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
            "settings_classes", "settings_of"]

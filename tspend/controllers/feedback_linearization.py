@@ -108,7 +108,8 @@ class FeedbackLinearizationController(Controller):
 
     kind = "feedback_linearization"
     needs = (VIEW_MODEL,)
-    guarantees = "exact linear error dynamics where the view's model is exact and df/du != 0"
+    guarantees = ("exact linear error dynamics where the view's model is exact and "
+                  "df/du != 0 (the oracle)")
 
     def __init__(self, model: PlantModel, lam: np.ndarray, tol: float = 1e-12,
                  max_iter: int = 50) -> None:

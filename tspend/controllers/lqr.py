@@ -135,7 +135,9 @@ class LQRController(Controller):
 
     kind = "lqr"
     needs = (VIEW_MODEL,)
-    guarantees = "optimal on the linearisation at the upright (full state where the domain has one, else the view); local stability"
+    guarantees = ("local exponential stability at the upright on the linearisation: of the whole "
+                  "machine with a full state (exact sine tracking on the linear model), else of "
+                  "the view's error")
 
     def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
                  x_op: np.ndarray, u_op: float) -> None:

@@ -81,7 +81,9 @@ class MPCController(Controller):
 
     kind = "mpc"
     needs = (FULL_STATE, SYMBOLIC)
-    guarantees = "input and position bounds hold on every predicted trajectory; failed or late solves counted"
+    guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, "
+                  "task state bounds) hold on every predicted trajectory of a successful solve; "
+                  "failed or late solves counted, never silent; no stability proof")
 
     def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
                  Q: np.ndarray, R: float, order: int) -> None:

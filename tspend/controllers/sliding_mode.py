@@ -89,7 +89,8 @@ class SlidingModeController(Controller):
 
     kind = "sliding_mode"
     needs = (VIEW_MODEL,)
-    guarantees = "reaches the sliding surface in finite time if the model error stays below the switching gain"
+    guarantees = ("reaches the boundary layer in finite time while the model error stays "
+                  "below the switching gain")
 
     def __init__(self, c: np.ndarray, k: float, phi: float, a: np.ndarray, b0: float,
                  x_op: np.ndarray, u_op: float) -> None:

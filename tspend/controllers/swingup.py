@@ -95,7 +95,9 @@ class SwingUpController(Controller):
 
     kind = "swingup"
     needs = (FULL_STATE,)
-    guarantees = "energy rises monotonically until the catch (up to damping); respects the input range and the driven joint's range; LQR holds the upright once caught"
+    guarantees = ("the energy the input adds is never negative until the catch (A-F 2000); "
+                  "the driven joint's range respected by braking, the input clipped to its "
+                  "range; LQR's local guarantee once caught (hysteresis)")
 
     def __init__(self, model: FullModel, settings: SwingUpSettings, catch: "FullStateLQR",
                  order: int) -> None:

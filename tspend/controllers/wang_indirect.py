@@ -126,7 +126,8 @@ class WangIndirectController(Controller):
 
     kind = "wang_indirect"
     needs = (VIEW_MODEL,)
-    guarantees = "bounded tracking error (Lyapunov, with the supervisor) under the fuzzy approximation's assumptions"
+    guarantees = ("bounded tracking error (Lyapunov, with the supervisor) under the fuzzy "
+                  "approximation's assumptions")
 
     def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, gamma_f: float,
                  gamma_g: float, g_init: float, g_min: float, f_radius: float = 0.0,
