@@ -135,3 +135,16 @@ def test_sweep_summary_reports_terminations_by_status():
     row = summary(frame, []).iloc[0]
     assert (row["completed"], row["fell"], row["rail_end"], row["diverged"]) == (1, 1, 1, 1)
     assert "joint_limit" not in row.index      # only the terminations that occurred
+
+
+def test_the_kinds_table_in_the_docs_is_the_declarations():
+    from pathlib import Path
+
+    from tspend.controllers import kinds_table
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "controllers.md").read_text()
+    begin, end = "<!-- kinds x domains: begin -->", "<!-- kinds x domains: end -->"
+    block = text[text.index(begin) + len(begin):text.index(end)].strip()
+    assert block == kinds_table()
+    # and the table says what the refusals do: mpc on the chains, swingup too
+    assert "| `mpc` |" in block and "no (full_state, symbolic_model)" in block
