@@ -45,7 +45,6 @@ from tspend.controllers.base import Controller, Observation, diag_width, diagnos
 from tspend.plants.domain import FULL_STATE
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
-from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
