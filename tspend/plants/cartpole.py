@@ -443,7 +443,8 @@ class CartPoleDomain(Domain):
                          accel_factory=factory,
                          energy=lambda s: pole_energy(machine, float(s[1]), float(s[3])),
                          pole=1, actuated=0, angles=(False, True, False, False),
-                         parameters=dict(params.__dict__), accel_unit="m/s^2")
+                         parameters=dict(params.__dict__), machine=machine,
+                         accel_unit="m/s^2")
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the

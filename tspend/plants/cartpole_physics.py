@@ -152,6 +152,7 @@ def gain_sign(p: CartPoleParams) -> float:
                          - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
 
 
+@register_jitable
 def pole_energy(p: CartPoleMachine, theta: float, w: float) -> float:
     """The pole's energy about its pivot, J, 0 upright at rest, ``-2 m g l`` hanging:
     ``E = 1/2 J theta'^2 + m g l (cos theta - 1)``.

@@ -179,6 +179,9 @@ class FullModel:
     q_lo: tuple[float, ...] = ()
     q_hi: tuple[float, ...] = ()
     parameters: dict = field(default_factory=dict)
+    #: the domain's machine structure (a NamedTuple compiled code can take) behind
+    #: ``accel_factory`` and ``energy``
+    machine: Any = None
     #: the unit of the actuated coordinate's acceleration ("m/s^2", "rad/s^2")
     accel_unit: str = ""
 

@@ -440,7 +440,8 @@ class FurutaDomain(Domain):
                          accel_factory=factory,
                          energy=lambda s: pendulum_energy(machine, float(s[1]), float(s[3])),
                          pole=1, actuated=0, angles=(True, True, False, False),
-                         parameters=dict(params.__dict__), accel_unit="rad/s^2")
+                         parameters=dict(params.__dict__), machine=machine,
+                         accel_unit="rad/s^2")
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types

@@ -318,6 +318,7 @@ mass_terms = _mass_terms
 machine_accelerations = register_jitable(_accelerations)
 
 
+@register_jitable
 def pendulum_energy(p: "FurutaMachine", pendulum: float, pendulum_vel: float) -> float:
     """The pendulum's energy about its pivot in the arm's frame, J, 0 upright at rest:
     ``E = 1/2 m22 al'^2 + V(al) - V(0)`` with ``V = v_c cos al + v_s sin al``.
