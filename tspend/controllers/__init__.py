@@ -363,6 +363,7 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     return ctrl
 
 
-__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "kinds_table", "unsupported", "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
+__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "kinds_table", "unsupported",
+           "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
            "settings_classes", "settings_of"]

@@ -23,8 +23,8 @@ from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, veloci
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, accelerations_factory, gain_sign, machine_accelerations, machine_rhs,
     pole_energy, rhs)
-from tspend.plants.domain import (VIEW_MODEL, CART_CENTRING, FULL_STATE, PARAMETER_CHANGE, SYMBOLIC, Backend,
-    Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.domain import (CART_CENTRING, FULL_STATE, PARAMETER_CHANGE, SYMBOLIC,
+    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario

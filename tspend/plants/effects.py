@@ -29,7 +29,8 @@ from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 from tspend.plants.domain import CAPABILITIES, CART_CENTRING, PARAMETER_CHANGE, Domain
 
 
-__all__ = ["EffectsPlant", "Measurement", "OuterLoop", "needs_hook", "needs_plant_wrapper", "unsupported"]
+__all__ = ["EffectsPlant", "Measurement", "OuterLoop", "needs_hook", "needs_plant_wrapper",
+           "unsupported"]
 
 
 class EffectsPlant(Plant):

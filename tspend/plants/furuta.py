@@ -26,8 +26,8 @@ from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (VIEW_MODEL, FULL_STATE, SYMBOLIC, Backend, Domain, Drawing, FullModel,
-    PlantLabels, PlantModel, Quantity, TaskDefaults)
+from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
     linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
