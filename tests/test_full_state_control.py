@@ -223,6 +223,8 @@ def test_machine_metrics_and_saturation_are_reported():
      "effects.change: the furuta domain does not support it"),
     (["run", "furuta_mujoco", "--set", "effects.outer_loop.k_x=0.1"],
      "effects.outer_loop: the furuta domain does not support it"),
+    (["run", "ex2_duffing", "--set", "effects.rail=1.0"],
+     "effects.rail: the duffing domain has no rail"),
     (["run", "ex3_pendulum_ode", "--controller", "lqr", "--set",
       "controllers.lqr.state_weights=[1.0, 2.0]"], "needs 4 entries"),
     (["run", "swingup_mujoco", "--set", "controllers.swingup.release_angle=0.1"],

@@ -205,7 +205,11 @@ class Measurement:
 def unsupported(cfg: EffectsConfig, domain: Domain) -> str | None:
     """Why ``cfg`` cannot act on a plant of ``domain`` (None: it can): ``change`` needs
     a domain whose parameters change during a run, the outer loop a cart to centre
-    (:attr:`tspend.plants.domain.Domain.provides`)."""
+    (:attr:`tspend.plants.domain.Domain.provides`), ``rail`` a rail joint
+    (:attr:`tspend.plants.domain.Domain.rail_joint`)."""
+    if cfg.rail > 0.0 and not domain.rail_joint:
+        return (f"effects.rail: the {domain.name} domain has no rail (a slide joint); bound a "
+                f"state with [task.state_bounds] instead")
     ol = cfg.outer_loop
     wanted = [("effects.change", PARAMETER_CHANGE, cfg.change is not None),
               ("effects.outer_loop", CART_CENTRING,
