@@ -21,7 +21,8 @@ from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers.base import Controller
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
-from tspend.plants.effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
+from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+    unsupported as effects_unsupported)
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
@@ -44,6 +45,9 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
 
 def _built(scenario: Scenario, kind: str | None) -> Plant:
     """:func:`build_plant` of a scenario whose draws are applied already."""
+    refused = effects_unsupported(scenario.effects, plant_registry.domain_of(scenario.plant.kind))
+    if refused:
+        raise ScenarioError(f"{scenario.path}: {refused}")
     plant = plant_registry.build(scenario, kind)
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):

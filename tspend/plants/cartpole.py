@@ -19,10 +19,12 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
-from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, gain_sign, machine_accelerations, machine_rhs, rhs)
-from tspend.plants.domain import Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity
+    accelerations, accelerations_factory, gain_sign, machine_accelerations, machine_rhs,
+    pole_energy, rhs)
+from tspend.plants.domain import (CART_CENTRING, FULL_STATE, PARAMETER_CHANGE, SYMBOLIC,
+    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -112,6 +114,11 @@ class CartPoleODE(AnalyticPlant):
     def joints(self) -> tuple[JointInfo, ...]:
         return self._joints
 
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The force on the cart, N (per unit gear), unbounded: the ODE has no actuator."""
+        return (InputInfo("force", "N"),)
+
     def default_task(self) -> TaskDefaults:
         """The cart-pole domain's task on this plant's joint names."""
         return DOMAIN.task.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
@@ -160,6 +167,12 @@ def params_of(cfg: CartPoleConfig) -> CartPoleParams:
                           cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
                           cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction,
                           gear=cfg.gear or 1.0)
+
+
+def _nominal(params: CartPoleParams) -> CartPoleParams:
+    """The rigid machine of ``params``: a nominal model leaves a rig's friction out."""
+    return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,
+                   hinge_friction=0.0)
 
 
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -395,6 +408,7 @@ class CartPoleDomain(Domain):
     task = TaskDefaults(view=("hinge", "hinge_dot"), fall_angle=math.pi / 2, pole="hinge")
     default_model = MujocoCartPoleConfig.model
     rail_joint = "slider"
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PARAMETER_CHANGE, CART_CENTRING})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, MujocoCartPoleConfig) else self.default_model
@@ -408,9 +422,33 @@ class CartPoleDomain(Domain):
         actually simulates.  Friction is left out: a nominal model knows the rigid body,
         not what a rig adds to it.
         """
-        params = self.build(scenario).params  # type: ignore[attr-defined]
-        return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,
-                       hinge_friction=0.0)
+        return _nominal(self.build(scenario).params)  # type: ignore[attr-defined]
+
+    def full_model(self, scenario: "Scenario") -> FullModel:
+        """(C1)-(C2) over the full state ``[slider, hinge, slider_dot, hinge_dot]`` (the
+        plant's own joint names) on the nominal machine of :meth:`params_of_scenario`,
+        from :func:`~tspend.plants.cartpole_physics.accelerations_factory`; the energy is
+        :func:`~tspend.plants.cartpole_physics.pole_energy`."""
+        plant = self.build(scenario)
+        params = _nominal(plant.params)  # type: ignore[attr-defined]
+        machine = params.machine()
+
+        def factory(sin, cos, tanh):
+            accel = accelerations_factory(sin, cos, tanh)
+
+            def q_dd(s, u):
+                # the domain's order is (theta'', x''); no disturbance in a model
+                thdd, xdd = accel(machine, s[1], s[3], s[2], u, 0.0)
+                return xdd, thdd
+
+            return q_dd
+
+        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
+                         accel_factory=factory,
+                         energy=lambda s: pole_energy(machine, float(s[1]), float(s[3])),
+                         pole=1, actuated=0, angles=(False, True, False, False),
+                         parameters=dict(params.__dict__), machine=machine,
+                         accel_unit="m/s^2")
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the

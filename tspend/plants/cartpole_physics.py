@@ -29,7 +29,8 @@ import numpy as np
 from numba.extending import register_jitable
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
-           "gain_sign", "machine_accelerations", "machine_rhs", "rhs"]
+           "accelerations_factory", "gain_sign", "machine_accelerations", "machine_rhs",
+           "pole_energy", "rhs"]
 
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
@@ -149,6 +150,18 @@ def gain_sign(p: CartPoleParams) -> float:
     """Sign of d(theta'')/du at the upright, at rest: Assumption 5's sign."""
     return math.copysign(1.0, accelerations(p, 0.0, 0.0, 0.0, 1.0, 0.0)[0]
                          - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
+
+
+@register_jitable
+def pole_energy(p: CartPoleMachine, theta: float, w: float) -> float:
+    """The pole's energy about its pivot, J, 0 upright at rest, ``-2 m g l`` hanging:
+    ``E = 1/2 J theta'^2 + m g l (cos theta - 1)``.
+
+    By (C2) its rate is ``E' = theta' (m l cos(theta) x'' + Q_theta)``: the cart's
+    acceleration is the only way in besides the hinge's own torques (Astrom and Furuta,
+    2000, eq. 4; swing-up, :mod:`tspend.controllers.swingup`).
+    """
+    return 0.5 * p.J * w * w + p.m * p.g * p.l * (math.cos(theta) - 1.0)
 
 
 def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) -> np.ndarray:
