@@ -138,6 +138,18 @@ def interpretability_section(seeds, jobs, out: Path, fig, rel) -> list[str]:
     return lines
 
 
+def fair_section(page: Path) -> str:
+    """The section benchmarks/fair_results.py wrote into the page (without its markers),
+    or "" when there is none."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from fair_results import BEGIN, END
+
+    text = page.read_text() if page.is_file() else ""
+    if BEGIN not in text or END not in text:
+        return ""
+    return text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "results"), help="tables and figures")
@@ -264,7 +276,13 @@ def main(argv: list[str] | None = None) -> int:
         lines += interpretability_section(seeds, args.jobs, out, fig, rel)
     lines.append(f"Wall time to regenerate: {time.perf_counter() - started:.0f} s.")
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text("\n".join(lines) + "\n")
+    text = "\n".join(lines) + "\n"
+    kept = fair_section(page)
+    if kept:  # benchmarks/fair_results.py's section, kept as that script wrote it
+        from fair_results import splice
+
+        text = splice(text, kept)
+    page.write_text(text)
     print(f"wrote {page}", file=sys.stderr)
     return 0
 

@@ -227,3 +227,71 @@ def test_every_warning_once(capsys) -> None:
                  "--set", "plant.timestep=0.001"]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if "warning:" in line]
     assert warnings and len(warnings) == len(set(warnings))
+
+
+@pytest.mark.parametrize("model", list(ALL), ids=lambda p: p.stem)
+def test_mpc_model_is_the_general_ode_symbolically(model: Path) -> None:
+    """The full-state model MPC builds over CasADi is (C1)-(C2) with the model's geometry
+    and actuator, ranges clipped: = its numeric twin at random states and inputs (beyond
+    the control range too), and = MuJoCo's qacc where the model has no friction (the
+    full-state model leaves a rig's friction out)."""
+    import casadi
+
+    from tspend.controllers.full_model import full_model
+
+    slide, hinge, act = ALL[model]
+    fm = full_model(scenario_on(model, ALL[model]))
+    S, U = casadi.SX.sym("s", 4), casadi.SX.sym("u")
+    f = casadi.Function("f", [S, U], [fm.symbolic()(S, U)])
+    plant = MujocoCartPole(model, slide, hinge, act, timestep=0.001)
+    p = plant.params
+    rigid = p.cart_damping == p.hinge_damping == p.cart_friction == p.hinge_friction == 0.0
+    m, d = plant.model, plant.data
+    qs, qh = m.jnt_qposadr[m.joint(slide).id], m.jnt_qposadr[m.joint(hinge).id]
+    vs, vh = m.jnt_dofadr[m.joint(slide).id], m.jnt_dofadr[m.joint(hinge).id]
+    lo, hi = (p.ctrl_min, p.ctrl_max) if math.isfinite(p.ctrl_min) else (-50.0, 50.0)
+    span = hi - lo
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        s = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-1.2, 1.2),
+                      rng.uniform(-2, 2), rng.uniform(-3, 3)])
+        u = rng.uniform(lo - 0.3 * span, hi + 0.3 * span)
+        numeric = fm.rhs(s, u)
+        symbolic = np.asarray(f(s, u)).ravel()
+        assert symbolic == pytest.approx(numeric, rel=1e-12, abs=1e-12), model.stem
+        if rigid:
+            d.qpos[qs], d.qpos[qh], d.qvel[vs], d.qvel[vh] = s
+            d.ctrl[m.actuator(act).id] = u
+            d.qfrc_applied[:] = 0.0
+            mujoco.mj_forward(m, d)
+            scale = 1.0 + abs(d.qacc[vh]) + abs(d.qacc[vs])
+            assert abs(numeric[2] - d.qacc[vs]) < 1e-10 * scale, model.stem
+            assert abs(numeric[3] - d.qacc[vh]) < 1e-10 * scale, model.stem
+
+
+def test_relative_draws_multiply_the_models_own_values(tmp_path) -> None:
+    """[randomize] on a third-party model whose [plant] leaves m, l, M at 0: the relative
+    draws multiply the compiled model's own values, which the drawn plant then has."""
+    from tspend.plants import randomize
+    from tspend.scenario import parse_scenario
+
+    text = (ROOT / "scenarios" / "pendulum_mujoco_randomized.toml").read_text()
+    scn = override(parse_scenario(text, str(ROOT / "scenarios" / "x.toml")), **{
+        "plant.model": str(GYM), "plant.actuator": "slide", "plant.timestep": 0.001})
+    own = MujocoCartPole(GYM, actuator="slide").facts
+    for seed in (0, 1):
+        drawn = randomize.draw(override(scn, **{"run.seed": seed})).values
+        assert 0.8 * own.pole_mass <= drawn["m"] <= 1.2 * own.pole_mass
+        assert 0.9 * own.pole_com <= drawn["l"] <= 1.1 * own.pole_com
+        assert 0.8 * own.cart_mass <= drawn["M"] <= 1.2 * own.cart_mass
+        assert 0.8 * own.force_per_u <= drawn["gear"] <= 1.2 * own.force_per_u
+        facts = prepare(override(scn, **{"run.seed": seed})).plant.facts
+        assert (facts.pole_mass, facts.cart_mass) == pytest.approx((drawn["m"], drawn["M"]),
+                                                                   rel=1e-9)
+        assert facts.force_per_u == pytest.approx(drawn["gear"], rel=1e-9)
+    # a relative draw on a key that is 0 on the model too is refused, one line
+    bad = parse_scenario(text.replace(
+        'M = {dist = "uniform"', 'cart_damping = {dist = "uniform", low = 0.5, high = 2.0, '
+        'relative = true}\nM = {dist = "uniform"'), str(tmp_path / "bad.toml"))
+    with pytest.raises(ScenarioError, match="randomize.cart_damping.relative.*is 0"):
+        randomize.draw(bad)

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from tspend import load_scenario, override
-from tspend.controllers import KINDS
-from tspend.controllers.full_model import full_model, has_full_state
+from tspend.controllers import KINDS, unsupported
 from tspend.errors import ScenarioError
 from tspend.loop.simulation import build_controller, build_plant, run
 from tspend.plants.registry import DOMAINS, PLANT_KINDS
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series
 from tspend.scenario import available_scenarios
+from tspend.task import build_task
 
 
 def _scenario_of(kind: str) -> str | None:
@@ -54,8 +54,8 @@ def test_plant_names_its_full_state(plant_kind: str) -> None:
     domain = PLANT_KINDS[plant_kind].domain
     assert set(domain.view_names(plant)) <= set(names)
     # the view the controller sees is the full state's view entries
-    full = dict(zip(names, plant.full_state()))
-    assert np.array_equal(plant.state(), [full[n] for n in domain.view_names(plant)])
+    task = build_task(plant)
+    assert tuple(names[i] for i in task.view_index) == tuple(domain.view_names(plant))
 
 
 @pytest.mark.parametrize("controller", sorted(KINDS))
@@ -63,13 +63,15 @@ def test_plant_names_its_full_state(plant_kind: str) -> None:
 def test_every_kind_runs_on_every_domain(plant_kind: str, controller: str, tmp_path) -> None:
     scn = override(load_scenario(SCENARIOS[plant_kind]), **{"run.duration": 1.0,
                                                              "run.snapshot_every": 0.5})
-    # the whole-machine kinds (issue 20) need a full state, MPC a symbolic model: elsewhere
-    # they refuse with one line (ScenarioError, exit 2 on the CLI)
-    if controller in ("mpc", "swingup") and (
-            not has_full_state(scn) or (controller == "mpc" and not full_model(scn).symbolic_ok)):
-        with pytest.raises(ScenarioError):
+    # a kind declares what it needs of a domain (Controller.needs, .domains): where the
+    # domain does not provide it, the kind refuses with that one line (exit 2 on the CLI)
+    # and the pair is skipped with the declared reason
+    why = unsupported(scn, controller)
+    if why is not None:
+        with pytest.raises(ScenarioError) as refused:
             build_controller(scn, kind=controller)
-        return
+        assert str(refused.value) == why and "\n" not in why
+        pytest.skip(why)
     path = tmp_path / "run.rrd"
     rec = open_recording("suite", mode="save", path=path)
     sink = RerunSink(rec)

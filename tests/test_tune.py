@@ -152,3 +152,25 @@ def test_compare_tune_gives_every_kind_the_same_budget_on_disjoint_seeds(tmp_pat
     assert doc["pairs"][0]["pairs"] == 2
     assert main(["compare", "ex3_pendulum_ode", "--controller", "pd,lqr", "--tune", "2",
                  "--tune-seeds", "1:3", "--seeds", "0:2"]) == 2
+
+
+def test_tuned_randomised_scenario_keeps_its_draws_and_reproduces_its_train_score(tmp_path,
+                                                                                 executor):
+    """On a [randomize] scenario each training seed is another machine: the tuned file
+    keeps the [randomize] table, so rerunning it at the training seeds draws the same
+    machines and gives back the reported score bit for bit."""
+    from tspend.plants import randomize
+    from tspend.sweep import sweep
+
+    scn = _short("pendulum_mujoco_randomized", 0.5)
+    r = tuning.tune(scn, "sliding_mode", trials=2, seeds=[3, 4], test_seeds=[5],
+                    executor=executor, defaults=False)
+    path = tmp_path / "tuned.toml"
+    path.write_text(r.text)
+    tuned = load_scenario(path)
+    assert tuned.randomize == scn.randomize
+    rows = sweep(tuned, seeds=[3, 4], controllers=["sliding_mode"], executor=executor)
+    assert tuning.score(rows, "rmse") == r.train_score
+    assert list(rows["drawn.m"]) == [randomize.draw(override(scn, **{"run.seed": s})).values["m"]
+                                     for s in (3, 4)]
+    assert rows["drawn.m"].nunique() == 2

@@ -100,7 +100,8 @@ class PlantConfig:
 
     Each kind has its own subclass (``tspend.plants.registry.PLANT_KINDS``); the scenario
     reader accepts exactly the fields of the kind's class, checked by the ``metadata``
-    of each field (``low``/``strict`` bounds, ``choices``).
+    of each field (``low``/``strict`` bounds, ``choices``; ``own``: 0 stands for the
+    machine's own value, so ``[randomize]`` may not draw it 0).
     """
 
     kind: str = "cartpole_mujoco"
@@ -222,3 +223,5 @@ class Scenario:
     overrides: tuple = ()
     #: (kind, settings) pairs from the [controllers.KIND] tables (tspend.controllers.settings)
     controllers: tuple = ()
+    #: what a seed draws of the plant ([randomize]; tspend.plants.randomize.Draw entries)
+    randomize: tuple = ()

@@ -28,6 +28,7 @@ from tspend.controllers.settings import parse_kind_tables
 from tspend.errors import ScenarioError
 from tspend.tables import Table, read_fields
 from tspend.plants.domain import project_root
+from tspend.plants.randomize import read_randomize
 from tspend.plants.registry import PLANT_KINDS, resolve_model_path
 
 #: plant kinds and their order n
@@ -43,7 +44,7 @@ DISTURBANCE_KINDS: dict[str, type] = {
 }
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
-            "controllers", "effects", "task")
+            "controllers", "effects", "task", "randomize")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
@@ -292,6 +293,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     kind_settings = parse_kind_tables(top.table_of("controllers"), n, settings_classes())
     effects = _effects(top.table_of("effects"), n)
     task = _task(top.table_of("task"), n)
+    randomize = read_randomize(top.table_of("randomize"), plant)
     if run.dt > run.duration:
         raise top.error("run.dt", f"dt ({run.dt:g}) must not exceed duration ({run.duration:g})")
     if run.duration / run.dt > MAX_STEPS:
@@ -305,7 +307,8 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         description=top.string("description", ""),
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
         effects=effects, task=task,
-        path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings)
+        path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings,
+        randomize=randomize)
 
 
 def parse_toml(text: str, path: str) -> dict:

@@ -71,8 +71,9 @@ def _scenarios(args: argparse.Namespace) -> list:
 
 
 def summary(frame, grid_keys: list[str]):
-    """Per scenario, grid point and controller: runs by status (``diverged`` counts the
-    runs the task ended too), median and IQR of rmse_ss."""
+    """Per scenario, grid point and controller: runs by status (``completed``, each way
+    the task ended runs that occurred, e.g. ``fell`` or ``rail_end``, then ``diverged``
+    and ``failed``), median and IQR of rmse_ss."""
     import pandas as pd
 
     keys = ["scenario", *grid_keys, "controller"]
@@ -83,10 +84,10 @@ def summary(frame, grid_keys: list[str]):
     for status in ("completed", "diverged", "failed", *TERMINATIONS):
         if status not in out.columns:
             out[status] = 0
-    # a run the task ended (the pole fell, the cart left its rail ...) is the controller's
-    # failure as a divergence is: one column for both
-    out["diverged"] = out["diverged"] + out[list(TERMINATIONS)].sum(axis=1)
-    out = out[["completed", "diverged", "failed"]]
+    # a run the task ended is reported by how it ended (the pole fell, the cart reached the
+    # rail's end), not as a divergence: a column for each termination that occurred
+    ended = [s for s in TERMINATIONS if out[s].any()]
+    out = out[["completed", *ended, "diverged", "failed"]]
     ss = groups["rmse_ss"]
     out["rmse_ss median"] = ss.median()
     out["IQR"] = ss.quantile(0.75) - ss.quantile(0.25)

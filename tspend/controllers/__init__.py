@@ -62,6 +62,18 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "mpc": mpc.build,
 }
 
+#: built-in kind -> its controller class (what it declares: ``needs``, ``domains``,
+#: ``guarantees``); the paper's kinds are :func:`kind_class`'s
+CLASSES: dict[str, type[Controller]] = {
+    "pd": pd.PDController,
+    "lqr": lqr.LQRController,
+    "feedback_linearization": feedback_linearization.FeedbackLinearizationController,
+    "sliding_mode": sliding_mode.SlidingModeController,
+    "wang_indirect": wang_indirect.WangIndirectController,
+    "swingup": swingup.SwingUpController,
+    "mpc": mpc.MPCController,
+}
+
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
 SETTINGS: dict[str, type] = {
     "pd": pd.PDSettings,
@@ -95,6 +107,7 @@ class Kind:
     settings: type | None                      # its [controllers.NAME] dataclass, if any
     summary: str                               # one line for ``--controller help``
     source: str = ""                           # the spec it came from ("" if built in)
+    cls: type[Controller] = Controller         # what it declares (a function: nothing)
 
 
 def _summary(kind: str) -> str:
@@ -137,7 +150,8 @@ def _plugin_kind(obj: object, spec: str, option: str) -> Kind:
     if name in KINDS:
         raise ScenarioError(f"{option} {spec}: its kind {name!r} is a built-in kind's name; "
                             f"give the class another 'kind'")
-    return Kind(name, build, settings, doc[0] if doc else "", spec)
+    return Kind(name, build, settings, doc[0] if doc else "", spec,
+                obj if isinstance(obj, type) else Controller)
 
 
 def resolve(spec: str, option: str = "--controller") -> Kind:
@@ -147,7 +161,7 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     Raises ScenarioError (one line) for anything else.
     """
     if spec in KINDS:
-        return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec))
+        return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec), "", kind_class(spec))
     if plugins.is_spec(spec):
         return _plugin_kind(plugins.load_object(spec, option), spec, option)
     obj = plugins.load_entry_point(ENTRY_POINT_GROUP, spec, option)
@@ -157,6 +171,53 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     raise ScenarioError(f"{option} {spec}: unknown kind; allowed: {', '.join([*KINDS, *installed])}"
                         f", or path/to/file.py:Class, or package.module:Class "
                         f"('--controller help' lists them)")
+
+
+def kind_class(name: str) -> type[Controller]:
+    """The controller class of the built-in kind ``name`` (KeyError for another)."""
+    if name in _PAPER_SUMMARY:
+        from tspend.controllers.paper.controller import AdaptiveFuzzyController
+
+        return AdaptiveFuzzyController
+    return CLASSES[name]
+
+
+def unsupported(scenario: "Scenario", kind: str, cls: type[Controller] | None = None) -> str | None:
+    """Why the kind ``kind`` (of class ``cls``, default the built-in kind's) cannot run on
+    the scenario's plant, as the one line a user sees (None: it can), from what the kind
+    declares (``needs``, ``domains``) and what the plant's domain provides
+    (:attr:`tspend.plants.domain.Domain.provides`)."""
+    from tspend.plants.registry import domain_of
+
+    domain = domain_of(scenario.plant.kind)
+    why = (cls or kind_class(kind)).unsupported(domain)
+    if why is None:
+        return None
+    return (f"{scenario.path}: controller '{kind}' cannot run on plant '{scenario.plant.kind}' "
+            f"(domain {domain.name}): {why}")
+
+
+def kinds_table() -> str:
+    """docs/controllers.md's table of built-in kinds x registered domains, in Markdown, from
+    what each kind declares (``needs``, ``domains``, ``guarantees``) and what each domain
+    provides: a cell says ``yes`` or what is missing (tests/test_furuta_control.py checks
+    the page against it)."""
+    from tspend.plants.domain import CAPABILITIES
+    from tspend.plants.registry import DOMAINS
+
+    names = list(DOMAINS)
+    lines = ["| kind | needs | " + " | ".join(names) + " | what it guarantees |",
+             "|---|---|" + "---|" * len(names) + "---|"]
+    for kind in KINDS:
+        cls = kind_class(kind)
+        needs = "; ".join(CAPABILITIES[n] for n in cls.needs) or "the view only"
+        cells = []
+        for d in DOMAINS.values():
+            missing = [n for n in cls.needs if n not in d.provides]
+            off = cls.domains and d.name not in cls.domains
+            cells.append("no (" + ", ".join(missing) + ")" if missing else "no" if off else "yes")
+        lines.append(f"| `{kind}` | {needs} | " + " | ".join(cells) + f" | {cls.guarantees} |")
+    return "\n".join(lines)
 
 
 def available() -> list[Kind]:
@@ -284,6 +345,9 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     if kind is None:
         return _paper(None)(scenario, **options)
     found = load(kind)
+    refused = unsupported(scenario, kind, found.cls)
+    if refused:
+        raise ScenarioError(refused)
     if not found.source:
         return found.build(scenario, **options)
     try:
@@ -299,6 +363,7 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     return ctrl
 
 
-__all__ = ["KINDS", "SETTINGS", "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
+__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "kinds_table", "unsupported",
+           "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
            "settings_classes", "settings_of"]

@@ -24,9 +24,12 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, Iterable, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from tspend.plants.domain import Domain
 
 __all__ = ["CompiledController", "Controller", "Diagnostic", "Observation", "RESERVED", "chain_observation",
            "check_diagnostics", "diag_width", "diagnostics"]
@@ -175,6 +178,27 @@ class Controller(ABC):
     #: :meth:`step` this often and holds ``u`` in between, unless ``run.control_period``
     #: says otherwise (MPC: 20 ms)
     sample_period: float = 0.0
+    #: what the kind needs of the plant's domain (:data:`tspend.plants.domain.CAPABILITIES`:
+    #: ``"view_model"``, ``"full_state"``, ``"symbolic_model"``): on a domain that does not
+    #: provide every one the kind is refused before anything is built (one line, exit 2)
+    needs: tuple[str, ...] = ()
+    #: the domains the kind is made for (empty: every domain that provides :attr:`needs`)
+    domains: tuple[str, ...] = ()
+    #: what the kind guarantees, in one line (docs/controllers.md's table)
+    guarantees: str = ""
+
+    @classmethod
+    def unsupported(cls, domain: "Domain") -> str | None:
+        """Why this kind cannot run on ``domain``, in words (None: it can)."""
+        if cls.domains and domain.name not in cls.domains:
+            return (f"it is made for the {', '.join(cls.domains)} domain"
+                    f"{'s' if len(cls.domains) > 1 else ''} only")
+        missing = [n for n in cls.needs if n not in domain.provides]
+        if missing:
+            from tspend.plants.domain import CAPABILITIES
+
+            return "it needs " + " and ".join(CAPABILITIES.get(n, n) for n in missing)
+        return None
 
     @abstractmethod
     def reset(self, rng: np.random.Generator) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from tspend.controllers.paper.control_law import is_hurwitz
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.plant_model import PlantModel, plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
@@ -106,6 +107,9 @@ class FeedbackLinearizationController(Controller):
     """The ``feedback_linearization`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "feedback_linearization"
+    needs = (VIEW_MODEL,)
+    guarantees = ("exact linear error dynamics where the view's model is exact and "
+                  "df/du != 0 (the oracle)")
 
     def __init__(self, model: PlantModel, lam: np.ndarray, tol: float = 1e-12,
                  max_iter: int = 50) -> None:

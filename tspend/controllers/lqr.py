@@ -65,6 +65,7 @@ from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
     diagnostics)
+from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.full_model import wrap_angle
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
@@ -133,6 +134,10 @@ class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "lqr"
+    needs = (VIEW_MODEL,)
+    guarantees = ("local exponential stability at the upright on the linearisation: of the whole "
+                  "machine with a full state (exact sine tracking on the linear model), else of "
+                  "the view's error")
 
     def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
                  x_op: np.ndarray, u_op: float) -> None:

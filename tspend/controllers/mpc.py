@@ -10,9 +10,14 @@ Rawlings, Mayne and Diehl, *Model Predictive Control*, 2nd ed., 2017, sec. 8.5),
          q_lo + margin <= q_k <= q_hi - margin   (the rail, the joints' ranges)
 
 ``F`` is ``substeps`` RK4 steps over ``h`` of the domain's own ODE, built symbolically
-from the one source of its equations (:mod:`.full_model`, e.g.
-:func:`tspend.plants.cartpole_physics.accelerations_factory` over CasADi's sin, cos,
-tanh): the model is the simulated machine, not a copy.  ``P`` is the full-state LQR's
+from the one source of its equations: the domain's
+:class:`~tspend.plants.domain.FullModel` (:meth:`~tspend.plants.domain.Domain.full_model`),
+whose ``accel_factory`` is the domain's equations over CasADi's sin, cos, tanh, so the
+model is the simulated machine, not a copy.  The bounds (the actuator's range, the
+positions' ranges: a rail, a joint's range, a task's state bound) are the domain's too
+(:func:`.full_model.full_model`).  The kind declares what it needs of a domain
+(``needs``: a full-state model and its symbolic equations); on any other it is refused
+before anything is built.  ``P`` is the full-state LQR's
 Riccati matrix (the terminal cost of the unconstrained tail), and the reference states
 ``s_r, u_r`` over the horizon are the LQR's feedforward (:mod:`.lqr`) on the reference
 continued by its harmonic model (``r(t + tau) = r cos(omega tau) + r'/omega sin(omega tau)``,
@@ -35,6 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import FULL_STATE, SYMBOLIC
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
@@ -74,6 +80,10 @@ class MPCController(Controller):
     """The ``mpc`` kind (module docstring)."""
 
     kind = "mpc"
+    needs = (FULL_STATE, SYMBOLIC)
+    guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, "
+                  "task state bounds) hold on every predicted trajectory of a successful solve; "
+                  "failed or late solves counted, never silent; no stability proof")
 
     def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
                  Q: np.ndarray, R: float, order: int) -> None:
@@ -226,22 +236,14 @@ class MPCController(Controller):
 
 def build(scenario: "Scenario") -> MPCController:
     from tspend.controllers.full_model import full_model
-    from tspend.controllers.full_model import has_full_state
     from tspend.controllers.lqr import LQRSettings, build_full
 
-    if not has_full_state(scenario):
-        raise ScenarioError(f"{scenario.path}: controller 'mpc' needs a plant with a full "
-                            f"state (the cart-pole, the Furuta pendulum); plant "
-                            f"'{scenario.plant.kind}' has none")
     try:
         import casadi  # noqa: F401
     except ImportError:  # pragma: no cover - the extra is in the test extra
         raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
     s: MPCSettings = settings_for(scenario, MPCSettings)
     model = full_model(scenario)
-    if not model.symbolic_ok:
-        raise ScenarioError(f"{scenario.path}: controller 'mpc': the {model.domain} domain's "
-                            f"equations are not yet built over CasADi")
     dt = scenario.run.dt
     if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
         raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "

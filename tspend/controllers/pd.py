@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
@@ -62,6 +63,9 @@ class PDController(Controller):
     """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "pd"
+    needs = (VIEW_MODEL,)
+    guarantees = ("exponential stability of the view's error where df/du stays near its "
+                  "nominal b0 (the linearisation's margins); nothing beyond the view")
 
     def __init__(self, gains: np.ndarray, b0: float) -> None:
         self.k = np.asarray(gains, dtype=float)

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
@@ -87,6 +88,9 @@ class SlidingModeController(Controller):
     """The ``sliding_mode`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "sliding_mode"
+    needs = (VIEW_MODEL,)
+    guarantees = ("reaches the boundary layer in finite time while the model error stays "
+                  "below the switching gain")
 
     def __init__(self, c: np.ndarray, k: float, phi: float, a: np.ndarray, b0: float,
                  x_op: np.ndarray, u_op: float) -> None:

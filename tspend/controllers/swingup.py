@@ -1,26 +1,30 @@
 """``swingup``: energy-based swing-up (Astrom and Furuta, 2000) caught by full-state LQR.
 
-The pendulum's energy about its pivot, 0 upright at rest and ``-2 m g l`` hanging
-(:meth:`.full_model.FullModel.energy`),
-
-    E = 1/2 J theta'^2 + m g l (cos theta - 1),
-
-changes only through the driven joint: ``E' = J theta' (theta'' - theta''|_{a=0})``, so
-on the cart-pole ``E' = m l cos(theta) theta' a`` with ``a`` the cart's acceleration
-(Astrom and Furuta, "Swinging up a pendulum by energy control", Automatica 36, 2000,
-eq. 4).  Their law drives ``E`` to the upright's ``E_0 = 0``:
+The pendulum's energy about its pivot, 0 upright at rest and ``-2 m g l`` hanging, is
+the domain's (:class:`~tspend.plants.domain.FullModel`'s ``energy``:
+:func:`tspend.plants.cartpole_physics.pole_energy`,
+:func:`tspend.plants.furuta_physics.pendulum_energy`), ``E = 1/2 J theta'^2 + V(theta)``.
+It changes only through the driven joint (and the pendulum's own damping):
+``E' = J theta' (theta'' - theta''|_{a=0})``, so on the cart-pole ``E' = m l cos(theta)
+theta' a`` with ``a`` the cart's acceleration (Astrom and Furuta, "Swinging up a
+pendulum by energy control", Automatica 36, 2000, eq. 4), on the Furuta pendulum the
+same with the arm's angular acceleration.  Their law drives ``E`` to the upright's
+``E_0 = 0``:
 
     a = sat_{a_max}( k_E (E_0 - E) sign(theta' cos theta) )            (A-F 2000, eq. 6)
 
 Here ``sign(theta' cos theta)`` is computed from the model as the sign of ``dE'/du``
-(``J theta' dtheta''/du``, the domain's own equations), so the same law serves a reversed
-hinge or another domain, and a pendulum at rest (``theta' = 0``) is kicked with
-``sign = +1``.  ``a`` becomes a force through the model's affine input map
-(``u = (a - a_0(s)) / (da/du)``).  The cart is centred by ``-k_x x - k_v x'`` added to
-``a`` only where it does not take energy out (``sign(dE'/da) a_c >= 0``), so the
-energy rises monotonically until the catch (tests/test_swingup.py); near the rail's
-end a braking acceleration overrides everything (the rail is respected first), and the
-force is clipped to the actuator's range.
+(``J theta' dtheta''/du``, the domain's own equations), so the same law serves every
+domain with a full-state model and a reversed hinge, and a pendulum at rest
+(``theta' = 0``) is kicked with ``sign = +1``.  ``a`` (the driven joint's acceleration:
+m/s^2 on the cart-pole, rad/s^2 on the Furuta's arm) becomes the input through the
+model's affine input map (``u = (a - a_0(s)) / (da/du)``).  The driven joint is centred
+by ``-k_x q - k_v q'`` added to ``a`` only where it does not take energy out
+(``sign(dE'/da) a_c >= 0``), so the energy rises monotonically until the catch (up to
+the pendulum's damping; tests/test_full_state_control.py, tests/test_furuta_swingup.py);
+near the end of the driven joint's range (the cart-pole's rail, a joint's range, a
+``task.state_bounds`` entry) a braking acceleration overrides everything (the range is
+respected first), and the input is clipped to the actuator's range (newtons, volts).
 
 **Catch** (with hysteresis): once the wrapped pole angle ``|theta| < catch_angle``, the
 full-state LQR of :mod:`.lqr` (design on the upright) takes over; it hands back only when
@@ -38,9 +42,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import FULL_STATE
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
-from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -62,16 +66,19 @@ class SwingUpSettings(KindSettings):
     energy_gain: float = setting(1.0, "k_E, (unit of a)/(J s^2): a = k_E (E_0 - E) sign(...)",
                                  low=0.0, strict=True)
     accel_max: float = setting(4.0, "a_max, the driven joint's acceleration bound while "
-                                    "swinging (m/s^2 on the cart-pole)", low=0.0, strict=True)
+                                    "swinging (m/s^2 for a cart, rad/s^2 for an arm)",
+                               low=0.0, strict=True)
     catch_angle: float = setting(0.4, "rad from upright: LQR takes over inside", low=0.0,
                                  strict=True)
     release_angle: float = setting(0.8, "rad from upright: swing-up resumes outside (must "
                                         "exceed catch_angle)", low=0.0, strict=True)
-    centring: tuple[float, ...] = setting((0.5, 1.0), "k_x (1/s^2), k_v (1/s): cart-centring "
-                                                      "acceleration -k_x x - k_v x'",
+    centring: tuple[float, ...] = setting((0.5, 1.0), "k_x (1/s^2), k_v (1/s): the driven "
+                                                      "joint's centring acceleration "
+                                                      "-k_x q - k_v q'",
                                           kind="list", low=0.0)
-    rail_margin: float = setting(0.5, "brake when the stopping distance reaches the rail's "
-                                      "end minus this (m)", low=0.0)
+    range_margin: float = setting(0.5, "brake when the driven joint's stopping distance "
+                                       "reaches the end of its range minus this (m or rad)",
+                                  low=0.0)
 
     def check(self, n: int):
         if self.release_angle <= self.catch_angle:
@@ -86,6 +93,10 @@ class SwingUpController(Controller):
     """The ``swingup`` kind (module docstring)."""
 
     kind = "swingup"
+    needs = (FULL_STATE,)
+    guarantees = ("the energy the input adds is never negative until the catch (A-F 2000); "
+                  "the driven joint's range respected by braking, the input clipped to its "
+                  "range; LQR's local guarantee once caught (hysteresis)")
 
     def __init__(self, model: FullModel, settings: SwingUpSettings, catch: "FullStateLQR",
                  order: int) -> None:
@@ -94,7 +105,7 @@ class SwingUpController(Controller):
         self.mode = SWING
         self.diagnostics = diagnostics(
             ("energy", 1, {"panel": "energy", "unit": "J",
-                           "description": "E = 1/2 J theta'^2 + m g l (cos theta - 1)"}),
+                           "description": "the pendulum's energy about its pivot, 0 upright"}),
             ("mode", 1, {"panel": "mode", "description": "0 swinging up, 1 caught (LQR)"}),
             ("theta_wrapped", 1, {"panel": "state", "unit": "rad",
                                   "description": "pole angle wrapped to (-pi, pi]"}),
@@ -110,9 +121,9 @@ class SwingUpController(Controller):
         m, s = self.model, self.s
         dof, act = m.dof, m.actuated
         a0, du = m.input_map(state)
-        # dE'/du = J theta' dtheta''/du, and da/du = du[act] > 0 on the domains here:
-        # the sign of dE'/da, i.e. A-F's sign(theta' cos theta)
-        slope = m.pole_inertia * state[dof + m.pole] * du[m.pole] * math.copysign(1.0, du[act])
+        # dE'/du = J theta' dtheta''/du (J > 0), times the sign of da/du: the sign of
+        # dE'/da, i.e. A-F's sign(theta' cos theta)
+        slope = state[dof + m.pole] * du[m.pole] * math.copysign(1.0, du[act])
         sign = 1.0 if slope >= 0.0 else -1.0
         energy = m.energy(state)
         a = min(s.accel_max, max(-s.accel_max, s.energy_gain * (0.0 - energy) * sign))
@@ -121,11 +132,11 @@ class SwingUpController(Controller):
         a_c = -k_x * x - k_v * v
         if a_c * sign >= 0.0:   # centring that also pumps energy in
             a += a_c
-        lim = m.q_hi[act]
+        lim = min(m.q_hi[act], -m.q_lo[act])
         if math.isfinite(lim):
-            # stopping distance at full braking; brake before the rail's end
+            # stopping distance at full braking; brake before the range's end
             stop = x + v * abs(v) / (2.0 * s.accel_max)
-            if abs(stop) > lim - s.rail_margin:
+            if abs(stop) > lim - s.range_margin:
                 # heading out: brake at full; at rest near the end: centre only
                 a = -math.copysign(s.accel_max, v) if x * v > 0.0 else a_c
         u = (a - a0[act]) / du[act]
@@ -156,13 +167,8 @@ class SwingUpController(Controller):
 
 def build(scenario: "Scenario") -> SwingUpController:
     from tspend.controllers.full_model import full_model
-    from tspend.controllers.full_model import has_full_state
     from tspend.controllers.lqr import LQRSettings, build_full
 
-    if not has_full_state(scenario):
-        raise ScenarioError(f"{scenario.path}: controller 'swingup' needs a pendulum with a "
-                            f"full state (the cart-pole, the Furuta pendulum); plant "
-                            f"'{scenario.plant.kind}' has none")
     s: SwingUpSettings = settings_for(scenario, SwingUpSettings)
     lqr_settings: LQRSettings = settings_for(scenario, LQRSettings)
     model = full_model(scenario)

@@ -62,6 +62,7 @@ from tspend.config import SetSpec
 from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
 from tspend.errors import ScenarioError
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.gaussian_basis import GaussianGrid, basis, gaussian_grid
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
@@ -124,6 +125,9 @@ class WangIndirectController(Controller):
     """The ``wang_indirect`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "wang_indirect"
+    needs = (VIEW_MODEL,)
+    guarantees = ("bounded tracking error (Lyapunov, with the supervisor) under the fuzzy "
+                  "approximation's assumptions")
 
     def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, gamma_f: float,
                  gamma_g: float, g_init: float, g_min: float, f_radius: float = 0.0,

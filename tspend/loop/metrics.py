@@ -15,6 +15,8 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
 * ``joints.<name>.max_abs``, ``joints.<name>.final``: every joint's position (m or rad)
   from the block's full ``state``;
 * ``plant``: the plant's physical parameters as simulated (:meth:`Plant.parameters`);
+* ``drawn``: what the scenario's ``[randomize]`` drew at the run's seed (``{}``: nothing;
+  :mod:`tspend.plants.randomize`);
 * ``saturated_fraction``: the fraction of samples whose u lay outside the actuator's
   range (the command the actuator clipped);
 * ``controller_ms.median``, ``controller_ms.max``: the controller's wall time per
@@ -53,10 +55,13 @@ class MachineInfo:
     parameters: dict = field(default_factory=dict)
     u_lo: float = -math.inf
     u_hi: float = math.inf
+    #: what the scenario's [randomize] drew (flat name -> value; empty: nothing)
+    drawn: dict = field(default_factory=dict)
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
-MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction")
+MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction",
+                    "drawn.")
 
 
 def is_machine_column(name: str) -> bool:
@@ -186,6 +191,7 @@ class MetricsAccumulator:
                              for name, _ in m.joints}
             out["plant"] = dict(m.parameters)
             out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
+            out["drawn"] = dict(m.drawn)
         out["controller_ms"] = {"median": self._median_ms(),
                                 "max": 1e3 * self.time_max if self.timed else None}
         if self.counters:

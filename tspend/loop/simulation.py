@@ -21,7 +21,9 @@ from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers.base import Controller
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
-from tspend.plants.effects import EffectsPlant, Measurement, needs_hook, needs_plant_wrapper
+from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+    unsupported as effects_unsupported)
+from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
 from tspend.plants.mjcf_warning import ModelWarning
@@ -32,11 +34,20 @@ from tspend.task import Task, build_task
 
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     """The scenario's plant (or the same machine on backend ``kind``), reset to x0, with
-    the scenario's real-world effects on the actuator, rail and parameters.
+    the scenario's real-world effects on the actuator, rail and parameters, and what its
+    ``[randomize]`` draws at its seed (:mod:`tspend.plants.randomize`).
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
     :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
     """
+    return _built(randomize.draw(scenario).scenario, kind)
+
+
+def _built(scenario: Scenario, kind: str | None) -> Plant:
+    """:func:`build_plant` of a scenario whose draws are applied already."""
+    refused = effects_unsupported(scenario.effects, plant_registry.domain_of(scenario.plant.kind))
+    if refused:
+        raise ScenarioError(f"{scenario.path}: {refused}")
     plant = plant_registry.build(scenario, kind)
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
@@ -152,7 +163,8 @@ class RunResult:
         return run_figure(self, every)
 
 
-def machine_info(plant: Plant, task: Task, scenario: Scenario) -> MachineInfo:
+def machine_info(plant: Plant, task: Task, scenario: Scenario,
+                 drawn: dict | None = None) -> MachineInfo:
     """The joints, parameters and input range the machine metrics report."""
     names = task.names
     joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
@@ -162,7 +174,8 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario) -> MachineInfo:
     sat = scenario.effects.saturation
     if sat > 0.0:
         lo, hi = max(lo, -sat), min(hi, sat)
-    return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi)
+    return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
+                       drawn=dict(drawn or {}))
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:
@@ -194,18 +207,23 @@ class Prepared:
     plant: Plant
     controller: Controller
     task: Task | None = None
+    #: what the scenario's [randomize] drew at its seed (flat name -> value)
+    drawn: dict | None = None
 
 
 def prepare(scenario: Scenario, plant_kind: str | None = None,
             controller: str | None = None) -> Prepared:
     """Build the plant (model file, joint names, timestep), its task and the controller
     without running: every error a scenario can still raise surfaces here, as a
-    ScenarioError."""
-    plant = build_plant(scenario, plant_kind)
+    ScenarioError.  The plant is the machine ``[randomize]`` draws at the scenario's
+    seed; the controller is built on the nominal scenario, so it does not know the draw."""
+    drawn = randomize.draw(scenario)
+    plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
     plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
     scenario = with_gain_sign(scenario, plant)
-    return Prepared(scenario, plant, build_controller(scenario, kind=controller), task)
+    return Prepared(scenario, plant, build_controller(scenario, kind=controller), task,
+                    drawn.values)
 
 
 def steps_of(scenario: Scenario) -> int:
@@ -243,7 +261,7 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
                       hook=hook, task=task)
     metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed,
-                                 machine=machine_info(plant, task, scenario))
+                                 machine=machine_info(plant, task, scenario, parts.drawn))
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
     end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl), all_sinks)

@@ -245,9 +245,6 @@ class AnalyticPlant(Plant):
         self.s[: self.order] = x0
         self._clock[0] = 0.0
 
-    def state(self) -> np.ndarray:
-        return self.s[: self.order].copy()
-
     def rhs(self, t: float, s: np.ndarray, u: float, d: float) -> np.ndarray:
         """Full derivative: the chain of integrators, accel last, then hidden states."""
         sdot = np.empty_like(s)

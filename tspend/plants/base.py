@@ -5,8 +5,7 @@ exposes its FULL state, named like MuJoCo's qpos then qvel: a joint's position i
 after the joint, its velocity ``<joint>_dot`` (the cart-pole: ``("slider", "hinge",
 "slider_dot", "hinge_dot")`` on both backends; the paper's chain plants ``("x1", "x2")``).
 The paper's companion-form view (the tracked output and its derivatives, ``order``
-entries) is the task's business (:mod:`tspend.task`); ``state()`` keeps giving the plant's
-own default view for the code that predates the full state.
+entries) is the task's business (:mod:`tspend.task`: ``full_state()[task.view_index]``).
 
 :class:`Plant` is an abstract base class: what every plant must define is abstract, the
 optional parts (joints, inputs, parameters, extras, a compiled step ...) have defaults,
@@ -74,7 +73,7 @@ class TaskDefaults:
 class Plant(ABC):
     """A plant of order ``n`` (its default view) with a full named state.
 
-    Subclasses define :meth:`reset`, :meth:`state`, :meth:`full_state`, :meth:`step`,
+    Subclasses define :meth:`reset`, :meth:`full_state`, :meth:`step`,
     ``order``, ``state_names`` and ``state_units``; everything else has a default.
     """
 
@@ -122,10 +121,6 @@ class Plant(ABC):
     @abstractmethod
     def reset(self, x0: np.ndarray) -> None:
         """Set the default view to ``x0`` (shape (n,)), the rest at rest, the clock to 0."""
-
-    @abstractmethod
-    def state(self) -> np.ndarray:
-        """The default view x (shape (n,)); a copy the caller may keep."""
 
     @abstractmethod
     def step(self, u: float, d: float, dt: float) -> None:

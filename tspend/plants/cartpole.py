@@ -19,13 +19,13 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
-from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, actuator_force_range, gain_sign, inverse_dynamics, machine_accelerations,
-    machine_rhs, rhs)
+    accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
+    machine_accelerations, machine_rhs, pole_energy, rhs)
 from tspend.errors import ScenarioError
-from tspend.plants.domain import (CHIRP_F0_HZ, Backend, Domain, Drawing, PlantLabels, PlantModel,
-    Quantity)
+from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE, PARAMETER_CHANGE,
+    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -47,6 +47,12 @@ def _at_least_zero(**more) -> dict:
     return {"low": 0.0, **more}
 
 
+def _own_if_zero() -> dict:
+    """A key whose 0 stands for the machine's own value (``own``): >= 0 when set, but
+    a ``[randomize]`` draw of it must be > 0 (a drawn 0 would not be the value drawn)."""
+    return _at_least_zero(own=True)
+
+
 @dataclass(frozen=True)
 class CartPoleConfig(PlantConfig):
     """The cart-pole (C1)-(C2) of tspend/plants/cartpole.py, on either backend."""
@@ -56,12 +62,15 @@ class CartPoleConfig(PlantConfig):
     l: float = field(default=3.0, metadata=_positive())
     g: float = field(default=9.8, metadata=_at_least_zero())
     #: pole inertia about the pivot, kg m^2 (0 = the uniform rod's 4/3 m l^2)
-    J: float = field(default=0.0, metadata=_at_least_zero())
+    J: float = field(default=0.0, metadata=_own_if_zero())
     #: viscous damping (N s/m, N m s/rad) and dry friction (N, N m) at cart and hinge
     cart_damping: float = field(default=0.0, metadata=_at_least_zero())
     hinge_damping: float = field(default=0.0, metadata=_at_least_zero())
     cart_friction: float = field(default=0.0, metadata=_at_least_zero())
     hinge_friction: float = field(default=0.0, metadata=_at_least_zero())
+    #: actuator gain, N of cart force per unit of u at rest (0 = the model's own gear x
+    #: gain; the ODE's 1)
+    gear: float = field(default=0.0, metadata=_own_if_zero())
 
 
 #: the [plant] keys of cartpole_mujoco that write a number into the model (0: the model's own)
@@ -80,10 +89,10 @@ class MujocoCartPoleConfig(CartPoleConfig):
     model's joint values when not 0.
     """
 
-    M: float = field(default=0.0, metadata=_at_least_zero())
-    m: float = field(default=0.0, metadata=_at_least_zero())
-    l: float = field(default=0.0, metadata=_at_least_zero())
-    g: float = field(default=0.0, metadata=_at_least_zero())
+    M: float = field(default=0.0, metadata=_own_if_zero())
+    m: float = field(default=0.0, metadata=_own_if_zero())
+    l: float = field(default=0.0, metadata=_own_if_zero())
+    g: float = field(default=0.0, metadata=_own_if_zero())
     #: model file (relative to the cwd, the scenario or the project root) and its names
     model: str = "models/cartpole.xml"
     slide_joint: str = "slider"
@@ -134,6 +143,11 @@ class CartPoleODE(AnalyticPlant):
     @property
     def joints(self) -> tuple[JointInfo, ...]:
         return self._joints
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The force on the cart, N (per unit gear), unbounded: the ODE has no actuator."""
+        return (InputInfo("force", "N"),)
 
     def default_task(self) -> TaskDefaults:
         """The cart-pole domain's task on this plant's joint names."""
@@ -209,7 +223,14 @@ def params_of(cfg: CartPoleConfig) -> CartPoleParams:
     """The machine a cart-pole configuration describes."""
     return CartPoleParams(M=cfg.M, m=cfg.m, l=cfg.l, g=cfg.g, J=cfg.J,
                           cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
-                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction)
+                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction,
+                          gear=cfg.gear or 1.0)
+
+
+def _nominal(params: CartPoleParams) -> CartPoleParams:
+    """The rigid machine of ``params``: a nominal model leaves a rig's friction out."""
+    return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,
+                   hinge_friction=0.0)
 
 
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -227,6 +248,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     return MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
                           actuator=mj.actuator, overrides=overrides,
                           integrator=mj.integrator or None, timestep=mj.timestep or None,
+                          gear=mj.gear or None,
                           task_defaults=DOMAIN.task, **friction)
 
 
@@ -437,6 +459,18 @@ class CartPoleDrawing(Drawing):
 CHIRP_N_PER_KG = 100.0 / 11.0
 
 
+def _symbolic_clip(v: Any, lo: float, hi: float) -> Any:
+    """:func:`~tspend.plants.cartpole_physics.clip` of a CasADi expression ``v`` (the
+    bounds are numbers; an infinite one adds no term)."""
+    import casadi  # only for a symbolic model (MPC)
+
+    if lo > -math.inf:
+        v = casadi.fmax(v, lo)
+    if hi < math.inf:
+        v = casadi.fmin(v, hi)
+    return v
+
+
 class CartPoleDomain(Domain):
     """The cart-pole (C1)-(C2): an analytic ODE and a MuJoCo MJCF of one machine."""
 
@@ -447,6 +481,7 @@ class CartPoleDomain(Domain):
     task = TaskDefaults(view=("hinge", "hinge_dot"), fall_angle=math.pi / 2, pole="hinge")
     default_model = MujocoCartPoleConfig.model
     rail_joint = "slider"
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PARAMETER_CHANGE, CART_CENTRING})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, MujocoCartPoleConfig) else self.default_model
@@ -460,9 +495,54 @@ class CartPoleDomain(Domain):
         actually simulates.  Friction is left out: a nominal model knows the rigid body,
         not what a rig adds to it.
         """
-        params = self.build(scenario).params  # type: ignore[attr-defined]
-        return replace(params, cart_damping=0.0, hinge_damping=0.0, cart_friction=0.0,
-                       hinge_friction=0.0)
+        return _nominal(self.build(scenario).params)  # type: ignore[attr-defined]
+
+    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
+        """A MuJoCo cart-pole's keys left at 0 as its compiled model has them (``M`` the
+        cart's mass, ``m``, ``l``, ``J`` the pole's, ``gear`` the force per unit u at
+        rest, the joints' damping and friction loss); the ODE's ``J`` (the rod's) and
+        ``gear`` (1)."""
+        plant = self.build(scenario)
+        if isinstance(scenario.plant, MujocoCartPoleConfig):
+            f = plant.facts  # type: ignore[attr-defined]
+            return {"M": f.cart_mass, "m": f.pole_mass, "l": f.pole_com,
+                    "J": f.pole_inertia_pivot, "g": f.gravity, "gear": f.force_per_u,
+                    "cart_damping": f.slide.damping, "hinge_damping": f.hinge.damping,
+                    "cart_friction": f.slide.frictionloss,
+                    "hinge_friction": f.hinge.frictionloss}
+        p = plant.params  # type: ignore[attr-defined]
+        return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
+
+    def full_model(self, scenario: "Scenario") -> FullModel:
+        """(C1)-(C2) over the full state ``[slider, hinge, slider_dot, hinge_dot]`` (the
+        plant's own joint names) on the nominal machine of :meth:`params_of_scenario`,
+        from :func:`~tspend.plants.cartpole_physics.accelerations_factory`: the general
+        geometry and the actuator's force law with its ranges, numerically and over CasADi
+        (its ranges clipped by ``casadi.fmin``/``fmax``); the energy is
+        :func:`~tspend.plants.cartpole_physics.pole_energy`."""
+        plant = self.build(scenario)
+        params = _nominal(plant.params)  # type: ignore[attr-defined]
+        machine = params.machine()
+
+        def factory(sin, cos, tanh):
+            if sin is math.sin:
+                accel = machine_accelerations
+            else:
+                accel = accelerations_factory(sin, cos, tanh, clip=_symbolic_clip)[0]
+
+            def q_dd(s, u):
+                # the domain's order is (q'', x''); no disturbance in a model
+                thdd, xdd = accel(machine, s[1], s[3], s[0], s[2], u, 0.0)
+                return xdd, thdd
+
+            return q_dd
+
+        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
+                         accel_factory=factory,
+                         energy=lambda s: pole_energy(machine, float(s[1]), float(s[3])),
+                         pole=1, actuated=0, angles=(False, True, False, False),
+                         parameters=params.finite(), machine=machine,
+                         accel_unit="m/s^2")
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the

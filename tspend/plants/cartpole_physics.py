@@ -54,8 +54,9 @@ import numpy as np
 from numba.extending import register_jitable
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
-           "actuator_force", "actuator_force_range", "gain_sign", "inverse_dynamics",
-           "machine_accelerations", "machine_rhs", "rhs"]
+           "accelerations_factory", "actuator_force", "actuator_force_range", "clip",
+           "gain_sign", "inverse_dynamics", "machine_accelerations", "machine_rhs",
+           "pole_energy", "rhs"]
 
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
@@ -182,47 +183,48 @@ class CartPoleMachine(NamedTuple):
         machine_rhs(self, t, s, u, d, sdot)
 
 
-def _clip_functions(tanh):
-    """``(fmin, fmax)`` over the numbers ``tanh`` works on: Python's for ``math``,
-    CasADi's for its symbols (a clip on a symbol cannot branch)."""
-    if tanh is math.tanh:
-        return min, max
-    import casadi
-
-    return casadi.fmin, casadi.fmax
+@register_jitable
+def clip(v: float, lo: float, hi: float) -> float:
+    """``v`` clipped to ``[lo, hi]`` (+/-inf: that side open), as MuJoCo clips ctrl and
+    the actuator's force."""
+    return min(max(v, lo), hi)
 
 
-def accelerations_factory(sin, cos, tanh):
-    """``(q'', x'')`` of (C1)-(C2) built over the math functions ``(sin, cos, tanh)``.
+def accelerations_factory(sin, cos, tanh, clip=clip):
+    """``(accelerations, force)``: ``(q'', x'')`` of (C1)-(C2) and the actuator's force
+    ``F(u, x, x')``, built over the math functions ``(sin, cos, tanh)`` and the clip
+    ``clip(v, lo, hi)``.
 
-    The equations are written once, here: ``math``'s functions give
-    :func:`machine_accelerations` (plain Python, and inlined by numba into compiled
-    loops); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)`` give the same expressions
-    symbolically, for nonlinear MPC (:mod:`tspend.controllers.mpc`).  The parameters
-    ``p`` are numbers in both cases (the branches on a friction force or a range are on
-    numbers).
+    The equations are written once, here: ``math``'s functions and :func:`clip` give
+    :func:`machine_accelerations` and :func:`machine_force` (plain Python, and inlined
+    by numba into compiled loops); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)``
+    with a clip over ``casadi.fmin``/``casadi.fmax`` give the same expressions, the
+    whole general geometry and actuator included, symbolically for nonlinear MPC
+    (:meth:`tspend.plants.cartpole.CartPoleDomain.full_model`,
+    :mod:`tspend.controllers.mpc`).  The parameters ``p`` are numbers in both cases (the
+    branch on a friction force is on a number; ``clip`` is called only on the ranges
+    that are set).
     """
-    fmin, fmax = _clip_functions(tanh)
 
     @register_jitable
     def dry(force, v):
         return force * tanh(v / DRY_FRICTION_SLIP) if force > 0.0 else 0.0
 
     @register_jitable
-    def clip(v, lo, hi):
-        if lo > -INF:
-            v = fmax(v, lo)
-        if hi < INF:
-            v = fmin(v, hi)
+    def bounded(v, lo, hi):
+        # the ranges are numbers: an open one adds no term to a symbolic expression
+        if lo > -INF or hi < INF:
+            return clip(v, lo, hi)
         return v
 
+    @register_jitable
     def force_of(p, cart_pos, cart_vel, u):
         length, speed = p.gear * cart_pos, p.gear * cart_vel
-        uc = clip(u, p.ctrl_min, p.ctrl_max)
+        uc = bounded(u, p.ctrl_min, p.ctrl_max)
         force = ((p.gain + p.gain_length * length + p.gain_velocity * speed) * uc
                  + p.bias + p.bias_length * length + p.bias_velocity * speed)
-        return clip(p.gear * clip(force, p.force_min, p.force_max),
-                    p.joint_force_min, p.joint_force_max)
+        return bounded(p.gear * bounded(force, p.force_min, p.force_max),
+                       p.joint_force_min, p.joint_force_max)
 
     def accelerations_of(p, q, w, cart_pos, cart_vel, u, d):
         sg = p.theta_sign
@@ -314,6 +316,21 @@ def gain_sign(p: CartPoleParams) -> float:
     diff = (accelerations(p, 0.0, 0.0, 0.0, 1e-3, 0.0)[0]
             - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
     return 0.0 if diff == 0.0 else math.copysign(1.0, diff)
+
+
+@register_jitable
+def pole_energy(p: CartPoleMachine, q: float, w: float) -> float:
+    """The pole's energy about its hinge, J, 0 upright at rest (the centre of mass at its
+    highest), ``-2 m g l k_g`` hanging: ``E = 1/2 J q'^2 + m g (H(q) - l k_g)`` with
+    ``H`` of the module docstring (the paper's pole: ``1/2 J theta'^2 + m g l (cos theta
+    - 1)``).
+
+    By (C2) its rate is ``E' = q' (Q_q - m X'(q) x'')``: the cart's acceleration is the
+    only way in besides the hinge's own torques (Astrom and Furuta, 2000, eq. 4;
+    swing-up, :mod:`tspend.controllers.swingup`).
+    """
+    lg = p.m * p.l * p.gravity_coupling
+    return 0.5 * p.J * w * w + lg * p.g * (math.cos(p.theta_sign * q + p.gravity_phase) - 1.0)
 
 
 def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) -> np.ndarray:

@@ -14,11 +14,14 @@ docs/architecture.md walks through writing one.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
@@ -27,8 +30,31 @@ if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.task import Task
 
-__all__ = ["Domain", "Backend", "Drawing", "PlantLabels", "PlantModel", "Quantity",
-           "TaskDefaults", "FD_STEP", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root"]
+__all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
+           "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
+           "CART_CENTRING", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
+           "wrap_angle"]
+
+#: what a domain may provide (:attr:`Domain.provides`), and what a controller kind or an
+#: effect may need (:attr:`tspend.controllers.base.Controller.needs`):
+#: the model of the task's view (:meth:`Domain.plant_model`; every domain has one)
+VIEW_MODEL = "view_model"
+#: a full-state model of the machine (:meth:`Domain.full_model`)
+FULL_STATE = "full_state"
+#: its equations built over CasADi as well (:meth:`FullModel.symbolic`; nonlinear MPC)
+SYMBOLIC = "symbolic_model"
+#: a change of the machine's parameters during a run (``effects.change``)
+PARAMETER_CHANGE = "parameter_change"
+#: the cart-centring outer loop on the pole's reference (``effects.outer_loop``)
+CART_CENTRING = "cart_centring"
+#: each capability, in words (docs/controllers.md's table)
+CAPABILITIES = {
+    VIEW_MODEL: "a model of the view (f(x, u) of the tracked output's n-th derivative)",
+    FULL_STATE: "the full state and a model of the whole machine",
+    SYMBOLIC: "the machine's equations over CasADi (exact gradients)",
+    PARAMETER_CHANGE: "a change of the machine's parameters during a run",
+    CART_CENTRING: "a cart whose position can be centred through the pole's reference",
+}
 
 #: relative step of the central differences of :class:`PlantModel`
 FD_STEP = 1e-6
@@ -119,6 +145,114 @@ class PlantModel:
         return A, B
 
 
+@register_jitable
+def wrap_angle(a: float) -> float:
+    """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""
+    return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
+
+
+@dataclass(frozen=True)
+class FullModel:
+    """What the full-state controller kinds (full LQR, ``mpc``, ``swingup``) know of a
+    machine: an underactuated mechanism with positions ``q`` and velocities ``q'`` (the
+    full state ``s = [q, q']``, named as the plant names it), one input ``u`` and
+    ``q'' = accel(s, u)`` from the domain's own equations (written once, in the domain's
+    physics module; a domain builds this in :meth:`Domain.full_model`).
+
+    ``accel_factory(sin, cos, tanh)`` returns ``accel(s, u) -> q''`` (a tuple of length
+    ``len(q)``) over those math functions: ``math``'s give numbers, CasADi's symbols (the
+    MPC's model is the simulated one, not a copy).  ``energy(s)`` is the pendulum's energy
+    about its pivot, 0 upright at rest (the domain's formula); ``angles`` marks the states
+    that wrap; ``pole`` is the pendulum angle's index (upright 0, hanging pi),
+    ``actuated`` the driven coordinate's (cart, arm); ``q_lo``/``q_hi`` bound the
+    positions (+/-inf: free; the rail, a joint's range, a task's state bound) and
+    ``u_lo``/``u_hi`` the input (the actuator's range), filled in by
+    :func:`tspend.controllers.full_model.full_model`.
+
+    Derived here, each documented as such: the linearisation by central differences
+    (step ``FD_STEP (1 + |v|)``) and the input's affine map ``q'' = q''(s, 0) + u dq''/du``
+    (the domains' inputs are forces or voltages entering linearly).
+    """
+
+    domain: str
+    state_names: tuple[str, ...]
+    accel_factory: Callable[..., Callable[[Any, Any], tuple]]
+    energy: Callable[[np.ndarray], float]
+    pole: int
+    actuated: int
+    angles: tuple[bool, ...]
+    u_lo: float = -math.inf
+    u_hi: float = math.inf
+    q_lo: tuple[float, ...] = ()
+    q_hi: tuple[float, ...] = ()
+    parameters: dict = field(default_factory=dict)
+    #: the domain's machine structure (a NamedTuple compiled code can take) behind
+    #: ``accel_factory`` and ``energy``
+    machine: Any = None
+    #: the unit of the actuated coordinate's acceleration ("m/s^2", "rad/s^2")
+    accel_unit: str = ""
+
+    @property
+    def size(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def dof(self) -> int:
+        return self.size // 2
+
+    @cached_property
+    def numeric(self) -> Callable[[np.ndarray, float], tuple]:
+        """``q''(s, u)`` over ``math`` (numbers)."""
+        return self.accel_factory(math.sin, math.cos, math.tanh)
+
+    def rhs(self, s: np.ndarray, u: float) -> np.ndarray:
+        """``s' = [q', q''(s, u)]``."""
+        qdd = self.numeric(np.asarray(s, dtype=float), u)
+        return np.concatenate([np.asarray(s[self.dof:], dtype=float), np.asarray(qdd, dtype=float)])
+
+    def symbolic(self) -> Callable[[Any, Any], Any]:
+        """``s' = f(s, u)`` as CasADi expressions of an ``SX``/``MX`` state and input."""
+        import casadi
+
+        accel = self.accel_factory(casadi.sin, casadi.cos, casadi.tanh)
+
+        def f(s, u):
+            return casadi.vertcat(s[self.dof:], *accel(s, u))
+
+        return f
+
+    def linearisation(self, s_op: np.ndarray | None = None,
+                      u_op: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` at ``(s*, u*)`` (default the upright at rest) by central differences."""
+        s0 = np.zeros(self.size) if s_op is None else np.asarray(s_op, dtype=float)
+        N = self.size
+        A = np.empty((N, N))
+        for i in range(N):
+            h = FD_STEP * (1.0 + abs(s0[i]))
+            sp, sm = s0.copy(), s0.copy()
+            sp[i] += h
+            sm[i] -= h
+            A[:, i] = (self.rhs(sp, u_op) - self.rhs(sm, u_op)) / (2.0 * h)
+        h = FD_STEP * (1.0 + abs(u_op))
+        B = ((self.rhs(s0, u_op + h) - self.rhs(s0, u_op - h)) / (2.0 * h))[:, None]
+        return A, B
+
+    def input_map(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(q''(s, 0), dq''/du)``: the accelerations are affine in ``u``."""
+        f = self.numeric
+        s = np.asarray(s, dtype=float)
+        a0 = np.asarray(f(s, 0.0), dtype=float)
+        return a0, np.asarray(f(s, 1.0), dtype=float) - a0
+
+    def error(self, s: np.ndarray, s_ref: np.ndarray) -> np.ndarray:
+        """``s - s_ref`` with the angles' errors wrapped to (-pi, pi]."""
+        e = np.asarray(s, dtype=float) - s_ref
+        for i, wraps in enumerate(self.angles):
+            if wraps:
+                e[i] = wrap_angle(e[i])
+        return e
+
+
 class Drawing(ABC):
     """What a recorder draws of a plant in 3D: a static scene, then poses per frame.
 
@@ -173,6 +307,10 @@ class Domain(ABC):
     default_model: str = ""
     #: the state whose range is a rail (effects.rail acts on it), "" = none
     rail_joint: str = ""
+    #: what the domain provides (:data:`FULL_STATE`, :data:`SYMBOLIC`,
+    #: :data:`PARAMETER_CHANGE`, :data:`CART_CENTRING`): what a controller kind's
+    #: ``needs`` and the effects are checked against before anything is built
+    provides: frozenset[str] = frozenset({VIEW_MODEL})
 
     @property
     def order(self) -> int:
@@ -206,6 +344,13 @@ class Domain(ABC):
                              f"(its kinds: {', '.join(self.kinds)})")
         return self.kinds[kind].build(scenario.plant, self.model_path(scenario))
 
+    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
+        """The values the scenario's machine takes for the numeric ``[plant]`` keys it
+        leaves at 0 and fills in itself (a MuJoCo model's own masses, say): the nominal
+        of a relative ``[randomize]`` draw (:mod:`tspend.plants.randomize`).  A key not
+        listed is 0 on the machine.  By default none: a 0 is 0."""
+        return {}
+
     def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
         """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``
         (the cart-pole: its actuator cannot give the force the reference needs)."""
@@ -213,6 +358,11 @@ class Domain(ABC):
     @abstractmethod
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         """The model the model-based controllers assume for the scenario's plant."""
+
+    def full_model(self, scenario: "Scenario") -> FullModel | None:
+        """The machine's full-state model, its bounds left free (None: the domain has only
+        its view).  A domain returning one lists :data:`FULL_STATE` in :attr:`provides`."""
+        return None
 
     def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray] | None:
         """``(A, B)`` of the FULL state (``plant.state_names`` order) about the domain's

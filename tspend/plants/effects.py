@@ -26,6 +26,11 @@ import numpy as np
 
 from tspend.config import EffectsConfig, OuterLoopConfig
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.domain import CAPABILITIES, CART_CENTRING, PARAMETER_CHANGE, Domain
+
+
+__all__ = ["EffectsPlant", "Measurement", "OuterLoop", "needs_hook", "needs_plant_wrapper",
+           "unsupported"]
 
 
 class EffectsPlant(Plant):
@@ -44,8 +49,11 @@ class EffectsPlant(Plant):
 
     # the inner plant's compiled step would bypass the effects: the base's None stays
 
-    def __getattr__(self, name: str) -> Any:  # params, model, facts ...
-        return getattr(self.inner, name)
+    @property
+    def params(self) -> Any:
+        """The inner machine's parameters (its domain's drawing and the outer loop read
+        them); AttributeError for a plant that has none, as on the plant itself."""
+        return self.inner.params  # type: ignore[attr-defined]
 
     @property
     def name(self) -> str:  # type: ignore[override]
@@ -97,9 +105,6 @@ class EffectsPlant(Plant):
     def reset(self, x0: np.ndarray) -> None:
         self.inner.reset(x0)
         self._u_prev, self._t, self._changed = 0.0, 0.0, False
-
-    def state(self) -> np.ndarray:
-        return self.inner.state()
 
     def applied(self, u: float, dt: float) -> float:
         """The force the actuator delivers for the command u: rate limit, then saturation."""
@@ -195,6 +200,25 @@ class Measurement:
         if self.std is not None:
             seen = seen + self.std * self.rng.standard_normal(seen.size)
         return seen
+
+
+def unsupported(cfg: EffectsConfig, domain: Domain) -> str | None:
+    """Why ``cfg`` cannot act on a plant of ``domain`` (None: it can): ``change`` needs
+    a domain whose parameters change during a run, the outer loop a cart to centre
+    (:attr:`tspend.plants.domain.Domain.provides`), ``rail`` a rail joint
+    (:attr:`tspend.plants.domain.Domain.rail_joint`)."""
+    if cfg.rail > 0.0 and not domain.rail_joint:
+        return (f"effects.rail: the {domain.name} domain has no rail (a slide joint); bound a "
+                f"state with [task.state_bounds] instead")
+    ol = cfg.outer_loop
+    wanted = [("effects.change", PARAMETER_CHANGE, cfg.change is not None),
+              ("effects.outer_loop", CART_CENTRING,
+               ol is not None and (ol.k_x != 0.0 or ol.k_v != 0.0))]
+    for key, capability, on in wanted:
+        if on and capability not in domain.provides:
+            return (f"{key}: the {domain.name} domain does not support it (it needs "
+                    f"{CAPABILITIES[capability]})")
+    return None
 
 
 def needs_hook(cfg: EffectsConfig) -> bool:

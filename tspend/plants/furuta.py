@@ -26,10 +26,10 @@ from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
-    TaskDefaults)
-from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
-    machine_accelerations, machine_rhs, params_from_model)
+from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
+from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
+    linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -62,6 +62,10 @@ class FurutaMujocoConfig(FurutaConfig):
     actuator: str = "motor"
     #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
     timestep: float = field(default=0.0, metadata={"low": 0.0})
+    #: the pendulum joint's viscous damping, N m s/rad (negative keeps the model's, Quanser's
+    #: 0.0005); the least certain number of the rig (docs/furuta.md), so a scenario may
+    #: take another rig's identified value
+    pendulum_damping: float = -1.0
 
 
 def _named_task(arm: str, pendulum: str) -> TaskDefaults:
@@ -112,9 +116,6 @@ class FurutaODE(AnalyticPlant):
         self.s[:] = (0.0, x0[0], 0.0, x0[1])
         self._clock[0] = 0.0
 
-    def state(self) -> np.ndarray:
-        return self.s[[1, 3]].copy()
-
     def full_state(self) -> np.ndarray:
         return self.s.copy()
 
@@ -149,7 +150,8 @@ class MujocoFuruta(Plant):
     state_units = STATE_UNITS
 
     def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
-                 actuator: str = "motor", timestep: float | None = None) -> None:
+                 actuator: str = "motor", timestep: float | None = None,
+                 pendulum_damping: float | None = None) -> None:
         import mujoco
 
         self.model_path = Path(model_path)
@@ -160,6 +162,14 @@ class MujocoFuruta(Plant):
             spec = mujoco.MjSpec.from_file(where)
             if timestep:
                 spec.option.timestep = float(timestep)
+            if pendulum_damping is not None:
+                joint = spec.joint(pendulum)
+                if joint is None:
+                    raise ScenarioError(f"{where}: no joint named {pendulum!r}")
+                # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
+                damping = np.array(joint.damping, dtype=float)
+                damping[0] = float(pendulum_damping)
+                joint.damping = damping
             self.model = spec.compile()
         except ValueError as exc:
             raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
@@ -247,9 +257,6 @@ class MujocoFuruta(Plant):
         self.data.qvel[self._vp] = x0[1]
         mujoco.mj_forward(self.model, self.data)
 
-    def state(self) -> np.ndarray:
-        return np.array((self.data.qpos[self._qp], self.data.qvel[self._vp]))
-
     def full_state(self) -> np.ndarray:
         q, v = self.data.qpos, self.data.qvel
         return np.array((q[self._qa], q[self._qp], v[self._va], v[self._vp]))
@@ -305,7 +312,8 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     mj = cfg if isinstance(cfg, FurutaMujocoConfig) else FurutaMujocoConfig(
         kind="furuta_mujoco", x0=cfg.x0, state_bound=cfg.state_bound)
     return MujocoFuruta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
-                        mj.timestep or None)
+                        mj.timestep or None,
+                        mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None)
 
 
 # -- drawing ------------------------------------------------------------------------------
@@ -385,6 +393,7 @@ class FurutaDomain(Domain):
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
                         pole="pendulum")
     default_model = FurutaMujocoConfig.model
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
@@ -406,6 +415,33 @@ class FurutaDomain(Domain):
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
         return PlantModel(scenario.plant.kind, 2, accel, affine_in_u=True, x_op=(0.0, 0.0),
                           switching_gain=20.0)
+
+    def full_model(self, scenario: "Scenario") -> FullModel:
+        """The Furuta ODE over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
+        joint names), from :func:`~tspend.plants.furuta_physics.accelerations_factory`
+        (over CasADi with the identity clip: the MPC bounds u itself); the energy is
+        :func:`~tspend.plants.furuta_physics.pendulum_energy`."""
+        plant = self.build(scenario)
+        params: FurutaParams = plant.params  # type: ignore[attr-defined]
+        machine = params.machine()
+
+        def factory(sin, cos, tanh):
+            if sin is math.sin:
+                accel = machine_accelerations
+            else:
+                accel = accelerations_factory(sin, cos, tanh, clip=lambda v, lo, hi: v)[2]
+
+            def q_dd(s, u):
+                return accel(machine, s, u, 0.0)
+
+            return q_dd
+
+        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
+                         accel_factory=factory,
+                         energy=lambda s: pendulum_energy(machine, float(s[1]), float(s[3])),
+                         pole=1, actuated=0, angles=(True, True, False, False),
+                         parameters=dict(params.__dict__), machine=machine,
+                         accel_unit="rad/s^2")
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types

@@ -53,7 +53,8 @@ __all__ = [
     "QUBE_PENDULUM_LENGTH_M", "QUBE_ARM_DAMPING_NMS", "QUBE_PENDULUM_DAMPING_NMS",
     "QUBE_VOLTAGE_LIMIT_V", "GRAVITY_M_S2", "AXIAL_INERTIA_RATIO",
     "FurutaParams", "FurutaMachine", "machine_accelerations", "machine_rhs", "motor_torque",
-    "accelerations", "linearize", "params_from_model",
+    "accelerations", "accelerations_factory", "clip", "linearize", "mass_terms",
+    "params_from_model", "pendulum_energy",
 ]
 
 # -- the QUBE-Servo 2 and its rotary pendulum module (sources: docs/furuta.md) ------------
@@ -246,61 +247,88 @@ class FurutaMachine(NamedTuple):
 
 
 @register_jitable
-def motor_torque(p: FurutaMachine, arm: float, arm_vel: float, u: float) -> float:
-    """Torque of MuJoCo's affine ``general`` actuator on the arm joint, N m.
+def clip(v: float, lo: float, hi: float) -> float:
+    """``v`` clipped to ``[lo, hi]``, as MuJoCo clips ctrl and the actuator force."""
+    return min(max(v, lo), hi)
 
-    ``u`` (volts) is clipped to the control range first, the force to the force range
-    after, as MuJoCo does; with the QUBE's numbers ``k_t (V - k_m arm_vel) / R_m``.
+
+def accelerations_factory(sin, cos, tanh, clip=clip):
+    """``(motor_torque, mass_terms, accelerations)`` built over the math functions
+    ``(sin, cos, tanh)`` and the clip ``clip(v, lo, hi)``.
+
+    The equations are written once, here (as
+    :func:`tspend.plants.cartpole_physics.accelerations_factory` for the cart-pole): ``math``'s functions and :func:`clip` give :func:`motor_torque`,
+    :func:`mass_terms` and :func:`machine_accelerations` (plain Python, inlined by numba in
+    compiled code); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)`` give the same
+    expressions symbolically for nonlinear MPC (:mod:`tspend.controllers.mpc`), with an
+    identity ``clip``: the MPC bounds ``u`` to the control range, where MuJoCo's clip of
+    ``u`` is inactive (the QUBE's force range is infinite).  ``tanh`` is unused: the
+    Furuta's friction is viscous only.  ``p`` is a :class:`FurutaMachine` of numbers.
     """
-    v = min(max(u, p.u_min), p.u_max)
-    force = (p.motor_gain * v + p.motor_bias + p.motor_bias_position * p.motor_gear * arm
-             + p.motor_bias_velocity * p.motor_gear * arm_vel)
-    return p.motor_gear * min(max(force, p.force_min), p.force_max)
+
+    @register_jitable
+    def motor_torque_of(p, arm, arm_vel, u):
+        v = clip(u, p.u_min, p.u_max)
+        force = (p.motor_gain * v + p.motor_bias + p.motor_bias_position * p.motor_gear * arm
+                 + p.motor_bias_velocity * p.motor_gear * arm_vel)
+        return p.motor_gear * clip(force, p.force_min, p.force_max)
+
+    @register_jitable
+    def mass_terms_of(p, al):
+        sn, cs = sin(al), cos(al)
+        s2, c2 = 2.0 * sn * cs, cs * cs - sn * sn
+        m11 = p.a0 + p.a1 * cs + p.a2 * sn + p.a3 * c2 + p.a4 * s2
+        dm11 = -p.a1 * sn + p.a2 * cs - 2.0 * p.a3 * s2 + 2.0 * p.a4 * c2
+        m12 = p.b0 + p.b1 * cs + p.b2 * sn
+        dm12 = -p.b1 * sn + p.b2 * cs
+        dV = -p.v_c * sn + p.v_s * cs
+        ddV = -p.v_c * cs - p.v_s * sn
+        return m11, m12, dm11, dm12, dV, ddV
+
+    def accelerations_of(p, s, u, d):
+        th, al, thd, ald = s[0], s[1], s[2], s[3]
+        m11, m12, dm11, dm12, dV, _ = mass_terms_of(p, al)
+        # generalised forces minus the velocity-product terms of d/dt dL/dq' - dL/dq
+        f1 = (motor_torque_of(p, th, thd, u) - p.arm_damping * thd
+              - dm11 * ald * thd - dm12 * ald * ald)
+        f2 = d - p.pendulum_damping * ald + 0.5 * dm11 * thd * thd - dV
+        det = m11 * p.m22 - m12 * m12
+        return (p.m22 * f1 - m12 * f2) / det, (m11 * f2 - m12 * f1) / det
+
+    return motor_torque_of, mass_terms_of, accelerations_of
+
+
+_motor_torque, _mass_terms, _accelerations = accelerations_factory(math.sin, math.cos, math.tanh)
+
+#: Torque of MuJoCo's affine ``general`` actuator on the arm joint, N m, as
+#: ``motor_torque(p: FurutaMachine, arm, arm_vel, u)``: ``u`` (volts) is clipped to the
+#: control range first, the force to the force range after, as MuJoCo does; with the
+#: QUBE's numbers ``k_t (V - k_m arm_vel) / R_m``.
+motor_torque = _motor_torque
+
+#: ``m11, m12`` and their derivatives in ``al``, then ``dV/dal`` and ``d2V/dal2``, as
+#: ``mass_terms(p: FurutaMachine, al)``
+mass_terms = _mass_terms
+
+#: ``(arm'', pendulum'')`` at the state ``s = [arm, pendulum, arm_vel, pendulum_vel]``
+#: (rad, rad, rad/s, rad/s), as ``machine_accelerations(p: FurutaMachine, s, u, d)`` with
+#: ``u`` the motor voltage (V, clipped to the control range) and ``d`` a disturbance
+#: torque on the pendulum joint (N m); rad/s^2.  Plain Python when called from Python;
+#: compiled inline from numba code.
+machine_accelerations = register_jitable(_accelerations)
 
 
 @register_jitable
-def _mass_terms(p: FurutaMachine, al: float) -> tuple[float, float, float, float, float, float]:
-    """``m11, m12`` and their derivatives in ``al``, then ``dV/dal`` and ``d2V/dal2``."""
-    sn, cs = math.sin(al), math.cos(al)
-    s2, c2 = 2.0 * sn * cs, cs * cs - sn * sn
-    m11 = p.a0 + p.a1 * cs + p.a2 * sn + p.a3 * c2 + p.a4 * s2
-    dm11 = -p.a1 * sn + p.a2 * cs - 2.0 * p.a3 * s2 + 2.0 * p.a4 * c2
-    m12 = p.b0 + p.b1 * cs + p.b2 * sn
-    dm12 = -p.b1 * sn + p.b2 * cs
-    dV = -p.v_c * sn + p.v_s * cs
-    ddV = -p.v_c * cs - p.v_s * sn
-    return m11, m12, dm11, dm12, dV, ddV
+def pendulum_energy(p: "FurutaMachine", pendulum: float, pendulum_vel: float) -> float:
+    """The pendulum's energy about its pivot in the arm's frame, J, 0 upright at rest:
+    ``E = 1/2 m22 al'^2 + V(al) - V(0)`` with ``V = v_c cos al + v_s sin al``.
 
-
-@register_jitable
-def machine_accelerations(p: FurutaMachine, s: np.ndarray, u: float,
-                          d: float) -> tuple[float, float]:
-    """``(arm'', pendulum'')`` at the state ``s = [arm, pendulum, arm_vel, pendulum_vel]``.
-
-    Parameters
-    ----------
-    p : FurutaMachine
-        the machine (:meth:`FurutaParams.machine`).
-    s : array of 4 floats
-        rad, rad, rad/s, rad/s.
-    u : float
-        motor voltage, V (clipped to the control range).
-    d : float
-        disturbance torque on the pendulum joint, N m.
-
-    Returns
-    -------
-    tuple of 2 floats
-        rad/s^2.  Plain Python when called from Python; compiled inline from numba code.
+    Its rate is ``E' = al' (m22 al'' + dV/dal)``: by the pendulum's equation it changes
+    only through the arm (``-m12 th'' + 1/2 dm11 th'^2``) and the damping (swing-up,
+    :mod:`tspend.controllers.swingup`).
     """
-    th, al, thd, ald = s[0], s[1], s[2], s[3]
-    m11, m12, dm11, dm12, dV, _ = _mass_terms(p, al)
-    # generalised forces minus the velocity-product terms of d/dt dL/dq' - dL/dq
-    f1 = (motor_torque(p, th, thd, u) - p.arm_damping * thd
-          - dm11 * ald * thd - dm12 * ald * ald)
-    f2 = d - p.pendulum_damping * ald + 0.5 * dm11 * thd * thd - dV
-    det = m11 * p.m22 - m12 * m12
-    return (p.m22 * f1 - m12 * f2) / det, (m11 * f2 - m12 * f1) / det
+    return (0.5 * p.m22 * pendulum_vel * pendulum_vel
+            + p.v_c * (math.cos(pendulum) - 1.0) + p.v_s * math.sin(pendulum))
 
 
 @register_jitable

@@ -157,6 +157,11 @@ class ModelFacts:
     def gain(self) -> float:
         return self.actuator.gain if self.actuator is not None else 1.0
 
+    @property
+    def force_per_u(self) -> float:
+        """The cart force per unit u at rest, N (``gear x gain``: the ``gear`` key)."""
+        return self.gear * self.gain
+
     def params(self) -> CartPoleParams:
         """The ODE of this very machine: armatures count as mass and inertia, the
         actuator's own damping and armature are reflected through gear^2."""
@@ -619,3 +624,25 @@ def verify_overrides(facts: ModelFacts, p: CartPoleParams, cart: str, pole: str,
             raise ScenarioError(f"{where}: {name} = {want:g} did not take effect on body "
                                 f"'{body}': the compiled model has {got:.9g} (check the "
                                 f"compiler's settotalmass, boundmass or a frame around it)")
+
+
+def apply_gear(act: Any, gear: float, where: str) -> None:
+    """Make the actuator's force per unit of u at rest ``gear`` (``gear x gain``, what
+    :attr:`ModelFacts.force_per_u` reads back): its transmission becomes ``gear / g0``
+    (``g0``: its gain, ``gainprm[0]``; a position or velocity actuator's ``kp``/``kv``)."""
+    if not (math.isfinite(gear) and gear > 0.0):
+        raise ScenarioError(f"{where}: actuator gear must be positive, got {gear}")
+    gain = float(act.gainprm[0])
+    if gain == 0.0:
+        raise ScenarioError(f"{where}: actuator '{act.name}' has gain 0: no gear makes it push")
+    value = np.zeros(6)
+    value[0] = gear / gain
+    act.gear = value
+
+
+def verify_gear(facts: ModelFacts, gear: float, actuator: str, where: str) -> None:
+    """The compiled model's actuator must push ``gear`` per unit of u at rest."""
+    got = facts.force_per_u
+    if abs(got - gear) > VERIFY_RTOL * max(abs(gear), 1.0):
+        raise ScenarioError(f"{where}: gear = {gear:g} did not take effect on actuator "
+                            f"'{actuator}': the compiled model pushes {got:.9g} N per unit u")

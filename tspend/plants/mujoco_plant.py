@@ -141,6 +141,9 @@ class MujocoCartPole(Plant):
         ``"implicitfast"``; only for the cross-check's contrast figures.
     timestep:
         overrides the model's physics timestep.
+    gear:
+        if given, the actuator's gain (cart force per unit of u) written into the model
+        and read back from the compiled one.
     task_defaults:
         the domain's default task, its states named by the roles ``slider``/``hinge``
         (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
@@ -162,7 +165,7 @@ class MujocoCartPole(Plant):
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
                  cart_friction: float | None = None, hinge_friction: float | None = None,
-                 task_defaults: TaskDefaults | None = None) -> None:
+                 task_defaults: TaskDefaults | None = None, gear: float | None = None) -> None:
         self.model_path = Path(model_path)
         self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
@@ -198,6 +201,8 @@ class MujocoCartPole(Plant):
                 joint.damping = [damping, 0.0, 0.0]
             if friction is not None:
                 joint.frictionloss = friction
+        if gear is not None:
+            mjcf.apply_gear(act, gear, where)
         keys, target = self._override_keys(spec, overrides, slide_joint, hinge_joint,
                                            actuator, where)
         if keys:
@@ -236,8 +241,12 @@ class MujocoCartPole(Plant):
             checked = keys | ({"J"} if keys & {"m", "l", "J"} else set())
             mjcf.verify_overrides(self.facts, target, m.body(self._cart_body).name,
                                   m.body(self._pole_body).name, where, frozenset(checked))
+        if gear is not None:
+            mjcf.verify_gear(self.facts, gear, actuator, where)
         #: what the scenario wrote into the model (name -> value); empty: the model's own
         self.overridden: dict[str, float] = {k: float(getattr(target, k)) for k in sorted(keys)}
+        if gear is not None:
+            self.overridden["gear"] = float(gear)
         self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
         self._d_to_tau = self._params.disturbance_torque
@@ -280,7 +289,9 @@ class MujocoCartPole(Plant):
             raise ScenarioError(f"{where}: cannot override {', '.join(unknown)} (overridable: "
                                 f"{', '.join(OVERRIDABLE)})")
         try:
-            own = mjcf.read_facts(spec.compile(), slide, hinge, actuator, where)
+            # a copy: compiling the spec itself keeps its geoms' masses over the explicit
+            # inertial written later (an M override on gymnasium's model did not take)
+            own = mjcf.read_facts(spec.copy().compile(), slide, hinge, actuator, where)
         except ValueError as exc:
             raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
         base = CartPoleParams(M=own.cart_mass, m=own.pole_mass, l=own.pole_com, g=own.gravity,
@@ -498,9 +509,6 @@ class MujocoCartPole(Plant):
         self._qpos[self._q_th] = x0[0]
         self._qvel[self._v_th] = x0[1]
         mujoco.mj_forward(self.model, self.data)
-
-    def state(self) -> np.ndarray:
-        return np.array((self._qpos[self._q_th], self._qvel[self._v_th]))
 
     def compiled_mujoco(self, dt: float) -> MujocoLink | None:
         """This plant for a compiled closed loop stepping it at sample time ``dt`` (None

@@ -382,6 +382,8 @@ class AdaptiveFuzzyController(Controller):
     """
 
     has_snapshots = True
+    guarantees = ("bounded tracking error of the view (Theorem 1's Lyapunov argument), from "
+                  "the sign of df/du only; nothing about joints outside the view")
 
     def __init__(self, cfg: ControllerConfig) -> None:
         self.cfg = cfg

@@ -1,0 +1,219 @@
+"""``[randomize]``: the seed draws the initial state and plant parameters.
+
+Without it a seed varies only what the controllers draw (the adaptive controllers' initial
+parameters, sensor noise), so a model-based baseline gives the same number at every seed
+and "over 20 seeds" is one experiment repeated.  With it each seed is another machine
+started from another state::
+
+    [randomize]
+    x0 = [{dist = "uniform", low = -0.2, high = 0.2}, {}]       # x0[0] drawn, x0[1] kept
+    m  = {dist = "uniform", low = 0.8, high = 1.2, relative = true}
+    l  = {dist = "normal", mean = 1.0, std = 0.05, relative = true, low = 0.9, high = 1.1}
+
+Every key names a numeric ``[plant]`` key of the scenario's plant kind (the cart-poles'
+``M m l g J gear`` and friction, the chains' own) or ``x0`` (a list of one table per entry,
+``{}`` for an entry kept).  A distribution is
+
+* ``uniform``: ``low``, ``high`` (``low < high``);
+* ``normal``: ``mean``, ``std`` (> 0), optionally truncated to ``[low, high]`` (drawn by
+  the inverse CDF, so exactly inside);
+
+absolute by default (the number drawn is the value), or ``relative = true`` (the number
+drawn multiplies the nominal: the ``[plant]`` value, or where that is 0 the value the
+machine takes itself, :meth:`tspend.plants.domain.Domain.nominal_values`: a MuJoCo
+cart-pole's masses, length, gear and friction as its compiled model has them, the ODE's
+rod inertia and unit gear; a relative draw on a nominal that is 0 even so is refused).
+What can be drawn must be a valid value of the key: a positive parameter needs a positive
+range (a normal one a ``low``).
+
+Each entry draws from its own numpy Generator seeded by ``(run.seed, STREAM, crc32(name))``:
+no stream the controllers or effects draw from moves, a scenario without ``[randomize]``
+runs bit for bit as before, and adding an entry leaves the other entries' draws as they
+were.  :func:`draw` applies the draws to the scenario's ``[plant]`` before any backend is
+built, so the ODE and MuJoCo backends of a domain get the same machine (MuJoCo through
+``MjSpec`` edits, read back after compiling: :mod:`tspend.plants.mjcf`).  The
+controllers are designed on the nominal scenario: a model-based baseline does not know
+the draw.  The run's metrics record the draw as ``drawn`` (flat names such as ``m`` and
+``x0[0]``), a sweep row as ``drawn.<name>`` columns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import zlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tspend.errors import ScenarioError
+from tspend.plants.registry import domain_of
+from tspend.tables import Table
+
+if TYPE_CHECKING:
+    from tspend.config import PlantConfig, Scenario
+
+__all__ = ["Draw", "Drawn", "DISTRIBUTIONS", "STREAM", "draw", "read_randomize",
+           "randomizable"]
+
+#: the distributions a ``[randomize]`` entry may name
+DISTRIBUTIONS = ("uniform", "normal")
+#: the stream tag of the draws (the effects' noise uses 0x5E4502, controllers the bare seed)
+STREAM = 0x7A4D0
+#: float ``[plant]`` keys that are settings of the simulation, not of the machine
+NOT_DRAWN = ("state_bound", "timestep")
+_KEYS = {"uniform": ("dist", "low", "high", "relative"),
+         "normal": ("dist", "mean", "std", "low", "high", "relative")}
+
+
+@dataclass(frozen=True)
+class Draw:
+    """One drawn quantity: ``name`` is a ``[plant]`` key or ``x0[i]``."""
+
+    name: str
+    dist: str
+    a: float                     #: uniform: low; normal: mean
+    b: float                     #: uniform: high; normal: std
+    relative: bool = False
+    low: float = -math.inf       #: normal: truncation (uniform: = a)
+    high: float = math.inf       #: normal: truncation (uniform: = b)
+
+    def sample(self, rng: np.random.Generator, nominal: float) -> float:
+        """One value: a single uniform number from ``rng``, mapped through the quantile
+        function (of the truncated normal for ``normal``), times ``nominal`` if relative."""
+        from scipy.special import ndtr, ndtri
+
+        q = float(rng.random())
+        if self.dist == "uniform":
+            width = self.b - self.a
+            v = (self.a + q * width if math.isfinite(width)
+                 else self.a * (1.0 - q) + self.b * q)  # a range wider than a double
+            v = min(max(v, self.a), self.b)
+        else:
+            lo = ndtr((self.low - self.a) / self.b)
+            hi = ndtr((self.high - self.a) / self.b)
+            v = self.a + self.b * float(ndtri(lo + q * (hi - lo)))
+            v = min(max(v, self.low), self.high)  # the quantile's last rounding
+        return v * nominal if self.relative else v
+
+    def bounds(self, nominal: float) -> tuple[float, float]:
+        """The interval every value lies in."""
+        lo, hi = (self.a, self.b) if self.dist == "uniform" else (self.low, self.high)
+        if self.relative:
+            lo, hi = sorted((lo * nominal, hi * nominal))
+        return lo, hi
+
+
+@dataclass(frozen=True)
+class Drawn:
+    """The scenario with its draws applied to ``[plant]``, and the draws by name."""
+
+    scenario: Any
+    values: dict[str, float]
+
+
+def randomizable(cfg: "PlantConfig") -> tuple[str, ...]:
+    """The ``[plant]`` keys of ``cfg``'s kind a ``[randomize]`` table may name."""
+    return tuple(f.name for f in dataclasses.fields(cfg)
+                 if isinstance(f.default, float) and not isinstance(f.default, bool)
+                 and f.name not in NOT_DRAWN) + ("x0",)
+
+
+def read_randomize(r: Table, cfg: "PlantConfig") -> tuple[Draw, ...]:
+    """The ``[randomize]`` table of a scenario whose ``[plant]`` is ``cfg``, checked."""
+    allowed = randomizable(cfg)
+    r.check_keys(allowed, f"for plant kind '{cfg.kind}' (numeric [plant] keys and x0)")
+    fields = {f.name: f for f in dataclasses.fields(cfg)}
+    draws: list[Draw] = []
+    for key in r.table:
+        if key == "x0":
+            entries = r.table[key]
+            n = len(cfg.x0)
+            if not isinstance(entries, list) or len(entries) != n or \
+                    not all(isinstance(e, dict) for e in entries):
+                raise r.error(key, f"must be a list of {n} tables (one per entry of x0, {{}} "
+                                   f"for an entry kept), got {entries!r}")
+            for i, e in enumerate(entries):
+                if e:
+                    name = f"x0[{i}]"
+                    sub = Table(r.path, e, f"{r.prefix}{name}.")
+                    draws.append(_read_one(sub, name, cfg.x0[i], None, False))
+            continue
+        meta = fields[key].metadata
+        sub = r.table_of(key, required=True)
+        # a key whose 0 is the machine's own value (metadata ``own``) cannot be drawn 0
+        draws.append(_read_one(sub, key, float(getattr(cfg, key)), meta.get("low"),
+                               bool(meta.get("strict", False) or meta.get("own", False))))
+    return tuple(draws)
+
+
+def _read_one(t: Table, name: str, nominal: float, low: float | None, strict: bool) -> Draw:
+    dist = t.string("dist", None, DISTRIBUTIONS)
+    t.check_keys(_KEYS[dist], f"for dist '{dist}'")
+    relative = t.boolean("relative", False)
+    if dist == "uniform":
+        a, b = t.number("low"), t.number("high")
+        if not a < b:
+            raise t.error("low", f"must be < high, got low = {a:g}, high = {b:g}")
+        d = Draw(name, dist, a, b, relative, a, b)
+    else:
+        mean, std = t.number("mean"), t.number("std", low=0.0, strict=True)
+        lo = t.number("low") if t.has("low") else -math.inf
+        hi = t.number("high") if t.has("high") else math.inf
+        if not lo < hi:
+            raise t.error("low", f"must be < high, got low = {lo:g}, high = {hi:g}")
+        if not lo <= mean <= hi:
+            raise t.error("mean", f"must lie in [low, high] = [{lo:g}, {hi:g}], got {mean:g}")
+        d = Draw(name, dist, mean, std, relative, lo, hi)
+    if low is not None:
+        # a 0 nominal is the machine's own value, known once it is built (draw): the
+        # parameters with a lower bound are >= 0, so its sign is that of 1
+        lo, hi = d.bounds(nominal if nominal != 0.0 or not relative else 1.0)
+        bad = lo <= low if strict else lo < low
+        if bad:
+            need = f"{'>' if strict else '>='} {low:g}"
+            what = ("give low" if dist == "normal" else "raise low") + " so that it cannot"
+            raise t.error("low" if t.has("low") or dist == "uniform" else "dist",
+                          f"{name} must be {need}, but the draw can give {lo:g}; {what}")
+    return d
+
+
+def _machine_values(scenario: "Scenario") -> dict[str, float]:
+    """The values the scenario's machine takes for its ``[plant]`` keys left at 0."""
+    return domain_of(scenario.plant.kind).nominal_values(scenario)
+
+
+def _rng(seed: int, name: str) -> np.random.Generator:
+    return np.random.default_rng((seed, STREAM, zlib.crc32(name.encode())))
+
+
+def draw(scenario: "Scenario") -> Drawn:
+    """The scenario's ``[randomize]`` drawn with its ``run.seed``, applied to ``[plant]``
+    (the same scenario and ``{}`` when it has none)."""
+    draws = scenario.randomize
+    if not draws:
+        return Drawn(scenario, {})
+    cfg = scenario.plant
+    x0 = list(cfg.x0)
+    changes: dict[str, float] = {}
+    values: dict[str, float] = {}
+    own: dict[str, float] | None = None
+    for d in draws:
+        if d.name.startswith("x0["):
+            i = int(d.name[3:-1])
+            x0[i] = values[d.name] = d.sample(_rng(scenario.run.seed, d.name), x0[i])
+            continue
+        nominal = float(getattr(cfg, d.name))
+        if d.relative and nominal == 0.0:
+            if own is None:
+                own = _machine_values(scenario)
+            nominal = float(own.get(d.name, 0.0))
+            if nominal == 0.0:
+                raise ScenarioError(
+                    f"{scenario.path}: randomize.{d.name}.relative: the [plant] value of "
+                    f"{d.name} is 0 and so is the machine's own, so a relative draw is always "
+                    f"0: give a nominal value or draw it absolute")
+        changes[d.name] = values[d.name] = d.sample(_rng(scenario.run.seed, d.name), nominal)
+    plant = dataclasses.replace(cfg, x0=tuple(x0), **changes)
+    return Drawn(dataclasses.replace(scenario, plant=plant), values)
