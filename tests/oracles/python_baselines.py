@@ -1,0 +1,154 @@
+"""Test oracle: the baselines' previous Python steps (numpy, before they were compiled).
+
+Each function returns a :class:`~tspend.controllers.base.Controller` that takes its
+numbers from a built controller of the kind but steps with the law as it was written in
+numpy before the kind got a compiled step (``git show 504fb01:tspend/controllers/KIND.py``);
+it offers no compiled step, so the runner's generic loop runs it.  The compiled kinds must
+match these over whole runs (tests/test_compiled_baselines.py).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import reduce
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Observation
+
+
+class _Oracle(Controller):
+    """Wraps a built controller: its numbers, diagnostics and diag; the old ``step``."""
+
+    def __init__(self, built: Controller) -> None:
+        self.built = built
+        self.kind = built.kind
+        self.order = built.order
+        self.diagnostics = built.diagnostics
+        self.diag = built.diag
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.built.reset(rng)
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return self.built.parameters()
+
+
+class PD(_Oracle):
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        x, ref = obs.x, obs.ref
+        n = c.order
+        e = x - ref[:n]
+        u_ff = ref[n] / c.b0
+        u_fb = -float(c.k @ e) / c.b0
+        self.diag[0], self.diag[1] = u_ff, u_fb
+        return u_ff + u_fb
+
+
+class ViewLQR(_Oracle):
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        x, ref = obs.x, obs.ref
+        n = c.order
+        r = ref[:n]
+        e = x - r
+        u_ff = c.u_op + (ref[n] - float(c.a @ (r - c.x_op))) / c.b
+        u_fb = -float(c.K @ e)
+        d = self.diag
+        d[0], d[1], d[2] = u_ff, u_fb, float(e @ c.P @ e)
+        return u_ff + u_fb
+
+
+def _sat(z: float) -> float:
+    return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
+
+
+class SlidingMode(_Oracle):
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        x, ref = obs.x, obs.ref
+        n = c.order
+        c_shift = np.zeros(n)
+        c_shift[1:] = c.c[:-1]
+        e = x - ref[:n]
+        s = float(c.c @ e)
+        f_hat = float(c.a @ (x - c.x_op))
+        u_eq = c.u_op + (ref[n] - f_hat - float(c_shift @ e)) / c.b0
+        u_sw = -c.k * _sat(s / c.phi) / c.b0
+        d = self.diag
+        d[0], d[1], d[2], d[3] = s, s / c.phi, u_eq, u_sw
+        return u_eq + u_sw
+
+
+def gaussian_basis(grid, x: np.ndarray) -> np.ndarray:
+    """Wang and Mendel's basis in numpy (the previous ``gaussian_basis.basis``)."""
+    z = np.minimum(np.maximum(x, grid.lo), grid.hi)[grid.owner]
+    mu = np.exp(-np.square((z - grid.flat_centres) / grid.flat_sigma))
+    mu = [mu[s] for s in grid.slices]
+    g = np.outer(mu[0], mu[1]).ravel() if len(mu) == 2 else reduce(np.multiply.outer, mu).ravel()
+    return g / g.sum()
+
+
+class WangIndirect(_Oracle):
+    """Steps its own theta_f, theta_g (copies of the built controller's)."""
+
+    def __init__(self, built: Controller) -> None:
+        super().__init__(built)
+        self.theta_f = built.theta_f.copy()
+        self.theta_g = built.theta_g.copy()
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.built.reset(rng)
+        self.theta_f = self.built.theta_f.copy()
+        self.theta_g = self.built.theta_g.copy()
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return {"theta_f": self.theta_f.copy(), "theta_g": self.theta_g.copy()}
+
+    def supervisory(self, e_delta, V, f_hat, g_hat, u_c) -> float:
+        sv = self.built.supervisor
+        if sv is None or V <= sv.V_bar or e_delta == 0.0:
+            return 0.0
+        size = (abs(f_hat) + sv.f_upper + abs(g_hat * u_c) + sv.g_upper * abs(u_c)) / sv.g_lower
+        return -math.copysign(size, e_delta)
+
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        x, ref = obs.x, obs.ref
+        n = c.order
+        e = x - ref[:n]
+        e_delta = float(c.P[n - 1] @ e)
+        V = 0.5 * float(e @ c.P @ e)
+        xi = gaussian_basis(c.grid, x)
+        f_hat = float(self.theta_f @ xi)
+        g_hat = float(self.theta_g @ xi)
+        u_c = (-f_hat + ref[n] - float(c.lam @ e)) / g_hat
+        u_s = self.supervisory(e_delta, V, f_hat, g_hat, u_c)
+        d = self.diag
+        d[0], d[1], d[2], d[3], d[4], d[5] = u_c, u_s, f_hat, g_hat, e_delta, V
+        d[6], d[7] = math.sqrt(self.theta_f @ self.theta_f), self.theta_g.min()
+        a_f, a_g = c.gamma_f * e_delta, c.gamma_g * e_delta * u_c
+        self.theta_f += (dt * a_f) * xi
+        self.theta_g += (dt * a_g) * xi
+        if a_g < 0.0 or c.f_radius > 0.0 or c.g_radius > 0.0:
+            np.maximum(self.theta_g, c.g_min, out=self.theta_g)
+            for theta, radius in ((self.theta_f, c.f_radius), (self.theta_g, c.g_radius)):
+                if radius > 0.0:
+                    norm = float(np.linalg.norm(theta))
+                    if norm > radius:
+                        theta *= radius / norm
+            if c.g_radius > 0.0:
+                np.maximum(self.theta_g, c.g_min, out=self.theta_g)
+        return u_c + u_s
+
+
+#: kind -> the oracle of its previous Python step
+ORACLES = {"pd": PD, "sliding_mode": SlidingMode, "wang_indirect": WangIndirect}
+
+
+def oracle(built: Controller) -> Controller:
+    """The previous Python step of the kind ``built`` is (the view design for ``lqr``)."""
+    if built.kind == "lqr":
+        return ViewLQR(built)
+    return ORACLES[built.kind](built)
