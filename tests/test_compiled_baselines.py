@@ -8,13 +8,18 @@ by the generic loop: every recorded key to 1e-10, the same ending.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 import pytest
+from numba import njit
 
 import tspend.loop.runner as runner_module
 from tspend import load_scenario, override, run
-from tspend.loop.simulation import prepare
+from tspend.controllers.base import CompiledController, Controller, Observation, diagnostics
+from tspend.loop.runner import ClosedLoop, LoopSettings
+from tspend.loop.simulation import History, prepare
+from tspend.loop.sinks import RunInfo
 
 from tests.oracles.python_baselines import oracle
 
@@ -76,3 +81,86 @@ def test_compiled_kind_matches_its_previous_python_step(name, kind, settings, pa
     assert_close_runs(fast, slow)
     for key, value in slow.controller.parameters().items():
         np.testing.assert_allclose(fast.controller.parameters()[key], value, rtol=0, atol=1e-10)
+
+
+# -- sampled control (run.control_period, run.control_delay) in the compiled loops ----------
+class CountSettings(NamedTuple):
+    """A compiled controller whose u is the number of times it ran (and dt in diag)."""
+
+    unused: float
+
+
+@njit(cache=False)
+def count_step(settings, state, scratch, t, full, x, ref, dt, diag):
+    state[0] += 1.0
+    diag[0] = dt
+    return state[0]
+
+
+class Counter(Controller):
+    """u = how many times the controller ran, in the compiled loops."""
+
+    kind = "counter"
+
+    def __init__(self) -> None:
+        self.order = 2
+        self.diagnostics = diagnostics(("dt_seen", 1))
+        self.diag = np.zeros(1)
+        self.calls = np.zeros(1)
+
+    def reset(self, rng) -> None:
+        self.calls[0] = 0.0
+
+    def step(self, obs: Observation, dt: float) -> float:
+        raise AssertionError("the compiled loop must run this controller")
+
+    def compiled(self) -> CompiledController:
+        return CompiledController(count_step, CountSettings(0.0), self.calls, None)
+
+
+@pytest.mark.parametrize("every, delay, expected", [
+    (1, 0, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]),
+    (3, 0, [1, 1, 1, 2, 2, 2, 3, 3, 3, 4]),
+    (3, 2, [0, 0, 1, 1, 1, 2, 2, 2, 3, 3]),
+    (1, 1, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]),
+    (2, 5, [0, 0, 0, 0, 0, 1, 1, 2, 2, 3]),   # three u in flight at once
+])
+@pytest.mark.parametrize("name", ["ex2_duffing", "pendulum_mujoco"])
+def test_compiled_zero_order_hold_and_delay_by_hand(name, every, delay, expected):
+    # by hand: the k-th evaluation (k = 1, 2, ..) happens at step (k - 1) every and is
+    # applied from step (k - 1) every + delay on; 0 before the first arrives
+    s = override(load_scenario(name), **{"run.duration": 0.01})
+    p = prepare(s)
+    ctrl = Counter()
+    hist = History()
+    loop = ClosedLoop(p.plant, ctrl, s.reference, s.disturbance,
+                      LoopSettings(dt=s.run.dt, steps=10, block_size=4, control_every=every,
+                                   control_delay=delay), task=p.task)
+    p.plant.reset(np.asarray(s.plant.x0, dtype=float))
+    end = loop.run(RunInfo("t", "", "", 1, "", "duffing", 2, s.run.dt, 0.01, 10), [hist])
+    assert loop.path == "compiled"
+    assert end.status == "completed"
+    np.testing.assert_array_equal(hist.arrays()["u"], expected)
+    assert ctrl.calls[0] == len(range(0, 10, every))
+    # the controller's sample time is the control period
+    np.testing.assert_array_equal(hist.arrays()["dt_seen"], s.run.dt * every)
+
+
+@pytest.mark.parametrize("name,kind", [("ex3_pendulum_ode", "second_type"),
+                                       ("ex3_pendulum_ode", "pd"),
+                                       ("pendulum_mujoco", "wang_indirect")])
+def test_sampled_control_compiled_equals_generic(name, kind, paths):
+    scenario = override(load_scenario(name), **{"run.duration": 1.0,
+                                                "run.control_period": 0.005,
+                                                "run.control_delay": 3})
+    fast = run(scenario, controller=kind, block_size=300)
+    slow = run(scenario, controller=kind, block_size=300, compiled=False)
+    assert paths == ["compiled", "generic"]
+    assert fast.status == slow.status == "completed"
+    for key in fast.history:
+        np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)
+    u = fast.history["u"]
+    # held: u changes at most at every fifth step, the first 3 steps are 0
+    assert (u[:3] == 0.0).all()
+    changes = np.flatnonzero(np.diff(u)) + 1
+    assert ((changes - 3) % 5 == 0).all()
