@@ -42,6 +42,12 @@ CASES = [
         "controllers.wang_indirect.V_bar": 0.01, "controllers.wang_indirect.f_radius": 0.5,
         "controllers.wang_indirect.g_radius": 0.2}),
     ("pendulum_mujoco", "sliding_mode", {}),
+    ("ex3_pendulum_ode", "feedback_linearization", {}),
+    ("ex1_nonaffine_case1", "feedback_linearization", {}),   # Newton
+    ("ex2_duffing", "feedback_linearization", {}),           # the controller's own clock
+    ("third_order", "feedback_linearization", {}),
+    ("furuta_ode", "feedback_linearization", {}),
+    ("furuta_ode", "pd", {}),
 ]
 
 
@@ -66,8 +72,9 @@ def assert_close_runs(a, b, atol: float = 1e-10) -> None:
     assert a.end.steps_done == b.end.steps_done
     assert a.history.keys() == b.history.keys()
     for key in a.history:
-        np.testing.assert_allclose(a.history[key], b.history[key], rtol=0, atol=atol,
-                                   err_msg=key)
+        # df/du is a central difference of step 1e-6: rounding in f (1e-16) shows at 1e-10
+        tol = dict(rtol=1e-9, atol=0) if key == "df_du" else dict(rtol=0, atol=atol)
+        np.testing.assert_allclose(a.history[key], b.history[key], err_msg=key, **tol)
 
 
 @pytest.mark.parametrize("name,kind,settings", CASES)
@@ -76,8 +83,10 @@ def test_compiled_kind_matches_its_previous_python_step(name, kind, settings, pa
     fast = run(scenario, controller=kind)
     parts = prepare(scenario, controller=kind)
     slow = run(scenario, prepared=replace(parts, controller=oracle(parts.controller)))
-    assert paths == ["compiled", "generic"]
-    assert fast.status == "completed"
+    # the Furuta plants have no compiled step (yet): there the kind's one law runs in Python
+    assert paths == ["generic" if name.startswith("furuta") else "compiled", "generic"]
+    assert fast.status == "completed" or name.startswith("furuta")  # pd falls there
+    assert fast.end.steps_done > 100
     assert_close_runs(fast, slow)
     for key, value in slow.controller.parameters().items():
         np.testing.assert_allclose(fast.controller.parameters()[key], value, rtol=0, atol=1e-10)

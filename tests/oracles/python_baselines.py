@@ -143,8 +143,69 @@ class WangIndirect(_Oracle):
         return u_c + u_s
 
 
+def _df_du(model, t, x, u, h_rel=1e-6) -> float:
+    h = h_rel * (1.0 + abs(u))
+    return (model.accel(t, x, u + h, 0.0) - model.accel(t, x, u - h, 0.0)) / (2.0 * h)
+
+
+def solve_for_u(model, t, x, v, u0, tol, max_iter):
+    """The previous Newton solver: ``(u, iterations, residual)``, None when it fails."""
+    f = lambda w: model.accel(t, x, w, 0.0)  # noqa: E731
+    if model.affine_in_u:
+        f0 = f(0.0)
+        u = (v - f0) / (f(1.0) - f0)
+        return u, 0, f(u) - v
+    u = u0
+    res = f(u) - v
+    scale = tol * (1.0 + abs(v))
+    for it in range(1, max_iter + 1):
+        if abs(res) <= scale:
+            return u, it - 1, res
+        slope = _df_du(model, t, x, u)
+        if slope == 0.0 or not math.isfinite(slope):
+            break
+        step = res / slope
+        for _ in range(60):
+            try:
+                trial = f(u - step) - v
+            except OverflowError:
+                trial = math.inf
+            if abs(trial) < abs(res):
+                break
+            step *= 0.5
+        else:
+            break
+        u, res = u - step, trial
+    if abs(res) <= scale:
+        return u, max_iter, res
+    return None
+
+
+class FeedbackLinearization(_Oracle):
+    def __init__(self, built: Controller) -> None:
+        super().__init__(built)
+        self.k, self.u_prev = 0, built.model.u_op
+
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        x, ref = obs.x, obs.ref
+        n = c.order
+        t = self.k * dt
+        self.k += 1
+        e = x - ref[:n]
+        v = ref[n] - float(c.lam @ e)
+        found = solve_for_u(c.model, t, x, v, self.u_prev, c.tol, c.max_iter)
+        u, its, res = found if found is not None else (math.nan, c.max_iter, math.nan)
+        d = self.diag
+        d[0], d[2], d[3] = v, its, res
+        d[1] = _df_du(c.model, t, x, u) if math.isfinite(u) else math.nan
+        self.u_prev = u if math.isfinite(u) else self.u_prev
+        return u
+
+
 #: kind -> the oracle of its previous Python step
-ORACLES = {"pd": PD, "sliding_mode": SlidingMode, "wang_indirect": WangIndirect}
+ORACLES = {"pd": PD, "sliding_mode": SlidingMode, "wang_indirect": WangIndirect,
+           "feedback_linearization": FeedbackLinearization}
 
 
 def oracle(built: Controller) -> Controller:
