@@ -128,6 +128,21 @@ class Counter(Controller):
         return CompiledController(count_step, CountSettings(0.0), self.calls, None)
 
 
+@pytest.fixture
+def uncached(monkeypatch, tmp_path):
+    """The compiled loops compiled for this module's Counter away from the package's disk
+    cache: an index entry naming a type of a test module could not be read by a process
+    that cannot import it (a sweep's worker)."""
+    import numba
+    from numba.core.caching import NullCache
+
+    import tspend.loop.fastloop as fastloop
+    for name in ("_analytic_samples", "_mujoco_samples", "_take_sample", "_held_sample"):
+        monkeypatch.setattr(getattr(fastloop, name), "_cache", NullCache())
+    # functions compiled afresh here (the controller dispatch's overload) cache in tmp_path
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+
+
 @pytest.mark.parametrize("every, delay, expected", [
     (1, 0, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]),
     (3, 0, [1, 1, 1, 2, 2, 2, 3, 3, 3, 4]),
@@ -136,7 +151,7 @@ class Counter(Controller):
     (2, 5, [0, 0, 0, 0, 0, 1, 1, 2, 2, 3]),   # three u in flight at once
 ])
 @pytest.mark.parametrize("name", ["ex2_duffing", "pendulum_mujoco"])
-def test_compiled_zero_order_hold_and_delay_by_hand(name, every, delay, expected):
+def test_compiled_zero_order_hold_and_delay_by_hand(name, every, delay, expected, uncached):
     # by hand: the k-th evaluation (k = 1, 2, ..) happens at step (k - 1) every and is
     # applied from step (k - 1) every + delay on; 0 before the first arrives
     s = override(load_scenario(name), **{"run.duration": 0.01})
