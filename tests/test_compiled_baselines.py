@@ -48,6 +48,9 @@ CASES = [
     ("third_order", "feedback_linearization", {}),
     ("furuta_ode", "feedback_linearization", {}),
     ("furuta_ode", "pd", {}),
+    ("swingup_mujoco", "swingup", {"run.duration": 9.0}),            # swings, then caught
+    ("swingup_mujoco", "swingup", {"run.duration": 6.0, "effects.rail": 1.5}),  # brakes
+    ("ex3_pendulum_ode", "swingup", {"plant.x0": [3.0, 0.0], "task.fall_angle": 0.0}),
 ]
 
 
@@ -89,6 +92,8 @@ def test_compiled_kind_matches_its_previous_python_step(name, kind, settings, pa
     assert fast.status == "completed" or name.startswith("furuta")  # pd falls there
     assert fast.end.steps_done > 100
     assert_close_runs(fast, slow)
+    if kind == "swingup" and scenario.run.duration > 8.0:   # both modes were run
+        assert fast.history["mode"][0] == 0.0 and fast.history["mode"][-1] == 1.0
     for key, value in slow.controller.parameters().items():
         np.testing.assert_allclose(fast.controller.parameters()[key], value, rtol=0, atol=1e-10)
 

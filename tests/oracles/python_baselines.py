@@ -203,9 +203,67 @@ class FeedbackLinearization(_Oracle):
         return u
 
 
+class SwingUp(_Oracle):
+    """The previous numpy swing-up; its catching LQR is the kind's own full-state law
+    (compiled since before, and tested against the Riccati solution elsewhere)."""
+
+    def __init__(self, built: Controller) -> None:
+        super().__init__(built)
+        self.mode = 0.0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.built.reset(rng)
+        self.mode = 0.0
+
+    def swing(self, state):
+        c = self.built
+        m, s = c.model, c.s
+        dof, act = m.dof, m.actuated
+        f = m.numeric
+        a0 = np.asarray(f(state, 0.0), dtype=float)
+        du = np.asarray(f(state, 1.0), dtype=float) - a0
+        slope = m.pole_inertia * state[dof + m.pole] * du[m.pole] * math.copysign(1.0, du[act])
+        sign = 1.0 if slope >= 0.0 else -1.0
+        w = state[dof + m.pole]
+        energy = 0.5 * m.pole_inertia * w * w + m.mgl * (math.cos(state[m.pole]) - 1.0)
+        a = min(s.accel_max, max(-s.accel_max, s.energy_gain * (0.0 - energy) * sign))
+        x, v = state[act], state[dof + act]
+        k_x, k_v = s.centring
+        a_c = -k_x * x - k_v * v
+        if a_c * sign >= 0.0:
+            a += a_c
+        lim = m.q_hi[act]
+        if math.isfinite(lim):
+            stop = x + v * abs(v) / (2.0 * s.accel_max)
+            if abs(stop) > lim - s.rail_margin:
+                a = -math.copysign(s.accel_max, v) if x * v > 0.0 else a_c
+        u = (a - a0[act]) / du[act]
+        return min(m.u_hi, max(m.u_lo, u)), a, energy
+
+    def step(self, obs: Observation, dt: float) -> float:
+        c = self.built
+        m, s, state = c.model, c.s, obs.state
+        theta = float(state[m.pole]) - 2.0 * math.pi * math.ceil((float(state[m.pole]) - math.pi)
+                                                                / (2.0 * math.pi))
+        if self.mode == 0.0 and abs(theta) < s.catch_angle:
+            self.mode = 1.0
+        elif self.mode == 1.0 and abs(theta) > s.release_angle:
+            self.mode = 0.0
+        w = state[m.dof + m.pole]
+        energy = 0.5 * m.pole_inertia * w * w + m.mgl * (math.cos(state[m.pole]) - 1.0)
+        if self.mode == 1.0:
+            u = min(m.u_hi, max(m.u_lo, c.lqr.act(state, obs.ref)))
+            a = 0.0
+        else:
+            u, a, _ = self.swing(state)
+        d = self.diag
+        d[0], d[1], d[2], d[3] = energy, self.mode, theta, a
+        return u
+
+
 #: kind -> the oracle of its previous Python step
 ORACLES = {"pd": PD, "sliding_mode": SlidingMode, "wang_indirect": WangIndirect,
-           "feedback_linearization": FeedbackLinearization}
+           "feedback_linearization": FeedbackLinearization, "swingup": SwingUp}
 
 
 def oracle(built: Controller) -> Controller:

@@ -29,9 +29,15 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
-from numba.extending import register_jitable
+from numba.core import types
+from numba.extending import overload, register_jitable
 
 from tspend.errors import ScenarioError
+from tspend.plants.cartpole_physics import CartPoleMachine
+from tspend.plants.cartpole_physics import machine_accelerations as cartpole_accelerations
+from tspend.plants.furuta_physics import FurutaMachine
+from tspend.plants.furuta_physics import machine_accelerations as furuta_accelerations
+from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -50,6 +56,49 @@ FD_STEP = 1e-6
 def wrap_angle(a: float) -> float:
     """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""
     return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
+
+
+@register_jitable
+def pendulum_energy(pole_inertia: float, mgl: float, angle: float, rate: float) -> float:
+    """``E = 1/2 J theta'^2 + m g l (cos theta - 1)``: 0 upright at rest, ``-2 m g l``
+    hanging."""
+    return 0.5 * pole_inertia * rate * rate + mgl * (math.cos(angle) - 1.0)
+
+
+@register_jitable
+def _cartpole_q_dd(machine: Any, s: np.ndarray, u: float) -> tuple[float, float]:
+    # s = [slider, hinge, slider_dot, hinge_dot]; the domain's order is (theta'', x'')
+    thdd, xdd = cartpole_accelerations(machine, s[1], s[3], s[2], u, 0.0)
+    return xdd, thdd
+
+
+@register_jitable
+def _furuta_q_dd(machine: Any, s: np.ndarray, u: float) -> tuple[float, float]:
+    return furuta_accelerations(machine, s, u, 0.0)
+
+
+#: the type of a domain's machine (:attr:`FullModel.machine`) -> ``q''(machine, s, u)``
+#: (no disturbance), compiled from the same source as :attr:`FullModel.numeric`
+FULL_ACCEL: dict[type, Callable] = {CartPoleMachine: _cartpole_q_dd, FurutaMachine: _furuta_q_dd}
+
+
+def full_accelerations(machine: Any, s: np.ndarray, u: float) -> tuple[float, float]:
+    """``q''(s, u)`` of the machine (two joints): from Python by the machine's type; in
+    compiled code the same functions inlined (:func:`_full_accelerations`)."""
+    return FULL_ACCEL[type(machine)](machine, s, u)
+
+
+@overload(full_accelerations, jit_options=JIT)
+def _full_accelerations(machine, s, u):
+    cls = machine.instance_class if isinstance(machine, types.BaseNamedTuple) else None
+    q_dd = FULL_ACCEL.get(cls)
+    if q_dd is None:
+        return None
+
+    def impl(machine, s, u):
+        return q_dd(machine, s, u)
+
+    return impl
 
 
 @dataclass(frozen=True)
@@ -80,6 +129,9 @@ class FullModel:
     parameters: dict = field(default_factory=dict)
     #: whether the equations can be built over CasADi (MPC)
     symbolic_ok: bool = True
+    #: the domain's machine (a NamedTuple type of :data:`FULL_ACCEL`): the equations for
+    #: compiled code
+    machine: Any = None
 
     @property
     def size(self) -> int:
@@ -135,8 +187,7 @@ class FullModel:
 
     def energy(self, s: np.ndarray) -> float:
         """The pendulum's energy about its pivot, 0 upright at rest (-2 m g l hanging)."""
-        w = s[self.dof + self.pole]
-        return 0.5 * self.pole_inertia * w * w + self.mgl * (math.cos(s[self.pole]) - 1.0)
+        return pendulum_energy(self.pole_inertia, self.mgl, s[self.pole], s[self.dof + self.pole])
 
     def error(self, s: np.ndarray, s_ref: np.ndarray) -> np.ndarray:
         """``s - s_ref`` with the angles' errors wrapped to (-pi, pi]."""
@@ -166,7 +217,7 @@ def _cartpole(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
                      actuated=0, angles=(False, True, False, False), u_lo=u_lo, u_hi=u_hi,
                      q_lo=q_lo, q_hi=q_hi,
                      pole_inertia=machine.J, mgl=machine.m * machine.g * machine.l,
-                     parameters=params)
+                     parameters=params, machine=machine)
 
 
 def _furuta(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
@@ -189,7 +240,7 @@ def _furuta(machine: Any, names: tuple[str, ...], u_lo: float, u_hi: float,
     return FullModel(domain="furuta", state_names=names, accel_factory=factory, pole=1,
                      actuated=0, angles=(True, True, False, False), u_lo=u_lo, u_hi=u_hi,
                      q_lo=q_lo, q_hi=q_hi, pole_inertia=machine.m22, mgl=machine.v_c,
-                     parameters=params, symbolic_ok=False)
+                     parameters=params, symbolic_ok=False, machine=machine)
 
 
 def full_model(scenario: "Scenario") -> FullModel:
