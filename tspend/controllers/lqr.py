@@ -203,7 +203,9 @@ class LQRController(Controller):
         """Nothing is adapted and nothing is drawn."""
 
     def step(self, obs: Observation, dt: float) -> float:
-        return view_lqr_law(self.law, obs.x, obs.ref, self.diag)
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return view_lqr_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt,
+                             self.diag)
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
@@ -329,7 +331,9 @@ class FullStateLQR(Controller):
         return CompiledController(full_lqr_step, self.law, None, None)
 
     def step(self, obs: Observation, dt: float) -> float:
-        return self.act(obs.state, obs.ref)
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return full_lqr_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt,
+                             self.diag)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

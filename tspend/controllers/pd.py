@@ -110,7 +110,8 @@ class PDController(Controller):
         """Nothing is adapted and nothing is drawn."""
 
     def step(self, obs: Observation, dt: float) -> float:
-        return pd_law(self.law, obs.x, obs.ref, self.diag)
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return pd_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt, self.diag)
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""

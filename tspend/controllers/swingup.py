@@ -213,6 +213,9 @@ class SwingUpController(Controller):
         return swingup_law(self.law, self.modes, np.asarray(state, dtype=float), ref, self.diag)
 
     def step(self, obs: Observation, dt: float) -> float:
+        if self.model.machine is not None:   # the compiled law from Python too
+            return swingup_step(self.law, self.modes, None, obs.t, obs.state, obs.x, obs.ref,
+                                dt, self.diag)
         return self.act(obs.state, obs.ref)
 
     def compiled(self) -> CompiledController | None:
