@@ -177,6 +177,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--n-envs", type=int, default=4)
     p.add_argument("--eval-every", type=int, default=50_000)
     p.add_argument("--eval-duration", type=float, default=10.0)
+    p.add_argument("--lr", type=float, default=3e-4, help="learning rate")
+    p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument("--n-steps", type=int, default=1024, help="rollout per env")
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--log-std", type=float, default=-1.0, help="initial log std of actions")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after (0: never)")
     p.add_argument("--out", type=Path, default=None, help="default models/policies/SCENARIO.onnx")
     a = p.parse_args(argv)
@@ -201,15 +206,16 @@ def main(argv: list[str] | None = None) -> int:
         return make
 
     venv = VecNormalize(DummyVecEnv([factory(i) for i in range(a.n_envs)]),
-                        norm_obs=True, norm_reward=True, clip_obs=10.0, gamma=0.99)
+                        norm_obs=True, norm_reward=True, clip_obs=10.0, gamma=a.gamma)
     venv.seed(a.seed)
     probe = tspend.gym.TspendEnv(a.scenario, control_period=a.period)
     idx = selection(probe)
     names = probe.observation_names
-    model = PPO("MlpPolicy", venv, seed=a.seed, n_steps=1024, batch_size=256, n_epochs=10,
-                gamma=0.99, gae_lambda=0.95, learning_rate=3e-4, ent_coef=0.0, clip_range=0.2,
+    model = PPO("MlpPolicy", venv, seed=a.seed, n_steps=a.n_steps, batch_size=a.batch,
+                n_epochs=10, gamma=a.gamma, gae_lambda=0.95, learning_rate=a.lr, ent_coef=0.0,
+                clip_range=0.2,
                 policy_kwargs=dict(net_arch=dict(pi=[64, 64], vf=[64, 64]),
-                                   activation_fn=torch.nn.Tanh, log_std_init=-1.0),
+                                   activation_fn=torch.nn.Tanh, log_std_init=a.log_std),
                 verbose=0, device="cpu")
 
     started = time.perf_counter()
@@ -293,9 +299,10 @@ def main(argv: list[str] | None = None) -> int:
         "reward": {"formula": "T * (alive - sum_i tracking_i e_i^2 - control (u/u_scale)^2)",
                    **tspend.gym.RewardWeights().__dict__},
         "policy_inputs": [names[i] for i in idx],
-        "hyperparameters": {"n_steps": 1024, "batch_size": 256, "n_epochs": 10, "gamma": 0.99,
-                            "gae_lambda": 0.95, "learning_rate": 3e-4, "net_arch": [64, 64],
-                            "activation": "tanh", "log_std_init": -1.0,
+        "hyperparameters": {"n_steps": a.n_steps, "batch_size": a.batch, "n_epochs": 10,
+                            "gamma": a.gamma, "gae_lambda": 0.95, "learning_rate": a.lr,
+                            "net_arch": [64, 64], "activation": "tanh",
+                            "log_std_init": a.log_std,
                             "VecNormalize": {"norm_obs": True, "norm_reward": True,
                                              "clip_obs": 10.0}},
         "best": best, "evaluations": evals, "reward_curve": curve,
