@@ -165,6 +165,45 @@ def evaluate(actor: Actor, scenario: str, period: float, duration: float) -> dic
             "rmse_ss_approx": rmse if info["status"] == "completed" else math.inf}
 
 
+def card_markdown(card: dict, name: str) -> str:
+    """The model card for people: how it was made, from the JSON beside it."""
+    best = card["best"]
+    lines = [f"# {name}: PPO policy for `{card['scenario']}`", "",
+             "Made by `benchmarks/train_policy.py` (docs/gym.md); every number below is in "
+             f"`{Path(name).with_suffix('.json').name}`.", "",
+             f"- command: `{card['command']}`",
+             f"- {card['algorithm']}, {card['timesteps']} timesteps, seed {card['seed']}, "
+             f"wall time {card['wall_s']:.0f} s, {card['n_envs']} envs",
+             f"- control period {card['control_period_s']} s; action 1 = {card['u_max_N']} N; "
+             f"init noise on plant.x0 {card['init_noise']}; training episodes "
+             f"{card['training_episode_s']} s",
+             f"- inputs the policy uses: {', '.join(card['policy_inputs'])} (of the env's "
+             f"full observation; normalisation baked into the graph)",
+             f"- reward: `{card['reward']['formula']}` with alive = {card['reward']['alive']}, "
+             f"tracking = {card['reward']['tracking']}, control = {card['reward']['control']}",
+             f"- hyperparameters: {json.dumps(card['hyperparameters'])}",
+             f"- versions: {json.dumps(card['versions'])}", "",
+             f"Exported: the evaluation at {best.get('timesteps')} timesteps (the best of "
+             f"{len(card['evaluations'])}): one deterministic {best.get('t_end', 0):.0f} s "
+             f"episode, status {best.get('status')}, rms error over its second half "
+             f"{best.get('rmse_ss_approx', float('nan')):.4g} rad (env samples).", "",
+             "## Reward curve (mean episode return of the last 100 training episodes)", "",
+             "| timesteps | wall s | mean return | mean length (steps) |",
+             "| ---: | ---: | ---: | ---: |"]
+    curve = card["reward_curve"]
+    stride = max(1, len(curve) // 25)
+    for row in curve[::stride] + ([curve[-1]] if curve and (len(curve) - 1) % stride else []):
+        lines.append(f"| {row['timesteps']} | {row['wall_s']:.0f} | {row['ep_return_mean']:.2f} "
+                     f"| {row['ep_length_mean']:.0f} |")
+    lines += ["", "## Evaluations (deterministic, from plant.x0)", "",
+              "| timesteps | status | t_end s | return | rmse (2nd half) rad |",
+              "| ---: | --- | ---: | ---: | ---: |"]
+    for e in card["evaluations"]:
+        lines.append(f"| {e['timesteps']} | {e['status']} | {e['t_end']:.2f} | "
+                     f"{e['return']:.2f} | {e['rmse_ss_approx']:.4g} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("scenario", nargs="?", default="pendulum_mujoco")
@@ -313,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
                      "python": platform.python_version()},
     }
     out.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    out.with_suffix(".md").write_text(card_markdown(card, out.name))
     print(json.dumps(best))
     return 0
 
