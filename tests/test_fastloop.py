@@ -96,7 +96,7 @@ def test_compiled_loop_equals_generic_loop_on_every_key(name, paths):
 
 @pytest.mark.parametrize("name,kind", [("pendulum_sensor_noise", None),   # per-sample hook
                                        ("pendulum_saturated", None),      # actuator effects
-                                       ("ex2_duffing", "pd")])            # Python controller
+                                       ("ex2_duffing", "examples/custom_controller.py:SaturatedPD")])  # Python controller
 def test_unsupported_loops_fall_back_to_the_generic_loop(name, kind, paths):
     scenario = override(load_scenario(name), **{"run.duration": 0.2})
     result = run(scenario, controller=kind)

@@ -72,6 +72,11 @@ def test_every_kind_runs_on_every_domain(plant_kind: str, controller: str, tmp_p
             build_controller(scn, kind=controller)
         assert str(refused.value) == why and "\n" not in why
         pytest.skip(why)
+    # a learned policy runs only where the scenario names one ([controllers.policy] path)
+    if controller == "policy" and "policy" not in dict(scn.controllers):
+        with pytest.raises(ScenarioError, match="controllers.policy.path: not set") as refused:
+            build_controller(scn, kind=controller)
+        pytest.skip(str(refused.value))
     path = tmp_path / "run.rrd"
     rec = open_recording("suite", mode="save", path=path)
     sink = RerunSink(rec)

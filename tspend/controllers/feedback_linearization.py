@@ -31,14 +31,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
 from tspend.controllers.paper.control_law import is_hurwitz
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.plant_model import PlantModel, plant_model
+from tspend.plants.domain import central_df_du, view_accel
+from tspend.runtime.jit import JIT
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
@@ -69,38 +74,103 @@ class NewtonFailed(ArithmeticError):
     """No u found with f(x, u) = v (the runner stops the run as diverged)."""
 
 
-def solve_for_u(model: PlantModel, t: float, x: np.ndarray, v: float, u0: float,
-                tol: float, max_iter: int) -> tuple[float, int, float]:
-    """``(u, iterations, residual)`` with ``f(t, x, u) = v``."""
-    if model.affine_in_u:
-        f0 = model.f(t, x, 0.0)
-        u = (v - f0) / (model.f(t, x, 1.0) - f0)
-        return u, 0, model.f(t, x, u) - v
+@register_jitable
+def _f_or_inf(model: Any, t: float, x: np.ndarray, u: float) -> float:
+    try:
+        return view_accel(model, t, x, u, 0.0)
+    except Exception:  # e^u overflows in Python's math; compiled code gives inf itself
+        return math.inf
+
+
+@register_jitable
+def newton_u(model: Any, affine: bool, t: float, x: np.ndarray, v: float, u0: float,
+             tol: float, max_iter: int) -> tuple[float, int, float, bool]:
+    """``(u, iterations, residual, found)`` with ``f(t, x, u) = v`` (module docstring);
+    ``model`` is a :class:`~tspend.plants.domain.PlantModel` or its compiled view model.
+    The one implementation: plain Python in the generic loop, compiled in the compiled
+    ones."""
+    if affine:
+        f0 = view_accel(model, t, x, 0.0, 0.0)
+        u = (v - f0) / (view_accel(model, t, x, 1.0, 0.0) - f0)
+        return u, 0, view_accel(model, t, x, u, 0.0) - v, True
     u = u0
-    res = model.f(t, x, u) - v
+    res = view_accel(model, t, x, u, 0.0) - v
     scale = tol * (1.0 + abs(v))
     for it in range(1, max_iter + 1):
         if abs(res) <= scale:
-            return u, it - 1, res
-        slope = model.df_du(t, x, u)
+            return u, it - 1, res, True
+        slope = central_df_du(model, t, x, u)
         if slope == 0.0 or not math.isfinite(slope):
             break
         step = res / slope
+        shrunk = False
+        trial = res
         for _ in range(60):  # backtracking: halve until the residual shrinks
-            try:
-                trial = model.f(t, x, u - step) - v
-            except OverflowError:
-                trial = math.inf
+            trial = _f_or_inf(model, t, x, u - step) - v
             if abs(trial) < abs(res):
+                shrunk = True
                 break
             step *= 0.5
-        else:
+        if not shrunk:
             break
         u, res = u - step, trial
-    if abs(res) <= scale:
-        return u, max_iter, res
-    raise NewtonFailed(f"feedback_linearization: no u with f(x, u) = {v:.6g} at x = {x} "
-                       f"(residual {res:.3g})")
+    return u, max_iter, res, abs(res) <= scale
+
+
+def solve_for_u(model: PlantModel, t: float, x: np.ndarray, v: float, u0: float,
+                tol: float, max_iter: int) -> tuple[float, int, float]:
+    """``(u, iterations, residual)`` with ``f(t, x, u) = v`` (:func:`newton_u`); raises
+    :class:`NewtonFailed` when there is none."""
+    u, its, res, found = newton_u(model, model.affine_in_u, t, x, v, u0, tol, max_iter)
+    if not found:
+        raise NewtonFailed(f"feedback_linearization: no u with f(x, u) = {v:.6g} at x = {x} "
+                           f"(residual {res:.3g})")
+    return u, its, res
+
+
+class OracleLaw(NamedTuple):
+    """The oracle's numbers, as compiled code reads them (:func:`oracle_law`)."""
+
+    model: Any             # the compiled view model (PlantModel.compiled), or the PlantModel
+    affine: bool
+    lam: np.ndarray        # (n,)
+    tol: float
+    max_iter: int
+
+
+@register_jitable
+def oracle_law(law: OracleLaw, state: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
+               diag: np.ndarray) -> float:
+    """One sample (module docstring); ``state = [k, u_prev]``: the controller's own clock
+    (``t = k dt``) and Newton's starting point.  The one implementation: plain Python in
+    the generic loop, compiled in the compiled ones."""
+    n = law.lam.size
+    t = state[0] * dt
+    state[0] += 1.0
+    lam_e = 0.0
+    for j in range(n):
+        lam_e += law.lam[j] * (x[j] - ref[j])
+    v = ref[n] - lam_e
+    u, its, res, found = newton_u(law.model, law.affine, t, x, v, state[1], law.tol,
+                                  law.max_iter)
+    if not found:
+        u, its, res = math.nan, law.max_iter, math.nan
+    diag[0] = v
+    diag[2] = its
+    diag[3] = res
+    if math.isfinite(u):
+        diag[1] = central_df_du(law.model, t, x, u)
+        state[1] = u
+    else:
+        diag[1] = math.nan
+    return u
+
+
+@njit(**JIT)
+def oracle_step(law: OracleLaw, state: np.ndarray, scratch, t: float, full: np.ndarray,
+                x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`oracle_law` behind the compiled controllers' common signature."""
+    return oracle_law(law, state, x, ref, dt, diag)
 
 
 class FeedbackLinearizationController(Controller):
@@ -117,8 +187,11 @@ class FeedbackLinearizationController(Controller):
         self.order = model.order
         self.lam = np.asarray(lam, dtype=float)
         self.tol, self.max_iter = tol, max_iter
-        self.k = 0
-        self.u_prev = model.u_op
+        #: [k, u_prev]: the sample count (the clock) and Newton's starting point
+        self.state = np.array([0.0, model.u_op])
+        view = model.compiled if model.compiled is not None else model
+        self.law = OracleLaw(view, bool(model.affine_in_u), self.lam.copy(), float(tol),
+                             int(max_iter))
         self.diagnostics = diagnostics(
             ("v", 1, {"panel": "control", "description": "commanded x_n' = r^(n) - lambda^T e"}),
             ("df_du", 1, {"panel": "model", "description": "true df/du at the sample"}),
@@ -127,27 +200,32 @@ class FeedbackLinearizationController(Controller):
             ("residual", 1, {"panel": "model", "description": "f(t, x, u) - v"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
 
+    @property
+    def k(self) -> int:
+        """Samples taken since the reset."""
+        return int(self.state[0])
+
+    @property
+    def u_prev(self) -> float:
+        return float(self.state[1])
+
     def reset(self, rng: np.random.Generator) -> None:
         """Clock and Newton's starting point back to the start; nothing is drawn."""
-        self.k = 0
-        self.u_prev = self.model.u_op
+        self.state[0] = 0.0
+        self.state[1] = self.model.u_op
 
     def step(self, obs: Observation, dt: float) -> float:
-        x, ref = obs.x, obs.ref
-        n = self.order
-        t = self.k * dt
-        self.k += 1
-        e = x - ref[:n]
-        v = ref[n] - float(self.lam @ e)
-        try:
-            u, its, res = solve_for_u(self.model, t, x, v, self.u_prev, self.tol, self.max_iter)
-        except NewtonFailed:
-            u, its, res = math.nan, self.max_iter, math.nan
-        d = self.diag
-        d[0], d[2], d[3] = v, its, res
-        d[1] = self.model.df_du(t, x, u) if math.isfinite(u) else math.nan
-        self.u_prev = u if math.isfinite(u) else self.u_prev
-        return u
+        if self.model.compiled is not None:   # the compiled law from Python too
+            return oracle_step(self.law, self.state, None, obs.t, obs.state, obs.x, obs.ref,
+                               dt, self.diag)
+        return oracle_law(self.law, self.state, obs.x, obs.ref, dt, self.diag)
+
+    def compiled(self) -> CompiledController | None:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`), when the
+        plant's domain offers its model to compiled code (``PlantModel.compiled``)."""
+        if self.model.compiled is None:
+            return None
+        return CompiledController(oracle_step, self.law, self.state, None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

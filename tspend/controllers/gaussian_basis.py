@@ -22,10 +22,14 @@ never underflows to 0/0 far outside the grid.
 
 from __future__ import annotations
 
-from functools import reduce
+import math
 from typing import NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
+
+__all__ = ["GaussianGrid", "GaussianTable", "basis", "basis_into", "gaussian_grid",
+           "memberships"]
 
 
 class GaussianGrid(NamedTuple):
@@ -49,6 +53,24 @@ class GaussianGrid(NamedTuple):
     def rules(self) -> int:
         return int(np.prod([c.size for c in self.centres]))
 
+    def table(self) -> "GaussianTable":
+        """The grid as compiled code reads it (:func:`basis_into`)."""
+        return GaussianTable(self.flat_centres.copy(), self.flat_sigma.copy(),
+                             self.owner.astype(np.intp), self.lo.copy(), self.hi.copy(),
+                             np.array([c.size for c in self.centres], dtype=np.intp))
+
+
+class GaussianTable(NamedTuple):
+    """A :class:`GaussianGrid` flattened for compiled code: every set's centre and width,
+    the input it belongs to, the inputs' intervals and their number of sets."""
+
+    centres: np.ndarray   # (total sets,)
+    sigma: np.ndarray     # (total sets,)
+    owner: np.ndarray     # (total sets,) intp
+    lo: np.ndarray        # (inputs,)
+    hi: np.ndarray        # (inputs,)
+    terms: np.ndarray     # (inputs,) intp
+
 
 def gaussian_grid(sets) -> GaussianGrid:
     """The grid of ``sets``: one ``SetSpec(terms, lo, hi)`` per state (a single term sits
@@ -67,15 +89,54 @@ def _slices(sizes: list[int]) -> tuple[slice, ...]:
     return tuple(slice(int(e - k), int(e)) for e, k in zip(ends, sizes))
 
 
+@register_jitable
+def memberships_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray) -> None:
+    """``mu_ij(x_i)`` of every set into ``mu`` (the sets of input 0 first), with ``x_i``
+    clamped to its interval."""
+    for k in range(mu.size):
+        i = table.owner[k]
+        z = min(max(x[i], table.lo[i]), table.hi[i])
+        w = (z - table.centres[k]) / table.sigma[k]
+        mu[k] = math.exp(-(w * w))
+
+
+@register_jitable
+def basis_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray, xi: np.ndarray) -> None:
+    """``xi(x)`` into ``xi``: every rule's product of memberships (row-major grid order: the
+    last input's set varies fastest), normalised to sum 1; ``mu`` is scratch of one entry
+    per set.  The one implementation: plain Python from :func:`basis`, compiled in the
+    compiled loops."""
+    memberships_into(table, x, mu)
+    inputs = table.terms.size
+    total = 0.0
+    for rule in range(xi.size):
+        # the rule's set of each input: rule's digits in the mixed radix of terms,
+        # the first input's the most significant; product in input order
+        g = 1.0
+        stride = xi.size
+        offset = 0
+        rest = rule
+        for i in range(inputs):
+            stride //= table.terms[i]
+            j = rest // stride
+            rest -= j * stride
+            g *= mu[offset + j]
+            offset += table.terms[i]
+        xi[rule] = g
+        total += g
+    for rule in range(xi.size):
+        xi[rule] /= total
+
+
 def memberships(grid: GaussianGrid, x: np.ndarray) -> list[np.ndarray]:
     """``mu_ij(x_i)`` of every set, one array per input."""
-    z = np.minimum(np.maximum(x, grid.lo), grid.hi)[grid.owner]
-    mu = np.exp(-np.square((z - grid.flat_centres) / grid.flat_sigma))
+    mu = np.empty(grid.flat_centres.size)
+    memberships_into(grid.table(), np.asarray(x, dtype=float), mu)
     return [mu[s] for s in grid.slices]
 
 
 def basis(grid: GaussianGrid, x: np.ndarray) -> np.ndarray:
     """``xi(x)``: the normalised firing strengths of every rule (row-major grid order)."""
-    mu = memberships(grid, x)
-    g = np.outer(mu[0], mu[1]).ravel() if len(mu) == 2 else reduce(np.multiply.outer, mu).ravel()
-    return g / g.sum()
+    mu, xi = np.empty(grid.flat_centres.size), np.empty(grid.rules)
+    basis_into(grid.table(), np.asarray(x, dtype=float), mu, xi)
+    return xi

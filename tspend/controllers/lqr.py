@@ -130,6 +130,49 @@ def lqr_full_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray,
     return np.asarray(K, dtype=float), np.asarray(P, dtype=float)
 
 
+class ViewLQRLaw(NamedTuple):
+    """The view design's numbers, as compiled code reads them (:func:`view_lqr_law`)."""
+
+    K: np.ndarray      # (n,)
+    P: np.ndarray      # (n, n)
+    a: np.ndarray      # (n,) the last row of A
+    b: float
+    x_op: np.ndarray   # (n,)
+    u_op: float
+    e: np.ndarray      # (n,) scratch: the error
+
+
+@register_jitable
+def view_lqr_law(law: ViewLQRLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
+    """``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring), diagnostics into
+    ``diag``; the one implementation, plain Python in the generic loop, compiled in the
+    compiled ones."""
+    e = law.e
+    n = e.size
+    ar = 0.0
+    u_fb = 0.0
+    for j in range(n):
+        ar += law.a[j] * (ref[j] - law.x_op[j])
+        e[j] = x[j] - ref[j]
+        u_fb -= law.K[j] * e[j]
+    u_ff = law.u_op + (ref[n] - ar) / law.b
+    V = 0.0
+    for i in range(n):
+        for j in range(n):
+            V += e[i] * law.P[i, j] * e[j]
+    diag[0] = u_ff
+    diag[1] = u_fb
+    diag[2] = V
+    return u_ff + u_fb
+
+
+@njit(**JIT)
+def view_lqr_step(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                  ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`view_lqr_law` behind the compiled controllers' common signature."""
+    return view_lqr_law(law, x, ref, diag)
+
+
 class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
@@ -154,6 +197,8 @@ class LQRController(Controller):
             ("V", 1, {"panel": "lyapunov", "log": True,
                       "description": "cost-to-go e^T P e of the linear design"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
+        self.law = ViewLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a.copy(),
+                              self.b, self.x_op.copy(), self.u_op, np.zeros(self.order))
 
     def closed_loop(self) -> np.ndarray:
         """``A - B K``, Hurwitz by construction."""
@@ -163,15 +208,13 @@ class LQRController(Controller):
         """Nothing is adapted and nothing is drawn."""
 
     def step(self, obs: Observation, dt: float) -> float:
-        x, ref = obs.x, obs.ref
-        n = self.order
-        r = ref[:n]
-        e = x - r
-        u_ff = self.u_op + (ref[n] - float(self.a @ (r - self.x_op))) / self.b
-        u_fb = -float(self.K @ e)
-        d = self.diag
-        d[0], d[1], d[2] = u_ff, u_fb, float(e @ self.P @ e)
-        return u_ff + u_fb
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return view_lqr_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt,
+                             self.diag)
+
+    def compiled(self) -> CompiledController:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
+        return CompiledController(view_lqr_step, self.law, None, None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}
@@ -293,7 +336,9 @@ class FullStateLQR(Controller):
         return CompiledController(full_lqr_step, self.law, None, None)
 
     def step(self, obs: Observation, dt: float) -> float:
-        return self.act(obs.state, obs.ref)
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return full_lqr_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt,
+                             self.diag)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

@@ -20,12 +20,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
+from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
@@ -59,6 +63,35 @@ def gains_from_poles(n: int, pole: float) -> np.ndarray:
     return np.array([comb(n, i) * pole ** (n - i) for i in range(n)], dtype=float)
 
 
+class PDLaw(NamedTuple):
+    """The law's numbers, as compiled code reads them."""
+
+    k: np.ndarray      # (n,) gains k_1 .. k_n
+    b0: float
+
+
+@register_jitable
+def pd_law(law: PDLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
+    """``u = (r^(n) - k^T e) / b0`` (module docstring), its parts into ``diag``; the one
+    implementation: plain Python in the generic loop, compiled in the compiled ones."""
+    n = law.k.size
+    ke = 0.0
+    for j in range(n):
+        ke += law.k[j] * (x[j] - ref[j])
+    u_ff = ref[n] / law.b0
+    u_fb = -ke / law.b0
+    diag[0] = u_ff
+    diag[1] = u_fb
+    return u_ff + u_fb
+
+
+@njit(**JIT)
+def pd_step(law: PDLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+            ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`pd_law` behind the compiled controllers' common signature."""
+    return pd_law(law, x, ref, diag)
+
+
 class PDController(Controller):
     """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
@@ -75,18 +108,18 @@ class PDController(Controller):
             ("u_ff", 1, {"panel": "control", "description": "feedforward r^(n) / b0"}),
             ("u_fb", 1, {"panel": "control", "description": "feedback -k^T e / b0"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
+        self.law = PDLaw(self.k.copy(), self.b0)
 
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
     def step(self, obs: Observation, dt: float) -> float:
-        x, ref = obs.x, obs.ref
-        n = self.order
-        e = x - ref[:n]
-        u_ff = ref[n] / self.b0
-        u_fb = -float(self.k @ e) / self.b0
-        self.diag[0], self.diag[1] = u_ff, u_fb
-        return u_ff + u_fb
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return pd_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt, self.diag)
+
+    def compiled(self) -> CompiledController:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
+        return CompiledController(pd_step, self.law, None, None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

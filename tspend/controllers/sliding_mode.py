@@ -36,12 +36,16 @@ Defaults (:class:`SlidingModeSettings`):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
+from tspend.runtime.jit import JIT
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
@@ -80,8 +84,52 @@ class SlidingModeSettings(KindSettings):
         return None
 
 
+@register_jitable
 def sat(z: float) -> float:
     return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
+
+
+class SlidingLaw(NamedTuple):
+    """The law's numbers, as compiled code reads them (:func:`sliding_law`)."""
+
+    c: np.ndarray      # (n,) c_1 .. c_n, c_n = 1
+    k: float
+    phi: float
+    a: np.ndarray      # (n,) the nominal model's df/dx
+    b0: float
+    x_op: np.ndarray   # (n,)
+    u_op: float
+
+
+@register_jitable
+def sliding_law(law: SlidingLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
+    """``u = u* + (r^(n) - f_hat(x) - sum_{i<n} c_i e_{i+1} - k sat(s / phi)) / b_hat``
+    (module docstring), its parts into ``diag``; the one implementation, plain Python in
+    the generic loop, compiled in the compiled ones."""
+    n = law.c.size
+    s = 0.0
+    f_hat = 0.0
+    shift = 0.0
+    for j in range(n):
+        e_j = x[j] - ref[j]
+        s += law.c[j] * e_j
+        f_hat += law.a[j] * (x[j] - law.x_op[j])
+        if j > 0:
+            shift += law.c[j - 1] * e_j
+    u_eq = law.u_op + (ref[n] - f_hat - shift) / law.b0
+    u_sw = -law.k * sat(s / law.phi) / law.b0
+    diag[0] = s
+    diag[1] = s / law.phi
+    diag[2] = u_eq
+    diag[3] = u_sw
+    return u_eq + u_sw
+
+
+@njit(**JIT)
+def sliding_step(law: SlidingLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                 ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`sliding_law` behind the compiled controllers' common signature."""
+    return sliding_law(law, x, ref, diag)
 
 
 class SlidingModeController(Controller):
@@ -95,13 +143,10 @@ class SlidingModeController(Controller):
     def __init__(self, c: np.ndarray, k: float, phi: float, a: np.ndarray, b0: float,
                  x_op: np.ndarray, u_op: float) -> None:
         self.c = np.append(np.asarray(c, dtype=float), 1.0)   # c_n = 1
-        self.order = n = self.c.size
+        self.order = self.c.size
         self.k, self.phi, self.b0 = float(k), float(phi), float(b0)
         self.a = np.asarray(a, dtype=float)
         self.x_op, self.u_op = np.asarray(x_op, dtype=float), float(u_op)
-        #: sum_{i<n} c_i e_{i+1} = c_shift . e
-        self.c_shift = np.zeros(n)
-        self.c_shift[1:] = self.c[:-1]
         self.diagnostics = diagnostics(
             ("s", 1, {"panel": "sliding", "description": "sliding variable c^T e"}),
             ("s_over_phi", 1, {"panel": "sliding",
@@ -110,21 +155,20 @@ class SlidingModeController(Controller):
             ("u_sw", 1, {"panel": "control", "chattering": True,
                          "description": "switching part -k sat(s / phi) / b0"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
+        self.law = SlidingLaw(self.c.copy(), self.k, self.phi, self.a.copy(), self.b0,
+                              self.x_op.copy(), self.u_op)
 
     def reset(self, rng: np.random.Generator) -> None:
         """Nothing is adapted and nothing is drawn."""
 
     def step(self, obs: Observation, dt: float) -> float:
-        x, ref = obs.x, obs.ref
-        n = self.order
-        e = x - ref[:n]
-        s = float(self.c @ e)
-        f_hat = float(self.a @ (x - self.x_op))
-        u_eq = self.u_op + (ref[n] - f_hat - float(self.c_shift @ e)) / self.b0
-        u_sw = -self.k * sat(s / self.phi) / self.b0
-        d = self.diag
-        d[0], d[1], d[2], d[3] = s, s / self.phi, u_eq, u_sw
-        return u_eq + u_sw
+        # the compiled law from Python too: one dispatch instead of the law interpreted
+        return sliding_step(self.law, None, None, obs.t, obs.state, obs.x, obs.ref, dt,
+                            self.diag)
+
+    def compiled(self) -> CompiledController:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
+        return CompiledController(sliding_step, self.law, None, None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

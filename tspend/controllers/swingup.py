@@ -37,13 +37,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
-from tspend.plants.domain import FULL_STATE
-from tspend.controllers.full_model import FullModel, wrap_angle
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
+from tspend.plants.domain import (FULL_STATE, FullModel, full_accelerations, full_energy,
+                                  wrap_angle)
+from tspend.controllers.lqr import FullLQRLaw, full_lqr_law
+from tspend.runtime.jit import JIT
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
@@ -89,6 +94,85 @@ class SwingUpSettings(KindSettings):
         return None
 
 
+class SwingLaw(NamedTuple):
+    """The swing-up's numbers and its catching LQR, as compiled code reads them."""
+
+    machine: Any            # the domain's machine (FullModel.machine)
+    pole: int
+    actuated: int
+    dof: int
+    u_lo: float
+    u_hi: float
+    limit: float            # the driven joint's range, symmetric (inf: free)
+    energy_gain: float
+    accel_max: float
+    catch_angle: float
+    release_angle: float
+    k_x: float
+    k_v: float
+    range_margin: float
+    lqr: FullLQRLaw
+    lqr_diag: np.ndarray    # the catching LQR's own diagnostics (not recorded)
+
+
+@register_jitable
+def swing(law: SwingLaw, state: np.ndarray) -> tuple[float, float]:
+    """``(u, a)``: the energy law's force and the acceleration it asks for (module
+    docstring)."""
+    dof, act, pole = law.dof, law.actuated, law.pole
+    a0 = full_accelerations(law.machine, state, 0.0)
+    a1 = full_accelerations(law.machine, state, 1.0)
+    du_act, du_pole = a1[act] - a0[act], a1[pole] - a0[pole]
+    # dE'/du = J theta' dtheta''/du (J > 0), times the sign of da/du: the sign of
+    # dE'/da, i.e. A-F's sign(theta' cos theta)
+    slope = state[dof + pole] * du_pole * math.copysign(1.0, du_act)
+    sign = 1.0 if slope >= 0.0 else -1.0
+    energy = full_energy(law.machine, state)
+    a = min(law.accel_max, max(-law.accel_max, law.energy_gain * (0.0 - energy) * sign))
+    x, v = state[act], state[dof + act]
+    a_c = -law.k_x * x - law.k_v * v
+    if a_c * sign >= 0.0:   # centring that also pumps energy in
+        a += a_c
+    if math.isfinite(law.limit):
+        # stopping distance at full braking; brake before the range's end
+        stop = x + v * abs(v) / (2.0 * law.accel_max)
+        if abs(stop) > law.limit - law.range_margin:
+            # heading out: brake at full; at rest near the end: centre only
+            a = -math.copysign(law.accel_max, v) if x * v > 0.0 else a_c
+    u = (a - a0[act]) / du_act
+    return min(law.u_hi, max(law.u_lo, u)), a
+
+
+@register_jitable
+def swingup_law(law: SwingLaw, mode: np.ndarray, state: np.ndarray, ref: np.ndarray,
+                diag: np.ndarray) -> float:
+    """One sample: switch between swinging and catching (hysteresis), then that mode's u;
+    ``mode[0]`` is :data:`SWING` or :data:`CATCH`.  The one implementation: plain Python in
+    the generic loop, compiled in the compiled ones."""
+    theta = wrap_angle(state[law.pole])
+    if mode[0] == SWING and abs(theta) < law.catch_angle:
+        mode[0] = CATCH
+    elif mode[0] == CATCH and abs(theta) > law.release_angle:
+        mode[0] = SWING
+    if mode[0] == CATCH:
+        u = min(law.u_hi, max(law.u_lo, full_lqr_law(law.lqr, state, ref, law.lqr_diag)))
+        a = 0.0
+    else:
+        u, a = swing(law, state)
+    diag[0] = full_energy(law.machine, state)
+    diag[1] = mode[0]
+    diag[2] = theta
+    diag[3] = a
+    return u
+
+
+@njit(**JIT)
+def swingup_step(law: SwingLaw, mode: np.ndarray, scratch, t: float, full: np.ndarray,
+                 x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`swingup_law` behind the compiled controllers' common signature."""
+    return swingup_law(law, mode, full, ref, diag)
+
+
 class SwingUpController(Controller):
     """The ``swingup`` kind (module docstring)."""
 
@@ -102,7 +186,16 @@ class SwingUpController(Controller):
                  order: int) -> None:
         self.model, self.s, self.lqr = model, settings, catch
         self.order = order
-        self.mode = SWING
+        #: [SWING or CATCH]
+        self.modes = np.array([SWING])
+        m = model
+        k_x, k_v = settings.centring
+        limit = min(m.q_hi[m.actuated], -m.q_lo[m.actuated])
+        self.law = SwingLaw(m.machine, m.pole, m.actuated, m.dof, float(m.u_lo), float(m.u_hi),
+                            float(limit),
+                            settings.energy_gain, settings.accel_max, settings.catch_angle,
+                            settings.release_angle, float(k_x), float(k_v),
+                            settings.range_margin, catch.law, catch.diag)
         self.diagnostics = diagnostics(
             ("energy", 1, {"panel": "energy", "unit": "J",
                            "description": "the pendulum's energy about its pivot, 0 upright"}),
@@ -113,53 +206,31 @@ class SwingUpController(Controller):
                                                              "driven joint while swinging"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
 
+    @property
+    def mode(self) -> float:
+        return float(self.modes[0])
+
     def reset(self, rng: np.random.Generator) -> None:
-        self.mode = SWING
+        self.modes[0] = SWING
 
     def swing(self, state: np.ndarray) -> tuple[float, float]:
         """``(u, a)``: the energy law's force and the acceleration it asks for."""
-        m, s = self.model, self.s
-        dof, act = m.dof, m.actuated
-        a0, du = m.input_map(state)
-        # dE'/du = J theta' dtheta''/du (J > 0), times the sign of da/du: the sign of
-        # dE'/da, i.e. A-F's sign(theta' cos theta)
-        slope = state[dof + m.pole] * du[m.pole] * math.copysign(1.0, du[act])
-        sign = 1.0 if slope >= 0.0 else -1.0
-        energy = m.energy(state)
-        a = min(s.accel_max, max(-s.accel_max, s.energy_gain * (0.0 - energy) * sign))
-        x, v = state[act], state[dof + act]
-        k_x, k_v = s.centring
-        a_c = -k_x * x - k_v * v
-        if a_c * sign >= 0.0:   # centring that also pumps energy in
-            a += a_c
-        lim = min(m.q_hi[act], -m.q_lo[act])
-        if math.isfinite(lim):
-            # stopping distance at full braking; brake before the range's end
-            stop = x + v * abs(v) / (2.0 * s.accel_max)
-            if abs(stop) > lim - s.range_margin:
-                # heading out: brake at full; at rest near the end: centre only
-                a = -math.copysign(s.accel_max, v) if x * v > 0.0 else a_c
-        u = (a - a0[act]) / du[act]
-        return min(m.u_hi, max(m.u_lo, u)), a
+        return swing(self.law, np.asarray(state, dtype=float))
 
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
-        m, s = self.model, self.s
-        theta = wrap_angle(float(state[m.pole]))
-        if self.mode == SWING and abs(theta) < s.catch_angle:
-            self.mode = CATCH
-        elif self.mode == CATCH and abs(theta) > s.release_angle:
-            self.mode = SWING
-        if self.mode == CATCH:
-            u = min(m.u_hi, max(m.u_lo, self.lqr.act(state, ref)))
-            a = 0.0
-        else:
-            u, a = self.swing(state)
-        d = self.diag
-        d[0], d[1], d[2], d[3] = m.energy(state), self.mode, theta, a
-        return u
+        return swingup_law(self.law, self.modes, np.asarray(state, dtype=float), ref, self.diag)
 
     def step(self, obs: Observation, dt: float) -> float:
+        if self.model.machine is not None:   # the compiled law from Python too
+            return swingup_step(self.law, self.modes, None, obs.t, obs.state, obs.x, obs.ref,
+                                dt, self.diag)
         return self.act(obs.state, obs.ref)
+
+    def compiled(self) -> CompiledController | None:
+        """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
+        if self.model.machine is None:
+            return None
+        return CompiledController(swingup_step, self.law, self.modes, None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

@@ -54,16 +54,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
 from tspend.config import SetSpec
 from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
 from tspend.errors import ScenarioError
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
-from tspend.controllers.gaussian_basis import GaussianGrid, basis, gaussian_grid
+from tspend.controllers.gaussian_basis import GaussianGrid, GaussianTable, basis_into, gaussian_grid
+from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
@@ -121,6 +125,139 @@ class Supervisor:
     V_bar: float
 
 
+class WangLaw(NamedTuple):
+    """The scheme's fixed numbers, as compiled code reads them (:func:`wang_law`)."""
+
+    grid: GaussianTable
+    lam: np.ndarray        # (n,)
+    P: np.ndarray          # (n, n)
+    gamma_f: float
+    gamma_g: float
+    g_min: float
+    f_radius: float        # 0: off
+    g_radius: float        # 0: off
+    supervised: bool
+    f_upper: float
+    g_upper: float
+    g_lower: float
+    V_bar: float
+
+
+class WangState(NamedTuple):
+    """What adapts: the consequents of ``f_hat`` and ``g_hat``."""
+
+    theta_f: np.ndarray    # (rules,)
+    theta_g: np.ndarray    # (rules,)
+
+
+class WangScratch(NamedTuple):
+    e: np.ndarray          # (n,)
+    mu: np.ndarray         # (sets,)
+    xi: np.ndarray         # (rules,)
+
+
+@register_jitable
+def supervisory(law: WangLaw, e_delta: float, V: float, f_hat: float, g_hat: float,
+                u_c: float) -> float:
+    """Wang's ``u_s`` (module docstring): 0 when off, when ``V_e <= V_bar`` or ``e_Delta = 0``."""
+    if not law.supervised or V <= law.V_bar or e_delta == 0.0:
+        return 0.0
+    size = (abs(f_hat) + law.f_upper + abs(g_hat * u_c) + law.g_upper * abs(u_c)) / law.g_lower
+    return -math.copysign(size, e_delta)
+
+
+@register_jitable
+def _scale_onto_ball(theta: np.ndarray, radius: float) -> None:
+    norm = 0.0
+    for l in range(theta.size):
+        norm += theta[l] * theta[l]
+    norm = math.sqrt(norm)
+    if norm > radius:
+        scale = radius / norm
+        for l in range(theta.size):
+            theta[l] *= scale
+
+
+@register_jitable
+def law_coefficients(law: WangLaw, e_delta: float, u_c: float) -> tuple[float, float]:
+    """The laws are ``theta_f' = a_f xi(x)`` and ``theta_g' = a_g xi(x)``: ``(a_f, a_g)``
+    with ``a_f = gamma_f e_Delta``, ``a_g = gamma_g e_Delta u_c``."""
+    return law.gamma_f * e_delta, law.gamma_g * e_delta * u_c
+
+
+@register_jitable
+def project(law: WangLaw, state: WangState) -> None:
+    """Wang's projection: ``theta_g >= g_min``, then the balls ``|theta| <= radius``
+    (those that are on), then the lower bound again (the ball must not undo it)."""
+    theta_g = state.theta_g
+    for l in range(theta_g.size):
+        theta_g[l] = max(theta_g[l], law.g_min)
+    if law.f_radius > 0.0:
+        _scale_onto_ball(state.theta_f, law.f_radius)
+    if law.g_radius > 0.0:
+        _scale_onto_ball(theta_g, law.g_radius)
+        for l in range(theta_g.size):
+            theta_g[l] = max(theta_g[l], law.g_min)
+
+
+@register_jitable
+def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, x: np.ndarray,
+             ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """One sample of the scheme (module docstring): ``u = u_c + u_s``, diagnostics into
+    ``diag``, the laws integrated by forward Euler over ``dt`` and projected.  The one
+    implementation: plain Python in the generic loop, compiled in the compiled ones."""
+    e, xi = scratch.e, scratch.xi
+    theta_f, theta_g = state.theta_f, state.theta_g
+    n = e.size
+    for j in range(n):
+        e[j] = x[j] - ref[j]
+    e_delta = 0.0    # e^T P b = P[n-1] . e
+    lam_e = 0.0
+    V = 0.0
+    for i in range(n):
+        e_delta += law.P[n - 1, i] * e[i]
+        lam_e += law.lam[i] * e[i]
+        for j in range(n):
+            V += e[i] * law.P[i, j] * e[j]
+    V *= 0.5
+    basis_into(law.grid, x, scratch.mu, xi)
+    f_hat = 0.0
+    g_hat = 0.0
+    norm_f = 0.0
+    min_g = math.inf
+    for l in range(xi.size):
+        f_hat += theta_f[l] * xi[l]
+        g_hat += theta_g[l] * xi[l]
+        norm_f += theta_f[l] * theta_f[l]
+        min_g = min(min_g, theta_g[l])
+    u_c = (-f_hat + ref[n] - lam_e) / g_hat
+    u_s = supervisory(law, e_delta, V, f_hat, g_hat, u_c)
+    diag[0] = u_c
+    diag[1] = u_s
+    diag[2] = f_hat
+    diag[3] = g_hat
+    diag[4] = e_delta
+    diag[5] = V
+    diag[6] = math.sqrt(norm_f)
+    diag[7] = min_g
+    a_f, a_g = law_coefficients(law, e_delta, u_c)
+    step_f, step_g = dt * a_f, dt * a_g
+    for l in range(xi.size):
+        theta_f[l] += step_f * xi[l]
+        theta_g[l] += step_g * xi[l]
+    if a_g < 0.0 or law.f_radius > 0.0 or law.g_radius > 0.0:
+        project(law, state)  # xi > 0: only a_g < 0 (or a ball) can leave the set
+    return u_c + u_s
+
+
+@njit(**JIT)
+def wang_step(law: WangLaw, state: WangState, scratch: WangScratch, t: float,
+              full: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
+              diag: np.ndarray) -> float:
+    """:func:`wang_law` behind the compiled controllers' common signature."""
+    return wang_law(law, state, scratch, x, ref, dt, diag)
+
+
 class WangIndirectController(Controller):
     """The ``wang_indirect`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
@@ -137,7 +274,6 @@ class WangIndirectController(Controller):
         self.order = n = self.lam.size
         self.Q = np.asarray(Q, dtype=float)
         self.P = lyapunov_gamma(self.lam, self.Q)
-        self.p_row = self.P[n - 1].copy()         # e_Delta = e^T P b = P[n-1] . e
         self.gamma_f, self.gamma_g = float(gamma_f), float(gamma_g)
         self.g_init, self.g_min = float(g_init), float(g_min)
         self.f_radius, self.g_radius = float(f_radius), float(g_radius)
@@ -145,6 +281,13 @@ class WangIndirectController(Controller):
         h = grid.rules
         self.theta_f = np.zeros(h)
         self.theta_g = np.full(h, self.g_init)
+        sv = supervisor or Supervisor(0.0, 0.0, 1.0, 0.0)
+        self.law = WangLaw(grid.table(), self.lam.copy(), np.ascontiguousarray(self.P),
+                           self.gamma_f, self.gamma_g, self.g_min, self.f_radius,
+                           self.g_radius, supervisor is not None, float(sv.f_upper),
+                           float(sv.g_upper), float(sv.g_lower), float(sv.V_bar))
+        self.state = WangState(self.theta_f, self.theta_g)
+        self.scratch = WangScratch(np.zeros(n), np.zeros(grid.flat_centres.size), np.zeros(h))
         self.diagnostics = diagnostics(
             ("u_c", 1, {"panel": "control", "description": "certainty-equivalence control"}),
             ("u_s", 1, {"panel": "control", "chattering": True,
@@ -163,53 +306,20 @@ class WangIndirectController(Controller):
         self.theta_f[:] = 0.0
         self.theta_g[:] = self.g_init
 
-    def law_coefficients(self, e_delta: float, u_c: float) -> tuple[float, float]:
-        """The laws are ``theta_f' = a_f xi(x)`` and ``theta_g' = a_g xi(x)``: ``(a_f, a_g)``."""
-        return self.gamma_f * e_delta, self.gamma_g * e_delta * u_c
-
     def rates(self, e_delta: float, xi: np.ndarray, u_c: float) -> tuple[np.ndarray, np.ndarray]:
         """``(theta_f', theta_g')`` before projection."""
-        a_f, a_g = self.law_coefficients(e_delta, u_c)
+        a_f, a_g = law_coefficients(self.law, e_delta, u_c)
         return a_f * xi, a_g * xi
 
-    def supervisory(self, e_delta: float, V: float, f_hat: float, g_hat: float,
-                    u_c: float) -> float:
-        sv = self.supervisor
-        if sv is None or V <= sv.V_bar or e_delta == 0.0:
-            return 0.0
-        size = (abs(f_hat) + sv.f_upper + abs(g_hat * u_c) + sv.g_upper * abs(u_c)) / sv.g_lower
-        return -math.copysign(size, e_delta)
-
     def step(self, obs: Observation, dt: float) -> float:
-        x, ref = obs.x, obs.ref
-        n = self.order
-        e = x - ref[:n]
-        e_delta = float(self.p_row @ e)
-        V = 0.5 * float(e @ self.P @ e)
-        xi = basis(self.grid, x)
-        f_hat = float(self.theta_f @ xi)
-        g_hat = float(self.theta_g @ xi)
-        u_c = (-f_hat + ref[n] - float(self.lam @ e)) / g_hat
-        u_s = self.supervisory(e_delta, V, f_hat, g_hat, u_c)
-        d = self.diag
-        d[0], d[1], d[2], d[3], d[4], d[5] = u_c, u_s, f_hat, g_hat, e_delta, V
-        d[6], d[7] = math.sqrt(self.theta_f @ self.theta_f), self.theta_g.min()
-        a_f, a_g = self.law_coefficients(e_delta, u_c)
-        self.theta_f += (dt * a_f) * xi
-        self.theta_g += (dt * a_g) * xi
-        if a_g < 0.0 or self.f_radius > 0.0 or self.g_radius > 0.0:
-            self.project()  # xi > 0: only a_g < 0 (or a ball) can leave the set
-        return u_c + u_s
+        # the compiled law from Python too (interpreted, its loops cost ~15x)
+        return wang_step(self.law, self.state, self.scratch, obs.t, obs.state, obs.x, obs.ref,
+                         dt, self.diag)
 
-    def project(self) -> None:
-        np.maximum(self.theta_g, self.g_min, out=self.theta_g)
-        for theta, radius in ((self.theta_f, self.f_radius), (self.theta_g, self.g_radius)):
-            if radius > 0.0:
-                norm = float(np.linalg.norm(theta))
-                if norm > radius:
-                    theta *= radius / norm
-        if self.g_radius > 0.0:  # the ball must not undo the lower bound
-            np.maximum(self.theta_g, self.g_min, out=self.theta_g)
+    def compiled(self) -> CompiledController:
+        """The same scheme in the compiled loops (:mod:`tspend.loop.fastloop`); adapting
+        there adapts ``theta_f``, ``theta_g`` here."""
+        return CompiledController(wang_step, self.law, self.state, self.scratch)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {"theta_f": self.theta_f.copy(), "theta_g": self.theta_g.copy()}

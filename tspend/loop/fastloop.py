@@ -6,6 +6,8 @@ one place that decides whether a loop gets one (:func:`segment_runner`): the con
 must offer ``compiled()`` (a :class:`tspend.controllers.base.CompiledController`), the plant a
 ``compiled()`` step (or ``compiled_mujoco(dt)``) and ``extras_index()``, and no per-sample hook may be on (sensor noise, delay, the outer
 loop: :mod:`tspend.plants.effects`); otherwise the generic Python loop runs, sample by sample.
+Sampled control (a controller period of several steps, a computation delay) runs in both
+(:class:`Hold`).
 Everything else (the blocks, the divergence messages, stop requests, snapshots, sinks)
 stays with the runner, which calls a segment between two of these events, so they happen
 at the same samples as in the generic loop.
@@ -80,6 +82,60 @@ class Buffers(NamedTuple):
     F: np.ndarray
 
 
+class Hold(NamedTuple):
+    """Sampled control (``run.control_period``, ``run.control_delay``) as compiled code
+    keeps it, between segments: the controller runs at every ``every``-th step and its u
+    is held (zero-order hold); a computed u is applied ``delay`` steps later (0 before the
+    first one arrives).  What :meth:`tspend.loop.runner.ClosedLoop._loop` does with its
+    ``held`` and its deque of pending u, in arrays."""
+
+    every: int
+    delay: int
+    #: the run's step number of the next sample
+    step: np.ndarray     # (1,) int64
+    #: the u applied now
+    held: np.ndarray     # (1,)
+    #: u computed but not applied yet: a ring of (step it applies from, u)
+    due: np.ndarray      # (capacity,) int64
+    value: np.ndarray    # (capacity,)
+    #: the ring's first entry and its number of entries
+    ring: np.ndarray     # (2,) int64
+
+
+def hold_of(every: int, delay: int) -> Hold:
+    """A fresh :class:`Hold`: at most ``delay // every + 1`` u wait at any step."""
+    capacity = delay // every + 2
+    return Hold(int(every), int(delay), np.zeros(1, dtype=np.int64), np.zeros(1),
+                np.zeros(capacity, dtype=np.int64), np.zeros(capacity),
+                np.zeros(2, dtype=np.int64))
+
+
+@njit(**JIT)
+def _held_sample(settings, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                 ref: np.ndarray, dt: float, diag: np.ndarray, hold: Hold) -> float:
+    """The u applied at this sample: the controller's, evaluated when the step is a
+    multiple of ``every`` (over ``dt * every``), held and delayed as :class:`Hold` says."""
+    g = hold.step[0]
+    hold.step[0] = g + 1
+    due, value, ring = hold.due, hold.value, hold.ring
+    capacity = due.size
+    if g % hold.every == 0:
+        u_new = controller_sample(settings, state, scratch, t, full, x, ref, dt * hold.every,
+                                  diag)
+        if hold.delay:
+            k = (ring[0] + ring[1]) % capacity
+            due[k] = g + hold.delay
+            value[k] = u_new
+            ring[1] += 1
+        else:
+            hold.held[0] = u_new
+    while ring[1] > 0 and due[ring[0]] <= g:
+        hold.held[0] = value[ring[0]]
+        ring[0] = (ring[0] + 1) % capacity
+        ring[1] -= 1
+    return hold.held[0]
+
+
 class Segment(Protocol):
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
                  dt: float) -> tuple[int, int]:
@@ -141,13 +197,14 @@ def _beyond(full: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
 @njit(**JIT)
 def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading: Reading,
                  i: int, t: np.ndarray, ref: np.ndarray, dt: float,
-                 bounds: Bounds) -> tuple[float, bool]:
-    """Sample i from the full state ``full``: the view, the controller, the block's row;
-    returns u and whether the runner must look at this sample (it ends the run)."""
+                 bounds: Bounds, hold: Hold) -> tuple[float, bool]:
+    """Sample i from the full state ``full``: the view, the controller (sampled and held),
+    the block's row; returns u and whether the runner must look at this sample (it ends
+    the run)."""
     view, extra = reading.view_index, reading.extra_index
     for j in range(view.size):
         x[j] = full[view[j]]
-    u = controller_sample(settings, state, scratch, t[i], full, x, ref[i], dt, diag)
+    u = _held_sample(settings, state, scratch, t[i], full, x, ref[i], dt, diag, hold)
     for j in range(x.size):
         buf.X[i, j] = x[j]
     buf.U[i] = u
@@ -164,13 +221,13 @@ def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading:
 def _analytic_samples(settings, state, scratch, params, s, clock, work, full_order,
                       full, x, diag, buf: Buffers, reading: Reading, a: int, b: int,
                       t: np.ndarray, ref: np.ndarray, dist: np.ndarray, dt: float,
-                      bounds: Bounds) -> tuple[int, int]:
+                      bounds: Bounds, hold: Hold) -> tuple[int, int]:
     """Samples ``a .. b-1``: what :meth:`tspend.loop.runner.ClosedLoop._loop` does per sample."""
     for i in range(a, b):
         for j in range(full.size):
             full[j] = s[full_order[j]]
         u, check = _take_sample(settings, state, scratch, full, x, diag, buf, reading, i, t,
-                                ref, dt, bounds)
+                                ref, dt, bounds, hold)
         if check:
             return i, CHECK
         rk4_step(params, clock[0], s, u, dist[i], dt, work)
@@ -183,18 +240,18 @@ class CompiledSegment:
 
     def __init__(self, compiled_controller: Any, compiled_plant: Any, full_order: np.ndarray,
                  diag: np.ndarray, buffers: Buffers, reading: Reading, bounds: Bounds,
-                 order: int) -> None:
+                 order: int, hold: Hold) -> None:
         c, p = compiled_controller, compiled_plant
         _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
         self.full = np.zeros(full_order.size)
         self._args = (c.settings, c.state, c.scratch, p.params, p.state,
                       p.clock, p.work, full_order, self.full, np.zeros(order), diag, buffers,
                       reading)
-        self._bounds = bounds
+        self._bounds, self._hold = bounds, hold
 
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
                  dt: float) -> tuple[int, int]:
-        return _analytic_samples(*self._args, a, b, t, ref, dist, dt, self._bounds)
+        return _analytic_samples(*self._args, a, b, t, ref, dist, dt, self._bounds, self._hold)
 
 
 class SampleFailed(Exception):
@@ -209,7 +266,7 @@ class SampleFailed(Exception):
 @njit(**JIT)
 def _mujoco_samples(settings, state, scratch, mj_step, link, full, x, diag, buf: Buffers,
                     reading: Reading, a: int, b: int, t: np.ndarray, ref: np.ndarray,
-                    dist: np.ndarray, dt: float, bounds: Bounds) -> tuple[int, int]:
+                    dist: np.ndarray, dt: float, bounds: Bounds, hold: Hold) -> tuple[int, int]:
     """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoCartPole.step`
     with MuJoCo's C ``mj_step`` called from here; the full state is [qpos; qvel]."""
     qpos, qvel, numbers = link.qpos, link.qvel, link.warning_number
@@ -220,7 +277,7 @@ def _mujoco_samples(settings, state, scratch, mj_step, link, full, x, diag, buf:
         for j in range(qvel.size):
             full[nq + j] = qvel[j]
         u, check = _take_sample(settings, state, scratch, full, x, diag, buf, reading, i, t,
-                                ref, dt, bounds)
+                                ref, dt, bounds, hold)
         if check:
             return i, CHECK
         d = dist[i]
@@ -241,18 +298,19 @@ class MujocoCompiledSegment:
 
     def __init__(self, compiled_controller: Any, plant: Any, link: Any, mj_step: Any,
                  diag: np.ndarray, buffers: Buffers, reading: Reading, bounds: Bounds,
-                 order: int) -> None:
+                 order: int, hold: Hold) -> None:
         c = compiled_controller
         _CONTROLLER_STEPS.setdefault(type(c.settings), c.step)
         self._plant, self._buf = plant, buffers
         self.full = np.zeros(link.qpos.size + link.qvel.size)
         self._args = (c.settings, c.state, c.scratch, mj_step, link, self.full,
                       np.zeros(order), diag, buffers, reading)
-        self._bounds = bounds
+        self._bounds, self._hold = bounds, hold
 
     def __call__(self, a: int, b: int, t: np.ndarray, ref: np.ndarray, dist: np.ndarray,
                  dt: float) -> tuple[int, int]:
-        i, code = _mujoco_samples(*self._args, a, b, t, ref, dist, dt, self._bounds)
+        i, code = _mujoco_samples(*self._args, a, b, t, ref, dist, dt, self._bounds,
+                                  self._hold)
         if code == BAD_INPUT:
             # the plant's own step refuses the input and says why
             try:
@@ -267,10 +325,11 @@ class MujocoCompiledSegment:
 
 
 def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bounds: Bounds,
-                   dt: float, task: Any) -> Segment | None:
+                   dt: float, task: Any, every: int = 1, delay: int = 0) -> Segment | None:
     """A compiled segment for this loop, or None: the generic loop runs (module docstring).
 
-    ``task`` is the run's :class:`tspend.task.Task` (its view and bounds)."""
+    ``task`` is the run's :class:`tspend.task.Task` (its view and bounds); ``every`` and
+    ``delay`` the sampled control's steps per controller sample and delay (:class:`Hold`)."""
     if hook is not None:
         return None
     compiled_controller = controller.compiled()
@@ -286,11 +345,12 @@ def segment_runner(plant: Any, controller: Any, hook: Any, buffers: Buffers, bou
     if p is not None:
         full_order = np.ascontiguousarray(p.full_order, dtype=np.intp)
         return CompiledSegment(compiled_controller, p, full_order, controller.diag, buffers,
-                               reading, bounds, order)
+                               reading, bounds, order, hold_of(every, delay))
     link = plant.compiled_mujoco(dt)
     if link is not None:
         from tspend.plants.mujoco_plant import mj_step_pointer
 
         return MujocoCompiledSegment(compiled_controller, plant, link, mj_step_pointer(),
-                                     controller.diag, buffers, reading, bounds, order)
+                                     controller.diag, buffers, reading, bounds, order,
+                                     hold_of(every, delay))
     return None

@@ -205,10 +205,9 @@ class ClosedLoop:
         stop, hook, task = self.stop, self.hook, self.task
         view, names, watched = task.view_index, task.names, bool(task.watched)
         crossed = task.ended
-        # sampled control runs in the generic loop (the compiled loops step every sample)
         segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E, F),
-                                 Bounds(s.state_bound, s.control_bound), dt, task) \
-            if s.compiled and not s.sampled else None
+                                 Bounds(s.state_bound, s.control_bound), dt, task,
+                                 s.control_every, s.control_delay) if s.compiled else None
         every, delay = s.control_every, s.control_delay
         C, clock = buf.compute, time.perf_counter
         buf.timed = segment is None

@@ -17,7 +17,8 @@ from numba.extending import overload, register_jitable
 
 from tspend.config import AnalyticPlantConfig
 from tspend.plants.base import Plant, TaskDefaults
-from tspend.plants.domain import Backend, Domain, PlantLabels, PlantModel, Quantity
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, Backend, Domain, PlantLabels, PlantModel,
+                                  Quantity)
 from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
@@ -116,6 +117,9 @@ class NonaffineChain(NamedTuple):
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
         chain_rhs(nonaffine_accel, t, s, u, d, sdot)
 
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        return nonaffine_accel(t, x, u, d)
+
 
 class DuffingChain(NamedTuple):
     """Example 2's plant, as compiled code knows it (no parameters)."""
@@ -125,6 +129,9 @@ class DuffingChain(NamedTuple):
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
         chain_rhs(duffing_accel, t, s, u, d, sdot)
 
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        return duffing_accel(t, x, u, d)
+
 
 class ThirdOrderChain(NamedTuple):
     """The third-order plant, as compiled code knows it (no parameters)."""
@@ -133,6 +140,9 @@ class ThirdOrderChain(NamedTuple):
 
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
         chain_rhs(third_order_accel, t, s, u, d, sdot)
+
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        return third_order_accel(t, x, u, d)
 
 
 #: parameter structure type -> its compiled right-hand side ``rhs(params, t, s, u, d, sdot)``;
@@ -286,6 +296,20 @@ _CHAIN_ACCEL: dict[type, Callable] = {NonaffineChain: nonaffine_accel,
 _CHAIN_OF = {accel: chain for chain, accel in _CHAIN_ACCEL.items()}
 
 
+def _view_accel_of(accel: Callable) -> Callable:
+    """A chain's ``accel`` as a compiled view model's ``f(model, t, x, u, d)``."""
+
+    @register_jitable
+    def view_accel(model, t, x, u, d):
+        return accel(t, x, u, d)
+
+    return view_accel
+
+
+# the chains' view is their whole state: the controllers' model is the plant's own f
+COMPILED_VIEW_ACCEL.update({chain: _view_accel_of(accel) for chain, accel in _CHAIN_ACCEL.items()})
+
+
 # -- the paper's chain plants as domains -------------------------------------------------
 class ChainDomain(Domain):
     """One of the paper's chain plants (6): a single analytic kind whose whole state is the
@@ -303,8 +327,10 @@ class ChainDomain(Domain):
         return AnalyticPlant(self.accel, self.order, self.name)
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
+        chain = _CHAIN_OF.get(self.accel)
         return PlantModel(self.name, self.order, self.accel, affine_in_u=self.affine_in_u,
-                          x_op=(0.0,) * self.order, switching_gain=self.switching_gain)
+                          x_op=(0.0,) * self.order, switching_gain=self.switching_gain,
+                          compiled=chain() if chain is not None else None)
 
 
 # sliding mode's k is a margin over the model error |Delta| on the paper's operating

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
@@ -24,8 +25,9 @@ from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, 
     accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
     machine_accelerations, machine_rhs, pole_energy, rhs)
 from tspend.errors import ScenarioError
-from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE, PARAMETER_CHANGE,
-    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, COMPILED_VIEW_ACCEL, FULL_STATE,
+    FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -36,6 +38,24 @@ __all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPol
            "accelerations", "gain_sign", "rhs", "machine_rhs", "machine_accelerations",
            "cartpole_ode_plant"]
 
+
+
+@register_jitable
+def _full_q_dd(machine: CartPoleMachine, s: np.ndarray, u: float) -> tuple[float, float]:
+    # s = [slider, hinge, slider_dot, hinge_dot]; (C1)-(C2) give (theta'', x''); no
+    # disturbance in a controller's model
+    thdd, xdd = machine_accelerations(machine, s[1], s[3], s[0], s[2], u, 0.0)
+    return xdd, thdd
+
+
+@register_jitable
+def _full_energy(machine: CartPoleMachine, s: np.ndarray) -> float:
+    return pole_energy(machine, s[1], s[3])
+
+
+# compiled full-state controllers (swing-up) reach the cart-pole through these
+FULL_ACCEL[CartPoleMachine] = _full_q_dd
+FULL_ENERGY[CartPoleMachine] = _full_energy
 
 # -- the scenario's [plant] table, on either backend -------------------------------------
 
@@ -181,15 +201,36 @@ def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: s
     return CartPoleODE(params, slide_joint, hinge_joint, joint_ranges)
 
 
+@register_jitable
+def view_accel_of(machine: CartPoleMachine, t: float, x: np.ndarray, u: float,
+                  d: float) -> float:
+    """theta'' of (C1)-(C2) over the view ``[theta, theta']``, with the cart at rest (its
+    velocity enters only through cart damping)."""
+    return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
+
+
+class CartPoleView(NamedTuple):
+    """The controllers' model of the view (:class:`~tspend.plants.domain.PlantModel`), as
+    compiled code knows it."""
+
+    machine: CartPoleMachine
+
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        return view_accel_of(self.machine, t, x, u, d)
+
+
+@register_jitable
+def _compiled_view_accel(model: CartPoleView, t: float, x: np.ndarray, u: float,
+                         d: float) -> float:
+    return view_accel_of(model.machine, t, x, u, d)
+
+
+COMPILED_VIEW_ACCEL[CartPoleView] = _compiled_view_accel
+
+
 def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], float]:
-    """theta'' of (C1)-(C2) as ``f(t, x, u, d)`` over the view ``[theta, theta']``, with the
-    cart at rest (its velocity enters only through cart damping)."""
-    machine = p.machine()
-
-    def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
-        return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
-
-    return accel
+    """theta'' of (C1)-(C2) as ``f(t, x, u, d)`` over the view (:func:`view_accel_of`)."""
+    return CartPoleView(p.machine()).accel
 
 
 #: samples of r(t) the task check evaluates the need on (at most)
@@ -525,10 +566,9 @@ class CartPoleDomain(Domain):
         machine = params.machine()
 
         def factory(sin, cos, tanh):
-            if sin is math.sin:
-                accel = machine_accelerations
-            else:
-                accel = accelerations_factory(sin, cos, tanh, clip=_symbolic_clip)[0]
+            if sin is math.sin:   # the compiled controllers' own function
+                return lambda s, u: _full_q_dd(machine, s, u)
+            accel = accelerations_factory(sin, cos, tanh, clip=_symbolic_clip)[0]
 
             def q_dd(s, u):
                 # the domain's order is (q'', x''); no disturbance in a model
@@ -548,8 +588,9 @@ class CartPoleDomain(Domain):
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        return PlantModel(scenario.plant.kind, 2, accel_fn(self.params_of_scenario(scenario)),
-                          affine_in_u=True, x_op=(0.0, 0.0), switching_gain=0.5)
+        view = CartPoleView(self.params_of_scenario(scenario).machine())
+        return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
+                          x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
         params: CartPoleParams = plant.params  # type: ignore[attr-defined]

@@ -21,10 +21,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
-from numba.extending import register_jitable
+from numba.core import types
+from numba.extending import overload, register_jitable
 
 from tspend.config import PlantConfig
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
+from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -33,7 +35,8 @@ if TYPE_CHECKING:
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
            "CART_CENTRING", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
-           "wrap_angle"]
+           "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
+           "FULL_ENERGY", "full_accelerations", "full_energy"]
 
 #: what a domain may provide (:attr:`Domain.provides`), and what a controller kind or an
 #: effect may need (:attr:`tspend.controllers.base.Controller.needs`):
@@ -97,6 +100,39 @@ class PlantLabels(NamedTuple):
         return self.extras.get(name, Quantity(name))
 
 
+#: the type of a domain's compiled view model (:attr:`PlantModel.compiled`, a module-level
+#: NamedTuple) -> its ``f(model, t, x, u, d)`` for compiled code
+COMPILED_VIEW_ACCEL: dict[type, Callable] = {}
+
+
+def view_accel(model: Any, t: float, x: np.ndarray, u: float, d: float) -> float:
+    """``x_n' = f(t, x, u, d)`` of a view model: from Python its ``accel`` (a
+    :class:`PlantModel` or a compiled view model); in compiled code the function its
+    domain registered in :data:`COMPILED_VIEW_ACCEL` for the model's type."""
+    return model.accel(t, x, u, d)
+
+
+@overload(view_accel, jit_options=JIT)
+def _view_accel(model, t, x, u, d):
+    cls = model.instance_class if isinstance(model, types.BaseNamedTuple) else None
+    accel = COMPILED_VIEW_ACCEL.get(cls)
+    if accel is None:
+        return None
+
+    def impl(model, t, x, u, d):
+        return accel(model, t, x, u, d)
+
+    return impl
+
+
+@register_jitable
+def central_df_du(model: Any, t: float, x: np.ndarray, u: float) -> float:
+    """``df/du`` by central differences of step ``FD_STEP (1 + |u|)`` (``d = 0``); the one
+    implementation, for :class:`PlantModel` and for compiled controllers."""
+    h = FD_STEP * (1.0 + abs(u))
+    return (view_accel(model, t, x, u + h, 0.0) - view_accel(model, t, x, u - h, 0.0)) / (2.0 * h)
+
+
 @dataclass(frozen=True)
 class PlantModel:
     """The true ``f(t, x, u)`` of a plant's view (``d_d = 0``), its operating point, and
@@ -113,13 +149,16 @@ class PlantModel:
     x_op: tuple[float, ...]
     u_op: float = 0.0
     switching_gain: float = 1.0
+    #: the same ``f`` for compiled code: an instance of a NamedTuple type registered in
+    #: :data:`COMPILED_VIEW_ACCEL`, whose ``accel`` method is ``accel`` here (None: the
+    #: domain offers none, the model-based kinds that need ``f`` run in Python)
+    compiled: Any = None
 
     def f(self, t: float, x: np.ndarray, u: float) -> float:
         return self.accel(t, x, u, 0.0)
 
     def df_du(self, t: float, x: np.ndarray, u: float) -> float:
-        h = FD_STEP * (1.0 + abs(u))
-        return (self.accel(t, x, u + h, 0.0) - self.accel(t, x, u - h, 0.0)) / (2.0 * h)
+        return central_df_du(self, t, x, u)
 
     def linearisation(self) -> tuple[np.ndarray, float]:
         """``(a, b)``: ``df/dx`` (n,) and ``df/du`` at ``(t = 0, x*, u*)``."""
@@ -143,6 +182,54 @@ class PlantModel:
         B = np.zeros((n, 1))
         B[-1, 0] = b
         return A, B
+
+
+#: a domain's machine type (:attr:`FullModel.machine`) -> ``q''(machine, s, u)`` (no
+#: disturbance) and -> ``E(machine, s)`` (the pendulum's energy about its pivot, 0 upright
+#: at rest), registered by the domain module from the one source of its equations, so that
+#: compiled controllers (swing-up) reach them without naming a domain
+FULL_ACCEL: dict[type, Callable] = {}
+FULL_ENERGY: dict[type, Callable] = {}
+
+
+def full_accelerations(machine: Any, s: np.ndarray, u: float) -> tuple:
+    """``q''(s, u)`` of a full-state machine: from Python by the machine's type; in
+    compiled code the registered function inlined."""
+    return FULL_ACCEL[type(machine)](machine, s, u)
+
+
+def full_energy(machine: Any, s: np.ndarray) -> float:
+    """The pendulum's energy of a full-state machine (as :func:`full_accelerations`)."""
+    return FULL_ENERGY[type(machine)](machine, s)
+
+
+def _registered(table: dict[type, Callable], machine: Any) -> Callable | None:
+    cls = machine.instance_class if isinstance(machine, types.BaseNamedTuple) else None
+    return table.get(cls)
+
+
+@overload(full_accelerations, jit_options=JIT)
+def _full_accelerations(machine, s, u):
+    q_dd = _registered(FULL_ACCEL, machine)
+    if q_dd is None:
+        return None
+
+    def impl(machine, s, u):
+        return q_dd(machine, s, u)
+
+    return impl
+
+
+@overload(full_energy, jit_options=JIT)
+def _full_energy(machine, s):
+    energy = _registered(FULL_ENERGY, machine)
+    if energy is None:
+        return None
+
+    def impl(machine, s):
+        return energy(machine, s)
+
+    return impl
 
 
 @register_jitable

@@ -18,16 +18,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
+    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
     linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
@@ -38,6 +39,22 @@ __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "F
            "FurutaDrawing", "DOMAIN"]
 
 COMPILED_RHS[FurutaMachine] = machine_rhs
+
+
+@register_jitable
+def _full_q_dd(machine: FurutaMachine, s: np.ndarray, u: float) -> tuple[float, float]:
+    # s is MuJoCo's [arm, pendulum, arm_dot, pendulum_dot]; no disturbance in a model
+    return machine_accelerations(machine, s, u, 0.0)
+
+
+@register_jitable
+def _full_energy(machine: FurutaMachine, s: np.ndarray) -> float:
+    return pendulum_energy(machine, s[1], s[3])
+
+
+# compiled full-state controllers (swing-up) reach the Furuta pendulum through these
+FULL_ACCEL[FurutaMachine] = _full_q_dd
+FULL_ENERGY[FurutaMachine] = _full_energy
 
 #: the state, as MuJoCo's qpos then qvel of models/furuta.xml
 STATE_UNITS = ("rad", "rad", "rad/s", "rad/s")
@@ -378,6 +395,35 @@ class FurutaDrawing(Drawing):
 
 
 # -- the domain ---------------------------------------------------------------------------
+@register_jitable
+def view_accel_of(machine: FurutaMachine, s: np.ndarray, t: float, x: np.ndarray, u: float,
+                  d: float) -> float:
+    """pendulum'' over the view ``[pendulum, pendulum']`` with the arm at rest (``s``: a
+    work array of the full state)."""
+    s[0], s[1], s[2], s[3] = 0.0, x[0], 0.0, x[1]
+    return machine_accelerations(machine, s, u, d)[1]
+
+
+class FurutaView(NamedTuple):
+    """The controllers' model of the view (:class:`~tspend.plants.domain.PlantModel`), as
+    compiled code knows it; ``s`` is its work array."""
+
+    machine: FurutaMachine
+    s: np.ndarray
+
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        return view_accel_of(self.machine, self.s, t, x, u, d)
+
+
+@register_jitable
+def _compiled_view_accel(model: FurutaView, t: float, x: np.ndarray, u: float,
+                         d: float) -> float:
+    return view_accel_of(model.machine, model.s, t, x, u, d)
+
+
+COMPILED_VIEW_ACCEL[FurutaView] = _compiled_view_accel
+
+
 class FurutaDomain(Domain):
     """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm."""
 
@@ -406,15 +452,11 @@ class FurutaDomain(Domain):
         """pendulum'' over the view with the arm at rest (the arm's motion enters only
         through back-EMF and coupling, which a model of the view leaves out); affine in u
         inside the amplifier's range."""
-        machine = self.params_of_scenario(scenario).machine()
-
-        def accel(t: float, x: np.ndarray, u: float, d: float) -> float:
-            return machine_accelerations(machine, np.array((0.0, x[0], 0.0, x[1])), u, d)[1]
-
+        view = FurutaView(self.params_of_scenario(scenario).machine(), np.zeros(4))
         # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
-        return PlantModel(scenario.plant.kind, 2, accel, affine_in_u=True, x_op=(0.0, 0.0),
-                          switching_gain=20.0)
+        return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
+                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario") -> FullModel:
         """The Furuta ODE over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
