@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -26,13 +26,14 @@ from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity,
-    TaskDefaults)
+from tspend.plants.domain import (END_COLOR, Backend, Domain, Drawing, PlantLabels, PlantModel,
+    Quantity, TaskDefaults)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
     machine_accelerations, machine_rhs, params_from_model)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.task import Bound
 
 __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
            "FurutaDrawing", "DOMAIN"]
@@ -360,6 +361,33 @@ class FurutaDrawing(Drawing):
             translation=np.tile([self.arm_length, 0.0, 0.0], (n, 1)),
             quaternion=_quat_x(pendulum)))
 
+    def log_bounds(self, rec: Any, world: str, bounds: Sequence["Bound"],
+                   shade: Callable[[tuple], tuple]) -> None:
+        """The pendulum's bound (the fall angle) as two red rays from its pivot, in the
+        plane it swings in (they turn with the arm); a limited arm's range as two red rays
+        from the base."""
+        import rerun as rr
+
+        red = shade(END_COLOR)
+        for bound in bounds:
+            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
+            labels = [f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip() for a in ends]
+            if bound.index == 1 and ends:  # the pendulum about the arm's tip (+x of the arm)
+                r = self.pendulum_length
+                rec.log(f"{world}/arm/bounds", rr.Transform3D(translation=[self.arm_length, 0.0, 0.0]),
+                        static=True)
+                rec.log(f"{world}/arm/bounds", rr.LineStrips3D(
+                    [[[0.0, 0.0, 0.0], [0.0, -r * math.sin(a), r * math.cos(a)]] for a in ends],
+                    colors=[red], radii=[0.0015], labels=labels, show_labels=True), static=True)
+            elif bound.index == 0 and ends:  # the arm about z
+                r = 1.2 * self.arm_length
+                rec.log(f"{world}/arm_bounds", rr.LineStrips3D(
+                    [[[0.0, 0.0, self.arm_height], [r * math.cos(a), r * math.sin(a), self.arm_height]]
+                     for a in ends], colors=[red], radii=[0.0015], labels=labels, show_labels=True),
+                    static=True)
+
+    end_position = (0.0, 0.0, 0.32)
+
     def view(self, origin: str, suffix: str = "") -> Any:
         import rerun.blueprint as rrb
 
@@ -381,7 +409,12 @@ class FurutaDomain(Domain):
                 Quantity("alpha'", "rad/s", "pendulum angular velocity")),
         control=Quantity("u", "V", "motor voltage"),
         extras={"arm": Quantity("theta", "rad", "arm angle"),
-                "arm_dot": Quantity("theta'", "rad/s", "arm angular velocity")})
+                "arm_dot": Quantity("theta'", "rad/s", "arm angular velocity")},
+        full_state=(Quantity("theta", "rad", "arm angle", "arm"),
+                    Quantity("alpha", "rad", "pendulum angle", "pendulum"),
+                    Quantity("theta'", "rad/s", "arm angular velocity", "arm_dot"),
+                    Quantity("alpha'", "rad/s", "pendulum angular velocity", "pendulum_dot")),
+        disturbance=Quantity("d", "N m", "torque on the pendulum joint"))
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
                         pole="pendulum")
     default_model = FurutaMujocoConfig.model

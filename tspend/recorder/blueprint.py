@@ -19,7 +19,7 @@ import rerun.blueprint as rrb
 from tspend.loop.sinks import FuzzyInputInfo, RunInfo
 from tspend.recorder.common import BMF_WIDTH, TIMELINE, join_path, prefix_label
 from tspend.recorder.labels import plant_labels
-from tspend.recorder.series import STEADY_FROM, SeriesSpec, series_specs
+from tspend.recorder.series import END_ENTITY, STEADY_FROM, SeriesSpec, specs_of
 
 #: the tabs of the series views, by :attr:`SeriesSpec.group`
 GROUP_TITLES = {"tracking": "tracking and control", "internals": "controller internals",
@@ -143,14 +143,19 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
     prefixes = list(prefixes) or [""]
     multi = len(prefixes) > 1
     suffixes = [f" [{prefix_label(p)}]" if multi else "" for p in prefixes]
-    specs: list[SeriesSpec] = series_specs(info.order, info.extras, info.diagnostics, info.plant_kind)
+    specs: list[SeriesSpec] = specs_of(info)
     series_tabs: dict[str, list[rrb.View]] = {}
     for spec in specs:
+        if not spec.group:
+            continue  # recorded for export, shown elsewhere (r in the tracking view)
         names = [n + sfx for n in spec.names for sfx in suffixes]
         start = STEADY_FROM * info.duration if spec.steady else 0.0
+        contents = [_abs(p, spec.entity) for p in prefixes]
+        if spec.entity == "series/tracking":
+            # where a run that did not complete ended (RerunSink._mark_end)
+            contents += [_abs(p, END_ENTITY) for p in prefixes]
         series_tabs.setdefault(spec.group, []).append(series_view(
-            spec.title, [_abs(p, spec.entity) for p in prefixes], info.duration,
-            names if spec.legend or multi else None, start=start))
+            spec.title, contents, info.duration, names if spec.legend or multi else None, start=start))
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
     doc_views: list[rrb.View] = []
