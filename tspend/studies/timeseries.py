@@ -1,13 +1,11 @@
-"""A run's time series as a pandas table, one column per series, indexed by time ``t`` (s).
+"""A run's time series as a pandas table.
 
-Three readers: :func:`recording_table` for an ``.rrd`` file as ``tspend export`` writes
-it (the domain's names with the unit at the end: ``t_s``, ``theta_rad``,
-``theta_dot_rad_s``, ``ref_rad``, ``u_N``, ``cart_x_m`` ...), and, with one naming,
-:func:`history_frame` for a run kept in memory (``RunResult.to_pandas()``) and
-:func:`recording_frame` for every scalar series of an ``.rrd`` by its stable key.  A column is named as the recording names the series (``r``,
-``x1``, ``e_1``, ``u``, ``d``, each diagnostic's labels such as ``u_s``, ``b_hat``), so
-a run and its recording give the same columns where both have them.  The history has
-more: every state (``x1 .. xn``) and the reference's derivatives (``r_d1 .. r_dn``).
+Two readers: :func:`recording_table` for an ``.rrd`` file as ``tspend export`` writes it,
+``t_s`` then the domain's names with the unit at the end (``theta_rad``,
+``theta_dot_rad_s``, ``ref_rad``, ``ref_dot_rad_s``, ``u_N``, ``d_N``, ``cart_x_m`` ...,
+listed by the recorder in ``info/columns``), and :func:`history_frame` for a run kept in
+memory (``RunResult.to_pandas()``), indexed by ``t`` and named by the series' stable keys
+(``x1``, ``r``, ``r_d1``, ``e_1``, ``u``, ``d``, each diagnostic's labels, the extras).
 """
 
 from __future__ import annotations
@@ -19,6 +17,9 @@ from typing import Sequence
 import numpy as np
 
 from tspend.controllers.base import Diagnostic
+
+
+__all__ = ["RUN_KEYS", "history_frame", "recording_table", "with_units"]
 
 
 def _unique(names: list[str], qualifiers: list[str]) -> list[str]:
@@ -131,7 +132,7 @@ def recording_table(path: str | os.PathLike[str]):
     its run's prefix (``mujoco_theta_rad``).  ``metadata``: each run's scenario, seed,
     controller, plant kind, version, dt and duration (by prefix, "" for a single run).
     Raises ValueError for a recording that lists no columns (made before they were
-    listed: :func:`recording_frame` reads those).
+    listed, or not a run's).
     """
     import pandas as pd
 
@@ -166,53 +167,3 @@ def recording_table(path: str | os.PathLike[str]):
     table = table.reset_index(drop=True)
     metadata = {prefix: {k: _first(v) for k, v in values.items()} for prefix, values in runs.items()}
     return table, metadata
-
-
-def recording_frame(path: str | os.PathLike[str]):
-    """Every scalar series of the recording at ``path`` (``series/...`` entities and any
-    other ``Scalars``), joined on ``sim_time``; a time an entity lacks is NaN."""
-    import pandas as pd
-    from rerun.chunk import RrdReader
-
-    from tspend.recorder.readback import read_scalar_series
-
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*no footer.*")
-        found: dict[str, list[str] | None] = {}
-        keys: dict[str, list[str]] = {}
-        for chunk in RrdReader(path).stream().filter(
-                components=["Scalars:scalars", "SeriesLines:names", "series_keys"]).to_chunks():
-            batch = chunk.to_record_batch()
-            entity = chunk.entity_path
-            if "series_keys" in batch.schema.names:  # the stable names (x1, e_1, ...)
-                rows = batch.column(batch.schema.get_field_index("series_keys")).to_pylist()
-                if rows and rows[-1]:
-                    keys[entity] = [str(n) for n in rows[-1]]
-                    found.setdefault(entity, None)
-            if "SeriesLines:names" in batch.schema.names:
-                rows = batch.column(batch.schema.get_field_index("SeriesLines:names")).to_pylist()
-                if rows and rows[-1]:
-                    found[entity] = [str(n) for n in rows[-1]]
-            if "Scalars:scalars" in batch.schema.names:
-                found.setdefault(entity, None)
-    frames, names, qualifiers = [], [], []
-    for entity, labels in found.items():
-        labels = keys.get(entity, labels)
-        try:
-            t, values = read_scalar_series(path, entity)
-        except KeyError:  # names without any data (a run that stopped at once)
-            continue
-        values = values[:, None] if values.ndim == 1 else values
-        if labels is None or len(labels) != values.shape[1]:
-            leaf = entity.strip("/").split("/")[-1]
-            labels = [leaf] if values.shape[1] == 1 else [f"{leaf}_{j}" for j in
-                                                          range(values.shape[1])]
-        frame = pd.DataFrame(values, index=pd.Index(t, name="t"))
-        frames.append(frame)
-        names += labels
-        qualifiers += [entity.strip("/")] * len(labels)
-    if not frames:
-        raise ValueError(f"{path}: no scalar time series in this recording")
-    table = pd.concat(frames, axis=1, join="outer").sort_index()
-    table.columns = _unique(names, qualifiers)
-    return table
