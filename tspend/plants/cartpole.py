@@ -391,13 +391,14 @@ class CartPoleDrawing(Drawing):
                     show_labels=True), static=True)
             elif bound.index == 1 and ends:  # the hinge: the pole's angle
                 pivot = [0.0, 0.0, 0.5 * height]   # in the cart's frame (its centre)
-                rays = [[pivot, [pivot[0] - 2.0 * self.l * math.sin(self.theta_sign * a), 0.0,
-                                 pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)]]
-                        for a in ends]
+                tips = [[pivot[0] - 2.0 * self.l * math.sin(self.theta_sign * a), 0.0,
+                         pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
                 rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
-                    rays, colors=[red], radii=[0.02],
-                    labels=[f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip()
-                            for a in ends], show_labels=True), static=True)
+                    [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
+                rec.log(f"{world}/cart/bounds/labels", rr.Points3D(
+                    tips, colors=[red], radii=[0.05], show_labels=True,
+                    labels=[f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip() for a in ends]),
+                    static=True)
 
     @property
     def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]

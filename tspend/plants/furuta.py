@@ -341,11 +341,17 @@ class FurutaDrawing(Drawing):
                                             centers=[[0.0, 0.0, 0.051]],
                                             colors=[shade((30, 30, 36))],
                                             fill_mode=rr.components.FillMode.Solid), static=True)
-        rec.log(f"{world}/arm", rr.LineStrips3D([[[0.0, 0.0, 0.0], [self.arm_length, 0.0, 0.0]]],
-                                                radii=[0.0035], colors=[shade((178, 184, 191))]),
-                static=True)
+        # the riser up to the arm's hinge, the arm along its +x, the pendulum along its +z
+        # (thicker than the rig's rods, so they read at the view's distance)
+        rec.log(f"{world}/riser", rr.Capsules3D(
+            lengths=[self.arm_height - 0.102], radii=[0.02], translations=[[0.0, 0.0, 0.102]],
+            colors=[shade((30, 30, 36))]), static=True)
+        rec.log(f"{world}/arm", rr.Capsules3D(
+            lengths=[self.arm_length], radii=[0.006], colors=[shade((178, 184, 191))],
+            rotation_axis_angles=[rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], degrees=90.0)]),
+            static=True)
         rec.log(f"{world}/arm/pendulum", rr.Capsules3D(
-            lengths=[self.pendulum_length], radii=[0.003], colors=[shade((245, 158, 46))]),
+            lengths=[self.pendulum_length], radii=[0.005], colors=[shade((245, 158, 46))]),
             static=True)
 
     def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
@@ -374,17 +380,21 @@ class FurutaDrawing(Drawing):
             labels = [f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip() for a in ends]
             if bound.index == 1 and ends:  # the pendulum about the arm's tip (+x of the arm)
                 r = self.pendulum_length
+                tips = [[0.0, -r * math.sin(a), r * math.cos(a)] for a in ends]
                 rec.log(f"{world}/arm/bounds", rr.Transform3D(translation=[self.arm_length, 0.0, 0.0]),
                         static=True)
                 rec.log(f"{world}/arm/bounds", rr.LineStrips3D(
-                    [[[0.0, 0.0, 0.0], [0.0, -r * math.sin(a), r * math.cos(a)]] for a in ends],
-                    colors=[red], radii=[0.0015], labels=labels, show_labels=True), static=True)
+                    [[[0.0, 0.0, 0.0], tip] for tip in tips], colors=[red], radii=[0.0015]), static=True)
+                rec.log(f"{world}/arm/bounds/labels", rr.Points3D(
+                    tips, colors=[red], radii=[0.003], labels=labels, show_labels=True), static=True)
             elif bound.index == 0 and ends:  # the arm about z
                 r = 1.2 * self.arm_length
+                tips = [[r * math.cos(a), r * math.sin(a), self.arm_height] for a in ends]
                 rec.log(f"{world}/arm_bounds", rr.LineStrips3D(
-                    [[[0.0, 0.0, self.arm_height], [r * math.cos(a), r * math.sin(a), self.arm_height]]
-                     for a in ends], colors=[red], radii=[0.0015], labels=labels, show_labels=True),
+                    [[[0.0, 0.0, self.arm_height], tip] for tip in tips], colors=[red], radii=[0.0015]),
                     static=True)
+                rec.log(f"{world}/arm_bounds/labels", rr.Points3D(
+                    tips, colors=[red], radii=[0.003], labels=labels, show_labels=True), static=True)
 
     end_position = (0.0, 0.0, 0.32)
 
@@ -393,8 +403,9 @@ class FurutaDrawing(Drawing):
 
         return rrb.Spatial3DView(
             origin=origin, name=f"Furuta pendulum{suffix}",
-            eye_controls=rrb.EyeControls3D(position=[0.35, -0.35, 0.3],
-                                           look_target=[0.0, 0.0, 0.16], eye_up=[0.0, 0.0, 1.0]))
+            # close enough that the 8.5 cm arm and the 13 cm pendulum fill the view
+            eye_controls=rrb.EyeControls3D(position=[0.24, -0.30, 0.27],
+                                           look_target=[0.03, 0.0, 0.17], eye_up=[0.0, 0.0, 1.0]))
 
 
 # -- the domain ---------------------------------------------------------------------------

@@ -28,10 +28,11 @@ GROUP_TITLES = {"tracking": "tracking and control", "internals": "controller int
 #: the time axis runs past the end of the run by at least this fraction: the legend sits there
 LEGEND_MARGIN = 0.22
 #: what the legend's width is judged against: a plot about this wide (px), as a series
-#: view is in a 1280x800 viewer (two columns in three fifths of the window) ...
-PLOT_WIDTH_PX = 330.0
-#: ... and the width of a legend's character and of its swatch and frame (px)
-LEGEND_CHAR_PX, LEGEND_FRAME_PX = 7.0, 36.0
+#: view's plot area is in a 1280x800 viewer (two columns in three fifths of the window) ...
+PLOT_WIDTH_PX = 350.0
+#: ... and the width of a legend's character and of its swatch and frame (px; measured on
+#: Rerun 0.41's web viewer: "alpha (rad)" takes 93 px, "e_alpha' (rad/s)" 110 px)
+LEGEND_CHAR_PX, LEGEND_FRAME_PX = 5.5, 36.0
 
 
 def _abs(prefix: str, path: str) -> str:
