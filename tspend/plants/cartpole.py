@@ -23,7 +23,7 @@ from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, gain_sign, machine_accelerations, machine_rhs, rhs)
 from tspend.plants.domain import (END_COLOR, Backend, Domain, Drawing, PlantLabels, PlantModel,
-    Quantity)
+    Quantity, bound_text)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -347,20 +347,19 @@ class CartPoleDrawing(Drawing):
 
     @staticmethod
     def _log_rail(rec: Any, world: str, half_width: float, lo: float, hi: float) -> None:
-        """The rail over ``[lo, hi]`` m: two lines, a tick every metre, a mark every 10 m
-        (every 1 m on a rail shorter than 20 m)."""
+        """The rail over ``[lo, hi]`` m: two lines, a tick every metre, a labelled mark every
+        10 m (every 5, 2 or 1 m on a shorter rail: about eight labels, which stay apart
+        when the whole rail is in view)."""
         import rerun as rr
 
         rails = [[[lo, y, 0.0], [hi, y, 0.0]] for y in (-half_width, half_width)]
-        every = LABEL_EVERY_M if hi - lo > 2.0 * LABEL_EVERY_M else 1.0
+        every = next((e for e in (1.0, 2.0, 5.0) if (hi - lo) / e <= 8.0), LABEL_EVERY_M)
         metres = np.arange(math.ceil(lo), math.floor(hi) + 0.5, 1.0)
         ticks = [[[x, -half_width - (0.4 if x % every == 0 else 0.2), 0.0],
                   [x, -half_width, 0.0]] for x in metres]
         rec.log(f"{world}/rail", rr.LineStrips3D(rails + ticks, colors=[RAIL_COLOR], radii=[0.02]),
                 static=True)
         marks = np.arange(math.ceil(lo / every) * every, hi + 0.5 * every, every)
-        if every == 1.0:
-            marks = marks[::2] if marks.size > 25 else marks  # Rerun hides more than ~30 labels
         rec.log(f"{world}/rail/marks", rr.Points3D(
             np.column_stack([marks, np.full(marks.size, -half_width - 0.7), np.zeros(marks.size)]),
             radii=[0.04], colors=[RAIL_COLOR],
@@ -395,10 +394,11 @@ class CartPoleDrawing(Drawing):
                          pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
                 rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
                     [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
-                rec.log(f"{world}/cart/bounds/labels", rr.Points3D(
-                    tips, colors=[red], radii=[0.05], show_labels=True,
-                    labels=[f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip() for a in ends]),
-                    static=True)
+                # one label over the upper ray's tip, clear of the rail's marks
+                high = max(tips, key=lambda tip: tip[2])
+                rec.log(f"{world}/cart/bounds/label", rr.Points3D(
+                    [[high[0], high[1], high[2] + 0.8]], colors=[red], radii=[0.01], show_labels=True,
+                    labels=[bound_text(bound)]), static=True)
 
     @property
     def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]
@@ -430,7 +430,7 @@ class CartPoleDrawing(Drawing):
         return rrb.Spatial3DView(
             origin=origin,
             # side by side (the cross-check) a view is half as wide: the short title
-            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marks every 10 m, readout: cart position)",
+            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marked in metres, readout: cart position)",
             line_grid=rrb.LineGrid3D(visible=False),
             eye_controls=rrb.EyeControls3D(
                 position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],

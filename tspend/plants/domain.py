@@ -13,6 +13,7 @@ docs/architecture.md walks through writing one.
 
 from __future__ import annotations
 
+import math
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
     from tspend.task import Bound
 
 __all__ = ["Domain", "Backend", "Drawing", "PlantLabels", "PlantModel", "Quantity",
-           "TaskDefaults", "END_COLOR", "FD_STEP", "name_slug", "project_root", "unit_slug"]
+           "TaskDefaults", "END_COLOR", "FD_STEP", "bound_text", "name_slug", "project_root", "unit_slug"]
 
 #: the colour of what marks the end of a run and the bounds that end one
 END_COLOR = (214, 39, 40)
@@ -160,6 +161,14 @@ class PlantModel:
         B = np.zeros((n, 1))
         B[-1, 0] = b
         return A, B
+
+
+def bound_text(bound: "Bound") -> str:
+    """``"fell beyond |hinge| = 1.57 rad"`` for a symmetric bound, else both ends."""
+    unit = f" {bound.unit}" if bound.unit else ""
+    if math.isfinite(bound.hi) and bound.lo == -bound.hi:
+        return f"{bound.status} beyond |{bound.name}| = {bound.hi:.3g}{unit}"
+    return f"{bound.status} outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit} of {bound.name}"
 
 
 class Drawing(ABC):

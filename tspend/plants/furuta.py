@@ -27,7 +27,7 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (END_COLOR, Backend, Domain, Drawing, PlantLabels, PlantModel,
-    Quantity, TaskDefaults)
+    Quantity, TaskDefaults, bound_text)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, linearize,
     machine_accelerations, machine_rhs, params_from_model)
 
@@ -377,7 +377,6 @@ class FurutaDrawing(Drawing):
         red = shade(END_COLOR)
         for bound in bounds:
             ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
-            labels = [f"{bound.status}: {bound.name} {a:+.3g} {bound.unit}".rstrip() for a in ends]
             if bound.index == 1 and ends:  # the pendulum about the arm's tip (+x of the arm)
                 r = self.pendulum_length
                 tips = [[0.0, -r * math.sin(a), r * math.cos(a)] for a in ends]
@@ -385,16 +384,19 @@ class FurutaDrawing(Drawing):
                         static=True)
                 rec.log(f"{world}/arm/bounds", rr.LineStrips3D(
                     [[[0.0, 0.0, 0.0], tip] for tip in tips], colors=[red], radii=[0.0015]), static=True)
-                rec.log(f"{world}/arm/bounds/labels", rr.Points3D(
-                    tips, colors=[red], radii=[0.003], labels=labels, show_labels=True), static=True)
+                high = max(tips, key=lambda tip: tip[2])
+                rec.log(f"{world}/arm/bounds/label", rr.Points3D(
+                    [[high[0], high[1], high[2] + 0.02]], colors=[red], radii=[0.002],
+                    labels=[bound_text(bound)], show_labels=True), static=True)
             elif bound.index == 0 and ends:  # the arm about z
                 r = 1.2 * self.arm_length
                 tips = [[r * math.cos(a), r * math.sin(a), self.arm_height] for a in ends]
                 rec.log(f"{world}/arm_bounds", rr.LineStrips3D(
                     [[[0.0, 0.0, self.arm_height], tip] for tip in tips], colors=[red], radii=[0.0015]),
                     static=True)
-                rec.log(f"{world}/arm_bounds/labels", rr.Points3D(
-                    tips, colors=[red], radii=[0.003], labels=labels, show_labels=True), static=True)
+                rec.log(f"{world}/arm_bounds/label", rr.Points3D(
+                    tips[-1:], colors=[red], radii=[0.002], labels=[bound_text(bound)],
+                    show_labels=True), static=True)
 
     end_position = (0.0, 0.0, 0.32)
 

@@ -11,6 +11,7 @@ controller with rule bases.
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import rerun as rr
@@ -33,6 +34,31 @@ PLOT_WIDTH_PX = 350.0
 #: ... and the width of a legend's character and of its swatch and frame (px; measured on
 #: Rerun 0.41's web viewer: "alpha (rad)" takes 93 px, "e_alpha' (rad/s)" 110 px)
 LEGEND_CHAR_PX, LEGEND_FRAME_PX = 5.5, 36.0
+
+
+#: a series view's plot is about this tall in a 1280x800 viewer (three rows of views) ...
+PLOT_HEIGHT_PX = 190.0
+#: ... and Rerun's plots (egui_plot) tick at powers of ten only, labelling a step when its
+#: ticks are about this far apart: a view of u in [-65, 70] N, 190 px tall, labels only
+#: its 0 (the 10 N ticks are 14 px apart, the next step's +/-100 lie outside)
+Y_LABEL_SPACING_PX = 30.0
+
+
+def labelled_range(lo: float, hi: float, height_px: float = PLOT_HEIGHT_PX) -> tuple[float, float] | None:
+    """A y range around the data's ``[lo, hi]`` in which a plot ``height_px`` tall labels at
+    least two ticks: its ends are multiples of a power of ten ``step`` (or of half of it)
+    with two multiples of ``step`` inside, ``Y_LABEL_SPACING_PX`` apart or more (u in
+    [-65, 70] -> [-100, 100], labelled -100, 0, 100).  None when the data give no range."""
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return None
+    base = 10.0 ** math.floor(math.log10(hi - lo))
+    for step in (base, 10.0 * base, 100.0 * base):
+        for unit in (0.5 * step, step):   # ends at half steps if that holds two ticks
+            a, b = math.floor(lo / unit) * unit, math.ceil(hi / unit) * unit
+            ticks = math.floor(b / step + 1e-9) - math.ceil(a / step - 1e-9) + 1
+            if ticks >= 2 and height_px * step / (b - a) >= Y_LABEL_SPACING_PX:
+                return a, b
+    return None
 
 
 def _abs(prefix: str, path: str) -> str:
@@ -58,14 +84,16 @@ def time_axis(duration: float, margin: float = LEGEND_MARGIN, start: float = 0.0
 
 
 def series_view(name: str, contents: Sequence[str], duration: float, legend: Sequence[str] | None = (),
-                *, start: float = 0.0, y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
+                *, start: float = 0.0, y_range: tuple[float, float] | None = None,
+                lock: bool = True) -> rrb.TimeSeriesView:
     """A time-series view titled ``name``; ``legend`` the names it shows (``None``: no legend,
-    ``()``: a legend of unknown names, given the default margin)."""
+    ``()``: a legend of unknown names, given the default margin); ``y_range`` fixed (zoom
+    locked unless ``lock`` is False)."""
     shown = legend is not None
     margin = legend_margin(legend) if legend else LEGEND_MARGIN if shown else 0.02
     return rrb.TimeSeriesView(origin="/", contents=list(contents), name=name,
                               axis_x=time_axis(duration, margin, start),
-                              axis_y=rrb.ScalarAxis(range=y_range, zoom_lock=True) if y_range else None,
+                              axis_y=rrb.ScalarAxis(range=y_range, zoom_lock=lock) if y_range else None,
                               plot_legend=rrb.PlotLegend(rrb.components.Corner2D.RightTop, visible=shown))
 
 
@@ -134,12 +162,15 @@ def panels() -> list[rrb.BlueprintPart]:
 
 
 def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
-                    draw: bool | None = None) -> rrb.Blueprint:
+                    draw: bool | None = None,
+                    y_ranges: dict[str, tuple[float, float]] | None = None) -> rrb.Blueprint:
     """The default layout: the plant in 3D and fuzzy internals beside the time series.
 
     With several ``prefixes`` (side-by-side runs in one recording) every time-series
     view overlays all runs; 3D and fuzzy views are per run.  ``draw`` defaults to whether
-    the plant's domain draws it (``info.drawing``).
+    the plant's domain draws it (``info.drawing``).  ``y_ranges``: each series entity's
+    data range (the sink's, at the end of the run), shown as :func:`labelled_range` so the
+    view keeps its tick labels; without it the views fit the data as it comes.
     """
     prefixes = list(prefixes) or [""]
     multi = len(prefixes) > 1
@@ -155,8 +186,10 @@ def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
         if spec.entity == "series/tracking":
             # where a run that did not complete ended (RerunSink._mark_end)
             contents += [_abs(p, END_ENTITY) for p in prefixes]
+        extent = (y_ranges or {}).get(spec.entity)
         series_tabs.setdefault(spec.group, []).append(series_view(
-            spec.title, contents, info.duration, names if spec.legend or multi else None, start=start))
+            spec.title, contents, info.duration, names if spec.legend or multi else None, start=start,
+            y_range=labelled_range(*extent) if extent else None, lock=False))
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
     doc_views: list[rrb.View] = []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 import weakref
 from typing import Literal, Sequence
@@ -165,6 +166,8 @@ class RerunSink:
         self._last_flush = time.monotonic()
         self._last_t = 0.0
         self._last_output: float | None = None
+        #: each series entity's finite data range so far (the views' y ranges at the end)
+        self._extent: dict[str, tuple[float, float]] = {}
 
     # -- helpers
 
@@ -186,6 +189,7 @@ class RerunSink:
             return
         self._snaps = _SnapshotBuffer()
         self._sent_curves = {}
+        self._extent = {}
         self._intervals = {f"{group}/in{j}": (inp.lo, inp.hi)
                            for group, inputs in (("model", info.model_inputs),
                                                  ("compensator", info.compensator_inputs))
@@ -258,6 +262,11 @@ class RerunSink:
                      static=True)
         if end.status != "completed":
             self._mark_end(end)
+        if self.blueprint_prefixes == [self.prefix] and self.info is not None:
+            # the layout again, each view's y range set from the data so that it keeps its
+            # tick labels (labelled_range); the last blueprint sent is the one shown
+            self.rec.send_blueprint(build_blueprint(self.info, self.blueprint_prefixes,
+                                                    y_ranges=dict(self._extent)))
         flush(self.rec)
 
     def _mark_end(self, end: RunEnd) -> None:
@@ -302,6 +311,10 @@ class RerunSink:
             except KeyError:
                 continue  # e.g. an extra the plant did not report in this block
             values = np.ascontiguousarray(values[picked])
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                lo, hi = self._extent.get(spec.entity, (math.inf, -math.inf))
+                self._extent[spec.entity] = (min(lo, float(finite.min())), max(hi, float(finite.max())))
             self.rec.send_columns(self._path(spec.entity), indexes=[index if index is not None else time_column(t[picked])],
                                   columns=rr.Scalars.columns(scalars=values[:, 0] if values.shape[1] == 1 else values))
 
