@@ -42,13 +42,17 @@ PLOT_HEIGHT_PX = 190.0
 #: ticks are about this far apart: a view of u in [-65, 70] N, 190 px tall, labels only
 #: its 0 (the 10 N ticks are 14 px apart, the next step's +/-100 lie outside)
 Y_LABEL_SPACING_PX = 30.0
+#: the range runs this fraction past its ends (multiples of the step), so that their
+#: labels are inside the plot, not cut off at its edges
+Y_PAD = 0.08
 
 
 def labelled_range(lo: float, hi: float, height_px: float = PLOT_HEIGHT_PX) -> tuple[float, float] | None:
     """A y range around the data's ``[lo, hi]`` in which a plot ``height_px`` tall labels at
     least two ticks: its ends are multiples of a power of ten ``step`` (or of half of it)
-    with two multiples of ``step`` inside, ``Y_LABEL_SPACING_PX`` apart or more (u in
-    [-65, 70] -> [-100, 100], labelled -100, 0, 100).  None when the data give no range."""
+    with two multiples of ``step`` inside, ``Y_LABEL_SPACING_PX`` apart or more, padded by
+    ``Y_PAD`` (u in [-65, 70] -> [-116, 116], labelled -100, 0, 100).  None when the data
+    give no range."""
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return None
     base = 10.0 ** math.floor(math.log10(hi - lo))
@@ -56,8 +60,9 @@ def labelled_range(lo: float, hi: float, height_px: float = PLOT_HEIGHT_PX) -> t
         for unit in (0.5 * step, step):   # ends at half steps if that holds two ticks
             a, b = math.floor(lo / unit) * unit, math.ceil(hi / unit) * unit
             ticks = math.floor(b / step + 1e-9) - math.ceil(a / step - 1e-9) + 1
-            if ticks >= 2 and height_px * step / (b - a) >= Y_LABEL_SPACING_PX:
-                return a, b
+            pad = Y_PAD * (b - a)          # a label on the plot's edge is cut off
+            if ticks >= 2 and height_px * step / (b - a + 2 * pad) >= Y_LABEL_SPACING_PX:
+                return a - pad, b + pad
     return None
 
 
