@@ -359,7 +359,8 @@ class CartPoleDrawing(Drawing):
                   [x, -half_width, 0.0]] for x in metres]
         rec.log(f"{world}/rail", rr.LineStrips3D(rails + ticks, colors=[RAIL_COLOR], radii=[0.02]),
                 static=True)
-        marks = np.arange(math.ceil(lo / every) * every, hi + 0.5 * every, every)
+        marks = np.arange(math.ceil(lo / every) * every, math.floor(hi / every) * every + 0.5 * every,
+                          every)
         rec.log(f"{world}/rail/marks", rr.Points3D(
             np.column_stack([marks, np.full(marks.size, -half_width - 0.7), np.zeros(marks.size)]),
             radii=[0.04], colors=[RAIL_COLOR],
@@ -394,11 +395,12 @@ class CartPoleDrawing(Drawing):
                          pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
                 rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
                     [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
-                # one label over the upper ray's tip, clear of the rail's marks
+                # one label over the middle of the upper ray, clear of the rail's marks and
+                # inside a view half as wide (the cross-check's)
                 high = max(tips, key=lambda tip: tip[2])
                 rec.log(f"{world}/cart/bounds/label", rr.Points3D(
-                    [[high[0], high[1], high[2] + 0.8]], colors=[red], radii=[0.01], show_labels=True,
-                    labels=[bound_text(bound)]), static=True)
+                    [[0.5 * (pivot[0] + high[0]), 0.0, 0.5 * (pivot[2] + high[2]) + 0.6]], colors=[red],
+                    radii=[0.01], show_labels=True, labels=[bound_text(bound)]), static=True)
 
     @property
     def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]

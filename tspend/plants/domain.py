@@ -164,11 +164,12 @@ class PlantModel:
 
 
 def bound_text(bound: "Bound") -> str:
-    """``"fell beyond |hinge| = 1.57 rad"`` for a symmetric bound, else both ends."""
+    """What crossing ``bound`` means, short enough for a label in a 3D view:
+    ``"fell: |hinge| > 1.57 rad"`` for a symmetric bound, else both ends."""
     unit = f" {bound.unit}" if bound.unit else ""
     if math.isfinite(bound.hi) and bound.lo == -bound.hi:
-        return f"{bound.status} beyond |{bound.name}| = {bound.hi:.3g}{unit}"
-    return f"{bound.status} outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit} of {bound.name}"
+        return f"{bound.status}: |{bound.name}| > {bound.hi:.3g}{unit}"
+    return f"{bound.status}: {bound.name} outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit}"
 
 
 class Drawing(ABC):
