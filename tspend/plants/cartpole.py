@@ -395,12 +395,11 @@ class CartPoleDrawing(Drawing):
                          pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
                 rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
                     [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
-                # one label over the middle of the upper ray, clear of the rail's marks and
-                # inside a view half as wide (the cross-check's)
-                high = max(tips, key=lambda tip: tip[2])
+                # one label, in the rays' red, under the cart's readout: clear of the cart,
+                # the pole and the rail's marks, inside a view half as wide (the cross-check's)
                 rec.log(f"{world}/cart/bounds/label", rr.Points3D(
-                    [[0.5 * (pivot[0] + high[0]), 0.0, 0.5 * (pivot[2] + high[2]) + 0.6]], colors=[red],
-                    radii=[0.01], show_labels=True, labels=[bound_text(bound)]), static=True)
+                    [[0.0, -half_width - 1.0, -1.6]], colors=[red], radii=[0.01], show_labels=True,
+                    labels=[bound_text(bound)]), static=True)
 
     @property
     def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]

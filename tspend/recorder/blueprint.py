@@ -39,9 +39,10 @@ LEGEND_CHAR_PX, LEGEND_FRAME_PX = 5.5, 36.0
 #: a series view's plot is about this tall in a 1280x800 viewer (three rows of views) ...
 PLOT_HEIGHT_PX = 190.0
 #: ... and Rerun's plots (egui_plot) tick at powers of ten only, labelling a step when its
-#: ticks are about this far apart: a view of u in [-65, 70] N, 190 px tall, labels only
-#: its 0 (the 10 N ticks are 14 px apart, the next step's +/-100 lie outside)
-Y_LABEL_SPACING_PX = 30.0
+#: ticks are about this far apart (faint from 20 px, full from 30): a view of u in
+#: [-65, 70] N, 190 px tall, labels only its 0 (the 10 N ticks are 14 px apart, the next
+#: step's +/-100 lie outside)
+Y_LABEL_SPACING_PX = 25.0
 #: the range runs this fraction past its ends (multiples of the step), so that their
 #: labels are inside the plot, not cut off at its edges
 Y_PAD = 0.08
@@ -56,14 +57,16 @@ def labelled_range(lo: float, hi: float, height_px: float = PLOT_HEIGHT_PX) -> t
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return None
     base = 10.0 ** math.floor(math.log10(hi - lo))
+    best: tuple[float, float] | None = None
     for step in (base, 10.0 * base, 100.0 * base):
         for unit in (0.5 * step, step):   # ends at half steps if that holds two ticks
             a, b = math.floor(lo / unit) * unit, math.ceil(hi / unit) * unit
             ticks = math.floor(b / step + 1e-9) - math.ceil(a / step - 1e-9) + 1
             pad = Y_PAD * (b - a)          # a label on the plot's edge is cut off
             if ticks >= 2 and height_px * step / (b - a + 2 * pad) >= Y_LABEL_SPACING_PX:
-                return a - pad, b + pad
-    return None
+                if best is None or b - a + 2 * pad < best[1] - best[0]:
+                    best = (a - pad, b + pad)   # the tightest: the data fill the view
+    return best
 
 
 def _abs(prefix: str, path: str) -> str:
