@@ -99,7 +99,7 @@ PANEL_TITLES = {"compensator": "compensator output u_s", "lyapunov": "Lyapunov f
 #: titles of one part of a panel (its linear or its log10 part)
 KEY_TITLES = {"norms": "smallest gain consequent min_i p_(n+1)^i (projection keeps it >= b_min)",
               "norms/log10": "parameter norms ||P||, ||q||"}
-#: panels whose diagnostics are parts of u, hence in u's unit whatever they declare
+#: panels whose diagnostics are parts of u, hence in u's unit unless they declare one
 CONTROL_PANELS = ("control",)
 #: the compensator's output u_s is in the unit of x^(n); its share of u (19) is drawn
 #: from it and the model's gain estimate (the diagnostic columns of these names)
@@ -216,7 +216,7 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
             title = KEY_TITLES.get(key) or PANEL_TITLES.get(panel, panel.replace("_", " "))
             panels[key] = _Panel(title + (", log10 scale" if log else ""), log10=log)
         target = panels[key]
-        unit = (control.unit if panel in CONTROL_PANELS
+        unit = ((diag.unit or control.unit) if panel in CONTROL_PANELS
                 else x_n_unit if diag.name == COMPENSATOR_OUTPUT else diag.unit)
         target.units.append(unit)
         target.minmax |= diag.chattering
@@ -310,7 +310,7 @@ def _with_columns(spec: SeriesSpec, labels: PlantLabels, viewed: Sequence[Quanti
             columns.append(name_slug(f"log10 {key}"))
         else:
             unit = x_n_unit if key == COMPENSATOR_OUTPUT else units.get(key, "")
-            unit = labels.control.unit if spec.entity == "series/control" else unit
+            unit = (units.get(key) or labels.control.unit) if spec.entity == "series/control" else unit
             columns.append(_column(key, unit))
     return replace(spec, columns=tuple(columns))
 
