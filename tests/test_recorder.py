@@ -135,9 +135,13 @@ def test_entities_timeline_and_blueprint(recorded) -> None:
     path, info, _ = recorded
     reader = RrdReader(path)
     assert len(reader.recordings()) == 1
-    assert len(reader.blueprints()) == 1, "the default blueprint is stored as a blueprint store"
-    blueprint = reader.store(store=reader.blueprints()[0]).summary()
-    assert "/viewport" in blueprint and "ViewBlueprint:class_identifier" in blueprint
+    # the layout at the start (views fit the data as it comes) and again at the end, each
+    # series view's y range set so that it keeps its tick labels (the last one is shown)
+    assert len(reader.blueprints()) == 2, "the default blueprint is stored as a blueprint store"
+    summaries = [reader.store(store=b).summary() for b in reader.blueprints()]
+    for blueprint in summaries:
+        assert "/viewport" in blueprint and "ViewBlueprint:class_identifier" in blueprint
+    assert sum("ScalarAxis:range" in b for b in summaries) == 1
     paths = entity_paths(path)
     expected = {"/info/scenario", "/info/run", "/info/status", "/info/metrics", "/series/tracking",
                 "/series/error", "/series/control", "/series/compensator", "/series/disturbance",
@@ -364,3 +368,23 @@ def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_sink_without_recording_records_nothing() -> None:
     info = make_info(steps=1000)
     drive(RerunSink(None), info, make_run(2, 1000), completed(1000))
+
+
+def test_labelled_range_keeps_two_decade_ticks_labelled() -> None:
+    """Rerun's plots tick at powers of ten and label a step only when its ticks are far
+    enough apart: the range given to a view holds two labelled ticks of one step, that
+    step's ticks at least Y_LABEL_SPACING_PX apart, and the data."""
+    from tspend.recorder.blueprint import PLOT_HEIGHT_PX, Y_LABEL_SPACING_PX, labelled_range
+
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        centre, span = rng.normal() * 10.0 ** rng.integers(-4, 4), 10.0 ** rng.uniform(-5, 4)
+        lo, hi = centre - span * rng.uniform(0, 1), centre + span * rng.uniform(0, 1)
+        a, b = labelled_range(lo, hi)
+        assert a <= lo and hi <= b and b - a <= 20 * (hi - lo)
+        steps = [10.0 ** k for k in range(-8, 8) if PLOT_HEIGHT_PX * 10.0 ** k / (b - a) >= Y_LABEL_SPACING_PX]
+        labelled = [s for s in steps if math.floor(b / s + 1e-9) - math.ceil(a / s - 1e-9) + 1 >= 2]
+        assert labelled, (lo, hi, a, b)
+    a, b = labelled_range(-65.0, 70.0)
+    assert a < -100.0 < 100.0 < b < 120.0  # -100, 0, 100 labelled, inside the plot
+    assert labelled_range(1.0, 1.0) is None

@@ -233,3 +233,45 @@ def test_steady_state_and_compensator_share_series(default_run: Path) -> None:
     _, b_hat = read_scalar_series(default_run, "series/params", 2)
     np.testing.assert_allclose(share, -u_s / b_hat, rtol=1e-12)
     assert "(N)" in specs["series/compensator_share"].title and "N" not in specs["series/compensator"].title
+
+
+def test_full_state_recorded_with_the_domains_names(default_run: Path) -> None:
+    """Issue 24: every entry of the plant's full state is a series of its own, named by
+    the domain with its unit; the pole's is the tracked x1 sample for sample."""
+    styles = static_components(default_run)
+    names = {e: styles[e]["SeriesLines:names"][0][0] for e in styles
+             if e.startswith("/series/state/") and "SeriesLines:names" in styles[e]}
+    assert names == {"/series/state/slider": "x_c (m)", "/series/state/hinge": "theta (rad)",
+                     "/series/state/slider_dot": "x_c' (m/s)",
+                     "/series/state/hinge_dot": "theta' (rad/s)"}
+    _, hinge = read_scalar_series(default_run, "series/state/hinge")
+    _, x1 = read_scalar_series(default_run, "series/tracking", 1)
+    np.testing.assert_array_equal(hinge, x1)
+    _, cart = read_scalar_series(default_run, "series/state/slider")
+    _, cart_pos = read_scalar_series(default_run, "series/plant/cart_pos")
+    np.testing.assert_array_equal(cart, cart_pos)
+
+
+def test_rail_ends_drawn_and_a_terminated_run_marked_where_it_ended(tmp_path: Path) -> None:
+    """Issue 24: the task's bounds in the world view (the rail's ends at +/- effects.rail,
+    the fall angle as rays from the pivot); a run the rail ended carries its reason on
+    the timeline (events), as a cross on the tracking view at its last sample and as a
+    label in the 3D view, from the time it ended."""
+    rrd = tmp_path / "rail.rrd"
+    status = main(["run", "--duration", "1", "--set", "effects.rail=0.05", "--out", str(rrd)])
+    assert status == 4
+    styles = static_components(rrd)
+    posts = styles["/world/rail/ends"]["LineStrips3D:strips"][0]
+    np.testing.assert_allclose(sorted({strip[0][0] for strip in posts}), [-0.05, 0.05], rtol=1e-6)  # float32
+    assert any("rail_end +0.05 m" in str(v) for v in styles["/world/rail/ends/labels"]["Points3D:labels"][0])
+    rays = styles["/world/cart/bounds"]["LineStrips3D:strips"][0]
+    assert len(rays) == 2  # the fall angle, pi/2 either side
+    t_x, x1 = read_scalar_series(rrd, "series/tracking", 1)
+    t_end, marked = read_scalar_series(rrd, "series/end")
+    assert t_end.tolist() == [t_x[-1]] and marked.tolist() == [x1[-1]]
+    events = [row for chunk in RrdReader(rrd).stream().filter(content="/events").to_chunks()
+              for row in chunk.to_record_batch().column("TextLog:text").to_pylist()]
+    assert len(events) == 1 and f"rail_end at t = {t_x[-1]:.4f} s" in str(events[0])
+    label = [chunk for chunk in RrdReader(rrd).stream().filter(content="/world/cart/end",
+                                                                is_static=False).to_chunks()]
+    assert label and "rail_end at t =" in str(label[0].to_record_batch().column("Points3D:labels").to_pylist())

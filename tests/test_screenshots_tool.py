@@ -66,3 +66,18 @@ def test_a_started_group_is_ended_whole(tool):
         time.sleep(0.1)
     else:
         pytest.fail(f"child {child} still runs")
+
+
+def test_docs_runs_are_recorded_by_tspend_and_nothing_is_left(tool, tmp_path, capsys):
+    """``--docs`` records with ``tspend`` in a group of its own; the runs it makes are the
+    documentation's four (default, cross-check, swing-up, Furuta)."""
+    assert [args[:2] for args in tool.DOCS_RUNS.values()] == [
+        ["run", "pendulum_mujoco"], ["crosscheck", "pendulum_mujoco"], ["run", "swingup_mujoco"],
+        ["run", "furuta_mujoco"]]
+    rrd = tool.record("tiny", ["run", "ex2_duffing", "--duration", "0.05"], tmp_path)
+    assert rrd == tmp_path / "tiny.rrd" and rrd.stat().st_size > 0
+    with pytest.raises(RuntimeError, match="failed"):
+        tool.record("bad", ["run", "no_such_scenario"], tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        tool.main([str(tmp_path)])  # neither recordings nor --docs
+    assert exc.value.code == 2

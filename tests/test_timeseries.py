@@ -1,47 +1,103 @@
-"""Time series as tables: a run's history (RunResult.to_pandas) against its recording read
-back from the .rrd (tspend export), and the progress bar of a long run."""
+"""Time series as tables: a recording exported (tspend export) against the recording read
+back and the run's own history, and the progress bar of a long run."""
 
 from __future__ import annotations
 
 import io
+import json
 import subprocess
 import sys
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 
 import tspend
+from tspend.cli.main import main
 from tspend.runtime.progress import RunProgress, SweepProgress
-from tspend.recorder import RerunSink, close_recording, open_recording
+from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series
 
 
-def test_run_to_pandas_equals_its_exported_recording(tmp_path):
-    rrd = tmp_path / "r.rrd"
-    scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.4})
+def recorded(tmp_path, scenario: str, duration: float = 0.3):
+    rrd = tmp_path / f"{scenario}.rrd"
+    scn = tspend.override(tspend.load_scenario(scenario), **{"run.duration": duration})
     rec = open_recording("test", path=rrd)
     result = tspend.run(scn, sinks=[RerunSink(rec)])
     close_recording(rec)
+    return rrd, result
+
+
+def export(rrd, out):
+    assert main(["export", str(rrd), "--to", str(out)]) == 0  # in process: seconds saved
+    if out.suffix == ".csv":
+        return pd.read_csv(out, comment="#")
+    return pd.read_parquet(out)
+
+
+def full(result, name: str) -> np.ndarray:
+    return result.history["state"][:, result.plant.state_names.index(name)]
+
+
+def test_export_of_pendulum_mujoco_names_columns_with_units_and_equals_the_recording(tmp_path):
+    rrd, result = recorded(tmp_path, "pendulum_mujoco")
+    h = result.history
+    for suffix in (".parquet", ".csv"):
+        out = tmp_path / f"e{suffix}"
+        table = export(rrd, out)
+        assert list(table.columns[:8]) == ["t_s", "theta_rad", "theta_dot_rad_s", "ref_rad",
+                                           "ref_dot_rad_s", "ref_ddot_rad_s2", "u_N", "d_N"]
+        assert {"cart_x_m", "cart_v_m_s", "e_theta_rad", "u_s_share_N"} <= set(table.columns)
+        assert not any(" " in c or "[" in c for c in table.columns)
+        assert len(table) == 300
+        np.testing.assert_allclose(table["t_s"], h["t"], rtol=0, atol=1e-9)  # whole ns
+        # as recorded, read back by the reader of tspend.recorder ...
+        _, hinge = read_scalar_series(rrd, "series/state/hinge")
+        np.testing.assert_array_equal(table["theta_rad"], hinge)
+        _, ref = read_scalar_series(rrd, "series/reference")
+        np.testing.assert_array_equal(table[["ref_rad", "ref_dot_rad_s", "ref_ddot_rad_s2"]], ref)
+        # ... and as the run had them (the plant's full state, whatever its joints are called)
+        np.testing.assert_array_equal(table["theta_rad"], full(result, "hinge"))
+        np.testing.assert_array_equal(table["theta_dot_rad_s"], h["x"][:, 1])
+        np.testing.assert_array_equal(table["cart_x_m"], full(result, "slider"))
+        np.testing.assert_array_equal(table["cart_v_m_s"], h["extra/cart_vel"])
+        np.testing.assert_array_equal(table["u_N"], h["u"])
+        np.testing.assert_array_equal(table["d_N"], h["d"])
+        np.testing.assert_array_equal(table["e_theta_rad"], h["e"][:, 0])
+    meta = pq.read_schema(tmp_path / "e.parquet").metadata
+    assert meta[b"scenario"] == b"pendulum_mujoco" and meta[b"seed"] == b"1"
+    assert meta[b"controller"] == b"second_type"
+    assert json.loads(meta[b"tspend"])[""]["plant_kind"] == "cartpole_mujoco"
+    header = [line for line in (tmp_path / "e.csv").read_text().splitlines() if line.startswith("#")]
+    assert {"# scenario: pendulum_mujoco", "# seed: 1", "# controller: second_type"} <= set(header)
+    again = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--to",
+                            str(tmp_path / "e.csv")], capture_output=True, text=True)
+    assert again.returncode == 2 and "exists" in again.stderr
+
+
+def test_export_of_furuta_mujoco_names_the_arm_and_the_pendulum(tmp_path):
+    rrd, result = recorded(tmp_path, "furuta_mujoco", duration=0.2)
+    table = export(rrd, tmp_path / "f.parquet")
+    assert list(table.columns[:8]) == ["t_s", "pendulum_rad", "pendulum_dot_rad_s", "ref_rad",
+                                       "ref_dot_rad_s", "ref_ddot_rad_s2", "u_V", "d_N_m"]
+    assert {"arm_rad", "arm_dot_rad_s", "e_pendulum_rad"} <= set(table.columns)
+    for column, name in (("arm_rad", "arm"), ("arm_dot_rad_s", "arm_dot"),
+                         ("pendulum_rad", "pendulum"), ("pendulum_dot_rad_s", "pendulum_dot")):
+        np.testing.assert_array_equal(table[column], full(result, name))
+        _, back = read_scalar_series(rrd, f"series/state/{name}")
+        np.testing.assert_array_equal(table[column], back)
+    np.testing.assert_array_equal(table["u_V"], result.history["u"])
+    meta = pq.read_schema(tmp_path / "f.parquet").metadata
+    assert meta[b"scenario"] == b"furuta_mujoco" and meta[b"controller"] == b"second_type"
+
+
+def test_run_to_pandas_keeps_the_stable_keys():
+    scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.4})
+    result = tspend.run(scn)
     frame = result.to_pandas(units=False)
     assert frame.index.name == "t" and len(frame) == 400
     np.testing.assert_array_equal(frame[["x1", "x2"]].to_numpy(), result.history["x"])
     np.testing.assert_array_equal(frame["b_hat"].to_numpy(), result.history["p"][:, -1])
     assert {"r", "r_d1", "r_d2", "e_1", "e_2", "u", "d", "u_s", "cart_pos"} <= set(frame.columns)
-
-    for suffix in (".parquet", ".csv"):
-        out = tmp_path / f"e{suffix}"
-        r = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--to",
-                            str(out)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr
-        exported = (pd.read_parquet(out) if suffix == ".parquet"
-                    else pd.read_csv(out, index_col="t"))
-        common = [c for c in exported.columns if c in frame.columns]
-        assert {"r", "x1", "e_1", "u", "d", "u_s", "b_hat", "cart_pos"} <= set(common)
-        np.testing.assert_allclose(exported.index.to_numpy(), frame.index.to_numpy(),
-                                   rtol=0, atol=1e-9)  # the recording keeps whole ns
-        np.testing.assert_array_equal(exported[common].to_numpy(), frame[common].to_numpy())
-    again = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--to",
-                            str(tmp_path / "e.csv")], capture_output=True, text=True)
-    assert again.returncode == 2 and "exists" in again.stderr
 
 
 class _Terminal(io.StringIO):

@@ -4,6 +4,12 @@ Usage (after ``pip install -e '.[screenshots]'`` and Debian's ``chromium chromiu
 
     .venv/bin/python tools/screenshots.py OUT_DIR FILE.rrd [FILE.rrd ...] [--wait 90]
         [--size 1280x800] [--click X,Y=NAME] [--timeout 600]
+    .venv/bin/python tools/screenshots.py docs/img --docs [--wait 120]
+
+``--docs`` makes the recordings the documentation shows first (:data:`DOCS_RUNS`: the
+default run, a cross-check, the swing-up and the Furuta pendulum, each by its ``tspend``
+command, in a temporary directory removed afterwards) and captures each as
+``OUT_DIR/<name>.png``.
 
 For each recording: a ``rerun --serve-web`` of its own serves it on 127.0.0.1, headless
 Chromium (software WebGL: SwiftShader through ANGLE) opens the viewer with a viewport of
@@ -33,6 +39,7 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Iterator
@@ -44,6 +51,15 @@ CHROMIUM_FLAGS = (
     "--disable-default-apps", "--disable-extensions", "--hide-scrollbars", "--force-device-scale-factor=1",
 )
 PROG = "tools/screenshots.py"
+
+
+#: the pictures of the documentation (docs/recordings.md): PNG name -> tspend arguments
+DOCS_RUNS = {
+    "after-default": ["run", "pendulum_mujoco"],
+    "after-crosscheck": ["crosscheck", "pendulum_mujoco"],
+    "swingup": ["run", "swingup_mujoco"],
+    "furuta": ["run", "furuta_mujoco"],
+}
 
 
 class Timeout(Exception):
@@ -199,6 +215,22 @@ def screenshot(rrd: Path, out: Path, wait_s: float, width: int, height: int, cli
     return saved
 
 
+def record(name: str, args: list[str], directory: Path) -> Path:
+    """``directory/<name>.rrd`` made by ``tspend ARGS --out ...`` in a process group of its
+    own (ended whole if this job stops); a run the task ends (exit 4) is kept."""
+    rrd = directory / f"{name}.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "tspend.cli", *args, "--out", str(rrd)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        _, err = proc.communicate()
+    finally:
+        end_group(proc)
+    if proc.returncode not in (0, 4) or not rrd.is_file():
+        raise RuntimeError(f"tspend {' '.join(args)} failed ({proc.returncode}): {err.strip()[-300:]}")
+    return rrd
+
+
 def _on_signal(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -223,7 +255,9 @@ def _click(text: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path, help="directory for the PNGs")
-    parser.add_argument("recordings", type=Path, nargs="+", help=".rrd files")
+    parser.add_argument("recordings", type=Path, nargs="*", help=".rrd files")
+    parser.add_argument("--docs", action="store_true",
+                        help="record and capture the documentation's runs (" + ", ".join(DOCS_RUNS) + ")")
     parser.add_argument("--wait", type=float, default=90.0, help="seconds to let the viewer load (default 90)")
     parser.add_argument("--size", type=_size, default=(1280, 800), help="viewport WxH (default 1280x800)")
     parser.add_argument("--click", type=_click, action="append", default=[], metavar="X,Y=NAME",
@@ -234,18 +268,24 @@ def main(argv: list[str] | None = None) -> int:
     width, height = args.size
     if not args.wait >= 0 or not args.timeout > 0:
         parser.error("--wait must be >= 0 and --timeout > 0")
+    if not args.recordings and not args.docs:
+        parser.error("give recordings (FILE.rrd ...) or --docs")
     for rrd in args.recordings:
         if not rrd.is_file():
             print(f"{PROG}: no such recording: {rrd}", file=sys.stderr)
             return 2
     args.out.mkdir(parents=True, exist_ok=True)
+    scratch = tempfile.TemporaryDirectory(prefix="tspend-screenshots-") if args.docs else None
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGHUP)}
     signal.signal(signal.SIGALRM, _on_alarm)
     signal.alarm(max(1, int(args.timeout)))
     try:
-        for rrd in args.recordings:
+        recordings = list(args.recordings)
+        if scratch is not None:
+            recordings += [record(name, run, Path(scratch.name)) for name, run in DOCS_RUNS.items()]
+        for rrd in recordings:
             for path in screenshot(rrd, args.out, args.wait, width, height, args.click):
-                print(path)
+                print(path, flush=True)
     except Timeout:
         print(f"{PROG}: stopped after --timeout {args.timeout:g} s; every process started was ended",
               file=sys.stderr)
@@ -257,6 +297,8 @@ def main(argv: list[str] | None = None) -> int:
         signal.alarm(0)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if scratch is not None:
+            scratch.cleanup()
     return 0
 
 

@@ -39,7 +39,7 @@ from tspend.plants.base import Plant
 if TYPE_CHECKING:
     from tspend.signals import Disturbance, Reference
 
-__all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Limit", "Task", "build_task"]
+__all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_task"]
 
 #: the statuses of a run the task ended (each exits with EXIT_TERMINATED on the CLI)
 TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound")
@@ -58,6 +58,19 @@ class Limit:
     status: str
     what: str
     symmetric: bool = False
+
+
+@dataclass(frozen=True)
+class Bound:
+    """One bounded entry of the full state, as a drawing shows it: entry ``index``
+    (``name``, ``unit``) ends the run ``status`` outside ``[lo, hi]`` (+/-inf: open)."""
+
+    index: int
+    name: str
+    unit: str
+    lo: float
+    hi: float
+    status: str
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +97,15 @@ class Task:
         watched = tuple((j, float(self.lo[j]), float(self.hi[j])) for j in range(self.lo.size)
                         if self.lo[j] > -math.inf or self.hi[j] < math.inf)
         object.__setattr__(self, "watched", watched)
+
+    def bounds(self) -> tuple[Bound, ...]:
+        """The bounded entries (rail ends, joint limits, fall angle, state bounds)."""
+        out = []
+        for j, lo, hi in self.watched:
+            limit = self.hi_limits[j] or self.lo_limits[j]
+            out.append(Bound(j, self.names[j], self.units[j], lo, hi,
+                             limit.status if limit is not None else ""))
+        return tuple(out)
 
     def ended(self, state: np.ndarray) -> bool:
         """True when ``state`` (full) crosses a bound (NaN crosses none)."""

@@ -202,8 +202,11 @@ class SwingUpController(Controller):
             ("mode", 1, {"panel": "mode", "description": "0 swinging up, 1 caught (LQR)"}),
             ("theta_wrapped", 1, {"panel": "state", "unit": "rad",
                                   "description": "pole angle wrapped to (-pi, pi]"}),
-            ("a_cmd", 1, {"panel": "control", "description": "commanded acceleration of the "
-                                                             "driven joint while swinging"}))
+            # an acceleration of the driven joint, not a part of u: a view of its own
+            ("a_cmd", 1, {"panel": "commanded_acceleration",
+                          "unit": "rad/s²" if model.angles[model.actuated] else "m/s²",
+                          "description": "commanded acceleration of the driven joint while "
+                                         "swinging"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
 
     @property

@@ -86,9 +86,10 @@ def scenario_text(scenario: Scenario) -> str:
 
 
 def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = None,
-             controller: Controller | None = None) -> RunInfo:
+             controller: Controller | None = None, task: Task | None = None) -> RunInfo:
     kind = kind or scenario.plant.kind
     fuzzy = controller.fuzzy_inputs() if controller is not None else {}
+    task = task if task is not None else scenario_task(scenario, plant)
     return RunInfo(
         scenario_name=scenario.name, scenario_text=scenario_text(scenario),
         scenario_path=scenario.path,
@@ -97,7 +98,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         model_inputs=fuzzy.get("model", ()), compensator_inputs=fuzzy.get("compensator", ()),
         extras=tuple(plant.extras().keys()), drawing=plant_registry.drawing(plant, scenario),
         controller_kind=controller.kind if controller is not None else "",
-        diagnostics=tuple(controller.diagnostics) if controller is not None else ())
+        diagnostics=tuple(controller.diagnostics) if controller is not None else (),
+        state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds())
 
 
 class History:
@@ -264,5 +266,5 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
                                  machine=machine_info(plant, task, scenario, parts.drawn))
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
-    end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl), all_sinks)
+    end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl, task), all_sinks)
     return RunResult(scenario, end, history.arrays(), ctrl, plant)

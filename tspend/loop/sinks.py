@@ -22,6 +22,7 @@ key            shape       meaning
                            (:class:`tspend.controllers.base.Diagnostic`), e.g. the paper
                            controller's ``u_s``, ``d_hat``, ``e_delta``, ``V``, ``p``,
                            ``norm_P``, ``norm_q``, ``min_b``
+``state``      (k, N)      the plant's full state (``RunInfo.state_names`` order)
 ``extra/NAME`` (k,)        plant extras (cart_pos, cart_vel for cart-poles)
 =============  ==========  ==========================================================
 """
@@ -35,6 +36,7 @@ import numpy as np
 
 from tspend.controllers.base import Diagnostic
 from tspend.plants.domain import Drawing
+from tspend.task import Bound
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,12 @@ class RunInfo:
     diagnostics: tuple[Diagnostic, ...] = ()
     #: what to draw of the plant in 3D (its domain's drawing), or None
     drawing: Drawing | None = None
+    #: the plant's full state (``state`` in a block): names and units, and the task's view
+    state_names: tuple[str, ...] = ()
+    state_units: tuple[str, ...] = ()
+    view: tuple[str, ...] = ()
+    #: the task's bounds on the full state (rail ends, joint limits, fall angle)
+    bounds: tuple[Bound, ...] = ()
 
 
 @dataclass(frozen=True)

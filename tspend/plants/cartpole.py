@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 from numba.extending import register_jitable
@@ -27,11 +27,11 @@ from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, 
 from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, COMPILED_VIEW_ACCEL, FULL_STATE,
     FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity)
+    FullModel, PlantLabels, PlantModel, Quantity, END_COLOR, bound_text)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Task
+    from tspend.task import Bound, Task
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
            "CartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "DRY_FRICTION_SLIP",
@@ -309,6 +309,13 @@ LABELS = PlantLabels(
     control=Quantity("u", "N", "force on the cart"),
     extras={"cart_pos": Quantity("x_c", "m", "cart position"),
             "cart_vel": Quantity("x_c'", "m/s", "cart velocity")},
+    # the full state (slide, hinge, slide_dot, hinge_dot) whatever the MJCF calls its joints
+    full_state=(Quantity("x_c", "m", "cart position", "cart_x"),
+                Quantity("theta", "rad", "pole angle", "theta"),
+                Quantity("x_c'", "m/s", "cart velocity", "cart_v"),
+                Quantity("theta'", "rad/s", "pole angular velocity", "theta_dot")),
+    # d_d enters (C1)'s numerator beside the force: a force (the hinge torque -d m l/(M+m))
+    disturbance=Quantity("d", "N", "disturbance force"),
 )
 
 #: default cart box (x, y, z) in metres
@@ -426,6 +433,7 @@ class CartPoleDrawing(Drawing):
     mjcf: str = ""
     theta_sign: float = 1.0
     title = "cart-pole"
+    end_entity = "cart/end"
 
     def geometry(self) -> CartPoleGeometry:
         geom = CartPoleGeometry(l=self.l)
@@ -450,19 +458,70 @@ class CartPoleDrawing(Drawing):
         rec.log(f"{world}/pole", rr.Capsules3D(
             lengths=[2.0 * geom.l], radii=[geom.pole_radius], translations=[[0.0, 0.0, -geom.l]],
             colors=[shade(geom.pole_color)]), static=True)
-        half_width = geom.cart_half_sizes[1]
-        rails = [[[-RAIL_M, y, 0.0], [RAIL_M, y, 0.0]] for y in (-half_width, half_width)]
-        metres = np.arange(-RAIL_M, RAIL_M + 0.5, 1.0)
-        ticks = [[[x, -half_width - (0.4 if x % LABEL_EVERY_M == 0 else 0.2), 0.0],
+        self._log_rail(rec, world, geom.cart_half_sizes[1], -RAIL_M, RAIL_M)
+        object.__setattr__(self, "_cart_height", 2.0 * geom.cart_half_sizes[2])
+        object.__setattr__(self, "_half_width", geom.cart_half_sizes[1])
+
+    @staticmethod
+    def _log_rail(rec: Any, world: str, half_width: float, lo: float, hi: float) -> None:
+        """The rail over ``[lo, hi]`` m: two lines, a tick every metre, a labelled mark every
+        10 m (every 5, 2 or 1 m on a shorter rail: about eight labels, which stay apart
+        when the whole rail is in view)."""
+        import rerun as rr
+
+        rails = [[[lo, y, 0.0], [hi, y, 0.0]] for y in (-half_width, half_width)]
+        every = next((e for e in (1.0, 2.0, 5.0) if (hi - lo) / e <= 8.0), LABEL_EVERY_M)
+        metres = np.arange(math.ceil(lo), math.floor(hi) + 0.5, 1.0)
+        ticks = [[[x, -half_width - (0.4 if x % every == 0 else 0.2), 0.0],
                   [x, -half_width, 0.0]] for x in metres]
         rec.log(f"{world}/rail", rr.LineStrips3D(rails + ticks, colors=[RAIL_COLOR], radii=[0.02]),
                 static=True)
-        marks = np.arange(-RAIL_M, RAIL_M + 0.5, LABEL_EVERY_M)
+        marks = np.arange(math.ceil(lo / every) * every, math.floor(hi / every) * every + 0.5 * every,
+                          every)
         rec.log(f"{world}/rail/marks", rr.Points3D(
             np.column_stack([marks, np.full(marks.size, -half_width - 0.7), np.zeros(marks.size)]),
             radii=[0.04], colors=[RAIL_COLOR],
             labels=[f"{x:+.0f} m" if x else "0 m" for x in marks], show_labels=True), static=True)
-        object.__setattr__(self, "_cart_height", 2.0 * geom.cart_half_sizes[2])
+
+    def log_bounds(self, rec: Any, world: str, bounds: Sequence[Bound],
+                   shade: Callable[[tuple], tuple]) -> None:
+        """The rail's ends (the slide joint's bound; the rail is drawn up to them) as red
+        posts labelled with their position, and the pole's bound (fall angle or hinge
+        range) as two red rays from the pivot along the angles that end the run."""
+        import rerun as rr
+
+        half_width = self.__dict__.get("_half_width", 0.5 * CART_SIZE[1])
+        height = self.__dict__.get("_cart_height", CART_SIZE[2])
+        red = shade(END_COLOR)
+        for bound in bounds:
+            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
+            if bound.index == 0 and ends:  # the slide joint: the rail
+                lo = bound.lo if math.isfinite(bound.lo) else -RAIL_M
+                hi = bound.hi if math.isfinite(bound.hi) else RAIL_M
+                self._log_rail(rec, world, half_width, lo - 1.0, hi + 1.0)
+                posts = [[[x, y, 0.0], [x, y, 1.5]] for x in ends for y in (-half_width, half_width)]
+                rec.log(f"{world}/rail/ends", rr.LineStrips3D(posts, colors=[red], radii=[0.06]),
+                        static=True)
+                rec.log(f"{world}/rail/ends/labels", rr.Points3D(
+                    [[x, -half_width, 1.8] for x in ends], radii=[0.05], colors=[red],
+                    labels=[f"{bound.status} {x:+g} {bound.unit}".rstrip() for x in ends],
+                    show_labels=True), static=True)
+            elif bound.index == 1 and ends:  # the hinge: the pole's angle
+                pivot = [0.0, 0.0, 0.5 * height]   # in the cart's frame (its centre)
+                tips = [[pivot[0] - 2.0 * self.l * math.sin(self.theta_sign * a), 0.0,
+                         pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
+                rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
+                    [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
+                # one label, in the rays' red, under the cart's readout: clear of the cart,
+                # the pole and the rail's marks, inside a view half as wide (the cross-check's)
+                rec.log(f"{world}/cart/bounds/label", rr.Points3D(
+                    [[0.0, -half_width - 1.0, -1.6]], colors=[red], radii=[0.01], show_labels=True,
+                    labels=[bound_text(bound)]), static=True)
+
+    @property
+    def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]
+        """Above the pole's pivot, clear of the pole (the label follows the cart)."""
+        return (0.0, 0.0, 2.0 * self.l + 1.5)
 
     def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
                    extras: dict[str, np.ndarray]) -> None:
@@ -489,7 +548,7 @@ class CartPoleDrawing(Drawing):
         return rrb.Spatial3DView(
             origin=origin,
             # side by side (the cross-check) a view is half as wide: the short title
-            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marks every 10 m, readout: cart position)",
+            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marked in metres, readout: cart position)",
             line_grid=rrb.LineGrid3D(visible=False),
             eye_controls=rrb.EyeControls3D(
                 position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],

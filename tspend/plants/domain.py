@@ -13,12 +13,14 @@ docs/architecture.md walks through writing one.
 
 from __future__ import annotations
 
+import math
+import re
 from abc import ABC, abstractmethod
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 from numba.core import types
@@ -30,13 +32,14 @@ from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Task
+    from tspend.task import Bound, Task
 
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
            "CART_CENTRING", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
            "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
-           "FULL_ENERGY", "full_accelerations", "full_energy"]
+           "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
+           "bound_text", "name_slug", "unit_slug"]
 
 #: what a domain may provide (:attr:`Domain.provides`), and what a controller kind or an
 #: effect may need (:attr:`tspend.controllers.base.Controller.needs`):
@@ -59,6 +62,9 @@ CAPABILITIES = {
     CART_CENTRING: "a cart whose position can be centred through the pole's reference",
 }
 
+#: the colour of what marks the end of a run and the bounds that end one
+END_COLOR = (214, 39, 40)
+
 #: relative step of the central differences of :class:`PlantModel`
 FD_STEP = 1e-6
 
@@ -70,34 +76,78 @@ CHIRP_F1_HZ = 2.0
 Accel = Callable[[float, np.ndarray, float, float], float]
 
 
+def unit_slug(unit: str) -> str:
+    """A unit as the end of a column name: ``rad/s`` -> ``rad_s``, ``rad/s²`` -> ``rad_s2``,
+    ``N m`` -> ``N_m`` ("" for a dimensionless quantity)."""
+    text = unit.replace("²", "2").replace("³", "3").replace("^", "")
+    return re.sub(r"[^0-9A-Za-z]+", "_", text).strip("_")
+
+
+def name_slug(symbol: str) -> str:
+    """A symbol as the start of a column name: ``theta'`` -> ``theta_dot``,
+    ``x''`` -> ``x_ddot``, ``log10 V`` -> ``log10_V``."""
+    text = symbol.replace("'" * 3, "_dddot").replace("'" * 2, "_ddot").replace("'", "_dot")
+    return re.sub(r"[^0-9A-Za-z]+", "_", text).strip("_")
+
+
 class Quantity(NamedTuple):
-    """One physical quantity as plotted: short symbol, unit, and what it is."""
+    """One physical quantity as plotted: short symbol, unit, and what it is; ``column``
+    is its name in an exported table before the unit (default: the symbol's)."""
 
     symbol: str
     unit: str = ""
     meaning: str = ""
+    column: str = ""
 
     def with_unit(self, text: str | None = None) -> str:
         """``"theta (rad)"``, or ``text`` with this quantity's unit."""
         text = self.symbol if text is None else text
         return f"{text} ({self.unit})" if self.unit else text
 
+    def column_name(self, stem: str | None = None) -> str:
+        """Its column in an exported table, the unit at the end: ``theta_dot_rad_s``,
+        ``cart_x_m``, ``u_N`` (``stem`` in place of the quantity's own)."""
+        stem = stem if stem is not None else (self.column or name_slug(self.symbol))
+        slug = unit_slug(self.unit)
+        return f"{stem}_{slug}" if slug else stem
+
 
 class PlantLabels(NamedTuple):
-    """The task's view x_1 .. x_n, the control and the extras of one domain."""
+    """The task's view x_1 .. x_n, the control and the extras of one domain; the full
+    state's quantities in the plants' state order (empty: the full state is the view) and
+    the disturbance's."""
 
     states: tuple[Quantity, ...]
     control: Quantity
     extras: dict[str, Quantity]
+    full_state: tuple[Quantity, ...] = ()
+    disturbance: Quantity = Quantity("d", "", "disturbance")
 
     def padded(self, order: int) -> "PlantLabels":
         """These labels for ``order`` states: extra ones are named ``x<i>``."""
         states = tuple(self.states[:order]) + tuple(Quantity(f"x{i + 1}")
                                                     for i in range(len(self.states), order))
-        return PlantLabels(states, self.control, self.extras)
+        return self._replace(states=states)
 
     def extra(self, name: str) -> Quantity:
         return self.extras.get(name, Quantity(name))
+
+    def of_state(self, names: tuple[str, ...], units: tuple[str, ...],
+                 view: tuple[str, ...]) -> tuple[Quantity, ...]:
+        """The quantity of each entry of a plant's full state ``names`` (with ``units``),
+        whose task views ``view``: the domain's :attr:`full_state` when it names them all,
+        else the view's labels for the view's entries and the plant's names for the rest."""
+        if len(self.full_state) == len(names):
+            return self.full_state
+        padded = self.padded(len(view)).states
+        out = []
+        for name, unit in zip(names, units):
+            if name in view:
+                q = padded[view.index(name)]
+                out.append(q._replace(unit=q.unit or unit))
+            else:
+                out.append(Quantity(name, unit, column=name_slug(name)))
+        return tuple(out)
 
 
 #: the type of a domain's compiled view model (:attr:`PlantModel.compiled`, a module-level
@@ -340,6 +390,15 @@ class FullModel:
         return e
 
 
+def bound_text(bound: "Bound") -> str:
+    """What crossing ``bound`` means, short enough for a label in a 3D view:
+    ``"fell: |hinge| > 1.57 rad"`` for a symmetric bound, else both ends."""
+    unit = f" {bound.unit}" if bound.unit else ""
+    if math.isfinite(bound.hi) and bound.lo == -bound.hi:
+        return f"{bound.status}: |{bound.name}| > {bound.hi:.3g}{unit}"
+    return f"{bound.status}: {bound.name} outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit}"
+
+
 class Drawing(ABC):
     """What a recorder draws of a plant in 3D: a static scene, then poses per frame.
 
@@ -363,6 +422,26 @@ class Drawing(ABC):
     @abstractmethod
     def view(self, origin: str, suffix: str = "") -> Any:
         """The Rerun 3D view of ``origin``."""
+
+    #: where :meth:`log_end` writes the reason a run ended (relative to ``world``; a child
+    #: of a moving body follows it) and at which point of that entity's frame
+    end_entity: str = "end"
+    end_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def log_bounds(self, rec: Any, world: str, bounds: Sequence["Bound"],
+                   shade: Callable[[tuple], tuple]) -> None:
+        """Draw the task's bounds on the full state (rail ends, joint limits, the fall
+        angle: :meth:`tspend.task.Task.bounds`) under ``world``; default: nothing."""
+
+    def log_end(self, rec: Any, world: str, times: Any, text: str) -> None:
+        """Write ``text`` (why the run ended) in the scene from ``times`` (one time) on."""
+        import rerun as rr
+
+        path = f"{world}/{self.end_entity}"
+        rec.log(path, rr.Points3D.from_fields(colors=[END_COLOR], radii=[-4.0], show_labels=True),
+                static=True)
+        rec.send_columns(path, indexes=[times], columns=rr.Points3D.columns(
+            positions=[list(self.end_position)], labels=[text]))
 
     def document(self) -> dict[str, Any]:
         """Facts shown in the run's info document."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 from numba.extending import register_jitable
@@ -28,12 +28,14 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
-    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
+    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
+    END_COLOR, bound_text)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
     linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.task import Bound
 
 __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
            "FurutaDrawing", "DOMAIN"]
@@ -365,11 +367,17 @@ class FurutaDrawing(Drawing):
                                             centers=[[0.0, 0.0, 0.051]],
                                             colors=[shade((30, 30, 36))],
                                             fill_mode=rr.components.FillMode.Solid), static=True)
-        rec.log(f"{world}/arm", rr.LineStrips3D([[[0.0, 0.0, 0.0], [self.arm_length, 0.0, 0.0]]],
-                                                radii=[0.0035], colors=[shade((178, 184, 191))]),
-                static=True)
+        # the riser up to the arm's hinge, the arm along its +x, the pendulum along its +z
+        # (thicker than the rig's rods, so they read at the view's distance)
+        rec.log(f"{world}/riser", rr.Capsules3D(
+            lengths=[self.arm_height - 0.102], radii=[0.02], translations=[[0.0, 0.0, 0.102]],
+            colors=[shade((30, 30, 36))]), static=True)
+        rec.log(f"{world}/arm", rr.Capsules3D(
+            lengths=[self.arm_length], radii=[0.006], colors=[shade((178, 184, 191))],
+            rotation_axis_angles=[rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], degrees=90.0)]),
+            static=True)
         rec.log(f"{world}/arm/pendulum", rr.Capsules3D(
-            lengths=[self.pendulum_length], radii=[0.003], colors=[shade((245, 158, 46))]),
+            lengths=[self.pendulum_length], radii=[0.005], colors=[shade((245, 158, 46))]),
             static=True)
 
     def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
@@ -385,13 +393,47 @@ class FurutaDrawing(Drawing):
             translation=np.tile([self.arm_length, 0.0, 0.0], (n, 1)),
             quaternion=_quat_x(pendulum)))
 
+    def log_bounds(self, rec: Any, world: str, bounds: Sequence["Bound"],
+                   shade: Callable[[tuple], tuple]) -> None:
+        """The pendulum's bound (the fall angle) as two red rays from its pivot, in the
+        plane it swings in (they turn with the arm); a limited arm's range as two red rays
+        from the base."""
+        import rerun as rr
+
+        red = shade(END_COLOR)
+        for bound in bounds:
+            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
+            if bound.index == 1 and ends:  # the pendulum about the arm's tip (+x of the arm)
+                r = self.pendulum_length
+                tips = [[0.0, -r * math.sin(a), r * math.cos(a)] for a in ends]
+                rec.log(f"{world}/arm/bounds", rr.Transform3D(translation=[self.arm_length, 0.0, 0.0]),
+                        static=True)
+                rec.log(f"{world}/arm/bounds", rr.LineStrips3D(
+                    [[[0.0, 0.0, 0.0], tip] for tip in tips], colors=[red], radii=[0.0015]), static=True)
+                high = max(tips, key=lambda tip: tip[2])
+                rec.log(f"{world}/arm/bounds/label", rr.Points3D(
+                    [[high[0], high[1], high[2] + 0.02]], colors=[red], radii=[0.002],
+                    labels=[bound_text(bound)], show_labels=True), static=True)
+            elif bound.index == 0 and ends:  # the arm about z
+                r = 1.2 * self.arm_length
+                tips = [[r * math.cos(a), r * math.sin(a), self.arm_height] for a in ends]
+                rec.log(f"{world}/arm_bounds", rr.LineStrips3D(
+                    [[[0.0, 0.0, self.arm_height], tip] for tip in tips], colors=[red], radii=[0.0015]),
+                    static=True)
+                rec.log(f"{world}/arm_bounds/label", rr.Points3D(
+                    tips[-1:], colors=[red], radii=[0.002], labels=[bound_text(bound)],
+                    show_labels=True), static=True)
+
+    end_position = (0.0, 0.0, 0.32)
+
     def view(self, origin: str, suffix: str = "") -> Any:
         import rerun.blueprint as rrb
 
         return rrb.Spatial3DView(
             origin=origin, name=f"Furuta pendulum{suffix}",
-            eye_controls=rrb.EyeControls3D(position=[0.35, -0.35, 0.3],
-                                           look_target=[0.0, 0.0, 0.16], eye_up=[0.0, 0.0, 1.0]))
+            # close enough that the 8.5 cm arm and the 13 cm pendulum fill the view
+            eye_controls=rrb.EyeControls3D(position=[0.24, -0.30, 0.27],
+                                           look_target=[0.03, 0.0, 0.17], eye_up=[0.0, 0.0, 1.0]))
 
 
 # -- the domain ---------------------------------------------------------------------------
@@ -435,7 +477,12 @@ class FurutaDomain(Domain):
                 Quantity("alpha'", "rad/s", "pendulum angular velocity")),
         control=Quantity("u", "V", "motor voltage"),
         extras={"arm": Quantity("theta", "rad", "arm angle"),
-                "arm_dot": Quantity("theta'", "rad/s", "arm angular velocity")})
+                "arm_dot": Quantity("theta'", "rad/s", "arm angular velocity")},
+        full_state=(Quantity("theta", "rad", "arm angle", "arm"),
+                    Quantity("alpha", "rad", "pendulum angle", "pendulum"),
+                    Quantity("theta'", "rad/s", "arm angular velocity", "arm_dot"),
+                    Quantity("alpha'", "rad/s", "pendulum angular velocity", "pendulum_dot")),
+        disturbance=Quantity("d", "N m", "torque on the pendulum joint"))
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
                         pole="pendulum")
     default_model = FurutaMujocoConfig.model

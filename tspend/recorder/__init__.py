@@ -4,15 +4,22 @@ What is logged (entity paths relative to the sink's ``prefix``):
 
 - ``info/scenario``, ``info/run``: static markdown at start: the scenario's TOML, seed,
   package version, plant kind, order, dt, ...
+- ``info/run`` also holds the run's identity as values (scenario, seed, controller,
+  plant kind, version, dt, duration); ``info/columns`` the columns ``tspend export``
+  writes (name with the unit at the end, entity, instance)
 - ``info/status``, ``info/metrics``: static markdown at :meth:`RerunSink.finish`
-- ``events``: a ``TextLog`` at the last time when a run does not complete
+- ``events``: a ``TextLog`` at the last time when a run does not complete; ``series/end``
+  a cross on the tracking view there, and the domain's drawing writes the reason in 3D
+- ``series/state/<name>``: every entry of the plant's full state, every sample, named by
+  the domain; ``series/reference``: r and its derivatives
 - ``series/<panel>``: multi-instance ``Scalars`` (u and chattering panels with min/max
   aggregation, ``log`` diagnostics as log10), ``series/error_steady`` (the steady-state
   window only), ``series/compensator_share`` (-u_s / b_hat, in u's unit),
   ``series/plant/<extra>``; see :func:`series_specs`
-- ``world/cart``, ``world/pole``: static ``Boxes3D`` / ``Capsules3D`` and a
-  ``Transform3D`` per body at ~50 Hz; ``world/rail`` with metre ticks and labelled marks,
-  ``world/cart/readout`` the cart position as text (cart-poles only)
+- ``world/...``: the plant's domain draws it (:class:`~tspend.plants.domain.Drawing`):
+  the cart-pole's ``world/cart``, ``world/pole`` (a ``Transform3D`` per body at ~50 Hz),
+  ``world/rail`` with metre ticks and labelled marks, ``world/cart/readout``; the task's
+  bounds (``world/rail/ends``, ``world/cart/bounds``; the Furuta's ``world/arm/bounds``)
 - ``crosscheck/verdict``, ``crosscheck/diff/<key>``, ``crosscheck/log10_abs_diff/<key>``:
   the cross-check's verdict, the MuJoCo-minus-ODE series and their log10 |difference|
   (floored at 1e-16, drawn on a fixed range) (:mod:`.crosscheck`)

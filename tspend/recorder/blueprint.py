@@ -11,6 +11,7 @@ controller with rule bases.
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import rerun as rr
@@ -19,7 +20,7 @@ import rerun.blueprint as rrb
 from tspend.loop.sinks import FuzzyInputInfo, RunInfo
 from tspend.recorder.common import BMF_WIDTH, TIMELINE, join_path, prefix_label
 from tspend.recorder.labels import plant_labels
-from tspend.recorder.series import STEADY_FROM, SeriesSpec, series_specs
+from tspend.recorder.series import END_ENTITY, STEADY_FROM, SeriesSpec, specs_of
 
 #: the tabs of the series views, by :attr:`SeriesSpec.group`
 GROUP_TITLES = {"tracking": "tracking and control", "internals": "controller internals",
@@ -28,10 +29,44 @@ GROUP_TITLES = {"tracking": "tracking and control", "internals": "controller int
 #: the time axis runs past the end of the run by at least this fraction: the legend sits there
 LEGEND_MARGIN = 0.22
 #: what the legend's width is judged against: a plot about this wide (px), as a series
-#: view is in a 1280x800 viewer (two columns in three fifths of the window) ...
-PLOT_WIDTH_PX = 330.0
-#: ... and the width of a legend's character and of its swatch and frame (px)
-LEGEND_CHAR_PX, LEGEND_FRAME_PX = 7.0, 36.0
+#: view's plot area is in a 1280x800 viewer (two columns in three fifths of the window) ...
+PLOT_WIDTH_PX = 350.0
+#: ... and the width of a legend's character and of its swatch and frame (px; measured on
+#: Rerun 0.41's web viewer: "alpha (rad)" takes 93 px, "e_alpha' (rad/s)" 110 px)
+LEGEND_CHAR_PX, LEGEND_FRAME_PX = 5.5, 36.0
+
+
+#: a series view's plot is about this tall in a 1280x800 viewer (three rows of views) ...
+PLOT_HEIGHT_PX = 190.0
+#: ... and Rerun's plots (egui_plot) tick at powers of ten only, labelling a step when its
+#: ticks are about this far apart (faint from 20 px, full from 30): a view of u in
+#: [-65, 70] N, 190 px tall, labels only its 0 (the 10 N ticks are 14 px apart, the next
+#: step's +/-100 lie outside)
+Y_LABEL_SPACING_PX = 25.0
+#: the range runs this fraction past its ends (multiples of the step), so that their
+#: labels are inside the plot, not cut off at its edges
+Y_PAD = 0.08
+
+
+def labelled_range(lo: float, hi: float, height_px: float = PLOT_HEIGHT_PX) -> tuple[float, float] | None:
+    """A y range around the data's ``[lo, hi]`` in which a plot ``height_px`` tall labels at
+    least two ticks: its ends are multiples of a power of ten ``step`` (or of half of it)
+    with two multiples of ``step`` inside, ``Y_LABEL_SPACING_PX`` apart or more, padded by
+    ``Y_PAD`` (u in [-65, 70] -> [-116, 116], labelled -100, 0, 100).  None when the data
+    give no range."""
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return None
+    base = 10.0 ** math.floor(math.log10(hi - lo))
+    best: tuple[float, float] | None = None
+    for step in (base, 10.0 * base, 100.0 * base):
+        for unit in (0.5 * step, step):   # ends at half steps if that holds two ticks
+            a, b = math.floor(lo / unit) * unit, math.ceil(hi / unit) * unit
+            ticks = math.floor(b / step + 1e-9) - math.ceil(a / step - 1e-9) + 1
+            pad = Y_PAD * (b - a)          # a label on the plot's edge is cut off
+            if ticks >= 2 and height_px * step / (b - a + 2 * pad) >= Y_LABEL_SPACING_PX:
+                if best is None or b - a + 2 * pad < best[1] - best[0]:
+                    best = (a - pad, b + pad)   # the tightest: the data fill the view
+    return best
 
 
 def _abs(prefix: str, path: str) -> str:
@@ -57,14 +92,16 @@ def time_axis(duration: float, margin: float = LEGEND_MARGIN, start: float = 0.0
 
 
 def series_view(name: str, contents: Sequence[str], duration: float, legend: Sequence[str] | None = (),
-                *, start: float = 0.0, y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
+                *, start: float = 0.0, y_range: tuple[float, float] | None = None,
+                lock: bool = True) -> rrb.TimeSeriesView:
     """A time-series view titled ``name``; ``legend`` the names it shows (``None``: no legend,
-    ``()``: a legend of unknown names, given the default margin)."""
+    ``()``: a legend of unknown names, given the default margin); ``y_range`` fixed (zoom
+    locked unless ``lock`` is False)."""
     shown = legend is not None
     margin = legend_margin(legend) if legend else LEGEND_MARGIN if shown else 0.02
     return rrb.TimeSeriesView(origin="/", contents=list(contents), name=name,
                               axis_x=time_axis(duration, margin, start),
-                              axis_y=rrb.ScalarAxis(range=y_range, zoom_lock=True) if y_range else None,
+                              axis_y=rrb.ScalarAxis(range=y_range, zoom_lock=lock) if y_range else None,
                               plot_legend=rrb.PlotLegend(rrb.components.Corner2D.RightTop, visible=shown))
 
 
@@ -133,24 +170,34 @@ def panels() -> list[rrb.BlueprintPart]:
 
 
 def build_blueprint(info: RunInfo, prefixes: Sequence[str] = ("",), *,
-                    draw: bool | None = None) -> rrb.Blueprint:
+                    draw: bool | None = None,
+                    y_ranges: dict[str, tuple[float, float]] | None = None) -> rrb.Blueprint:
     """The default layout: the plant in 3D and fuzzy internals beside the time series.
 
     With several ``prefixes`` (side-by-side runs in one recording) every time-series
     view overlays all runs; 3D and fuzzy views are per run.  ``draw`` defaults to whether
-    the plant's domain draws it (``info.drawing``).
+    the plant's domain draws it (``info.drawing``).  ``y_ranges``: each series entity's
+    data range (the sink's, at the end of the run), shown as :func:`labelled_range` so the
+    view keeps its tick labels; without it the views fit the data as it comes.
     """
     prefixes = list(prefixes) or [""]
     multi = len(prefixes) > 1
     suffixes = [f" [{prefix_label(p)}]" if multi else "" for p in prefixes]
-    specs: list[SeriesSpec] = series_specs(info.order, info.extras, info.diagnostics, info.plant_kind)
+    specs: list[SeriesSpec] = specs_of(info)
     series_tabs: dict[str, list[rrb.View]] = {}
     for spec in specs:
+        if not spec.group:
+            continue  # recorded for export, shown elsewhere (r in the tracking view)
         names = [n + sfx for n in spec.names for sfx in suffixes]
         start = STEADY_FROM * info.duration if spec.steady else 0.0
+        contents = [_abs(p, spec.entity) for p in prefixes]
+        if spec.entity == "series/tracking":
+            # where a run that did not complete ended (RerunSink._mark_end)
+            contents += [_abs(p, END_ENTITY) for p in prefixes]
+        extent = (y_ranges or {}).get(spec.entity)
         series_tabs.setdefault(spec.group, []).append(series_view(
-            spec.title, [_abs(p, spec.entity) for p in prefixes], info.duration,
-            names if spec.legend or multi else None, start=start))
+            spec.title, contents, info.duration, names if spec.legend or multi else None, start=start,
+            y_range=labelled_range(*extent) if extent else None, lock=False))
     bmf_views: list[rrb.View] = []
     firing_views: list[rrb.View] = []
     doc_views: list[rrb.View] = []

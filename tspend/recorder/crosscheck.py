@@ -20,7 +20,7 @@ import rerun.blueprint as rrb
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 from tspend.recorder.arrow import time_column
 from tspend.recorder.blueprint import document_views, panels, plant_view, series_view
-from tspend.recorder.common import PALETTE
+from tspend.recorder.common import PALETTE, join_path
 from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
 from tspend.recorder.series import COMPENSATOR_SHARE, series_location, series_specs
 from tspend.recorder.sink import RerunSink
@@ -242,6 +242,12 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
         if key == "x1":
             overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE",
                                   both("x1"), info.duration, names("x1"))
+        elif key.startswith("x") and int(key[1:]) <= len(info.view):
+            # x2.. as the plant's full state records them (series/state/<name>) on both
+            entity = f"series/state/{info.view[int(key[1:]) - 1]}"
+            overlay = series_view(f"{q.meaning or q.symbol} {q.with_unit()}: MuJoCo and ODE",
+                                  ["/" + join_path(p, entity) for p in prefixes], info.duration,
+                                  [q.with_unit() + label for label in labels])
         elif key.startswith("x"):
             # x2.. are not plotted per run; the error view holds e_2 = x_2 - r' for both
             overlay = series_view(f"tracking error (e_2 = {q.symbol} - r'): MuJoCo and ODE",

@@ -16,15 +16,21 @@ the axis), and ``series/compensator_share``, the compensator's share ``-u_s / b_
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
 from tspend.controllers.base import Diagnostic
 from tspend.recorder.common import PALETTE, Color, join_path
+from tspend.plants.domain import PlantLabels, name_slug
 from tspend.recorder.labels import Quantity, extra_quantity, plant_labels
 
+if TYPE_CHECKING:
+    from tspend.loop.sinks import RunInfo
+
+#: the cross on the tracking view where a run that did not complete ended
+END_ENTITY = "series/end"
 #: floor of a ``log`` diagnostic before its log10 is taken (a norm may start at 0)
 LOG_FLOOR = 1e-12
 
@@ -49,6 +55,9 @@ class SeriesSpec:
     group: str = "tracking"
     #: only the steady-state window (t >= duration / 2, the window of rmse_ss) is sent
     steady: bool = False
+    #: each series' column in an exported table, unit at the end (``theta_rad``);
+    #: "" leaves it out (a copy of a series exported from another entity)
+    columns: tuple[str, ...] = ()
 
     @property
     def legend(self) -> bool:
@@ -90,7 +99,7 @@ PANEL_TITLES = {"compensator": "compensator output u_s", "lyapunov": "Lyapunov f
 #: titles of one part of a panel (its linear or its log10 part)
 KEY_TITLES = {"norms": "smallest gain consequent min_i p_(n+1)^i (projection keeps it >= b_min)",
               "norms/log10": "parameter norms ||P||, ||q||"}
-#: panels whose diagnostics are parts of u, hence in u's unit whatever they declare
+#: panels whose diagnostics are parts of u, hence in u's unit unless they declare one
 CONTROL_PANELS = ("control",)
 #: the compensator's output u_s is in the unit of x^(n); its share of u (19) is drawn
 #: from it and the model's gain estimate (the diagnostic columns of these names)
@@ -145,8 +154,27 @@ class _Panel:
     unit_in_title: bool = True
 
 
+def _ref_symbol(k: int) -> str:
+    return "r" + "'" * k if k <= 3 else f"r^({k})"
+
+
+def _ref_column(k: int) -> str:
+    return ("ref", "ref_dot", "ref_ddot", "ref_dddot")[k] if k <= 3 else f"ref_d{k}"
+
+
+def _derivative(unit: str, k: int) -> str:
+    for _ in range(k):
+        unit = derivative_unit(unit)
+    return unit
+
+
+def _column(label: str, unit: str) -> str:
+    return Quantity(label, unit).column_name()
+
+
 def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[Diagnostic] = (),
-                 plant_kind: str = "") -> list[SeriesSpec]:
+                 plant_kind: str = "", *, state_names: Sequence[str] = (),
+                 state_units: Sequence[str] = (), view: Sequence[str] = ()) -> list[SeriesSpec]:
     """The time-series layout for a plant of ``plant_kind`` and order ``order`` with
     ``extras`` under a controller that declares ``diagnostics``.
 
@@ -155,6 +183,12 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     find a series again.  The runner's own series come first; each diagnostic joins
     the view of its ``panel`` (a standard one, or one of its own); ``log`` and linear
     diagnostics of one panel get separate views; each extra gets its own view.
+
+    With the plant's full state (``state_names``, ``state_units`` and the task's ``view``)
+    every entry is a series of its own, ``series/state/<name>``, named by the domain
+    (:meth:`~tspend.plants.domain.PlantLabels.of_state`), in the *plant* tab in place of
+    the extras it repeats; ``series/reference`` holds ``r, r', .., r^(n)`` (no view: the
+    tracking view shows r).  Every series carries its exported column (:attr:`SeriesSpec.columns`).
     """
     labels = plant_labels(plant_kind, order)
     s0 = labels.states[0]
@@ -169,7 +203,8 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
         "control": _Panel(f"control {control.symbol}{_unit_suffix([control.unit])}"
                           + (f", {control.meaning}" if control.meaning else ""),
                           [_named("u", control.unit)], ["u"], [(214, 39, 40)], [_col("u")], minmax=True),
-        "disturbance": _Panel("disturbance d and its estimates", ["d"], ["d"], [(127, 127, 127)], [_col("d")]),
+        "disturbance": _Panel("disturbance d and its estimates", [_named("d", labels.disturbance.unit)], ["d"],
+                              [(127, 127, 127)], [_col("d")]),
     }
     x_n_unit = derivative_unit(labels.states[-1].unit) if labels.states else ""
     share: dict[str, Extractor] = {}
@@ -181,7 +216,7 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
             title = KEY_TITLES.get(key) or PANEL_TITLES.get(panel, panel.replace("_", " "))
             panels[key] = _Panel(title + (", log10 scale" if log else ""), log10=log)
         target = panels[key]
-        unit = (control.unit if panel in CONTROL_PANELS
+        unit = ((diag.unit or control.unit) if panel in CONTROL_PANELS
                 else x_n_unit if diag.name == COMPENSATOR_OUTPUT else diag.unit)
         target.units.append(unit)
         target.minmax |= diag.chattering
@@ -218,13 +253,90 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     if shares:
         after = next(i for i, spec in enumerate(specs) if spec.entity == "series/control")
         specs.insert(after + 1, specs.pop(shares[0]))
+    full = labels.of_state(tuple(state_names), tuple(state_units), tuple(view)) if state_names else ()
+    symbols = {q.symbol for q in full}
     for i, name in enumerate(extras):
         q = extra_quantity(labels, name)
+        repeated = q.symbol in symbols  # the cart's position is the slide joint's
         specs.append(SeriesSpec(
             f"series/plant/{name}", (q.meaning or "plant extra") + f" {q.with_unit()}",
             (_named(q.symbol, q.unit),), (PALETTE[(9 + i) % len(PALETTE)],), _stack(_col(f"extra/{name}")),
-            keys=(name,), group="plant"))
-    return specs
+            keys=(name,), group="" if repeated else "plant",
+            columns=("" if repeated else q.column_name(name_slug(name)),)))
+    for j, (name, q) in enumerate(zip(state_names, full)):
+        specs.append(SeriesSpec(
+            f"series/state/{name}", f"{q.meaning or name} {q.with_unit()}", (_named(q.symbol, q.unit),),
+            (PALETTE[(6 + j) % len(PALETTE)],), _stack(_col("state", j)), keys=(name,), group="plant",
+            columns=(q.column_name(),)))
+    unit0 = s0.unit if labels.states else ""
+    specs.append(SeriesSpec(
+        "series/reference", f"reference r and its derivatives{_unit_suffix([unit0])}",
+        tuple(_named(_ref_symbol(k), _derivative(unit0, k)) for k in range(order + 1)),
+        tuple(PALETTE[k % len(PALETTE)] for k in range(order + 1)), _stack(_col("ref")),
+        keys=("r",) + tuple(f"r_d{k}" for k in range(1, order + 1)), group="",
+        columns=tuple(_column(_ref_column(k), _derivative(unit0, k)) for k in range(order + 1))))
+    # the view's quantities under the full state's column names (e_pendulum_rad)
+    viewed = (tuple(full[list(state_names).index(v)] for v in view)
+              if full and all(v in state_names for v in view) else labels.states)
+    return [_with_columns(spec, labels, viewed, bool(full), diagnostics) for spec in specs]
+
+
+def _with_columns(spec: SeriesSpec, labels: PlantLabels, viewed: Sequence[Quantity], full: bool,
+                  diagnostics: Sequence[Diagnostic]) -> SeriesSpec:
+    """``spec`` with its exported columns: the runner's series by the domain's names, a
+    diagnostic by its label and unit; a copy of another entity's series left out."""
+    if spec.columns:
+        return spec
+    units = {label: diag.unit for diag in diagnostics for label in diag.column_labels}
+    x_n_unit = derivative_unit(labels.states[-1].unit) if labels.states else ""
+    views = {f"x{i + 1}": q for i, q in enumerate(viewed)}
+    columns = []
+    for key, name in zip(spec.lookup, spec.names):
+        if key == "r" or key.endswith("_steady"):
+            columns.append("")          # series/reference and series/error hold them
+        elif key in views:
+            # the state's own entity holds it when the full state is recorded
+            columns.append("" if full else views[key].column_name())
+        elif key.startswith("e_") and key[2:].isdigit() and int(key[2:]) <= len(viewed):
+            q = viewed[int(key[2:]) - 1]
+            columns.append(q.column_name("e_" + (q.column or name_slug(q.symbol))))
+        elif key == "u":
+            columns.append(labels.control.column_name())
+        elif key == "d":
+            columns.append(labels.disturbance.column_name())
+        elif key == COMPENSATOR_SHARE:
+            columns.append(_column("u_s_share", labels.control.unit))
+        elif spec.log10:
+            columns.append(name_slug(f"log10 {key}"))
+        else:
+            unit = x_n_unit if key == COMPENSATOR_OUTPUT else units.get(key, "")
+            unit = (units.get(key) or labels.control.unit) if spec.entity == "series/control" else unit
+            columns.append(_column(key, unit))
+    return replace(spec, columns=tuple(columns))
+
+
+def specs_of(info: "RunInfo") -> list[SeriesSpec]:
+    """:func:`series_specs` of a run (its plant, full state, view and diagnostics)."""
+    return series_specs(info.order, info.extras, info.diagnostics, info.plant_kind,
+                        state_names=info.state_names, state_units=info.state_units, view=info.view)
+
+
+def export_columns(specs: Sequence[SeriesSpec], view: Sequence[str] = ()) -> list[tuple[str, str, int]]:
+    """``(column, entity, instance)`` of every exported series, in the table's order: the
+    view's states, the reference and its derivatives, u, d, the rest of the full state,
+    then the errors, the controller's series and the extras."""
+    first = [f"series/state/{name}" for name in view] + ["series/reference", "series/control",
+                                                           "series/disturbance"]
+    rank = {entity: i for i, entity in enumerate(first)}
+    ordered = sorted(enumerate(specs), key=lambda item: (
+        rank.get(item[1].entity, len(first) + (0 if item[1].entity.startswith("series/state/") else 1)),
+        item[0]))
+    out: list[tuple[str, str, int]] = []
+    for _, spec in ordered:
+        for j, column in enumerate(spec.columns):
+            if column:
+                out.append((column, spec.entity, j))
+    return out
 
 
 def _entity_name(key: str, panels: dict[str, _Panel]) -> str:

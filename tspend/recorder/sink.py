@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 import weakref
 from typing import Literal, Sequence
@@ -18,7 +19,7 @@ from tspend.recorder.common import BMF_WIDTH, PALETTE, Color, join_path, prefix_
 from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
     status_markdown)
 from tspend.recorder.fuzzy_axes import axis_parts, term_label_positions
-from tspend.recorder.series import STEADY_FROM, SeriesSpec, series_specs
+from tspend.recorder.series import END_ENTITY, STEADY_FROM, SeriesSpec, export_columns, specs_of
 from tspend.recorder.stream import close_recording, flush
 
 
@@ -164,6 +165,9 @@ class RerunSink:
         self._frame_rows = 0
         self._last_flush = time.monotonic()
         self._last_t = 0.0
+        self._last_output: float | None = None
+        #: each series entity's finite data range so far (the views' y ranges at the end)
+        self._extent: dict[str, tuple[float, float]] = {}
 
     # -- helpers
 
@@ -185,13 +189,14 @@ class RerunSink:
             return
         self._snaps = _SnapshotBuffer()
         self._sent_curves = {}
+        self._extent = {}
         self._intervals = {f"{group}/in{j}": (inp.lo, inp.hi)
                            for group, inputs in (("model", info.model_inputs),
                                                  ("compensator", info.compensator_inputs))
                            for j, inp in enumerate(inputs)}
         self._frames, self._frame_rows = [], 0
         self._last_flush, self._last_t = time.monotonic(), 0.0
-        self._specs = series_specs(info.order, info.extras, info.diagnostics, info.plant_kind)
+        self._specs = specs_of(info)
         self._frame_every = max(1, int(round(1.0 / (self.frame_hz * info.dt)))) if info.dt > 0 else 1
         if info.model_inputs or info.compensator_inputs:
             check_tensor_type()  # before anything is written: a newer SDK may have changed TensorData
@@ -205,10 +210,16 @@ class RerunSink:
             # recording names its columns as RunResult.to_pandas() does
             self.rec.log(self._path(spec.entity), rr.AnyValues(series_keys=[
                 f"log10 {k}" if spec.log10 else k for k in spec.lookup]), static=True)
+        # what `tspend export` writes: each column's name (unit at the end) and where it is
+        columns = export_columns(self._specs, info.view)
+        self.rec.log(self._path("info/columns"), rr.AnyValues(
+            columns=[c for c, _, _ in columns], entities=[self._path(e) for _, e, _ in columns],
+            instances=[j for _, _, j in columns]), static=True)
         self._log_fuzzy_styles(info)
         self._drawing = info.drawing
         if self._drawing is not None:
             self._drawing.log_static(self.rec, self._path("world"), self._color)
+            self._drawing.log_bounds(self.rec, self._path("world"), info.bounds, self._color)
             # drawn before the first block arrives
             self._drawing.log_frames(self.rec, self._path("world"), time_column([0.0]),
                                      np.zeros((1, info.order)), {})
@@ -226,6 +237,7 @@ class RerunSink:
         t = np.asarray(data["t"], dtype=np.float64)
         if t.size:
             self._last_t = float(t[-1])
+            self._last_output = float(data["x"][-1, 0]) if data["x"].shape[1] else None
             self._send_series(block.start, data, t)
             if self._drawing is not None:
                 self._buffer_frames(block.start, data, t)
@@ -249,10 +261,30 @@ class RerunSink:
         self.rec.log(self._path("info/metrics"), rr.TextDocument(metrics_markdown(end.metrics), media_type=md),
                      static=True)
         if end.status != "completed":
-            level = "WARN" if end.status == "interrupted" else "ERROR"
-            self.rec.send_columns(self._path("events"), indexes=[time_column([self._last_t])],
-                                  columns=rr.TextLog.columns(text=[f"{end.status}: {end.message}"], level=[level]))
+            self._mark_end(end)
+        if self.blueprint_prefixes == [self.prefix] and self.info is not None:
+            # the layout again, each view's y range set from the data so that it keeps its
+            # tick labels (labelled_range); the last blueprint sent is the one shown
+            self.rec.send_blueprint(build_blueprint(self.info, self.blueprint_prefixes,
+                                                    y_ranges=dict(self._extent)))
         flush(self.rec)
+
+    def _mark_end(self, end: RunEnd) -> None:
+        """A run that did not complete, marked where it ended: a ``TextLog`` on ``events``,
+        a cross on the tracking view at the last sample (``series/end``, named with the
+        reason) and the reason in the 3D view from that time on."""
+        level = "WARN" if end.status == "interrupted" else "ERROR"
+        when = time_column([self._last_t])
+        self.rec.send_columns(self._path("events"), indexes=[when],
+                              columns=rr.TextLog.columns(text=[f"{end.status}: {end.message}"], level=[level]))
+        if self._last_output is not None:
+            self.rec.log(self._path(END_ENTITY), rr.SeriesPoints(
+                names=[self._series_name(f"{end.status} at t = {self._last_t:.2f} s")], colors=[(214, 39, 40)],
+                markers=["cross"], marker_sizes=[8.0]), static=True)
+            self.rec.send_columns(self._path(END_ENTITY), indexes=[when],
+                                  columns=rr.Scalars.columns(scalars=[self._last_output]))
+        if self._drawing is not None:
+            self._drawing.log_end(self.rec, self._path("world"), when, end.message or end.status)
 
     def close(self) -> None:
         """Flush and close the recording's sinks (finalises the ``.rrd`` footer).
@@ -279,6 +311,10 @@ class RerunSink:
             except KeyError:
                 continue  # e.g. an extra the plant did not report in this block
             values = np.ascontiguousarray(values[picked])
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                lo, hi = self._extent.get(spec.entity, (math.inf, -math.inf))
+                self._extent[spec.entity] = (min(lo, float(finite.min())), max(hi, float(finite.max())))
             self.rec.send_columns(self._path(spec.entity), indexes=[index if index is not None else time_column(t[picked])],
                                   columns=rr.Scalars.columns(scalars=values[:, 0] if values.shape[1] == 1 else values))
 
@@ -404,6 +440,11 @@ class RerunSink:
         self.rec.log(self._path("info/scenario"), rr.TextDocument(scenario_markdown(info), media_type=md),
                      static=True)
         self.rec.log(self._path("info/run"), rr.TextDocument(run_markdown(info), media_type=md), static=True)
+        # the run's identity, for tools reading the recording (tspend export's metadata)
+        self.rec.log(self._path("info/run"), rr.AnyValues(
+            scenario=info.scenario_name, seed=int(info.seed), controller=info.controller_kind,
+            plant_kind=info.plant_kind, version=info.version, dt_s=float(info.dt),
+            duration_s=float(info.duration)), static=True)
 
     def _log_fuzzy_styles(self, info: RunInfo) -> None:
         for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):

@@ -1,11 +1,11 @@
-"""A run's time series as a pandas table, one column per series, indexed by time ``t`` (s).
+"""A run's time series as a pandas table.
 
-Two sources, one naming: :func:`history_frame` for a run kept in memory
-(``RunResult.to_pandas()``) and :func:`recording_frame` for an ``.rrd`` file
-(``tspend export``).  A column is named as the recording names the series (``r``,
-``x1``, ``e_1``, ``u``, ``d``, each diagnostic's labels such as ``u_s``, ``b_hat``), so
-a run and its recording give the same columns where both have them.  The history has
-more: every state (``x1 .. xn``) and the reference's derivatives (``r_d1 .. r_dn``).
+Two readers: :func:`recording_table` for an ``.rrd`` file as ``tspend export`` writes it,
+``t_s`` then the domain's names with the unit at the end (``theta_rad``,
+``theta_dot_rad_s``, ``ref_rad``, ``ref_dot_rad_s``, ``u_N``, ``d_N``, ``cart_x_m`` ...,
+listed by the recorder in ``info/columns``), and :func:`history_frame` for a run kept in
+memory (``RunResult.to_pandas()``), indexed by ``t`` and named by the series' stable keys
+(``x1``, ``r``, ``r_d1``, ``e_1``, ``u``, ``d``, each diagnostic's labels, the extras).
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ from typing import Sequence
 import numpy as np
 
 from tspend.controllers.base import Diagnostic
+
+
+__all__ = ["RUN_KEYS", "history_frame", "recording_table", "with_units"]
 
 
 def _unique(names: list[str], qualifiers: list[str]) -> list[str]:
@@ -87,51 +90,80 @@ def with_units(frame, state_units: Sequence[str], control_unit: str,
     return out
 
 
-def recording_frame(path: str | os.PathLike[str]):
-    """Every scalar series of the recording at ``path`` (``series/...`` entities and any
-    other ``Scalars``), joined on ``sim_time``; a time an entity lacks is NaN."""
-    import pandas as pd
+def _static_values(path: str | os.PathLike[str], suffix: str,
+                   names: Sequence[str]) -> dict[str, dict[str, list]]:
+    """The static ``AnyValues`` ``names`` logged at every entity ending in ``suffix``, by
+    the entity's prefix ("" for a single run, "mujoco" ...)."""
     from rerun.chunk import RrdReader
+
+    found: dict[str, dict[str, list]] = {}
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        for chunk in RrdReader(path).stream().filter(is_static=True, components=list(names)).to_chunks():
+            entity = chunk.entity_path.strip("/")
+            if not (entity == suffix or entity.endswith("/" + suffix)):
+                continue
+            batch = chunk.to_record_batch()
+            values = found.setdefault(entity[: -len(suffix)].strip("/"), {})
+            for name in names:
+                if name in batch.schema.names:
+                    rows = batch.column(batch.schema.get_field_index(name)).to_pylist()
+                    if rows:
+                        values[name] = rows[-1]
+    return found
+
+
+#: the run's identity a recording holds (``info/run``), copied into an export's metadata
+RUN_KEYS = ("scenario", "seed", "controller", "plant_kind", "version", "dt_s", "duration_s")
+
+
+def _first(value):
+    return value[0] if isinstance(value, list) and len(value) == 1 else value
+
+
+def recording_table(path: str | os.PathLike[str]):
+    """``(table, metadata)`` of the recording at ``path``, as ``tspend export`` writes it.
+
+    ``table`` has the column ``t_s`` then one column per series the recorder listed in
+    ``info/columns`` (:func:`tspend.recorder.series.export_columns`): named by the
+    plant's domain with the unit at the end (``theta_rad``, ``theta_dot_rad_s``,
+    ``ref_rad``, ``u_N``, ``cart_x_m``), each value as recorded; a time a series lacks
+    is NaN.  With several runs in one recording (a cross-check) each column starts with
+    its run's prefix (``mujoco_theta_rad``).  ``metadata``: each run's scenario, seed,
+    controller, plant kind, version, dt and duration (by prefix, "" for a single run).
+    Raises ValueError for a recording that lists no columns (made before they were
+    listed, or not a run's).
+    """
+    import pandas as pd
 
     from tspend.recorder.readback import read_scalar_series
 
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*no footer.*")
-        found: dict[str, list[str] | None] = {}
-        keys: dict[str, list[str]] = {}
-        for chunk in RrdReader(path).stream().filter(
-                components=["Scalars:scalars", "SeriesLines:names", "series_keys"]).to_chunks():
-            batch = chunk.to_record_batch()
-            entity = chunk.entity_path
-            if "series_keys" in batch.schema.names:  # the stable names (x1, e_1, ...)
-                rows = batch.column(batch.schema.get_field_index("series_keys")).to_pylist()
-                if rows and rows[-1]:
-                    keys[entity] = [str(n) for n in rows[-1]]
-                    found.setdefault(entity, None)
-            if "SeriesLines:names" in batch.schema.names:
-                rows = batch.column(batch.schema.get_field_index("SeriesLines:names")).to_pylist()
-                if rows and rows[-1]:
-                    found[entity] = [str(n) for n in rows[-1]]
-            if "Scalars:scalars" in batch.schema.names:
-                found.setdefault(entity, None)
-    frames, names, qualifiers = [], [], []
-    for entity, labels in found.items():
-        labels = keys.get(entity, labels)
-        try:
-            t, values = read_scalar_series(path, entity)
-        except KeyError:  # names without any data (a run that stopped at once)
-            continue
-        values = values[:, None] if values.ndim == 1 else values
-        if labels is None or len(labels) != values.shape[1]:
-            leaf = entity.strip("/").split("/")[-1]
-            labels = [leaf] if values.shape[1] == 1 else [f"{leaf}_{j}" for j in
-                                                          range(values.shape[1])]
-        frame = pd.DataFrame(values, index=pd.Index(t, name="t"))
-        frames.append(frame)
-        names += labels
-        qualifiers += [entity.strip("/")] * len(labels)
-    if not frames:
-        raise ValueError(f"{path}: no scalar time series in this recording")
-    table = pd.concat(frames, axis=1, join="outer").sort_index()
-    table.columns = _unique(names, qualifiers)
-    return table
+    listed = _static_values(path, "info/columns", ("columns", "entities", "instances"))
+    runs = _static_values(path, "info/run", RUN_KEYS)
+    if not listed:
+        raise ValueError("the recording lists no exported columns (info/columns): it was "
+                         "made by an older tspend or is not a run's recording")
+    cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    series: dict[str, "pd.Series"] = {}
+    several = len(listed) > 1
+    for prefix in sorted(listed):
+        spec = listed[prefix]
+        for column, entity, instance in zip(spec.get("columns", []), spec.get("entities", []),
+                                            spec.get("instances", [])):
+            if entity not in cache:
+                try:
+                    t, values = read_scalar_series(path, entity)
+                except KeyError:  # listed but never sent (a run that stopped at once)
+                    continue
+                t_ns = np.rint(t * 1e9).astype(np.int64)
+                cache[entity] = (t_ns, values[:, None] if values.ndim == 1 else values)
+            t_ns, values = cache[entity]
+            name = f"{prefix.replace('/', '_')}_{column}" if several else column
+            series[name] = pd.Series(values[:, int(instance)], index=t_ns)
+    if not series:
+        raise ValueError("no time series in this recording")
+    table = pd.concat(series, axis=1, join="outer").sort_index()
+    table.insert(0, "t_s", table.index.to_numpy() * 1e-9)
+    table = table.reset_index(drop=True)
+    metadata = {prefix: {k: _first(v) for k, v in values.items()} for prefix, values in runs.items()}
+    return table, metadata
