@@ -12,9 +12,8 @@ simulated one, not a copy.
 
 Derived, each documented as such:
 
-* the linearisation ``s' ~ A (s - s*) + B (u - u*)`` at the upright (``s* = 0``,
-  ``u* = 0``) by central differences with step ``h = 1e-6`` (the same rule as
-  :mod:`.plant_model`), or exactly from the symbolic equations when CasADi is there;
+* (the linearisation at the upright is the domain's own exact Jacobian,
+  :meth:`tspend.plants.domain.Domain.linearisation`, as :func:`tspend.linearize` gives it);
 * the input's affine map ``q'' = q''(s, 0) + u dq''/du`` (the domains' inputs are
   forces or voltages entering linearly: checked at build time);
 * the pendulum's energy about its pivot (swing-up):
@@ -36,14 +35,11 @@ from tspend.errors import ScenarioError
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
-__all__ = ["FullModel", "full_model", "has_full_state", "wrap_angle", "FD_STEP",
+__all__ = ["FullModel", "full_model", "has_full_state", "wrap_angle",
            "FULL_STATE_DOMAINS"]
 
 #: the domains whose full-state model this module builds
 FULL_STATE_DOMAINS = ("cartpole", "furuta")
-
-#: step of the central differences (see the module docstring)
-FD_STEP = 1e-6
 
 
 @register_jitable
@@ -110,22 +106,6 @@ class FullModel:
             return casadi.vertcat(s[self.dof:], *qdd)
 
         return f
-
-    def linearisation(self, s_op: np.ndarray | None = None,
-                      u_op: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """``(A, B)`` at ``(s*, u*)`` (default the upright at rest) by central differences."""
-        s0 = np.zeros(self.size) if s_op is None else np.asarray(s_op, dtype=float)
-        N = self.size
-        A = np.empty((N, N))
-        for i in range(N):
-            h = FD_STEP * (1.0 + abs(s0[i]))
-            sp, sm = s0.copy(), s0.copy()
-            sp[i] += h
-            sm[i] -= h
-            A[:, i] = (self.rhs(sp, u_op) - self.rhs(sm, u_op)) / (2.0 * h)
-        h = FD_STEP * (1.0 + abs(u_op))
-        B = ((self.rhs(s0, u_op + h) - self.rhs(s0, u_op - h)) / (2.0 * h))[:, None]
-        return A, B
 
     def input_map(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(q''(s, 0), dq''/du)``: the accelerations are affine in ``u``."""

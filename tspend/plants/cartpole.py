@@ -21,7 +21,7 @@ from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
 from tspend.plants.base import JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, gain_sign, machine_accelerations, machine_rhs, rhs)
+    accelerations, gain_sign, linearize, machine_accelerations, machine_rhs, rhs)
 from tspend.plants.domain import Backend, Domain, Drawing, PlantLabels, PlantModel, Quantity
 
 if TYPE_CHECKING:
@@ -414,6 +414,18 @@ class CartPoleDomain(Domain):
         # reaching phase from theta(0) = pi/30
         return PlantModel(scenario.plant.kind, 2, accel_fn(self.params_of_scenario(scenario)),
                           affine_in_u=True, x_op=(0.0, 0.0), switching_gain=0.5)
+
+    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+        """The nominal machine's exact ``(A, B)`` at the upright at rest
+        (:func:`~tspend.plants.cartpole_physics.linearize`)."""
+        return linearize(self.params_of_scenario(scenario))
+
+    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """:func:`~tspend.plants.cartpole_physics.linearize` at rest (the cart's position
+        does not enter (C1)-(C2)); None elsewhere."""
+        if np.any(at[2:] != 0.0):
+            return None
+        return linearize(plant.params, theta=float(at[1]))  # type: ignore[attr-defined]
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
         params: CartPoleParams = plant.params  # type: ignore[attr-defined]

@@ -29,7 +29,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
-           "gain_sign", "machine_accelerations", "machine_rhs", "rhs"]
+           "gain_sign", "linearize", "machine_accelerations", "machine_rhs", "rhs"]
 
 
 #: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
@@ -149,6 +149,59 @@ def gain_sign(p: CartPoleParams) -> float:
     """Sign of d(theta'')/du at the upright, at rest: Assumption 5's sign."""
     return math.copysign(1.0, accelerations(p, 0.0, 0.0, 0.0, 1.0, 0.0)[0]
                          - accelerations(p, 0.0, 0.0, 0.0, 0.0, 0.0)[0])
+
+
+def linearize(p: CartPoleParams | CartPoleMachine, theta: float = 0.0,
+              u: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time ``A, B`` of (C1)-(C2) at rest at pole angle ``theta``, input ``u``.
+
+    The exact Jacobian: at rest every velocity-product term and its first derivative
+    vanish, so with ``det = (M + m) J - b^2``, ``b = m l cos(theta)``,
+    ``theta''_p = ((M + m) Q_theta + b Q_x) / det`` and ``x'' = (J Q_x + b Q_theta) / det``
+    each column is the quotient rule on the generalised forces' slopes (the smooth dry
+    friction's is ``F / v_s`` at rest).  ``theta = 0`` is the upright.
+
+    Returns
+    -------
+    A : (4, 4) array
+        over ``[x, theta, x', theta']`` (the MJCF's ``slider, hinge, slider_dot,
+        hinge_dot``).
+    B : (4, 1) array
+        per unit of u.
+    """
+    mc = p if isinstance(p, CartPoleMachine) else p.machine()
+    s_th = mc.theta_sign
+    th = s_th * theta
+    sn, cs = math.sin(th), math.cos(th)
+    ml, mm, J = mc.m * mc.l, mc.M + mc.m, mc.J
+    b = ml * cs
+    det = mm * J - b * b
+    q_x = mc.gear * u                       # at rest: no friction, no centripetal term
+    q_th = ml * mc.g * sn
+    thdd = (mm * q_th + b * q_x) / det      # the paper's angle
+    xdd = (J * q_x + b * q_th) / det
+    # slopes in the paper's angle th = s_th theta, then back to the model's
+    db = -ml * sn
+    ddet = -2.0 * b * db
+    dq_th = ml * mc.g * cs
+    dthdd_dth = (mm * dq_th + db * q_x - thdd * ddet) / det
+    dxdd_dth = (db * q_th + b * dq_th - xdd * ddet) / det
+    dq_x_dv = -mc.cart_damping - (mc.cart_friction / DRY_FRICTION_SLIP if mc.cart_friction > 0.0 else 0.0)
+    dq_model_dw = -mc.hinge_damping - (mc.hinge_friction / DRY_FRICTION_SLIP
+                                       if mc.hinge_friction > 0.0 else 0.0)
+    dq_th_dw = s_th * dq_model_dw           # Q_theta's slope in the model's angular rate
+    A = np.zeros((4, 4))
+    A[0, 2] = A[1, 3] = 1.0
+    # x'' row: d/dtheta = d/dth * s_th; d/dx' via Q_x; d/dw via Q_theta
+    A[2, 1] = dxdd_dth * s_th
+    A[2, 2] = J * dq_x_dv / det
+    A[2, 3] = b * dq_th_dw / det
+    # theta'' = s_th theta''_p
+    A[3, 1] = s_th * dthdd_dth * s_th
+    A[3, 2] = s_th * b * dq_x_dv / det
+    A[3, 3] = s_th * mm * dq_th_dw / det
+    B = np.array([[0.0], [0.0], [J * mc.gear / det], [s_th * b * mc.gear / det]])
+    return A, B
 
 
 def rhs(p: CartPoleParams | CartPoleMachine, s: np.ndarray, u: float, d: float) -> np.ndarray:
