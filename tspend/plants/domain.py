@@ -8,7 +8,7 @@ model-based controllers assume (:class:`PlantModel`), the drawing for Rerun
 (:class:`TaskDefaults`) and the scenario configuration class of each plant kind.
 :mod:`tspend.plants.registry` maps plant kinds and domain names to domains; the runner,
 recorder, cross-check, effects and controllers ask the domain and name no concrete plant.
-docs/architecture.md walks through writing one.
+docs/writing-a-plant.md walks through writing one.
 """
 
 from __future__ import annotations
