@@ -119,3 +119,17 @@ def test_missing_python_control_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "control", None)  # import control -> ImportError
     with pytest.raises(ScenarioError, match=r"tspend\[control\]"):
         tspend.linearize("ex3_pendulum_ode")
+
+
+@pytest.mark.parametrize("scenario", ["pendulum_mujoco", "furuta_mujoco"])
+def test_lqr_full_design_is_lqr_on_the_linearisation(scenario):
+    # the kind designs on the domain's exact Jacobian; on these models (no friction) it is
+    # MuJoCo's own linearisation, and its gain is control.lqr on the StateSpace
+    from tspend.controllers import build
+
+    ctrl = build(load_scenario(scenario), "lqr")
+    sys_ = tspend.linearize(scenario)
+    np.testing.assert_allclose(ctrl.A, sys_.A, atol=1e-9 * np.abs(sys_.A).max())
+    np.testing.assert_allclose(ctrl.B, sys_.B, atol=1e-9 * np.abs(sys_.B).max())
+    K, _, _ = control.lqr(sys_, ctrl.Q, ctrl.R)
+    np.testing.assert_allclose(ctrl.K, np.ravel(K), rtol=1e-6)

@@ -42,7 +42,7 @@ reference is met only on average (the Nbar of the pole angle is infinite).
 Full-state defaults: ``Q = diag(1, 100, 1, 10)`` (the actuated joint's position and
 velocity, the pole's angle and rate), ``R = b_th^2``: prices the pole's angular
 acceleration the input produces, as the view design prices ``b u``.  On the paper's
-machine the poles are ``-4.74, -2.76, -0.77 +/- 0.38j``; the cart swings +/- 1.4 m
+machine the poles are ``-4.77, -2.76, -0.77 +/- 0.38j``; the cart swings +/- 1.4 m
 around the rail's centre tracking ``(pi/30) sin t``.
 
 Defaults (:class:`LQRSettings`): ``Q = diag(10^n, .., 100, 10)`` weighs each error
@@ -313,10 +313,10 @@ def reference_omega_of(scenario: "Scenario") -> float:
 
 
 def design_model(scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of the full design: the exact Jacobian at the upright of the nominal
-    machine the model-based kinds assume, the one :func:`tspend.linearize` gives for the
-    scenario's analytic twin (the domain's ``linearisation``; the cart-pole's leaves out
-    the friction a rig adds, whose slope at rest is not a linear model of it)."""
+    """``(A, B)`` of the full design: the domain's exact Jacobian at the upright
+    (``Domain.linearisation``), the function :func:`tspend.linearize` uses on an analytic
+    plant, applied to the nominal machine the model-based kinds assume (the cart-pole's
+    leaves out the friction a rig adds: its slope at rest is no linear model of it)."""
     from tspend.plants.registry import domain_of
 
     AB = domain_of(scenario.plant.kind).linearisation(scenario)
