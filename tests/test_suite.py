@@ -70,6 +70,11 @@ def test_every_kind_runs_on_every_domain(plant_kind: str, controller: str, tmp_p
         with pytest.raises(ScenarioError):
             build_controller(scn, kind=controller)
         return
+    # a learned policy runs only where the scenario names one ([controllers.policy] path)
+    if controller == "policy" and "policy" not in dict(scn.controllers):
+        with pytest.raises(ScenarioError, match="controllers.policy.path: not set"):
+            build_controller(scn, kind=controller)
+        return
     path = tmp_path / "run.rrd"
     rec = open_recording("suite", mode="save", path=path)
     sink = RerunSink(rec)

@@ -109,6 +109,10 @@ def test_every_kind_declares_a_search_space_that_builds():
     scn = load_scenario("ex3_pendulum_ode")
     for kind in KINDS:
         space = search_space(kind)
+        if kind == "policy":
+            # a learned policy's numbers are its weights: benchmarks/train_policy.py trains them
+            assert space == {}
+            continue
         assert space, kind
         mid = {k: (s.low * s.high) ** 0.5 if s.log else (s.low + s.high) / 2
                for k, s in space.items()}

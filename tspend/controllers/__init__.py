@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
 from tspend.controllers import mpc
+from tspend.controllers import policy
 from tspend.controllers.base import Controller, Diagnostic
 from tspend.controllers.settings import KindSettings
 from tspend.errors import ScenarioError
@@ -60,6 +61,7 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "wang_indirect": wang_indirect.build,
     "swingup": swingup.build,
     "mpc": mpc.build,
+    "policy": policy.build,
 }
 
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
@@ -71,6 +73,7 @@ SETTINGS: dict[str, type] = {
     "wang_indirect": wang_indirect.WangSettings,
     "swingup": swingup.SwingUpSettings,
     "mpc": mpc.MPCSettings,
+    "policy": policy.PolicySettings,
 }
 
 

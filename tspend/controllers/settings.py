@@ -46,7 +46,7 @@ class KindSettings:
 def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
             strict: bool = False, length: str | None = None,
             choices: tuple[str, ...] = (), name: str | None = None) -> Any:
-    """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``,
+    """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``, ``string``,
     ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``list`` (numbers, any length), ``matrix`` (n x n, symmetric positive
     definite) or ``sets`` (n tables ``{terms, lo, hi}``); ``name`` is the key in the
     file when the field's name cannot be it (``lambda``)."""
@@ -87,6 +87,8 @@ def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
         return values
     if kind == "sets":
         return r.set_specs(key, n, min_terms=2)
+    if kind == "string":
+        return r.string(key)
     raise AssertionError(f"unknown setting kind {kind!r}")
 
 

@@ -1,0 +1,411 @@
+"""tspend's scenarios as gymnasium environments (docs/gym.md).
+
+``import tspend.gym`` registers every scenario in the project's ``scenarios/`` (and in
+``./scenarios``) as ``tspend/<scenario>-v0``::
+
+    import gymnasium, tspend.gym
+    env = gymnasium.make("tspend/pendulum_mujoco-v0", control_period=0.02)
+
+:class:`TspendEnv` is a thin layer on the machinery a run uses
+(:mod:`tspend.loop.simulation`): the scenario's plant with its real-world effects
+(``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
+its disturbance and its measurement effects (:class:`tspend.plants.effects.Measurement`).
+Nothing here integrates anything: each env step holds the action (zero-order hold) over
+``frame_skip`` physics steps of ``plant.step(u, d, run.dt)``, exactly as the runner's
+sampled loop does.
+
+Observation (:attr:`TspendEnv.observation_names`, :attr:`TspendEnv.observation_units`):
+the plant's full named state (positions, then velocities, the task's view entries as the
+controller measures them) followed by the reference and its derivatives
+``r, r', .., r^(n)`` at the sample time (n: the task view's length).  Action: the
+actuator's force (or torque, voltage), a Box with the actuator's bounds (tightened by
+``effects.saturation``).  Reward per step, over the step's duration ``T``::
+
+    reward = T * (alive - sum_i tracking_i * e_i**2 - control * (u / u_scale)**2)
+
+with ``e = x_view - r[:n]`` (angles of revolute joints wrapped to (-pi, pi]) at the end
+of the step, ``u_scale`` the actuator's bound (1 when unbounded); :class:`RewardWeights`
+holds the defaults.  An episode terminates when the task ends the run (``fell``,
+``rail_end``, ``joint_limit``, ``state_bound``; ``diverged`` for a non-finite state or a
+plant failure: ``info["status"]``) and is truncated at the scenario's ``run.duration``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from tspend.controllers.base import Observation
+from tspend.errors import DivergenceError, ScenarioError, TspendError
+
+__all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "env_id", "register_all"]
+
+#: the namespace of the registered ids: ``tspend/<scenario>-v0``
+ENV_PREFIX = "tspend"
+
+
+class RenderError(TspendError):
+    """No frame can be drawn: no GL backend (set MUJOCO_GL=egl or osmesa), or a plant
+    without a MuJoCo model."""
+
+    exit_status = 2
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """The reward's weights (module docstring).
+
+    ``alive``: reward per second while the task runs (so that ending early never pays);
+    ``tracking``: weights on the squared errors of the view's entries, the output then its
+    derivatives (the output's unit^-2, ...); entries past the view's length are ignored,
+    missing ones are 0; ``control``: weight on ``(u / u_scale)**2``.
+    """
+
+    alive: float = 1.0
+    tracking: tuple[float, ...] = (100.0, 1.0, 0.0)
+    control: float = 1.0
+
+
+def env_id(scenario: str) -> str:
+    """The registered id of a scenario: ``tspend/<scenario>-v0``."""
+    return f"{ENV_PREFIX}/{scenario}-v0"
+
+
+class TspendEnv(gymnasium.Env):
+    """A tspend scenario as a gymnasium environment (module docstring; docs/gym.md).
+
+    Parameters
+    ----------
+    scenario : str or Path
+        A scenario name (``tspend list``) or a path to a ``.toml`` file.
+    seed : int, optional
+        The seed of the first :meth:`reset` when that call gives none (default: the
+        scenario's ``run.seed``).
+    control_period : float, optional
+        Seconds per env step (the action is held over it); a whole multiple of ``run.dt``.
+        Default: the scenario's ``run.control_period``, else ``run.dt``.
+    frame_skip : int, optional
+        Physics steps (of ``run.dt``) per env step; an alternative to ``control_period``.
+    render_mode : {None, "rgb_array"}
+        ``"rgb_array"``: :meth:`render` returns an (height, width, 3) uint8 frame drawn by
+        ``mujoco.Renderer`` (needs a GL backend: MUJOCO_GL=egl or osmesa).
+    overrides : dict, optional
+        Dotted scenario keys to values (``{"run.duration": 5.0}``), as ``tspend.run``.
+    reward : RewardWeights or dict, optional
+        The reward's weights (:class:`RewardWeights`).
+    init_noise : float or sequence of float
+        Each reset adds ``uniform(-init_noise, init_noise)`` (drawn from the env's
+        ``np_random``) to the scenario's ``plant.x0`` (the view's initial state); 0, the
+        default, starts every episode where a run starts.
+    width, height : int
+        The rendered frame's size (pixels).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(self, scenario: str | Path = "pendulum_mujoco", *, seed: int | None = None,
+                 control_period: float | None = None, frame_skip: int | None = None,
+                 render_mode: str | None = None, overrides: dict | None = None,
+                 reward: RewardWeights | dict | None = None,
+                 init_noise: float | tuple[float, ...] = 0.0,
+                 width: int = 640, height: int = 480) -> None:
+        from tspend.loop import simulation
+        from tspend.scenario import load_scenario, override
+
+        scn = load_scenario(scenario)
+        if overrides:
+            scn = override(scn, **dict(overrides))
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ScenarioError(f"render_mode {render_mode!r}: allowed: "
+                                f"{', '.join(self.metadata['render_modes'])} or None")
+        self.scenario = scn
+        self.render_mode = render_mode
+        self.width, self.height = int(width), int(height)
+        self.reward_weights = reward if isinstance(reward, RewardWeights) else \
+            RewardWeights(**dict(reward or {}))
+        self._first_seed = scn.run.seed if seed is None else int(seed)
+
+        self.dt = float(scn.run.dt)
+        self.frame_skip = self._frame_skip(control_period, frame_skip)
+        self.control_period = self.frame_skip * self.dt
+        self.metadata = {**self.metadata, "render_fps": max(1, round(1.0 / self.control_period))}
+        #: physics steps of a whole episode (the run's ``steps``)
+        self.horizon = simulation.steps_of(scn)
+
+        self.plant = simulation.build_plant(scn)
+        self.task = simulation.scenario_task(scn, self.plant)
+        self.order = len(self.task.view)
+        n, N = self.order, len(self.task.names)
+        x0 = np.asarray(scn.plant.x0, dtype=float)
+        noise = np.broadcast_to(np.asarray(init_noise, dtype=float), x0.shape) \
+            if np.ndim(init_noise) == 0 or np.size(init_noise) == x0.size else None
+        if noise is None or not np.all(np.isfinite(noise)) or np.any(noise < 0):
+            raise ScenarioError(f"init_noise {init_noise!r}: one number >= 0 or {x0.size} "
+                                f"(plant.x0's length)")
+        self.init_noise = np.array(noise, dtype=float)
+
+        refs = tuple("r" + "'" * k for k in range(n + 1))
+        view_units = [self.task.units[j] for j in self.task.view_index]
+        ref_units = [self._per_second(view_units[0], k) for k in range(n + 1)]
+        #: what each entry of an observation is, and its unit
+        self.observation_names: tuple[str, ...] = tuple(self.task.names) + refs
+        self.observation_units: tuple[str, ...] = tuple(self.task.units) + tuple(ref_units)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(N + n + 1,), dtype=np.float64)
+
+        lo, hi = simulation.machine_info(self.plant, self.task, scn).u_lo, \
+            simulation.machine_info(self.plant, self.task, scn).u_hi
+        self.action_space = spaces.Box(np.array([lo]), np.array([hi]), dtype=np.float64)
+        self.action_name = self.plant.inputs[0].name if self.plant.inputs else "u"
+        self.action_unit = (self.plant.inputs[0].unit if self.plant.inputs else "") or \
+            self._control_unit()
+        self.u_scale = hi if math.isfinite(hi) and hi > 0 else 1.0
+        self._tracking = np.zeros(n)
+        w = np.asarray(self.reward_weights.tracking, dtype=float)[:n]
+        self._tracking[:w.size] = w
+        hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
+        self._wraps = np.array([v in hinges for v in self.task.view], dtype=bool)
+
+        self._i = 0            # physics steps done in this episode
+        self._obs = np.zeros(N + n + 1)
+        self._hook = None
+        self._renderer: Any = None
+        self._camera: Any = None
+        self._seeded = False
+
+    # -- construction helpers -------------------------------------------------------
+    def _frame_skip(self, control_period: float | None, frame_skip: int | None) -> int:
+        if frame_skip is not None:
+            if control_period is not None:
+                raise ScenarioError("give control_period or frame_skip, not both")
+            if int(frame_skip) != frame_skip or frame_skip < 1:
+                raise ScenarioError(f"frame_skip {frame_skip!r}: must be an integer >= 1")
+            return int(frame_skip)
+        period = self.scenario.run.control_period if control_period is None else control_period
+        if not period:
+            return 1
+        every = int(round(period / self.dt))
+        if not (period > 0) or every < 1 or abs(every * self.dt - period) > 1e-9 * period:
+            raise ScenarioError(f"control_period {period!r} s: must be a whole multiple of "
+                                f"run.dt = {self.dt:g} s")
+        return every
+
+    @staticmethod
+    def _per_second(unit: str, k: int) -> str:
+        if k == 0 or not unit:
+            return unit if k == 0 else ("1/s" if k == 1 else f"1/s^{k}")
+        return f"{unit}/s" if k == 1 else f"{unit}/s^{k}"
+
+    def _control_unit(self) -> str:
+        from tspend.plants import registry
+
+        return registry.domain_of(self.scenario.plant.kind).labels.control.unit
+
+    # -- the gymnasium interface ------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode where a run starts (``plant.x0``, plus ``init_noise``).
+
+        ``seed`` seeds the env's ``np_random`` and is the run's seed of the episode (the
+        measurement effects' noise stream draws from it, as a run's does); without one,
+        the first reset uses the constructor's ``seed`` (default ``run.seed``) and later
+        ones a seed drawn from ``np_random``.
+        """
+        from tspend.loop import simulation
+        from tspend.plants.effects import Measurement, needs_hook, needs_plant_wrapper
+
+        if seed is None and not self._seeded:
+            seed = self._first_seed
+        super().reset(seed=seed)
+        if seed is None:
+            seed = int(self.np_random.integers(0, 2**31 - 1))
+        self._seeded = True
+        self.run_seed = int(seed)
+        scn = self.scenario
+        if needs_plant_wrapper(scn.effects):
+            # the effects keep their own state (rate limit, a scheduled change): start afresh
+            self.plant = simulation.build_plant(scn)
+            self._renderer = None
+        x0 = np.asarray(scn.plant.x0, dtype=float)
+        if np.any(self.init_noise > 0):
+            x0 = x0 + self.np_random.uniform(-self.init_noise, self.init_noise)
+        self.plant.reset(x0)
+        self._hook = Measurement(scn.effects, self.plant, self.dt, self.run_seed) \
+            if needs_hook(scn.effects) else None
+        self._i = 0
+        self._u = 0.0
+        self._obs = self._observe()
+        return self._obs.copy(), self._info("running", "")
+
+    def step(self, action):
+        """Hold ``action`` over ``frame_skip`` physics steps; the next observation, the
+        reward, terminated (the task ended the run or it diverged), truncated (the
+        scenario's duration reached) and info (``t``, ``status``, ``message``, ``u``)."""
+        u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0],
+                          self.action_space.low[0], self.action_space.high[0]))
+        self._u = u
+        i0 = self._i
+        k = min(self.frame_skip, self.horizon - i0)
+        t = (i0 + np.arange(max(k, 0))) * self.dt
+        dist = self.scenario.disturbance(t) if k > 0 else t
+        status, message = "running", ""
+        done = 0
+        for j in range(k):
+            try:
+                self.plant.step(u, float(dist[j]), self.dt)
+            except (ArithmeticError, ValueError, DivergenceError) as exc:
+                status, message = "diverged", f"the plant failed ({exc})"
+                break
+            done += 1
+            full = self.plant.full_state()
+            if not np.all(np.isfinite(full)):
+                status, message = "diverged", "the state is not finite"
+                break
+            if self.task.ended(full):
+                status, message = self.task.termination(full, (i0 + j + 1) * self.dt) or \
+                    ("diverged", "")
+                break
+        self._i = i0 + done
+        terminated = status != "running"
+        if terminated and status == "diverged":
+            # keep the last finite observation: gymnasium wants one in the space
+            obs = self._obs
+            reward = 0.0
+        else:
+            obs = self._observe()
+            reward = self._reward(obs, u, done * self.dt)
+        self._obs = obs
+        truncated = not terminated and self._i >= self.horizon
+        if truncated:
+            status = "completed"
+        return obs.copy(), float(reward), terminated, truncated, self._info(status, message)
+
+    def render(self):
+        """The scene as an (height, width, 3) uint8 array (``render_mode="rgb_array"``)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass "
+                                  "render_mode='rgb_array' to gymnasium.make")
+            return None
+        renderer = self._open_renderer()
+        data = self._mj_data()
+        # follow the machine along its rail: the camera looks at its base body
+        self._camera.lookat[:] = data.xpos[self._root_body] + self._look_offset
+        renderer.update_scene(data, camera=self._camera)
+        return renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # -- for controllers and tests ---------------------------------------------------
+    @property
+    def t(self) -> float:
+        """The time of the current sample (s)."""
+        return self._i * self.dt
+
+    def controller_observation(self, obs: np.ndarray | None = None) -> Observation:
+        """The :class:`~tspend.controllers.base.Observation` a controller gets for the env's
+        observation ``obs`` (default: the current one), as the runner would build it."""
+        obs = self._obs if obs is None else np.asarray(obs, dtype=float)
+        N = len(self.task.names)
+        state = obs[:N]
+        return Observation(self.t, state, state[self.task.view_index].copy(), obs[N:],
+                           self.task.names)
+
+    def layout(self) -> list[tuple[str, str]]:
+        """``(name, unit)`` of each observation entry."""
+        return list(zip(self.observation_names, self.observation_units))
+
+    # -- internals ---------------------------------------------------------------------
+    def _observe(self) -> np.ndarray:
+        full = self.plant.full_state()
+        t = self._i * self.dt
+        ref = self.scenario.reference.derivatives(np.array([t]), self.order)[0]
+        if self._hook is not None:
+            # the runner's per-sample hook: the view as measured; it may shape ref in place
+            x = full[self.task.view_index]
+            full[self.task.view_index] = self._hook(t, x, ref)
+        return np.concatenate((full, ref))
+
+    def _reward(self, obs: np.ndarray, u: float, seconds: float) -> float:
+        N, n = len(self.task.names), self.order
+        e = obs[:N][self.task.view_index] - obs[N:N + n]
+        if self._wraps.any():
+            e[self._wraps] = np.mod(e[self._wraps] + np.pi, 2 * np.pi) - np.pi
+        w = self.reward_weights
+        cost = float(self._tracking @ (e * e)) + w.control * (u / self.u_scale) ** 2
+        return seconds * (w.alive - cost)
+
+    def _info(self, status: str, message: str) -> dict[str, Any]:
+        return {"t": self.t, "status": status, "message": message, "u": self._u}
+
+    def _mj_data(self) -> Any:
+        data = getattr(self.plant, "data", None)  # EffectsPlant forwards to the MuJoCo plant
+        if data is None:
+            raise RenderError(f"scenario {self.scenario.name}: plant {self.plant.name} has "
+                              f"no MuJoCo model to render (render a *_mujoco scenario)")
+        return data
+
+    def _open_renderer(self) -> Any:
+        import mujoco
+
+        data = self._mj_data()
+        model = self.plant.model
+        if self._renderer is None:
+            try:
+                self._renderer = mujoco.Renderer(model, self.height, self.width)
+            except Exception as exc:  # no GL context: mujoco raises several kinds
+                raise RenderError(f"cannot render: no OpenGL backend ({type(exc).__name__}: "
+                                  f"{exc}); set MUJOCO_GL=egl (GPU or Mesa's EGL) or "
+                                  f"MUJOCO_GL=osmesa") from None
+            # frame the moving machine, not the world (the cart-pole's rail is 60 m long):
+            # the bodies below the first joint's body, their geoms' bounding spheres
+            root = int(model.jnt_bodyid[0]) if model.njnt else 0
+            below = {root} | {b for b in range(model.nbody) if self._descends(model, b, root)}
+            geoms = [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in below]
+            base = data.xpos[root]
+            lo = min((data.geom_xpos[g] - model.geom_rbound[g] for g in geoms),
+                     key=lambda v: v[2], default=base)
+            hi = max((data.geom_xpos[g] + model.geom_rbound[g] for g in geoms),
+                     key=lambda v: v[2], default=base)
+            radius = max([float(np.linalg.norm(data.geom_xpos[g] - base) + model.geom_rbound[g])
+                          for g in geoms] or [1.0])
+            cam = mujoco.MjvCamera()
+            mujoco.mjv_defaultFreeCamera(model, cam)
+            cam.distance = 2.2 * radius
+            cam.azimuth, cam.elevation = 90.0, -8.0
+            self._camera = cam
+            self._root_body = root
+            self._look_offset = np.array([0.0, 0.0, 0.5 * (lo[2] + hi[2]) - base[2]])
+        return self._renderer
+
+    @staticmethod
+    def _descends(model: Any, body: int, root: int) -> bool:
+        while body > 0:
+            body = int(model.body_parentid[body])
+            if body == root:
+                return True
+        return False
+
+
+def register_all() -> list[str]:
+    """Register ``tspend/<scenario>-v0`` for every scenario found (idempotent); the ids."""
+    from tspend.scenario import available_scenarios
+
+    ids = []
+    for path in available_scenarios():
+        name = path.stem
+        eid = env_id(name)
+        if eid not in gymnasium.registry:
+            gymnasium.register(id=eid, entry_point="tspend.gym:TspendEnv",
+                               kwargs={"scenario": name}, disable_env_checker=False)
+        ids.append(eid)
+    return ids
+
+
+register_all()
