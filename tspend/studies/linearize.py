@@ -20,6 +20,11 @@ Where ``A, B`` come from:
   from); where the domain has no closed form (a moving state, the paper's chain plants)
   central differences of the plant's own right-hand side.
 
+Dry friction has no linear model at rest: MuJoCo's ``frictionloss`` is a soft constraint
+whose derivative there is a stiff viscous term (``pendulum_friction``: poles near -90 1/s),
+and the ODE's smooth ``F tanh(v / v_s)`` has slope ``F / v_s``.  Linearise such a machine
+away from rest, or its frictionless twin.
+
 The central differences' step ``h = FD_STEP (1 + |v|)`` leaves a truncation error
 ``~h^2`` and a rounding error ``~1e-16 / h``: ~1e-10 relative on the plants here.
 
