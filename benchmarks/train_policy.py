@@ -1,6 +1,6 @@
 """Train a PPO policy on a tspend gym env and export it as ONNX for the ``policy`` kind.
 
-    nice python benchmarks/train_policy.py pendulum_mujoco --steps 1000000 --seed 0
+    nice python benchmarks/train_policy.py pendulum_mujoco --seed 1
 
 Needs the ``train`` extra (stable-baselines3, torch) and ``rl`` (onnxruntime, for the
 check at the end).  Writes ``models/policies/<scenario>.onnx`` and, beside it,
@@ -207,19 +207,19 @@ def card_markdown(card: dict, name: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("scenario", nargs="?", default="pendulum_mujoco")
-    p.add_argument("--steps", type=int, default=1_000_000, help="PPO timesteps")
+    p.add_argument("--steps", type=int, default=300_000, help="PPO timesteps")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--period", type=float, default=0.02, help="control period (s)")
-    p.add_argument("--u-max", type=float, default=200.0, help="force of action 1 (N)")
+    p.add_argument("--u-max", type=float, default=100.0, help="force of action 1 (N)")
     p.add_argument("--init-noise", type=float, nargs="+", default=[0.15, 0.15])
     p.add_argument("--duration", type=float, default=20.0, help="training episode (s)")
     p.add_argument("--n-envs", type=int, default=4)
     p.add_argument("--eval-every", type=int, default=50_000)
     p.add_argument("--eval-duration", type=float, default=10.0)
-    p.add_argument("--lr", type=float, default=3e-4, help="learning rate")
-    p.add_argument("--gamma", type=float, default=0.99)
-    p.add_argument("--n-steps", type=int, default=1024, help="rollout per env")
-    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--lr", type=float, default=1e-3, help="learning rate")
+    p.add_argument("--gamma", type=float, default=0.98)
+    p.add_argument("--n-steps", type=int, default=512, help="rollout per env")
+    p.add_argument("--batch", type=int, default=128)
     p.add_argument("--log-std", type=float, default=-1.0, help="initial log std of actions")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after (0: never)")
     p.add_argument("--out", type=Path, default=None, help="default models/policies/SCENARIO.onnx")

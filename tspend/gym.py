@@ -158,8 +158,8 @@ class TspendEnv(gymnasium.Env):
         self.observation_units: tuple[str, ...] = tuple(self.task.units) + tuple(ref_units)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(N + n + 1,), dtype=np.float64)
 
-        lo, hi = simulation.machine_info(self.plant, self.task, scn).u_lo, \
-            simulation.machine_info(self.plant, self.task, scn).u_hi
+        machine = simulation.machine_info(self.plant, self.task, scn)
+        lo, hi = machine.u_lo, machine.u_hi
         self.action_space = spaces.Box(np.array([lo]), np.array([hi]), dtype=np.float64)
         self.action_name = self.plant.inputs[0].name if self.plant.inputs else "u"
         self.action_unit = (self.plant.inputs[0].unit if self.plant.inputs else "") or \
