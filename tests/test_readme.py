@@ -97,3 +97,24 @@ def test_readme_python_runs(tmp_path: Path, monkeypatch) -> None:
     for block in blocks(README, "python"):
         namespace: dict = {"__name__": "readme"}
         exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own README
+
+
+#: walk-throughs in docs/ whose commands and ```python blocks are run like the README's
+#: (excerpts of tspend's own source are fenced ```py and only read)
+WALK_THROUGHS = ("docs/writing-a-plant.md",)
+
+
+@pytest.mark.parametrize("doc", WALK_THROUGHS)
+def test_walk_through_commands_and_python_run(doc: str, tmp_path: Path, monkeypatch,
+                                              capsys) -> None:
+    pytest.importorskip("control")
+    path = ROOT / doc
+    os.symlink(ROOT / "models", tmp_path / "models")
+    monkeypatch.chdir(tmp_path)
+    lines = tspend_lines(path)
+    assert lines
+    for argv in lines:
+        status = main(shortened(argv))
+        assert status == 0, (argv, capsys.readouterr().err)
+    for block in blocks(path, "python"):
+        exec(compile(block, doc, "exec"), {"__name__": "walk_through"})  # noqa: S102

@@ -14,6 +14,7 @@ Python API::
                         overrides={"run.duration": 5.0})
     result.metrics["rmse_ss"]; result.to_pandas(); result.plot()
     table = tspend.sweep("ex2_duffing", seeds=range(20), controllers=["second_type", "first_type"])
+    sys = tspend.linearize("pendulum_mujoco")  # a python-control StateSpace at the upright
 
 ``import tspend`` is light: MuJoCo, numba, Rerun and matplotlib load when first used.
 """
@@ -28,7 +29,7 @@ from tspend.runtime.jit import invalidate_stale_cache as _invalidate_stale_cache
 _invalidate_stale_cache(_Path(__file__).resolve().parent)
 
 __all__ = ["__version__", "load_scenario", "override", "run", "build_plant", "build_controller",
-           "sweep"]
+           "sweep", "linearize"]
 
 
 def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | None = None,
@@ -89,6 +90,10 @@ def __getattr__(name: str):
         from tspend.loop import simulation
 
         return getattr(simulation, name)
+    if name == "linearize":
+        from tspend.studies.linearize import linearize
+
+        return linearize
     if name in ("recorder", "sweep"):
         # `tspend.recorder.open_recording(...)`; the sweep module is callable: tspend.sweep(...)
         import importlib

@@ -113,6 +113,10 @@ class Plant(ABC):
         """The physical parameters as simulated (empty for a plant that has none)."""
         return {}
 
+    def mj_model(self) -> Any:
+        """The compiled ``mujoco.MjModel`` a MuJoCo backend steps (None for any other)."""
+        return None
+
     def default_task(self) -> TaskDefaults:
         """The domain's task: the tracked view, and the pole angle a fall is judged on."""
         return TaskDefaults(view=tuple(self.state_names[: self.order]))

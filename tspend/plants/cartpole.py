@@ -651,6 +651,12 @@ class CartPoleDomain(Domain):
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
+    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+        """The nominal machine's ``(A, B)`` at the upright at rest: central differences of
+        the one cart-pole ODE (:meth:`FullModel.linearisation`; the general geometry an
+        MJCF gives has no closed form worth a second copy of the equations)."""
+        return self.full_model(scenario).linearisation()
+
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
         params: CartPoleParams = plant.params  # type: ignore[attr-defined]
         mjcf = str(self.model_path(scenario)) if self.kinds[scenario.plant.kind].mujoco else ""

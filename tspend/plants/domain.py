@@ -8,7 +8,7 @@ model-based controllers assume (:class:`PlantModel`), the drawing for Rerun
 (:class:`TaskDefaults`) and the scenario configuration class of each plant kind.
 :mod:`tspend.plants.registry` maps plant kinds and domain names to domains; the runner,
 recorder, cross-check, effects and controllers ask the domain and name no concrete plant.
-docs/architecture.md walks through writing one.
+docs/writing-a-plant.md walks through writing one.
 """
 
 from __future__ import annotations
@@ -531,8 +531,16 @@ class Domain(ABC):
         return None
 
     def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray] | None:
-        """``(A, B)`` of the FULL state (``plant.state_names`` order) about the domain's
+        """``(A, B)`` of the FULL state (``plant.state_names`` order) of the model the
+        model-based controllers assume (``lqr``'s full design) about the domain's
         equilibrium, or None when the domain has none beyond the view's."""
+        return None
+
+    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The exact ``(A, B)`` of the analytic ``plant``'s equations at the full state
+        ``at`` (``plant.state_names`` order), ``u = 0``; None when the domain has no
+        closed form there (:func:`tspend.plants.linearize.linearize` then takes central
+        differences of the plant's own right-hand side)."""
         return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:

@@ -89,6 +89,10 @@ class EffectsPlant(Plant):
     def parameters(self) -> dict[str, float]:
         return self.inner.parameters()
 
+    def mj_model(self) -> Any:
+        # the effects act on u and the measurement, not on the model MuJoCo differentiates
+        return self.inner.mj_model()
+
     def default_task(self) -> TaskDefaults:
         return self.inner.default_task()
 

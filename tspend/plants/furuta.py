@@ -224,6 +224,9 @@ class MujocoFuruta(Plant):
             raise ScenarioError(f"{self.model_path}: {self._departures[0]}")
         return self._params
 
+    def mj_model(self) -> Any:
+        return self.model
+
     @property
     def state_names(self) -> tuple[str, ...]:
         a, p = self.arm_joint, self.pendulum_joint
@@ -553,6 +556,13 @@ class FurutaDomain(Domain):
 
     def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
         return linearize(self.params_of_scenario(scenario))
+
+    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """:func:`~tspend.plants.furuta_physics.linearize` at rest; None elsewhere."""
+        if np.any(at[2:] != 0.0):
+            return None
+        return linearize(plant.params, pendulum=float(at[1]),  # type: ignore[attr-defined]
+                         arm=float(at[0]))
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
         p: FurutaParams = plant.params  # type: ignore[attr-defined]

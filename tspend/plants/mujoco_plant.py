@@ -384,6 +384,9 @@ class MujocoCartPole(Plant):
 
     # --- the Plant interface --------------------------------------------------------
 
+    def mj_model(self) -> mujoco.MjModel:
+        return self.model
+
     @property
     def state_names(self) -> tuple[str, ...]:
         """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
