@@ -206,7 +206,7 @@ def tuned_markdown(tuned: dict, tune: dict) -> str:
 def cmd(args: argparse.Namespace) -> int:
     import json
 
-    from tspend.cli.main import controller_help
+    from tspend.cli.main import controller_help, write_json
     from tspend.studies.stats import _json_number, markdown, to_json
 
     if controller_help(args):
@@ -235,7 +235,8 @@ def cmd(args: argparse.Namespace) -> int:
                             for (scn, kind), r in tuned.items()]
         doc["seeds"] = opts["seeds"]
         doc["scenarios"] = list(args.scenarios)
-        opts["json_path"].write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        # a partial file renamed into place: a full disk never truncates the previous one
+        write_json(opts["json_path"], json.loads(json.dumps(doc, allow_nan=False)))
     if args.out:
         print(f"runs: {args.out}", file=sys.stderr)
     return 0

@@ -29,24 +29,32 @@ def cmd(args: argparse.Namespace) -> int:
         raise ScenarioError(f"{source}: no such recording")
     if target.suffix.lower() not in FORMATS:
         raise ScenarioError(f"--to {target}: the suffix must be one of {', '.join(FORMATS)}")
-    if target.exists():
+    if target.exists() or target.is_symlink():
         raise ScenarioError(f"--to {target}: exists; choose another path (nothing is "
                             f"overwritten)")
+    from tspend.runtime.outputs import OutputRequest, plan_outputs
+
+    # the path checked (directory writable, name length) before the recording is read
+    plan_outputs([OutputRequest("--to", "table", target.suffix.lower(), str(target))],
+                 inputs=[source])
+    try:
+        table = recording_frame(source)
+    except (ValueError, OSError, RuntimeError, KeyError) as exc:
+        # Rerun's reader reports a corrupt or foreign file as a RuntimeError
+        raise ScenarioError(f"{source}: not a readable tspend recording "
+                            f"({' '.join(str(exc).split())[:300]})") from None
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ScenarioError(f"--to {target}: cannot create directory {target.parent}: "
                             f"{exc.strerror or exc}") from None
-    try:
-        table = recording_frame(source)
-    except (ValueError, OSError) as exc:
-        raise ScenarioError(f"{source}: {exc}") from None
-    tmp = target.with_name(f".{target.name}.tmp")
+    from tspend.runtime.outputs import write_atomic
+
     if target.suffix.lower() == ".csv":
-        table.to_csv(tmp)  # floats as the shortest text that reads back exactly
+        # floats as the shortest text that reads back exactly
+        write_atomic(target, table.to_csv, replace=False, what="--to")
     else:
-        table.to_parquet(tmp)
-    tmp.replace(target)
+        write_atomic(target, table.to_parquet, replace=False, what="--to")
     print(f"{target}: {len(table)} samples x {table.shape[1]} series "
           f"({', '.join(table.columns[:8])}{', ...' if table.shape[1] > 8 else ''})")
     return 0

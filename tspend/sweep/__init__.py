@@ -68,7 +68,7 @@ from tspend.errors import ScenarioError
 from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
-from tspend.sweep.table import KEY_COLUMN, RowTable, read_table, typed
+from tspend.sweep.table import KEY_COLUMN, RowTable, TableLock, read_table, typed
 from tspend.loop.metrics import is_machine_column
 from tspend.sweep.worker import METRIC_COLUMNS, run_job
 
@@ -83,20 +83,119 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           controllers: str | Iterable[str] | None = None, jobs: int | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
-          stop: StopRequest | None = None):
+          stop: StopRequest | None = None, wait: bool = False):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
     :class:`tspend.loop.runner.StopRequest` set by a signal handler) ends the sweep after
-    keeping every finished row; :class:`RunInterrupted` is then raised.
+    keeping every finished row; :class:`RunInterrupted` is then raised.  ``wait``: when
+    another sweep holds the table ``out``, wait for it instead of refusing.
+
+    Raises
+    ------
+    ScenarioError
+        any bad input, before a single run starts: a scenario, a grid value, seeds,
+        controller kinds, ``jobs``, ``record``, more runs than
+        :data:`tspend.runtime.bounds.MAX_RUNS`, a scenario whose model or controller
+        cannot be built, an ``out`` that is not a tspend sweep table (or is locked by
+        another sweep), a journal that is a symlink or corrupt.
+    TspendError
+        the worker processes could not start.
+    RunInterrupted
+        ``stop`` was set; the finished rows are kept in ``out``.
     """
-    import pandas as pd
+    prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=controllers,
+                             jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait)
+    return prepared.run(progress=progress, executor=executor, stop=stop)
 
-    from tspend.runtime.progress import SweepProgress
 
-    out_path = Path(out) if out is not None else None
-    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+def check_jobs(jobs: Any) -> None:
+    """``jobs`` is None or an integer from 1 to :func:`max_jobs` (ScenarioError)."""
+    from tspend.runtime.bounds import MAX_JOBS_PER_CORE
+    from tspend.sweep.executors import default_jobs
+
+    if jobs is None:
+        return
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ScenarioError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+    limit = MAX_JOBS_PER_CORE * default_jobs()
+    if jobs > limit:
+        raise ScenarioError(f"--jobs {jobs}: at most {limit} ({MAX_JOBS_PER_CORE} per core on "
+                            f"this machine; each worker holds its own copy of the kernels)")
+
+
+class PreparedSweep:
+    """A sweep checked and planned, its table locked: :meth:`run` runs it (once).
+
+    From :func:`prepare_sweep`; a command prints its banner between the two.  The table's
+    lock is released by :meth:`run` or :meth:`close`.
+    """
+
+    def __init__(self, plan: list[Job], todo: list[Job], table, lock, jobs, dask) -> None:
+        self.plan, self.todo, self._table, self._lock = plan, todo, table, lock
+        self._jobs, self._dask = jobs, dask
+        self.order = {job.key: job.index for job in plan}
+
+    def close(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def run(self, progress: bool = False, executor: Any = None,
+            stop: StopRequest | None = None):
+        import pandas as pd
+
+        from tspend.runtime.progress import SweepProgress
+
+        todo, table, order = self.todo, self._table, self.order
+        rows: list[dict[str, Any]] = []
+        shown = SweepProgress(len(todo), skipped=len(self.plan) - len(todo), enabled=progress)
+        owned = executor is None and bool(todo)
+        try:
+            if todo:
+                if executor is None:
+                    executor = make_executor(self._jobs, self._dask)
+                shown.start(executor.workers, executor.name)
+                for row in _execute(executor, todo, stop):
+                    if table is not None:
+                        table.append(row)
+                    rows.append(row)
+                    shown.update(row)
+        finally:
+            try:
+                shown.close()
+                if owned and executor is not None:
+                    executor.close(cancel=True)
+                if table is not None:
+                    table.close(order)
+            finally:
+                self.close()
+
+        if table is not None:
+            frame = read_table(table.path)
+            frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
+        else:
+            frame = typed(pd.DataFrame.from_records(rows))
+        if not len(frame):
+            return frame
+        frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")
+        return frame.drop(columns="_rank").reset_index(drop=True)
+
+
+def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
+                  seeds: int | Iterable[int] | str | None = None,
+                  controllers: str | Iterable[str] | None = None, jobs: int | None = None,
+                  dask: str | None = None, out: str | Path | None = None,
+                  record: str = "none", stop: StopRequest | None = None,
+                  wait: bool = False, build: bool = True) -> PreparedSweep:
+    """Everything :func:`sweep` checks before a run starts, the plan made and ``out``
+    locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
+    model and each controller once now, so a broken one is one error, not a table of
+    ``failed`` rows."""
+    out_path = Path(out) if out is not None else None
+    check_jobs(jobs)
+    if dask is not None:
+        check_dask_address(dask)
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
     record_dir = None
@@ -104,48 +203,82 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
         record_dir = (out_path.with_name(out_path.stem + ".recordings") if out_path is not None
                       else Path("runs") / f"sweep-{time.strftime('%Y%m%d-%H%M%S')}")
     plan = make_plan(scenarios, grid, seeds, controllers, record, record_dir)
-    order = {job.key: job.index for job in plan}
+    if build:
+        build_once(plan)
 
-    table = None
+    table = lock = None
     done_keys: set[str] = set()
     if out_path is not None:
         table = RowTable(out_path)
         table.check_writable()
-        existing = read_table(out_path)
-        _check_compatible(existing, plan, out_path)
+        lock = TableLock(out_path).acquire(wait=wait, stop=stop)
+        try:
+            existing = read_table(out_path)
+            _check_compatible(existing, plan, out_path)
+        except BaseException:
+            lock.release()
+            raise
         if len(existing):
             done_keys = set(existing[KEY_COLUMN])
     todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
+    return PreparedSweep(plan, todo, table, lock, jobs, dask)
 
-    rows: list[dict[str, Any]] = []
-    shown = SweepProgress(len(todo), skipped=len(plan) - len(todo), enabled=progress)
-    owned = executor is None and bool(todo)
-    try:
-        if todo:
-            if executor is None:
-                executor = make_executor(jobs, dask)
-            shown.start(executor.workers, executor.name)
-            for row in _execute(executor, todo, stop):
-                if table is not None:
-                    table.append(row)
-                rows.append(row)
-                shown.update(row)
-    finally:
-        shown.close()
-        if owned and executor is not None:
-            executor.close(cancel=True)
-        if table is not None:
-            table.close(order)
 
-    if out_path is not None:
-        frame = read_table(out_path)
-        frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
-    else:
-        frame = typed(pd.DataFrame.from_records(rows))
-    if not len(frame):
-        return frame
-    frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")
-    return frame.drop(columns="_rank").reset_index(drop=True)
+#: at most this many (scenario, grid point, controller) builds are tried before a sweep
+MAX_BUILDS = 64
+
+
+def build_once(plan: list[Job]) -> None:
+    """Build the plant, task and controller of each scenario / grid point and each kind
+    once (not per seed), so that a model that cannot be built is one ScenarioError before
+    anything runs.  A plug-in whose constructor raises is bad input too."""
+    from tspend.errors import TspendError
+    from tspend.loop.simulation import prepare
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    seen: set[tuple[int, str | None]] = set()
+    points: set[int] = set()
+    kinds: set[str | None] = set()
+    for job in plan:
+        point = id(job.scenario)
+        if (point in points and job.run_kind in kinds) or (point, job.run_kind) in seen:
+            continue
+        seen.add((point, job.run_kind))
+        points.add(point)
+        kinds.add(job.run_kind)
+        try:
+            with mujoco_warnings_in_errors(_uses_mujoco(job.scenario)):
+                prepare(job.scenario, controller=job.run_kind)
+        except TspendError:
+            raise
+        except (RecursionError, MemoryError) as exc:
+            raise ScenarioError(f"{job.label}: cannot be built ({type(exc).__name__})") from None
+        except Exception as exc:  # a plug-in's own exception: the user's input
+            raise ScenarioError(f"{job.label}, controller {job.controller}: cannot be built "
+                                f"({type(exc).__name__}: {exc})") from None
+        if len(seen) >= MAX_BUILDS:
+            break
+
+
+def _uses_mujoco(scenario) -> bool:
+    from tspend.plants.registry import PLANT_KINDS
+
+    return PLANT_KINDS[scenario.plant.kind].mujoco
+
+
+def check_dask_address(address: Any) -> None:
+    """``local`` or ``[tcp://|tls://|ws://|wss://|inproc://]HOST:PORT`` (ScenarioError)."""
+    import re
+
+    if not isinstance(address, str) or not address:
+        raise ScenarioError(f"--dask: expected an address or 'local', got {address!r}")
+    if address == "local":
+        return
+    m = re.fullmatch(r"(?:(tcp|tls|ws|wss|ucx)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]{1,253})"
+                     r":(\d{1,5})/?", address)
+    if not m or not 0 < int(m.group(3)) < 65536:
+        raise ScenarioError(f"--dask {address[:200]}: expected 'local' or a scheduler address "
+                            f"such as tcp://127.0.0.1:8786 (a port from 1 to 65535)")
 
 
 def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
@@ -259,4 +392,5 @@ class _CallableModule(types.ModuleType):
 
 sys.modules[__name__].__class__ = _CallableModule
 
-__all__ = ["sweep", "read_table", "make_executor", "make_plan", "Job"]
+__all__ = ["sweep", "prepare_sweep", "PreparedSweep", "read_table", "make_executor",
+           "make_plan", "Job"]
