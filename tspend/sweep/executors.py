@@ -51,8 +51,12 @@ class LocalPool:
     def _start(self) -> None:
         method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() \
             else "spawn"
-        self._pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context(method),
-                                         initializer=init_worker)
+        context = multiprocessing.get_context(method)
+        if method == "forkserver":
+            # the fork server arms its parent-death signal as it starts (tspend.sweep.lifeline)
+            context.set_forkserver_preload(["__main__", "tspend.sweep.forkserver_lifeline"])
+        self._pool = ProcessPoolExecutor(self.jobs, mp_context=context, initializer=init_worker,
+                                         initargs=(os.getpid(),))
 
     @property
     def workers(self) -> int:
