@@ -23,13 +23,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the pole's hinge joint (default: the only hinge joint)")
     p.add_argument("--actuator", default=None, metavar="NAME",
                    help="the actuator on the slide joint (default: the only one driving it)")
-    p.add_argument("--dt", type=float, default=None,
+    from tspend.cli.main import finite
+
+    p.add_argument("--dt", type=finite(), default=None,
                    help="control period to check the timestep against")
     p.add_argument("--json", metavar="PATH", help="write the facts as one JSON object")
     return p
 
 
 def cmd(args: argparse.Namespace) -> int:
+    from tspend.cli.main import say
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    # MuJoCo's warnings: in the error line, or one warning line each; never a log file
+    with mujoco_warnings_in_errors(True) as notes:
+        status = _cmd(args)
+    for note in dict.fromkeys(notes):
+        say(f"warning: MuJoCo: {note}")
+    return status
+
+
+def _cmd(args: argparse.Namespace) -> int:
     from tspend.cli.main import check_writable, write_json
     from tspend.plants.mujoco_plant import MujocoCartPole, guess_names
 
@@ -72,9 +86,12 @@ def _domain_of(model: str):
 
     from tspend.plants.registry import DOMAINS
 
+    from tspend.errors import ScenarioError
+    from tspend.plants.mjcf import read_spec
+
     try:
-        spec = mujoco.MjSpec.from_file(str(model))
-    except (ValueError, OSError):
+        spec = read_spec(model)
+    except ScenarioError:
         return None  # the cart-pole reader reports it
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
     return next((d for d in DOMAINS.values() if d.fits_mjcf(kinds) and d.name != "cartpole"),
