@@ -36,7 +36,16 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
     :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
+
+    Raises
+    ------
+    ScenarioError
+        ``scenario`` is not a Scenario, ``kind`` is not a backend of its domain, or the
+        model cannot be built (file, joint names, timestep, ``dt``).
     """
+    _check_scenario(scenario)
+    if kind is not None and not isinstance(kind, str):
+        raise ScenarioError(f"plant kind: expected a string, got {kind!r:.80}")
     plant = plant_registry.build(scenario, kind)
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
@@ -45,6 +54,12 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
         plant = EffectsPlant(plant, scenario.effects)
     plant.reset(np.asarray(scenario.plant.x0, dtype=float))
     return plant
+
+
+def _check_scenario(scenario: object) -> None:
+    if not isinstance(scenario, Scenario):
+        raise ScenarioError(f"expected a Scenario (from tspend.load_scenario), got "
+                            f"{type(scenario).__name__}")
 
 
 def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
@@ -60,7 +75,13 @@ def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
                      kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
     (default: a generator seeded with the scenario's seed).
+
+    Raises
+    ------
+    ScenarioError
+        ``scenario`` is not a Scenario, ``kind`` is unknown, or its settings are invalid.
     """
+    _check_scenario(scenario)
     ctrl = build_controller_kind(scenario, kind)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 import numpy as np
 
 from tspend.config import PlantConfig
+from tspend.errors import ScenarioError
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 
 if TYPE_CHECKING:
@@ -196,7 +197,7 @@ class Domain(ABC):
         not yet reset."""
         kind = kind or scenario.plant.kind
         if kind not in self.kinds:
-            raise ValueError(f"plant kind {kind!r} is not a backend of domain {self.name!r} "
+            raise ScenarioError(f"plant kind {kind!r} is not a backend of domain {self.name!r} "
                              f"(its kinds: {', '.join(self.kinds)})")
         return self.kinds[kind].build(scenario.plant, self.model_path(scenario))
 

@@ -184,8 +184,15 @@ def controller_list(controllers: str | Iterable[str] | None) -> list[tuple[str |
 
     if controllers is None:
         return [(None, None)]
-    kinds = [c.strip() for c in controllers.split(",")] if isinstance(controllers, str) \
-        else list(controllers)
+    if isinstance(controllers, str):
+        kinds = [c.strip() for c in controllers.split(",")]
+    elif isinstance(controllers, Iterable):
+        kinds = list(itertools.islice(controllers, 1001))
+    else:
+        raise ScenarioError(f"--controller: expected kinds (a list, or 'k1,k2'), got "
+                            f"{controllers!r:.80}")
+    if len(kinds) > 1000:
+        raise ScenarioError("--controller: more than 1000 kinds")
     if not kinds:
         raise ScenarioError("--controller: no kind given")
     return [(spec, load(spec).name) for spec in dict.fromkeys(kinds)]
@@ -219,6 +226,9 @@ def recording_path(record_dir: Path, job_label: str, seed: int, controller: str,
     return record_dir / f"{safe}-seed{seed}-{controller}-{digest}.rrd"
 
 
+from tspend.runtime.bounds import MAX_RUNS  # noqa: E402  (constants only)
+
+
 def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
               seeds: int | Iterable[int] | str | None = None,
               controllers: str | Iterable[str] | None = None, record: str = "none",
@@ -228,21 +238,26 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
 
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
+    from collections.abc import Mapping
+
+    if grid is not None and not isinstance(grid, Mapping):
+        raise ScenarioError(f"grid: expected a dict of dotted keys to lists of values, got "
+                            f"{type(grid).__name__}")
     grid = dict(grid or {})
+    if any(not isinstance(k, str) for k in grid):
+        raise ScenarioError("grid: keys are dotted strings such as controller.eta")
     if "run.seed" in grid:
         raise ScenarioError("--grid run.seed: seeds are swept with --seeds (seeds= in Python)")
     for key, values in grid.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
             raise ScenarioError(f"grid {key}: expected a list of values, got {values!r}")
-        grid[key] = list(values)
+        grid[key] = list(itertools.islice(values, MAX_RUNS + 1))
         if not grid[key]:
             raise ScenarioError(f"grid {key}: no values")
     seed_list = _seed_list(seeds)
     kinds = controller_list(controllers)
     keys = list(grid)
     bases = resolve_scenarios(scenarios)
-    from tspend.runtime.bounds import MAX_RUNS
-
     runs = len(bases) * len(kinds) * (len(seed_list) if seed_list is not None else 1)
     for values in grid.values():
         runs *= len(values)
