@@ -103,12 +103,36 @@ def test_grid_where_some_runs_diverge_completes_with_those_rows_marked(tmp_path)
     assert bounded["recording"].is_unique
 
 
-def test_failed_run_is_a_row(tmp_path):
+def test_broken_model_stops_before_anything_runs(tmp_path):
+    # the model of each grid point is built once before the sweep starts: a missing file
+    # is bad input, not a table of failed rows
     scn = tspend.override(tspend.load_scenario("pendulum_mujoco"), **{"run.duration": 0.2})
-    table = tspend.sweep(scn, grid={"plant.model": ["models/cartpole.xml",
-                                                    str(tmp_path / "missing.xml")]}, jobs=1)
+    out = tmp_path / "t.parquet"
+    with pytest.raises(ScenarioError, match="missing.xml"):
+        tspend.sweep(scn, grid={"plant.model": ["models/cartpole.xml",
+                                                str(tmp_path / "missing.xml")]}, jobs=1, out=out)
+    assert not out.exists() and not journal_path(out).exists()
+
+
+def test_failed_run_is_a_row(tmp_path):
+    # a controller that builds but raises while running: a failed row, the sweep goes on
+    (tmp_path / "boom.py").write_text(
+        "import numpy as np\n"
+        "from tspend.controllers.base import Controller\n"
+        "class Boom(Controller):\n"
+        "    kind = 'boom'\n"
+        "    def __init__(self, scenario):\n"
+        "        self.order = len(scenario.plant.x0)\n"
+        "        self.diagnostics = ()\n"
+        "        self.diag = np.zeros(0)\n"
+        "    def reset(self, rng):\n"
+        "        pass\n"
+        "    def step(self, obs, dt):\n"
+        "        raise RuntimeError('boom at run time')\n")
+    scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.2})
+    table = tspend.sweep(scn, controllers=["lqr", f"{tmp_path / 'boom.py'}:Boom"], jobs=1)
     assert list(table["status"]) == ["completed", "failed"]
-    assert "missing.xml" in table["message"].iloc[1]
+    assert "boom at run time" in table["message"].iloc[1]
     assert np.isnan(table["rmse"].iloc[1]) and table["rmse"].dtype == np.float64
 
 

@@ -83,13 +83,15 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           controllers: str | Iterable[str] | None = None, jobs: int | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
-          stop: StopRequest | None = None, wait: bool = False):
+          stop: StopRequest | None = None, wait: bool = False, build: bool = True):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
     :class:`tspend.loop.runner.StopRequest` set by a signal handler) ends the sweep after
     keeping every finished row; :class:`RunInterrupted` is then raised.  ``wait``: when
-    another sweep holds the table ``out``, wait for it instead of refusing.
+    another sweep holds the table ``out``, wait for it instead of refusing.  ``build``:
+    build each scenario's model and controller once before anything runs (a caller that
+    did so already passes False).
 
     Raises
     ------
@@ -105,7 +107,8 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
         ``stop`` was set; the finished rows are kept in ``out``.
     """
     prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=controllers,
-                             jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait)
+                             jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait,
+                             build=build)
     return prepared.run(progress=progress, executor=executor, stop=stop)
 
 
