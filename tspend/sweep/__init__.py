@@ -290,22 +290,26 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
     A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
     million small Job records in the parent, not a million queued tasks.  When a local
     worker dies, the pool fails every job in flight and cannot tell which one killed it;
-    those jobs are then run again one at a time, so a death is pinned on its own job (a
-    ``failed`` row) and the others finish normally.  Dask retries a task whose worker
-    died by itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.
+    those jobs are then run again one at a time, so a death is pinned on its own job and
+    the others finish normally.  A job whose worker died while it ran alone is run again,
+    up to :data:`MAX_DEATHS` times in all (a worker killed from outside is not the job's
+    fault), and only then is a ``failed`` row.  Dask retries a task whose worker died by
+    itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.  Each job
+    yields exactly one row.
     """
     waiting = deque(todo)
     alone: deque[Job] = deque()           # to run by themselves after a worker died
     window = max(16, 4 * getattr(executor, "workers", 1))
     pending: dict[Any, Job] = {}
-    ran_alone: set[str] = set()
+    deaths: dict[str, int] = {}
+    solo: set[str] = set()                # keys of jobs submitted by themselves
     retries_itself = getattr(executor, "retries_itself", False)
 
     def top_up() -> None:
         if alone:
             if not pending:
                 job = alone.popleft()
-                ran_alone.add(job.key)
+                solo.add(job.key)
                 pending[executor.submit(run_job, job)] = job
             return
         while waiting and len(pending) < window:
@@ -325,8 +329,15 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
                 yield executor.result(future)
             except WorkerDied as exc:
                 broken = not retries_itself
-                if job.key in ran_alone or retries_itself:
+                if retries_itself:
                     yield _died_row(job, str(exc))
+                elif job.key in solo:
+                    # it ran alone: the death is its own (or a kill from outside)
+                    deaths[job.key] = deaths.get(job.key, 0) + 1
+                    if deaths[job.key] >= MAX_DEATHS:
+                        yield _died_row(job, str(exc))
+                    else:
+                        lost.append(job)
                 else:
                     lost.append(job)
         if broken:
@@ -336,6 +347,10 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
             pending.clear()
             executor.restart()
         top_up()
+
+
+#: a job whose worker dies this many times while it runs alone is a ``failed`` row
+MAX_DEATHS = 3
 
 
 def _died_row(job: Job, why: str) -> dict[str, Any]:

@@ -72,7 +72,13 @@ class LocalPool:
                               "rule for process pools)") from None
 
     def submit(self, fn: Callable, job: Any) -> Future:
-        return self._pool.submit(fn, job)
+        try:
+            return self._pool.submit(fn, job)
+        except BrokenProcessPool as exc:
+            # a worker died since the last wait: the job comes back as lost, and is rerun
+            future: Future = Future()
+            future.set_exception(exc)
+            return future
 
     def wait(self, futures: Iterable[Future], timeout: float) -> set[Future]:
         done, _ = wait_futures(list(futures), timeout=timeout, return_when=FIRST_COMPLETED)
