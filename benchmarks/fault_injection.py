@@ -110,6 +110,10 @@ def dask_part(args, scn, base: Path) -> bool:
     except ImportError:
         print("dask   skipped: dask.distributed is not installed (pip install 'tspend[dask]')")
         return True
+    import logging
+
+    # the scheduler logs every lost worker and rescheduled task: the counts below say it
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
     out = base / "dask.parquet"
     executor = make_executor(args.jobs, "local")
 
