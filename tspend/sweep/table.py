@@ -261,6 +261,8 @@ class RowTable:
         self._fd: int | None = None
 
     def check_writable(self) -> None:
+        if not str(self.path).strip() or self.path.name in ("", ".", ".."):
+            raise ScenarioError(f"--out {str(self.path)!r}: not a file name")
         parent = self.path.parent
         if self.path.is_dir():
             raise ScenarioError(f"--out {self.path}: is a directory")
