@@ -211,8 +211,6 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
         record_dir = (out_path.with_name(out_path.stem + ".recordings") if out_path is not None
                       else Path("runs") / f"sweep-{time.strftime('%Y%m%d-%H%M%S')}")
     plan = make_plan(scenarios, grid, seeds, controllers, record, record_dir)
-    if build:
-        build_once(plan)
 
     table = lock = None
     done_keys: set[str] = set()
@@ -220,14 +218,18 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
         table = RowTable(out_path)
         table.check_writable()
         lock = TableLock(out_path).acquire(wait=wait, stop=stop)
-        try:
+    try:
+        if out_path is not None:
             existing = read_table(out_path)
             _check_compatible(existing, plan, out_path)
-        except BaseException:
+            if len(existing):
+                done_keys = set(existing[KEY_COLUMN])
+        if build:
+            build_once(plan)
+    except BaseException:
+        if lock is not None:
             lock.release()
-            raise
-        if len(existing):
-            done_keys = set(existing[KEY_COLUMN])
+        raise
     todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
     return PreparedSweep(plan, todo, table, lock, jobs, dask)
 
