@@ -134,9 +134,10 @@ class DaskExecutor:
         else:
             try:
                 self.client = Client(address, timeout="10s")
-            except (OSError, TimeoutError) as exc:
-                raise ScenarioError(f"--dask {address}: cannot reach the scheduler ({exc})") \
-                    from None
+            except Exception as exc:  # noqa: BLE001 - unreachable, refused, not a scheduler
+                raise ScenarioError(f"--dask {address[:200]}: cannot reach the scheduler "
+                                    f"({type(exc).__name__}: "
+                                    f"{' '.join(str(exc).split())[:200]})") from None
 
     @property
     def workers(self) -> int:
