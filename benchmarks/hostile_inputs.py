@@ -496,8 +496,11 @@ try:
     exec(compile(sys.argv[1], "<case>", "exec"))
 except TspendError as exc:
     print("tspend: error:", " ".join(str(exc).split()), file=sys.stderr); sys.exit(2)
-except ModuleNotFoundError as exc:
-    if "tspend" in str(exc) or "gymnasium" in str(exc):
+except Exception as exc:
+    # gymnasium's own error for an id nobody registered is a clean answer too
+    if type(exc).__module__.startswith("gymnasium.error") and "make(" in sys.argv[1]:
+        print("gymnasium: error:", " ".join(str(exc).split()), file=sys.stderr); sys.exit(2)
+    if isinstance(exc, ModuleNotFoundError) and ("tspend" in str(exc) or "gymnasium" in str(exc)):
         print("skipped:", exc, file=sys.stderr); sys.exit(77)
     raise
 sys.exit(0)
@@ -959,7 +962,11 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
         cmd = [sys.executable, "-c", API_PRELUDE, case.api]
     else:
         cmd = [sys.executable, "-m", "tspend.cli", *case.argv]
-    proc = subprocess.Popen(cmd, cwd=d, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    # a killed command's orphans may hold its pipes open: its output goes to files instead
+    killed = case.send is not None and case.send[0] == signal.SIGKILL
+    sink = [open(base / f"case{index:03d}.{n}", "w+b") for n in ("out", "err")] if killed \
+        else [subprocess.PIPE, subprocess.PIPE]
+    proc = subprocess.Popen(cmd, cwd=d, stdout=sink[0], stderr=sink[1], env=env,
                             start_new_session=True)
     twin = None
     if case.twin is not None:
@@ -979,8 +986,17 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
             if case.send is not None:
                 time.sleep(case.send[1])
                 proc.send_signal(case.send[0])
-            o, e = proc.communicate(timeout=TIMEOUT_S)
-            out, err = o.decode(errors="replace"), e.decode(errors="replace")
+            if killed:
+                proc.wait(timeout=TIMEOUT_S)
+                sink[0].seek(0)
+                sink[1].seek(0)
+                out = sink[0].read().decode(errors="replace")
+                err = sink[1].read().decode(errors="replace")
+                for f in sink:
+                    f.close()
+            else:
+                o, e = proc.communicate(timeout=TIMEOUT_S)
+                out, err = o.decode(errors="replace"), e.decode(errors="replace")
         status = proc.returncode
         if twin is not None:
             o, e = twin.communicate(timeout=TIMEOUT_S)
