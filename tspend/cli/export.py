@@ -4,6 +4,7 @@ table, one column per series, indexed by ``t`` (see :mod:`tspend.studies.timeser
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from tspend.errors import ScenarioError
@@ -29,14 +30,14 @@ def cmd(args: argparse.Namespace) -> int:
         raise ScenarioError(f"{source}: no such recording")
     if target.suffix.lower() not in FORMATS:
         raise ScenarioError(f"--to {target}: the suffix must be one of {', '.join(FORMATS)}")
-    if target.exists() or target.is_symlink():
-        raise ScenarioError(f"--to {target}: exists; choose another path (nothing is "
-                            f"overwritten)")
     from tspend.runtime.outputs import OutputRequest, plan_outputs
 
     # the path checked (directory writable, name length) before the recording is read
     plan_outputs([OutputRequest("--to", "table", target.suffix.lower(), str(target))],
                  inputs=[source])
+    if os.path.lexists(target):
+        raise ScenarioError(f"--to {target}: exists; choose another path (nothing is "
+                            f"overwritten)")
     try:
         table = recording_frame(source)
     except (ValueError, OSError, RuntimeError, KeyError) as exc:

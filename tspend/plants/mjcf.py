@@ -377,11 +377,16 @@ def read_spec(path: "str | os.PathLike[str]") -> "mujoco.MjSpec":
 
     from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
 
+    import stat
+
     where = str(path)
     try:
-        size = os.stat(path).st_size
+        st = os.stat(path)
     except (OSError, ValueError):
         raise ScenarioError(f"{where}: model file not found") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ScenarioError(f"{where}: not a regular file (an MJCF model file is expected)")
+    size = st.st_size
     if size > MAX_MODEL_BYTES:
         raise ScenarioError(f"{where}: the model file is {size} bytes, more than "
                             f"{MAX_MODEL_BYTES}")
