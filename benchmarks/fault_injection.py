@@ -82,6 +82,8 @@ def check(name: str, table_path: Path, frame: pd.DataFrame, runs: int, kills: in
     print(f"{name:<6} kills {kills:>3}   rows {len(frame):>5}   distinct {frame[KEY_COLUMN].nunique():>5}"
           f"   missing {missing}   repeated in the file {repeated}   statuses {statuses}"
           f"   wall {wall_s:.1f} s   {'OK' if ok else 'FAILED'}")
+    for message in frame.loc[frame["status"] != "completed", "message"].head(3):
+        print(f"       not completed: {message[:200]}")
     return ok
 
 

@@ -357,7 +357,7 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
 
 
 #: a job whose worker dies this many times while it runs alone is a ``failed`` row
-MAX_DEATHS = 3
+MAX_DEATHS = 5
 
 
 def _died_row(job: Job, why: str) -> dict[str, Any]:
