@@ -583,7 +583,7 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
         expect=-2, twin=["sweep", "ex3_pendulum_ode", "--duration", "0.05", "--seeds", "3:6",
                          "--jobs", "1", "--out", "two.parquet"], may_write=("two.parquet",))
     add("sweep SIGKILL, workers end", ["sweep", "pendulum_mujoco", "--jobs", "2", "--seeds",
-                                       "0:40", "--out", "k.parquet"],
+                                       "0:400", "--out", "k.parquet"],
         expect=-9, send=(signal.SIGKILL, 12.0), may_write=("k.parquet",))
     # -- compare
     for v in ["0", "99", "-1", "10000000000", "abc"]:
