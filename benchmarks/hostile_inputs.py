@@ -1,4 +1,10 @@
-"""A hostile user's sweep: ~300 bad inputs against ``tspend run``, ``crosscheck`` and ``list``.
+"""A hostile user's sweep: over 400 bad inputs against every command and the Python API.
+
+``run``, ``crosscheck``, ``list``, ``inspect``, ``sweep``, ``compare``, ``export``,
+``figures``, ``tune``, plug-ins (``--controller file.py:Class``), the Python API, and,
+when their modules are there (each is skipped with a printed note otherwise), the gym
+environment (``gymnasium.make("tspend/<scenario>-v0")``), ``tspend.linearize`` and the
+``policy`` controller kind.
 
 Every case runs ``python -m tspend.cli ...`` in a fresh directory holding a user's
 files: a recording ``K.rrd``, metrics ``K.json``, a read-only ``RO.json``, a scenario
@@ -11,19 +17,27 @@ classified:
 - hang: no exit within the time limit;
 - files lost: a pre-existing file changed or vanished;
 - stray files: ``MUJOCO_LOG.TXT``, a leftover partial file, or a file outside the case
-  directory's ``runs/`` that the case did not ask for.
+  directory's ``runs/`` that the case did not ask for;
+- internal error: exit status 70 (or a traceback), where bad input should exit 2;
+- processes left: a process still running in the case directory 5 s after the command
+  ended (a sweep's workers or fork server);
+- a case of the Python API runs a snippet: a TspendError is one line and exit 2, any
+  other exception an internal error.
 
     python benchmarks/hostile_inputs.py            # all cases, 2 at a time
     python benchmarks/hostile_inputs.py -k seed    # only cases whose name contains "seed"
 
-Prints the figures (tried, clean, tracebacks, hangs, files lost) and every case that was
-not clean.  Exit status 1 if any traceback, hang or lost file was seen.
+Prints the figures (tried, clean exit 2, internal errors, files lost, processes left,
+...) and every case that was not clean.  Exit status 1 if any traceback, internal error,
+hang, lost file or process left was seen.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.util
+import json
 import os
 import shutil
 import signal
@@ -109,6 +123,62 @@ def make_user_files(d: Path) -> None:
     (d / "M.xml").write_text(model_text())
     (d / "sub").mkdir()
     (d / "sub" / "keep.rrd").write_bytes(b"RRF2" + os.urandom(1000))
+    (d / "Other.parquet").write_bytes(OTHER_EMPTY_PARQUET)   # 0 rows, another schema
+    (d / "Rows.parquet").write_bytes(OTHER_ROWS_PARQUET)     # 3 rows, another schema
+    (d / "junk.parquet").write_bytes(os.urandom(5000))
+    (d / "Plug.py").write_text(PLUGIN)
+
+
+def _parquet(frame_columns: dict) -> bytes:
+    import io
+
+    import pandas as pd
+
+    buf = io.BytesIO()
+    pd.DataFrame(frame_columns).to_parquet(buf, index=False)
+    return buf.getvalue()
+
+
+try:
+    OTHER_EMPTY_PARQUET = _parquet({"a": [], "b": []})
+    OTHER_ROWS_PARQUET = _parquet({"a": [1, 2, 3], "b": ["x", "y", "z"]})
+except ImportError:  # no pandas: plain bytes stand in
+    OTHER_EMPTY_PARQUET = OTHER_ROWS_PARQUET = b"PAR1" + b"\x00" * 64 + b"PAR1"
+
+#: a user's plug-in file: one good controller and several broken ones
+PLUGIN = """
+import numpy as np
+from tspend.controllers.base import Controller
+
+
+class Zero(Controller):
+    kind = "zero_force"
+
+    def __init__(self, scenario):
+        self.order = len(scenario.plant.x0)
+        self.diagnostics = ()
+        self.diag = np.zeros(0)
+
+    def reset(self, rng):
+        pass
+
+    def step(self, obs, dt):
+        return 0.0
+
+
+class Raises(Zero):
+    kind = "raises"
+
+    def __init__(self, scenario):
+        raise ValueError("this controller refuses to be built")
+
+
+class NotAController:
+    pass
+
+
+NOT_A_CLASS = 5
+"""
 
 
 def snapshot(d: Path) -> dict[str, str]:
@@ -137,6 +207,9 @@ class Case:
     send: tuple[int, float] | None = None   # (signal, seconds after start)
     head: bool = False         # read one line of stdout, then close it
     may_write: tuple[str, ...] = ()          # new files the case is allowed to leave
+    twin: list[str] | None = None            # a second command started at the same time
+    api: str = ""              # a Python snippet run instead of the CLI
+    needs: str = ""            # a module the case needs (skipped with a note if absent)
 
 
 OUT = ["--out", "K.rrd", "--metrics", "K.json"]
@@ -278,7 +351,7 @@ def cases() -> list[Case]:
         add(f"--record-every {v[:12]}", RUN + [f"--record-every={v}"] + OUT)
     add("--backend bogus", RUN + ["--backend", "fortran"] + OUT)
     add("--controller bogus", RUN + ["--controller", "pid9000"] + OUT)
-    add("--controller help", RUN + ["--controller", "help"] + OUT)
+    add("--controller help", RUN + ["--controller", "help"] + OUT, expect=0)
     for v in ["rerun+http://127.0.0.1:70000/proxy", "rerun+http://127.0.0.1:abc/proxy",
               "not a url", "ftp://x:1/", "rerun+http://[::1/proxy", "rerun+http://:9876/proxy",
               "rerun+http://127.0.0.1:99999999999999999999/proxy"]:
@@ -403,7 +476,315 @@ def cases() -> list[Case]:
             add(f"{signal.Signals(sig).name} at {delay} s",
                 ["run", "P.toml", "--duration", "20"] + OUT, expect=status,
                 send=(sig, delay), may_write=("K.rrd", "K.json"))
+    more_cases(add, sets, mj_models)
     return cs
+
+
+# -- the commands added since: sweep, compare, export, inspect, figures, tune, plug-ins,
+#    the Python API, the gym environment, linearize and the policy kind -------------------
+SW = ["sweep", "ex3_pendulum_ode", "--duration", "0.05", "--seeds", "0:2", "--jobs", "1"]
+CMP = ["compare", "ex3_pendulum_ode", "--duration", "0.05", "--seeds", "0:3", "--jobs", "1",
+       "--controller", "lqr,pd", "--resamples", "200"]
+TUNE = ["tune", "ex3_pendulum_ode", "--controller", "lqr", "--trials", "2", "--seeds", "0:2",
+        "--duration", "0.05", "--jobs", "1", "--out", "tuned.toml"]
+API_PRELUDE = """
+import sys, warnings
+warnings.simplefilter("ignore")
+try:
+    import tspend
+    from tspend.errors import TspendError
+    S = lambda: tspend.load_scenario("ex3_pendulum_ode")
+except Exception as exc:
+    print("tspend could not be imported:", exc, file=sys.stderr); sys.exit(70)
+try:
+    exec(compile(sys.argv[1], "<case>", "exec"))
+except TspendError as exc:
+    print("tspend: error:", " ".join(str(exc).split()), file=sys.stderr); sys.exit(2)
+except Exception as exc:
+    # gymnasium's own error for an id nobody registered is a clean answer too
+    if type(exc).__module__.startswith("gymnasium.error") and "make(" in sys.argv[1]:
+        print("gymnasium: error:", " ".join(str(exc).split()), file=sys.stderr); sys.exit(2)
+    if isinstance(exc, ModuleNotFoundError) and ("tspend" in str(exc) or "gymnasium" in str(exc)):
+        print("skipped:", exc, file=sys.stderr); sys.exit(77)
+    raise
+sys.exit(0)
+"""
+
+
+def more_cases(add, sets: dict, mj_models: dict) -> None:
+    # -- sweep: values
+    for v in ["10:3", "a", "-1", "0:10000000", "0:" + "9" * 40, "1,,2", "1.5", "", "0:0",
+              "1,-2", "9" * 5000, "0:99999999999999999999"]:
+        add(f"sweep --seeds #{len(v)} {v[:20]}", SW[:4] + ["--seeds", v, "--out", "new.parquet"])
+    for v in ["0", "-1", "999", "abc", "1e9", "100000000000000000000"]:
+        add(f"sweep --jobs {v[:20]}", SW[:6] + ["--jobs", v, "--out", "new.parquet"])
+    for v in ["::::", "tcp://127.0.0.1:0", "tcp://[::1:x", "tcp://host:99999999999999",
+              "x" * 5000, "tcp://", "inproc://", "tcp://127.0.0.1:1"]:
+        add(f"sweep --dask {v[:24]}", SW + ["--dask", v, "--out", "new.parquet"])
+    grids = ["controller.eta=0.1,-1", "controller.eta=", "=1,2", "run.seed=1,2",
+             "controller.eta=" + "[" * 5000 + "]" * 5000, "nothing.here=1",
+             "controller.etta=1", "plant.model=none.xml", "run.dt=nan",
+             "controller." + ".".join(["a"] * 200) + "=1", "run.duration=1 x=2",
+             "controller.eta=1e999", "run.dt=0.001,0.001,[",
+             "controller.eta=" + ",".join(["0.1"] * 1000001)[:100000]]
+    for i, g in enumerate(grids):
+        add(f"sweep --grid #{i} {g[:24]}", SW + ["--grid", g, "--out", "new.parquet"])
+    add("sweep --grid too many runs", SW + ["--grid", "controller.eta=" + ",".join(
+        str(0.01 * k + 0.01) for k in range(2000)), "--grid", "plant.x0=" + ",".join(
+        f"[0.{k}, 0.0]" for k in range(1, 10)), "--seeds", "0:100", "--out", "new.parquet"])
+    for label in ("newline trailing", "newline table", "deep value 40", "deep key", "dots",
+                  "unknown key", "unknown table", "seed 5000 digits", "terms 10**18",
+                  "name escape", "table into scalar", "scalar into table", "huge float",
+                  "string for number", "3 million rules", "order 100", "sum of sines 5000",
+                  "dt 1e-300", "duration 1e308"):
+        add(f"sweep --set {label}", SW + ["--set", sets[label], "--out", "new.parquet"])
+    add("sweep --set trailing TOML", SW + ["--set", "run.duration=1 x=2", "--out", "new.parquet"])
+    add("sweep --set trailing table", SW + ["--set", "run.duration=1 [plant]",
+                                            "--out", "new.parquet"])
+    for v in ["nan", "-1", "0", "inf", "abc"]:
+        add(f"sweep --duration {v}", SW[:2] + ["--duration", v, "--out", "new.parquet"])
+    add("sweep --record bogus", SW + ["--record", "some", "--out", "new.parquet"])
+    add("sweep --controller bogus", SW + ["--controller", "pid9000", "--out", "new.parquet"])
+    add("sweep --controller empty", SW + ["--controller", ",", "--out", "new.parquet"])
+    add("sweep scenario missing", ["sweep", "nope", "--out", "new.parquet"])
+    add("sweep scenario broken", ["sweep", "X.toml", "--seeds", "0:2", "--out", "new.parquet"],
+        files={"X.toml": "this is not [toml\n"})
+    for label, text in mj_models.items():
+        if label.startswith("timestep 0.0015"):
+            continue
+        add(f"sweep MJCF {label}", ["sweep", "Q.toml", "--seeds", "0:2", "--duration", "0.05",
+                                    "--jobs", "1", "--out", "new.parquet"],
+            files={"Q.toml": render(MUJOCO, plant__model='"Q.xml"'), "Q.xml": text})
+    add("sweep MJCF missing", SW[:2] + ["--set", 'plant.model="none.xml"', "--seeds", "0:2",
+                                        "--out", "new.parquet"], files={})
+    # the table and its journal
+    outs = {
+        "0-row Parquet of another schema": "Other.parquet",
+        "Parquet of another schema": "Rows.parquet",
+        "random bytes": "junk.parquet",
+        "the scenario": "S.toml",
+        "the model": "M.xml",
+        "a recording": "K.rrd",
+        "notes": "notes.txt",
+        "a directory": "sub",
+        "/dev/full": "/dev/full",
+        "/proc": "/proc/self/status",
+        "empty": "",
+        "under a file": "notes.txt/x.parquet",
+    }
+    for label, target in outs.items():
+        add(f"sweep --out {label}", SW + ["--out", target])
+        add(f"compare --out {label}", CMP + ["--out", target])
+    add("sweep journal is a symlink", SW + ["--out", "J.parquet"], setup="journal_symlink")
+    add("sweep journal corrupt", SW + ["--out", "C.parquet"], setup="journal_corrupt")
+    add("sweep journal of another table", SW + ["--out", "O.parquet"], setup="journal_other")
+    add("sweep journal hard link", SW + ["--out", "H.parquet"], setup="journal_hardlink")
+    add("sweep table locked", SW + ["--out", "L.parquet"], setup="table_locked")
+    add("sweep runs, nothing stray", SW + ["--out", "new.parquet"], expect=0,
+        may_write=("new.parquet",))
+    add("sweep two on one table", ["sweep", "ex3_pendulum_ode", "--duration", "0.05", "--seeds",
+                                   "0:3", "--jobs", "1", "--out", "two.parquet"],
+        expect=-2, twin=["sweep", "ex3_pendulum_ode", "--duration", "0.05", "--seeds", "3:6",
+                         "--jobs", "1", "--out", "two.parquet"], may_write=("two.parquet",))
+    add("sweep SIGKILL, workers end", ["sweep", "pendulum_mujoco", "--jobs", "2", "--seeds",
+                                       "0:400", "--out", "k.parquet"],
+        expect=-9, send=(signal.SIGKILL, 12.0), may_write=("k.parquet",))
+    # -- compare
+    for v in ["0", "99", "-1", "10000000000", "abc"]:
+        add(f"compare --resamples {v}", CMP[:-2] + ["--resamples", v])
+    for v in ["3:1", "a", "0:10000000"]:
+        add(f"compare --seeds {v}", CMP[:4] + ["--seeds", v] + CMP[6:])
+    add("compare one kind", CMP[:8] + ["--controller", "lqr"] + CMP[10:])
+    add("compare kind bogus", CMP[:8] + ["--controller", "lqr,nope"] + CMP[10:])
+    add("compare --metrics bogus", CMP + ["--metrics", "speed"])
+    add("compare --jobs 999", CMP[:6] + ["--jobs", "999"] + CMP[8:])
+    add("compare --dask bad", CMP + ["--dask", "::::"])
+    add("compare --tune 0", CMP + ["--tune", "0"])
+    add("compare --tune huge", CMP + ["--tune", "1000000000"])
+    add("compare --tune-seeds overlap", CMP + ["--tune", "1", "--tune-seeds", "0:2"])
+    add("compare --stats-seed -1", CMP + ["--stats-seed", "-1"])
+    add("compare --set trailing", CMP + ["--set", "run.dt=0.001\nx=1"])
+    add("compare --set deep key", CMP + ["--set", sets["deep key"]])
+    add("compare broken model", ["compare", "Q.toml", "--seeds", "0:2", "--controller", "lqr,pd",
+                                 "--jobs", "1"],
+        files={"Q.toml": render(MUJOCO, plant__model='"Q.xml"'),
+               "Q.xml": model_text(**{'name="hinge"': 'name="hinge2"'})})
+    for label, target in {"scenario": "S.toml", "model": "M.xml", "read-only": "RO.json",
+                          "directory": "sub", "/dev/full": "/dev/full", "not json": "x.txt",
+                          "under a file": "notes.txt/x.json"}.items():
+        add(f"compare --json {label}", CMP + ["--json", target])
+    # -- export
+    add("export random bytes", ["export", "R.rrd", "--to", "x.csv"],
+        files={"R.rrd": os.urandom(20000)})
+    add("export corrupt recording", ["export", "K.rrd", "--to", "x.csv"])
+    add("export empty file", ["export", "E.rrd", "--to", "x.parquet"], files={"E.rrd": b""})
+    add("export missing", ["export", "none.rrd", "--to", "x.csv"])
+    add("export a directory", ["export", "sub", "--to", "x.csv"])
+    add("export a scenario", ["export", "S.toml", "--to", "x.csv"])
+    add("export to existing", ["export", "sub/keep.rrd", "--to", "notes.csv"],
+        files={"notes.csv": "a,b\n1,2\n"})
+    add("export to .txt", ["export", "K.rrd", "--to", "x.txt"])
+    add("export to a directory", ["export", "K.rrd", "--to", "sub"])
+    add("export to .rrd", ["export", "sub/keep.rrd", "--to", "K.rrd"])
+    add("export to /dev/full", ["export", "K.rrd", "--to", "/dev/full"])
+    add("export to under a file", ["export", "K.rrd", "--to", "notes.txt/x.csv"])
+    add("export to a long name", ["export", "K.rrd", "--to", "x" * 300 + ".csv"])
+    add("export a FIFO", ["export", "fifo.rrd", "--to", "x.csv"], setup="links")
+    # -- inspect
+    for v in ["nan", "-1", "0", "inf", "abc", "1e-300x"]:
+        add(f"inspect --dt {v}", ["inspect", "M.xml", "--dt", v])
+    for label, text in mj_models.items():
+        if label in ("timestep 0.0015", "integrator bogus", "motor on the hinge"):
+            continue
+        # inspect finds the joints by type: other names are a model it reads (and replaces
+        # the --json file with a complete one)
+        renamed = label in ("no hinge", "no actuator")
+        add(f"inspect MJCF {label}", ["inspect", "Q.xml", "--json", "K.json"], files={"Q.xml": text},
+            expect=0 if renamed else 2, may_write=("K.json",) if renamed else ())
+    add("inspect heightfield 10^10 cells", ["inspect", "Q.xml"], files={"Q.xml": model_text(
+        **{"<worldbody>": '<asset><hfield name="h" nrow="100000" ncol="100000" '
+                          'size="1 1 1 1"/></asset><worldbody>'})})
+    add("inspect 20000 bodies", ["inspect", "Q.xml"], files={
+        "Q.xml": "<mujoco><worldbody>" + "".join(f'<body name="b{i}"><geom size=".1"/></body>'
+                                                 for i in range(20000)) + "</worldbody></mujoco>"})
+    add("inspect 8 GB sparse", ["inspect", "Big.xml"], setup="big_model")
+    add("inspect missing", ["inspect", "none.xml"])
+    add("inspect a directory", ["inspect", "sub"])
+    add("inspect a scenario", ["inspect", "S.toml"])
+    add("inspect --json scenario", ["inspect", "M.xml", "--json", "S.toml"])
+    add("inspect --json read-only", ["inspect", "M.xml", "--json", "RO.json"])
+    add("inspect --json directory", ["inspect", "M.xml", "--json", "sub"])
+    add("inspect --slide bogus", ["inspect", "M.xml", "--slide", "nope"])
+    add("inspect --actuator bogus", ["inspect", "M.xml", "--actuator", "nope"])
+    add("inspect runs, no MUJOCO_LOG", ["inspect", "Q.xml", "--dt", "0.01"], expect=0,
+        files={"Q.xml": model_text(**{'timestep="0.001"': 'timestep="0.0010"'})})
+    # -- figures
+    add("figures box random bytes", ["figures", "box", "junk.parquet", "--out", "figs"])
+    add("figures box other schema", ["figures", "box", "Rows.parquet", "--out", "figs"])
+    add("figures box 0 rows", ["figures", "box", "Other.parquet", "--out", "figs"])
+    add("figures box missing", ["figures", "box", "none.parquet", "--out", "figs"])
+    add("figures box metric bogus", ["figures", "box", "Rows.parquet", "--metrics", "speed"])
+    add("figures heatmap other schema", ["figures", "heatmap", "Rows.parquet", "--x", "a",
+                                         "--y", "b", "--out", "figs"])
+    add("figures --out a file", ["figures", "box", "Rows.parquet", "--out", "notes.txt"])
+    add("figures paper --duration nan", ["figures", "paper", "--duration", "nan", "--out", "figs"])
+    add("figures paper --every 0", ["figures", "paper", "--every", "0", "--out", "figs"])
+    add("figures paper --seed -1", ["figures", "paper", "--seed", "-1", "--out", "figs"])
+    add("figures bogus", ["figures", "pie"])
+    # -- tune
+    for v in ["0", "-1", "1000000000", "abc"]:
+        add(f"tune --trials {v}", TUNE[:4] + ["--trials", v] + TUNE[6:])
+    for v in ["3:1", "a", "0:10000000"]:
+        add(f"tune --seeds {v}", TUNE[:6] + ["--seeds", v] + TUNE[8:])
+    add("tune --test-seeds overlap", TUNE + ["--test-seeds", "1:3"])
+    add("tune --metric bogus", TUNE + ["--metric", "speed"])
+    add("tune --controller bogus", TUNE[:2] + ["--controller", "nope"] + TUNE[4:])
+    add("tune --controller a plug-in", TUNE[:2] + ["--controller", "Plug.py:Zero"] + TUNE[4:])
+    add("tune --out scenario", TUNE[:-2] + ["--out", "S.toml"])
+    add("tune --out user file", TUNE[:-2] + ["--out", "P.toml"])
+    add("tune --out not toml", TUNE[:-2] + ["--out", "x.txt"])
+    add("tune --out directory", TUNE[:-2] + ["--out", "sub"])
+    add("tune --storage bad URL", TUNE + ["--storage", "nosuchdb://x/y"])
+    add("tune --storage directory", TUNE + ["--storage", "sub"])
+    add("tune --jobs 999", TUNE[:10] + ["--jobs", "999"] + TUNE[12:])
+    add("tune --dask bad", TUNE[:10] + TUNE[12:] + ["--dask", "::::"])
+    add("tune --duration nan", TUNE[:8] + ["--duration", "nan"] + TUNE[10:])
+    add("tune --set trailing", TUNE + ["--set", "run.dt=0.001\nx=1"])
+    add("tune --set deep key", TUNE + ["--set", sets["deep key"]])
+    add("tune broken model", ["tune", "Q.toml", "--controller", "lqr", "--trials", "2", "--seeds",
+                              "0:2", "--jobs", "1", "--out", "tuned.toml"],
+        files={"Q.toml": render(MUJOCO, plant__model='"Q.xml"'),
+               "Q.xml": model_text(**{'name="hinge"': 'name="hinge2"'})})
+    # -- plug-ins, on every command that takes --controller
+    plugs = {"missing file": "none.py:Zero", "missing class": "Plug.py:Nope",
+             "not a controller": "Plug.py:NotAController", "not a class": "Plug.py:NOT_A_CLASS",
+             "constructor raises": "Plug.py:Raises", "syntax error": "Bad.py:Zero",
+             "a directory": "sub:Zero", "no module": "no_such_module.x:Zero",
+             "empty class": "Plug.py:", "a scenario": "S.toml:Zero"}
+    files = {"Bad.py": "def (:\n"}
+    for label, spec in plugs.items():
+        add(f"plugin run {label}", RUN + ["--controller", spec] + OUT, files=files)
+        add(f"plugin sweep {label}", SW + ["--controller", spec, "--out", "new.parquet"],
+            files=files)
+        add(f"plugin compare {label}", CMP[:8] + ["--controller", f"lqr,{spec}"] + CMP[10:],
+            files=files)
+    add("plugin runs", ["run", "ex3_pendulum_ode", "--duration", "0.05", "--no-record",
+                        "--controller", "Plug.py:Zero"], expect=0)
+    # -- the Python API
+    api = {
+        "run controller nope": 'tspend.run(S(), controller="nope")',
+        "load no such scenario": 'tspend.load_scenario("no_such_scenario")',
+        "load None": "tspend.load_scenario(None)",
+        "load 5": "tspend.load_scenario(5)",
+        "override bad key": 'tspend.override(S(), **{"controller.etta": 1})',
+        "override bad value": 'tspend.override(S(), **{"run.dt": "x"})',
+        "override nan": 'tspend.override(S(), **{"run.dt": float("nan")})',
+        "override object": 'tspend.override(S(), **{"run.dt": object()})',
+        "override not a scenario": 'tspend.override(None, **{"run.dt": 1})',
+        "override long key": 'tspend.override(S(), **{"controller." + "a" * 100000: 1})',
+        "override deep key": 'tspend.override(S(), **{".".join(["a"] * 20000): 1})',
+        "override deep value": 'v = []\nfor _ in range(5000):\n    v = [v]\n'
+                               'tspend.override(S(), **{"controller.eta": v})',
+        "run seed -1": "tspend.run(S(), seed=-1)",
+        "run seed str": 'tspend.run(S(), seed="a")',
+        "run duration nan": 'tspend.run(S(), duration=float("nan"))',
+        "run overrides list": "tspend.run(S(), overrides=[1, 2])",
+        "run scenario 5": "tspend.run(5)",
+        "run controller 5": "tspend.run(S(), controller=5)",
+        "run unknown option": "tspend.run(S(), bogus=1)",
+        "run plant_kind bogus": 'tspend.run(S(), plant_kind="quantum")',
+        "run block_size 0": "tspend.run(S(), block_size=0, duration=0.1)",
+        "build_plant None": "tspend.build_plant(None)",
+        "build_controller kind": 'tspend.build_controller(S(), kind="nope")',
+        "sweep seeds huge": "tspend.sweep(S(), seeds=range(10**8))",
+        "sweep grid list": "tspend.sweep(S(), grid=[1])",
+        "sweep jobs 999": "tspend.sweep(S(), jobs=999)",
+        "sweep dask bad": 'tspend.sweep(S(), dask="::::")',
+        "sweep controllers 5": "tspend.sweep(S(), controllers=5)",
+        "sweep out other schema": 'tspend.sweep(S(), seeds=[0], out="Other.parquet")',
+        "read_table junk": 'tspend.sweep.read_table("junk.parquet")',
+    }
+    for label, code in api.items():
+        add(f"API {label}", [], api=code)
+    # -- guarded: modules other work is adding (skipped with a note when absent)
+    gym = {
+        "gym unknown scenario": 'import tspend.gym, gymnasium; gymnasium.make("tspend/nope-v0")',
+        "gym bad override": 'import tspend.gym, gymnasium; gymnasium.make('
+                            '"tspend/ex3_pendulum_ode-v0", overrides={"run.dt": "x"})',
+        "gym bad controller option": 'import tspend.gym, gymnasium; gymnasium.make('
+                                     '"tspend/ex3_pendulum_ode-v0", overrides={"nothing.here": 1})',
+        "gym step nan": 'import tspend.gym, gymnasium, numpy as np\n'
+                        'env = gymnasium.make("tspend/ex3_pendulum_ode-v0")\n'
+                        'env.reset(seed=0)\nenv.step(np.array([np.nan], dtype=np.float32))',
+        "gym step wrong shape": 'import tspend.gym, gymnasium, numpy as np\n'
+                                'env = gymnasium.make("tspend/ex3_pendulum_ode-v0")\n'
+                                'env.reset(seed=0)\nenv.step(np.zeros(7))',
+        "gym reset seed -1": 'import tspend.gym, gymnasium\n'
+                             'env = gymnasium.make("tspend/ex3_pendulum_ode-v0")\n'
+                             'env.reset(seed=-1)',
+    }
+    for label, code in gym.items():
+        add(f"API {label}", [], api=code, needs="tspend.gym")
+    lin = {
+        "linearize unknown scenario": 'tspend.linearize("no_such_scenario")',
+        "linearize at wrong length": 'tspend.linearize("ex3_pendulum_ode", at=[0.0])',
+        "linearize at nan": 'tspend.linearize("ex3_pendulum_ode", at=[float("nan"), 0.0])',
+        "linearize not a scenario": "tspend.linearize(5)",
+        "linearize at a string": 'tspend.linearize("pendulum_mujoco", at="up")',
+    }
+    for label, code in lin.items():
+        add(f"API {label}", [], api=code, needs="tspend.linearize")
+    for label, value in {"missing": '"none.onnx"', "not onnx": '"notes.txt"',
+                         "random bytes": '"R.onnx"', "a directory": '"sub"', "a number": "5",
+                         "empty": '""'}.items():
+        add(f"policy path {label}", ["run", "ex3_pendulum_ode", "--duration", "0.05",
+                                     "--controller", "policy", "--set",
+                                     f"controllers.policy.path={value}"] + OUT,
+            files={"R.onnx": os.urandom(3000)}, needs="tspend.controllers.policy")
+        add(f"policy sweep path {label}", SW + ["--controller", "policy", "--set",
+                                                 f"controllers.policy.path={value}",
+                                                 "--out", "new.parquet"],
+            files={"R.onnx": os.urandom(3000)}, needs="tspend.controllers.policy")
 
 
 # -- running them ------------------------------------------------------------------------
@@ -434,7 +815,16 @@ def prepare(d: Path, case: Case) -> None:
         (d / "rodir").mkdir()
         os.chmod(d / "rodir", 0o555)
         os.mkfifo(d / "fifo.rrd")
-    elif case.setup == "locked_partial":
+    elif case.setup == "journal_symlink":
+        os.symlink("notes.txt", d / "J.parquet.journal")
+    elif case.setup == "journal_corrupt":
+        (d / "C.parquet.journal").write_bytes(b'{"run_key": ["not", "a", "key"]}\n' +
+                                              os.urandom(2000))
+    elif case.setup == "journal_other":
+        (d / "O.parquet.journal").write_text('{"tspend_journal": "Mine.parquet"}\n')
+    elif case.setup == "journal_hardlink":
+        os.link(d / "notes.txt", d / "H.parquet.journal")
+    if case.setup == "locked_partial":
         # another run holds K.partial.rrd: a helper process keeps it locked
         (d / "K.partial.rrd").write_bytes(b"")
 
@@ -447,10 +837,19 @@ class Outcome:
     out: str
     lost: list[str]
     stray: list[str]
+    left: list[str] = field(default_factory=list)   # processes still running in the directory
+    twin_status: int | None = None
+    skipped: str = ""
 
     @property
     def traceback(self) -> bool:
         return "Traceback (most recent call last)" in self.err + self.out
+
+    @property
+    def internal(self) -> bool:
+        """An internal error (exit 70, or a traceback) where the case expected another."""
+        return (self.status == 70 or self.twin_status == 70 or self.traceback) \
+            and self.case.expect != 70
 
     @property
     def hang(self) -> bool:
@@ -468,32 +867,122 @@ class Outcome:
 
     @property
     def clean(self) -> bool:
-        if self.hang or self.traceback or self.lost or self.stray:
+        if self.skipped:
+            return True
+        if self.hang or self.traceback or self.lost or self.stray or self.left:
             return False
         if self.case.expect == 0:
-            return self.status == 0 and not self.err.strip()
+            # progress lines of a sweep go to stderr too: only an error is wrong
+            return self.status == 0 and "error" not in self.err
         if self.case.expect == 2:
             return self.status == 2 and self.one_line
+        if self.case.expect == -2:  # two commands at once: each ends with 0 or 2
+            return self.status in (0, 2) and self.twin_status in (0, 2)
+        if self.case.expect == -9:  # killed outright: nothing lost, nothing left running
+            return self.status == -9
         return self.status == self.case.expect and self.one_line_besides_warnings
 
 
+def _in_directory(d: Path) -> list[int]:
+    """Processes whose working directory is ``d`` (what a command left running there)."""
+    found = []
+    target = str(d)
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == os.getpid():
+            continue
+        try:
+            if os.readlink(f"/proc/{entry}/cwd") != target:
+                continue
+            with open(f"/proc/{entry}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    continue
+        except OSError:
+            continue
+        found.append(int(entry))
+    return found
+
+
+def _left_running(d: Path, grace_s: float = 5.0) -> list[str]:
+    """Processes still in ``d`` ``grace_s`` after the command ended (then killed)."""
+    deadline = time.monotonic() + grace_s
+    while True:
+        pids = _in_directory(d)
+        if not pids or time.monotonic() > deadline:
+            break
+        time.sleep(0.25)
+    names = []
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                command = f.read().replace(b"\0", b" ").decode(errors="replace")
+            names.append(f"{pid}: {command[:80]}")
+            os.kill(pid, signal.SIGKILL)  # a process this benchmark's case started
+        except OSError:
+            pass
+    return names
+
+
+def _verify_twin(d: Path, statuses: list[int | None], argvs: list[list[str]]) -> list[str]:
+    """Rows of a sweep that exited 0 missing from the table: lost."""
+    lost = []
+    try:
+        import pandas as pd
+
+        from tspend.sweep import read_table
+
+        table = read_table(d / "two.parquet")
+        have = set(table["seed"]) if len(table) else set()
+    except Exception as exc:  # noqa: BLE001
+        return [f"two.parquet unreadable ({exc})"] if 0 in statuses else []
+    for status, argv in zip(statuses, argvs):
+        if status == 0:
+            a, b = map(int, argv[argv.index("--seeds") + 1].split(":"))
+            missing = set(range(a, b)) - have
+            if missing:
+                lost.append(f"two.parquet: seeds {sorted(missing)} of a sweep that exited 0")
+    return lost
+
+
 def run_case(case: Case, base: Path, index: int) -> Outcome:
+    if case.needs and importlib.util.find_spec(case.needs.rpartition(".")[0] or case.needs) \
+            is None:
+        return Outcome(case, None, "", "", [], [], skipped=f"{case.needs} is not there")
+    if case.needs and importlib.util.find_spec(case.needs) is None and \
+            not _has_attribute(case.needs):
+        return Outcome(case, None, "", "", [], [], skipped=f"{case.needs} is not there")
     d = base / f"case{index:03d}"
     d.mkdir()
     prepare(d, case)
     before = snapshot(d)
     locker = None
-    if case.setup == "locked_partial":
-        locker = subprocess.Popen([sys.executable, "-c", "import fcntl,sys,time;"
-                                   "f=open(sys.argv[1],'rb');fcntl.flock(f,fcntl.LOCK_EX);"
+    lock_target = {"locked_partial": "K.partial.rrd", "table_locked": "L.parquet.lock"}.get(
+        case.setup)
+    if lock_target:
+        locker = subprocess.Popen([sys.executable, "-c", "import fcntl,os,sys,time;"
+                                   "f=open(sys.argv[1],'ab');fcntl.flock(f,fcntl.LOCK_EX);"
+                                   "f.write(str(os.getpid()).encode());f.flush();"
                                    "print('ok',flush=True);time.sleep(300)",
-                                   str(d / "K.partial.rrd")], stdout=subprocess.PIPE, text=True)
+                                   str(d / lock_target)], stdout=subprocess.PIPE, text=True)
         locker.stdout.readline()
+        before = snapshot(d)
     env = dict(os.environ)
-    cmd = [sys.executable, "-m", "tspend.cli", *case.argv]
-    proc = subprocess.Popen(cmd, cwd=d, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    if case.api:
+        cmd = [sys.executable, "-c", API_PRELUDE, case.api]
+    else:
+        cmd = [sys.executable, "-m", "tspend.cli", *case.argv]
+    # a killed command's orphans may hold its pipes open: its output goes to files instead
+    killed = case.send is not None and case.send[0] == signal.SIGKILL
+    sink = [open(base / f"case{index:03d}.{n}", "w+b") for n in ("out", "err")] if killed \
+        else [subprocess.PIPE, subprocess.PIPE]
+    proc = subprocess.Popen(cmd, cwd=d, stdout=sink[0], stderr=sink[1], env=env,
                             start_new_session=True)
+    twin = None
+    if case.twin is not None:
+        twin = subprocess.Popen([sys.executable, "-m", "tspend.cli", *case.twin], cwd=d,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                                start_new_session=True)
     out = err = ""
+    twin_status = None
     try:
         if case.head:
             first = proc.stdout.readline()
@@ -505,25 +994,60 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
             if case.send is not None:
                 time.sleep(case.send[1])
                 proc.send_signal(case.send[0])
-            o, e = proc.communicate(timeout=TIMEOUT_S)
-            out, err = o.decode(errors="replace"), e.decode(errors="replace")
+            if killed:
+                proc.wait(timeout=TIMEOUT_S)
+                sink[0].seek(0)
+                sink[1].seek(0)
+                out = sink[0].read().decode(errors="replace")
+                err = sink[1].read().decode(errors="replace")
+                for f in sink:
+                    f.close()
+            else:
+                o, e = proc.communicate(timeout=TIMEOUT_S)
+                out, err = o.decode(errors="replace"), e.decode(errors="replace")
         status = proc.returncode
+        if twin is not None:
+            o, e = twin.communicate(timeout=TIMEOUT_S)
+            twin_status = twin.returncode
+            err += e.decode(errors="replace")
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.communicate()
+        for p in (proc, twin):
+            if p is not None:
+                try:
+                    os.killpg(p.pid, signal.SIGKILL)
+                except OSError:
+                    pass
+                p.communicate()
         status = None
     finally:
         if locker is not None:
             locker.kill()
             locker.wait()
+    if status == 77 and case.api:
+        _cleanup(d)
+        return Outcome(case, None, err, out, [], [], skipped=err.strip()[:120])
+    left = _left_running(d)
     after = snapshot(d)
     allowed = case.may_write
     lost = [p for p, h in before.items() if after.get(p) != h and not p.startswith(allowed)]
+    if case.twin is not None:
+        lost += _verify_twin(d, [status, twin_status], [case.argv, case.twin])
     stray = [p for p in after if p not in before and not p.startswith(allowed)
              and not (p.startswith("runs/") and "partial" not in p and ".." not in p)]
+    if case.expect == -9:  # a killed sweep's journal and lock file are its table's
+        stray = [p for p in stray if not p.startswith("k.parquet")]
     stray += [str(p.relative_to(d)) for p in d.rglob("MUJOCO_LOG.TXT")]
     _cleanup(d)
-    return Outcome(case, status, err, out, lost, sorted(set(stray)))
+    return Outcome(case, status, err, out, lost, sorted(set(stray)), left, twin_status)
+
+
+def _has_attribute(dotted: str) -> bool:
+    """``tspend.linearize``: whether the module has the attribute (without failing)."""
+    module, _, name = dotted.rpartition(".")
+    try:
+        return hasattr(importlib.import_module(module), name)
+    except Exception:  # noqa: BLE001
+        return False
 
 
 def _cleanup(d: Path) -> None:
@@ -540,6 +1064,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("-k", default="", help="only cases whose name contains this")
     ap.add_argument("-j", type=int, default=2, help="cases at a time (default 2)")
+    ap.add_argument("--json", metavar="PATH", help="also write the counts as JSON")
     args = ap.parse_args()
     selected = [c for c in cases() if args.k in c.name]
     base = Path(tempfile.mkdtemp(prefix="tspend-hostile-"))
@@ -547,24 +1072,48 @@ def main() -> int:
     with ThreadPoolExecutor(args.j) as pool:
         outcomes = list(pool.map(lambda ic: run_case(ic[1], base, ic[0]), enumerate(selected)))
     shutil.rmtree(base, ignore_errors=True)
-    bad = [o for o in outcomes if not o.clean]
-    for o in bad:
-        first = (o.err.strip().splitlines() or [""])[0][:160]
-        print(f"NOT CLEAN  {o.case.name[:50]:<50} status={o.status} expect={o.case.expect} "
-              f"lines={len(o.err.splitlines())} lost={o.lost} stray={o.stray} :: {first}")
-    n_bad_input = sum(1 for o in outcomes if o.case.expect == 2)
+    skipped = [o for o in outcomes if o.skipped]
+    ran = [o for o in outcomes if not o.skipped]
+    for o in ran:
+        if not o.clean:
+            first = (o.err.strip().splitlines() or [""])[0][:160]
+            print(f"NOT CLEAN  {o.case.name[:50]:<50} status={o.status} expect={o.case.expect} "
+                  f"lines={len(o.err.splitlines())} lost={o.lost} stray={o.stray} "
+                  f"left={o.left} :: {first}")
+    notes = sorted({o.skipped for o in skipped})
+    for note in notes:
+        n = sum(o.skipped == note for o in skipped)
+        print(f"SKIPPED    {n} case(s): {note}")
+    bad_input = [o for o in ran if o.case.expect == 2]
+    counts = {
+        "cases": len(ran),
+        "skipped": len(skipped),
+        "bad inputs": len(bad_input),
+        "clean exit 2": sum(o.clean for o in bad_input),
+        "other cases as documented": sum(o.clean for o in ran if o.case.expect != 2),
+        "other cases": len(ran) - len(bad_input),
+        "internal errors (exit 70 or traceback)": sum(o.internal for o in ran),
+        "data lost": sum(bool(o.lost) for o in ran),
+        "processes left": sum(bool(o.left) for o in ran),
+        "stray files": sum(bool(o.stray) for o in ran),
+        "hangs": sum(o.hang for o in ran),
+        "wall time s": round(time.perf_counter() - started),
+    }
     print()
-    print(f"tried                         {len(outcomes)}")
-    print(f"clean exit 2 with one line    {sum(o.clean for o in outcomes if o.case.expect == 2)}"
-          f" of {n_bad_input} bad inputs")
-    print(f"other cases as documented     {sum(o.clean for o in outcomes if o.case.expect != 2)}"
-          f" of {len(outcomes) - n_bad_input} (sanitised names run, signals, list | head)")
-    print(f"tracebacks                    {sum(o.traceback for o in outcomes)}")
-    print(f"hangs (> {TIMEOUT_S:.0f} s)              {sum(o.hang for o in outcomes)}")
-    print(f"files lost                    {sum(bool(o.lost) for o in outcomes)}")
-    print(f"stray files                   {sum(bool(o.stray) for o in outcomes)}")
-    print(f"wall time                     {time.perf_counter() - started:.0f} s")
-    worst = any(o.traceback or o.hang or o.lost for o in outcomes)
+    print(f"cases                         {counts['cases']} (+{counts['skipped']} skipped)")
+    print(f"clean exit 2 with one line    {counts['clean exit 2']} of {counts['bad inputs']} "
+          f"bad inputs")
+    print(f"other cases as documented     {counts['other cases as documented']} of "
+          f"{counts['other cases']} (runs, signals, kills, two sweeps on one table)")
+    print(f"internal errors (70)          {counts['internal errors (exit 70 or traceback)']}")
+    print(f"data lost                     {counts['data lost']}")
+    print(f"processes left                {counts['processes left']}")
+    print(f"stray files                   {counts['stray files']}")
+    print(f"hangs (> {TIMEOUT_S:.0f} s)              {counts['hangs']}")
+    print(f"wall time                     {counts['wall time s']} s")
+    if args.json:
+        Path(args.json).write_text(json.dumps(counts, indent=1) + "\n")
+    worst = any(o.internal or o.hang or o.lost or o.left for o in ran)
     return 1 if worst else 0
 
 

@@ -4,7 +4,7 @@ signals from the first instant; no stray files from the native libraries.
 The cases the issue found reported as "internal error", the resource bounds, signals
 during start-up and during cleanup.  Each asserts the exit status, the single stderr
 line and that the user's files (``cli_harness.user_files``) are byte-for-byte intact.
-``benchmarks/hostile_inputs.py`` runs the ~300-case sweep.
+``benchmarks/hostile_inputs.py`` runs the 600-case sweep over every command.
 """
 
 from __future__ import annotations

@@ -41,7 +41,8 @@ def test_killed_sweep_restarted_ends_with_every_row_once(tmp_path):
     journal = journal_path(out)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if journal.exists() and journal.read_text().count("\n") >= 3:
+        # the header naming the table, then three rows
+        if journal.exists() and journal.read_text().count("\n") >= 4:
             break
         time.sleep(0.01)
     os.killpg(proc.pid, signal.SIGKILL)  # no chance to tidy up: the worst case
@@ -103,12 +104,36 @@ def test_grid_where_some_runs_diverge_completes_with_those_rows_marked(tmp_path)
     assert bounded["recording"].is_unique
 
 
-def test_failed_run_is_a_row(tmp_path):
+def test_broken_model_stops_before_anything_runs(tmp_path):
+    # the model of each grid point is built once before the sweep starts: a missing file
+    # is bad input, not a table of failed rows
     scn = tspend.override(tspend.load_scenario("pendulum_mujoco"), **{"run.duration": 0.2})
-    table = tspend.sweep(scn, grid={"plant.model": ["models/cartpole.xml",
-                                                    str(tmp_path / "missing.xml")]}, jobs=1)
+    out = tmp_path / "t.parquet"
+    with pytest.raises(ScenarioError, match="missing.xml"):
+        tspend.sweep(scn, grid={"plant.model": ["models/cartpole.xml",
+                                                str(tmp_path / "missing.xml")]}, jobs=1, out=out)
+    assert not out.exists() and not journal_path(out).exists()
+
+
+def test_failed_run_is_a_row(tmp_path):
+    # a controller that builds but raises while running: a failed row, the sweep goes on
+    (tmp_path / "boom.py").write_text(
+        "import numpy as np\n"
+        "from tspend.controllers.base import Controller\n"
+        "class Boom(Controller):\n"
+        "    kind = 'boom'\n"
+        "    def __init__(self, scenario):\n"
+        "        self.order = len(scenario.plant.x0)\n"
+        "        self.diagnostics = ()\n"
+        "        self.diag = np.zeros(0)\n"
+        "    def reset(self, rng):\n"
+        "        pass\n"
+        "    def step(self, obs, dt):\n"
+        "        raise RuntimeError('boom at run time')\n")
+    scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.2})
+    table = tspend.sweep(scn, controllers=["lqr", f"{tmp_path / 'boom.py'}:Boom"], jobs=1)
     assert list(table["status"]) == ["completed", "failed"]
-    assert "missing.xml" in table["message"].iloc[1]
+    assert "boom at run time" in table["message"].iloc[1]
     assert np.isnan(table["rmse"].iloc[1]) and table["rmse"].dtype == np.float64
 
 
@@ -159,7 +184,7 @@ def test_without_dask_the_error_names_the_extra(tmp_path, monkeypatch, capsys):
 def test_a_job_whose_worker_dies_is_a_failed_row_and_the_rest_run_once():
     from concurrent.futures import Future
 
-    from tspend.sweep import _execute
+    from tspend.sweep import MAX_DEATHS, _execute
     from tspend.sweep.executors import WorkerDied
 
     jobs = plan.make_plan(tspend.override(tspend.load_scenario("ex2_duffing"),
@@ -194,7 +219,9 @@ def test_a_job_whose_worker_dies_is_a_failed_row_and_the_rest_run_once():
     assert sorted(r["run_key"] for r in rows) == sorted(j.key for j in jobs)
     dead = next(r for r in rows if r["run_key"] == crasher)
     assert dead["status"] == "failed" and "worker process died" in dead["message"]
-    assert executor.restarts == 2  # once for the death among others, once for it alone
+    # once for the death among others, then MAX_DEATHS times alone (a kill from outside is
+    # not the job's fault: it is tried again before it is a failed row)
+    assert executor.restarts == 1 + MAX_DEATHS
 
 
 def test_a_worker_killed_mid_run_costs_nothing_but_time(tmp_path):

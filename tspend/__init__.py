@@ -60,11 +60,42 @@ def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | N
     -------
     RunResult
         ``.metrics``, ``.status``, ``.history``, ``.to_pandas()``, ``.plot()``.
+
+    Raises
+    ------
+    tspend.errors.ScenarioError
+        any bad input: no such scenario, an unknown controller kind or plug-in that
+        cannot be loaded, an invalid override, seed or duration, an unknown option, a
+        model that cannot be built.  Every error is a :class:`tspend.errors.TspendError`.
+    tspend.errors.DivergenceError
+        never: a run that diverges returns, with ``status`` ``"diverged"``.
     """
+    from collections.abc import Mapping
+
     from tspend.config import Scenario
+    from tspend.errors import ScenarioError
     from tspend.loop import simulation
     from tspend.scenario import load_scenario, override
 
+    unknown = sorted(set(options) - _RUN_OPTIONS)
+    if unknown:
+        raise ScenarioError(f"run(): unknown option(s) {', '.join(map(repr, unknown))}; allowed: "
+                            f"{', '.join(sorted(_RUN_OPTIONS))}")
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise ScenarioError(f"overrides: expected a dict of dotted keys to values, got "
+                            f"{type(overrides).__name__}")
+    if controller is not None and not isinstance(controller, str):
+        raise ScenarioError(f"controller: expected a kind or a plug-in spec, got "
+                            f"{controller!r:.80}")
+    if "block_size" in options:
+        size = options["block_size"]
+        if isinstance(size, bool) or not isinstance(size, int) or not 1 <= size <= 10**7:
+            raise ScenarioError(f"block_size: expected an integer from 1 to 10^7, got {size!r}")
+    if "sinks" in options:
+        sinks = options["sinks"]
+        if isinstance(sinks, (str, bytes)) or not all(
+                callable(getattr(s, m, None)) for s in sinks for m in ("start", "block", "finish")):
+            raise ScenarioError("sinks: expected a sequence of sinks (start, block, finish)")
     if controller is not None:
         from tspend.controllers import load
 
@@ -78,6 +109,11 @@ def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | N
     if changes:
         scn = override(scn, **changes)
     return simulation.run(scn, controller=controller, **options)
+
+
+#: keyword options run() passes on to tspend.loop.simulation.run
+_RUN_OPTIONS = frozenset({"sinks", "keep_history", "plant_kind", "block_size", "stop",
+                          "prepared", "compiled"})
 
 
 def __getattr__(name: str):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Any, Callable
@@ -73,7 +74,16 @@ def available_scenarios() -> list[Path]:
 
 
 def find_scenario(name_or_path: str | Path) -> Path:
-    """A scenario file from a path, or from a bare name such as ``ex2_duffing``."""
+    """A scenario file from a path, or from a bare name such as ``ex2_duffing``.
+
+    Raises
+    ------
+    ScenarioError
+        not a string or path, or no such scenario.
+    """
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ScenarioError(f"scenario: expected a name or a path, got "
+                            f"{type(name_or_path).__name__} {name_or_path!r:.80}")
     p = Path(name_or_path)
     if "\x00" in str(p):
         raise ScenarioError(f"{str(p)!r}: a scenario name or path cannot contain a NUL byte")
@@ -352,7 +362,15 @@ def _check_name(top: Table) -> None:
 
 
 def _set_dotted(raw: dict, key: str, value: Any, path: str) -> None:
-    parts = key.split(".")
+    from tspend.runtime.bounds import MAX_KEY
+
+    if not isinstance(key, str):
+        raise ScenarioError(f"{path}: override {key!r:.80}: a key is a dotted string such as "
+                            f"controller.eta")
+    if len(key) > MAX_KEY:
+        raise ScenarioError(f"{path}: override '{key[:80]}...': the key is {len(key)} "
+                            f"characters long, more than {MAX_KEY}")
+    parts = key.split(".", MAX_NESTING + 1)
     if len(parts) > MAX_NESTING:
         raise ScenarioError(f"{path}: override '{key[:80]}': more than {MAX_NESTING} levels")
     check_nesting(value, f"{path}: override '{key[:80]}'")
@@ -378,7 +396,15 @@ def _plain(value: Any) -> Any:
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load and validate a scenario by path or by name (``ex3_pendulum_ode``)."""
+    """Load and validate a scenario by path or by name (``ex3_pendulum_ode``).
+
+    Raises
+    ------
+    ScenarioError
+        not a name or path, no such scenario, unreadable, larger than
+        :data:`~tspend.runtime.bounds.MAX_FILE_BYTES`, not TOML, or any value out of
+        its bounds (the message names the file and the key).
+    """
     path = find_scenario(name_or_path)
     try:
         with open(path, "rb") as f:
@@ -406,7 +432,17 @@ def override(scenario: Scenario, **changes: Any) -> Scenario:
     Keys are the scenario file's dotted keys (``controller.eta``, ``plant.M``,
     ``controller.sets.u``, ``reference.amplitude``); the new scenario remembers them in
     ``overrides`` so a recording says exactly what ran.
+
+    Raises
+    ------
+    ScenarioError
+        ``scenario`` is not a :class:`~tspend.config.Scenario`, a key is unknown, longer
+        than :data:`~tspend.runtime.bounds.MAX_KEY` or nested too deep, or a value is
+        invalid there.
     """
+    if not isinstance(scenario, Scenario):
+        raise ScenarioError(f"override: expected a Scenario (from load_scenario), got "
+                            f"{type(scenario).__name__}")
     merged = dict(scenario.overrides)
     merged.update(changes)
     return parse_scenario(scenario.text, scenario.path, scenario.name, tuple(merged.items()))

@@ -99,13 +99,25 @@ def parse_options(args: argparse.Namespace) -> dict:
             raise ScenarioError(f"--duration: must be a positive number of seconds, got "
                                 f"{args.duration}")
         grid["run.duration"] = [float(args.duration)]
-    if args.resamples < 100:
-        raise ScenarioError(f"--resamples: at least 100, got {args.resamples}")
+    from tspend.runtime.bounds import MAX_RESAMPLES, MAX_RUNS, MAX_TRIALS
+    from tspend.sweep import check_dask_address, check_jobs
+
+    if not 100 <= args.resamples <= MAX_RESAMPLES:
+        raise ScenarioError(f"--resamples: from 100 to {MAX_RESAMPLES}, got {args.resamples}")
+    if not 0 <= args.stats_seed <= 2**63 - 1:
+        raise ScenarioError(f"--stats-seed: from 0 to 2^63 - 1, got {args.stats_seed}")
+    if args.tune is not None and not 1 <= args.tune <= MAX_TRIALS:
+        raise ScenarioError(f"--tune: trials from 1 to {MAX_TRIALS}, got {args.tune}")
+    runs = len(seeds) * len(kinds) * len(args.scenarios)
+    if runs > MAX_RUNS:
+        raise ScenarioError(f"compare: {runs} runs (scenarios x seeds x controllers), more "
+                            f"than {MAX_RUNS}")
+    check_jobs(args.jobs)
+    if args.dask is not None:
+        check_dask_address(args.dask)
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
         check_writable(json_path, "json")
-    if args.jobs is not None and args.jobs < 1:
-        raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
     tune = None
     if args.tune is not None:
         tune = _tune_options(args, kinds, seeds)
@@ -206,7 +218,7 @@ def tuned_markdown(tuned: dict, tune: dict) -> str:
 def cmd(args: argparse.Namespace) -> int:
     import json
 
-    from tspend.cli.main import controller_help
+    from tspend.cli.main import controller_help, write_json
     from tspend.studies.stats import _json_number, markdown, to_json
 
     if controller_help(args):
@@ -235,7 +247,8 @@ def cmd(args: argparse.Namespace) -> int:
                             for (scn, kind), r in tuned.items()]
         doc["seeds"] = opts["seeds"]
         doc["scenarios"] = list(args.scenarios)
-        opts["json_path"].write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        # a partial file renamed into place: a full disk never truncates the previous one
+        write_json(opts["json_path"], json.loads(json.dumps(doc, allow_nan=False)))
     if args.out:
         print(f"runs: {args.out}", file=sys.stderr)
     return 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from tspend.errors import ScenarioError
@@ -70,21 +71,30 @@ def cmd(args: argparse.Namespace) -> int:
         raise ScenarioError(f"{source}: no such recording")
     if target.suffix.lower() not in FORMATS:
         raise ScenarioError(f"--to {target}: the suffix must be one of {', '.join(FORMATS)}")
-    if target.exists():
+    from tspend.runtime.outputs import OutputRequest, plan_outputs
+
+    # the path checked (directory writable, name length) before the recording is read
+    plan_outputs([OutputRequest("--to", "table", target.suffix.lower(), str(target))],
+                 inputs=[source])
+    if os.path.lexists(target):
         raise ScenarioError(f"--to {target}: exists; choose another path (nothing is "
                             f"overwritten)")
+    try:
+        table, metadata = recording_table(source)
+    except (ValueError, OSError, RuntimeError, KeyError) as exc:
+        # Rerun's reader reports a corrupt or foreign file as a RuntimeError
+        raise ScenarioError(f"{source}: not a readable tspend recording "
+                            f"({' '.join(str(exc).split())[:300]})") from None
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ScenarioError(f"--to {target}: cannot create directory {target.parent}: "
                             f"{exc.strerror or exc}") from None
-    try:
-        table, metadata = recording_table(source)
-    except (ValueError, OSError) as exc:
-        raise ScenarioError(f"{source}: {exc}") from None
-    tmp = target.with_name(f".{target.name}.tmp")
-    write_table(table, metadata, tmp, target.suffix.lower())
-    tmp.replace(target)
+    from tspend.runtime.outputs import write_atomic
+
+    suffix = target.suffix.lower()
+    write_atomic(target, lambda tmp: write_table(table, metadata, tmp, suffix), replace=False,
+                 what="--to")
     print(f"{target}: {len(table)} samples x {table.shape[1]} columns "
           f"({', '.join(table.columns[:8])}{', ...' if table.shape[1] > 8 else ''})")
     return 0

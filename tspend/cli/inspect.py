@@ -19,13 +19,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the pole's hinge joint (default: the only hinge joint)")
     p.add_argument("--actuator", default=None, metavar="NAME",
                    help="the actuator on the slide joint (default: the only one driving it)")
-    p.add_argument("--dt", type=float, default=None,
+    from tspend.cli.main import finite
+
+    p.add_argument("--dt", type=finite(), default=None,
                    help="control period to check the timestep against")
     p.add_argument("--json", metavar="PATH", help="write the facts as one JSON object")
     return p
 
 
 def cmd(args: argparse.Namespace) -> int:
+    from tspend.cli.main import say
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    # MuJoCo's warnings: in the error line, or one warning line each; never a log file
+    with mujoco_warnings_in_errors(True) as notes:
+        status = _cmd(args)
+    for note in dict.fromkeys(notes):
+        say(f"warning: MuJoCo: {note}")
+    return status
+
+
+def _cmd(args: argparse.Namespace) -> int:
     from tspend.cli.main import check_writable, write_json
 
     json_path = Path(args.json) if args.json else None
@@ -58,18 +72,13 @@ def _show(value) -> str:
 
 
 def _domain_of(model: str):
-    """The domain whose machine the MJCF looks like (ScenarioError: none, or unreadable)."""
-    import mujoco
-
+    """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
+    past the size bounds of docs/reliability.md)."""
     from tspend.errors import ScenarioError
+    from tspend.plants.mjcf import read_spec
     from tspend.plants.registry import DOMAINS
 
-    if not Path(model).is_file():
-        raise ScenarioError(f"{model}: model file not found")
-    try:
-        spec = mujoco.MjSpec.from_file(str(model))
-    except ValueError as exc:
-        raise ScenarioError(f"{model}: cannot parse MJCF: {exc}") from exc
+    spec = read_spec(model)
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
     found = next((d for d in DOMAINS.values() if d.fits_mjcf(kinds)), None)
     if found is None:

@@ -45,6 +45,9 @@ def add_parser(sub) -> None:
     p.add_argument("--dask", metavar="ADDRESS",
                    help="run on the Dask scheduler at ADDRESS, or 'local' for a LocalCluster "
                         "(needs pip install 'tspend[dask]')")
+    p.add_argument("--wait", action="store_true",
+                   help="when another sweep is writing the --out table, wait for it to end "
+                        "(default: refuse, exit 2)")
     p.add_argument("--record", choices=("failed", "all", "none"), default="failed",
                    help="keep a Rerun recording of the runs that diverged or failed (default), "
                         "of all runs, or of none; the path is in the row")
@@ -52,8 +55,8 @@ def add_parser(sub) -> None:
 
 
 def _scenarios(args: argparse.Namespace) -> list:
+    from tspend.cli.main import parse_set_value
     from tspend.scenario import load_scenario, override
-    from tspend.sweep.plan import parse_value
 
     changes = {}
     if args.duration is not None:
@@ -62,10 +65,8 @@ def _scenarios(args: argparse.Namespace) -> list:
                                 f"{args.duration}")
         changes["run.duration"] = float(args.duration)
     for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ScenarioError(f"--set {item}: expected KEY=VALUE, e.g. controller.eta=0.01")
-        changes[key.strip()] = parse_value(value.strip())
+        key, value = parse_set_value(item)  # one line of TOML, trailing text refused
+        changes[key] = value
     scenarios = [load_scenario(s) for s in args.scenario]
     return [override(s, **changes) if changes else s for s in scenarios]
 
@@ -107,30 +108,35 @@ def _stop_requests(args: argparse.Namespace):
 def cmd(args: argparse.Namespace) -> int:
     from tspend import __version__
     from tspend.cli.main import controller_help
-    from tspend.sweep import plan as sweep_plan, read_table, sweep
+    from tspend.sweep import plan as sweep_plan, read_table
 
     if controller_help(args):
         return 0
+    from tspend.sweep import check_jobs, prepare_sweep
+
+    # everything is checked, the models built and the table locked before the banner
+    check_jobs(args.jobs)
     sweep_plan.controller_list(args.controller)  # plug-ins first: scenarios may hold their tables
     scenarios = _scenarios(args)
     grid = sweep_plan.parse_grid(args.grid)
     seeds = sweep_plan.parse_seeds(args.seeds) if args.seeds is not None else None
-    if args.jobs is not None and args.jobs < 1:
-        raise ScenarioError(f"--jobs: must be >= 1, got {args.jobs}")
-    names = ", ".join(s.name for s in scenarios)
-    print(f"tspend {__version__}: sweep of {names}" + (f", table {args.out}" if args.out else ""),
-          flush=True)
     with _stop_requests(args) as stop:
+        prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
+                                 jobs=args.jobs, dask=args.dask, out=args.out,
+                                 record=args.record, stop=stop, wait=args.wait)
         try:
-            frame = sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
-                          jobs=args.jobs, dask=args.dask, out=args.out, record=args.record,
-                          progress=True, stop=stop)
+            names = ", ".join(s.name for s in scenarios)
+            print(f"tspend {__version__}: sweep of {names}" +
+                  (f", table {args.out}" if args.out else ""), flush=True)
+            frame = prepared.run(progress=True, stop=stop)
         except RunInterrupted as exc:
             kept = len(read_table(args.out)) if args.out else 0
             where = (f"{kept} rows kept in {args.out}; the same command finishes the rest"
                      if args.out else "nothing kept (no --out)")
             print(f"tspend: sweep interrupted by {exc.signal_name}; {where}", file=sys.stderr)
             return exc.exit_status
+        finally:
+            prepared.close()
     if not len(frame):
         print("nothing to run")
         return 0

@@ -82,6 +82,11 @@ def parse_options(args: argparse.Namespace) -> dict:
             raise ScenarioError(f"--duration: must be a positive number of seconds, got "
                                 f"{args.duration}")
         changes["run.duration"] = float(args.duration)
+    from tspend.sweep import check_dask_address, check_jobs
+
+    check_jobs(args.jobs)
+    if args.dask is not None:
+        check_dask_address(args.dask)
     scenario = load_scenario(args.scenario)
     if changes:
         scenario = override(scenario, **changes)

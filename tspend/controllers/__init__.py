@@ -164,6 +164,9 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
 
     Raises ScenarioError (one line) for anything else.
     """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ScenarioError(f"{option}: expected a controller kind or a plug-in spec "
+                            f"(file.py:Class), got {spec!r:.80}")
     if spec in KINDS:
         return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec), "", kind_class(spec))
     if plugins.is_spec(spec):

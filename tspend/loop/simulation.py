@@ -39,7 +39,16 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
     :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
+
+    Raises
+    ------
+    ScenarioError
+        ``scenario`` is not a Scenario, ``kind`` is not a backend of its domain, or the
+        model cannot be built (file, joint names, timestep, ``dt``).
     """
+    _check_scenario(scenario)
+    if kind is not None and not isinstance(kind, str):
+        raise ScenarioError(f"plant kind: expected a string, got {kind!r:.80}")
     return _built(randomize.draw(scenario).scenario, kind)
 
 
@@ -58,6 +67,12 @@ def _built(scenario: Scenario, kind: str | None) -> Plant:
     return plant
 
 
+def _check_scenario(scenario: object) -> None:
+    if not isinstance(scenario, Scenario):
+        raise ScenarioError(f"expected a Scenario (from tspend.load_scenario), got "
+                            f"{type(scenario).__name__}")
+
+
 def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
     """Resolve ``controller.gain_sign = "plant"`` to the sign the plant measures."""
     if scenario.controller.gain_sign != "plant":
@@ -71,7 +86,13 @@ def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
                      kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
     (default: a generator seeded with the scenario's seed).
+
+    Raises
+    ------
+    ScenarioError
+        ``scenario`` is not a Scenario, ``kind`` is unknown, or its settings are invalid.
     """
+    _check_scenario(scenario)
     ctrl = build_controller_kind(scenario, kind)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl

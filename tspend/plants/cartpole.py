@@ -381,7 +381,9 @@ def geometry_from_mjcf(path: str, base: CartPoleGeometry) -> CartPoleGeometry:
     try:
         import mujoco
 
-        model = mujoco.MjModel.from_xml_path(path)
+        from tspend.plants.mjcf import read_spec
+
+        model = read_spec(path).compile()
     except Exception:  # noqa: BLE001 - drawing must never stop a run
         return base
 

@@ -27,6 +27,7 @@ from numba.core import types
 from numba.extending import overload, register_jitable
 
 from tspend.config import PlantConfig
+from tspend.errors import ScenarioError
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 from tspend.runtime.jit import JIT
 
@@ -506,7 +507,7 @@ class Domain(ABC):
         not yet reset."""
         kind = kind or scenario.plant.kind
         if kind not in self.kinds:
-            raise ValueError(f"plant kind {kind!r} is not a backend of domain {self.name!r} "
+            raise ScenarioError(f"plant kind {kind!r} is not a backend of domain {self.name!r} "
                              f"(its kinds: {', '.join(self.kinds)})")
         return self.kinds[kind].build(scenario.plant, self.model_path(scenario))
 

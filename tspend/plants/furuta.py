@@ -177,8 +177,10 @@ class MujocoFuruta(Plant):
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
+        from tspend.plants.mjcf import read_spec
+
+        spec = read_spec(where)  # within the size bounds
         try:
-            spec = mujoco.MjSpec.from_file(where)
             if timestep:
                 spec.option.timestep = float(timestep)
             if pendulum_damping is not None:

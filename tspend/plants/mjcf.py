@@ -646,3 +646,92 @@ def verify_gear(facts: ModelFacts, gear: float, actuator: str, where: str) -> No
     if abs(got - gear) > VERIFY_RTOL * max(abs(gear), 1.0):
         raise ScenarioError(f"{where}: gear = {gear:g} did not take effect on actuator "
                             f"'{actuator}': the compiled model pushes {got:.9g} N per unit u")
+
+
+def read_spec(path: "str | os.PathLike[str]") -> "mujoco.MjSpec":
+    """Parse an MJCF file within the size bounds (docs/reliability.md): the file size is
+    checked before MuJoCo reads it, the heightfields and bodies before it compiles.
+
+    Raises
+    ------
+    ScenarioError
+        no such file, larger than :data:`~tspend.runtime.bounds.MAX_MODEL_BYTES`, not
+        parseable, a heightfield of more than ``MAX_HFIELD_CELLS`` cells, or more than
+        ``MAX_BODIES`` bodies.
+    """
+    import os
+
+    from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
+
+    import stat
+
+    where = str(path)
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        raise ScenarioError(f"{where}: model file not found") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ScenarioError(f"{where}: not a regular file (an MJCF model file is expected)")
+    size = st.st_size
+    if size > MAX_MODEL_BYTES:
+        raise ScenarioError(f"{where}: the model file is {size} bytes, more than "
+                            f"{MAX_MODEL_BYTES}")
+    _check_xml_sizes(path, where)  # MuJoCo allocates a heightfield as it parses
+    try:
+        spec = mujoco.MjSpec.from_file(where)
+    except (ValueError, OSError) as exc:
+        raise ScenarioError(f"{where}: cannot parse MJCF: {' '.join(str(exc).split())}") \
+            from None
+    for hfield in spec.hfields:
+        cells = int(hfield.nrow) * int(hfield.ncol)
+        if cells > MAX_HFIELD_CELLS:
+            raise ScenarioError(f"{where}: heightfield {hfield.name!r} has {hfield.nrow} x "
+                                f"{hfield.ncol} = {cells} cells, more than {MAX_HFIELD_CELLS}")
+    bodies = len(spec.bodies)
+    if bodies > MAX_BODIES:
+        raise ScenarioError(f"{where}: {bodies} bodies, more than {MAX_BODIES}")
+    return spec
+
+
+def _check_xml_sizes(path: "str | os.PathLike[str]", where: str, depth: int = 0) -> None:
+    """The sizes MuJoCo would allocate as it parses, read from the XML text first: each
+    heightfield's ``nrow`` x ``ncol``, the bodies, and the same in included files."""
+    import os
+    import xml.etree.ElementTree as ET
+
+    from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
+
+    if depth > 8:
+        raise ScenarioError(f"{where}: includes nested more than 8 deep")
+    bodies = 0
+    try:
+        for _, element in ET.iterparse(os.fspath(path), events=("start",)):
+            tag = element.tag
+            if tag == "body":
+                bodies += 1
+                if bodies > MAX_BODIES:
+                    raise ScenarioError(f"{where}: more than {MAX_BODIES} bodies")
+            elif tag == "hfield":
+                try:
+                    nrow = int(element.get("nrow", "0"))
+                    ncol = int(element.get("ncol", "0"))
+                except ValueError:
+                    continue  # MuJoCo reports it
+                if nrow * ncol > MAX_HFIELD_CELLS:
+                    raise ScenarioError(f"{where}: heightfield {element.get('name', '')!r} has "
+                                        f"{nrow} x {ncol} = {nrow * ncol} cells, more than "
+                                        f"{MAX_HFIELD_CELLS}")
+            elif tag == "include" and element.get("file"):
+                included = os.path.join(os.path.dirname(os.fspath(path)), element.get("file"))
+                try:
+                    size = os.stat(included).st_size
+                except OSError:
+                    continue  # MuJoCo reports it
+                if size > MAX_MODEL_BYTES:
+                    raise ScenarioError(f"{where}: included file {element.get('file')} is "
+                                        f"{size} bytes, more than {MAX_MODEL_BYTES}")
+                _check_xml_sizes(included, where, depth + 1)
+    except ET.ParseError:
+        return  # not XML: MuJoCo's parser says why
+    except RecursionError:
+        raise ScenarioError(f"{where}: XML nested too deeply") from None

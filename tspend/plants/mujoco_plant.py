@@ -171,10 +171,7 @@ class MujocoCartPole(Plant):
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
-        try:
-            spec = mujoco.MjSpec.from_file(str(self.model_path))
-        except ValueError as exc:
-            raise ScenarioError(f"{where}: cannot parse MJCF: {exc}") from exc
+        spec = mjcf.read_spec(self.model_path)  # within the size bounds
 
         slide = self._spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
         hinge = self._spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
@@ -644,10 +641,7 @@ def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
     where = str(model_path)
     if not Path(model_path).is_file():
         raise ScenarioError(f"{where}: model file not found")
-    try:
-        spec = mujoco.MjSpec.from_file(str(model_path))
-    except ValueError as exc:
-        raise ScenarioError(f"{where}: cannot parse MJCF: {exc}") from exc
+    spec = mjcf.read_spec(model_path)
 
     def only(found: list[str], what: str, flag: str) -> str:
         if len(found) != 1:

@@ -24,3 +24,20 @@ MAX_SEED = 2**63 - 1
 #: a scenario name: printed and used in file names
 MAX_NAME = 200
 
+#: longest dotted key of an override (--set, --grid, override()): its parts are copied
+MAX_KEY = 200
+
+#: runs in one sweep or comparison (scenarios x grid points x seeds x controllers)
+MAX_RUNS = 1_000_000
+#: worker processes per core (--jobs): each holds its own copy of the kernels
+MAX_JOBS_PER_CORE = 4
+#: bootstrap resamples of a comparison (--resamples)
+MAX_RESAMPLES = 1_000_000
+#: trials of a tuning study (tspend tune --trials, compare --tune)
+MAX_TRIALS = 100_000
+
+#: an MJCF model file, in bytes
+MAX_MODEL_BYTES = 10_000_000
+#: cells of one heightfield (nrow x ncol) and bodies of a model
+MAX_HFIELD_CELLS = 10_000_000
+MAX_BODIES = 10_000

@@ -21,6 +21,49 @@ def quiet_rerun() -> None:
     os.environ.setdefault("RUST_LOG", "off")
 
 
+def no_mujoco_log_file() -> None:
+    """MuJoCo writes no ``MUJOCO_LOG.TXT`` and prints nothing from this process on.
+
+    For processes that run many models (a sweep's workers): their warnings are collected
+    per run by :func:`mujoco_warnings` and go to the run's message.
+    """
+    import mujoco
+
+    config = mujoco.MjLogConfig.get()
+    config.logto_file = False
+    config.logto_console = False
+    config.set()
+
+
+@contextmanager
+def mujoco_warnings() -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings during the block, each once, in order of first sight.
+
+    The list is filled as the block runs; no file is written and nothing is printed.
+    """
+    import mujoco
+
+    notes: list[str] = []
+    previous_callback = mujoco.get_mju_user_warning()
+    previous_config = mujoco.MjLogConfig.get()
+    config = mujoco.MjLogConfig.get()
+    config.logto_file = False
+    config.logto_console = False
+    config.set()
+
+    def note(message: object) -> None:
+        text = " ".join(str(message).split())
+        if text not in notes:
+            notes.append(text)
+
+    mujoco.set_mju_user_warning(note)
+    try:
+        yield notes
+    finally:
+        mujoco.set_mju_user_warning(previous_callback)
+        previous_config.set()
+
+
 @contextmanager
 def mujoco_warnings_in_errors(active: bool = True) -> Iterator[list[str]]:
     """Collect MuJoCo's warnings for the block; a TspendError leaving it carries them.

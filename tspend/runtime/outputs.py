@@ -28,10 +28,12 @@ import errno
 import os
 import re
 import stat
+import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 try:
     import fcntl
@@ -410,6 +412,97 @@ def claim(plans: Sequence[PlannedOutput], seed: int | None = None) -> list[Outpu
             out.discard()
         raise
     return claimed
+
+
+@contextmanager
+def atomic_path(target: str | os.PathLike[str], *, replace: bool = True,
+                what: str = "output") -> Iterator[Path]:
+    """A fresh temporary path beside ``target``: whatever the block writes there is synced
+    and renamed onto ``target`` when the block ends normally, and removed on every other
+    exit (an exception, a signal's exception, a full disk).
+
+    The one helper every output that is not a :class:`Claimed` partial file goes through
+    (sweep tables, exports).  ``replace=False``: an existing ``target`` is never replaced
+    (the final name is taken with a hard link, which fails if it exists; ScenarioError).
+
+    Raises
+    ------
+    OutputError
+        the data could not be made durable (disk full, I/O error); ``target`` is untouched.
+    ScenarioError
+        ``replace=False`` and ``target`` exists.
+    """
+    target = Path(target)
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{target.name[:120]}.", suffix=".tmp",
+                                    dir=target.parent)
+    except OSError as exc:
+        raise OutputError(f"{what} {display(target)}: cannot create a file in "
+                          f"{display(target.parent)} ({exc.strerror or exc})") from None
+    try:  # the mode a new file would have (mkstemp's is 0600), or the replaced file's
+        os.fchmod(fd, stat.S_IMODE(os.stat(target).st_mode) if target.exists()
+                  else 0o666 & ~_umask())
+    except OSError:
+        pass
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        try:
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            if replace:
+                os.replace(tmp, target)
+            else:
+                try:
+                    os.link(tmp, target)
+                except FileExistsError:
+                    raise ScenarioError(f"{what} {display(target)}: exists; choose another "
+                                        f"path (nothing is overwritten)") from None
+                except OSError as exc:
+                    if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP):
+                        raise
+                    if target.exists():
+                        raise ScenarioError(f"{what} {display(target)}: exists; choose "
+                                            f"another path (nothing is overwritten)") from None
+                    os.rename(tmp, target)
+        except OSError as exc:
+            raise OutputError(f"{what} {display(target)}: could not be completed "
+                              f"({exc.strerror or exc}); nothing was replaced") from None
+        _sync_directory(target.parent)
+    finally:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+
+
+def _umask() -> int:
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
+
+
+def write_atomic(target: str | os.PathLike[str], write: Callable[[Path], object], *,
+                 replace: bool = True, what: str = "output") -> Path:
+    """``write(tmp)`` writes the data to a temporary path, then :func:`atomic_path` puts it
+    in place; an ``OSError`` of ``write`` (disk full) is an :class:`OutputError`."""
+    target = Path(target)
+    with atomic_path(target, replace=replace, what=what) as tmp:
+        try:
+            write(tmp)
+        except OSError as exc:
+            raise OutputError(f"{what} {display(target)}: could not be completed "
+                              f"({exc.strerror or exc}); nothing was replaced") from None
+    return target
 
 
 def display(path: Path | str) -> str:

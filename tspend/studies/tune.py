@@ -129,7 +129,7 @@ def _sweep_score(scenario, kind, seeds, metric, executor, stop) -> float:
     from tspend.sweep import sweep
 
     rows = sweep(scenario, seeds=list(seeds), controllers=[kind], executor=executor,
-                 record="none", stop=stop)
+                 record="none", stop=stop, build=False)  # tune() built it once
     return score(rows, metric)
 
 
@@ -167,9 +167,19 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     name = study_name(scenario, kind, metric, seeds)
-    study = optuna.create_study(study_name=name, storage=_storage(storage),
-                                load_if_exists=storage is not None, direction="minimize",
-                                sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+    from tspend.sweep import build_once
+    from tspend.sweep.plan import make_plan
+
+    # the model and the controller built once: a broken one is bad input, not N failed trials
+    build_once(make_plan(scenario, seeds=seeds[:1], controllers=[kind]))
+    try:
+        study = optuna.create_study(study_name=name, storage=_storage(storage),
+                                    load_if_exists=storage is not None, direction="minimize",
+                                    sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+    except Exception as exc:  # noqa: BLE001 - every way a storage URL or file can be wrong
+        raise ScenarioError(f"--storage {str(storage)[:200]}: cannot open the study "
+                            f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") \
+            from None
     done = sum(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
     owned = executor is None
     if owned:

@@ -57,6 +57,7 @@ with any number of workers: a run depends only on its scenario, seed and kind.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 import types
@@ -68,7 +69,7 @@ from tspend.errors import ScenarioError
 from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
-from tspend.sweep.table import KEY_COLUMN, RowTable, read_table, typed
+from tspend.sweep.table import KEY_COLUMN, RowTable, TableLock, read_table, typed
 from tspend.loop.metrics import is_machine_column
 from tspend.sweep.worker import METRIC_COLUMNS, run_job
 
@@ -83,20 +84,126 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           controllers: str | Iterable[str] | None = None, jobs: int | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
-          stop: StopRequest | None = None):
+          stop: StopRequest | None = None, wait: bool = False, build: bool = True):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
     :class:`tspend.loop.runner.StopRequest` set by a signal handler) ends the sweep after
-    keeping every finished row; :class:`RunInterrupted` is then raised.
+    keeping every finished row; :class:`RunInterrupted` is then raised.  ``wait``: when
+    another sweep holds the table ``out``, wait for it instead of refusing.  ``build``:
+    build each scenario's model and controller once before anything runs (a caller that
+    did so already passes False).
+
+    Raises
+    ------
+    ScenarioError
+        any bad input, before a single run starts: a scenario, a grid value, seeds,
+        controller kinds, ``jobs``, ``record``, more runs than
+        :data:`tspend.runtime.bounds.MAX_RUNS`, a scenario whose model or controller
+        cannot be built, an ``out`` that is not a tspend sweep table (or is locked by
+        another sweep), a journal that is a symlink or corrupt.
+    TspendError
+        the worker processes could not start.
+    RunInterrupted
+        ``stop`` was set; the finished rows are kept in ``out``.
     """
-    import pandas as pd
+    prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=controllers,
+                             jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait,
+                             build=build)
+    return prepared.run(progress=progress, executor=executor, stop=stop)
 
-    from tspend.runtime.progress import SweepProgress
 
-    out_path = Path(out) if out is not None else None
-    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+def check_jobs(jobs: Any) -> None:
+    """``jobs`` is None or an integer from 1 to :func:`max_jobs` (ScenarioError)."""
+    from tspend.runtime.bounds import MAX_JOBS_PER_CORE
+    from tspend.sweep.executors import default_jobs
+
+    if jobs is None:
+        return
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ScenarioError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+    limit = MAX_JOBS_PER_CORE * default_jobs()
+    if jobs > limit:
+        raise ScenarioError(f"--jobs {jobs}: at most {limit} ({MAX_JOBS_PER_CORE} per core on "
+                            f"this machine; each worker holds its own copy of the kernels)")
+
+
+class PreparedSweep:
+    """A sweep checked and planned, its table locked: :meth:`run` runs it (once).
+
+    From :func:`prepare_sweep`; a command prints its banner between the two.  The table's
+    lock is released by :meth:`run` or :meth:`close`.
+    """
+
+    def __init__(self, plan: list[Job], todo: list[Job], table, lock, jobs, dask) -> None:
+        self.plan, self.todo, self._table, self._lock = plan, todo, table, lock
+        self._jobs, self._dask = jobs, dask
+        self.order = {job.key: job.index for job in plan}
+
+    def close(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def run(self, progress: bool = False, executor: Any = None,
+            stop: StopRequest | None = None):
+        import pandas as pd
+
+        from tspend.runtime.progress import SweepProgress
+
+        todo, table, order = self.todo, self._table, self.order
+        rows: list[dict[str, Any]] = []
+        shown = SweepProgress(len(todo), skipped=len(self.plan) - len(todo), enabled=progress)
+        owned = executor is None and bool(todo)
+        try:
+            if todo:
+                if executor is None:
+                    executor = make_executor(self._jobs, self._dask)
+                shown.start(executor.workers, executor.name)
+                for row in _execute(executor, todo, stop):
+                    if table is not None:
+                        table.append(row)
+                    rows.append(row)
+                    shown.update(row)
+        finally:
+            try:
+                shown.close()
+                if owned and executor is not None:
+                    executor.close(cancel=True)
+                if table is not None:
+                    table.close(order)
+            finally:
+                self.close()
+
+        if table is not None:
+            frame = read_table(table.path)
+            frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
+        else:
+            frame = typed(pd.DataFrame.from_records(rows))
+        if not len(frame):
+            return frame
+        frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")
+        return frame.drop(columns="_rank").reset_index(drop=True)
+
+
+def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
+                  seeds: int | Iterable[int] | str | None = None,
+                  controllers: str | Iterable[str] | None = None, jobs: int | None = None,
+                  dask: str | None = None, out: str | Path | None = None,
+                  record: str = "none", stop: StopRequest | None = None,
+                  wait: bool = False, build: bool = True) -> PreparedSweep:
+    """Everything :func:`sweep` checks before a run starts, the plan made and ``out``
+    locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
+    model and each controller once now, so a broken one is one error, not a table of
+    ``failed`` rows."""
+    if out is not None and not isinstance(out, (str, os.PathLike)):
+        raise ScenarioError(f"out: expected a path, got {out!r:.80}")
+    out_path = Path(out) if out is not None else None
+    if out_path is not None and (not str(out).strip() or out_path.name in ("", ".", "..")):
+        raise ScenarioError(f"--out {str(out)!r:.80}: not a file name")
+    check_jobs(jobs)
+    if dask is not None:
+        check_dask_address(dask)
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
     record_dir = None
@@ -104,48 +211,84 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
         record_dir = (out_path.with_name(out_path.stem + ".recordings") if out_path is not None
                       else Path("runs") / f"sweep-{time.strftime('%Y%m%d-%H%M%S')}")
     plan = make_plan(scenarios, grid, seeds, controllers, record, record_dir)
-    order = {job.key: job.index for job in plan}
 
-    table = None
+    table = lock = None
     done_keys: set[str] = set()
     if out_path is not None:
         table = RowTable(out_path)
         table.check_writable()
-        existing = read_table(out_path)
-        _check_compatible(existing, plan, out_path)
-        if len(existing):
-            done_keys = set(existing[KEY_COLUMN])
-    todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
-
-    rows: list[dict[str, Any]] = []
-    shown = SweepProgress(len(todo), skipped=len(plan) - len(todo), enabled=progress)
-    owned = executor is None and bool(todo)
+        lock = TableLock(out_path).acquire(wait=wait, stop=stop)
     try:
-        if todo:
-            if executor is None:
-                executor = make_executor(jobs, dask)
-            shown.start(executor.workers, executor.name)
-            for row in _execute(executor, todo, stop):
-                if table is not None:
-                    table.append(row)
-                rows.append(row)
-                shown.update(row)
-    finally:
-        shown.close()
-        if owned and executor is not None:
-            executor.close(cancel=True)
-        if table is not None:
-            table.close(order)
+        if out_path is not None:
+            existing = read_table(out_path)
+            _check_compatible(existing, plan, out_path)
+            if len(existing):
+                done_keys = set(existing[KEY_COLUMN])
+        if build:
+            build_once(plan)
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        raise
+    todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
+    return PreparedSweep(plan, todo, table, lock, jobs, dask)
 
-    if out_path is not None:
-        frame = read_table(out_path)
-        frame = frame[frame[KEY_COLUMN].isin(order)] if len(frame) else frame
-    else:
-        frame = typed(pd.DataFrame.from_records(rows))
-    if not len(frame):
-        return frame
-    frame = frame.assign(_rank=frame[KEY_COLUMN].map(order)).sort_values("_rank")
-    return frame.drop(columns="_rank").reset_index(drop=True)
+
+#: at most this many (scenario, grid point, controller) builds are tried before a sweep
+MAX_BUILDS = 64
+
+
+def build_once(plan: list[Job]) -> None:
+    """Build the plant, task and controller of each scenario / grid point and each kind
+    once (not per seed), so that a model that cannot be built is one ScenarioError before
+    anything runs.  A plug-in whose constructor raises is bad input too."""
+    from tspend.errors import TspendError
+    from tspend.loop.simulation import prepare
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    seen: set[tuple[int, str | None]] = set()
+    points: set[int] = set()
+    kinds: set[str | None] = set()
+    for job in plan:
+        point = id(job.scenario)
+        if (point in points and job.run_kind in kinds) or (point, job.run_kind) in seen:
+            continue
+        seen.add((point, job.run_kind))
+        points.add(point)
+        kinds.add(job.run_kind)
+        try:
+            with mujoco_warnings_in_errors(_uses_mujoco(job.scenario)):
+                prepare(job.scenario, controller=job.run_kind)
+        except TspendError:
+            raise
+        except (RecursionError, MemoryError) as exc:
+            raise ScenarioError(f"{job.label}: cannot be built ({type(exc).__name__})") from None
+        except Exception as exc:  # a plug-in's own exception: the user's input
+            raise ScenarioError(f"{job.label}, controller {job.controller}: cannot be built "
+                                f"({type(exc).__name__}: {exc})") from None
+        if len(seen) >= MAX_BUILDS:
+            break
+
+
+def _uses_mujoco(scenario) -> bool:
+    from tspend.plants.registry import PLANT_KINDS
+
+    return PLANT_KINDS[scenario.plant.kind].mujoco
+
+
+def check_dask_address(address: Any) -> None:
+    """``local`` or ``[tcp://|tls://|ws://|wss://|inproc://]HOST:PORT`` (ScenarioError)."""
+    import re
+
+    if not isinstance(address, str) or not address:
+        raise ScenarioError(f"--dask: expected an address or 'local', got {address!r}")
+    if address == "local":
+        return
+    m = re.fullmatch(r"(?:(tcp|tls|ws|wss|ucx)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]{1,253})"
+                     r":(\d{1,5})/?", address)
+    if not m or not 0 < int(m.group(3)) < 65536:
+        raise ScenarioError(f"--dask {address[:200]}: expected 'local' or a scheduler address "
+                            f"such as tcp://127.0.0.1:8786 (a port from 1 to 65535)")
 
 
 def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
@@ -154,22 +297,26 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
     A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
     million small Job records in the parent, not a million queued tasks.  When a local
     worker dies, the pool fails every job in flight and cannot tell which one killed it;
-    those jobs are then run again one at a time, so a death is pinned on its own job (a
-    ``failed`` row) and the others finish normally.  Dask retries a task whose worker
-    died by itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.
+    those jobs are then run again one at a time, so a death is pinned on its own job and
+    the others finish normally.  A job whose worker died while it ran alone is run again,
+    up to :data:`MAX_DEATHS` times in all (a worker killed from outside is not the job's
+    fault), and only then is a ``failed`` row.  Dask retries a task whose worker died by
+    itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.  Each job
+    yields exactly one row.
     """
     waiting = deque(todo)
     alone: deque[Job] = deque()           # to run by themselves after a worker died
     window = max(16, 4 * getattr(executor, "workers", 1))
     pending: dict[Any, Job] = {}
-    ran_alone: set[str] = set()
+    deaths: dict[str, int] = {}
+    solo: set[str] = set()                # keys of jobs submitted by themselves
     retries_itself = getattr(executor, "retries_itself", False)
 
     def top_up() -> None:
         if alone:
             if not pending:
                 job = alone.popleft()
-                ran_alone.add(job.key)
+                solo.add(job.key)
                 pending[executor.submit(run_job, job)] = job
             return
         while waiting and len(pending) < window:
@@ -189,8 +336,15 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
                 yield executor.result(future)
             except WorkerDied as exc:
                 broken = not retries_itself
-                if job.key in ran_alone or retries_itself:
+                if retries_itself:
                     yield _died_row(job, str(exc))
+                elif job.key in solo:
+                    # it ran alone: the death is its own (or a kill from outside)
+                    deaths[job.key] = deaths.get(job.key, 0) + 1
+                    if deaths[job.key] >= MAX_DEATHS:
+                        yield _died_row(job, str(exc))
+                    else:
+                        lost.append(job)
                 else:
                     lost.append(job)
         if broken:
@@ -200,6 +354,10 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
             pending.clear()
             executor.restart()
         top_up()
+
+
+#: a job whose worker dies this many times while it runs alone is a ``failed`` row
+MAX_DEATHS = 5
 
 
 def _died_row(job: Job, why: str) -> dict[str, Any]:
@@ -259,4 +417,5 @@ class _CallableModule(types.ModuleType):
 
 sys.modules[__name__].__class__ = _CallableModule
 
-__all__ = ["sweep", "read_table", "make_executor", "make_plan", "Job"]
+__all__ = ["sweep", "prepare_sweep", "PreparedSweep", "read_table", "make_executor",
+           "make_plan", "Job"]

@@ -51,8 +51,12 @@ class LocalPool:
     def _start(self) -> None:
         method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() \
             else "spawn"
-        self._pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context(method),
-                                         initializer=init_worker)
+        context = multiprocessing.get_context(method)
+        if method == "forkserver":
+            # the fork server arms its parent-death signal as it starts (tspend.sweep.lifeline)
+            context.set_forkserver_preload(["__main__", "tspend.sweep.forkserver_lifeline"])
+        self._pool = ProcessPoolExecutor(self.jobs, mp_context=context, initializer=init_worker,
+                                         initargs=(os.getpid(),))
 
     @property
     def workers(self) -> int:
@@ -68,7 +72,13 @@ class LocalPool:
                               "rule for process pools)") from None
 
     def submit(self, fn: Callable, job: Any) -> Future:
-        return self._pool.submit(fn, job)
+        try:
+            return self._pool.submit(fn, job)
+        except BrokenProcessPool as exc:
+            # a worker died since the last wait: the job comes back as lost, and is rerun
+            future: Future = Future()
+            future.set_exception(exc)
+            return future
 
     def wait(self, futures: Iterable[Future], timeout: float) -> set[Future]:
         done, _ = wait_futures(list(futures), timeout=timeout, return_when=FIRST_COMPLETED)
@@ -124,9 +134,10 @@ class DaskExecutor:
         else:
             try:
                 self.client = Client(address, timeout="10s")
-            except (OSError, TimeoutError) as exc:
-                raise ScenarioError(f"--dask {address}: cannot reach the scheduler ({exc})") \
-                    from None
+            except Exception as exc:  # noqa: BLE001 - unreachable, refused, not a scheduler
+                raise ScenarioError(f"--dask {address[:200]}: cannot reach the scheduler "
+                                    f"({type(exc).__name__}: "
+                                    f"{' '.join(str(exc).split())[:200]})") from None
 
     @property
     def workers(self) -> int:

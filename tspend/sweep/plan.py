@@ -81,15 +81,35 @@ def split_values(text: str) -> list[str]:
     return [p.strip() for p in parts]
 
 
-def parse_value(text: str) -> Any:
+def parse_value(text: str, where: str = "--grid") -> Any:
     """One value as ``--set`` reads it: TOML (numbers, booleans, strings, lists, inline
-    tables), and the bare text when it is not TOML (``adaptation=first``)."""
+    tables), and the bare text when it is not TOML (``adaptation=first``).
+
+    Raises
+    ------
+    ScenarioError
+        a line break, NUL byte or more TOML after the value, nesting beyond
+        :data:`tspend.runtime.bounds.MAX_NESTING`, a number Python will not convert.
+    """
     import tomllib
 
+    from tspend.scenario import check_nesting
+
+    if "\n" in text or "\r" in text or "\x00" in text:
+        raise ScenarioError(f"{where}: a value must be one line of TOML (it contains a line "
+                            f"break or a NUL byte)")
     try:
-        return tomllib.loads(f"v = {text}")["v"]
+        parsed = tomllib.loads(f"v = {text}")
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:
+        raise ScenarioError(f"{where}: a value is nested too deeply") from None
+    except ValueError as exc:  # e.g. more digits than Python converts
+        raise ScenarioError(f"{where}: {str(exc)[:120]}") from None
+    if list(parsed) != ["v"]:
+        raise ScenarioError(f"{where}: one value expected, got more TOML after it")
+    check_nesting(parsed["v"], where)
+    return parsed["v"]
 
 
 def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
@@ -106,26 +126,34 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
         texts = split_values(values)
         if any(not t for t in texts):
             raise ScenarioError(f"--grid {item}: empty value in the list")
-        grid[key] = [parse_value(t) for t in texts]
+        grid[key] = [parse_value(t, f"--grid {key[:80]}") for t in texts]
     return grid
 
 
 def parse_seeds(text: str) -> list[int]:
     """``A:B`` (A..B-1, as a Python range), ``N`` or ``N1,N2,...`` -> a list of seeds."""
-    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", text)
+    from tspend.runtime.bounds import MAX_RUNS, MAX_SEED
+
+    m = re.fullmatch(r"\s*(\d{1,30})\s*:\s*(\d{1,30})\s*", text)
     try:
         if m:
             a, b = int(m.group(1)), int(m.group(2))
-            if b <= a:
+            if b <= a or b - 1 > MAX_SEED:
                 raise ValueError
+            if b - a > MAX_RUNS:
+                raise ScenarioError(f"--seeds {text.strip()}: {b - a} seeds, more than a sweep "
+                                    f"runs ({MAX_RUNS}); split it into smaller sweeps")
             return list(range(a, b))
-        seeds = [int(s) for s in text.split(",")]
-        if any(s < 0 for s in seeds):
+        parts = text.split(",")
+        if len(parts) > MAX_RUNS or not all(re.fullmatch(r"\s*\d{1,30}\s*", p) for p in parts):
+            raise ValueError
+        seeds = [int(s) for s in parts]
+        if any(s < 0 or s > MAX_SEED for s in seeds):
             raise ValueError
         return seeds
     except ValueError:
-        raise ScenarioError(f"--seeds {text}: expected A:B (seeds A to B-1, B > A), N or "
-                            f"N1,N2,... with seeds >= 0") from None
+        raise ScenarioError(f"--seeds {text[:80]}: expected A:B (seeds A to B-1, B > A), N or "
+                            f"N1,N2,... with seeds from 0 to 2^63 - 1") from None
 
 
 def _seed_list(seeds: int | Iterable[int] | None) -> list[int] | None:
@@ -133,8 +161,18 @@ def _seed_list(seeds: int | Iterable[int] | None) -> list[int] | None:
         return None
     if isinstance(seeds, str):
         return parse_seeds(seeds)
-    out = [seeds] if isinstance(seeds, int) else list(seeds)
-    if not out or any(isinstance(s, bool) or not isinstance(s, int) or s < 0 for s in out):
+    from tspend.runtime.bounds import MAX_RUNS, MAX_SEED
+
+    if isinstance(seeds, range) and len(seeds) > MAX_RUNS:
+        raise ScenarioError(f"seeds: {len(seeds)} seeds, more than a sweep runs ({MAX_RUNS})")
+    try:
+        out = [seeds] if isinstance(seeds, int) else list(itertools.islice(seeds, MAX_RUNS + 1))
+    except TypeError:
+        raise ScenarioError(f"seeds: expected integers >= 0, got {seeds!r:.80}") from None
+    if len(out) > MAX_RUNS:
+        raise ScenarioError(f"seeds: more than a sweep runs ({MAX_RUNS})")
+    if not out or any(isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED
+                      for s in out):
         raise ScenarioError(f"seeds: expected integers >= 0, got {seeds!r}")
     return out
 
@@ -146,8 +184,15 @@ def controller_list(controllers: str | Iterable[str] | None) -> list[tuple[str |
 
     if controllers is None:
         return [(None, None)]
-    kinds = [c.strip() for c in controllers.split(",")] if isinstance(controllers, str) \
-        else list(controllers)
+    if isinstance(controllers, str):
+        kinds = [c.strip() for c in controllers.split(",")]
+    elif isinstance(controllers, Iterable):
+        kinds = list(itertools.islice(controllers, 1001))
+    else:
+        raise ScenarioError(f"--controller: expected kinds (a list, or 'k1,k2'), got "
+                            f"{controllers!r:.80}")
+    if len(kinds) > 1000:
+        raise ScenarioError("--controller: more than 1000 kinds")
     if not kinds:
         raise ScenarioError("--controller: no kind given")
     return [(spec, load(spec).name) for spec in dict.fromkeys(kinds)]
@@ -181,6 +226,9 @@ def recording_path(record_dir: Path, job_label: str, seed: int, controller: str,
     return record_dir / f"{safe}-seed{seed}-{controller}-{digest}.rrd"
 
 
+from tspend.runtime.bounds import MAX_RUNS  # noqa: E402  (constants only)
+
+
 def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
               seeds: int | Iterable[int] | str | None = None,
               controllers: str | Iterable[str] | None = None, record: str = "none",
@@ -190,22 +238,36 @@ def make_plan(scenarios: Any, grid: dict[str, Sequence[Any]] | None = None,
 
     if record not in RECORD_MODES:
         raise ScenarioError(f"--record {record}: allowed: {', '.join(RECORD_MODES)}")
+    from collections.abc import Mapping
+
+    if grid is not None and not isinstance(grid, Mapping):
+        raise ScenarioError(f"grid: expected a dict of dotted keys to lists of values, got "
+                            f"{type(grid).__name__}")
     grid = dict(grid or {})
+    if any(not isinstance(k, str) for k in grid):
+        raise ScenarioError("grid: keys are dotted strings such as controller.eta")
     if "run.seed" in grid:
         raise ScenarioError("--grid run.seed: seeds are swept with --seeds (seeds= in Python)")
     for key, values in grid.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
             raise ScenarioError(f"grid {key}: expected a list of values, got {values!r}")
-        grid[key] = list(values)
+        grid[key] = list(itertools.islice(values, MAX_RUNS + 1))
         if not grid[key]:
             raise ScenarioError(f"grid {key}: no values")
     seed_list = _seed_list(seeds)
     kinds = controller_list(controllers)
     keys = list(grid)
+    bases = resolve_scenarios(scenarios)
+    runs = len(bases) * len(kinds) * (len(seed_list) if seed_list is not None else 1)
+    for values in grid.values():
+        runs *= len(values)
+    if runs > MAX_RUNS:
+        raise ScenarioError(f"sweep: {runs} runs (scenarios x grid points x seeds x "
+                            f"controllers), more than {MAX_RUNS}; split it into smaller sweeps")
     cwd = os.getcwd()
     jobs: list[Job] = []
     seen: set[str] = set()
-    for base in resolve_scenarios(scenarios):
+    for base in bases:
         base_hash = scenario_hash(base)
         for point in itertools.product(*(grid[k] for k in keys)):
             changes = dict(zip(keys, point))

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -51,6 +50,20 @@ def _recorded_run(job: Job, path: Path):
 
 
 def _attempt(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
+    from tspend.plants.registry import PLANT_KINDS
+    from tspend.runtime.native_logs import mujoco_warnings
+
+    if not PLANT_KINDS[job.scenario.plant.kind].mujoco:
+        return _attempt_quietly(job, record_to)
+    with mujoco_warnings() as notes:  # MuJoCo's warnings: in the row, not in a file
+        status, message, metrics = _attempt_quietly(job, record_to)
+    if notes:
+        shown = "; ".join(notes[:5]) + (f"; and {len(notes) - 5} more" if len(notes) > 5 else "")
+        message = f"{message} (MuJoCo: {shown})" if message else f"MuJoCo: {shown}"
+    return status, message, metrics
+
+
+def _attempt_quietly(job: Job, record_to: Path | None) -> tuple[str, str, dict]:
     from tspend.loop.simulation import run
 
     try:
@@ -90,24 +103,20 @@ def run_job(job: Job) -> dict[str, Any]:
 
 
 # -- worker process set-up -----------------------------------------------------------------
-def _exit_with_parent(parent: int) -> None:
-    # a sweep killed with SIGKILL cannot stop its pool: the workers notice and leave
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent:
-            os._exit(1)
-
-
-def init_worker() -> None:
-    """Pool initialiser: Ctrl-C is the parent's to handle; leave when the parent is gone
-    (the parent of a forkserver worker is the fork server, which ends with the sweep).
+def init_worker(sweep_pid: int | None = None) -> None:
+    """Pool initialiser: Ctrl-C is the parent's to handle; the worker ends when its parent
+    (the fork server) or the sweep ``sweep_pid`` ends, even by SIGKILL
+    (:mod:`tspend.sweep.lifeline`: a parent-death signal, and a watchdog thread).
 
     Each worker is a session of its own: Linux's autogroup scheduler shares the CPU between
     sessions, so workers left in the sweep's session would share one session's share
     between them on a busy machine, and W workers would run no faster than one.
     """
+    from tspend.sweep.lifeline import die_with_parent, watch_parent
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    die_with_parent(expected_parent=os.getppid())
+    watch_parent((sweep_pid,) if sweep_pid else ())
     try:
         os.setsid()
     except (AttributeError, OSError):  # not POSIX, or already a session leader
