@@ -13,6 +13,7 @@ gymnasium = pytest.importorskip("gymnasium")
 
 import tspend  # noqa: E402
 import tspend.gym  # noqa: E402
+from tspend.errors import ScenarioError  # noqa: E402
 from tspend.gym import RenderError, TspendEnv, env_id  # noqa: E402
 from tspend.loop import simulation  # noqa: E402
 from tspend.scenario import available_scenarios, load_scenario, override  # noqa: E402
@@ -183,3 +184,11 @@ def test_render_without_a_mujoco_model_is_a_clear_error() -> None:
     env.reset(seed=0)
     with pytest.raises(RenderError, match="no MuJoCo model"):
         env.render()
+
+
+@pytest.mark.parametrize("action", [np.array([np.nan]), np.array([1.0, 2.0]), "push"])
+def test_a_bad_action_is_refused_not_clipped(action) -> None:
+    env = TspendEnv("pendulum_mujoco")
+    env.reset(seed=0)
+    with pytest.raises(ScenarioError, match="action"):
+        env.step(action)

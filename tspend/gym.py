@@ -245,8 +245,15 @@ class TspendEnv(gymnasium.Env):
         """Hold ``action`` over ``frame_skip`` physics steps; the next observation, the
         reward, terminated (the task ended the run or it diverged), truncated (the
         scenario's duration reached) and info (``t``, ``status``, ``message``, ``u``)."""
-        u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0],
-                          self.action_space.low[0], self.action_space.high[0]))
+        try:
+            a = np.asarray(action, dtype=float)
+        except (TypeError, ValueError):
+            raise ScenarioError(f"action {action!r:.80}: not a number") from None
+        if a.size != 1 or not np.isfinite(a).all():
+            # a NaN or a vector would otherwise be clipped into a plausible force silently
+            raise ScenarioError(f"action {action!r:.80}: expected one finite number (the "
+                                f"action space is {self.action_space})")
+        u = float(np.clip(a.reshape(-1)[0], self.action_space.low[0], self.action_space.high[0]))
         self._u = u
         i0 = self._i
         k = min(self.frame_skip, self.horizon - i0)
