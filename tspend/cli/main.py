@@ -157,30 +157,14 @@ def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> 
 
 
 def parse_set_value(item: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` of --set: the value in TOML (a bare word is a string), on one line."""
-    import tomllib
-
-    from tspend.scenario import check_nesting
+    """``KEY=VALUE`` of --set: the value in TOML (a bare word is a string), on one line
+    (:func:`tspend.sweep.plan.parse_value`, the one reader of a value on the command line)."""
+    from tspend.sweep.plan import parse_value
 
     key, sep, text = item.partition("=")
     if not sep or not key.strip():
         raise ScenarioError(f"--set {item[:80]}: expected KEY=VALUE, e.g. controller.eta=0.01")
-    if "\n" in text or "\r" in text or "\x00" in text:
-        raise ScenarioError(f"--set {key.strip()[:80]}: the value must be one line of TOML "
-                            f"(it contains a line break or a NUL byte)")
-    text = text.strip()
-    try:
-        parsed = tomllib.loads(f"v = {text}")
-    except tomllib.TOMLDecodeError:
-        return key.strip(), text  # a bare word, e.g. controller.adaptation=first
-    except RecursionError:
-        raise ScenarioError(f"--set {key.strip()[:80]}: the value is nested too deeply") from None
-    except ValueError as exc:  # e.g. more digits than Python converts
-        raise ScenarioError(f"--set {key.strip()[:80]}: {str(exc)[:120]}") from None
-    if list(parsed) != ["v"]:
-        raise ScenarioError(f"--set {key.strip()[:80]}: one value expected, got more TOML after it")
-    check_nesting(parsed["v"], f"--set {key.strip()[:80]}")
-    return key.strip(), parsed["v"]
+    return key.strip(), parse_value(text.strip(), f"--set {key.strip()[:80]}")
 
 
 def load_with_overrides(args: argparse.Namespace):
