@@ -353,6 +353,9 @@ def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuat
                             f"'{hinge_joint}''s axis: the cart cannot swing it (no cart-pole)")
     off = model.opt.disableflags
     gravity = np.zeros(3) if off & _DSBL.mjDSBL_GRAVITY else np.asarray(model.opt.gravity, float)
+    if not np.isfinite(gravity).all():
+        raise ScenarioError(f"{where}: gravity {_fmt(gravity)} is not finite (set it in the "
+                            f"model's <option gravity=...> or with plant.g)")
     g = float(np.linalg.norm(gravity))
     down = gravity / g if g > 0.0 else np.array([0.0, 0.0, -1.0])
     # the COM's motion about the axis: X(q) = ax cos q + bx sin q (along the rail),
