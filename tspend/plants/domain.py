@@ -393,11 +393,12 @@ class FullModel:
 
 def bound_text(bound: "Bound") -> str:
     """What crossing ``bound`` means, short enough for a label in a 3D view:
-    ``"fell: |hinge| > 1.57 rad"`` for a symmetric bound, else both ends."""
+    ``"fell if |hinge| > 1.57 rad"`` for a symmetric bound, else both ends (a condition,
+    drawn on every run: a completed run's view must not read as if it ended there)."""
     unit = f" {bound.unit}" if bound.unit else ""
     if math.isfinite(bound.hi) and bound.lo == -bound.hi:
-        return f"{bound.status}: |{bound.name}| > {bound.hi:.3g}{unit}"
-    return f"{bound.status}: {bound.name} outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit}"
+        return f"{bound.status} if |{bound.name}| > {bound.hi:.3g}{unit}"
+    return f"{bound.status} if {bound.name} is outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit}"
 
 
 class Drawing(ABC):
