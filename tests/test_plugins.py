@@ -230,3 +230,29 @@ def test_installed_plant_domain_runs_like_a_builtin(tmp_path: Path) -> None:
         assert "plant plug-in left out: [tspend.plants] clash: duffing already taken" in r.err
     mine, theirs = (json.loads((tmp_path / f).read_text()) for f in ("mine.json", "theirs.json"))
     assert mine["rmse"] == theirs["rmse"] and mine["control_energy"] == theirs["control_energy"]
+
+
+def test_a_plugin_without_its_order_is_bad_input(workdir: Path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(workdir)
+    (workdir / "examples" / "no_order.py").write_text(textwrap.dedent('''
+        import numpy as np
+        from tspend.controllers.base import Controller
+
+        class NoOrder(Controller):
+            kind = "no_order"
+            diagnostics = ()
+            diag = np.zeros(0)
+
+            def __init__(self, scenario, settings=None):
+                pass
+
+            def reset(self, rng):
+                pass
+
+            def step(self, obs, dt):
+                return 0.0
+    '''))
+    status, _, err = in_process(capsys, "run", "ex3_pendulum_ode", "--controller",
+                                "examples/no_order.py:NoOrder", "--metrics", "m.json")
+    assert status == 2 and len(err) == 1 and "'order' must be a positive int" in err[0], err
+    assert not (workdir / "m.json").exists()

@@ -367,6 +367,11 @@ def build(scenario: "Scenario", kind: str | None = None, **options) -> Controlle
     if not isinstance(ctrl, Controller):
         raise ScenarioError(f"--controller {kind}: built a {type(ctrl).__name__}, not a "
                             f"Controller (see docs/writing-a-controller.md)")
+    order = getattr(ctrl, "order", None)  # the user's object: its declared attributes, checked once here
+    if not isinstance(order, int) or isinstance(order, bool) or order < 1:
+        raise ScenarioError(f"--controller {kind}: its 'order' must be a positive int (the "
+                            f"plant's order n), got {order!r:.40} (see "
+                            f"docs/writing-a-controller.md)")
     return ctrl
 
 
