@@ -26,7 +26,7 @@ from tspend.cli.main import main
 from tspend.controllers import build
 from tspend.controllers.base import Controller, Observation
 from tspend.controllers.full_model import full_model, wrap_angle
-from tspend.controllers.mpc import MPCController
+from mpc_plans import run_keeping_plans
 from tspend.loop.metrics import flatten
 from tspend.loop.runner import ClosedLoop, LoopSettings
 from tspend.loop.simulation import prepare
@@ -83,18 +83,7 @@ def test_mpc_constraints_hold_predicted_and_simulated(monkeypatch):
     s = override(load_scenario("ex3_pendulum_ode"),
                  **{"run.duration": 1.0, "effects.rail": 1.2, "effects.saturation": 150.0,
                     "controllers.mpc.horizon": 15})
-    plans = []
-    solve = MPCController.solve
-
-    def recording(self, state, ref):
-        out = solve(self, state, ref)
-        if out[1]:
-            plans.append((self.plan_states.copy(), self.plan_inputs.copy(),
-                          self.state_lo.copy(), self.state_hi.copy()))
-        return out
-
-    monkeypatch.setattr(MPCController, "solve", recording)
-    r = run(s, controller="mpc")
+    r, plans = run_keeping_plans(monkeypatch, s)
     assert r.status == "completed", r.end.message
     assert len(plans) == 50       # one solve per 20 ms
     tol = 1e-6

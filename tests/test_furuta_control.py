@@ -21,7 +21,7 @@ import pytest
 
 from tspend import load_scenario, override, run
 from tspend.controllers.full_model import full_model, wrap_angle
-from tspend.controllers.mpc import MPCController
+from mpc_plans import run_keeping_plans
 
 
 def energy_rate(model, s, u, h=1e-6):
@@ -98,18 +98,7 @@ def test_mpc_on_furuta_holds_the_arm_range_and_the_voltage(monkeypatch):
     s = override(load_scenario("furuta_mujoco"),
                  **{"run.duration": 0.4, "plant.x0": [0.3, 0.0], "task.state_bounds": {"arm": 1.5},
                     "controllers.mpc.horizon": 15})
-    plans = []
-    solve = MPCController.solve
-
-    def recording(self, state, ref):
-        out = solve(self, state, ref)
-        if out[1]:
-            plans.append((self.plan_states.copy(), self.plan_inputs.copy(),
-                          self.state_lo.copy(), self.state_hi.copy()))
-        return out
-
-    monkeypatch.setattr(MPCController, "solve", recording)
-    r = run(s, controller="mpc")
+    r, plans = run_keeping_plans(monkeypatch, s)
     assert r.status == "completed", r.end.message
     assert len(plans) == 20 and r.history["solve_failures"][-1] == 0
     tol = 1e-6
