@@ -14,12 +14,10 @@ import numpy as np
 import pytest
 from numba import njit
 
-import tspend.loop.runner as runner_module
 from tspend import load_scenario, override, run
 from tspend.controllers.base import CompiledController, Controller, Observation, diagnostics
-from tspend.loop.runner import ClosedLoop, LoopSettings
-from tspend.loop.simulation import History, prepare
-from tspend.loop.sinks import RunInfo
+from loop_harness import ZOH_CASES, sampled_run
+from tspend.loop.simulation import prepare
 
 from tests.oracles.python_baselines import oracle
 
@@ -52,22 +50,6 @@ CASES = [
     ("swingup_mujoco", "swingup", {"run.duration": 6.0, "effects.rail": 1.5}),  # brakes
     ("ex3_pendulum_ode", "swingup", {"plant.x0": [3.0, 0.0], "task.fall_angle": 0.0}),
 ]
-
-
-@pytest.fixture
-def paths(monkeypatch):
-    """The loop each run took, in order ("compiled" or "generic")."""
-    taken: list[str] = []
-    real = runner_module.ClosedLoop._loop
-
-    def spy(self, sinks):
-        try:
-            return real(self, sinks)
-        finally:
-            taken.append(self.path)
-
-    monkeypatch.setattr(runner_module.ClosedLoop, "_loop", spy)
-    return taken
 
 
 def assert_close_runs(a, b, atol: float = 1e-10) -> None:
@@ -148,32 +130,17 @@ def uncached(monkeypatch, tmp_path):
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
 
 
-@pytest.mark.parametrize("every, delay, expected", [
-    (1, 0, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]),
-    (3, 0, [1, 1, 1, 2, 2, 2, 3, 3, 3, 4]),
-    (3, 2, [0, 0, 1, 1, 1, 2, 2, 2, 3, 3]),
-    (1, 1, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]),
-    (2, 5, [0, 0, 0, 0, 0, 1, 1, 2, 2, 3]),   # three u in flight at once
-])
+@pytest.mark.parametrize("every, delay, expected", ZOH_CASES)
 @pytest.mark.parametrize("name", ["ex2_duffing", "pendulum_mujoco"])
 def test_compiled_zero_order_hold_and_delay_by_hand(name, every, delay, expected, uncached):
-    # by hand: the k-th evaluation (k = 1, 2, ..) happens at step (k - 1) every and is
-    # applied from step (k - 1) every + delay on; 0 before the first arrives
-    s = override(load_scenario(name), **{"run.duration": 0.01})
-    p = prepare(s)
     ctrl = Counter()
-    hist = History()
-    loop = ClosedLoop(p.plant, ctrl, s.reference, s.disturbance,
-                      LoopSettings(dt=s.run.dt, steps=10, block_size=4, control_every=every,
-                                   control_delay=delay), task=p.task)
-    p.plant.reset(np.asarray(s.plant.x0, dtype=float))
-    end = loop.run(RunInfo("t", "", "", 1, "", "duffing", 2, s.run.dt, 0.01, 10), [hist])
+    loop, hist, end = sampled_run(name, ctrl, every, delay)
     assert loop.path == "compiled"
     assert end.status == "completed"
     np.testing.assert_array_equal(hist.arrays()["u"], expected)
     assert ctrl.calls[0] == len(range(0, 10, every))
     # the controller's sample time is the control period
-    np.testing.assert_array_equal(hist.arrays()["dt_seen"], s.run.dt * every)
+    np.testing.assert_array_equal(hist.arrays()["dt_seen"], load_scenario(name).run.dt * every)
 
 
 @pytest.mark.parametrize("name,kind", [("ex3_pendulum_ode", "second_type"),

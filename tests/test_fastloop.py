@@ -10,29 +10,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import tspend.loop.runner as runner_module
 from tspend import load_scenario, override, run
 from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 
 COVERED = ["ex1_nonaffine_case1", "ex2_duffing", "ex3_pendulum_ode", "third_order",
            "pendulum_mujoco"]
-
-
-@pytest.fixture
-def paths(monkeypatch):
-    """The loop each run took, in order ("compiled" or "generic")."""
-    taken: list[str] = []
-    real = runner_module.ClosedLoop._loop
-
-    def spy(self, sinks):
-        try:
-            return real(self, sinks)
-        finally:
-            taken.append(self.path)
-
-    monkeypatch.setattr(runner_module.ClosedLoop, "_loop", spy)
-    return taken
 
 
 class Snapshots:

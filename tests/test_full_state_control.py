@@ -28,10 +28,7 @@ from tspend.controllers.base import Controller, Observation
 from tspend.controllers.full_model import full_model, wrap_angle
 from mpc_plans import run_keeping_plans
 from tspend.loop.metrics import flatten
-from tspend.loop.runner import ClosedLoop, LoopSettings
-from tspend.loop.simulation import prepare
-from tspend.loop.simulation import History
-from tspend.loop.sinks import RunInfo
+from loop_harness import ZOH_CASES, sampled_run
 
 
 def _hand_AB(M=10.0, m=1.0, l=3.0, g=9.8):
@@ -152,22 +149,10 @@ class _Counter(Controller):
         return float(self.calls)
 
 
-@pytest.mark.parametrize("every, delay, expected", [
-    (1, 0, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]),
-    (3, 0, [1, 1, 1, 2, 2, 2, 3, 3, 3, 4]),
-    (3, 2, [0, 0, 1, 1, 1, 2, 2, 2, 3, 3]),
-    (1, 1, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]),
-])
+@pytest.mark.parametrize("every, delay, expected", ZOH_CASES)
 def test_zero_order_hold_and_delay_by_hand(every, delay, expected):
-    s = override(load_scenario("ex2_duffing"), **{"run.duration": 0.01})
-    p = prepare(s)
     ctrl = _Counter()
-    hist = History()
-    loop = ClosedLoop(p.plant, ctrl, s.reference, s.disturbance,
-                      LoopSettings(dt=s.run.dt, steps=10, block_size=4, control_every=every,
-                                   control_delay=delay), task=p.task)
-    p.plant.reset(np.asarray(s.plant.x0, dtype=float))
-    end = loop.run(RunInfo("t", "", "", 1, "", "duffing", 2, s.run.dt, 0.01, 10), [hist])
+    loop, hist, end = sampled_run("ex2_duffing", ctrl, every, delay)
     assert end.status == "completed"
     np.testing.assert_array_equal(hist.arrays()["u"], expected)
     assert ctrl.calls == len(range(0, 10, every))

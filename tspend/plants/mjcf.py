@@ -459,8 +459,10 @@ def unmodelled(f: ModelFacts, dt: float | None = None) -> list[str]:
     return list(f.unmodelled) + _sample_time(f, dt)
 
 
-def departures(f: ModelFacts, dt: float | None = None) -> list[str]:
-    """How the model departs from the paper's ideal cart-pole ODE, one line each."""
+def departures(f: ModelFacts, dt: float | None = None, *, gear_chosen: bool = False) -> list[str]:
+    """How the model departs from the paper's ideal cart-pole ODE, one line each
+    (``gear_chosen``: the scenario set or drew the gear, so it is the machine asked for,
+    not a surprise in the file)."""
     out: list[str] = []
     if abs(f.pole_inertia_pivot - f.rod_inertia_pivot) > 1e-6 * max(f.rod_inertia_pivot, 1e-12):
         out.append(f"pole inertia about the pivot is {f.pole_inertia_pivot:.6g} kg m^2, not the "
@@ -485,7 +487,7 @@ def departures(f: ModelFacts, dt: float | None = None) -> list[str]:
                    f"{act.gain:g} + {act.gain_length:g} L + {act.gain_velocity:g} V) u + "
                    f"{act.bias:g} + {act.bias_length:g} L + {act.bias_velocity:g} V), L = "
                    f"gear x, V = gear x': u is not a force")
-    if f.gear * f.gain != 1.0:
+    if f.gear * f.gain != 1.0 and not gear_chosen:
         out.append(f"actuator gear {f.gear:g}, gain {f.gain:g}: the cart force is "
                    f"{f.gear * f.gain:g} u at rest")
     force_max = act.max_force_at_rest() if act is not None else math.inf

@@ -460,12 +460,8 @@ class MujocoCartPole(Plant):
 
     def departures(self, dt: float | None = None) -> list[str]:
         """How this model departs from the paper's ODE (with ``dt``: and the sample time)."""
-        lines = mjcf.departures(self.facts, dt)
-        if "gear" in self.overridden:
-            # a gear the scenario set (or [randomize] drew) is the machine asked for, not a
-            # surprise in the file: the metrics' plant.gear records it
-            lines = [line for line in lines if not line.startswith("actuator gear ")]
-        return lines
+        # a gear the scenario set (or [randomize] drew) is recorded as plant.gear
+        return mjcf.departures(self.facts, dt, gear_chosen="gear" in self.overridden)
 
     def set_params(self, p: CartPoleParams) -> None:
         """Change M, m, l (J) of the running machine, as a payload picked up would.
