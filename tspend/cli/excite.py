@@ -145,10 +145,17 @@ def _size(data: dict, src, share: float, u_lo: float, u_hi: float) -> tuple[floa
     import tspend
     from tspend.task import build_task
 
+    import copy
+
     trial = 1.0
+    # the nominal machine from rest: the motion the excitation alone causes
+    quiet = copy.deepcopy(data)
+    quiet.pop("randomize", None)
+    if "x0" in quiet.get("plant", {}):
+        quiet["plant"]["x0"] = [0.0] * len(quiet["plant"]["x0"])
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "trial.toml"
-        path.write_text(dump_toml(data), encoding="utf-8")
+        path.write_text(dump_toml(quiet), encoding="utf-8")
         r = tspend.run(path, keep_history=True)
         task = build_task(r.plant, r.scenario.task, r.scenario.effects, where=str(path))
     state = np.asarray(r.history["state"])

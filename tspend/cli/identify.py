@@ -32,6 +32,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="comma-separated parameters to fit (cart-pole: m,l,M,gear,cart_damping,"
                         "hinge_damping; Furuta: arm_damping,pendulum_damping,arm_armature,"
                         "pendulum_armature,motor_gain,back_emf); the others keep the model's values")
+    p.add_argument("--fix", action="append", default=[], metavar="KEY=VALUE",
+                   help="hold a parameter at a known value other than the model's (a calibrated "
+                        "gear, say); written into the calibrated MJCF too; repeatable")
     p.add_argument("--out", metavar="PATH.xml", help="the calibrated MJCF to write")
     p.add_argument("--metrics", metavar="PATH.json", help="the fit's figures as JSON")
     p.add_argument("--figure", metavar="PATH.png", help="measured vs predicted on the validation part")
@@ -67,6 +70,7 @@ def cmd(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     names = ident.check_names(model, args.params.split(","))
+    model.fixed.update(_fixed(args.fix, model, names))
     rec = ident.read_record(args.data, model, time=args.time, positions=_cols(args.positions),
                             velocities=_cols(args.velocities), input=args.input,
                             use_velocities=args.use_velocities)
@@ -81,7 +85,7 @@ def cmd(args: argparse.Namespace) -> int:
 
     targets = {p.request.option: p.target for p in plans}
     if "--out" in targets:
-        changes = model.write(fit.values, targets["--out"])
+        changes = model.write({**model.fixed, **fit.values}, targets["--out"])
         print(f"calibrated model: {display(targets['--out'])} ({len(changes)} change(s) named "
               f"in its header comment)")
     if "--metrics" in targets:
@@ -94,6 +98,27 @@ def cmd(args: argparse.Namespace) -> int:
         write_atomic(targets["--figure"], lambda tmp: fit_figure(fit, model, tmp), what="figure")
         print(f"figure: {display(targets['--figure'])}")
     return EXIT_OK
+
+
+def _fixed(items, model, names) -> dict:
+    import math
+
+    out = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or key not in model.names:
+            raise ScenarioError(f"--fix {item}: KEY=VALUE with KEY one of {', '.join(model.names)}")
+        if key in names:
+            raise ScenarioError(f"--fix {key}: it is also in --params (fit it or fix it)")
+        try:
+            value = float(text)
+        except ValueError:
+            raise ScenarioError(f"--fix {item}: not a number: {text!r}") from None
+        if not math.isfinite(value):
+            raise ScenarioError(f"--fix {item}: must be finite")
+        out[key] = value
+    return out
 
 
 def report(fit, model) -> str:

@@ -51,6 +51,8 @@ class ParametricModel:
     _rhs: Callable[[Any, Any, Any, dict], Any] = field(repr=False, default=None)
     _write: Callable[[Any, dict], list[str]] = field(repr=False, default=None)
     timestep: float = 0.0
+    #: parameters held at a known value other than the MJCF's (``--fix gear=1.08``)
+    fixed: dict = field(default_factory=dict)
 
     @property
     def dof(self) -> int:
@@ -59,7 +61,7 @@ class ParametricModel:
     def rhs(self, s, u, d, p: dict):
         """``s'`` (CasADi) with ``p`` mapping some parameter names to expressions (the
         rest at their nominal values)."""
-        return self._rhs(s, u, d, p)
+        return self._rhs(s, u, d, {**self.fixed, **p})
 
     def write(self, values: dict[str, float], out: Path) -> list[str]:
         """A copy of the MJCF with ``values``: the list of changes, as written."""
