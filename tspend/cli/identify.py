@@ -48,8 +48,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                         "are estimated as part of each segment's state)")
     p.add_argument("--validation", type=finite(0.0, 0.9), default=0.25, metavar="SHARE",
                    help="the share of the record held back at its end (default 0.25)")
-    p.add_argument("--segment", type=finite(), default=1.0, metavar="S",
-                   help="length of each shooting segment, s (default 1)")
+    p.add_argument("--segment", type=finite(), metavar="S",
+                   help="length of each shooting segment, s (default: 2 / the nominal machine's "
+                        "fastest unstable eigenvalue, within [50 samples, 2 s])")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 

@@ -293,6 +293,20 @@ class Fit:
                 "validation_s": self.validation_s, "status": self.status}
 
 
+def auto_segment(model: ParametricModel, dt: float) -> float:
+    """The shooting segments' default length, s: ``2 / lambda`` for the fastest unstable
+    eigenvalue ``lambda`` of the nominal machine at its zero state (upright; a
+    simulation error then grows at most ~e^2 over a segment, which keeps the least-squares
+    problem well conditioned), within [50 dt, 2 s]; 2 s for a stable machine."""
+    import casadi
+
+    s = casadi.SX.sym("s", len(model.state_names))
+    A = casadi.Function("A", [s], [casadi.jacobian(model.rhs(s, 0.0, 0.0, {}), s)])
+    lam = float(np.max(np.linalg.eigvals(np.asarray(A(np.zeros(len(model.state_names))))).real))
+    seg = 2.0 / lam if lam > 0 else 2.0
+    return float(min(max(seg, 50 * dt), 2.0))
+
+
 def _segments(first: int, last: int, K: int) -> list[int]:
     return list(range(first, last - K + 1, K - 1))
 
@@ -302,11 +316,12 @@ def _channel_names(model: ParametricModel, meas_rows: Sequence[int]) -> list[str
 
 
 def identifiability(model: ParametricModel, rec: Record, names: tuple[str, ...], *,
-                    segment_s: float = 1.0, validation: float = 0.25) -> list[str]:
+                    segment_s: float | None = None, validation: float = 0.25) -> list[str]:
     """Refuse a set of parameters the record cannot fix (ScenarioError naming what it can
     fix); return nothing when the set is identifiable.  From the sensitivity Jacobian at
     the nominal values (the module docstring)."""
     N = rec.t.size
+    segment_s = segment_s or auto_segment(model, rec.dt)
     K = max(3, int(round(segment_s / rec.dt)) + 1)
     last = int(N * (1.0 - validation))
     starts = _segments(0, last, K)
@@ -344,11 +359,22 @@ def identifiability(model: ParametricModel, rec: Record, names: tuple[str, ...],
 
     free = Vt[null] / norms                  # back from normalised to log (or raw) units
     free /= np.linalg.norm(free, axis=1, keepdims=True)
-    combos = _combinations(null_space(free).T, names, logs)
+    # the same directions in raw units (d p = p d log p): the fixable combinations read as
+    # products of powers (ratios: m/gear) or as sums (arm_damping + back_emf), whichever has
+    # the simpler coefficients
+    p0 = np.array([model.nominal[nm] if lg else 1.0 for nm, lg in zip(names, logs)])
+    raw = free * p0
+    raw /= np.linalg.norm(raw, axis=1, keepdims=True)
+    as_log = _rref(null_space(free).T)
+    as_raw = _rref(null_space(raw).T)
+    if _roughness(as_raw) < _roughness(as_log) or not np.all(logs):
+        combos = _combinations(as_raw, names, np.zeros_like(logs))
+    else:
+        combos = _combinations(as_log, names, logs)
     raise ScenarioError(
         f"--params {','.join(names)}: not identifiable from motion: the data fix only "
         f"{len(combos)} combination{'s' if len(combos) != 1 else ''} of them: "
-        f"{', '.join(combos)} (unseen direction: {_direction(free[0], names, logs)}); "
+        f"{', '.join(combos)}; "
         f"give one of them its known value (leave it out of --params)")
 
 
@@ -370,6 +396,11 @@ def _rref(A: np.ndarray) -> np.ndarray:
     return A[:r]
 
 
+def _roughness(rows: np.ndarray) -> float:
+    """How far a basis's coefficients are from small integers (0 for 1, -1, 2 ...)."""
+    return float(np.sum(np.abs(rows - np.round(rows))))
+
+
 def _power(e: float) -> str:
     e = round(e, 2)
     return "" if e == 1 else (f"^{e:g}")
@@ -379,8 +410,8 @@ def _combinations(basis: np.ndarray, names: Sequence[str], logs: np.ndarray) -> 
     """Each row of the basis in reduced row echelon form, as a product of powers (log-scaled
     parameters) or a weighted sum (the others)."""
     out = []
-    for row in _rref(basis):
-        row = np.where(np.abs(row) < 1e-6, 0.0, row)
+    for row in basis:
+        row = np.where(np.abs(row - np.round(row)) < 1e-6, np.round(row), row)
         if np.all(logs | (row == 0)):
             num = [f"{n}{_power(e)}" for n, e in zip(names, row) if e > 0]
             den = [f"{n}{_power(-e)}" for n, e in zip(names, row) if e < 0]
@@ -389,7 +420,9 @@ def _combinations(basis: np.ndarray, names: Sequence[str], logs: np.ndarray) -> 
                 text += "/" + (den[0] if len(den) == 1 else "(" + " ".join(den) + ")")
             out.append(text)
         else:
-            out.append(" + ".join(f"{e:.3g} {n}" for n, e in zip(names, row) if e != 0))
+            terms = [(f"{'' if abs(e) == 1 else f'{abs(e):.3g} '}{n}", e) for n, e in zip(names, row) if e != 0]
+            out.append("".join(("" if i == 0 and e > 0 else (" - " if e < 0 else " + ")) + t
+                               for i, (t, e) in enumerate(terms)).strip())
     return out
 
 
@@ -472,12 +505,13 @@ def _validate(model: ParametricModel, rec: Record, names, theta: np.ndarray, sca
     return rms, trace
 
 
-def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *, segment_s: float = 1.0,
-        validation: float = 0.25, head_s: float = 0.1, use_velocities: bool = False,
-        max_nfev: int = 100) -> Fit:
+def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *,
+        segment_s: float | None = None, validation: float = 0.25, head_share: float = 0.2,
+        use_velocities: bool = False, max_nfev: int = 100) -> Fit:
     """Fit ``names`` to ``rec`` (see the module docstring).  Raises FitFailed when the
     solver stops without converging or the curvature is singular."""
     N = rec.t.size
+    segment_s = segment_s or auto_segment(model, rec.dt)
     K = max(3, int(round(segment_s / rec.dt)) + 1)
     last = int(N * (1.0 - validation))
     starts = _segments(0, last, K)
@@ -522,7 +556,7 @@ def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *, segment_
     resid = out - meas
     chans = _channel_names(model, prob.meas_rows)
     rms_fit = {c: float(np.sqrt(np.mean(resid[:, i] ** 2))) for i, c in enumerate(chans)}
-    head = max(3, int(round(head_s / rec.dt)) + 1)
+    head = max(3, int(round(head_share * (K - 1))) + 1)
     rms_val, trace = _validate(model, rec, names, theta, prob.scales, last, K, head)
     nominal_theta = np.array([model.nominal[nm] for nm in names]) / prob.scales
     rms_nom, trace_nom = _validate(model, rec, names, nominal_theta, prob.scales, last, K, head)
