@@ -80,7 +80,9 @@ def excitation(s: ExcitationSettings, t: np.ndarray | float) -> np.ndarray:
         k = np.arange(1, s.n_freq + 1)
         phase = -math.pi * k * (k - 1) / s.n_freq                 # Schroeder
         e = np.sin(2 * math.pi * np.multiply.outer(tau, f) + phase).sum(axis=-1)
-        e = e / _multisine_peak(s)
+        # log-spaced lines are not periodic: the peak over a long sample, and a clip for
+        # the rare instant beyond it (the excitation never exceeds its amplitude)
+        e = np.clip(e / _multisine_peak(s), -1.0, 1.0)
     elif s.signal == "chirp":
         tt = np.mod(tau, s.sweep_s)
         r = s.f_max_hz / s.f_min_hz
