@@ -27,6 +27,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tspend.studies.identify import column
+from tspend.studies.identify_model import load_model
+
 ROOT = Path(__file__).resolve().parents[1]
 TSPEND = [sys.executable, "-m", "tspend.cli"]
 
@@ -65,8 +68,12 @@ def main() -> int:
             drawn = json.loads(met.read_text())["drawn"]
             df = pd.read_csv(csv, comment="#")
             rng = np.random.default_rng((seed, 0x1DE))
-            noisy = pd.DataFrame({"t_s": df["t_s"], "u_N": df["u_N"]})
-            for c in ("theta_rad", "cart_x_m"):
+            model = load_model(str(ROOT / "models" / "cartpole.xml"))
+            # the export's names, through identify's one mapping (either vocabulary)
+            cols = [column(df, cands, "position") for cands in model.position_columns]
+            u = column(df, model.input_columns, "input")
+            noisy = pd.DataFrame({"t_s": df["t_s"], u: df[u]})
+            for c in cols:
                 noisy[c] = df[c] + a.noise * rng.standard_normal(len(df))
             ncsv = d / f"n{seed}.csv"
             noisy.to_csv(ncsv, index=False)
