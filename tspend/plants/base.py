@@ -63,11 +63,19 @@ class TaskDefaults:
     view: tuple[str, ...]
     fall_angle: float = 0.0
     pole: str = ""
+    #: every pole the fall angle applies to (() = just ``pole``): a chain of links
+    poles: tuple[str, ...] = ()
+
+    @property
+    def fallen_poles(self) -> tuple[str, ...]:
+        """The states the fall angle bounds."""
+        return self.poles or ((self.pole,) if self.pole else ())
 
     def renamed(self, names: dict[str, str]) -> "TaskDefaults":
         """This task with state names replaced by ``names`` (a plant's own joint names)."""
         return TaskDefaults(tuple(names.get(v, v) for v in self.view), self.fall_angle,
-                            names.get(self.pole, self.pole))
+                            names.get(self.pole, self.pole),
+                            tuple(names.get(p, p) for p in self.poles))
 
 
 class Plant(ABC):

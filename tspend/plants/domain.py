@@ -329,6 +329,13 @@ class FullModel:
     machine: Any = None
     #: the unit of the actuated coordinate's acceleration ("m/s^2", "rad/s^2")
     accel_unit: str = ""
+    #: every joint that must stay upright (() = just ``pole``): a chain of links
+    poles: tuple[int, ...] = ()
+
+    @property
+    def upright(self) -> tuple[int, ...]:
+        """The indices of every pole (``poles``, else ``pole``)."""
+        return self.poles or (self.pole,)
 
     @property
     def size(self) -> int:
