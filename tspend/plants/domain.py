@@ -486,6 +486,9 @@ class Domain(ABC):
     #: :data:`PARAMETER_CHANGE`, :data:`CART_CENTRING`): what a controller kind's
     #: ``needs`` and the effects are checked against before anything is built
     provides: frozenset[str] = frozenset({VIEW_MODEL})
+    #: True when the equations are derived from the model (the cross-check then compares
+    #: them with MuJoCo's mj_forward at random states: tspend.studies.crosscheck_derived)
+    derives_equations: bool = False
 
     @property
     def order(self) -> int:

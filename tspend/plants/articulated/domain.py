@@ -414,6 +414,7 @@ class ArticulatedDomain(Domain):
     task = TaskDefaults(view=("pole", "pole_dot"), fall_angle=FALL_ANGLE_RAD)
     default_model = ArticulatedConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
+    derives_equations = True
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, ArticulatedConfig) else self.default_model
