@@ -2,12 +2,14 @@
 
 (c) **Accelerations**: the derived ``q''(q, q', u)`` (:mod:`tspend.plants.articulated.derive`)
 against MuJoCo's own ``mj_forward`` ``qacc`` at many random states: every angle over the
-full circle, rates up to ``RATE_MAX``, slides within their range, inputs over the
-actuator's range.  The difference is relative to the acceleration where that exceeds 1
+full circle (a limited joint within its range, where MuJoCo's limit does not act), rates
+up to ``RATE_MAX``, inputs over the actuator's range.  The difference is relative to the acceleration where that exceeds 1
 (absolute below): it measures the equations, free of any integration.
 (d) **Free motion**: both backends from the scenario's start with no input; every state
 within ``TIGHT`` for the first ``FREE_MIN_S`` seconds, and how long they stay within
-``LOOSE``.  A chain of two or more poles is chaotic once it swings: round-off at 1e-16
+``LOOSE``.  On such machines the chirp of the open loop (a) is judged the same way: it
+must agree within the tolerance for ``FREE_MIN_S`` (``open_loop_within_tol_s`` says how
+long it did).  A chain of two or more poles is chaotic once it swings: round-off at 1e-16
 grows by a factor of e every Lyapunov time, so the backends part at last; the figure
 says when, the cross-check does not fail on it.
 """
@@ -48,11 +50,9 @@ def accelerations_check(plant: Plant, n_states: int = 1000, seed: int = 0) -> di
     for _ in range(n_states):
         q = np.empty(nv)
         for j, jf in enumerate(machine.tree.joints):
-            if jf.kind == "hinge":
-                q[j] = rng.uniform(-math.pi, math.pi)
-            else:
-                r = jf.range or (-1.0, 1.0)
-                q[j] = rng.uniform(r[0], r[1])
+            # within a limited joint's range (MuJoCo's limit would act beyond it)
+            r = jf.range or ((-math.pi, math.pi) if jf.kind == "hinge" else (-1.0, 1.0))
+            q[j] = rng.uniform(r[0], r[1])
         qd = rng.uniform(-RATE_MAX, RATE_MAX, nv)
         u = rng.uniform(lo, hi)
         data.qpos[:], data.qvel[:] = q, qd
