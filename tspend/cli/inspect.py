@@ -49,7 +49,8 @@ def _cmd(args: argparse.Namespace) -> int:
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}
     facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
-    print(f"{args.model}: a {domain.name} model")
+    article = "an" if domain.name[:1] in "aeiou" else "a"
+    print(f"{args.model}: {article} {domain.name} model")
     for key, value in facts.items():
         print(f"  {key:<20} {_show(value)}")
     if departures:
@@ -80,7 +81,11 @@ def _domain_of(model: str):
 
     spec = read_spec(model)
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
-    found = next((d for d in DOMAINS.values() if d.fits_mjcf(kinds)), None)
+    try:
+        compiled = spec.compile()
+    except ValueError as exc:
+        raise ScenarioError(f"{model}: cannot compile MJCF: {exc}") from None
+    found = next((d for d in DOMAINS.values() if d.fits_model(compiled)), None)
     if found is None:
         readers = ", ".join(d.name for d in DOMAINS.values() if d.mujoco_kind() is not None)
         raise ScenarioError(f"{model}: no plant domain reads a model with joints "

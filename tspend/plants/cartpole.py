@@ -667,7 +667,8 @@ class CartPoleDomain(Domain):
                                theta_sign=params.theta_sign)
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
-        return "slide" in joint_types
+        # one slide and one hinge: a chain of more is the articulated domain's
+        return joint_types.count("slide") == 1 and len(joint_types) == 2
 
     def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
         """Before a balancing run (the task ends on a fall): the force the reference and

@@ -576,6 +576,15 @@ class Domain(ABC):
         domain's machine (``tspend inspect`` picks the domain by it)."""
         return False
 
+    def fits_model(self, model: Any) -> bool:
+        """Whether the compiled ``mujoco.MjModel`` is this domain's machine (``tspend
+        inspect``); by default by its joint types alone (:meth:`fits_mjcf`)."""
+        import mujoco
+
+        names = {int(mujoco.mjtJoint.mjJNT_SLIDE): "slide", int(mujoco.mjtJoint.mjJNT_HINGE): "hinge",
+                 int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+        return self.fits_mjcf(tuple(names[int(t)] for t in model.jnt_type))
+
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
         """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``;

@@ -540,6 +540,20 @@ class FurutaDomain(Domain):
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
 
+    def fits_model(self, model: Any) -> bool:
+        """Two hinges, the first (the arm) turning about the vertical: an acrobot or a
+        reaction wheel, whose first hinge is horizontal, is the articulated domain's."""
+        import mujoco
+
+        if not super().fits_model(model):
+            return False
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        g = np.asarray(model.opt.gravity, dtype=float)
+        axis = np.asarray(data.xaxis[0], dtype=float)
+        n = float(np.linalg.norm(g))
+        return n > 0.0 and abs(abs(float(axis @ g)) / n - 1.0) < 1e-6
+
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
         """The model read back as the Furuta ODE's parameters, with the upright's

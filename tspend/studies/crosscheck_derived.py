@@ -60,6 +60,8 @@ def accelerations_check(plant: Plant, n_states: int = 1000, seed: int = 0) -> di
         data.ctrl[plant._act] = u  # type: ignore[attr-defined]
         data.qfrc_applied[:] = 0.0
         mujoco.mj_forward(model, data)
+        if data.nefc and plant.constraint_active():
+            continue  # a limit acting within its margin: the derived equations do not hold
         mine = machine.accelerations(np.concatenate([q, qd]), u)
         diff = np.abs(mine - data.qacc)
         worst = max(worst, float(np.max(diff / np.maximum(1.0, np.abs(data.qacc)))))

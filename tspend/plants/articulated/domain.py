@@ -201,14 +201,23 @@ class ArticulatedMujoco(_Named, Plant):
         return out
 
     def constraint_active(self) -> str:
-        d = self.data
+        """The first constraint MuJoCo applies now (a contact, a joint's limit within its
+        margin, dry friction), in words; "" when none: the derived equations hold."""
+        import mujoco
+
+        d, m = self.data, self.model
         if d.ncon:
             c = d.contact[0]
-            return (f"contact between geoms {self.model.geom(c.geom1).name!r} and "
-                    f"{self.model.geom(c.geom2).name!r}")
-        for j, jf in enumerate(self.machine.tree.joints):
-            if jf.range is not None and not (jf.range[0] < d.qpos[j] < jf.range[1]):
-                return f"joint {jf.name!r} at its limit"
+            return (f"contact between geoms {m.geom(c.geom1).name!r} and "
+                    f"{m.geom(c.geom2).name!r}")
+        C = mujoco.mjtConstraint
+        for i in range(d.nefc):
+            kind, obj = int(d.efc_type[i]), int(d.efc_id[i])
+            if kind == int(C.mjCNSTR_LIMIT_JOINT):
+                return f"joint {m.joint(obj).name!r} at its limit"
+            if kind == int(C.mjCNSTR_FRICTION_DOF):
+                continue  # dry friction is a departure named before the run
+            return f"a constraint of type {C(kind).name}"
         return ""
 
     def reset(self, x0: np.ndarray) -> None:
