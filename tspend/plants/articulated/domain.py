@@ -247,6 +247,29 @@ class ArticulatedMujoco(_Named, Plant):
                                 f"multiple of the model timestep {self._ts!r}")
         return int(k)
 
+    def compiled_mujoco(self, dt: float) -> Any:
+        """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
+        C ``mj_step`` on its model and data; the full state is ``[qpos, qvel]``)."""
+        import mujoco
+
+        from tspend.plants.mujoco_plant import MujocoLink, mj_step_pointer
+
+        if mj_step_pointer() is None:
+            return None
+        w = mujoco.mjtWarning
+        v = self._dof
+        return MujocoLink(self.model._address, self.data._address, self.data.qpos, self.data.qvel,
+                          self.data.ctrl, self.data.qfrc_applied, self.data.warning.number,
+                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
+                          v, v, 0, 0, int(self._act), 1.0, self._substeps(dt), 1e10)
+
+    def instability(self, t0: float) -> DivergenceError | None:
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
+                                   f"reset the simulation (step from t={t0:.6g})")
+        return None
+
     def step(self, u: float, d: float, dt: float) -> None:
         import mujoco
 
