@@ -7,8 +7,12 @@ constant at the sample rate), on the tracking error of the output ``e_1 = x_1 - 
 * ``rmse``, ``max_abs_e``: over the whole run; ``rmse_ss``, ``max_abs_e_ss``: over the
   steady-state window, the last half of the run (``t >= duration / 2``);
 * ``iae`` = int |e1| dt, ``ise`` = int e1^2 dt, ``itae`` = int t |e1| dt;
-* ``control_energy`` = int u^2 dt, ``max_abs_u``;
-* ``tv_u_per_s``: chattering, the total variation of u per second of simulated time.
+* ``control_energy`` = int u^2 dt of the command;
+* ``max_abs_u``: the largest input *applied* (the command clipped to the actuator's range,
+  when the accumulator knows it: :class:`MachineInfo`), ``max_abs_u_command``: the
+  largest the controller asked for;
+* ``tv_u_per_s``: chattering, the total variation of the command per second of
+  simulated time.
 
 Of the whole machine (issue 20; when the accumulator is given a :class:`MachineInfo`):
 
@@ -104,7 +108,7 @@ class MetricsAccumulator:
         self.seed = seed
         self.steps = 0
         self.sum_e2 = self.sum_abs_e = self.sum_t_abs_e = self.sum_u2 = 0.0
-        self.max_abs_e = self.max_abs_u = 0.0
+        self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
         self.ss_steps = 0
         self.ss_sum_e2 = 0.0
         self.ss_max_abs_e = 0.0
@@ -135,6 +139,9 @@ class MetricsAccumulator:
         self.sum_u2 += float(u @ u)
         self.max_abs_e = max(self.max_abs_e, float(abs_e.max()))
         self.max_abs_u = max(self.max_abs_u, float(np.abs(u).max()))
+        m = self.machine
+        applied = np.clip(u, m.u_lo, m.u_hi) if m is not None else u
+        self.max_abs_u_applied = max(self.max_abs_u_applied, float(np.abs(applied).max()))
         steady = t >= self.ss_start - 0.5 * self.dt
         if steady.any():
             e_ss = e1[steady]
@@ -215,7 +222,8 @@ class MetricsAccumulator:
             "ise": finite(self.sum_e2 * dt),
             "itae": finite(self.sum_t_abs_e * dt),
             "control_energy": finite(self.sum_u2 * dt),
-            "max_abs_u": finite(self.max_abs_u) if n else None,
+            "max_abs_u": finite(self.max_abs_u_applied) if n else None,
+            "max_abs_u_command": finite(self.max_abs_u) if n else None,
             "tv_u_per_s": finite(self.tv_u / sim_s) if n else None,
             "wall_s": wall_s,
             "sim_s": sim_s,
