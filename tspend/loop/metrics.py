@@ -61,6 +61,9 @@ class MachineInfo:
     u_hi: float = math.inf
     #: what the scenario's [randomize] drew (flat name -> value; empty: nothing)
     drawn: dict = field(default_factory=dict)
+    #: the task's goal: |e1| <= goal_angle from goal_by s on (0: none; tspend.config.TaskConfig)
+    goal_angle: float = 0.0
+    goal_by: float = 0.0
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
@@ -109,6 +112,8 @@ class MetricsAccumulator:
         self.steps = 0
         self.sum_e2 = self.sum_abs_e = self.sum_t_abs_e = self.sum_u2 = 0.0
         self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
+        #: the last sample's time at which |e1| lay outside the goal (None: never)
+        self.last_outside: float | None = None
         self.ss_steps = 0
         self.ss_sum_e2 = 0.0
         self.ss_max_abs_e = 0.0
@@ -140,6 +145,10 @@ class MetricsAccumulator:
         self.max_abs_e = max(self.max_abs_e, float(abs_e.max()))
         self.max_abs_u = max(self.max_abs_u, float(np.abs(u).max()))
         m = self.machine
+        if m is not None and m.goal_angle > 0.0:
+            outside = np.flatnonzero(~(abs_e <= m.goal_angle))
+            if outside.size:
+                self.last_outside = float(t[outside[-1]])
         applied = np.clip(u, m.u_lo, m.u_hi) if m is not None else u
         self.max_abs_u_applied = max(self.max_abs_u_applied, float(np.abs(applied).max()))
         steady = t >= self.ss_start - 0.5 * self.dt
@@ -188,6 +197,22 @@ class MetricsAccumulator:
         hi = _TIME_BINS[min(k, _TIME_BINS.size - 1)]
         return 1e3 * math.sqrt(lo * hi)
 
+    def goal_result(self) -> dict:
+        """The goal (``angle_rad``, ``by_s``), when it was reached to stay
+        (``reached_at_s``: the first sample after the last one outside; None: never), and
+        whether it was met (reached by ``by_s``)."""
+        m = self.machine
+        if not self.steps:
+            reached = None
+        elif self.last_outside is None:
+            reached = 0.0
+        else:
+            reached = self.last_outside + self.dt
+            if reached > (self.steps - 1) * self.dt + 1e-12:
+                reached = None  # outside at the last sample
+        met = reached is not None and reached <= m.goal_by + 1e-12
+        return {"angle_rad": m.goal_angle, "by_s": m.goal_by, "reached_at_s": reached, "met": met}
+
     def machine_result(self) -> dict:
         """The whole machine's metrics (module docstring); empty without a MachineInfo."""
         out: dict = {}
@@ -199,6 +224,8 @@ class MetricsAccumulator:
             out["plant"] = dict(m.parameters)
             out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
             out["drawn"] = dict(m.drawn)
+            if m.goal_angle > 0.0:
+                out["goal"] = self.goal_result()
         out["controller_ms"] = {"median": self._median_ms(),
                                 "max": 1e3 * self.time_max if self.timed else None}
         if self.counters:

@@ -122,6 +122,8 @@ class BlockBuffer:
 
 #: the status of a run the controller ended by raising, exiting or returning no number
 CONTROLLER_ERROR = "controller_error"
+#: the status of a run that kept every bound but did not reach the task's goal
+NOT_REACHED = "not_reached"
 
 
 def _control_value(u: object) -> float:
@@ -213,6 +215,14 @@ class ClosedLoop:
         for sink in sinks:
             if hasattr(sink, "result"):
                 metrics = sink.result(wall_s=wall)
+        goal = metrics.get("goal")
+        if status == "completed" and goal is not None and not goal["met"]:
+            # every bound held but the task's goal was not reached: no "completed" claimed
+            status = NOT_REACHED
+            when = (f"reached only at t = {goal['reached_at_s']:.4g} s" if goal["reached_at_s"] is not None
+                    else "never within it to the end")
+            message = (f"{NOT_REACHED}: the tracked output was not within {goal['angle_rad']:g} of "
+                       f"its reference from t = {goal['by_s']:g} s to the end ({when})")
         end = RunEnd(status=status, message=message, steps_done=done, metrics=metrics)
         for sink in sinks:
             try:
