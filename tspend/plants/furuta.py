@@ -58,6 +58,9 @@ def _full_energy(machine: FurutaMachine, s: np.ndarray) -> float:
 FULL_ACCEL[FurutaMachine] = _full_q_dd
 FULL_ENERGY[FurutaMachine] = _full_energy
 
+#: where the real arm's cable stops it, rad (+/-135 deg): the default task's joint limit
+ARM_STOP_RAD = 2.356
+
 #: the state, as MuJoCo's qpos then qvel of models/furuta.xml
 STATE_UNITS = ("rad", "rad", "rad/s", "rad/s")
 
@@ -124,6 +127,14 @@ class FurutaODE(AnalyticPlant):
 
     def default_task(self) -> TaskDefaults:
         return _named_task(self.arm_joint, self.pendulum_joint)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor's voltage within the amplifier's range, which the ODE applies (it clips
+        u as MuJoCo clips ctrl): both backends declare the bound they apply, so the
+        saturation metrics mean the same on each."""
+        lo, hi = (float(v) for v in self.params.ctrl_range)
+        return (InputInfo("motor", "V", lo, hi),)
 
     def extras_index(self) -> np.ndarray:
         return np.array([0, 2], dtype=np.intp)
@@ -488,8 +499,10 @@ class FurutaDomain(Domain):
                     Quantity("theta'", "rad/s", "arm angular velocity", "arm_dot"),
                     Quantity("alpha'", "rad/s", "pendulum angular velocity", "pendulum_dot")),
         disturbance=Quantity("d", "N m", "torque on the pendulum joint"))
+    #: the QUBE's arm turns on a cable that stops it near +/-135 deg (docs/furuta.md): the
+    #: model leaves the joint free (its open loop may turn over), the task does not
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
-                        pole="pendulum")
+                        pole="pendulum", limits=(("arm", ARM_STOP_RAD),))
     default_model = FurutaMujocoConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PUMPED_ENERGY})
 
