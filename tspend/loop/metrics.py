@@ -68,7 +68,7 @@ class MachineInfo:
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
 MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction",
-                    "drawn.")
+                    "drawn.", "goal.")
 
 
 def is_machine_column(name: str) -> bool:
@@ -89,7 +89,8 @@ def flatten(metrics: dict, prefix: str = "") -> dict:
 
 #: keys every metrics dictionary has (the CLI writes them as JSON)
 METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
-               "control_energy", "max_abs_u", "tv_u_per_s", "wall_s", "sim_s", "steps", "seed")
+               "control_energy", "max_abs_u", "max_abs_u_command", "tv_u_per_s", "wall_s",
+               "sim_s", "steps", "seed")
 
 
 class MetricsAccumulator:
