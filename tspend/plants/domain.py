@@ -590,6 +590,13 @@ class Domain(ABC):
         """The analytic plant of the very machine the MuJoCo ``plant`` compiled."""
         raise NotImplementedError(f"domain {self.name!r} has no analytic twin of its MuJoCo plant")
 
+    def acceleration_check(self, plant: Plant, states: int, rng: np.random.Generator) -> dict[str, Any] | None:
+        """The largest difference between the domain's derived accelerations and MuJoCo's
+        ``mj_forward`` at ``states`` random states of the MuJoCo ``plant`` (the cross-check's
+        JSON keys), or None: the domain has no such check (its equations are checked by
+        the open loop alone)."""
+        return None
+
 
 def project_root() -> Path:
     """The checkout that holds ``models/`` and ``scenarios/`` (the package's parent)."""

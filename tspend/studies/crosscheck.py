@@ -23,6 +23,7 @@ from tspend.loop.sinks import Sink
 from tspend.plants.domain import CHIRP_F0_HZ, CHIRP_F1_HZ, Domain
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.registry import DOMAINS, domain_of
+from tspend.studies.crosscheck_derived import derived_check
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from tspend.task import TERMINATIONS
 
@@ -124,6 +125,11 @@ def crosscheck(scenario: Scenario, sinks: Sequence[Sink] = (), open_loop_duratio
     report["tolerance"] = tol
     report["open_loop_ok"] = bool(report["open_loop_max_tracked"] <= tol)
     report["verdict"] = verdict(report)
+    domain, mj_kind, _ = backends(scenario)
+    derived = derived_check(scenario, domain, mj_kind, open_loop_duration)
+    if derived is not None:
+        report.update(derived)
+        report["verdict"] += "; " + derived["derived_verdict"]
     return report
 
 
