@@ -45,11 +45,10 @@ def _cmd(args: argparse.Namespace) -> int:
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
         check_writable(json_path, "json")
-    domain = _domain_of(args.model)
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}
-    facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
-    print(f"{args.model}: a {domain.name} model")
+    domain, facts, departures = _read(args.model, names, args.dt)
+    print(f"{args.model}: a{'n' if domain.name[0] in 'aeiou' else ''} {domain.name} model")
     for key, value in facts.items():
         print(f"  {key:<20} {_show(value)}")
     if departures:
@@ -71,17 +70,34 @@ def _show(value) -> str:
     return str(value)
 
 
-def _domain_of(model: str):
-    """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
-    past the size bounds of docs/reliability.md)."""
+def _read(model: str, names: dict[str, str], dt):
+    """``(domain, facts, departures)``: the first domain whose machine the MJCF looks like
+    and that reads it; a hand-made domain that refuses it (a second pole on a cart) passes
+    it on to the next (the articulated domain, which reads any hinge/slide tree), and the
+    first refusal is the error when none reads it."""
+    from tspend.errors import ScenarioError
+
+    first = None
+    for domain in _domains_of(model):
+        try:
+            return (domain, *domain.inspect(model, names=names, dt=dt))
+        except ScenarioError as exc:
+            first = first or exc
+    assert first is not None
+    raise first
+
+
+def _domains_of(model: str):
+    """The domains whose machine the MJCF looks like, in the registry's order (ScenarioError:
+    none, unreadable, or past the size bounds of docs/reliability.md)."""
     from tspend.errors import ScenarioError
     from tspend.plants.mjcf import read_spec
     from tspend.plants.registry import DOMAINS
 
     spec = read_spec(model)
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
-    found = next((d for d in DOMAINS.values() if d.fits_mjcf(kinds)), None)
-    if found is None:
+    found = [d for d in DOMAINS.values() if d.fits_mjcf(kinds)]
+    if not found:
         readers = ", ".join(d.name for d in DOMAINS.values() if d.mujoco_kind() is not None)
         raise ScenarioError(f"{model}: no plant domain reads a model with joints "
                             f"({', '.join(kinds) or 'none'}) (domains reading MJCF: {readers})")
