@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
-           "CART_CENTRING", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
+           "CART_CENTRING", "PENDULUM_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
            "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
            "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
            "bound_text", "name_slug", "unit_slug"]
@@ -54,6 +54,9 @@ SYMBOLIC = "symbolic_model"
 PARAMETER_CHANGE = "parameter_change"
 #: the cart-centring outer loop on the pole's reference (``effects.outer_loop``)
 CART_CENTRING = "cart_centring"
+#: a single pendulum whose energy about its pivot the driven joint pumps, its equations
+#: compiled (:data:`FULL_ACCEL`, :data:`FULL_ENERGY`; the energy-based swing-up)
+PENDULUM_ENERGY = "pendulum_energy"
 #: each capability, in words (docs/controllers.md's table)
 CAPABILITIES = {
     VIEW_MODEL: "a model of the view (f(x, u) of the tracked output's n-th derivative)",
@@ -61,6 +64,7 @@ CAPABILITIES = {
     SYMBOLIC: "the machine's equations over CasADi (exact gradients)",
     PARAMETER_CHANGE: "a change of the machine's parameters during a run",
     CART_CENTRING: "a cart whose position can be centred through the pole's reference",
+    PENDULUM_ENERGY: "a single pendulum whose energy about its pivot the input pumps",
 }
 
 #: the colour of what marks the end of a run and the bounds that end one

@@ -28,7 +28,8 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
-    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
+    PENDULUM_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel,
+    Quantity, TaskDefaults,
     END_COLOR, bound_text)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
     linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
@@ -491,7 +492,7 @@ class FurutaDomain(Domain):
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
                         pole="pendulum")
     default_model = FurutaMujocoConfig.model
-    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PENDULUM_ENERGY})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
