@@ -157,9 +157,20 @@ class ArticulatedODE(_Named, AnalyticPlant):
     def _rhs_params(self) -> Any:
         return self
 
-    def compiled(self) -> None:
-        """The generic loop steps it (its view is not the state's first entries)."""
-        return None
+    def compiled(self) -> Any:
+        """The plant for the compiled closed loop: the generated module's ``Machine``
+        (parameter vector and scratch arrays) stepped by its ``machine_rhs``, registered
+        with the shared RK4 (:data:`tspend.plants.analytic.COMPILED_RHS`)."""
+        from tspend.plants.analytic import COMPILED_RHS, CompiledPlant
+
+        m = self.machine
+        module = m.module
+        COMPILED_RHS[module.Machine] = module.machine_rhs
+        nv = m.nv
+        params = module.Machine(m.p, np.zeros(len(m.tree.actuators)), np.zeros(nv),
+                                np.zeros(nv * nv), np.zeros(nv), int(m.actuator_index),
+                                int(self._d_joint))
+        return CompiledPlant(params, self.s, self._clock, self._work, self._full_order)
 
 
 class ArticulatedMujoco(_Named, Plant):
