@@ -266,3 +266,22 @@ def test_compiled_loop_is_the_generic_loop(paths):
     assert paths == ["compiled", "generic"]
     np.testing.assert_array_equal(fast.history["x"], slow.history["x"])
     assert fast.metrics["joints"]["hinge2"]["max_abs"] == slow.metrics["joints"]["hinge2"]["max_abs"]
+
+
+def test_lqr_refuses_an_uncontrollable_machine():
+    """Two equal poles side by side on one cart: their difference cannot be moved by the
+    cart, and lqr says so in one line instead of designing a gain that cannot work."""
+    from tspend.controllers.lqr import unstabilisable
+
+    twin = mujoco.MjModel.from_xml_string("""
+    <mujoco><option><flag contact="disable"/></option><worldbody>
+      <body name="cart"><joint name="x" type="slide" axis="1 0 0" range="-2 2"/>
+        <inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>
+        <body name="a"><joint name="h1" axis="0 -1 0"/><inertial pos="0 0 0.5" mass="0.5" diaginertia="0.04 0.04 0.001"/></body>
+        <body name="b"><joint name="h2" axis="0 -1 0"/><inertial pos="0 0 0.5" mass="0.5" diaginertia="0.04 0.04 0.001"/></body>
+      </body></worldbody><actuator><motor name="m" joint="x" ctrlrange="-50 50"/></actuator></mujoco>""")
+    m = Machine(twin, "twin")
+    why = unstabilisable(*m.linearisation(), m.state_names)
+    assert "uncontrollable" in why and "h1" in why and "\n" not in why
+    m = _machine("double_cartpole")
+    assert unstabilisable(*m.linearisation(), m.state_names) == ""
