@@ -8,8 +8,8 @@ Prints:
   an empty derivation cache (cold) and again with the cache that run left (cached).
   Goals: cached < 2 s; cold < 60 s for 3 degrees of freedom;
 * the double cart-pole: the closed loop (the run's ``wall_s``) of 10 s (10,000 samples)
-  with ``lqr`` on ``double_cartpole_mujoco`` (generic loop: the compiled MuJoCo loop is
-  the cart-pole's) and on ``double_cartpole_ode`` (compiled loop), no recording, against
+  with ``lqr`` on ``double_cartpole_mujoco`` and on ``double_cartpole_ode`` (both on the
+  compiled loop), no recording, against
   10,000 bare ``mujoco.mj_step`` calls on the same model (goal <= 1.5x), and 10,000 RK4
   steps of the derived numba rhs from compiled code (the ODE's floor).
 
@@ -142,7 +142,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-loops", action="store_true", help="start-up figures only")
+    ap.add_argument("--no-start-up", action="store_true", help="closed-loop figures only")
     args = ap.parse_args()
+    if args.no_start_up:
+        loops(args.repeat)
+        return
     print("start-up of a fresh process (s): import, derive|load, compile|load, total wall")
     print(f"  {'model':<24} {'dof':>3} {'':<7} {'import':>7} {'derive':>7} {'compile':>8} {'wall':>7}")
     for model in articulated_models():

@@ -285,3 +285,15 @@ def test_lqr_refuses_an_uncontrollable_machine():
     assert "uncontrollable" in why and "h1" in why and "\n" not in why
     m = _machine("double_cartpole")
     assert unstabilisable(*m.linearisation(), m.state_names) == ""
+
+
+def test_compiled_mujoco_loop_is_the_generic_loop(paths):
+    """The MuJoCo backend on the compiled loop (MuJoCo's C mj_step from compiled code)
+    steps exactly as the generic loop does."""
+    from tspend import load_scenario, override, run
+
+    scn = override(load_scenario("double_cartpole_mujoco"), **{"run.duration": 0.3})
+    fast = run(scn, controller="lqr")
+    slow = run(scn, controller="lqr", compiled=False)
+    assert paths == ["compiled", "generic"]
+    np.testing.assert_array_equal(fast.history["x"], slow.history["x"])

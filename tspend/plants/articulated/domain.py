@@ -249,6 +249,31 @@ class ArticulatedMujoco(_Named, Plant):
                                 f"multiple of the model timestep {self._ts!r}")
         return int(k)
 
+    def compiled_mujoco(self, dt: float) -> Any:
+        """This plant for the compiled MuJoCo loop (:mod:`tspend.loop.fastloop`: the full
+        state is ``[qpos; qvel]``, MuJoCo's C ``mj_step`` called from compiled code), as
+        :meth:`step` steps it; None when MuJoCo's library cannot be found."""
+        import mujoco
+
+        from tspend.plants.mujoco_plant import _MJ_MAXVAL, MujocoLink, mj_step_pointer
+
+        if mj_step_pointer() is None:
+            return None
+        w, d = mujoco.mjtWarning, self.data
+        v = self.machine.view_joint
+        return MujocoLink(self.model._address, d._address, d.qpos, d.qvel, d.ctrl,
+                          d.qfrc_applied, d.warning.number, int(w.mjWARN_BADQPOS),
+                          int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC), v, self._dof,
+                          self.machine.actuated, self.machine.actuated, int(self._act), 1.0,
+                          self._substeps(dt), min(1e10, _MJ_MAXVAL))
+
+    def instability(self, t0: float) -> Exception | None:
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
+                                   f"reset the simulation (step from t={t0:.6g})")
+        return None
+
     def step(self, u: float, d: float, dt: float) -> None:
         import mujoco
 
