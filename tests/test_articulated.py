@@ -297,3 +297,26 @@ def test_compiled_mujoco_loop_is_the_generic_loop(paths):
     slow = run(scn, controller="lqr", compiled=False)
     assert paths == ["compiled", "generic"]
     np.testing.assert_array_equal(fast.history["x"], slow.history["x"])
+
+
+def test_casadi_f_of_state_input_and_parameters():
+    """f(s, u, p) over CasADi: at the nominal p it is the compiled rhs; its derivative in
+    a mass is the finite difference of two machines (identification's gradient)."""
+    import casadi as ca
+
+    machine = _machine("double_cartpole")
+    f = machine.casadi_f()
+    rng = np.random.default_rng(2)
+    s, u = next(_states(machine, rng, 1))
+    u = np.clip(u, -20, 20)
+    got = np.asarray(f(s, u, machine.p)).ravel()
+    want = np.empty(2 * machine.nv)
+    machine.module.rhs(s, u, np.zeros(machine.nv), machine.p, np.zeros(9), np.zeros(3), want)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    i = machine.parameter_names.index("l1.mass")
+    S, U, P = ca.SX.sym("s", 6), ca.SX.sym("u", 1), ca.SX.sym("p", machine.p.size)
+    J = ca.Function("J", [S, U, P], [ca.jacobian(f(S, U, P), P)])
+    dp = np.zeros(machine.p.size)
+    dp[i] = 1e-6
+    fd = (np.asarray(f(s, u, machine.p + dp)) - np.asarray(f(s, u, machine.p - dp))).ravel() / 2e-6
+    np.testing.assert_allclose(np.asarray(J(s, u, machine.p))[:, i], fd, rtol=1e-5, atol=1e-6)

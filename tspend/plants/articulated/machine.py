@@ -221,6 +221,24 @@ class Machine:
         M, r = self.derivation.dynamics_free(s[:nv], s[nv:], uvec, ca.DM.zeros(nv), self.p)
         return ca.solve(ca.reshape(M, nv, nv), r)
 
+    def casadi_f(self, clips: bool = False) -> Any:
+        """``f(s, u, p) -> s'`` as a CasADi Function over SX: ``s = [q, q']`` (the joints'
+        names, :attr:`state_names`), ``u`` every actuator's input (the model's order),
+        ``p`` the parameter vector (:attr:`parameter_names`, nominal values :attr:`p`),
+        differentiable in all three (``clips``: MuJoCo's ctrl and force clips applied,
+        not smooth).  What identification and a randomised design use without deriving
+        again."""
+        import casadi as ca
+
+        nv, nu = self.nv, len(self.tree.actuators)
+        s, u = ca.SX.sym("s", 2 * nv), ca.SX.sym("u", nu)
+        p = ca.SX.sym("p", self.p.size)
+        fn = self.derivation.dynamics if clips else self.derivation.dynamics_free
+        M, r = fn(s[:nv], s[nv:], u, ca.SX.zeros(nv), p)
+        qdd = ca.solve(ca.reshape(M, nv, nv), r)
+        return ca.Function("articulated_f", [s, u, p], [ca.vertcat(s[nv:], qdd)],
+                           ["s", "u", "p"], ["sdot"])
+
     def linearisation(self, s_op: np.ndarray | None = None, u_op: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The exact ``(A, B)`` of ``s' = f(s, u)`` at ``(s_op, u_op)`` (default: upright at
         rest), by CasADi's differentiation of the derived equations."""
