@@ -1,165 +1,111 @@
-"""The articulated domain's start-up and step costs (issue 32), measured in one run.
+"""What deriving a machine from its MJCF costs, cold and cached, and what its closed loop costs
+against bare MuJoCo (issue: every inverted pendulum from its MJCF).
 
-Prints:
+For each machine of the articulated domain, two fresh processes share one empty derivation
+cache (``TSPEND_CACHE_DIR``): the first derives the equations (CasADi SX), writes the
+generated module and lets numba compile it (**cold**); the second finds both on disk
+(**cached**).  Each reports the time from ``load_machine`` to the first accelerations, and
+the whole process's wall time (Python, numpy, MuJoCo and CasADi imports included).
 
-* per model under ``models/`` that the articulated domain reads: the time a fresh process
-  takes to read the MJCF, derive the equations (Lagrange over CasADi SX), write the
-  Python source and compile it with numba, up to its first evaluated acceleration, with
-  an empty derivation cache (cold) and again with the cache that run left (cached).
-  Goals: cached < 2 s; cold < 60 s for 3 degrees of freedom;
-* the double cart-pole: the closed loop (the run's ``wall_s``) of 10 s (10,000 samples)
-  with ``lqr`` on ``double_cartpole_mujoco`` and on ``double_cartpole_ode`` (both on the
-  compiled loop), no recording, against
-  10,000 bare ``mujoco.mj_step`` calls on the same model (goal <= 1.5x), and 10,000 RK4
-  steps of the derived numba rhs from compiled code (the ODE's floor).
+Then the double cart-pole's closed loop (``lqr``, the compiled loop calling MuJoCo's C
+``mj_step`` per sample) against bare ``mujoco.mj_step(m, d, nstep=N)`` on the same model
+for the same number of steps, both measured in this process: the ratio is the loop's cost
+over the physics floor (goal <= 1.5x).
 
-Each figure is the median of ``--repeat`` runs (default 3); ratios are taken within this
-run.  On a shared machine the absolute times move; the ratios less so.
-
-Run: ``python benchmarks/derive_speed.py``.
+    python benchmarks/derive_speed.py [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-from numba import njit
-
 ROOT = Path(__file__).resolve().parents[1]
-STEPS = 10_000
+MACHINES = ("double_cartpole", "triple_cartpole", "acrobot", "pendubot", "reaction_wheel",
+            "rotary_double")
 
 _PROBE = """
-import time, sys
+import json, time, sys
 t0 = time.perf_counter()
 import numpy as np
 from tspend.plants.articulated.machine import load_machine
 t1 = time.perf_counter()
 m = load_machine(sys.argv[1])
-t2 = time.perf_counter()
 m.accelerations(np.zeros(2 * m.nv), 0.0)
-t3 = time.perf_counter()
-print(f"{t1 - t0} {t2 - t1} {t3 - t2} {m.nv}")
+t2 = time.perf_counter()
+print(json.dumps({"imports_s": t1 - t0, "machine_s": t2 - t1, "dof": m.nv}))
 """
 
 
-def start_up(model: Path, cache: str) -> tuple[float, float, float, int, float]:
-    """``(import, derive or load, compile or load, nv, wall)`` seconds of a fresh process."""
-    env = {**os.environ, "TSPEND_CACHE_DIR": cache}
+def probe(model: Path, cache: str) -> dict:
+    env = dict(os.environ, TSPEND_CACHE_DIR=cache)
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-c", _PROBE, str(model)], env=env, cwd=ROOT,
-                         capture_output=True, text=True, check=True).stdout.split()
-    wall = time.perf_counter() - t
-    return float(out[0]), float(out[1]), float(out[2]), int(out[3]), wall
+    out = subprocess.run([sys.executable, "-c", _PROBE, str(model)], cwd=ROOT, env=env,
+                         capture_output=True, text=True, check=True)
+    figures = json.loads(out.stdout.strip().splitlines()[-1])
+    figures["process_s"] = time.perf_counter() - t
+    return figures
 
 
-def articulated_models() -> list[Path]:
+def derivation_times() -> list[dict]:
+    rows = []
+    for name in MACHINES:
+        with tempfile.TemporaryDirectory() as cache:
+            cold = probe(ROOT / "models" / f"{name}.xml", cache)
+            warm = probe(ROOT / "models" / f"{name}.xml", cache)
+        rows.append({"machine": name, "dof": cold["dof"], "cold_s": cold["machine_s"],
+                     "cold_process_s": cold["process_s"], "cached_s": warm["machine_s"],
+                     "cached_process_s": warm["process_s"]})
+    return rows
+
+
+def closed_loop_ratio(repeats: int) -> dict:
     import mujoco
+    import numpy as np
 
-    from tspend.plants.articulated.tree import read_tree
+    from tspend import load_scenario, override
+    from tspend.loop.simulation import run
 
-    found = []
-    for path in sorted((ROOT / "models").glob("*.xml")):
-        try:
-            tree = read_tree(mujoco.MjModel.from_xml_path(str(path)))
-        except ValueError:
-            continue
-        if not tree.refusals and tree.actuators:
-            found.append(path)
-    return found
-
-
-@njit(cache=True)
-def _rk4_steps(rhs, s, u, qfrc, p, M, r, k1, k2, k3, k4, tmp, dt, steps):
-    for _ in range(steps):
-        rhs(s, u, qfrc, p, M, r, k1)
-        tmp[:] = s + 0.5 * dt * k1
-        rhs(tmp, u, qfrc, p, M, r, k2)
-        tmp[:] = s + 0.5 * dt * k2
-        rhs(tmp, u, qfrc, p, M, r, k3)
-        tmp[:] = s + dt * k3
-        rhs(tmp, u, qfrc, p, M, r, k4)
-        s[:] = s + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-def loops(repeat: int) -> None:
-    import mujoco
-
-    from tspend import load_scenario, override, run
-    from tspend.plants.articulated.machine import load_machine
-
-    rows = {}
-    for name in ("double_cartpole_mujoco", "double_cartpole_ode"):
-        scn = override(load_scenario(name), **{"run.duration": STEPS * 1e-3, "run.dt": 1e-3})
-        run(scn, controller="lqr")   # warm: compile, cache
-        times, loop = [], []
-        for _ in range(repeat):
-            t = time.perf_counter()
-            result = run(scn, controller="lqr")
-            times.append(time.perf_counter() - t)
-            loop.append(float(result.metrics["wall_s"]))
-        rows[name] = (statistics.median(times), statistics.median(loop), result.status)
-    model = mujoco.MjModel.from_xml_path(str(ROOT / "models" / "double_cartpole.xml"))
+    scn = override(load_scenario("double_cartpole_mujoco"), **{"run.duration": 10.0})
+    run(scn, keep_history=False)  # compile (numba caches the loop on disk as well)
+    loop = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        r = run(scn, keep_history=False)
+        loop.append(time.perf_counter() - t)
+    steps = int(r.metrics["steps"])
+    plant = r.plant
+    model = plant.mj_model()
     data = mujoco.MjData(model)
     bare = []
-    for _ in range(repeat):
+    for _ in range(repeats):
         mujoco.mj_resetData(model, data)
         data.qpos[1] = 0.1
         t = time.perf_counter()
-        for _ in range(STEPS):
-            mujoco.mj_step(model, data)
+        mujoco.mj_step(model, data, nstep=steps)
         bare.append(time.perf_counter() - t)
-    bare_s = statistics.median(bare)
-    m = load_machine(ROOT / "models" / "double_cartpole.xml")
-    n = m.nv
-    arrays = [np.zeros(n * n), np.zeros(n)] + [np.zeros(2 * n) for _ in range(5)]
-    s0 = np.zeros(2 * n)
-    s0[1] = 0.1
-    args = (m.module.rhs, s0.copy(), np.zeros(1), np.zeros(n), m.p, *arrays, 1e-3)
-    _rk4_steps(*args, 1)
-    floor = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        _rk4_steps(*args, STEPS)
-        floor.append(time.perf_counter() - t)
-    floor_s = statistics.median(floor)
-    print(f"\n10,000 samples of the double cart-pole (median of {repeat})")
-    print(f"  bare mujoco.mj_step x {STEPS}            {bare_s * 1e3:8.1f} ms   1.00x")
-    for name, (sec, loop_s, status) in rows.items():
-        print(f"  closed loop lqr {name:<23} {loop_s * 1e3:8.1f} ms {loop_s / bare_s:6.2f}x   "
-              f"({status}; whole run() call {sec * 1e3:.0f} ms)")
-    print(f"  derived rhs, RK4 from numba x {STEPS}   {floor_s * 1e3:8.1f} ms {floor_s / bare_s:6.2f}x")
+    return {"steps": steps, "closed_loop_s": min(loop), "bare_mj_step_s": min(bare),
+            "ratio": min(loop) / min(bare), "status": r.status}
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--no-loops", action="store_true", help="start-up figures only")
-    ap.add_argument("--no-start-up", action="store_true", help="closed-loop figures only")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
-    if args.no_start_up:
-        loops(args.repeat)
-        return
-    print("start-up of a fresh process (s): import, derive|load, compile|load, total wall")
-    print(f"  {'model':<24} {'dof':>3} {'':<7} {'import':>7} {'derive':>7} {'compile':>8} {'wall':>7}")
-    for model in articulated_models():
-        with tempfile.TemporaryDirectory(prefix="tspend-derive-") as cache:
-            for label in ("cold", "cached"):
-                runs = [start_up(model, cache)]
-                if label == "cached":
-                    runs += [start_up(model, cache) for _ in range(args.repeat - 1)]
-                imp, der, comp, nv, wall = (statistics.median(r[i] for r in runs) for i in range(5))
-                print(f"  {model.name:<24} {int(nv):>3} {label:<7} {imp:7.2f} {der:7.2f} {comp:8.2f} "
-                      f"{wall:7.2f}")
-    if not args.no_loops:
-        loops(args.repeat)
+    print(f"{'machine':18s} {'dof':>3s} {'cold s':>8s} {'(process)':>10s} {'cached s':>9s} {'(process)':>10s}")
+    for row in derivation_times():
+        print(f"{row['machine']:18s} {row['dof']:3d} {row['cold_s']:8.2f} {row['cold_process_s']:10.2f} "
+              f"{row['cached_s']:9.3f} {row['cached_process_s']:10.2f}")
+    cl = closed_loop_ratio(args.repeats)
+    print(f"\ndouble cart-pole, lqr, {cl['steps']} steps ({cl['status']}): compiled closed loop "
+          f"{cl['closed_loop_s'] * 1e3:.1f} ms, bare mj_step {cl['bare_mj_step_s'] * 1e3:.1f} ms: "
+          f"ratio {cl['ratio']:.2f}x (best of {args.repeats})")
 
 
 if __name__ == "__main__":

@@ -45,10 +45,18 @@ def _cmd(args: argparse.Namespace) -> int:
     json_path = Path(args.json) if args.json else None
     if json_path is not None:
         check_writable(json_path, "json")
+    domain = _domain_of(args.model)
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}
-    domain, facts, departures = _read(args.model, names, args.dt)
-    print(f"{args.model}: a{'n' if domain.name[0] in 'aeiou' else ''} {domain.name} model")
+    facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
+    touching = contacts_at_rest(args.model)
+    facts["contacts_at_q0"] = touching or "none"
+    if touching:
+        departures = [*departures, f"contacts active at the model's initial pose (qpos0): "
+                                   f"{', '.join(touching)}: contact forces act from t = 0 "
+                                   f"(friction can hold a joint the ODE leaves free)"]
+    article = "an" if domain.name[:1] in "aeiou" else "a"
+    print(f"{args.model}: {article} {domain.name} model")
     for key, value in facts.items():
         print(f"  {key:<20} {_show(value)}")
     if departures:
@@ -70,34 +78,39 @@ def _show(value) -> str:
     return str(value)
 
 
-def _read(model: str, names: dict[str, str], dt):
-    """``(domain, facts, departures)``: the first domain whose machine the MJCF looks like
-    and that reads it; a hand-made domain that refuses it (a second pole on a cart) passes
-    it on to the next (the articulated domain, which reads any hinge/slide tree), and the
-    first refusal is the error when none reads it."""
-    from tspend.errors import ScenarioError
+def contacts_at_rest(model: str) -> list[str]:
+    """The geom pairs in contact at the model's initial pose ``qpos0``, as
+    ``"geom1/geom2"`` (MuJoCo's own collision detection after ``mj_forward``)."""
+    import mujoco
 
-    first = None
-    for domain in _domains_of(model):
-        try:
-            return (domain, *domain.inspect(model, names=names, dt=dt))
-        except ScenarioError as exc:
-            first = first or exc
-    assert first is not None
-    raise first
+    from tspend.plants.mjcf import read_spec
+
+    m = read_spec(model).compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    pairs = []
+    for i in range(d.ncon):
+        c = d.contact[i]
+        a, b = (m.geom(int(g)).name or str(int(g)) for g in c.geom)
+        pairs.append(f"{a}/{b}")
+    return list(dict.fromkeys(pairs))
 
 
-def _domains_of(model: str):
-    """The domains whose machine the MJCF looks like, in the registry's order (ScenarioError:
-    none, unreadable, or past the size bounds of docs/reliability.md)."""
+def _domain_of(model: str):
+    """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
+    past the size bounds of docs/reliability.md)."""
     from tspend.errors import ScenarioError
     from tspend.plants.mjcf import read_spec
     from tspend.plants.registry import DOMAINS
 
     spec = read_spec(model)
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
-    found = [d for d in DOMAINS.values() if d.fits_mjcf(kinds)]
-    if not found:
+    try:
+        compiled = spec.compile()
+    except ValueError as exc:
+        raise ScenarioError(f"{model}: cannot compile MJCF: {exc}") from None
+    found = next((d for d in DOMAINS.values() if d.fits_model(compiled)), None)
+    if found is None:
         readers = ", ".join(d.name for d in DOMAINS.values() if d.mujoco_kind() is not None)
         raise ScenarioError(f"{model}: no plant domain reads a model with joints "
                             f"({', '.join(kinds) or 'none'}) (domains reading MJCF: {readers})")

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
-           "CART_CENTRING", "PENDULUM_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
+           "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
            "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
            "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
            "bound_text", "name_slug", "unit_slug"]
@@ -54,9 +54,8 @@ SYMBOLIC = "symbolic_model"
 PARAMETER_CHANGE = "parameter_change"
 #: the cart-centring outer loop on the pole's reference (``effects.outer_loop``)
 CART_CENTRING = "cart_centring"
-#: a single pendulum whose energy about its pivot the driven joint pumps, its equations
-#: compiled (:data:`FULL_ACCEL`, :data:`FULL_ENERGY`; the energy-based swing-up)
-PENDULUM_ENERGY = "pendulum_energy"
+#: one pendulum whose energy a compiled swing-up pumps (:data:`FULL_ENERGY`, ``swingup``)
+PUMPED_ENERGY = "pumped_energy"
 #: each capability, in words (docs/controllers.md's table)
 CAPABILITIES = {
     VIEW_MODEL: "a model of the view (f(x, u) of the tracked output's n-th derivative)",
@@ -64,7 +63,8 @@ CAPABILITIES = {
     SYMBOLIC: "the machine's equations over CasADi (exact gradients)",
     PARAMETER_CHANGE: "a change of the machine's parameters during a run",
     CART_CENTRING: "a cart whose position can be centred through the pole's reference",
-    PENDULUM_ENERGY: "a single pendulum whose energy about its pivot the input pumps",
+    PUMPED_ENERGY: "a single pendulum whose energy can be pumped (compiled energy): energy "
+                   "pumping does not extend to two or more poles",
 }
 
 #: the colour of what marks the end of a run and the bounds that end one
@@ -490,6 +490,9 @@ class Domain(ABC):
     #: :data:`PARAMETER_CHANGE`, :data:`CART_CENTRING`): what a controller kind's
     #: ``needs`` and the effects are checked against before anything is built
     provides: frozenset[str] = frozenset({VIEW_MODEL})
+    #: True when the equations are derived from the model (the cross-check then compares
+    #: them with MuJoCo's mj_forward at random states: tspend.studies.crosscheck_derived)
+    derives_equations: bool = False
 
     @property
     def order(self) -> int:
@@ -573,6 +576,15 @@ class Domain(ABC):
         domain's machine (``tspend inspect`` picks the domain by it)."""
         return False
 
+    def fits_model(self, model: Any) -> bool:
+        """Whether the compiled ``mujoco.MjModel`` is this domain's machine (``tspend
+        inspect``); by default by its joint types alone (:meth:`fits_mjcf`)."""
+        import mujoco
+
+        names = {int(mujoco.mjtJoint.mjJNT_SLIDE): "slide", int(mujoco.mjtJoint.mjJNT_HINGE): "hinge",
+                 int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+        return self.fits_mjcf(tuple(names[int(t)] for t in model.jnt_type))
+
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
         """``(facts, departures)`` of an MJCF as this domain reads it (``tspend inspect``;
@@ -593,13 +605,6 @@ class Domain(ABC):
     def ode_of(self, plant: Plant) -> Plant:
         """The analytic plant of the very machine the MuJoCo ``plant`` compiled."""
         raise NotImplementedError(f"domain {self.name!r} has no analytic twin of its MuJoCo plant")
-
-    def acceleration_check(self, plant: Plant, states: int, rng: np.random.Generator) -> dict[str, Any] | None:
-        """The largest difference between the domain's derived accelerations and MuJoCo's
-        ``mj_forward`` at ``states`` random states of the MuJoCo ``plant`` (the cross-check's
-        JSON keys), or None: the domain has no such check (its equations are checked by
-        the open loop alone)."""
-        return None
 
 
 def project_root() -> Path:

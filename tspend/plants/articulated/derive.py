@@ -48,7 +48,7 @@ __all__ = ["Derivation", "derive", "parameter_table", "python_source", "cache_di
            "compiled_module", "GENERATOR_VERSION"]
 
 #: bumped whenever the generated code changes shape (part of the cache key)
-GENERATOR_VERSION = "2"
+GENERATOR_VERSION = "3"
 
 
 def parameter_table(tree: Tree) -> tuple[tuple[str, ...], np.ndarray]:
@@ -220,10 +220,12 @@ def derive(tree: Tree) -> Derivation:
     M_flat = ca.reshape(M, nv * nv, 1)
     args = [q, qd, u, qfrc, p]
     arg_names = ["q", "qd", "u", "qfrc", "p"]
-    dyn = ca.Function("articulated_dynamics", args, [M_flat, actuation(True) + qfrc - h],
-                      arg_names, ["M", "rhs"])
-    dyn_free = ca.Function("articulated_dynamics_free", args, [M_flat, actuation(False) + qfrc - h],
-                           arg_names, ["M", "rhs"])
+    # common subexpressions merged (AD repeats the kinematics' products many times): the
+    # generated code is several times shorter, and so numba's compile
+    dyn = ca.Function("articulated_dynamics", args,
+                      ca.cse([M_flat, actuation(True) + qfrc - h]), arg_names, ["M", "rhs"])
+    dyn_free = ca.Function("articulated_dynamics_free", args,
+                           ca.cse([M_flat, actuation(False) + qfrc - h]), arg_names, ["M", "rhs"])
     energy = ca.Function("articulated_energy", [q, qd, p], [T, V], ["q", "qd", "p"], ["T", "V"])
     kin = ca.Function("articulated_coms", [q, p], [ca.horzcat(*coms)] if coms else [ca.SX.zeros(3, 0)],
                       ["q", "p"], ["coms"])

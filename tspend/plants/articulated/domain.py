@@ -212,14 +212,23 @@ class ArticulatedMujoco(_Named, Plant):
         return out
 
     def constraint_active(self) -> str:
-        d = self.data
+        """The first constraint MuJoCo applies now (a contact, a joint's limit within its
+        margin, dry friction), in words; "" when none: the derived equations hold."""
+        import mujoco
+
+        d, m = self.data, self.model
         if d.ncon:
             c = d.contact[0]
-            return (f"contact between geoms {self.model.geom(c.geom1).name!r} and "
-                    f"{self.model.geom(c.geom2).name!r}")
-        for j, jf in enumerate(self.machine.tree.joints):
-            if jf.range is not None and not (jf.range[0] < d.qpos[j] < jf.range[1]):
-                return f"joint {jf.name!r} at its limit"
+            return (f"contact between geoms {m.geom(c.geom1).name!r} and "
+                    f"{m.geom(c.geom2).name!r}")
+        C = mujoco.mjtConstraint
+        for i in range(d.nefc):
+            kind, obj = int(d.efc_type[i]), int(d.efc_id[i])
+            if kind == int(C.mjCNSTR_LIMIT_JOINT):
+                return f"joint {m.joint(obj).name!r} at its limit"
+            if kind == int(C.mjCNSTR_FRICTION_DOF):
+                continue  # dry friction is a departure named before the run
+            return f"a constraint of type {C(kind).name}"
         return ""
 
     def reset(self, x0: np.ndarray) -> None:
@@ -250,24 +259,22 @@ class ArticulatedMujoco(_Named, Plant):
         return int(k)
 
     def compiled_mujoco(self, dt: float) -> Any:
-        """This plant for the compiled MuJoCo loop (:mod:`tspend.loop.fastloop`: the full
-        state is ``[qpos; qvel]``, MuJoCo's C ``mj_step`` called from compiled code), as
-        :meth:`step` steps it; None when MuJoCo's library cannot be found."""
+        """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
+        C ``mj_step`` on its model and data; the full state is ``[qpos, qvel]``)."""
         import mujoco
 
-        from tspend.plants.mujoco_plant import _MJ_MAXVAL, MujocoLink, mj_step_pointer
+        from tspend.plants.mujoco_plant import MujocoLink, mj_step_pointer
 
         if mj_step_pointer() is None:
             return None
-        w, d = mujoco.mjtWarning, self.data
-        v = self.machine.view_joint
-        return MujocoLink(self.model._address, d._address, d.qpos, d.qvel, d.ctrl,
-                          d.qfrc_applied, d.warning.number, int(w.mjWARN_BADQPOS),
-                          int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC), v, self._dof,
-                          self.machine.actuated, self.machine.actuated, int(self._act), 1.0,
-                          self._substeps(dt), min(1e10, _MJ_MAXVAL))
+        w = mujoco.mjtWarning
+        v = self._dof
+        return MujocoLink(self.model._address, self.data._address, self.data.qpos, self.data.qvel,
+                          self.data.ctrl, self.data.qfrc_applied, self.data.warning.number,
+                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
+                          v, v, 0, 0, int(self._act), 1.0, self._substeps(dt), 1e10)
 
-    def instability(self, t0: float) -> Exception | None:
+    def instability(self, t0: float) -> DivergenceError | None:
         w = self._warnings
         if w[0].number or w[1].number or w[2].number:
             return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
@@ -450,6 +457,7 @@ class ArticulatedDomain(Domain):
     task = TaskDefaults(view=("pole", "pole_dot"), fall_angle=FALL_ANGLE_RAD)
     default_model = ArticulatedConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
+    derives_equations = True
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, ArticulatedConfig) else self.default_model
@@ -507,51 +515,6 @@ class ArticulatedDomain(Domain):
 
     def ode_of(self, plant: Plant) -> Plant:
         return ArticulatedODE(plant.machine, plant.q0)  # type: ignore[attr-defined]
-
-    def acceleration_check(self, plant: Plant, states: int,
-                           rng: np.random.Generator) -> dict[str, Any] | None:
-        """Derived ``q''`` against MuJoCo's ``mj_forward`` ``qacc`` at ``states`` random
-        states: every hinge over the full circle, every slide inside its range (a joint at
-        its limit is MuJoCo's constraint, not the equations), rates up to 20 (rad or m)/s,
-        every actuator's input uniform over its control range (+/-1 when unlimited).
-        The figure is ``max |a_derived - a_mujoco| / max(1, |a_mujoco|)`` over every joint."""
-        import mujoco
-
-        m: Machine = plant.machine  # type: ignore[attr-defined]
-        model, nv = m.model, m.nv
-        data = mujoco.MjData(model)
-        nu = len(m.tree.actuators)
-        worst, worst_abs, at = 0.0, 0.0, None
-        M, r, qfrc = np.zeros(nv * nv), np.zeros(nv), np.zeros(nv)
-        sdot = np.zeros(2 * nv)
-        compared = tries = 0
-        while compared < states and tries < 10 * states:
-            tries += 1
-            s = np.empty(2 * nv)
-            for j, jf in enumerate(m.tree.joints):
-                if jf.kind == "hinge":
-                    s[j] = rng.uniform(-math.pi, math.pi)
-                else:
-                    lo, hi = jf.range if jf.range is not None else (-1.0, 1.0)
-                    s[j] = rng.uniform(lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
-            s[nv:] = rng.uniform(-20.0, 20.0, nv)
-            u = np.array([rng.uniform(*(a.ctrlrange or (-1.0, 1.0))) for a in m.tree.actuators])
-            mujoco.mj_resetData(model, data)
-            data.qpos[:], data.qvel[:] = s[:nv], s[nv:]
-            data.ctrl[:nu] = u
-            mujoco.mj_forward(model, data)
-            if data.nefc:
-                continue  # a contact or limit MuJoCo applies is no part of the equations
-            compared += 1
-            m.module.rhs(s, u, qfrc, m.p, M, r, sdot)
-            ref = np.asarray(data.qacc)
-            rel = np.abs(sdot[nv:] - ref) / np.maximum(1.0, np.abs(ref))
-            if float(rel.max()) > worst:
-                worst, at = float(rel.max()), s.copy()
-            worst_abs = max(worst_abs, float(np.abs(sdot[nv:] - ref).max()))
-        return {"accel_states": compared, "accel_max_rel_diff": worst,
-                "accel_max_abs_diff": worst_abs,
-                "accel_worst_state": None if at is None else [float(v) for v in at]}
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return bool(joint_types) and all(t in ("hinge", "slide") for t in joint_types) \
