@@ -1,6 +1,5 @@
 """The articulated domain's derivation as the designs use it: f(s, u, p) over CasADi with
-the named parameter vector, the ODE on the compiled closed loop, and lqr's refusal of a
-machine it cannot stabilise."""
+the named parameter vector, and lqr's refusal of a machine it cannot stabilise."""
 
 from __future__ import annotations
 
@@ -48,18 +47,6 @@ def test_casadi_f_of_state_input_and_parameters():
     p = machine.p.copy()
     p[i] *= 1.3
     np.testing.assert_allclose(np.asarray(f(s, u, p)).ravel()[3:], data.qacc, rtol=1e-10, atol=1e-10)
-
-
-def test_compiled_ode_loop_is_the_generic_loop(paths):
-    """The ODE on the compiled closed loop (the generated module's machine_rhs in the
-    shared RK4) steps exactly as the generic Python loop does."""
-    from tspend import load_scenario, override, run
-
-    scn = override(load_scenario("double_cartpole_ode"), **{"run.duration": 0.3})
-    fast = run(scn, controller="lqr")
-    slow = run(scn, controller="lqr", compiled=False)
-    assert paths == ["compiled", "generic"]
-    np.testing.assert_array_equal(fast.history["x"], slow.history["x"])
 
 
 def test_lqr_refuses_an_uncontrollable_machine():

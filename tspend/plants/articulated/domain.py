@@ -157,20 +157,12 @@ class ArticulatedODE(_Named, AnalyticPlant):
     def _rhs_params(self) -> Any:
         return self
 
-    def compiled(self) -> Any:
-        """The plant for the compiled closed loop: the generated module's ``Machine``
-        (parameter vector and scratch arrays) stepped by its ``machine_rhs``, registered
-        with the shared RK4 (:data:`tspend.plants.analytic.COMPILED_RHS`)."""
-        from tspend.plants.analytic import COMPILED_RHS, CompiledPlant
-
-        m = self.machine
-        module = m.module
-        COMPILED_RHS[module.Machine] = module.machine_rhs
-        nv = m.nv
-        params = module.Machine(m.p, np.zeros(len(m.tree.actuators)), np.zeros(nv),
-                                np.zeros(nv * nv), np.zeros(nv), int(m.actuator_index),
-                                int(self._d_joint))
-        return CompiledPlant(params, self.s, self._clock, self._work, self._full_order)
+    def compiled(self) -> None:
+        """The generic loop steps it.  (Not the compiled loop: its functions are cached by
+        numba with every parameter type they were compiled for, and a type defined in a
+        generated module of the derivation cache cannot be imported by the next process
+        that loads that cache index.)"""
+        return None
 
 
 class ArticulatedMujoco(_Named, Plant):
