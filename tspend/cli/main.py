@@ -65,7 +65,7 @@ from tspend.runtime.outputs import (Output, OutputRequest, PlannedOutput, claim,
 
 #: the subcommands, each the module ``tspend/cli/<name>.py``, in ``--help`` order
 COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "tune",
-            "figures")
+            "figures", "excite", "identify")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0
