@@ -20,6 +20,7 @@ dataclass (read from ``[controllers.<Class.kind>]``, see :mod:`.settings`), else
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -273,11 +274,17 @@ def available() -> list[Kind]:
     return kinds
 
 
+def _plain_text(text: str) -> str:
+    """RST inline markup (``code``, `name`) removed: ``--controller help`` is plain text."""
+    return re.sub(r"`{1,2}([^`]*)`{1,2}", r"\1", text)
+
+
 def help_text() -> str:
     """``--controller help``: one line per kind, and how to name one's own."""
     kinds = available()
     width = max(len(k.name) for k in kinds)
-    lines = [f"{k.name:<{width}}  {k.summary}" for k in kinds]
+    # plain text: the docstrings' RST markup (``code``, `name`) is for the docs
+    lines = [f"{k.name:<{width}}  {_plain_text(k.summary)}" for k in kinds]
     lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
                  f" also package.module:Class)")
     return "\n".join(lines) + "\n"
