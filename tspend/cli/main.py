@@ -363,7 +363,8 @@ def print_metrics(metrics: dict, stream=None) -> None:
             print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
-def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict:
+def metrics_document(scn, end, controller=None, spec: str | None = None,
+                     units: dict | None = None) -> dict:
     """The metrics JSON: the figures, how the run ended, and what produced it.
 
     ``controller``: the controller that ran; ``spec``: what ``--controller`` named (None:
@@ -372,6 +373,8 @@ def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict
     doc = dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
                version=__version__, scenario_path=scn.path,
                overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+    if units:  # the unit of every figure: {"e": "rad", "u": "N", "joints": {"hinge": "rad"}}
+        doc["units"] = units
     if controller is not None:
         from tspend.controllers import settings_of
 

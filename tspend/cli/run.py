@@ -107,7 +107,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     failures = [outs.complete(recording, problem)]
     if end is not None:
         failures.append(outs.write_json(metrics_out, metrics_document(
-            prepared.scenario, end, prepared.controller, args.controller)))
+            prepared.scenario, end, prepared.controller, args.controller, json_units(prepared))))
     failures = [f for f in failures if f]
 
     if end is not None:
@@ -120,7 +120,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if failures:
         if end is not None:  # the figures of a finished run are never lost
             print(json.dumps(metrics_document(prepared.scenario, end, prepared.controller,
-                                              args.controller), indent=2))
+                                              args.controller, json_units(prepared)), indent=2))
         raise OutputError("; ".join(failures) + "; the metrics are on stdout")
     if interrupted is not None:
         kept = [display(o.target) for o in (recording, metrics_out) if o is not None]
@@ -186,6 +186,15 @@ def summary_units(prepared) -> dict[str, str]:
     control = ((plant.inputs[0].unit if plant.inputs else "")
                or registry.domain_of(scn.plant.kind).labels.control.unit)
     return {"e": units.get(view[0], "") if view else "", "u": control, "states": units}
+
+
+def json_units(prepared) -> dict:
+    """The metrics JSON's ``units``: the tracked output's (``e``: rmse, max_abs_e ...), the
+    input's (``u``) and each joint's, by the model's joint names."""
+    units = summary_units(prepared)
+    states = units.pop("states")
+    joints = {j.name: states.get(j.name, "") for j in getattr(prepared.plant, "joints", ())}
+    return {**units, "joints": joints} if joints else units
 
 
 def _with(value, unit: str) -> str:
