@@ -16,16 +16,19 @@ from tspend.errors import ScenarioError
 
 __all__ = ["EXTRAS", "missing_extra", "needed", "check_needed"]
 
-#: module -> (what it is, the extra that installs it)
+#: module -> (what it is, the extra that installs it; None: a core dependency)
 EXTRAS = {
     "optuna": ("Optuna", "tune"),
     "dask.distributed": ("dask.distributed", "dask"),
     "gymnasium": ("gymnasium", "gym"),
     "onnxruntime": ("onnxruntime", "rl"),
-    "matplotlib": ("matplotlib", "plot"),
-    "control": ("python-control", "control"),
-    "casadi": ("CasADi", "mpc"),
+    # core dependencies: missing only from an environment built without them
+    "matplotlib": ("matplotlib", None),
+    "control": ("python-control", None),
+    "casadi": ("CasADi", None),
 }
+#: the pip name of a core dependency
+CORE_PIP = {"matplotlib": "matplotlib", "control": "control", "casadi": "casadi"}
 
 #: controller kinds -> the module they need
 KIND_NEEDS = {"policy": "onnxruntime", "mpc": "casadi", "lqr": "control", "swingup": "control"}
@@ -44,6 +47,9 @@ def missing_extra(module: str, user: str) -> str | None:
     if _present(module):
         return None
     what, extra = EXTRAS[module]
+    if extra is None:
+        return (f"{user} needs {what}, a dependency of tspend missing from this environment: "
+                f"pip install {CORE_PIP[module]} (or reinstall tspend)")
     return f"{user} needs {what}, an optional extra: pip install 'tspend[{extra}]'"
 
 
