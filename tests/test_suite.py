@@ -25,10 +25,17 @@ from tspend.task import build_task
 
 
 def _scenario_of(kind: str) -> str | None:
-    """The plant kind's plain scenario: no effects; a file named after the backend first
+    """The plant kind's plain scenario: no effects; one on the domain's default model
+    first (the articulated domain has many machines), then a file named after the backend
     (pendulum_mujoco before pendulum_friction)."""
     backend = kind.rpartition("_")[2]
-    for path in sorted(available_scenarios(), key=lambda p: not p.stem.endswith(backend)):
+    default = PLANT_KINDS[kind].domain.default_model
+
+    def rank(p):
+        model = tomllib.loads(p.read_text()).get("plant", {}).get("model", "")
+        return (bool(default) and model != default, not p.stem.endswith(backend), p.name)
+
+    for path in sorted(available_scenarios(), key=rank):
         plant = tomllib.loads(path.read_text()).get("plant", {})
         if plant.get("kind") == kind and not tomllib.loads(path.read_text()).get("effects"):
             return str(path)

@@ -109,7 +109,7 @@ def find_scenario(name_or_path: str | Path) -> Path:
 def _run(r: Table) -> RunConfig:
     r.check_keys(tuple(f.name for f in dataclasses.fields(RunConfig)))
     d = RunConfig()
-    return RunConfig(
+    cfg = RunConfig(
         duration=r.number("duration", d.duration, low=0.0, strict=True),
         dt=r.number("dt", d.dt, low=0.0, strict=True),
         seed=r.integer("seed", d.seed, low=0, high=MAX_SEED),
@@ -119,6 +119,13 @@ def _run(r: Table) -> RunConfig:
         control_delay=r.integer("control_delay", d.control_delay, low=0),
         controller=_default_kind(r),
     )
+    steps = int(round(cfg.duration / cfg.dt))
+    if cfg.control_delay >= steps:
+        # the controller's output would never reach the plant: nothing of it would be run
+        raise r.error("control_delay", f"{cfg.control_delay} steps of {cfg.dt:g} s is not "
+                                       f"shorter than the run ({steps} steps, {cfg.duration:g} s): "
+                                       f"no computed u would ever be applied")
+    return cfg
 
 
 def _default_kind(r: Table) -> str:

@@ -4,7 +4,8 @@ Exit status (the ``EXIT_*`` constants):
 
 ====  =====================================================================================
 0     success
-1     ``crosscheck``: the backends differ by more than ``--tol``
+1     ``crosscheck``: the backends differ by more than ``--tol``, or the verdict is
+      inconclusive (less than 0.5 s of open loop compared before a constraint acted)
 2     bad input: command line, scenario, model file, output path, a size bound exceeded
 3     the closed loop diverged (recording and metrics kept up to the divergence)
 4     the task ended the run (``[task]``, tspend/task.py): ``fell`` (the pole passed
@@ -12,6 +13,8 @@ Exit status (the ``EXIT_*`` constants):
       ``joint_limit`` (another joint's range), ``state_bound``; outputs kept up to the end
 5     an output could not be completed (disk full, I/O error); the file it would have
       replaced is untouched and the metrics are printed to stdout as JSON as well
+6     the controller failed (status ``controller_error``): it raised, returned something
+      that is not one number, or called ``sys.exit``; outputs kept up to that sample
 70    internal error (a bug: please report it with the ``--debug`` traceback)
 129   SIGHUP, 130 SIGINT (Ctrl-C), 143 SIGTERM: outputs completed up to the stop
 ====  =====================================================================================
@@ -71,6 +74,9 @@ EXIT_DIVERGED = 3
 EXIT_TERMINATED = 4
 EXIT_RAIL_END = EXIT_TERMINATED  # the name before [task]: a rail end is one termination
 EXIT_WRITE_FAILED = 5
+#: the controller failed: raised, returned no number, or called sys.exit (a plug-in's
+#: error; the recording and metrics are kept up to the sample before)
+EXIT_CONTROLLER_ERROR = 6
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)
 MAX_COUNT = 10**9

@@ -7,7 +7,8 @@ import json
 import re
 
 from tspend import __version__
-from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_TERMINATED, Claimed,
+from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
+    EXIT_TERMINATED, Claimed,
     add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
@@ -84,7 +85,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     from tspend.runtime.progress import RunProgress  # a bar on a terminal once the run takes a few seconds
-    from tspend.loop.runner import RunInterrupted
+    from tspend.loop.runner import CONTROLLER_ERROR, RunInterrupted
     from tspend.task import TERMINATIONS
 
     recording, metrics_out = outs["--out"], outs["--metrics"]
@@ -136,6 +137,9 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end.status in TERMINATIONS:  # fell, rail_end, joint_limit, state_bound
         say(end.message)
         return EXIT_TERMINATED
+    if end.status == CONTROLLER_ERROR:  # the controller's code failed, not tspend's
+        say(end.message)
+        return EXIT_CONTROLLER_ERROR
     return EXIT_OK
 
 

@@ -111,8 +111,9 @@ class Observation(NamedTuple):
     ``t`` the sample's time (s); ``state`` the plant's full state (its ``state_names``,
     positions then velocities); ``x`` the task's view (n,): the tracked output and its
     derivatives (on the cart-pole ``[hinge, hinge_dot]``); ``ref`` (n+1,) the reference
-    and its derivatives; ``names`` the full state's names.  The arrays are the runner's:
-    a controller that keeps one must copy it.
+    and its derivatives; ``names`` the full state's names.  The arrays are read-only views
+    of the runner's (writing into one raises ``ValueError``): a controller that keeps one
+    must copy it.
     """
 
     t: float

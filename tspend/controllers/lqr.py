@@ -347,10 +347,11 @@ class FullStateLQR(Controller):
 
 
 def default_state_weights(model: "FullModel") -> np.ndarray:
-    """``diag(Q)``: 1 on the actuated joint's position and velocity, 100 on the pole's
+    """``diag(Q)``: 1 on the actuated joint's position and velocity, 100 on each pole's
     angle, 10 on its rate; 1 on any other joint."""
     w = np.ones(model.size)
-    w[model.pole], w[model.dof + model.pole] = 100.0, 10.0
+    for pole in model.upright:
+        w[pole], w[model.dof + pole] = 100.0, 10.0
     return w
 
 

@@ -120,6 +120,43 @@ class BlockBuffer:
         return data
 
 
+#: the status of a run the controller ended by raising, exiting or returning no number
+CONTROLLER_ERROR = "controller_error"
+
+
+def _control_value(u: object) -> float:
+    """The controller's return as the number u (TypeError naming what came back instead:
+    a vector, a string, None)."""
+    if isinstance(u, (bool, str, bytes)) or u is None:
+        raise TypeError(f"step() returned {type(u).__name__} {u!r:.40}, not a number")
+    arr = np.asarray(u)
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        raise TypeError(f"step() returned a {arr.dtype} array of shape {arr.shape}, not one number")
+    return float(arr.reshape(()))
+
+
+def controller_failure(exc: BaseException, t: float, kind: str) -> str:
+    """One line saying how the controller failed at ``t``, naming the innermost frame of
+    the controller's own code (a plug-in's file and line), not tspend's."""
+    import traceback
+
+    frames = [f for f in traceback.extract_tb(exc.__traceback__)
+              if "/tspend/loop/" not in f.filename.replace("\\", "/")]
+    where = f" ({frames[-1].filename}, line {frames[-1].lineno}, in {frames[-1].name})" if frames else ""
+    what = (f"SystemExit({exc.code!r})" if isinstance(exc, SystemExit)
+            else f"{type(exc).__name__}: {exc}")
+    return f"{CONTROLLER_ERROR} at t = {t:.4f} s: controller '{kind}' failed: {what}{where}"
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``: what a controller is handed, so that no controller (a
+    plug-in's included) can write into the state the task then judges, or into the
+    reference and state the recording keeps."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 class ClosedLoop:
     """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``.
 
@@ -233,8 +270,16 @@ class ClosedLoop:
                     if g % every == 0:
                         seen = x if hook is None else hook(t[i], x, ref[i])
                         c0 = clock()
-                        u_new = ctrl.step(Observation(t[i], full, seen, ref[i], names),
-                                          dt * every)
+                        try:
+                            u_new = _control_value(ctrl.step(Observation(
+                                t[i], _read_only(full), _read_only(seen), _read_only(ref[i]),
+                                names), dt * every))
+                        except (Exception, SystemExit) as exc:
+                            # the controller's own failure (a plug-in's bug, a wrong return,
+                            # sys.exit): the run ends as it, with what came before kept
+                            return self._diverged(sinks, start, buf, t, ref, dist, i,
+                                                  controller_failure(exc, float(t[i]), ctrl.kind),
+                                                  CONTROLLER_ERROR)
                         C[i] = clock() - c0
                         if delay:
                             pending.append((g + delay, u_new))

@@ -61,9 +61,17 @@ def _built(scenario: Scenario, kind: str | None) -> Plant:
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
         warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
+    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+    active = plant.constraint_active()
+    if active:
+        # a contact or a limit at t = 0 acts on every run from the first step: named before
+        # any run, not found afterwards in a fall's cause
+        warnings.warn(f"{plant.model_path}: at the start ({scenario.plant.kind}, x0 = "  # type: ignore[attr-defined]
+                      f"{list(scenario.plant.x0)}): {active}; MuJoCo applies it from t = 0 and "
+                      f"the ODE does not have it", ModelWarning, stacklevel=2)
     if needs_plant_wrapper(scenario.effects):
         plant = EffectsPlant(plant, scenario.effects)
-    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+        plant.reset(np.asarray(scenario.plant.x0, dtype=float))
     return plant
 
 

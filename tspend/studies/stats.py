@@ -54,7 +54,8 @@ NOT_PAIRED = ("failed", "interrupted")
 #: the rail's end, a joint its range, a state its bound
 TERMINATED = TERMINATIONS
 #: outcomes that score +inf (worst) on every metric
-WORST = ("diverged",) + TERMINATED
+#: (a controller that failed, "controller_error", is as bad as one that diverged)
+WORST = ("diverged", "controller_error") + TERMINATED
 #: outcomes that count as "ended badly" in the paired exact test on outcomes (an
 #: interrupted run says nothing about anything: that seed is left out of the test)
 BAD = WORST + ("failed",)
