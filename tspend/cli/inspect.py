@@ -23,7 +23,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
     p.add_argument("--dt", type=finite(), default=None,
                    help="control period to check the timestep against")
-    p.add_argument("--json", metavar="PATH", help="write the facts as one JSON object")
+    from tspend.cli.main import add_metrics_option
+
+    add_metrics_option(p, "the facts", old="--json")
     return p
 
 
@@ -42,7 +44,7 @@ def cmd(args: argparse.Namespace) -> int:
 def _cmd(args: argparse.Namespace) -> int:
     from tspend.cli.main import check_writable, write_json
 
-    json_path = Path(args.json) if args.json else None
+    json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
         check_writable(json_path, "json")
     domain = _domain_of(args.model)

@@ -90,7 +90,46 @@ class UsageError(ScenarioError):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        # "tspend: error: run: ...": the program's name is said once, by say()
+        command = self.prog.removeprefix("tspend").strip()
+        raise UsageError(f"{command + ': ' if command else ''}{message} (see '{self.prog} --help')")
+
+
+# -- deprecated spellings of options (one release; docs/reference/cli.md) ----------------
+class _DeprecatedAlias(argparse.Action):
+    """An old option's spelling: stores into the new option's ``dest`` and notes the
+    deprecation, printed as one ``tspend: warning:`` line once the input is accepted."""
+
+    def __init__(self, option_strings, dest, new: str = "", **kwargs) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+        notes = namespace.__dict__.setdefault("deprecations", [])
+        notes.append(f"{option_string} is deprecated and goes in the next release; use {self.new}")
+
+
+def add_deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, metavar: str) -> None:
+    """``old`` as a hidden, deprecated spelling of the option ``new`` (same ``dest``)."""
+    p.add_argument(old, dest=new.lstrip("-").replace("-", "_"), action=_DeprecatedAlias,
+                   new=new, metavar=metavar, help=argparse.SUPPRESS)
+
+
+def add_metrics_option(p: argparse.ArgumentParser, what: str = "the metrics",
+                       old: str | None = None) -> None:
+    """``--metrics PATH.json``: every command's figures as one JSON object (``old``: a
+    deprecated spelling kept one release, e.g. ``--json``)."""
+    p.add_argument("--metrics", metavar="PATH.json",
+                   help=f"write {what} as one JSON object (replaced only by a complete one)")
+    if old:
+        add_deprecated_alias(p, old, "--metrics", "PATH.json")
+
+
+def say_deprecations(args: argparse.Namespace) -> None:
+    """One ``tspend: warning:`` line per deprecated spelling used (stderr)."""
+    for note in args.__dict__.pop("deprecations", []):
+        say(f"warning: {note}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -332,7 +371,8 @@ def print_metrics(metrics: dict, stream=None) -> None:
             print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
-def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict:
+def metrics_document(scn, end, controller=None, spec: str | None = None,
+                     units: dict | None = None) -> dict:
     """The metrics JSON: the figures, how the run ended, and what produced it.
 
     ``controller``: the controller that ran; ``spec``: what ``--controller`` named (None:
@@ -341,6 +381,8 @@ def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict
     doc = dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
                version=__version__, scenario_path=scn.path,
                overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+    if units:  # the unit of every figure: {"e": "rad", "u": "N", "joints": {"hinge": "rad"}}
+        doc["units"] = units
     if controller is not None:
         from tspend.controllers import settings_of
 
@@ -397,6 +439,7 @@ def release_warnings(args: argparse.Namespace) -> None:
     Warnings are held while a command checks its input, so that bad input stays one line;
     a command calls this once the input is accepted (before its banner).
     """
+    say_deprecations(args)  # after the input is accepted: bad input stays one line
     held = getattr(args, "warnings", None)
     if held:
         # a command that builds its plant more than once (the cross-check) warns once
@@ -468,6 +511,9 @@ def main(argv: list[str] | None = None) -> int:
         quiet_rerun()
         args = build_parser().parse_args(argv)
         args.guard = guard
+        from tspend.cli.extras import check_needed
+
+        check_needed(args)  # a missing optional package: one line naming its extra, no work
         # warnings (numpy's overflow on the way to a bad value, say) would add lines to
         # the one-line error: kept, and printed after a command that succeeds
         with warnings.catch_warnings(record=True) as caught:

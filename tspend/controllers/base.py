@@ -158,11 +158,15 @@ class CompiledController(NamedTuple):
     scratch: Any
 
 
+_NO_DIAG = np.zeros(0)
+_NO_DIAG.flags.writeable = False
+
+
 class Controller(ABC):
     """A controller of order ``n``: one call of :meth:`step` per sample.
 
-    Subclasses set ``kind``, ``order``, ``diagnostics`` and ``diag`` and define
-    :meth:`reset` and :meth:`step`; the optional features below have defaults.
+    Subclasses set ``order`` and define :meth:`reset` and :meth:`step`; everything else
+    has a default (``kind``: the class's name; ``diagnostics``: none; ``diag``: empty).
     """
 
     #: the controller kind, as chosen on the command line (``second_type``, ``lqr``, ...)
@@ -171,8 +175,9 @@ class Controller(ABC):
     order: int
     #: the per-sample diagnostics, located in ``diag``
     diagnostics: tuple[Diagnostic, ...] = ()
-    #: written by every :meth:`step`; the runner copies it after each sample
-    diag: np.ndarray
+    #: written by every :meth:`step`; the runner copies it after each sample (default: an
+    #: empty, read-only array, for a controller that declares no diagnostics)
+    diag: np.ndarray = _NO_DIAG
     #: True when :meth:`snapshot` has an inner state to show (fuzzy sets, firing ...)
     has_snapshots: bool = False
     #: the controller's own sample period (s; 0 = every physics step): the runner calls
