@@ -192,3 +192,17 @@ def test_a_swingup_that_never_swings_up_is_not_reached() -> None:
     t, e = good.history["t"], np.abs(good.history["e"][:, 0])
     reached = good.metrics["goal"]["reached_at_s"]
     assert np.all(e[t >= reached - 1e-12] <= 0.1) and e[t < reached - 1e-9][-1] > 0.1
+
+
+def test_a_fall_names_what_else_was_true() -> None:
+    """The third-party cart-pole resting on its rails: friction holds the cart, the motor
+    saturates, the pole falls; the message says all three."""
+    scn = override(load_scenario("pendulum_mujoco"), **{"plant.model": TOUCHING,
+                                                        "run.duration": 4.0})
+    r = run(scn, controller="lqr")
+    assert r.status == "fell"
+    assert "contact between geoms 'rail1' and 'cart'" in r.end.message
+    assert "saturated for the last" in r.end.message
+    u = r.history["u"]
+    tail = np.flatnonzero(np.abs(u) <= 2000.0)
+    assert r.metrics["saturated_at_end_s"] == pytest.approx((u.size - 1 - tail[-1]) * scn.run.dt)

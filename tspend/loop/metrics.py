@@ -22,7 +22,8 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
 * ``drawn``: what the scenario's ``[randomize]`` drew at the run's seed (``{}``: nothing;
   :mod:`tspend.plants.randomize`);
 * ``saturated_fraction``: the fraction of samples whose u lay outside the actuator's
-  range (the command the actuator clipped);
+  range (the command the actuator clipped); ``saturated_at_end_s``: for how long, at the
+  end of the run, every sample was (a run the task ended says so in its message);
 * ``controller_ms.median``, ``controller_ms.max``: the controller's wall time per
   evaluation (generic loop only: a compiled loop does not time single samples; then
   null).  The median comes from a log-spaced histogram (1 ns .. 100 s, 2 % bins), so
@@ -67,7 +68,7 @@ class MachineInfo:
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
-MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction",
+MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_",
                     "drawn.", "goal.")
 
 
@@ -115,6 +116,8 @@ class MetricsAccumulator:
         self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
         #: the last sample's time at which |e1| lay outside the goal (None: never)
         self.last_outside: float | None = None
+        #: how many samples at the end of the run so far had u clipped by the actuator
+        self.saturated_at_end = 0
         self.ss_steps = 0
         self.ss_sum_e2 = 0.0
         self.ss_max_abs_e = 0.0
@@ -173,7 +176,11 @@ class MetricsAccumulator:
                     col = state[:, j]
                     self.joint_max[name] = max(self.joint_max[name], float(np.abs(col).max()))
                     self.joint_final[name] = float(col[-1])
-            self.saturated += int(np.count_nonzero((u < m.u_lo) | (u > m.u_hi)))
+            clipped = (u < m.u_lo) | (u > m.u_hi)
+            self.saturated += int(np.count_nonzero(clipped))
+            inside = np.flatnonzero(~clipped)
+            self.saturated_at_end = (clipped.size - 1 - int(inside[-1]) if inside.size
+                                     else self.saturated_at_end + clipped.size)
         for name in self.counter_names:
             if name in data and len(data[name]):
                 self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
@@ -224,6 +231,7 @@ class MetricsAccumulator:
                              for name, _ in m.joints}
             out["plant"] = dict(m.parameters)
             out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
+            out["saturated_at_end_s"] = self.saturated_at_end * self.dt
             out["drawn"] = dict(m.drawn)
             if m.goal_angle > 0.0:
                 out["goal"] = self.goal_result()
