@@ -279,10 +279,15 @@ def _task(r: Table, n: int) -> TaskConfig:
                               f"derivatives, one per state of the plant's order), got {len(view)}")
     fall = r.number("fall_angle", low=0.0) if r.has("fall_angle") else d.fall_angle
     bounds = r.table_of("state_bounds")
+    goal_angle = r.number("goal_angle", d.goal_angle, low=0.0)
+    goal_by = r.number("goal_by", d.goal_by, low=0.0)
+    if goal_by > 0.0 and goal_angle == 0.0:
+        raise r.error("goal_by", "needs task.goal_angle > 0 (the goal it is the deadline of)")
     return TaskConfig(view=view, fall_angle=fall,
                       joint_limits=r.boolean("joint_limits", d.joint_limits),
                       state_bounds=tuple((str(k), bounds.number(k, low=0.0, strict=True))
-                                         for k in bounds.table))
+                                         for k in bounds.table),
+                      goal_angle=goal_angle, goal_by=goal_by)
 
 
 def parse_scenario(text: str, path: str = "<string>", name: str | None = None,

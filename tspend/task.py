@@ -42,7 +42,9 @@ if TYPE_CHECKING:
 __all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_task"]
 
 #: the statuses of a run the task ended (each exits with EXIT_TERMINATED on the CLI)
-TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound")
+#: (``not_reached``: every bound held but the goal, ``task.goal_angle`` by ``task.goal_by``, was
+#: not reached: tspend.loop.runner decides it at the end of the run)
+TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound", "not_reached")
 
 #: the CLI's exit status for a run the task ended (the outputs are kept up to the end)
 EXIT_TERMINATED = 4

@@ -10,7 +10,9 @@ Exit status (the ``EXIT_*`` constants):
 3     the closed loop diverged (recording and metrics kept up to the divergence)
 4     the task ended the run (``[task]``, tspend/task.py): ``fell`` (the pole passed
       ``fall_angle``), ``rail_end`` (a slide joint's range, or ``effects.rail``),
-      ``joint_limit`` (another joint's range), ``state_bound``; outputs kept up to the end
+      ``joint_limit`` (another joint's range, or the rig's stop), ``state_bound``,
+      ``not_reached`` (every bound held, but not the goal ``task.goal_angle`` from
+      ``task.goal_by`` on); outputs kept up to the end
 5     an output could not be completed (disk full, I/O error); the file it would have
       replaced is untouched and the metrics are printed to stdout as JSON as well
 6     the controller failed (status ``controller_error``): it raised, returned something
@@ -63,7 +65,7 @@ from tspend.runtime.outputs import (Output, OutputRequest, PlannedOutput, claim,
 
 #: the subcommands, each the module ``tspend/cli/<name>.py``, in ``--help`` order
 COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "tune",
-            "figures")
+            "figures", "excite", "identify")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0

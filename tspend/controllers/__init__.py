@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
 from tspend.controllers import mpc
 from tspend.controllers import policy
+from tspend.controllers import excitation
 from tspend.controllers.base import Controller, Diagnostic
 from tspend.controllers.settings import KindSettings
 from tspend.errors import ScenarioError
@@ -63,6 +64,7 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "swingup": swingup.build,
     "mpc": mpc.build,
     "policy": policy.build,
+    "excited": excitation.build,
 }
 
 #: built-in kind -> its controller class (what it declares: ``needs``, ``domains``,
@@ -76,6 +78,7 @@ CLASSES: dict[str, type[Controller]] = {
     "swingup": swingup.SwingUpController,
     "mpc": mpc.MPCController,
     "policy": policy.PolicyController,
+    "excited": excitation.ExcitedController,
 }
 
 #: baseline kind -> its settings dataclass, read from [controllers.KIND]
@@ -88,6 +91,7 @@ SETTINGS: dict[str, type] = {
     "swingup": swingup.SwingUpSettings,
     "mpc": mpc.MPCSettings,
     "policy": policy.PolicySettings,
+    "excited": excitation.ExcitationSettings,
 }
 
 

@@ -216,7 +216,8 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario,
     if sat > 0.0:
         lo, hi = max(lo, -sat), min(hi, sat)
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
-                       drawn=dict(drawn or {}))
+                       drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
+                       goal_by=scenario.task.goal_by)
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:

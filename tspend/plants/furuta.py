@@ -128,6 +128,14 @@ class FurutaODE(AnalyticPlant):
     def default_task(self) -> TaskDefaults:
         return _named_task(self.arm_joint, self.pendulum_joint)
 
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor's voltage within the amplifier's range, which the ODE applies (it clips
+        u as MuJoCo clips ctrl): both backends declare the bound they apply, so the
+        saturation metrics mean the same on each."""
+        lo, hi = (float(v) for v in self.params.ctrl_range)
+        return (InputInfo("motor", "V", lo, hi),)
+
     def extras_index(self) -> np.ndarray:
         return np.array([0, 2], dtype=np.intp)
 

@@ -41,7 +41,8 @@ from tspend.task import TERMINATIONS
 
 #: metrics a comparison can use (all "lower is better"); the rest of METRIC_KEYS
 #: describe the run (its length, wall time, seed), not the controller
-COMPARED_METRICS = tuple(k for k in METRIC_KEYS if k not in ("wall_s", "sim_s", "steps", "seed"))
+COMPARED_METRICS = tuple(k for k in METRIC_KEYS
+                         if k not in ("wall_s", "sim_s", "steps", "seed", "max_abs_u_command"))
 #: what ``tspend compare`` shows unless asked otherwise
 DEFAULT_METRICS = ("rmse", "rmse_ss", "max_abs_e_ss", "control_energy", "tv_u_per_s")
 #: columns of a sweep row that are not grid values

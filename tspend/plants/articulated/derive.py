@@ -124,7 +124,13 @@ class Derivation:
         return len(self.tree.actuators)
 
     def key(self) -> str:
-        return hashlib.sha256(f"{GENERATOR_VERSION}:{self.tree.structure_key()}".encode()).hexdigest()[:24]
+        return structure_cache_key(self.tree)
+
+
+def structure_cache_key(tree: Tree) -> str:
+    """The cache key of ``tree``'s generated module: the generator's version and the tree's
+    structure (its numbers are the parameter vector, not part of the code)."""
+    return hashlib.sha256(f"{GENERATOR_VERSION}:{tree.structure_key()}".encode()).hexdigest()[:24]
 
 
 def derive(tree: Tree) -> Derivation:
@@ -340,10 +346,11 @@ def cache_dir() -> Path | None:
 _LOADED: dict[str, Any] = {}
 
 
-def compiled_module(d: Derivation) -> Any:
-    """The numba module of ``d``: imported from the cache when its source is there, else
-    written there (atomically) and imported; in a temporary folder without a cache."""
-    key = d.key()
+def compiled_module(tree: Tree, derivation: Callable[[], Derivation]) -> Any:
+    """The numba module of ``tree``: imported from the cache when its source is there (no
+    derivation at all), else derived (``derivation()``), written there (atomically) and
+    imported; in a temporary folder without a cache."""
+    key = structure_cache_key(tree)
     if key in _LOADED:
         return _LOADED[key]
     folder = cache_dir()
@@ -351,7 +358,7 @@ def compiled_module(d: Derivation) -> Any:
         folder = Path(tempfile.mkdtemp(prefix="tspend-articulated-"))
     path = folder / f"tspend_articulated_{key}.py"
     if not path.is_file():
-        text = module_source(d)
+        text = module_source(derivation())
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_text(text)
         os.replace(tmp, path)

@@ -158,7 +158,10 @@ class ArticulatedODE(_Named, AnalyticPlant):
         return self
 
     def compiled(self) -> None:
-        """The generic loop steps it (its view is not the state's first entries)."""
+        """The generic loop steps it.  (Not the compiled loop: its functions are cached by
+        numba with every parameter type they were compiled for, and a type defined in a
+        generated module of the derivation cache cannot be imported by the next process
+        that loads that cache index.)"""
         return None
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.derive import Derivation, compiled_module, derive
+from tspend.plants.articulated.derive import Derivation, compiled_module, derive, parameter_table
 from tspend.plants.articulated.tree import Tree, read_tree
 
 __all__ = ["Machine", "load_machine"]
@@ -73,13 +73,18 @@ class Machine:
         else:
             raise ScenarioError(f"{where}: {len(names)} actuators ({', '.join(names)}); name the one "
                                 f"u drives with plant.actuator")
-        self.derivation = derivation_of(self.tree)
-        self.module = compiled_module(self.derivation)
-        self.p = self.derivation.nominal.copy()
+        self.parameter_names, nominal = parameter_table(self.tree)
+        self.module = compiled_module(self.tree, lambda: self.derivation)
+        self.p = nominal.copy()
         nv = self.tree.nv
         self._M, self._r = np.zeros(nv * nv), np.zeros(nv)
         self._u, self._qfrc = np.zeros(len(self.tree.actuators)), np.zeros(nv)
         self.roles = self._roles(poles)
+
+    @cached_property
+    def derivation(self) -> Derivation:
+        """The equations over CasADi (derived on first use: a cached module needs none)."""
+        return derivation_of(self.tree)
 
     # -- names ------------------------------------------------------------------------
     @property
@@ -174,15 +179,17 @@ class Machine:
 
     # -- equations --------------------------------------------------------------------
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
-        """dV/dq at ``q`` (gravity and springs), from the derived energy."""
-        import casadi as ca
-
-        if not hasattr(self, "_dV"):
-            qs = ca.SX.sym("q", self.nv)
-            ps = ca.SX.sym("p", self.p.size)
-            _, V = self.derivation.energy(qs, ca.SX.zeros(self.nv), ps)
-            self._dV = ca.Function("dV", [qs, ps], [ca.gradient(V, qs)])
-        return np.asarray(self._dV(q, self.p), dtype=float).ravel()
+        """Gravity's generalised force -dV_g/dq at ``q``, from the compiled equations (3)
+        at rest with the springs, dampers and actuators' terms set to 0."""
+        p = self.p.copy()
+        for i, name in enumerate(self.parameter_names):
+            if name.rsplit(".", 1)[-1] in ("stiffness", "damping", "gear"):
+                p[i] = 0.0
+        nv = self.nv
+        M, r = np.zeros(nv * nv), np.zeros(nv)
+        self.module.dynamics(np.asarray(q, dtype=float), np.zeros(nv),
+                                  np.zeros(len(self.tree.actuators)), np.zeros(nv), p, M, r)
+        return r
 
     def rhs_into(self, s: np.ndarray, u: float, d: float, d_joint: int, sdot: np.ndarray) -> None:
         """``s' = f(s, u)`` of equations (3), with the clips, ``d`` a generalised force on
@@ -214,6 +221,24 @@ class Machine:
         M, r = self.derivation.dynamics_free(s[:nv], s[nv:], uvec, ca.DM.zeros(nv), self.p)
         return ca.solve(ca.reshape(M, nv, nv), r)
 
+    def casadi_f(self, clips: bool = False) -> Any:
+        """``f(s, u, p) -> s'`` as a CasADi Function over SX: ``s = [q, q']`` (the joints'
+        names, :attr:`state_names`), ``u`` every actuator's input (the model's order),
+        ``p`` the parameter vector (:attr:`parameter_names`, nominal values :attr:`p`),
+        differentiable in all three (``clips``: MuJoCo's ctrl and force clips applied,
+        not smooth).  What identification and a randomised design use without deriving
+        again."""
+        import casadi as ca
+
+        nv, nu = self.nv, len(self.tree.actuators)
+        s, u = ca.SX.sym("s", 2 * nv), ca.SX.sym("u", nu)
+        p = ca.SX.sym("p", self.p.size)
+        fn = self.derivation.dynamics if clips else self.derivation.dynamics_free
+        M, r = fn(s[:nv], s[nv:], u, ca.SX.zeros(nv), p)
+        qdd = ca.solve(ca.reshape(M, nv, nv), r)
+        return ca.Function("articulated_f", [s, u, p], [ca.vertcat(s[nv:], qdd)],
+                           ["s", "u", "p"], ["sdot"])
+
     def linearisation(self, s_op: np.ndarray | None = None, u_op: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The exact ``(A, B)`` of ``s' = f(s, u)`` at ``(s_op, u_op)`` (default: upright at
         rest), by CasADi's differentiation of the derived equations."""
@@ -228,7 +253,7 @@ class Machine:
         return np.asarray(A, dtype=float), np.asarray(B, dtype=float).reshape(n, 1)
 
     def parameters(self) -> dict[str, float]:
-        return {name: float(v) for name, v in zip(self.derivation.names, self.p)}
+        return {name: float(v) for name, v in zip(self.parameter_names, self.p)}
 
 
 def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",

@@ -1,0 +1,152 @@
+"""``excited``: an identification input added to another controller's command.
+
+    u = clip(u_inner(obs) + a(t) e(t), u_lo, u_hi)
+
+``u_inner`` is the stabilising controller named by ``inner`` (default ``lqr``: the
+cart-pole and the Furuta are unstable upright, so the excitation rides on a loop that
+keeps them there), ``e(t)`` one of three classic identification signals of unit peak and
+``a(t)`` the amplitude ramped in over ``ramp_s`` after ``start_s`` (Ljung, *System
+Identification*, 2nd ed., 1999, section 13.3; Pintelon and Schoukens, 2012, ch. 5):
+
+* ``multisine``: ``n_freq`` sines log-spaced over ``[f_min_hz, f_max_hz]`` with Schroeder
+  phases (a low crest factor: most energy for a given peak), scaled to peak 1;
+* ``chirp``: a logarithmic sweep from ``f_min_hz`` to ``f_max_hz`` over ``sweep_s``,
+  repeated;
+* ``prbs``: a pseudo-random binary sequence of +/-1 held ``1 / (2 f_max_hz)`` s per bit,
+  drawn from ``seed``.
+
+The clip keeps ``u`` inside the actuator's range (``u_lo``/``u_hi``, from the machine's
+model: what the motor can take).  ``tspend excite`` writes a scenario with this kind and
+sizes ``amplitude`` so that the motion stays well inside the rail and the task's bounds.
+The excitation itself is a diagnostic (``u_exc``), so the recording shows it beside ``u``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Diagnostic, Observation
+from tspend.controllers.settings import KindSettings, setting, settings_for
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
+
+__all__ = ["ExcitationSettings", "ExcitedController", "SIGNALS", "excitation", "build"]
+
+SIGNALS = ("multisine", "chirp", "prbs")
+
+
+@dataclass(frozen=True)
+class ExcitationSettings(KindSettings):
+    """``[controllers.excited]``."""
+
+    inner: str = setting("lqr", "the stabilising controller kind the excitation rides on",
+                         kind="string")
+    signal: str = setting("multisine", "the identification input", kind="choice",
+                          choices=SIGNALS)
+    amplitude: float = setting(1.0, "peak of the excitation, in u's units", low=0.0)
+    f_min_hz: float = setting(0.1, "lowest frequency, Hz", low=0.0, strict=True)
+    f_max_hz: float = setting(3.0, "highest frequency, Hz", low=0.0, strict=True)
+    n_freq: int = setting(16, "multisine: number of sines", kind="integer", low=1)
+    sweep_s: float = setting(10.0, "chirp: length of one sweep, s", low=0.0, strict=True)
+    start_s: float = setting(0.5, "the excitation starts here, s", low=0.0)
+    ramp_s: float = setting(1.0, "and reaches its amplitude this much later, s", low=0.0)
+    seed: int = setting(0, "prbs: its bits' seed", kind="integer", low=0)
+    u_lo: float = setting(-math.inf, "the actuator's least input (clip)")
+    u_hi: float = setting(math.inf, "the actuator's largest input (clip)")
+
+    def check(self, n: int):
+        if self.f_max_hz <= self.f_min_hz:
+            return "f_max_hz", f"must exceed f_min_hz ({self.f_min_hz:g})"
+        if self.u_hi <= self.u_lo:
+            return "u_hi", f"must exceed u_lo ({self.u_lo:g})"
+        if self.inner == "excited":
+            return "inner", "cannot be 'excited' itself"
+        return None
+
+
+def excitation(s: ExcitationSettings, t: np.ndarray | float) -> np.ndarray:
+    """``a(t) e(t)``: the excitation at times ``t`` (s)."""
+    t = np.asarray(t, dtype=float)
+    tau = np.maximum(t - s.start_s, 0.0)
+    ramp = np.clip(tau / s.ramp_s, 0.0, 1.0) if s.ramp_s > 0 else (t >= s.start_s).astype(float)
+    ramp = np.where(t >= s.start_s, ramp, 0.0)
+    if s.signal == "multisine":
+        f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
+        k = np.arange(1, s.n_freq + 1)
+        phase = -math.pi * k * (k - 1) / s.n_freq                 # Schroeder
+        e = np.sin(2 * math.pi * np.multiply.outer(tau, f) + phase).sum(axis=-1)
+        # log-spaced lines are not periodic: the peak over a long sample, and a clip for
+        # the rare instant beyond it (the excitation never exceeds its amplitude)
+        e = np.clip(e / _multisine_peak(s), -1.0, 1.0)
+    elif s.signal == "chirp":
+        tt = np.mod(tau, s.sweep_s)
+        r = s.f_max_hz / s.f_min_hz
+        e = np.sin(2 * math.pi * s.f_min_hz * s.sweep_s / math.log(r) * (r ** (tt / s.sweep_s) - 1))
+    else:
+        hold = 1.0 / (2.0 * s.f_max_hz)
+        idx = np.floor(tau / hold).astype(np.int64)
+        bits = _bits(s.seed, int(np.max(idx)) + 1 if idx.size else 1)
+        e = np.where(bits[idx] > 0, 1.0, -1.0)
+    return s.amplitude * ramp * e
+
+
+_PEAKS: dict = {}
+
+
+def _multisine_peak(s: ExcitationSettings) -> float:
+    key = (s.f_min_hz, s.f_max_hz, s.n_freq)
+    if key not in _PEAKS:
+        f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
+        k = np.arange(1, s.n_freq + 1)
+        phase = -math.pi * k * (k - 1) / s.n_freq
+        t = np.arange(0.0, 4.0 / s.f_min_hz, 1.0 / (40.0 * s.f_max_hz))
+        _PEAKS[key] = float(np.max(np.abs(np.sin(2 * math.pi * np.multiply.outer(t, f) + phase).sum(-1))))
+    return _PEAKS[key]
+
+
+def _bits(seed: int, n: int) -> np.ndarray:
+    return np.random.default_rng((seed, 0x1D3)).integers(0, 2, size=n)
+
+
+class ExcitedController(Controller):
+    """The ``excited`` kind: another kind's command plus the excitation."""
+
+    kind = "excited"
+    guarantees = "the inner kind's, for the excitation's amplitude small enough"
+
+    def __init__(self, inner: Controller, settings: ExcitationSettings) -> None:
+        self.inner, self.s = inner, settings
+        self.order = inner.order
+        self.sample_period = inner.sample_period
+        base = tuple(inner.diagnostics)
+        w = max((d.start + d.width for d in base), default=0)
+        self.diagnostics = base + (Diagnostic("u_exc", w, 1, panel="control",
+                                              description="the identification input added to u"),)
+        self.diag = np.zeros(w + 1)
+        self._w = w
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.inner.reset(rng)
+
+    def step(self, obs: Observation, dt: float) -> float:
+        u = float(self.inner.step(obs, dt))
+        e = float(excitation(self.s, obs.t))
+        if self._w:
+            self.diag[: self._w] = self.inner.diag[: self._w]
+        self.diag[self._w] = e
+        return min(max(u + e, self.s.u_lo), self.s.u_hi)
+
+    def parameters(self) -> dict[str, np.ndarray]:
+        return self.inner.parameters()
+
+
+def build(scenario: "Scenario") -> ExcitedController:
+    from tspend.controllers import build as build_kind
+
+    s: ExcitationSettings = settings_for(scenario, ExcitationSettings)
+    return ExcitedController(build_kind(scenario, s.inner), s)
