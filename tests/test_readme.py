@@ -30,7 +30,8 @@ QUICK_START = (
 #: how each command is shortened: options appended (the last of a repeated option wins)
 SHORT = {
     "run": ["--duration", "0.3"],
-    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.3"],
+    # the open loop at least the 0.5 s a cross-check must compare to be conclusive
+    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.6"],
     "sweep": ["--duration", "0.3", "--jobs", "1"],
     "compare": ["--duration", "0.3", "--jobs", "1", "--resamples", "100"],
     "figures": ["--duration", "0.3"],
