@@ -16,8 +16,8 @@ from tspend.cli.main import main  # noqa: E402
 def test_compare_prints_table_and_json_that_follow_the_runs(tmp_path, capsys):
     out, js = tmp_path / "runs.parquet", tmp_path / "cmp.json"
     status = main(["compare", "ex3_pendulum_ode", "--controller", "second_type,first_type",
-                   "--seeds", "0:4", "--duration", "0.5", "--jobs", "1", "--json", str(js),
-                   "--out", str(out), "--metrics", "rmse,tv_u_per_s", "--resamples", "500"])
+                   "--seeds", "0:4", "--duration", "0.5", "--jobs", "1", "--metrics", str(js),
+                   "--out", str(out), "--metric", "rmse,tv_u_per_s", "--resamples", "500"])
     assert status == 0
     text = capsys.readouterr().out
     assert "### ex3_pendulum_ode" in text and "| second_type vs first_type | rmse | 4 |" in text
@@ -38,7 +38,7 @@ def test_compare_prints_table_and_json_that_follow_the_runs(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--controller", "second_type,nope"], "unknown kind"),
     (["--controller", "second_type"], "at least two"),
-    (["--metrics", "speed"], "unknown metric"),
+    (["--metric", "speed"], "unknown metric"),
     (["--seeds", "5:2"], "--seeds"),
 ])
 def test_bad_input_exits_2_before_anything_runs(tmp_path, capsys, argv, message):

@@ -16,7 +16,7 @@ KEYS = ("open_loop_max_dhinge", "open_loop_max_dhinge_dot", "closed_loop_max_dhi
 def test_cli_crosscheck_json_and_recording(tmp_path, capsys):
     js, rrd = tmp_path / "cc.json", tmp_path / "cc.rrd"
     status = main(["crosscheck", "--duration", "2", "--open-loop-duration", "10",
-                   "--json", str(js), "--out", str(rrd)])
+                   "--metrics", str(js), "--out", str(rrd)])
     assert status == 0
     report = json.loads(js.read_text())
     for key in KEYS:

@@ -114,7 +114,7 @@ def test_cli_figures_never_replaces_a_file(tmp_path, capsys):
     path = tmp_path / "runs.parquet"
     t.to_parquet(path)
     assert main(["figures", "box", str(path), "--out", str(tmp_path / "f"),
-                 "--metrics", "rmse_ss"]) == 0
+                 "--metric", "rmse_ss"]) == 0
     assert (tmp_path / "f" / "runs_box_rmse_ss.png").stat().st_size > 0
     before = (tmp_path / "f" / "runs_box_rmse_ss.png").read_bytes()
     assert main(["figures", "box", str(path), "--out", str(tmp_path / "f")]) == 2
@@ -122,7 +122,7 @@ def test_cli_figures_never_replaces_a_file(tmp_path, capsys):
     assert (tmp_path / "f" / "runs_box_rmse_ss.png").read_bytes() == before
     assert main(["figures", "heatmap", str(path), "--x", "controller.gamma", "--y", "nope",
                  "--out", str(tmp_path / "g")]) == 2
-    assert main(["figures", "box", str(path), "--metrics", "speed"]) == 2
+    assert main(["figures", "box", str(path), "--metric", "speed"]) == 2
 
 
 def test_box_plot_fits_a_paper_column_and_counts_runs_that_are_not_data(tmp_path, monkeypatch):

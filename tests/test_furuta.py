@@ -10,7 +10,7 @@ def test_furuta_crosscheck_and_lqr_from_the_cli(tmp_path) -> None:
     from tspend.cli.main import main
 
     cc = tmp_path / "cc.json"
-    assert main(["crosscheck", "furuta_mujoco", "--duration", "1", "--json", str(cc),
+    assert main(["crosscheck", "furuta_mujoco", "--duration", "1", "--metrics", str(cc),
                  "--no-record"]) == 0
     report = json.loads(cc.read_text())
     figures = {k: v for k, v in report.items() if k.startswith("open_loop_max_")}

@@ -103,7 +103,7 @@ def test_gymnasium_balances_with_its_own_pole() -> None:
 def test_third_party_crosscheck_cli_exits_0(model: Path, tmp_path: Path) -> None:
     slide, hinge, act = THIRD[model]
     out = tmp_path / "cc.json"
-    assert main(["crosscheck", "--no-record", "--duration", "1", "--json", str(out),
+    assert main(["crosscheck", "--no-record", "--duration", "1", "--metrics", str(out),
                  "--set", f'plant.model="{model}"', "--set", f'plant.actuator="{act}"',
                  "--set", f'plant.hinge_joint="{hinge}"', "--set", "plant.timestep=0.001"]) == 0
     import json

@@ -154,7 +154,7 @@ def test_inspect_dt_nan_and_export_of_random_bytes_exit_2(tmp_path):
     r = cli("inspect", str(ROOT / "models" / "cartpole.xml"), "--dt", "nan", cwd=tmp_path)
     assert r.status == 2 and "--dt" in r.one_error_line()
     (tmp_path / "R.rrd").write_bytes(os.urandom(5000))
-    r = cli("export", "R.rrd", "--to", "x.csv", cwd=tmp_path)
+    r = cli("export", "R.rrd", "--out", "x.csv", cwd=tmp_path)
     assert r.status == 2 and "not a readable tspend recording" in r.one_error_line()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["R.rrd"]
 

@@ -189,15 +189,21 @@ def test_compare_runs_a_plugin_and_names_it_by_its_kind(workdir: Path, monkeypat
     assert (table["status"] == "completed").all() and len(table) == 6
 
 
-def test_list_prints_one_line_per_scenario(tmp_path: Path) -> None:
-    from tspend.scenario import available_scenarios
+def test_list_prints_every_scenario_with_its_whole_description(tmp_path: Path) -> None:
+    from tspend.scenario import available_scenarios, load_scenario
 
-    r = tspend("list", cwd=tmp_path)
+    r = tspend("list", cwd=tmp_path, env={**os.environ, "COLUMNS": "100"})
     assert r.status == 0
-    names = [p.stem for p in available_scenarios()]
+    paths = available_scenarios()
     lines = r.out.splitlines()
-    assert len(lines) == len(names)
-    assert [line.split()[0] for line in lines] == names
+    # a scenario's first line starts with its name; its description's rest is indented
+    assert [line.split()[0] for line in lines if not line.startswith(" ")] == [
+        p.stem for p in paths]
+    assert all(len(line) <= 100 for line in lines)
+    words = " ".join(r.out.split())
+    for p in paths:
+        assert " ".join(load_scenario(p).description.split()) in words.replace(
+            " (default) ", " ")
 
 
 def test_installed_plant_domain_runs_like_a_builtin(tmp_path: Path) -> None:

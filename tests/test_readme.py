@@ -30,7 +30,8 @@ QUICK_START = (
 #: how each command is shortened: options appended (the last of a repeated option wins)
 SHORT = {
     "run": ["--duration", "0.3"],
-    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.3"],
+    # the open loop at least the 0.5 s a cross-check must compare to be conclusive
+    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.6"],
     "sweep": ["--duration", "0.3", "--jobs", "1"],
     "compare": ["--duration", "0.3", "--jobs", "1", "--resamples", "100"],
     "figures": ["--duration", "0.3"],
@@ -93,8 +94,26 @@ def test_readme_commands_run(tmp_path: Path, monkeypatch, capsys) -> None:
     assert (tmp_path / "m.json").exists() and (tmp_path / "duffing.csv").exists()
 
 
+def test_every_tour_line_runs_after_the_first_command_or_names_its_extra() -> None:
+    """The first command installs the core dependencies only: a tour line that needs an
+    optional extra says which in a comment (``# [tune]``), as its error line would."""
+    from tspend.cli.extras import EXTRAS, needed
+
+    parser = build_parser()
+    checked = 0
+    for block in blocks(README):
+        for line in block.splitlines():
+            if not line.startswith("tspend "):
+                continue
+            args = parser.parse_args(shlex.split(line, comments=True)[1:])
+            for module, _ in needed(args):
+                extra = EXTRAS[module][1]
+                checked += extra is not None
+                assert extra is None or f"[{extra}]" in line, (line, extra)
+    assert checked >= 1  # the tune line at least
+
+
 def test_readme_python_runs(tmp_path: Path, monkeypatch) -> None:
-    pytest.importorskip("matplotlib")
     monkeypatch.chdir(tmp_path)
     # as a user runs it: a script of its own (a sweep's worker processes re-import the
     # script, which an exec() inside pytest would not show)

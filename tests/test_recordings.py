@@ -52,7 +52,7 @@ def crosscheck_run(tmp_path_factory) -> tuple[Path, dict]:
     tmp = tmp_path_factory.mktemp("cc")
     rrd, js = tmp / "cc.rrd", tmp / "cc.json"
     assert main(["crosscheck", "--duration", "1", "--open-loop-duration", "1",
-                 "--json", str(js), "--out", str(rrd)]) == 0
+                 "--metrics", str(js), "--out", str(rrd)]) == 0
     return rrd, json.loads(js.read_text())
 
 

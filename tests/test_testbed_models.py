@@ -44,7 +44,7 @@ def mass_matrix(model: mujoco.MjModel) -> np.ndarray:
 
 def inspect_json(tmp_path: Path, model: Path, *extra: str) -> dict:
     out = tmp_path / f"{model.stem}.json"
-    assert main(["inspect", str(model), "--json", str(out), *extra]) == 0
+    assert main(["inspect", str(model), "--metrics", str(out), *extra]) == 0
     return json.loads(out.read_text())
 
 

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
+import pytest
 
 import tspend
 from tspend.cli.main import main
@@ -28,9 +29,9 @@ def recorded(tmp_path, scenario: str, duration: float = 0.3):
 
 
 def export(rrd, out):
-    assert main(["export", str(rrd), "--to", str(out)]) == 0  # in process: seconds saved
+    assert main(["export", str(rrd), "--out", str(out)]) == 0  # in process: seconds saved
     if out.suffix == ".csv":
-        return pd.read_csv(out, comment="#")
+        return pd.read_csv(out)  # a plain CSV: no arguments needed
     return pd.read_parquet(out)
 
 
@@ -44,32 +45,38 @@ def test_export_of_pendulum_mujoco_names_columns_with_units_and_equals_the_recor
     for suffix in (".parquet", ".csv"):
         out = tmp_path / f"e{suffix}"
         table = export(rrd, out)
-        assert list(table.columns[:8]) == ["t_s", "theta_rad", "theta_dot_rad_s", "ref_rad",
+        # one name per quantity: the model's joint (hinge), as in the metrics and to_pandas
+        assert list(table.columns[:8]) == ["t_s", "hinge_rad", "hinge_dot_rad_s", "ref_rad",
                                            "ref_dot_rad_s", "ref_ddot_rad_s2", "u_N", "d_N"]
-        assert {"cart_x_m", "cart_v_m_s", "e_theta_rad", "u_s_share_N"} <= set(table.columns)
+        assert {"slider_m", "slider_dot_m_s", "e_hinge_rad", "u_s_share_N"} <= set(table.columns)
+        assert "hinge" in result.metrics["joints"]
+        assert list(result.to_pandas().reset_index().columns) == list(table.columns)
         assert not any(" " in c or "[" in c for c in table.columns)
         assert len(table) == 300
         np.testing.assert_allclose(table["t_s"], h["t"], rtol=0, atol=1e-9)  # whole ns
         # as recorded, read back by the reader of tspend.recorder ...
         _, hinge = read_scalar_series(rrd, "series/state/hinge")
-        np.testing.assert_array_equal(table["theta_rad"], hinge)
+        np.testing.assert_array_equal(table["hinge_rad"], hinge)
         _, ref = read_scalar_series(rrd, "series/reference")
         np.testing.assert_array_equal(table[["ref_rad", "ref_dot_rad_s", "ref_ddot_rad_s2"]], ref)
         # ... and as the run had them (the plant's full state, whatever its joints are called)
-        np.testing.assert_array_equal(table["theta_rad"], full(result, "hinge"))
-        np.testing.assert_array_equal(table["theta_dot_rad_s"], h["x"][:, 1])
-        np.testing.assert_array_equal(table["cart_x_m"], full(result, "slider"))
-        np.testing.assert_array_equal(table["cart_v_m_s"], h["extra/cart_vel"])
+        np.testing.assert_array_equal(table["hinge_rad"], full(result, "hinge"))
+        np.testing.assert_array_equal(table["hinge_dot_rad_s"], h["x"][:, 1])
+        np.testing.assert_array_equal(table["slider_m"], full(result, "slider"))
+        np.testing.assert_array_equal(table["slider_dot_m_s"], h["extra/cart_vel"])
         np.testing.assert_array_equal(table["u_N"], h["u"])
         np.testing.assert_array_equal(table["d_N"], h["d"])
-        np.testing.assert_array_equal(table["e_theta_rad"], h["e"][:, 0])
+        np.testing.assert_array_equal(table["e_hinge_rad"], h["e"][:, 0])
     meta = pq.read_schema(tmp_path / "e.parquet").metadata
     assert meta[b"scenario"] == b"pendulum_mujoco" and meta[b"seed"] == b"1"
     assert meta[b"controller"] == b"second_type"
     assert json.loads(meta[b"tspend"])[""]["plant_kind"] == "cartpole_mujoco"
-    header = [line for line in (tmp_path / "e.csv").read_text().splitlines() if line.startswith("#")]
-    assert {"# scenario: pendulum_mujoco", "# seed: 1", "# controller: second_type"} <= set(header)
-    again = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--to",
+    # the CSV is plain (one header row); its metadata beside it
+    assert (tmp_path / "e.csv").read_text().splitlines()[0].startswith("t_s,hinge_rad,")
+    side = json.loads((tmp_path / "e.csv.json").read_text())
+    assert (side["scenario"], side["seed"], side["controller"]) == ("pendulum_mujoco", 1,
+                                                                    "second_type")
+    again = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--out",
                             str(tmp_path / "e.csv")], capture_output=True, text=True)
     assert again.returncode == 2 and "exists" in again.stderr
 
@@ -93,7 +100,8 @@ def test_export_of_furuta_mujoco_names_the_arm_and_the_pendulum(tmp_path):
 def test_run_to_pandas_keeps_the_stable_keys():
     scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.4})
     result = tspend.run(scn)
-    frame = result.to_pandas(units=False)
+    with pytest.warns(FutureWarning, match="deprecated"):
+        frame = result.to_pandas(units=False)
     assert frame.index.name == "t" and len(frame) == 400
     np.testing.assert_array_equal(frame[["x1", "x2"]].to_numpy(), result.history["x"])
     np.testing.assert_array_equal(frame["b_hat"].to_numpy(), result.history["p"][:, -1])

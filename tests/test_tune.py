@@ -147,7 +147,7 @@ def test_compare_tune_gives_every_kind_the_same_budget_on_disjoint_seeds(tmp_pat
     js = tmp_path / "c.json"
     status = main(["compare", "ex3_pendulum_ode", "--controller", "pd,lqr", "--tune", "2",
                    "--tune-seeds", "10:11", "--seeds", "0:2", "--duration", "0.5", "--jobs", "1",
-                   "--resamples", "200", "--metrics", "rmse", "--json", str(js)])
+                   "--resamples", "200", "--metric", "rmse", "--metrics", str(js)])
     assert status == 0
     assert "Tuned on an equal budget: 2 trials per kind" in capsys.readouterr().out
     doc = json.loads(js.read_text())

@@ -41,9 +41,12 @@ def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | N
     scenario : str, path or Scenario
         A scenario name (``tspend list``), a path to a ``.toml`` file, or a
         :class:`~tspend.config.Scenario` (from :func:`load_scenario`).
-    controller : str, optional
-        A kind (``"lqr"``; ``tspend run --controller help`` lists them) or a plug-in spec
-        (``"my_file.py:MyController"``, ``"package.module:Class"``); default: the
+    controller : str, Controller class or instance, optional
+        A kind (``"lqr"``; ``tspend run --controller help`` lists them), a plug-in spec
+        (``"my_file.py:MyController"``, ``"package.module:Class"``, ``"__main__:MyController"``
+        for a class of the running script), a :class:`~tspend.controllers.base.Controller`
+        subclass (``controller=MyController``, built with the scenario as its plug-in
+        kind would be) or an instance (run as it is, after its ``reset``); default: the
         scenario's own.
     seed : int, optional
         Overrides ``run.seed``.
@@ -85,8 +88,9 @@ def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | N
         raise ScenarioError(f"overrides: expected a dict of dotted keys to values, got "
                             f"{type(overrides).__name__}")
     if controller is not None and not isinstance(controller, str):
-        raise ScenarioError(f"controller: expected a kind or a plug-in spec, got "
-                            f"{controller!r:.80}")
+        from tspend.controllers import python_object_spec
+
+        controller = python_object_spec(controller)  # a class, a factory or an instance
     if "block_size" in options:
         size = options["block_size"]
         if isinstance(size, bool) or not isinstance(size, int) or not 1 <= size <= 10**7:

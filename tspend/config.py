@@ -181,6 +181,12 @@ class TaskConfig:
     joint_limits: bool = True
     #: (state name, bound) pairs: |value| > bound ends the run "state_bound"
     state_bounds: tuple[tuple[str, float], ...] = ()
+    #: the goal, rad (or m): the tracked output within ``goal_angle`` of its reference
+    #: from ``goal_by`` s to the end; a run that completes without it ends "not_reached"
+    #: (0 = no goal: a run is judged by its bounds alone)
+    goal_angle: float = field(default=0.0, metadata=_at_least_zero())
+    #: s from the start by which the goal must hold (to the end of the run)
+    goal_by: float = field(default=0.0, metadata=_at_least_zero())
 
 
 @dataclass(frozen=True)

@@ -109,7 +109,7 @@ def find_scenario(name_or_path: str | Path) -> Path:
 def _run(r: Table) -> RunConfig:
     r.check_keys(tuple(f.name for f in dataclasses.fields(RunConfig)))
     d = RunConfig()
-    return RunConfig(
+    cfg = RunConfig(
         duration=r.number("duration", d.duration, low=0.0, strict=True),
         dt=r.number("dt", d.dt, low=0.0, strict=True),
         seed=r.integer("seed", d.seed, low=0, high=MAX_SEED),
@@ -119,6 +119,13 @@ def _run(r: Table) -> RunConfig:
         control_delay=r.integer("control_delay", d.control_delay, low=0),
         controller=_default_kind(r),
     )
+    steps = int(round(cfg.duration / cfg.dt))
+    if cfg.control_delay >= steps:
+        # the controller's output would never reach the plant: nothing of it would be run
+        raise r.error("control_delay", f"{cfg.control_delay} steps of {cfg.dt:g} s is not "
+                                       f"shorter than the run ({steps} steps, {cfg.duration:g} s): "
+                                       f"no computed u would ever be applied")
+    return cfg
 
 
 def _default_kind(r: Table) -> str:
@@ -272,10 +279,15 @@ def _task(r: Table, n: int) -> TaskConfig:
                               f"derivatives, one per state of the plant's order), got {len(view)}")
     fall = r.number("fall_angle", low=0.0) if r.has("fall_angle") else d.fall_angle
     bounds = r.table_of("state_bounds")
+    goal_angle = r.number("goal_angle", d.goal_angle, low=0.0)
+    goal_by = r.number("goal_by", d.goal_by, low=0.0)
+    if goal_by > 0.0 and goal_angle == 0.0:
+        raise r.error("goal_by", "needs task.goal_angle > 0 (the goal it is the deadline of)")
     return TaskConfig(view=view, fall_angle=fall,
                       joint_limits=r.boolean("joint_limits", d.joint_limits),
                       state_bounds=tuple((str(k), bounds.number(k, low=0.0, strict=True))
-                                         for k in bounds.table))
+                                         for k in bounds.table),
+                      goal_angle=goal_angle, goal_by=goal_by)
 
 
 def parse_scenario(text: str, path: str = "<string>", name: str | None = None,

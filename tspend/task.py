@@ -42,7 +42,9 @@ if TYPE_CHECKING:
 __all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_task"]
 
 #: the statuses of a run the task ended (each exits with EXIT_TERMINATED on the CLI)
-TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound")
+#: (``not_reached``: every bound held but the goal, ``task.goal_angle`` by ``task.goal_by``, was
+#: not reached: tspend.loop.runner decides it at the end of the run)
+TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound", "not_reached")
 
 #: the CLI's exit status for a run the task ended (the outputs are kept up to the end)
 EXIT_TERMINATED = 4
@@ -194,8 +196,16 @@ def build_task(plant: Plant, cfg: TaskConfig = TaskConfig(),
                 raise ScenarioError(f"{where}task.fall_angle: plant {plant.name} has no pole "
                                     f"angle to fall (set 0 or leave it out)")
         else:
-            bound(names.index(defaults.pole), -fall, fall,
-                  Limit("fell", f"fall_angle {fall:.4g} rad", symmetric=True))
+            for pole in defaults.fallen_poles:
+                bound(names.index(pole), -fall, fall,
+                      Limit("fell", f"fall_angle {fall:.4g} rad", symmetric=True))
+
+    for name, value in defaults.limits:
+        if name in names and cfg.joint_limits:
+            unit = f" {units[names.index(name)]}" if units[names.index(name)] else ""
+            bound(names.index(name), -value, value,
+                  Limit("joint_limit", f"the rig's stop at {value:g}{unit} (the domain's default "
+                                       f"task)", symmetric=True))
 
     for name, value in cfg.state_bounds:
         if name not in names:

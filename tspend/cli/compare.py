@@ -7,7 +7,7 @@ with a bootstrap 95% interval, the win rate, on how many seeds each side was wor
 its worst seed's ratio, the Wilcoxon signed-rank p-value and its Holm adjustment over the
 whole call, which the verdicts use, and McNemar's exact test on the outcomes; duplicate
 experiments flagged).  The Markdown table goes to stdout,
-``--json`` writes the same figures, ``--out`` keeps the sweep's Parquet table.
+``--metrics PATH.json`` writes the same figures, ``--out`` keeps the sweep's Parquet table.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from tspend.cli.main import add_metrics_option
 from tspend.errors import ScenarioError
 
 
@@ -36,13 +37,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'--controller help' lists them")
     p.add_argument("--seeds", default="0:20", metavar="A:B",
                    help="seeds A to B-1 (or N1,N2,...); default 0:20")
-    p.add_argument("--metrics", metavar="M1,M2,...",
+    p.add_argument("--metric", metavar="M1,M2,...",
                    help="metrics to compare (default: rmse,rmse_ss,max_abs_e_ss,"
                         "control_energy,tv_u_per_s; an unknown name lists them)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key for every run (repeatable)")
     p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
-    p.add_argument("--json", metavar="PATH", help="write the statistics as JSON")
+    add_metrics_option(p, "the statistics", old="--json")
     p.add_argument("--out", metavar="PATH.parquet",
                    help="keep the sweep's table of runs (rerunning resumes it)")
     p.add_argument("--jobs", type=int, metavar="N", help="worker processes (default: cores)")
@@ -72,6 +73,20 @@ def _list(text: str | None) -> list[str] | None:
     return items or None
 
 
+def _old_metric_list(args: argparse.Namespace) -> None:
+    """``--metrics M1,M2`` named the metrics compared before ``--metrics`` meant the JSON
+    file (every command's figures): a value not ending in ``.json`` is read the old way for
+    one release, with a deprecation line."""
+    value = args.metrics
+    if value is None or value.lower().endswith(".json") or args.metric is not None:
+        return
+    from tspend.cli.main import say
+
+    say("warning: --metrics M1,M2 (the metrics compared) is deprecated and goes in the next "
+        "release; use --metric M1,M2 (--metrics PATH.json now writes the statistics)")
+    args.metric, args.metrics = value, None
+
+
 def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
     from tspend.cli.main import check_writable, parse_set_value
@@ -84,10 +99,11 @@ def parse_options(args: argparse.Namespace) -> dict:
     kinds = [load(spec).name for spec in specs]
     if len(set(kinds)) < 2:
         raise ScenarioError("--controller: name at least two different kinds to compare")
-    metrics = _list(args.metrics) or list(DEFAULT_METRICS)
+    _old_metric_list(args)
+    metrics = _list(args.metric) or list(DEFAULT_METRICS)
     bad = [m for m in metrics if m not in COMPARED_METRICS]
     if bad:
-        raise ScenarioError(f"--metrics {','.join(bad)}: unknown metric; allowed: "
+        raise ScenarioError(f"--metric {','.join(bad)}: unknown metric; allowed: "
                             f"{', '.join(COMPARED_METRICS)}")
     seeds = parse_seeds(args.seeds)
     grid: dict[str, list] = {}
@@ -115,9 +131,9 @@ def parse_options(args: argparse.Namespace) -> dict:
     check_jobs(args.jobs)
     if args.dask is not None:
         check_dask_address(args.dask)
-    json_path = Path(args.json) if args.json else None
+    json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
-        check_writable(json_path, "json")
+        check_writable(json_path, "metrics")
     tune = None
     if args.tune is not None:
         tune = _tune_options(args, kinds, seeds)

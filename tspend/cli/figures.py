@@ -2,7 +2,7 @@
 and heat maps of a two-key sweep, as PNG and PDF with their data as CSV.
 
     tspend figures paper [--seed N] [--duration S] [--controller K1,K2]
-    tspend figures box RUNS.parquet [--metrics M1,M2] [--controller K1,K2]
+    tspend figures box RUNS.parquet [--metric M1,M2] [--controller K1,K2]
     tspend figures heatmap RUNS.parquet --x KEY --y KEY [--metric M] [--controller K]
 
 ``RUNS.parquet`` is the table of ``tspend sweep --out`` or ``tspend compare --out``.
@@ -20,7 +20,7 @@ from tspend.errors import ScenarioError
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("figures", help="draw figures (PNG, PDF and CSV) from runs or "
-                              "a sweep table (needs the [plot] extra)",
+                              "a sweep table",
                               description="Figures as PNG and PDF with their data "
                                           "as CSV: the paper's, box plots of a comparison, "
                                           "heat maps of a two-key sweep.")
@@ -45,8 +45,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     bp = sub.add_parser("box", help="box plots across seeds of a sweep/compare table")
     common(bp)
     bp.add_argument("table", metavar="RUNS.parquet")
-    bp.add_argument("--metrics", default="rmse_ss", metavar="M1,M2,...",
+    bp.add_argument("--metric", default="rmse_ss", metavar="M1,M2,...",
                     help="one figure per metric (default rmse_ss)")
+    from tspend.cli.main import add_deprecated_alias
+
+    add_deprecated_alias(bp, "--metrics", "--metric", "M1,M2,...")  # --metrics is a file elsewhere
 
     hp = sub.add_parser("heatmap", help="median of a metric over a two-key sweep")
     common(hp)
@@ -100,7 +103,7 @@ def cmd(args: argparse.Namespace) -> int:
                              every=args.every)
     else:
         table = _read(args.table)
-        metrics = [m.strip() for m in (args.metrics if args.figure == "box" else args.metric).split(",")]
+        metrics = [m.strip() for m in args.metric.split(",")]
         bad = [m for m in metrics if m not in COMPARED_METRICS]
         if bad:
             raise ScenarioError(f"--metric {','.join(bad)}: unknown; allowed: "

@@ -23,7 +23,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
     p.add_argument("--dt", type=finite(), default=None,
                    help="control period to check the timestep against")
-    p.add_argument("--json", metavar="PATH", help="write the facts as one JSON object")
+    from tspend.cli.main import add_metrics_option
+
+    add_metrics_option(p, "the facts", old="--json")
     return p
 
 
@@ -42,14 +44,21 @@ def cmd(args: argparse.Namespace) -> int:
 def _cmd(args: argparse.Namespace) -> int:
     from tspend.cli.main import check_writable, write_json
 
-    json_path = Path(args.json) if args.json else None
+    json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
         check_writable(json_path, "json")
     domain = _domain_of(args.model)
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}
     facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
-    print(f"{args.model}: a {domain.name} model")
+    touching = contacts_at_rest(args.model)
+    facts["contacts_at_q0"] = touching or "none"
+    if touching:
+        departures = [*departures, f"contacts active at the model's initial pose (qpos0): "
+                                   f"{', '.join(touching)}: contact forces act from t = 0 "
+                                   f"(friction can hold a joint the ODE leaves free)"]
+    article = "an" if domain.name[:1] in "aeiou" else "a"
+    print(f"{args.model}: {article} {domain.name} model")
     for key, value in facts.items():
         print(f"  {key:<20} {_show(value)}")
     if departures:
@@ -71,6 +80,24 @@ def _show(value) -> str:
     return str(value)
 
 
+def contacts_at_rest(model: str) -> list[str]:
+    """The geom pairs in contact at the model's initial pose ``qpos0``, as
+    ``"geom1/geom2"`` (MuJoCo's own collision detection after ``mj_forward``)."""
+    import mujoco
+
+    from tspend.plants.mjcf import read_spec
+
+    m = read_spec(model).compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    pairs = []
+    for i in range(d.ncon):
+        c = d.contact[i]
+        a, b = (m.geom(int(g)).name or str(int(g)) for g in c.geom)
+        pairs.append(f"{a}/{b}")
+    return list(dict.fromkeys(pairs))
+
+
 def _domain_of(model: str):
     """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
     past the size bounds of docs/reliability.md)."""
@@ -80,7 +107,11 @@ def _domain_of(model: str):
 
     spec = read_spec(model)
     kinds = tuple(j.type.name.removeprefix("mjJNT_").lower() for j in spec.joints)
-    found = next((d for d in DOMAINS.values() if d.fits_mjcf(kinds)), None)
+    try:
+        compiled = spec.compile()
+    except ValueError as exc:
+        raise ScenarioError(f"{model}: cannot compile MJCF: {exc}") from None
+    found = next((d for d in DOMAINS.values() if d.fits_model(compiled)), None)
     if found is None:
         readers = ", ".join(d.name for d in DOMAINS.values() if d.mujoco_kind() is not None)
         raise ScenarioError(f"{model}: no plant domain reads a model with joints "

@@ -1,9 +1,11 @@
-"""``tspend list``: every scenario, one line each: its name and its description's first
-sentence (``tspend inspect`` and the file itself say the rest)."""
+"""``tspend list``: every scenario with its whole description, wrapped to the terminal's
+width under its name (``tspend inspect`` and the file itself say the rest)."""
 
 from __future__ import annotations
 
 import argparse
+import shutil
+import textwrap
 
 from tspend.cli.main import DEFAULT_SCENARIO, EXIT_OK, printable
 from tspend.errors import TspendError
@@ -18,13 +20,17 @@ def cmd(args: argparse.Namespace) -> int:
 
     paths = available_scenarios()
     width = max((len(p.stem) for p in paths), default=0) + len(" (default)")
+    columns = max(shutil.get_terminal_size((100, 24)).columns, width + 30)
     for path in paths:
         try:
-            desc = first_sentence(load_scenario(path).description)
+            desc = " ".join(load_scenario(path).description.split())
         except TspendError as exc:
             desc = f"(invalid: {exc})"
         name = path.stem + (" (default)" if path.stem == DEFAULT_SCENARIO else "")
-        print(printable(f"{name:<{width}}  {desc}"))
+        lines = textwrap.wrap(printable(desc), columns - width - 2) or [""]
+        print(f"{name:<{width}}  {lines[0]}")
+        for line in lines[1:]:
+            print(f"{'':<{width}}  {line}")
     return EXIT_OK
 
 

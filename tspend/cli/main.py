@@ -4,14 +4,19 @@ Exit status (the ``EXIT_*`` constants):
 
 ====  =====================================================================================
 0     success
-1     ``crosscheck``: the backends differ by more than ``--tol``
+1     ``crosscheck``: the backends differ by more than ``--tol``, or the verdict is
+      inconclusive (less than 0.5 s of open loop compared before a constraint acted)
 2     bad input: command line, scenario, model file, output path, a size bound exceeded
 3     the closed loop diverged (recording and metrics kept up to the divergence)
 4     the task ended the run (``[task]``, tspend/task.py): ``fell`` (the pole passed
       ``fall_angle``), ``rail_end`` (a slide joint's range, or ``effects.rail``),
-      ``joint_limit`` (another joint's range), ``state_bound``; outputs kept up to the end
+      ``joint_limit`` (another joint's range, or the rig's stop), ``state_bound``,
+      ``not_reached`` (every bound held, but not the goal ``task.goal_angle`` from
+      ``task.goal_by`` on); outputs kept up to the end
 5     an output could not be completed (disk full, I/O error); the file it would have
       replaced is untouched and the metrics are printed to stdout as JSON as well
+6     the controller failed (status ``controller_error``): it raised, returned something
+      that is not one number, or called ``sys.exit``; outputs kept up to that sample
 70    internal error (a bug: please report it with the ``--debug`` traceback)
 129   SIGHUP, 130 SIGINT (Ctrl-C), 143 SIGTERM: outputs completed up to the stop
 ====  =====================================================================================
@@ -71,6 +76,9 @@ EXIT_DIVERGED = 3
 EXIT_TERMINATED = 4
 EXIT_RAIL_END = EXIT_TERMINATED  # the name before [task]: a rail end is one termination
 EXIT_WRITE_FAILED = 5
+#: the controller failed: raised, returned no number, or called sys.exit (a plug-in's
+#: error; the recording and metrics are kept up to the sample before)
+EXIT_CONTROLLER_ERROR = 6
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)
 MAX_COUNT = 10**9
@@ -82,7 +90,46 @@ class UsageError(ScenarioError):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        # "tspend: error: run: ...": the program's name is said once, by say()
+        command = self.prog.removeprefix("tspend").strip()
+        raise UsageError(f"{command + ': ' if command else ''}{message} (see '{self.prog} --help')")
+
+
+# -- deprecated spellings of options (one release; docs/reference/cli.md) ----------------
+class _DeprecatedAlias(argparse.Action):
+    """An old option's spelling: stores into the new option's ``dest`` and notes the
+    deprecation, printed as one ``tspend: warning:`` line once the input is accepted."""
+
+    def __init__(self, option_strings, dest, new: str = "", **kwargs) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+        notes = namespace.__dict__.setdefault("deprecations", [])
+        notes.append(f"{option_string} is deprecated and goes in the next release; use {self.new}")
+
+
+def add_deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, metavar: str) -> None:
+    """``old`` as a hidden, deprecated spelling of the option ``new`` (same ``dest``)."""
+    p.add_argument(old, dest=new.lstrip("-").replace("-", "_"), action=_DeprecatedAlias,
+                   new=new, metavar=metavar, help=argparse.SUPPRESS)
+
+
+def add_metrics_option(p: argparse.ArgumentParser, what: str = "the metrics",
+                       old: str | None = None) -> None:
+    """``--metrics PATH.json``: every command's figures as one JSON object (``old``: a
+    deprecated spelling kept one release, e.g. ``--json``)."""
+    p.add_argument("--metrics", metavar="PATH.json",
+                   help=f"write {what} as one JSON object (replaced only by a complete one)")
+    if old:
+        add_deprecated_alias(p, old, "--metrics", "PATH.json")
+
+
+def say_deprecations(args: argparse.Namespace) -> None:
+    """One ``tspend: warning:`` line per deprecated spelling used (stderr)."""
+    for note in args.__dict__.pop("deprecations", []):
+        say(f"warning: {note}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -324,7 +371,8 @@ def print_metrics(metrics: dict, stream=None) -> None:
             print(f"  {k:<{width}}  {format_value(metrics[k])}", file=stream)
 
 
-def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict:
+def metrics_document(scn, end, controller=None, spec: str | None = None,
+                     units: dict | None = None) -> dict:
     """The metrics JSON: the figures, how the run ended, and what produced it.
 
     ``controller``: the controller that ran; ``spec``: what ``--controller`` named (None:
@@ -333,6 +381,8 @@ def metrics_document(scn, end, controller=None, spec: str | None = None) -> dict
     doc = dict(end.metrics, scenario=scn.name, status=end.status, message=end.message,
                version=__version__, scenario_path=scn.path,
                overrides={k: v for k, v in scn.overrides}, scenario_text=scn.text)
+    if units:  # the unit of every figure: {"e": "rad", "u": "N", "joints": {"hinge": "rad"}}
+        doc["units"] = units
     if controller is not None:
         from tspend.controllers import settings_of
 
@@ -389,6 +439,7 @@ def release_warnings(args: argparse.Namespace) -> None:
     Warnings are held while a command checks its input, so that bad input stays one line;
     a command calls this once the input is accepted (before its banner).
     """
+    say_deprecations(args)  # after the input is accepted: bad input stays one line
     held = getattr(args, "warnings", None)
     if held:
         # a command that builds its plant more than once (the cross-check) warns once
@@ -460,6 +511,9 @@ def main(argv: list[str] | None = None) -> int:
         quiet_rerun()
         args = build_parser().parse_args(argv)
         args.guard = guard
+        from tspend.cli.extras import check_needed
+
+        check_needed(args)  # a missing optional package: one line naming its extra, no work
         # warnings (numpy's overflow on the way to a bad value, say) would add lines to
         # the one-line error: kept, and printed after a command that succeeds
         with warnings.catch_warnings(record=True) as caught:

@@ -7,9 +7,10 @@ import json
 import re
 
 from tspend import __version__
-from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_DIVERGED, EXIT_OK, EXIT_TERMINATED, Claimed,
+from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
+    EXIT_TERMINATED, Claimed,
     add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
-    metrics_document, plan, print_metrics, printable, recording_request, release_warnings, say,
+    metrics_document, plan, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
 from tspend.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
@@ -84,7 +85,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     from tspend.runtime.progress import RunProgress  # a bar on a terminal once the run takes a few seconds
-    from tspend.loop.runner import RunInterrupted
+    from tspend.loop.runner import CONTROLLER_ERROR, NOT_REACHED, RunInterrupted
     from tspend.task import TERMINATIONS
 
     recording, metrics_out = outs["--out"], outs["--metrics"]
@@ -95,30 +96,32 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
           + (f", recording to {printable(display(recording.target))}" if recording else ""),
           flush=True)
     interrupted = None
+    notice = CompileNotice()
     try:
-        end = run(scn, sinks=[*sinks, RunProgress()], keep_history=False, stop=stop,
+        end = run(scn, sinks=[notice, *sinks, RunProgress()], keep_history=False, stop=stop,
                   controller=args.controller, prepared=prepared).end
     except RunInterrupted as exc:
         interrupted, end = exc, exc.end
     finally:
+        notice.cancel()
         problem = close_sinks(rec, recording.partial if recording else None)
     failures = [outs.complete(recording, problem)]
     if end is not None:
         failures.append(outs.write_json(metrics_out, metrics_document(
-            prepared.scenario, end, prepared.controller, args.controller)))
+            prepared.scenario, end, prepared.controller, args.controller, json_units(prepared))))
     failures = [f for f in failures if f]
 
     if end is not None:
         print(f"{end.status}: {end.steps_done} steps" + (f" ({printable(end.message)})"
                                                           if end.message else ""))
-        print_metrics(end.metrics)
+        print_summary(end.metrics, summary_units(prepared))
     if recording is not None and recording.committed:
         print(f"recording: {printable(display(recording.target))}  "
               f"(open with: rerun {printable(display(recording.target))})")
     if failures:
         if end is not None:  # the figures of a finished run are never lost
             print(json.dumps(metrics_document(prepared.scenario, end, prepared.controller,
-                                              args.controller), indent=2))
+                                              args.controller, json_units(prepared)), indent=2))
         raise OutputError("; ".join(failures) + "; the metrics are on stdout")
     if interrupted is not None:
         kept = [display(o.target) for o in (recording, metrics_out) if o is not None]
@@ -134,4 +137,126 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end.status in TERMINATIONS:  # fell, rail_end, joint_limit, state_bound
         say(end.message)
         return EXIT_TERMINATED
+    if end.status == NOT_REACHED:  # the task's goal (task.goal_angle by task.goal_by) missed
+        say(end.message)
+        return EXIT_TERMINATED
+    if end.status == CONTROLLER_ERROR:  # the controller's code failed, not tspend's
+        say(end.message)
+        return EXIT_CONTROLLER_ERROR
     return EXIT_OK
+
+
+# -- the printed summary -----------------------------------------------------------------
+#: a saturation line is printed when the actuator clipped more than this share of samples
+SATURATION_SHARE = 0.01
+#: seconds without a first block before the compile notice
+COMPILE_NOTICE_S = 2.0
+
+
+class CompileNotice:
+    """A sink that says, once, that the closed loop is being compiled when the first
+    block has not come within :data:`COMPILE_NOTICE_S` (numba's first compile takes
+    ~13 s; later runs load it from the cache), so the first run is not silent."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self._timer = threading.Timer(COMPILE_NOTICE_S, say, args=(
+            "compiling the controller and the closed loop with numba (the first run only; "
+            "cached for later runs)...",))
+        self._timer.daemon = True
+        self._timer.start()
+
+    def cancel(self) -> None:
+        self._timer.cancel()
+
+    def start(self, info) -> None:
+        pass
+
+    def block(self, block) -> None:
+        self._timer.cancel()
+
+    def inner(self, snap) -> None:
+        pass
+
+    def finish(self, end) -> None:
+        self._timer.cancel()
+
+
+def summary_units(prepared) -> dict[str, str]:
+    """Units of the printed figures: ``e`` (the tracked output), ``u`` and each state."""
+    from tspend.plants import registry
+
+    plant, scn = prepared.plant, prepared.scenario
+    units = dict(zip(plant.state_names, plant.state_units))
+    view = prepared.task.view if prepared.task is not None else plant.state_names
+    control = ((plant.inputs[0].unit if plant.inputs else "")
+               or registry.domain_of(scn.plant.kind).labels.control.unit)
+    return {"e": units.get(view[0], "") if view else "", "u": control, "states": units}
+
+
+def json_units(prepared) -> dict:
+    """The metrics JSON's ``units``: the tracked output's (``e``: rmse, max_abs_e ...), the
+    input's (``u``) and each joint's, by the model's joint names."""
+    units = summary_units(prepared)
+    states = units.pop("states")
+    joints = {j.name: states.get(j.name, "") for j in getattr(prepared.plant, "joints", ())}
+    return {**units, "joints": joints} if joints else units
+
+
+def _with(value, unit: str) -> str:
+    from tspend.cli.main import format_value
+
+    text = format_value(value)
+    return f"{text} {unit}" if unit and isinstance(value, (int, float)) else text
+
+
+
+def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
+    """The metrics a person reads: every figure with its unit, each joint's largest
+    excursion, the actuator's saturation when it clipped more than
+    :data:`SATURATION_SHARE` of the samples, and the task's events (goal, catch)."""
+    import sys
+
+    stream = stream or sys.stdout
+    e, u = units.get("e", ""), units.get("u", "")
+    e2 = f"{e}^2" if e else ""
+    rows = [
+        ("rmse", e, ""), ("rmse_ss", e, "steady state"), ("max_abs_e", e, ""),
+        ("max_abs_e_ss", e, "steady state"), ("iae", f"{e} s".strip(), ""),
+        ("ise", f"{e2} s".strip(), ""), ("itae", f"{e} s^2".strip(), ""),
+        ("control_energy", f"{u}^2 s" if u else "s", "integral of u^2"),
+        ("max_abs_u", u, "applied, after the actuator's clip"
+         if "max_abs_u_command" in metrics else ""),
+        ("max_abs_u_command", u, "what the controller asked"),
+        ("tv_u_per_s", f"{u}/s" if u else "1/s", "total variation of u per second"),
+        ("caught_at_s", "s", "the swing-up caught the pole"),
+        ("sim_s", "s", ""), ("steps", "", ""), ("wall_s", "s", "")]
+    shown = [(k, unit, note) for k, unit, note in rows if k in metrics]
+    width = max([len(k) for k, _, _ in shown] + [len("joint excursions")])
+    for key, unit, note in shown:
+        print(f"  {key:<{width}}  {_with(metrics[key], unit)}" + (f"  ({note})" if note else ""),
+              file=stream)
+    joints = metrics.get("joints") or {}
+    states = units.get("states", {})
+    if joints:
+        parts = [f"{name} {_with(j.get('max_abs'), states.get(name, ''))}"
+                 for name, j in joints.items() if isinstance(j, dict)]
+        print(f"  {'largest |joint|':<{width}}  {', '.join(parts)}", file=stream)
+    goal = metrics.get("goal")
+    if isinstance(goal, dict):
+        reached = goal.get("reached_at_s")
+        angle, by = goal.get("angle_rad"), goal.get("by_s")
+        target = (f"within {_with(angle, 'rad')}" if angle is not None else "the goal") + \
+            (f" by {_with(by, 's')}" if by is not None else "")
+        print(f"  {'goal':<{width}}  " + (f"reached {target} at {_with(reached, 's')}"
+                                          if reached is not None else f"not reached ({target})"),
+              file=stream)
+    share = metrics.get("saturated_fraction")
+    if isinstance(share, (int, float)) and share > SATURATION_SHARE:
+        limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")
+        print(f"  saturation: the actuator clipped u in {100 * share:.1f} % of the samples "
+              f"(more than {100 * SATURATION_SHARE:g} %)"
+              + (f"; its limit is +/-{_with(limit, u)}" if isinstance(limit, (int, float)) else "")
+              + (f"; the controller asked up to {_with(metrics['max_abs_u_command'], u)}"
+                 if "max_abs_u_command" in metrics else ""), file=stream)

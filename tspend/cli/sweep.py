@@ -82,7 +82,7 @@ def summary(frame, grid_keys: list[str]):
     from tspend.task import TERMINATIONS
 
     out = groups["status"].value_counts().unstack(fill_value=0)
-    for status in ("completed", "diverged", "failed", *TERMINATIONS):
+    for status in ("completed", "diverged", "failed", "controller_error", *TERMINATIONS):
         if status not in out.columns:
             out[status] = 0
     # a run the task ended is reported by how it ended (the pole fell, the cart reached the

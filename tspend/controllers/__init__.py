@@ -20,6 +20,7 @@ dataclass (read from ``[controllers.<Class.kind>]``, see :mod:`.settings`), else
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -171,6 +172,8 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     if not isinstance(spec, str) or not spec.strip():
         raise ScenarioError(f"{option}: expected a controller kind or a plug-in spec "
                             f"(file.py:Class), got {spec!r:.80}")
+    if spec in _OBJECTS:  # a class or an instance handed to tspend.run (python_object_spec)
+        return _OBJECTS[spec]
     if spec in KINDS:
         return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec), "", kind_class(spec))
     if plugins.is_spec(spec):
@@ -182,6 +185,36 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     raise ScenarioError(f"{option} {spec}: unknown kind; allowed: {', '.join([*KINDS, *installed])}"
                         f", or path/to/file.py:Class, or package.module:Class "
                         f"('--controller help' lists them)")
+
+
+#: classes and instances handed to tspend.run, by the spec they were given (this process only)
+_OBJECTS: dict[str, Kind] = {}
+
+
+def python_object_spec(obj: object, option: str = "controller") -> str:
+    """A spec string for a controller class (or factory) or a controller instance given
+    from Python (``tspend.run(..., controller=MyController)``), so every path that takes a
+    spec takes it.  An importable class gets ``module:Class``; any other object a name of
+    its own in this process (``python:MyController``)."""
+    if isinstance(obj, Controller):
+        instance = obj
+        kind = _plugin_kind(type(obj), f"python:{type(obj).__qualname__}", option)
+
+        def build(scenario: "Scenario") -> Controller:
+            return instance
+
+        kind = dataclasses.replace(kind, build=build)
+    elif isinstance(obj, type) or callable(obj):
+        name = getattr(obj, "__qualname__", getattr(obj, "__name__", "plugin"))
+        kind = _plugin_kind(obj, f"python:{name}", option)
+    else:
+        raise ScenarioError(f"{option}: expected a kind, a plug-in spec, a Controller class or "
+                            f"instance, got {obj!r:.80}")
+    spec = f"python:{kind.name}"
+    if spec in _OBJECTS and _OBJECTS[spec].build is not kind.build:
+        spec = f"python:{kind.name}@{id(obj):x}"  # two objects of one name: both kept apart
+    _OBJECTS[spec] = dataclasses.replace(kind, source=spec)
+    return spec
 
 
 def kind_class(name: str) -> type[Controller]:
@@ -245,11 +278,17 @@ def available() -> list[Kind]:
     return kinds
 
 
+def _plain_text(text: str) -> str:
+    """RST inline markup (``code``, `name`) removed: ``--controller help`` is plain text."""
+    return re.sub(r"`{1,2}([^`]*)`{1,2}", r"\1", text)
+
+
 def help_text() -> str:
     """``--controller help``: one line per kind, and how to name one's own."""
     kinds = available()
     width = max(len(k.name) for k in kinds)
-    lines = [f"{k.name:<{width}}  {k.summary}" for k in kinds]
+    # plain text: the docstrings' RST markup (``code``, `name`) is for the docs
+    lines = [f"{k.name:<{width}}  {_plain_text(k.summary)}" for k in kinds]
     lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
                  f" also package.module:Class)")
     return "\n".join(lines) + "\n"

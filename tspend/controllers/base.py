@@ -111,8 +111,9 @@ class Observation(NamedTuple):
     ``t`` the sample's time (s); ``state`` the plant's full state (its ``state_names``,
     positions then velocities); ``x`` the task's view (n,): the tracked output and its
     derivatives (on the cart-pole ``[hinge, hinge_dot]``); ``ref`` (n+1,) the reference
-    and its derivatives; ``names`` the full state's names.  The arrays are the runner's:
-    a controller that keeps one must copy it.
+    and its derivatives; ``names`` the full state's names.  The arrays are read-only views
+    of the runner's (writing into one raises ``ValueError``): a controller that keeps one
+    must copy it.
     """
 
     t: float
@@ -157,11 +158,15 @@ class CompiledController(NamedTuple):
     scratch: Any
 
 
+_NO_DIAG = np.zeros(0)
+_NO_DIAG.flags.writeable = False
+
+
 class Controller(ABC):
     """A controller of order ``n``: one call of :meth:`step` per sample.
 
-    Subclasses set ``kind``, ``order``, ``diagnostics`` and ``diag`` and define
-    :meth:`reset` and :meth:`step`; the optional features below have defaults.
+    Subclasses set ``order`` and define :meth:`reset` and :meth:`step`; everything else
+    has a default (``kind``: the class's name; ``diagnostics``: none; ``diag``: empty).
     """
 
     #: the controller kind, as chosen on the command line (``second_type``, ``lqr``, ...)
@@ -170,8 +175,9 @@ class Controller(ABC):
     order: int
     #: the per-sample diagnostics, located in ``diag``
     diagnostics: tuple[Diagnostic, ...] = ()
-    #: written by every :meth:`step`; the runner copies it after each sample
-    diag: np.ndarray
+    #: written by every :meth:`step`; the runner copies it after each sample (default: an
+    #: empty, read-only array, for a controller that declares no diagnostics)
+    diag: np.ndarray = _NO_DIAG
     #: True when :meth:`snapshot` has an inner state to show (fuzzy sets, firing ...)
     has_snapshots: bool = False
     #: the controller's own sample period (s; 0 = every physics step): the runner calls

@@ -347,10 +347,11 @@ class FullStateLQR(Controller):
 
 
 def default_state_weights(model: "FullModel") -> np.ndarray:
-    """``diag(Q)``: 1 on the actuated joint's position and velocity, 100 on the pole's
+    """``diag(Q)``: 1 on the actuated joint's position and velocity, 100 on each pole's
     angle, 10 on its rate; 1 on any other joint."""
     w = np.ones(model.size)
-    w[model.pole], w[model.dof + model.pole] = 100.0, 10.0
+    for pole in model.upright:
+        w[pole], w[model.dof + pole] = 100.0, 10.0
     return w
 
 
@@ -376,6 +377,26 @@ def design_model(scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
     return AB
 
 
+def unstabilisable(A: np.ndarray, B: np.ndarray, names: tuple[str, ...] = ()) -> str:
+    """Why no feedback of the state can stabilise ``x' = A x + B u`` ("" = it can): an
+    eigenvalue with Re >= 0 whose mode u cannot move (the Popov-Belevitch-Hautus test,
+    ``rank [A - lambda I, B] < n``, by the smallest singular value)."""
+    n = A.shape[0]
+    scale = max(1.0, float(np.abs(A).max()), float(np.abs(B).max()))
+    for lam in np.linalg.eigvals(A):
+        if lam.real < -1e-9 * scale:
+            continue
+        sv = np.linalg.svd(np.hstack([A - lam * np.eye(n), B]), compute_uv=False)
+        if sv[-1] <= 1e-9 * scale:
+            _, _, vh = np.linalg.svd((A - lam * np.eye(n)).conj().T)
+            left = np.abs(vh[-1])
+            part = [names[i] for i in np.argsort(-left)[:3] if left[i] > 1e-6] if names else []
+            return (f"the machine cannot be stabilised from u at the upright: its mode with "
+                    f"eigenvalue {lam.real:.4g}{lam.imag:+.4g}j (unstable) is uncontrollable"
+                    + (f" (it involves {', '.join(part)})" if part else ""))
+    return ""
+
+
 def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
     from tspend.controllers.full_model import full_model
 
@@ -389,6 +410,9 @@ def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
     else:
         w = default_state_weights(model)
     A, B = design_model(scenario)
+    why = unstabilisable(A, B, model.state_names)
+    if why:
+        raise ScenarioError(f"{where}: {why}")
     b_pole = float(B[model.dof + model.pole, 0])
     R = s.R if s.R is not None else b_pole ** 2
     omega = s.reference_omega if s.reference_omega is not None else reference_omega_of(scenario)

@@ -45,7 +45,7 @@ from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
-from tspend.plants.domain import (FULL_STATE, FullModel, full_accelerations, full_energy,
+from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, FullModel, full_accelerations, full_energy,
                                   wrap_angle)
 from tspend.controllers.lqr import FullLQRLaw, full_lqr_law
 from tspend.runtime.jit import JIT
@@ -177,7 +177,7 @@ class SwingUpController(Controller):
     """The ``swingup`` kind (module docstring)."""
 
     kind = "swingup"
-    needs = (FULL_STATE,)
+    needs = (FULL_STATE, PUMPED_ENERGY)
     guarantees = ("the energy the input adds is never negative until the catch (A-F 2000); "
                   "the driven joint's range respected by braking, the input clipped to its "
                   "range; LQR's local guarantee once caught (hysteresis)")

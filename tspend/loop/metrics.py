@@ -7,8 +7,12 @@ constant at the sample rate), on the tracking error of the output ``e_1 = x_1 - 
 * ``rmse``, ``max_abs_e``: over the whole run; ``rmse_ss``, ``max_abs_e_ss``: over the
   steady-state window, the last half of the run (``t >= duration / 2``);
 * ``iae`` = int |e1| dt, ``ise`` = int e1^2 dt, ``itae`` = int t |e1| dt;
-* ``control_energy`` = int u^2 dt, ``max_abs_u``;
-* ``tv_u_per_s``: chattering, the total variation of u per second of simulated time.
+* ``control_energy`` = int u^2 dt of the command;
+* ``max_abs_u``: the largest input *applied* (the command clipped to the actuator's range,
+  when the accumulator knows it: :class:`MachineInfo`), ``max_abs_u_command``: the
+  largest the controller asked for;
+* ``tv_u_per_s``: chattering, the total variation of the command per second of
+  simulated time.
 
 Of the whole machine (issue 20; when the accumulator is given a :class:`MachineInfo`):
 
@@ -18,7 +22,8 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
 * ``drawn``: what the scenario's ``[randomize]`` drew at the run's seed (``{}``: nothing;
   :mod:`tspend.plants.randomize`);
 * ``saturated_fraction``: the fraction of samples whose u lay outside the actuator's
-  range (the command the actuator clipped);
+  range (the command the actuator clipped); ``saturated_at_end_s``: for how long, at the
+  end of the run, every sample was (a run the task ended says so in its message);
 * ``controller_ms.median``, ``controller_ms.max``: the controller's wall time per
   evaluation (generic loop only: a compiled loop does not time single samples; then
   null).  The median comes from a log-spaced histogram (1 ns .. 100 s, 2 % bins), so
@@ -57,11 +62,14 @@ class MachineInfo:
     u_hi: float = math.inf
     #: what the scenario's [randomize] drew (flat name -> value; empty: nothing)
     drawn: dict = field(default_factory=dict)
+    #: the task's goal: |e1| <= goal_angle from goal_by s on (0: none; tspend.config.TaskConfig)
+    goal_angle: float = 0.0
+    goal_by: float = 0.0
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
-MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_fraction",
-                    "drawn.")
+MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_",
+                    "drawn.", "goal.")
 
 
 def is_machine_column(name: str) -> bool:
@@ -82,7 +90,8 @@ def flatten(metrics: dict, prefix: str = "") -> dict:
 
 #: keys every metrics dictionary has (the CLI writes them as JSON)
 METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
-               "control_energy", "max_abs_u", "tv_u_per_s", "wall_s", "sim_s", "steps", "seed")
+               "control_energy", "max_abs_u", "max_abs_u_command", "tv_u_per_s", "wall_s",
+               "sim_s", "steps", "seed")
 
 
 class MetricsAccumulator:
@@ -104,7 +113,11 @@ class MetricsAccumulator:
         self.seed = seed
         self.steps = 0
         self.sum_e2 = self.sum_abs_e = self.sum_t_abs_e = self.sum_u2 = 0.0
-        self.max_abs_e = self.max_abs_u = 0.0
+        self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
+        #: the last sample's time at which |e1| lay outside the goal (None: never)
+        self.last_outside: float | None = None
+        #: how many samples at the end of the run so far had u clipped by the actuator
+        self.saturated_at_end = 0
         self.ss_steps = 0
         self.ss_sum_e2 = 0.0
         self.ss_max_abs_e = 0.0
@@ -135,6 +148,13 @@ class MetricsAccumulator:
         self.sum_u2 += float(u @ u)
         self.max_abs_e = max(self.max_abs_e, float(abs_e.max()))
         self.max_abs_u = max(self.max_abs_u, float(np.abs(u).max()))
+        m = self.machine
+        if m is not None and m.goal_angle > 0.0:
+            outside = np.flatnonzero(~(abs_e <= m.goal_angle))
+            if outside.size:
+                self.last_outside = float(t[outside[-1]])
+        applied = np.clip(u, m.u_lo, m.u_hi) if m is not None else u
+        self.max_abs_u_applied = max(self.max_abs_u_applied, float(np.abs(applied).max()))
         steady = t >= self.ss_start - 0.5 * self.dt
         if steady.any():
             e_ss = e1[steady]
@@ -156,7 +176,11 @@ class MetricsAccumulator:
                     col = state[:, j]
                     self.joint_max[name] = max(self.joint_max[name], float(np.abs(col).max()))
                     self.joint_final[name] = float(col[-1])
-            self.saturated += int(np.count_nonzero((u < m.u_lo) | (u > m.u_hi)))
+            clipped = (u < m.u_lo) | (u > m.u_hi)
+            self.saturated += int(np.count_nonzero(clipped))
+            inside = np.flatnonzero(~clipped)
+            self.saturated_at_end = (clipped.size - 1 - int(inside[-1]) if inside.size
+                                     else self.saturated_at_end + clipped.size)
         for name in self.counter_names:
             if name in data and len(data[name]):
                 self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
@@ -181,6 +205,22 @@ class MetricsAccumulator:
         hi = _TIME_BINS[min(k, _TIME_BINS.size - 1)]
         return 1e3 * math.sqrt(lo * hi)
 
+    def goal_result(self) -> dict:
+        """The goal (``angle_rad``, ``by_s``), when it was reached to stay
+        (``reached_at_s``: the first sample after the last one outside; None: never), and
+        whether it was met (reached by ``by_s``)."""
+        m = self.machine
+        if not self.steps:
+            reached = None
+        elif self.last_outside is None:
+            reached = 0.0
+        else:
+            reached = self.last_outside + self.dt
+            if reached > (self.steps - 1) * self.dt + 1e-12:
+                reached = None  # outside at the last sample
+        met = reached is not None and reached <= m.goal_by + 1e-12
+        return {"angle_rad": m.goal_angle, "by_s": m.goal_by, "reached_at_s": reached, "met": met}
+
     def machine_result(self) -> dict:
         """The whole machine's metrics (module docstring); empty without a MachineInfo."""
         out: dict = {}
@@ -191,7 +231,10 @@ class MetricsAccumulator:
                              for name, _ in m.joints}
             out["plant"] = dict(m.parameters)
             out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
+            out["saturated_at_end_s"] = self.saturated_at_end * self.dt
             out["drawn"] = dict(m.drawn)
+            if m.goal_angle > 0.0:
+                out["goal"] = self.goal_result()
         out["controller_ms"] = {"median": self._median_ms(),
                                 "max": 1e3 * self.time_max if self.timed else None}
         if self.counters:
@@ -215,7 +258,8 @@ class MetricsAccumulator:
             "ise": finite(self.sum_e2 * dt),
             "itae": finite(self.sum_t_abs_e * dt),
             "control_energy": finite(self.sum_u2 * dt),
-            "max_abs_u": finite(self.max_abs_u) if n else None,
+            "max_abs_u": finite(self.max_abs_u_applied) if n else None,
+            "max_abs_u_command": finite(self.max_abs_u) if n else None,
             "tv_u_per_s": finite(self.tv_u / sim_s) if n else None,
             "wall_s": wall_s,
             "sim_s": sim_s,

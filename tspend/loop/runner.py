@@ -37,7 +37,7 @@ from tspend.runtime.interrupts import StopRequest
 from tspend.plants.base import Plant
 from tspend.signals import Disturbance, Reference
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
-from tspend.task import Task, build_task
+from tspend.task import TERMINATIONS, Task, build_task
 
 
 class RunInterrupted(Exception):
@@ -120,6 +120,68 @@ class BlockBuffer:
         return data
 
 
+#: the status of a run the controller ended by raising, exiting or returning no number
+CONTROLLER_ERROR = "controller_error"
+#: the status of a run that kept every bound but did not reach the task's goal
+NOT_REACHED = "not_reached"
+
+
+def _control_value(u: object) -> float:
+    """The controller's return as the number u (TypeError naming what came back instead:
+    a vector, a string, None)."""
+    if isinstance(u, (bool, str, bytes)) or u is None:
+        raise TypeError(f"step() returned {type(u).__name__} {u!r:.40}, not a number")
+    arr = np.asarray(u)
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        raise TypeError(f"step() returned a {arr.dtype} array of shape {arr.shape}, not one number")
+    return float(arr.reshape(()))
+
+
+def controller_failure(exc: BaseException, t: float, kind: str) -> str:
+    """One line saying how the controller failed at ``t``, naming the innermost frame of
+    the controller's own code (a plug-in's file and line), not tspend's."""
+    import traceback
+
+    frames = [f for f in traceback.extract_tb(exc.__traceback__)
+              if "/tspend/loop/" not in f.filename.replace("\\", "/")]
+    where = f" ({frames[-1].filename}, line {frames[-1].lineno}, in {frames[-1].name})" if frames else ""
+    what = (f"SystemExit({exc.code!r})" if isinstance(exc, SystemExit)
+            else f"{type(exc).__name__}: {exc}")
+    return f"{CONTROLLER_ERROR} at t = {t:.4f} s: controller '{kind}' failed: {what}{where}"
+
+
+#: a run that ends with the actuator saturated this long (s) says so in its message
+SATURATED_FOR_S = 0.1
+
+
+def _what_else(plant: Plant, metrics: dict) -> str:
+    """What else was true when the task ended a run, that a reader needs to know its
+    cause: a constraint MuJoCo applied then (a contact holding the cart), and the actuator
+    saturated over the last samples."""
+    parts = []
+    try:
+        active = plant.constraint_active()
+    except Exception:  # a plant that cannot say: nothing to add
+        active = ""
+    if active:
+        parts.append(f"MuJoCo applied {active}")
+    sat = metrics.get("saturated_at_end_s") or 0.0
+    if sat >= SATURATED_FOR_S:
+        parts.append(f"the actuator was saturated for the last {sat:.3g} s (commanded up to "
+                     f"{metrics.get('max_abs_u_command', float('nan')):.4g}, applied at most "
+                     f"{metrics.get('max_abs_u', float('nan')):.4g})")
+    return ("; while " + " and ".join(parts)) if parts else ""
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``: what a controller is handed, so that no controller (a
+    plug-in's included) can write into the state the task then judges, or into the
+    reference and state the recording keeps."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 class ClosedLoop:
     """Runs ``controller`` on ``plant`` tracking ``reference`` under ``disturbance``.
 
@@ -176,6 +238,16 @@ class ClosedLoop:
         for sink in sinks:
             if hasattr(sink, "result"):
                 metrics = sink.result(wall_s=wall)
+        if status in TERMINATIONS and status != NOT_REACHED:
+            message += _what_else(self.plant, metrics)
+        goal = metrics.get("goal")
+        if status == "completed" and goal is not None and not goal["met"]:
+            # every bound held but the task's goal was not reached: no "completed" claimed
+            status = NOT_REACHED
+            when = (f"reached only at t = {goal['reached_at_s']:.4g} s" if goal["reached_at_s"] is not None
+                    else "never within it to the end")
+            message = (f"{NOT_REACHED}: the tracked output was not within {goal['angle_rad']:g} of "
+                       f"its reference from t = {goal['by_s']:g} s to the end ({when})")
         end = RunEnd(status=status, message=message, steps_done=done, metrics=metrics)
         for sink in sinks:
             try:
@@ -233,8 +305,16 @@ class ClosedLoop:
                     if g % every == 0:
                         seen = x if hook is None else hook(t[i], x, ref[i])
                         c0 = clock()
-                        u_new = ctrl.step(Observation(t[i], full, seen, ref[i], names),
-                                          dt * every)
+                        try:
+                            u_new = _control_value(ctrl.step(Observation(
+                                t[i], _read_only(full), _read_only(seen), _read_only(ref[i]),
+                                names), dt * every))
+                        except (Exception, SystemExit) as exc:
+                            # the controller's own failure (a plug-in's bug, a wrong return,
+                            # sys.exit): the run ends as it, with what came before kept
+                            return self._diverged(sinks, start, buf, t, ref, dist, i,
+                                                  controller_failure(exc, float(t[i]), ctrl.kind),
+                                                  CONTROLLER_ERROR)
                         C[i] = clock() - c0
                         if delay:
                             pending.append((g + delay, u_new))

@@ -61,9 +61,17 @@ def _built(scenario: Scenario, kind: str | None) -> Plant:
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
         warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
+    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+    active = plant.constraint_active()
+    if active:
+        # a contact or a limit at t = 0 acts on every run from the first step: named before
+        # any run, not found afterwards in a fall's cause
+        warnings.warn(f"{plant.model_path}: at the start ({scenario.plant.kind}, x0 = "  # type: ignore[attr-defined]
+                      f"{list(scenario.plant.x0)}): {active}; MuJoCo applies it from t = 0 and "
+                      f"the ODE does not have it", ModelWarning, stacklevel=2)
     if needs_plant_wrapper(scenario.effects):
         plant = EffectsPlant(plant, scenario.effects)
-    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+        plant.reset(np.asarray(scenario.plant.x0, dtype=float))
     return plant
 
 
@@ -128,9 +136,10 @@ class History:
 
     def __init__(self) -> None:
         self.blocks: list[dict[str, np.ndarray]] = []
+        self.info: RunInfo | None = None
 
     def start(self, info: RunInfo) -> None:
-        pass
+        self.info = info  # the layout to_pandas names the columns by
 
     def block(self, block: Block) -> None:
         self.blocks.append({k: np.array(v, copy=True) for k, v in block.data.items()})
@@ -154,6 +163,8 @@ class RunResult:
     history: dict[str, np.ndarray]
     controller: Controller
     plant: Plant
+    #: what the sinks were told before the first block (names, units, view, diagnostics)
+    info: RunInfo | None = None
 
     @property
     def metrics(self) -> dict:
@@ -163,20 +174,27 @@ class RunResult:
     def status(self) -> str:
         return self.end.status
 
-    def to_pandas(self, units: bool = True):
-        """The time series as a pandas DataFrame indexed by time, ``[unit]`` in the column
-        names (``units=False``: the recording's plain names; :mod:`tspend.studies.timeseries`)."""
-        from tspend.studies.timeseries import history_frame, with_units
+    def to_pandas(self, units: bool | None = None):
+        """The time series as a pandas DataFrame indexed by ``t_s``, with the columns and
+        the names of ``tspend export`` (the model's joint names, the unit at the end:
+        ``hinge_rad``, ``hinge_dot_rad_s``, ``ref_rad``, ``u_N``, ``slider_m``, ...), so
+        ``to_pandas().reset_index()`` is the export's table of the same run.
 
-        frame = history_frame(self.history, self.controller.diagnostics)
-        if not units:
-            return frame
-        units = dict(zip(self.plant.state_names, self.plant.state_units))
-        view = scenario_task(self.scenario, self.plant).view
-        # the ODE backends name no actuator: the domain's label carries u's unit
-        control = (self.plant.inputs[0].unit
-                   or plant_registry.domain_of(self.scenario.plant.kind).labels.control.unit)
-        return with_units(frame, [units[v] for v in view], control, self.controller.diagnostics)
+        ``units=False``, deprecated (removed in the next release): the series' internal keys
+        (``x1``, ``r_d1``, ``e_1``, ``u``), indexed by ``t``.
+        """
+        from tspend.studies.timeseries import history_frame, run_table
+
+        if units is False:
+            import warnings
+
+            warnings.warn("to_pandas(units=False) is deprecated and goes in the next release: "
+                          "to_pandas() names every column as tspend export does (hinge_rad)",
+                          FutureWarning, stacklevel=2)
+            return history_frame(self.history, self.controller.diagnostics)
+        if self.info is None:
+            raise ValueError("to_pandas: this result kept no history (keep_history=False)")
+        return run_table(self.history, self.info)
 
     def plot(self, every: int = 1):
         """The run in the paper's panels (states against references, then u): a matplotlib
@@ -198,7 +216,8 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario,
     if sat > 0.0:
         lo, hi = max(lo, -sat), min(hi, sat)
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
-                       drawn=dict(drawn or {}))
+                       drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
+                       goal_by=scenario.task.goal_by)
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:
@@ -288,4 +307,4 @@ def run(scenario: Scenario, sinks: Sequence[Sink] = (), keep_history: bool = Tru
     history = History()
     all_sinks: list[Sink] = [metrics] + ([history] if keep_history else []) + list(sinks)
     end = loop.run(run_info(scenario, plant, steps, plant_kind, ctrl, task), all_sinks)
-    return RunResult(scenario, end, history.arrays(), ctrl, plant)
+    return RunResult(scenario, end, history.arrays(), ctrl, plant, history.info)

@@ -63,11 +63,23 @@ class TaskDefaults:
     view: tuple[str, ...]
     fall_angle: float = 0.0
     pole: str = ""
+    #: every pole the fall angle applies to (() = just ``pole``): a chain of links
+    poles: tuple[str, ...] = ()
+    #: the real rig's stops on joints the model leaves free, ``(state, |limit|)``: a run
+    #: that passes one ends ``joint_limit`` (the Furuta's arm on its cable)
+    limits: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def fallen_poles(self) -> tuple[str, ...]:
+        """The states the fall angle bounds."""
+        return self.poles or ((self.pole,) if self.pole else ())
 
     def renamed(self, names: dict[str, str]) -> "TaskDefaults":
         """This task with state names replaced by ``names`` (a plant's own joint names)."""
         return TaskDefaults(tuple(names.get(v, v) for v in self.view), self.fall_angle,
-                            names.get(self.pole, self.pole))
+                            names.get(self.pole, self.pole),
+                            tuple(names.get(p, p) for p in self.poles),
+                            tuple((names.get(n, n), v) for n, v in self.limits))
 
 
 class Plant(ABC):

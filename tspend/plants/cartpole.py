@@ -26,7 +26,7 @@ from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, 
     machine_accelerations, machine_rhs, pole_energy, rhs)
 from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, COMPILED_VIEW_ACCEL, FULL_STATE,
-    FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
     FullModel, PlantLabels, PlantModel, Quantity, END_COLOR, bound_text)
 
 if TYPE_CHECKING:
@@ -583,7 +583,8 @@ class CartPoleDomain(Domain):
     task = TaskDefaults(view=("hinge", "hinge_dot"), fall_angle=math.pi / 2, pole="hinge")
     default_model = MujocoCartPoleConfig.model
     rail_joint = "slider"
-    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PARAMETER_CHANGE, CART_CENTRING})
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PARAMETER_CHANGE, CART_CENTRING,
+                          PUMPED_ENERGY})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, MujocoCartPoleConfig) else self.default_model
@@ -666,7 +667,8 @@ class CartPoleDomain(Domain):
                                theta_sign=params.theta_sign)
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
-        return "slide" in joint_types
+        # one slide and one hinge: a chain of more is the articulated domain's
+        return joint_types.count("slide") == 1 and len(joint_types) == 2
 
     def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
         """Before a balancing run (the task ends on a fall): the force the reference and

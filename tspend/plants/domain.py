@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
-           "CART_CENTRING", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
+           "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
            "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
            "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
            "bound_text", "name_slug", "unit_slug"]
@@ -54,6 +54,8 @@ SYMBOLIC = "symbolic_model"
 PARAMETER_CHANGE = "parameter_change"
 #: the cart-centring outer loop on the pole's reference (``effects.outer_loop``)
 CART_CENTRING = "cart_centring"
+#: one pendulum whose energy a compiled swing-up pumps (:data:`FULL_ENERGY`, ``swingup``)
+PUMPED_ENERGY = "pumped_energy"
 #: each capability, in words (docs/controllers.md's table)
 CAPABILITIES = {
     VIEW_MODEL: "a model of the view (f(x, u) of the tracked output's n-th derivative)",
@@ -61,6 +63,8 @@ CAPABILITIES = {
     SYMBOLIC: "the machine's equations over CasADi (exact gradients)",
     PARAMETER_CHANGE: "a change of the machine's parameters during a run",
     CART_CENTRING: "a cart whose position can be centred through the pole's reference",
+    PUMPED_ENERGY: "a single pendulum whose energy can be pumped (compiled energy): energy "
+                   "pumping does not extend to two or more poles",
 }
 
 #: the colour of what marks the end of a run and the bounds that end one
@@ -329,6 +333,13 @@ class FullModel:
     machine: Any = None
     #: the unit of the actuated coordinate's acceleration ("m/s^2", "rad/s^2")
     accel_unit: str = ""
+    #: every joint that must stay upright (() = just ``pole``): a chain of links
+    poles: tuple[int, ...] = ()
+
+    @property
+    def upright(self) -> tuple[int, ...]:
+        """The indices of every pole (``poles``, else ``pole``)."""
+        return self.poles or (self.pole,)
 
     @property
     def size(self) -> int:
@@ -479,6 +490,9 @@ class Domain(ABC):
     #: :data:`PARAMETER_CHANGE`, :data:`CART_CENTRING`): what a controller kind's
     #: ``needs`` and the effects are checked against before anything is built
     provides: frozenset[str] = frozenset({VIEW_MODEL})
+    #: True when the equations are derived from the model (the cross-check then compares
+    #: them with MuJoCo's mj_forward at random states: tspend.studies.crosscheck_derived)
+    derives_equations: bool = False
 
     @property
     def order(self) -> int:
@@ -561,6 +575,15 @@ class Domain(ABC):
         """Whether an MJCF with these joint types ("slide", "hinge", ...) looks like this
         domain's machine (``tspend inspect`` picks the domain by it)."""
         return False
+
+    def fits_model(self, model: Any) -> bool:
+        """Whether the compiled ``mujoco.MjModel`` is this domain's machine (``tspend
+        inspect``); by default by its joint types alone (:meth:`fits_mjcf`)."""
+        import mujoco
+
+        names = {int(mujoco.mjtJoint.mjJNT_SLIDE): "slide", int(mujoco.mjtJoint.mjJNT_HINGE): "hinge",
+                 int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+        return self.fits_mjcf(tuple(names[int(t)] for t in model.jnt_type))
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:

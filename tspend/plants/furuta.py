@@ -28,7 +28,7 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
-    SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
+    PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
     END_COLOR, bound_text)
 from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
     linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
@@ -57,6 +57,9 @@ def _full_energy(machine: FurutaMachine, s: np.ndarray) -> float:
 # compiled full-state controllers (swing-up) reach the Furuta pendulum through these
 FULL_ACCEL[FurutaMachine] = _full_q_dd
 FULL_ENERGY[FurutaMachine] = _full_energy
+
+#: where the real arm's cable stops it, rad (+/-135 deg): the default task's joint limit
+ARM_STOP_RAD = 2.356
 
 #: the state, as MuJoCo's qpos then qvel of models/furuta.xml
 STATE_UNITS = ("rad", "rad", "rad/s", "rad/s")
@@ -124,6 +127,14 @@ class FurutaODE(AnalyticPlant):
 
     def default_task(self) -> TaskDefaults:
         return _named_task(self.arm_joint, self.pendulum_joint)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        """The motor's voltage within the amplifier's range, which the ODE applies (it clips
+        u as MuJoCo clips ctrl): both backends declare the bound they apply, so the
+        saturation metrics mean the same on each."""
+        lo, hi = (float(v) for v in self.params.ctrl_range)
+        return (InputInfo("motor", "V", lo, hi),)
 
     def extras_index(self) -> np.ndarray:
         return np.array([0, 2], dtype=np.intp)
@@ -488,10 +499,12 @@ class FurutaDomain(Domain):
                     Quantity("theta'", "rad/s", "arm angular velocity", "arm_dot"),
                     Quantity("alpha'", "rad/s", "pendulum angular velocity", "pendulum_dot")),
         disturbance=Quantity("d", "N m", "torque on the pendulum joint"))
+    #: the QUBE's arm turns on a cable that stops it near +/-135 deg (docs/furuta.md): the
+    #: model leaves the joint free (its open loop may turn over), the task does not
     task = TaskDefaults(view=("pendulum", "pendulum_dot"), fall_angle=math.pi / 2,
-                        pole="pendulum")
+                        pole="pendulum", limits=(("arm", ARM_STOP_RAD),))
     default_model = FurutaMujocoConfig.model
-    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PUMPED_ENERGY})
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
@@ -539,6 +552,20 @@ class FurutaDomain(Domain):
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
+
+    def fits_model(self, model: Any) -> bool:
+        """Two hinges, the first (the arm) turning about the vertical: an acrobot or a
+        reaction wheel, whose first hinge is horizontal, is the articulated domain's."""
+        import mujoco
+
+        if not super().fits_model(model):
+            return False
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        g = np.asarray(model.opt.gravity, dtype=float)
+        axis = np.asarray(data.xaxis[0], dtype=float)
+        n = float(np.linalg.norm(g))
+        return n > 0.0 and abs(abs(float(axis @ g)) / n - 1.0) < 1e-6
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.plants import analytic, cartpole, furuta
+from tspend.plants.articulated import domain as articulated
 from tspend.plants.base import Plant
 from tspend.plants.domain import Domain, Drawing
 
@@ -64,7 +65,8 @@ def installed_domains(builtin: tuple[Domain, ...]) -> tuple[Domain, ...]:
     return tuple(found)
 
 
-_BUILTIN: tuple[Domain, ...] = (*analytic.DOMAINS, cartpole.DOMAIN, furuta.DOMAIN)
+# the articulated domain last: it fits any hinge/slide MJCF, the hand-made domains first
+_BUILTIN: tuple[Domain, ...] = (*analytic.DOMAINS, cartpole.DOMAIN, furuta.DOMAIN, articulated.DOMAIN)
 #: domain name -> domain (the built-in ones, then the installed ones)
 DOMAINS: dict[str, Domain] = {d.name: d for d in (*_BUILTIN, *installed_domains(_BUILTIN))}
 

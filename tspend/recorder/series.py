@@ -267,7 +267,7 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
         specs.append(SeriesSpec(
             f"series/state/{name}", f"{q.meaning or name} {q.with_unit()}", (_named(q.symbol, q.unit),),
             (PALETTE[(6 + j) % len(PALETTE)],), _stack(_col("state", j)), keys=(name,), group="plant",
-            columns=(q.column_name(),)))
+            columns=(q.column_name(name_slug(name)),)))  # the model's name: hinge_rad
     unit0 = s0.unit if labels.states else ""
     specs.append(SeriesSpec(
         "series/reference", f"reference r and its derivatives{_unit_suffix([unit0])}",
@@ -276,7 +276,9 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
         keys=("r",) + tuple(f"r_d{k}" for k in range(1, order + 1)), group="",
         columns=tuple(_column(_ref_column(k), _derivative(unit0, k)) for k in range(order + 1))))
     # the view's quantities under the full state's column names (e_pendulum_rad)
-    viewed = (tuple(full[list(state_names).index(v)] for v in view)
+    # (one name per quantity: the model's, hinge_rad, e_hinge_rad; the domain's symbol, theta,
+    # only labels the views)
+    viewed = (tuple(full[list(state_names).index(v)]._replace(column=name_slug(v)) for v in view)
               if full and all(v in state_names for v in view) else labels.states)
     return [_with_columns(spec, labels, viewed, bool(full), diagnostics) for spec in specs]
 

@@ -27,6 +27,13 @@ from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from tspend.task import TERMINATIONS
 
 
+#: the open loop's tolerance on every state (the report's ``open_loop_within_tol_s``)
+OPEN_LOOP_TOL = 1e-8
+#: the least open loop, s, a verdict may rest on: less (a joint at its limit or a contact
+#: at the start, say) is "inconclusive", never "agrees"
+MIN_COMPARED_S = 0.5
+
+
 def backends(scenario: Scenario) -> tuple[Domain, str, str]:
     """``(domain, mujoco kind, ode kind)`` of the scenario's plant; ScenarioError when its
     domain has not both backends."""
@@ -69,6 +76,15 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
                  "open_loop_stopped_by": cmp.stopped_by}
     out.update({f"open_loop_max_d{name}": float(v) for name, v in zip(cmp.names, cmp.max_diff)})
     out["open_loop_max_tracked"] = cmp.max_of(tracked)
+    diff = np.max(np.abs(cmp.state_a - cmp.state_b), axis=1)
+    over = np.flatnonzero(~(diff <= OPEN_LOOP_TOL))
+    out["open_loop_within_tol_s"] = float(cmp.t[over[0] - 1]) if over.size else cmp.compared_until
+    if domain.derives_equations:
+        from tspend.studies.crosscheck_derived import accelerations_check, free_motion
+
+        out.update(accelerations_check(mj))
+        out.update(free_motion(mj, domain.ode_of(mj), np.asarray(scenario.plant.x0, dtype=float),
+                               scenario.run.dt))
     out["ode_params"] = ode.parameters()
     # only what the ODE leaves out can explain a difference
     out["departures"] = mj.unmodelled(scenario.run.dt)
@@ -122,7 +138,19 @@ def crosscheck(scenario: Scenario, sinks: Sequence[Sink] = (), open_loop_duratio
     report.update(open_loop(scenario, open_loop_duration))
     report.update(closed_loop(scenario, sinks, stop, tol))
     report["tolerance"] = tol
+    report["open_loop_min_compared_s"] = MIN_COMPARED_S
+    report["inconclusive"] = bool(report["open_loop_compared_s"] < MIN_COMPARED_S)
     report["open_loop_ok"] = bool(report["open_loop_max_tracked"] <= tol)
+    if "accel_ok" in report:
+        # a chain of poles is chaotic: the chirp's open loop must agree for FREE_MIN_S (or
+        # all it compared), the accelerations everywhere, the free motion as (d) says
+        from tspend.studies.crosscheck_derived import FREE_MIN_S
+
+        chirp_ok = report["open_loop_within_tol_s"] >= min(FREE_MIN_S, report["open_loop_compared_s"])
+        report["open_loop_ok"] = bool(chirp_ok and report["accel_ok"] and report["free_ok"])
+    if report["inconclusive"]:
+        # nothing (or too little) was compared: no agreement can be claimed
+        report["open_loop_ok"] = False
     report["verdict"] = verdict(report)
     return report
 
@@ -135,13 +163,32 @@ def verdict(report: dict) -> str:
     tracked = report.get("open_loop_tracked", "x1")
     worst = max((v for k, v in report.items() if k.startswith("open_loop_max_d")
                  and isinstance(v, float)), default=math.nan)
-    open_part = (f"open loop {'agrees' if report.get('open_loop_ok') else 'DISAGREES'}: max "
+    word = ("INCONCLUSIVE" if report.get("inconclusive")
+            else "agrees" if report.get("open_loop_ok") else "DISAGREES")
+    open_part = (f"open loop {word}: max "
                  f"|d{tracked}| = {report.get('open_loop_max_tracked', math.nan):.3g} (every "
                  f"state within {worst:.3g}) over {report.get('open_loop_compared_s', 0.0):.6g} s")
     if report.get("open_loop_stopped_by"):
         open_part += f", compared up to {report['open_loop_stopped_by']} (the ODE has no limits or contacts)"
+    if "accel_ok" in report and report.get("open_loop_within_tol_s", 0.0) < report.get("open_loop_compared_s", 0.0):
+        open_part += (f"; every state within {OPEN_LOOP_TOL:g} for the first "
+                      f"{report['open_loop_within_tol_s']:.4g} s (the chirp drives a chaotic chain)")
+    if report.get("inconclusive"):
+        compared = report.get("open_loop_compared_s", 0.0)
+        if "nothing compared" not in open_part:
+            open_part += "; nothing compared" if compared == 0.0 else f"; only {compared:.4g} s compared"
+        open_part += (f" (a verdict needs at least {report.get('open_loop_min_compared_s', MIN_COMPARED_S):g} s "
+                      f"of open loop before MuJoCo applies a constraint the ODE does not have)")
     parts = [open_part]
-    if not report.get("open_loop_ok"):
+    if "accel_max_diff" in report:
+        parts.append(f"derived accelerations vs mj_forward: max {report['accel_max_diff']:.3g} "
+                     f"(relative above 1) at {report['accel_states']} random states")
+        parts.append(f"free motion from the start: every state within {report['free_tight']:g} for "
+                     f"{report['free_within_tight_s']:.4g} s, within {report['free_loose']:g} for "
+                     f"{report['free_within_loose_s']:.4g} s of {report['free_compared_s']:.4g} s compared"
+                     + (f" (then {report['free_stopped_by']})" if report['free_stopped_by'] else "")
+                     + "; a chain of poles is chaotic: the backends part as round-off grows")
+    if not report.get("open_loop_ok") and not report.get("inconclusive"):
         parts.append(failure_reason(report))
     if "closed_loop_parted_at_s" in report:
         parted = report["closed_loop_parted_at_s"]

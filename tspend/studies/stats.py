@@ -41,7 +41,8 @@ from tspend.task import TERMINATIONS
 
 #: metrics a comparison can use (all "lower is better"); the rest of METRIC_KEYS
 #: describe the run (its length, wall time, seed), not the controller
-COMPARED_METRICS = tuple(k for k in METRIC_KEYS if k not in ("wall_s", "sim_s", "steps", "seed"))
+COMPARED_METRICS = tuple(k for k in METRIC_KEYS
+                         if k not in ("wall_s", "sim_s", "steps", "seed", "max_abs_u_command"))
 #: what ``tspend compare`` shows unless asked otherwise
 DEFAULT_METRICS = ("rmse", "rmse_ss", "max_abs_e_ss", "control_energy", "tv_u_per_s")
 #: columns of a sweep row that are not grid values
@@ -54,7 +55,8 @@ NOT_PAIRED = ("failed", "interrupted")
 #: the rail's end, a joint its range, a state its bound
 TERMINATED = TERMINATIONS
 #: outcomes that score +inf (worst) on every metric
-WORST = ("diverged",) + TERMINATED
+#: (a controller that failed, "controller_error", is as bad as one that diverged)
+WORST = ("diverged", "controller_error") + TERMINATED
 #: outcomes that count as "ended badly" in the paired exact test on outcomes (an
 #: interrupted run says nothing about anything: that seed is left out of the test)
 BAD = WORST + ("failed",)

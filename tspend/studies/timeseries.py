@@ -19,7 +19,7 @@ import numpy as np
 from tspend.controllers.base import Diagnostic
 
 
-__all__ = ["RUN_KEYS", "history_frame", "recording_table", "with_units"]
+__all__ = ["RUN_KEYS", "history_frame", "recording_table", "run_table", "with_units"]
 
 
 def _unique(names: list[str], qualifiers: list[str]) -> list[str]:
@@ -62,6 +62,26 @@ def history_frame(history: dict[str, np.ndarray], diagnostics: Sequence[Diagnost
             add(key, [key.removeprefix("extra/")])
     index = pd.Index(np.asarray(history["t"], dtype=float), name="t")
     return pd.DataFrame(dict(zip(_unique(names, sources), columns)), index=index)
+
+
+def run_table(history: dict[str, np.ndarray], info):
+    """The in-memory history of a run under the names of :func:`recording_table` (one
+    name per quantity: the model's, ``hinge_rad``), indexed by ``t_s``: the columns
+    :func:`tspend.recorder.series.export_columns` lists for the run's layout ``info``
+    (a :class:`~tspend.loop.sinks.RunInfo`), each taken by its series' own extractor."""
+    import pandas as pd
+
+    from tspend.recorder.series import export_columns, specs_of
+
+    specs = specs_of(info)
+    if not history:
+        return pd.DataFrame(index=pd.Index([], name="t_s", dtype=float))
+    by_entity = {spec.entity: spec for spec in specs}
+    values: dict[str, np.ndarray] = {}
+    for column, entity, j in export_columns(specs, info.view):
+        block = np.asarray(by_entity[entity].extract(history), dtype=float)
+        values[column] = block[:, j]
+    return pd.DataFrame(values, index=pd.Index(np.asarray(history["t"], dtype=float), name="t_s"))
 
 
 def _derivative_unit(unit: str, k: int) -> str:

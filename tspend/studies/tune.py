@@ -141,6 +141,13 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
     """Tune ``kind`` on ``scenario`` (a :class:`tspend.config.Scenario`): ``trials``
     trials in all (counting those already in ``storage``), scored on ``seeds``; the best
     is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings."""
+    from tspend.cli.extras import missing_extra
+
+    problem = missing_extra("optuna", "tune")
+    if problem:
+        from tspend.errors import ScenarioError
+
+        raise ScenarioError(problem)
     import optuna
 
     from tspend.controllers import KINDS

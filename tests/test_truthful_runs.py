@@ -1,0 +1,208 @@
+"""Runs that never claim more than happened (issue 33): each verdict checked against what
+was actually compared, applied and reached, and a controller's failure kept as its own.
+
+Oracles: the recording read back, the metrics file, MuJoCo's own contact list, and the
+actuator's range (numpy's clip of the recorded command).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tspend import load_scenario, override
+from tspend.errors import ScenarioError
+from tspend.loop.simulation import run
+
+from cli_harness import ROOT, tspend
+
+TOUCHING = "tests/models/cartpole_touching_rails.xml"
+
+PLUGINS = '''
+import sys
+import numpy as np
+from tspend.controllers.base import Controller
+
+
+class _Base(Controller):
+    kind = "base"
+
+    def __init__(self, scenario, settings=None):
+        self.order = len(scenario.plant.x0)
+        self.diag = np.zeros(0)
+
+    def reset(self, rng):
+        pass
+
+    def step(self, obs, dt):
+        return 0.0
+
+
+class Mutates(_Base):
+    kind = "mutates"
+
+    def step(self, obs, dt):
+        obs.state[0] = 1e9
+        return 0.0
+
+
+class Raises(_Base):
+    kind = "raises"
+
+    def step(self, obs, dt):
+        if obs.t > 0.2:
+            raise RuntimeError("a bug of mine")
+        return 0.0
+
+
+class Vector(_Base):
+    kind = "vector"
+
+    def step(self, obs, dt):
+        return np.zeros(2)
+
+
+class Word(_Base):
+    kind = "word"
+
+    def step(self, obs, dt):
+        return "push"
+
+
+class Exits(_Base):
+    kind = "exits"
+
+    def step(self, obs, dt):
+        sys.exit(0)
+'''
+
+
+def test_a_crosscheck_that_compared_nothing_is_inconclusive(tmp_path: Path) -> None:
+    r = tspend("crosscheck", "pendulum_mujoco", "--set", f"plant.model={TOUCHING}",
+               "--set", "run.duration=1", "--json", str(tmp_path / "cc.json"),
+               "--no-record", cwd=ROOT, timeout=300)
+    assert r.status == 1, r.err
+    report = json.loads((tmp_path / "cc.json").read_text())
+    assert report["inconclusive"] is True and report["open_loop_ok"] is False
+    assert "nothing compared" in report["verdict"] and "INCONCLUSIVE" in report["verdict"]
+    # and the contact was named before the run, as a warning
+    assert "at the start" in r.err and "'rail1' and 'cart'" in r.err
+
+
+def test_inspect_names_the_contacts_at_the_initial_pose(tmp_path: Path) -> None:
+    import mujoco
+
+    r = tspend("inspect", TOUCHING, "--json", str(tmp_path / "i.json"), cwd=ROOT, timeout=120)
+    assert r.status == 0, r.err
+    facts = json.loads((tmp_path / "i.json").read_text())
+    m = mujoco.MjModel.from_xml_path(str(ROOT / TOUCHING))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    theirs = {f"{m.geom(int(c.geom[0])).name}/{m.geom(int(c.geom[1])).name}" for c in d.contact[:d.ncon]}
+    assert set(facts["contacts_at_q0"]) == theirs == {"rail1/cart", "rail2/cart"}
+    r = tspend("inspect", "models/cartpole.xml", "--json", str(tmp_path / "j.json"), cwd=ROOT,
+               timeout=120)
+    assert json.loads((tmp_path / "j.json").read_text())["contacts_at_q0"] == "none"
+
+
+def test_a_failing_plugin_ends_its_run_with_its_own_status_and_keeps_the_outputs(
+        tmp_path: Path) -> None:
+    (tmp_path / "mine.py").write_text(PLUGINS)
+    r = tspend("run", "ex3_pendulum_ode", "--controller", f"{tmp_path / 'mine.py'}:Raises",
+               "--duration", "1", "--metrics", str(tmp_path / "m.json"), "--out",
+               str(tmp_path / "r.rrd"), cwd=ROOT, timeout=300)
+    assert r.status == 6, (r.status, r.err)
+    line = r.err_lines[-1]
+    # the plug-in's own file and line, not tspend's internals
+    assert "controller_error" in line and "a bug of mine" in line and "mine.py" in line
+    assert "internal error" not in r.err
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["status"] == "controller_error" and metrics["steps"] == 201
+    assert (tmp_path / "r.rrd").stat().st_size > 0
+
+
+@pytest.mark.parametrize("cls,what", [("Mutates", "read-only"),
+                                      ("Vector", "not one number"),
+                                      ("Word", "not a number"),
+                                      ("Exits", "SystemExit(0)")])
+def test_every_kind_of_controller_failure_is_the_controllers(tmp_path: Path, cls: str,
+                                                             what: str) -> None:
+    (tmp_path / "mine.py").write_text(PLUGINS)
+    scn = override(load_scenario("ex3_pendulum_ode"), **{"run.duration": 0.5})
+    r = run(scn, controller=f"{tmp_path / 'mine.py'}:{cls}")
+    assert r.status == "controller_error" and what in r.end.message
+    assert r.metrics["steps"] == 0      # the first sample failed: nothing of it is kept
+
+
+def test_the_observation_cannot_change_the_plant() -> None:
+    from tspend.controllers.base import Observation
+    from tspend.loop.runner import _read_only
+
+    a = np.arange(4.0)
+    obs = Observation(0.0, _read_only(a), _read_only(a[:2]), _read_only(np.zeros(3)), ())
+    with pytest.raises(ValueError):
+        obs.state[0] = 1.0
+    with pytest.raises(ValueError):
+        obs.x[:] = 0.0
+    assert a[0] == 0.0
+
+
+def test_a_control_delay_longer_than_the_run_is_refused() -> None:
+    with pytest.raises(ScenarioError, match="control_delay: .* no computed u would ever be applied"):
+        override(load_scenario("ex3_pendulum_ode"), **{"run.control_delay": 5000,
+                                                       "run.duration": 1.0})
+
+
+def test_applied_and_commanded_effort_apart_and_both_backends_saturate_alike() -> None:
+    fractions = {}
+    for name in ("furuta_mujoco", "furuta_ode"):
+        scn = override(load_scenario(name), **{"run.duration": 1.0, "task.joint_limits": False})
+        r = run(scn, controller="second_type")
+        m = r.metrics
+        u = r.history["u"]
+        lo, hi = r.plant.inputs[0].lo, r.plant.inputs[0].hi
+        assert (lo, hi) == (-10.0, 10.0)
+        assert m["max_abs_u"] == pytest.approx(np.abs(np.clip(u, lo, hi)).max())
+        assert m["max_abs_u_command"] == pytest.approx(np.abs(u).max()) and m["max_abs_u_command"] > 10.0
+        assert m["saturated_fraction"] == pytest.approx(np.mean((u < lo) | (u > hi)))
+        fractions[name] = m["saturated_fraction"]
+    assert abs(fractions["furuta_mujoco"] - fractions["furuta_ode"]) <= 0.01
+
+
+def test_the_furuta_arm_stops_at_the_rigs_cable_by_default() -> None:
+    r = run(override(load_scenario("furuta_mujoco"), **{"run.duration": 3.0}),
+            controller="second_type")
+    assert r.status == "joint_limit" and "rig's stop" in r.end.message
+    state = r.history["state"]
+    assert np.abs(state[:-1, 0]).max() <= 2.356 + 1e-12
+
+
+def test_a_swingup_that_never_swings_up_is_not_reached() -> None:
+    scn = override(load_scenario("furuta_swingup"), **{"run.duration": 3.0, "task.goal_by": 2.0})
+    r = run(scn, controller="lqr")
+    assert r.status == "not_reached" and r.metrics["goal"]["met"] is False
+    e = r.history["e"][:, 0]
+    assert np.abs(e[r.history["t"] >= 2.0]).max() > 0.1      # the oracle: the error itself
+    good = run(override(load_scenario("furuta_swingup"), **{"run.duration": 6.0,
+                                                             "task.goal_by": 5.0}))
+    assert good.status == "completed" and good.metrics["goal"]["met"] is True
+    t, e = good.history["t"], np.abs(good.history["e"][:, 0])
+    reached = good.metrics["goal"]["reached_at_s"]
+    assert np.all(e[t >= reached - 1e-12] <= 0.1) and e[t < reached - 1e-9][-1] > 0.1
+
+
+def test_a_fall_names_what_else_was_true() -> None:
+    """The third-party cart-pole resting on its rails: friction holds the cart, the motor
+    saturates, the pole falls; the message says all three."""
+    scn = override(load_scenario("pendulum_mujoco"), **{"plant.model": TOUCHING,
+                                                        "run.duration": 4.0})
+    r = run(scn, controller="lqr")
+    assert r.status == "fell"
+    assert "contact between geoms 'rail1' and 'cart'" in r.end.message
+    assert "saturated for the last" in r.end.message
+    u = r.history["u"]
+    tail = np.flatnonzero(np.abs(u) <= 2000.0)
+    assert r.metrics["saturated_at_end_s"] == pytest.approx((u.size - 1 - tail[-1]) * scn.run.dt)

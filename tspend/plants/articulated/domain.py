@@ -1,0 +1,545 @@
+"""The articulated-pendulum domain: any hinge/slide MJCF, its equations derived from the model.
+
+A machine is an MJCF and a scenario (docs/machines.md): the double and triple cart-pole,
+the acrobot, the pendubot, the reaction wheel, the rotary double pendulum, or a model of
+one's own.  The scenario's ``[plant]`` names the model (``kind = "articulated_mujoco"``
+or ``"articulated_ode"``); everything else comes from the compiled model
+(:class:`.machine.Machine`): the state ``[q, q']`` named after the joints, the input
+``u`` of one actuator (its range and unit), the equations (:mod:`.derive`), the joints'
+roles and so the default task (every pole within the fall angle of upright, the rail's
+range), and the drawing (the model's own geoms, posed by MuJoCo's kinematics).
+
+Both plants share the state's names; ``d`` is a generalised force on the tracked pole's
+joint.  The view the paper's controllers see is ``[pole, pole']`` of the first pole.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from tspend.config import PlantConfig
+from tspend.errors import DivergenceError, ScenarioError
+from tspend.plants.analytic import AnalyticPlant, rk4_work
+from tspend.plants.articulated.machine import Machine, load_machine
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FullModel, PlantLabels, PlantModel, Quantity)
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
+
+__all__ = ["ArticulatedConfig", "ArticulatedODE", "ArticulatedMujoco", "ArticulatedDomain",
+           "ModelDrawing", "DOMAIN"]
+
+#: the fall angle of every pole by default: a pole past the horizontal has fallen
+FALL_ANGLE_RAD = math.pi / 2
+
+
+@dataclass(frozen=True)
+class ArticulatedConfig(PlantConfig):
+    """A hinge/slide MJCF on either backend (the ODE is the compiled model's equations).
+
+    ``x0`` is the view's initial state ``[pole, pole']`` (the first pole); ``q0`` the
+    initial positions of every joint in the model's order (() = all 0; the view's pole
+    takes ``x0[0]``); ``poles``: the joints the task keeps upright (() = every joint
+    gravity acts on, docs/machines.md); ``actuator``: the one ``u`` drives ("" = the
+    model's only one); ``timestep`` > 0 replaces the model's.
+    """
+
+    kind: str = "articulated_mujoco"
+    x0: tuple[float, ...] = (0.1, 0.0)
+    model: str = "models/double_cartpole.xml"
+    q0: tuple[float, ...] = ()
+    poles: tuple[str, ...] = field(default=(), metadata={"strings": True})
+    actuator: str = ""
+    timestep: float = field(default=0.0, metadata={"low": 0.0})
+
+
+def _initial(machine: Machine, q0: tuple[float, ...], x0: np.ndarray, where: str) -> np.ndarray:
+    nv = machine.nv
+    if q0 and len(q0) != nv:
+        raise ScenarioError(f"{where}: plant.q0 needs {nv} entries ({', '.join(machine.joint_names)}), "
+                            f"got {len(q0)}")
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (2,):
+        raise ScenarioError(f"{where}: plant.x0 needs 2 entries (the view: "
+                            f"{machine.joint_names[machine.view_joint]} and its rate), got {x0.size}")
+    s = np.zeros(2 * nv)
+    if q0:
+        s[:nv] = q0
+    v = machine.view_joint
+    s[v], s[nv + v] = x0[0], x0[1]
+    return s
+
+
+class _Named:
+    """What both backends say alike of their machine."""
+
+    machine: Machine
+    domain = "articulated"
+    order = 2
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.machine.state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.machine.state_units
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
+                     for j in self.machine.tree.joints)
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        a = self.machine.actuator
+        lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
+        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
+
+    def default_task(self) -> TaskDefaults:
+        m = self.machine
+        v = m.joint_names[m.view_joint]
+        poles = tuple(m.joint_names[j] for j in m.poles)
+        return TaskDefaults(view=(v, f"{v}_dot"), fall_angle=FALL_ANGLE_RAD if poles else 0.0,
+                            pole=poles[0] if poles else "", poles=poles)
+
+    def parameters(self) -> dict[str, float]:
+        return self.machine.parameters()
+
+    def extras(self) -> dict[str, float]:
+        s = self.full_state()
+        view = set(self.default_task().view)
+        return {n: float(v) for n, v in zip(self.state_names, s) if n not in view}
+
+    def extras_index(self) -> np.ndarray:
+        view = set(self.default_task().view)
+        return np.array([i for i, n in enumerate(self.state_names) if n not in view], dtype=np.intp)
+
+    @property
+    def gain_sign(self) -> int:
+        m = self.machine
+        a = m.accelerations(np.zeros(2 * m.nv), 1.0)[m.view_joint]
+        b = m.accelerations(np.zeros(2 * m.nv), 0.0)[m.view_joint]
+        return 1 if a >= b else -1
+
+
+class ArticulatedODE(_Named, AnalyticPlant):
+    """The derived equations (3) of :mod:`.derive`, stepped by the shared RK4."""
+
+    name = "articulated_ode"
+
+    def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
+        AnalyticPlant.__init__(self, lambda t, s, u, d: 0.0, 2, "articulated_ode",
+                               domain="articulated")
+        self.machine, self.q0 = machine, tuple(q0)
+        self.s = np.zeros(2 * machine.nv)
+        self._work = rk4_work(self.s.size)
+        self._full_order = np.arange(self.s.size, dtype=np.intp)
+        self._d_joint = machine.view_joint
+
+    def reset(self, x0: np.ndarray) -> None:
+        self.s[:] = _initial(self.machine, self.q0, x0, self.machine.where)
+        self._clock[0] = 0.0
+
+    def full_state(self) -> np.ndarray:
+        return self.s.copy()
+
+    def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
+        self.machine.rhs_into(s, u, d, self._d_joint, sdot)
+
+    def _rhs_params(self) -> Any:
+        return self
+
+    def compiled(self) -> None:
+        """The generic loop steps it.  (Not the compiled loop: its functions are cached by
+        numba with every parameter type they were compiled for, and a type defined in a
+        generated module of the derivation cache cannot be imported by the next process
+        that loads that cache index.)"""
+        return None
+
+
+class ArticulatedMujoco(_Named, Plant):
+    """The MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the generalised
+    force on the tracked pole's joint."""
+
+    name = "articulated_mujoco"
+
+    def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
+        import mujoco
+
+        self.machine, self.q0 = machine, tuple(q0)
+        self.model = machine.model
+        self.model_path = Path(machine.where)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._act = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, machine.actuator.name) \
+            if machine.actuator.name else machine.actuator_index
+        self._dof = machine.view_joint
+        self._ts = float(m.opt.timestep)
+        w = mujoco.mjtWarning
+        self._warnings = [self.data.warning[int(k)] for k in
+                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
+        self.reset(np.zeros(2))
+
+    def mj_model(self) -> Any:
+        return self.model
+
+    @property
+    def timestep(self) -> float:
+        return self._ts
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        out = list(self.machine.tree.departures)
+        if self.machine.tree.integrator != "RK4":
+            out.append(f"integrator {self.machine.tree.integrator}: the ODE is stepped by RK4")
+        if dt is not None and abs(round(dt / self._ts) * self._ts - dt) > 1e-9 * dt:
+            out.append(f"dt = {dt:g} s is not a whole multiple of the timestep {self._ts:g} s")
+        return out
+
+    def constraint_active(self) -> str:
+        """The first constraint MuJoCo applies now (a contact, a joint's limit within its
+        margin, dry friction), in words; "" when none: the derived equations hold."""
+        import mujoco
+
+        d, m = self.data, self.model
+        if d.ncon:
+            c = d.contact[0]
+            return (f"contact between geoms {m.geom(c.geom1).name!r} and "
+                    f"{m.geom(c.geom2).name!r}")
+        C = mujoco.mjtConstraint
+        for i in range(d.nefc):
+            kind, obj = int(d.efc_type[i]), int(d.efc_id[i])
+            if kind == int(C.mjCNSTR_LIMIT_JOINT):
+                return f"joint {m.joint(obj).name!r} at its limit"
+            if kind == int(C.mjCNSTR_FRICTION_DOF):
+                continue  # dry friction is a departure named before the run
+            return f"a constraint of type {C(kind).name}"
+        return ""
+
+    def reset(self, x0: np.ndarray) -> None:
+        import mujoco
+
+        s = _initial(self.machine, self.q0, x0, self.machine.where)
+        mujoco.mj_resetData(self.model, self.data)
+        nv = self.machine.nv
+        self.data.qpos[:] = s[:nv]
+        self.data.qvel[:] = s[nv:]
+        mujoco.mj_forward(self.model, self.data)
+
+    def full_state(self) -> np.ndarray:
+        return np.concatenate([self.data.qpos, self.data.qvel])
+
+    @property
+    def t(self) -> float:
+        return float(self.data.time)
+
+    def check_sample_time(self, dt: float) -> None:
+        self._substeps(dt)
+
+    def _substeps(self, dt: float) -> int:
+        k = round(dt / self._ts)
+        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
+            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
+                                f"multiple of the model timestep {self._ts!r}")
+        return int(k)
+
+    def compiled_mujoco(self, dt: float) -> Any:
+        """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
+        C ``mj_step`` on its model and data; the full state is ``[qpos, qvel]``)."""
+        import mujoco
+
+        from tspend.plants.mujoco_plant import MujocoLink, mj_step_pointer
+
+        if mj_step_pointer() is None:
+            return None
+        w = mujoco.mjtWarning
+        v = self._dof
+        return MujocoLink(self.model._address, self.data._address, self.data.qpos, self.data.qvel,
+                          self.data.ctrl, self.data.qfrc_applied, self.data.warning.number,
+                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
+                          v, v, 0, 0, int(self._act), 1.0, self._substeps(dt), 1e10)
+
+    def instability(self, t0: float) -> DivergenceError | None:
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
+                                   f"reset the simulation (step from t={t0:.6g})")
+        return None
+
+    def step(self, u: float, d: float, dt: float) -> None:
+        import mujoco
+
+        if not (abs(u) < 1e10 and abs(d) < 1e10):
+            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
+                                  f"at t={self.data.time:.6g}")
+        t0 = self.data.time
+        self.data.ctrl[self._act] = u
+        self.data.qfrc_applied[self._dof] = d
+        mujoco.mj_step(self.model, self.data, self._substeps(dt))
+        w = self._warnings
+        if w[0].number or w[1].number or w[2].number:
+            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
+                                  f"reset the simulation (step from t={t0:.6g})")
+
+
+# -- drawing ------------------------------------------------------------------------------
+def _xyzw(q: Any) -> list[float]:
+    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+
+
+class ModelDrawing(Drawing):
+    """The model's own geoms, each body an entity posed per frame by MuJoCo's kinematics
+    (``mj_kinematics`` on a scratch ``MjData``: geometry only, no dynamics)."""
+
+    def __init__(self, machine: Machine, view: tuple[str, ...], title: str) -> None:
+        self.machine, self.view_names, self.title = machine, view, title
+        m = machine.model
+        import mujoco
+
+        data = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, data)
+        top = max([float(data.xpos[b.world_body][2]) for b in machine.tree.bodies] + [0.0])
+        reach = 0.0
+        for g in range(m.ngeom):
+            reach = max(reach, float(np.linalg.norm(data.geom_xpos[g])) + float(np.max(m.geom_rbound[g:g + 1])))
+        self.height = top
+        self.reach = max(reach, 0.5)
+        self.end_position = (0.0, 0.0, top + 0.1 * self.reach)
+
+    def _body_entity(self, world: str, b: int) -> str:
+        name = self.machine.model.body(b).name or f"body{b}"
+        return f"{world}/{name}" if b else world
+
+    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
+        import mujoco
+        import rerun as rr
+
+        m = self.machine.model
+        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        G = mujoco.mjtGeom
+        for g in range(m.ngeom):
+            b = int(m.geom_bodyid[g])
+            path = f"{self._body_entity(world, b)}/geom_{m.geom(g).name or g}"
+            rgba = np.asarray(m.geom_rgba[g])
+            color = shade(tuple(int(255 * c) for c in rgba[:3]))
+            pos, quat = np.asarray(m.geom_pos[g]), np.asarray(m.geom_quat[g])
+            size = np.asarray(m.geom_size[g])
+            t = int(m.geom_type[g])
+            rot = rr.Quaternion(xyzw=_xyzw(quat))
+            if t == int(G.mjGEOM_CAPSULE) or t == int(G.mjGEOM_CYLINDER):
+                import mujoco as mj
+
+                R = np.zeros(9)
+                mj.mju_quat2Mat(R, quat)
+                start = pos - R.reshape(3, 3) @ np.array([0.0, 0.0, size[1]])
+                arch = rr.Capsules3D if t == int(G.mjGEOM_CAPSULE) else rr.Cylinders3D
+                if arch is rr.Capsules3D:
+                    rec.log(path, rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0]],
+                                                translations=[start], quaternions=[rot],
+                                                colors=[color]), static=True)
+                else:
+                    rec.log(path, rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]],
+                                                 centers=[pos], quaternions=[rot], colors=[color]),
+                            static=True)
+            elif t == int(G.mjGEOM_BOX):
+                rec.log(path, rr.Boxes3D(half_sizes=[size], centers=[pos], quaternions=[rot],
+                                         colors=[color], fill_mode=rr.components.FillMode.Solid),
+                        static=True)
+            elif t in (int(G.mjGEOM_SPHERE), int(G.mjGEOM_ELLIPSOID)):
+                half = [size[0]] * 3 if t == int(G.mjGEOM_SPHERE) else size
+                rec.log(path, rr.Ellipsoids3D(half_sizes=[half], centers=[pos], quaternions=[rot],
+                                              colors=[color], fill_mode=rr.components.FillMode.Solid),
+                        static=True)
+
+    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
+                   extras: dict[str, np.ndarray]) -> None:
+        import mujoco
+        import rerun as rr
+
+        m = self.machine.model
+        nv = self.machine.nv
+        n = x.shape[0]
+        q = np.zeros((n, nv))
+        for j, name in enumerate(self.machine.joint_names):
+            if name in self.view_names:
+                q[:, j] = x[:, self.view_names.index(name)]
+            elif name in extras:
+                q[:, j] = extras[name]
+        data = mujoco.MjData(m)
+        bodies = [b.world_body for b in self.machine.tree.bodies]
+        pos = np.zeros((len(bodies), n, 3))
+        quat = np.zeros((len(bodies), n, 4))
+        for k in range(n):
+            data.qpos[:] = q[k]
+            mujoco.mj_kinematics(m, data)
+            for i, b in enumerate(bodies):
+                pos[i, k] = data.xpos[b]
+                quat[i, k] = data.xquat[b][[1, 2, 3, 0]]
+        for i, b in enumerate(bodies):
+            rec.send_columns(self._body_entity(world, b), indexes=[times],
+                             columns=rr.Transform3D.columns(translation=pos[i], quaternion=quat[i]))
+
+    def view(self, origin: str, suffix: str = "") -> Any:
+        import rerun.blueprint as rrb
+
+        r = self.reach
+        return rrb.Spatial3DView(
+            origin=origin, name=f"{self.title}{suffix}",
+            eye_controls=rrb.EyeControls3D(position=[0.0, -2.2 * r, 0.6 * r + 0.5 * self.height],
+                                           look_target=[0.0, 0.0, 0.5 * self.height],
+                                           eye_up=[0.0, 0.0, 1.0]))
+
+    def document(self) -> dict[str, Any]:
+        return {"bodies": [b.name for b in self.machine.tree.bodies]}
+
+
+# -- the domain ---------------------------------------------------------------------------
+def _machine_of(cfg: ArticulatedConfig, model_path: Path) -> Machine:
+    return load_machine(model_path, cfg.timestep, cfg.actuator, tuple(cfg.poles))
+
+
+def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
+    assert isinstance(cfg, ArticulatedConfig)
+    return ArticulatedODE(_machine_of(cfg, model_path), tuple(cfg.q0))
+
+
+def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
+    assert isinstance(cfg, ArticulatedConfig)
+    return ArticulatedMujoco(_machine_of(cfg, model_path), tuple(cfg.q0))
+
+
+class ArticulatedView:
+    """The paper's controllers' model of the view: the tracked pole's acceleration with
+    every other joint at rest (as :class:`~tspend.plants.domain.PlantModel` asks)."""
+
+    def __init__(self, machine: Machine) -> None:
+        self.machine = machine
+        self.s = np.zeros(2 * machine.nv)
+
+    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
+        m = self.machine
+        s = self.s
+        s[:] = 0.0
+        s[m.view_joint], s[m.nv + m.view_joint] = x[0], x[1]
+        sdot = np.empty_like(s)
+        m.rhs_into(s, u, d, m.view_joint, sdot)
+        return float(sdot[m.nv + m.view_joint])
+
+
+class ArticulatedDomain(Domain):
+    """Any kinematic tree of hinge and slide joints, from its MJCF (module docstring)."""
+
+    name = "articulated"
+    kinds = {"articulated_ode": Backend(ArticulatedConfig, _build_ode),
+             "articulated_mujoco": Backend(ArticulatedConfig, _build_mujoco, mujoco=True)}
+    labels = PlantLabels(
+        states=(Quantity("q", "rad", "the tracked pole's angle"),
+                Quantity("q'", "rad/s", "the tracked pole's rate")),
+        control=Quantity("u", "", "the actuator's input"), extras={},
+        disturbance=Quantity("d", "", "generalised force on the tracked pole's joint"))
+    #: the view's two entries stand for the tracked pole's angle and rate (each plant names
+    #: them after its model's joint: :meth:`view_names`)
+    task = TaskDefaults(view=("pole", "pole_dot"), fall_angle=FALL_ANGLE_RAD)
+    default_model = ArticulatedConfig.model
+    provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC})
+    derives_equations = True
+
+    def model_file(self, cfg: PlantConfig) -> str:
+        return cfg.model if isinstance(cfg, ArticulatedConfig) else self.default_model
+
+    def view_names(self, plant: Plant) -> tuple[str, ...]:
+        return plant.default_task().view
+
+    def machine(self, scenario: "Scenario") -> Machine:
+        return self.build(scenario).machine  # type: ignore[attr-defined]
+
+    def plant_model(self, scenario: "Scenario") -> PlantModel:
+        view = ArticulatedView(self.machine(scenario))
+        return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
+                          x_op=(0.0, 0.0), switching_gain=20.0)
+
+    def full_model(self, scenario: "Scenario") -> FullModel:
+        """The derived equations over ``[q, q']`` (the joints' names): numbers through the
+        compiled module, CasADi through the derivation (no clips: MPC bounds u)."""
+        m = self.machine(scenario)
+        nv = m.nv
+
+        def factory(sin, cos, tanh):
+            if sin is math.sin:
+                return lambda s, u: tuple(m.accelerations(np.asarray(s, dtype=float), float(u)))
+
+            def q_dd(s, u):
+                a = m.symbolic_accel(s, u)
+                return tuple(a[i] for i in range(nv))
+
+            return q_dd
+
+        angles = tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * nv
+        poles = m.poles
+        return FullModel(domain=self.name, state_names=m.state_names, accel_factory=factory,
+                         energy=m.energy, pole=poles[0] if poles else m.actuated,
+                         actuated=m.actuated, angles=angles, parameters=m.parameters(),
+                         machine=None, poles=poles,
+                         accel_unit="m/s^2" if m.tree.joints[m.actuated].kind == "slide" else "rad/s^2")
+
+    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+        return self.machine(scenario).linearisation()
+
+    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        return plant.machine.linearisation(at)  # type: ignore[attr-defined]
+
+    def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
+        m: Machine = plant.machine  # type: ignore[attr-defined]
+        return ModelDrawing(m, plant.default_task().view, Path(m.where).stem.replace("_", " "))
+
+    def chirp_amplitude(self, plant: Plant) -> float:
+        a = plant.machine.actuator  # type: ignore[attr-defined]
+        if a.ctrlrange is not None:
+            return 0.3 * min(abs(a.ctrlrange[0]), abs(a.ctrlrange[1]))
+        return 1.0
+
+    def ode_of(self, plant: Plant) -> Plant:
+        return ArticulatedODE(plant.machine, plant.q0)  # type: ignore[attr-defined]
+
+    def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
+        return bool(joint_types) and all(t in ("hinge", "slide") for t in joint_types) \
+            and len(joint_types) <= 6
+
+    def inspect(self, model_path: str, names: dict[str, str] | None = None,
+                dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
+        """The model's joints with their roles, the actuator, the upright's open-loop poles
+        and controllability."""
+        m = load_machine(model_path)
+        plant = ArticulatedMujoco(m)
+        facts: dict[str, Any] = {
+            "domain": self.name,
+            "joints": {j.name: {"type": j.kind, "role": r,
+                                **({"range": list(j.range)} if j.range else {})}
+                       for j, r in zip(m.tree.joints, m.roles)},
+            "actuator": {"name": m.actuator.name, "joint": m.joint_names[m.actuated],
+                         "unit": m.input_unit,
+                         **({"ctrlrange": list(m.actuator.ctrlrange)} if m.actuator.ctrlrange else {})},
+            "tracked": m.joint_names[m.view_joint], "timestep": plant.timestep,
+            "integrator": m.tree.integrator,
+            "bodies": {b.name: {"mass": b.mass} for b in m.tree.bodies},
+        }
+        A, B = m.linearisation()
+        facts["upright_poles"] = sorted((complex(e) for e in np.linalg.eigvals(A)),
+                                        key=lambda e: (e.real, e.imag))
+        facts["upright_poles"] = [round(e.real, 6) if abs(e.imag) < 1e-12 else
+                                  f"{e.real:.6g}{e.imag:+.6g}j" for e in facts["upright_poles"]]
+        n = A.shape[0]
+        C = np.hstack([np.linalg.matrix_power(A, k) @ B for k in range(n)])
+        facts["controllable"] = bool(np.linalg.matrix_rank(C, tol=1e-9 * max(1.0, np.abs(C).max())) == n)
+        return facts, plant.departures(dt)
+
+
+#: the articulated domain
+DOMAIN = ArticulatedDomain()
