@@ -249,9 +249,14 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         angle, by = goal.get("angle_rad"), goal.get("by_s")
         target = (f"within {_with(angle, 'rad')}" if angle is not None else "the goal") + \
             (f" by {_with(by, 's')}" if by is not None else "")
-        print(f"  {'goal':<{width}}  " + (f"reached {target} at {_with(reached, 's')}"
-                                          if reached is not None else f"not reached ({target})"),
-              file=stream)
+        if goal.get("met") is None and "met" in goal:
+            text = f"not judged: the run ended before {_with(by, 's')} ({target})"
+        elif reached is not None:
+            text = f"reached {target} at {_with(reached, 's')}" + (
+                "" if goal.get("met", True) else " (too late)")
+        else:
+            text = f"not reached ({target})"
+        print(f"  {'goal':<{width}}  {text}", file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")

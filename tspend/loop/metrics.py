@@ -208,7 +208,7 @@ class MetricsAccumulator:
     def goal_result(self) -> dict:
         """The goal (``angle_rad``, ``by_s``), when it was reached to stay
         (``reached_at_s``: the first sample after the last one outside; None: never), and
-        whether it was met (reached by ``by_s``)."""
+        whether it was met (reached by ``by_s``; None when the run ended before ``by_s``)."""
         m = self.machine
         if not self.steps:
             reached = None
@@ -218,7 +218,10 @@ class MetricsAccumulator:
             reached = self.last_outside + self.dt
             if reached > (self.steps - 1) * self.dt + 1e-12:
                 reached = None  # outside at the last sample
-        met = reached is not None and reached <= m.goal_by + 1e-12
+        # a run that ended before the deadline cannot be judged on it (a shortened run):
+        # met is None, never a claim either way
+        judged = self.steps and (self.steps - 1) * self.dt >= m.goal_by - 1e-12
+        met = (reached is not None and reached <= m.goal_by + 1e-12) if judged else None
         return {"angle_rad": m.goal_angle, "by_s": m.goal_by, "reached_at_s": reached, "met": met}
 
     def machine_result(self) -> dict:

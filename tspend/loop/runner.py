@@ -241,7 +241,7 @@ class ClosedLoop:
         if status in TERMINATIONS and status != NOT_REACHED:
             message += _what_else(self.plant, metrics)
         goal = metrics.get("goal")
-        if status == "completed" and goal is not None and not goal["met"]:
+        if status == "completed" and goal is not None and goal["met"] is False:
             # every bound held but the task's goal was not reached: no "completed" claimed
             status = NOT_REACHED
             when = (f"reached only at t = {goal['reached_at_s']:.4g} s" if goal["reached_at_s"] is not None
