@@ -48,7 +48,7 @@ DEFAULT_METRICS = ("rmse", "rmse_ss", "max_abs_e_ss", "control_energy", "tv_u_pe
 #: columns of a sweep row that are not grid values
 ROW_COLUMNS = frozenset(("scenario", "controller", "seed", "status", "message", "version",
                          "scenario_hash", "recording", "job_s", "run_key", "wall_s", "sim_s",
-                         "steps") + COMPARED_METRICS)
+                         "steps", "max_abs_u_command") + COMPARED_METRICS)
 #: outcomes that say nothing about the controller: counted, never paired
 NOT_PAIRED = ("failed", "interrupted")
 #: the task ended the run early (issue 19's terminations): the pole fell, the cart reached
