@@ -23,7 +23,11 @@ __version__ = "0.1.0"
 
 from pathlib import Path as _Path
 
+from tspend.runtime.gl import choose_headless_gl as _choose_headless_gl
 from tspend.runtime.jit import invalidate_stale_cache as _invalidate_stale_cache
+
+# before MuJoCo is imported: an off-screen GL backend where there is no display
+_choose_headless_gl()
 
 # before any compiled function loads from numba's cache (see tspend/runtime/jit.py)
 _invalidate_stale_cache(_Path(__file__).resolve().parent)

@@ -114,7 +114,7 @@ class TspendEnv(gymnasium.Env):
                  render_mode: str | None = None, overrides: dict | None = None,
                  reward: RewardWeights | dict | None = None,
                  init_noise: float | tuple[float, ...] = 0.0,
-                 width: int = 640, height: int = 480) -> None:
+                 width: int = 640, height: int = 480, normalize: bool = False) -> None:
         from tspend.loop import simulation
         from tspend.scenario import load_scenario, override
 
@@ -156,11 +156,25 @@ class TspendEnv(gymnasium.Env):
         #: what each entry of an observation is, and its unit
         self.observation_names: tuple[str, ...] = tuple(self.task.names) + refs
         self.observation_units: tuple[str, ...] = tuple(self.task.units) + tuple(ref_units)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(N + n + 1,), dtype=np.float64)
+        #: normalised spaces for learning libraries: actions in [-1, 1] (float32) mapped
+        #: onto the actuator's range, observations as float32
+        self.normalize = bool(normalize)
+        dtype = np.float32 if self.normalize else np.float64
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(N + n + 1,), dtype=dtype)
+        #: each state's name as in an export and the metrics (the model's joint, its unit)
+        from tspend.plants.domain import unit_slug
+
+        self.state_columns = tuple(f"{name}_{unit_slug(unit)}" if unit_slug(unit) else name
+                                   for name, unit in zip(self.task.names, self.task.units))
 
         machine = simulation.machine_info(self.plant, self.task, scn)
         lo, hi = machine.u_lo, machine.u_hi
-        self.action_space = spaces.Box(np.array([lo]), np.array([hi]), dtype=np.float64)
+        if self.normalize and not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+            raise ScenarioError(f"normalize=True: the actuator's range [{lo:g}, {hi:g}] is not "
+                                f"finite: nothing to scale [-1, 1] onto")
+        self.u_range = (float(lo), float(hi))
+        self.action_space = (spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32) if self.normalize
+                             else spaces.Box(np.array([lo]), np.array([hi]), dtype=np.float64))
         self.action_name = self.plant.inputs[0].name if self.plant.inputs else "u"
         self.action_unit = (self.plant.inputs[0].unit if self.plant.inputs else "") or \
             self._control_unit()
@@ -239,7 +253,8 @@ class TspendEnv(gymnasium.Env):
         self._i = 0
         self._u = 0.0
         self._obs = self._observe()
-        return self._obs.copy(), self._info("running", "")
+        out = self._obs.astype(np.float32) if self.normalize else self._obs.copy()
+        return out, self._info("running", "")
 
     def step(self, action):
         """Hold ``action`` over ``frame_skip`` physics steps; the next observation, the
@@ -254,6 +269,9 @@ class TspendEnv(gymnasium.Env):
             raise ScenarioError(f"action {action!r:.80}: expected one finite number (the "
                                 f"action space is {self.action_space})")
         u = float(np.clip(a.reshape(-1)[0], self.action_space.low[0], self.action_space.high[0]))
+        if self.normalize:
+            lo, hi = self.u_range
+            u = lo + 0.5 * (u + 1.0) * (hi - lo)
         self._u = u
         i0 = self._i
         k = min(self.frame_skip, self.horizon - i0)
@@ -289,7 +307,8 @@ class TspendEnv(gymnasium.Env):
         truncated = not terminated and self._i >= self.horizon
         if truncated:
             status = "completed"
-        return obs.copy(), float(reward), terminated, truncated, self._info(status, message)
+        out = obs.astype(np.float32) if self.normalize else obs.copy()
+        return out, float(reward), terminated, truncated, self._info(status, message)
 
     def render(self):
         """The scene as an (height, width, 3) uint8 array (``render_mode="rgb_array"``)."""
@@ -349,7 +368,14 @@ class TspendEnv(gymnasium.Env):
         return seconds * (w.alive - cost)
 
     def _info(self, status: str, message: str) -> dict[str, Any]:
-        return {"t": self.t, "status": status, "message": message, "u": self._u}
+        info = {"t": self.t, "status": status, "message": message, "u": self._u,
+                "state": dict(zip(self.state_columns, (float(v) for v in self._obs[:len(self.state_columns)]))),
+                "u_unit": self.action_unit}
+        if self.normalize:
+            # a = -1 is the actuator's lo, a = +1 its hi (in u_unit)
+            info["action_scale"] = {"lo": self.u_range[0], "hi": self.u_range[1],
+                                    "unit": self.action_unit}
+        return info
 
     def _mj_data(self) -> Any:
         data = getattr(self.plant, "data", None)  # EffectsPlant forwards to the MuJoCo plant
