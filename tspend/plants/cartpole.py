@@ -166,8 +166,11 @@ class CartPoleODE(AnalyticPlant):
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
-        """The force on the cart, N (per unit gear), unbounded: the ODE has no actuator."""
-        return (InputInfo("force", "N"),)
+        """The force on the cart, N (per unit gear), within the control range the ODE
+        applies (a MuJoCo model's ``ctrlrange``; unbounded for the paper's ODE): both
+        backends of one machine declare the bound they apply, so the saturation metrics
+        mean the same on each."""
+        return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
 
     def default_task(self) -> TaskDefaults:
         """The cart-pole domain's task on this plant's joint names."""
