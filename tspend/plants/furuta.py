@@ -303,24 +303,21 @@ class MujocoFuruta(Plant):
         self._substeps(dt)
 
     def _substeps(self, dt: float) -> int:
-        k = round(dt / self._ts)
-        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
-            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
-                                f"multiple of the model timestep {self._ts!r}")
-        return int(k)
+        from tspend.plants.mujoco_plant import whole_substeps
+
+        return whole_substeps(dt, self._ts, self.model_path)
 
     def step(self, u: float, d: float, dt: float) -> None:
-        if not (abs(u) < 1e10 and abs(d) < 1e10):
-            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
-                                  f"at t={self.data.time:.6g}")
+        from tspend.plants.mujoco_plant import instability_error, refuse_huge_input
+
+        refuse_huge_input(self.name, u, d, self.data.time)
         t0 = self.data.time
         self.data.ctrl[self._act] = u
         self.data.qfrc_applied[self._vp] = d
         self._mj_step(self.model, self.data, self._substeps(dt))
-        w = self._warnings
-        if w[0].number or w[1].number or w[2].number:
-            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
-                                  f"reset the simulation (step from t={t0:.6g})")
+        unstable = instability_error(self.name, self._warnings, t0)
+        if unstable is not None:
+            raise unstable
 
     def extras(self) -> dict[str, float]:
         return {"arm": float(self.data.qpos[self._qa]), "arm_dot": float(self.data.qvel[self._va])}

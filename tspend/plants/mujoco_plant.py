@@ -112,6 +112,33 @@ def mj_step_pointer() -> Any:
 _MJ_STEP: Any = None
 
 
+def whole_substeps(dt: float, timestep: float, where: Any) -> int:
+    """The number of physics steps of ``timestep`` in a control period ``dt`` (every MuJoCo
+    plant's); ScenarioError naming ``where`` when ``dt`` is not a whole multiple of it."""
+    k = round(dt / timestep)
+    if k < 1 or abs(k * timestep - dt) > 1e-9 * max(dt, timestep):
+        raise ScenarioError(f"{where}: control period dt={dt!r} is not a whole "
+                            f"multiple of the model timestep {timestep!r}: set plant.timestep "
+                            f"(e.g. plant.timestep = {dt:g}) or run.dt to a multiple of it")
+    return int(k)
+
+
+def refuse_huge_input(name: str, u: float, d: float, t: float) -> None:
+    """DivergenceError for a non-finite or huge ``u`` or ``d``: MuJoCo would otherwise zero
+    a bad ctrl silently."""
+    if not (abs(u) < _MJ_MAXVAL and abs(d) < _MJ_MAXVAL):  # NaN fails both comparisons
+        raise DivergenceError(f"{name}: non-finite or huge input u={u}, d={d} at t={t:.6g}")
+
+
+def instability_error(name: str, warnings: Any, t0: float) -> DivergenceError | None:
+    """The error of a step from ``t0`` in which MuJoCo found NaN, Inf or huge values (its
+    ``warnings`` BADQPOS, BADQVEL, BADQACC counted) and reset the simulation; None if not."""
+    if warnings[0].number or warnings[1].number or warnings[2].number:
+        return DivergenceError(f"{name}: MuJoCo found NaN, Inf or huge values in qpos, qvel "
+                               f"or qacc and reset the simulation (step from t={t0:.6g})")
+    return None
+
+
 def _names(elements: Any) -> str:
     return ", ".join(e.name or "<unnamed>" for e in elements) or "none"
 
@@ -526,12 +553,7 @@ class MujocoCartPole(Plant):
     def instability(self, t0: float) -> DivergenceError | None:
         """The error :meth:`step` raises when MuJoCo found NaN, Inf or huge values (and
         reset the simulation) in a step from time ``t0``; None when it did not."""
-        w = self._warnings
-        if w[0].number or w[1].number or w[2].number:
-            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values in "
-                                   f"qpos, qvel or qacc and reset the simulation (step from "
-                                   f"t={t0:.6g})")
-        return None
+        return instability_error(self.name, self._warnings, t0)
 
     def step(self, u: float, d: float, dt: float) -> None:
         """Advance by ``dt`` (a whole number of physics steps) with u and d held.
@@ -542,10 +564,7 @@ class MujocoCartPole(Plant):
         if dt != self._last_dt:
             self._last_k = self._substeps(dt)
             self._last_dt = dt
-        if not (abs(u) < _MJ_MAXVAL and abs(d) < _MJ_MAXVAL):
-            # NaN fails both comparisons; MuJoCo would otherwise zero a bad ctrl silently
-            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
-                                  f"at t={self.data.time:.6g}")
+        refuse_huge_input(self.name, u, d, self.data.time)
         t0 = self.data.time
         self._ctrl[self._act] = u
         self._qfrc[self._v_th] = self._d_to_tau * d
@@ -559,12 +578,7 @@ class MujocoCartPole(Plant):
         self._substeps(dt)
 
     def _substeps(self, dt: float) -> int:
-        k = round(dt / self._ts)
-        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
-            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
-                                f"multiple of the model timestep {self._ts!r}: set plant.timestep "
-                                f"(e.g. plant.timestep = {dt:g}) or run.dt to a multiple of it")
-        return int(k)
+        return whole_substeps(dt, self._ts, self.model_path)
 
     def extras(self) -> dict[str, float]:
         return {"cart_pos": float(self._qpos[self._q_cart]),

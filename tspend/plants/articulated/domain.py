@@ -244,11 +244,9 @@ class ArticulatedMujoco(_Named, Plant):
         self._substeps(dt)
 
     def _substeps(self, dt: float) -> int:
-        k = round(dt / self._ts)
-        if k < 1 or abs(k * self._ts - dt) > 1e-9 * max(dt, self._ts):
-            raise ScenarioError(f"{self.model_path}: control period dt={dt!r} is not a whole "
-                                f"multiple of the model timestep {self._ts!r}")
-        return int(k)
+        from tspend.plants.mujoco_plant import whole_substeps
+
+        return whole_substeps(dt, self._ts, self.model_path)
 
     def compiled_mujoco(self, dt: float) -> Any:
         """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
@@ -267,26 +265,23 @@ class ArticulatedMujoco(_Named, Plant):
                           v, v, 0, 0, int(self._act), 1.0, self._substeps(dt), 1e10)
 
     def instability(self, t0: float) -> DivergenceError | None:
-        w = self._warnings
-        if w[0].number or w[1].number or w[2].number:
-            return DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
-                                   f"reset the simulation (step from t={t0:.6g})")
-        return None
+        from tspend.plants.mujoco_plant import instability_error
+
+        return instability_error(self.name, self._warnings, t0)
 
     def step(self, u: float, d: float, dt: float) -> None:
         import mujoco
 
-        if not (abs(u) < 1e10 and abs(d) < 1e10):
-            raise DivergenceError(f"{self.name}: non-finite or huge input u={u}, d={d} "
-                                  f"at t={self.data.time:.6g}")
+        from tspend.plants.mujoco_plant import refuse_huge_input
+
+        refuse_huge_input(self.name, u, d, self.data.time)
         t0 = self.data.time
         self.data.ctrl[self._act] = u
         self.data.qfrc_applied[self._dof] = d
         mujoco.mj_step(self.model, self.data, self._substeps(dt))
-        w = self._warnings
-        if w[0].number or w[1].number or w[2].number:
-            raise DivergenceError(f"{self.name}: MuJoCo found NaN, Inf or huge values and "
-                                  f"reset the simulation (step from t={t0:.6g})")
+        unstable = self.instability(t0)
+        if unstable is not None:
+            raise unstable
 
 
 # -- drawing ------------------------------------------------------------------------------
