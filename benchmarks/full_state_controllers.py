@@ -4,7 +4,7 @@
 
 Each scenario runs as shipped under ``second_type`` (the paper's), ``lqr`` (full-state
 design), ``swingup`` and ``mpc``, for seeds 1..N, and the table gives the median [IQR]
-of ``rmse_ss`` (rad), ``joints.slider.max_abs`` (m), ``max_abs_u`` (N) and the controller's
+of ``rmse_ss`` (rad), ``joints.slider.max_abs`` (m), ``max_abs_u`` (N, applied), ``max_abs_u_command`` and the controller's
 median compute time per evaluation (ms, wall clock on this machine), with how many runs
 completed.  LQR, swing-up and MPC draw nothing from the seed: their spread is zero except
 in wall time (the seed changes only the paper controller's initial parameters).  MPC
@@ -43,7 +43,8 @@ KINDS = ("second_type", "lqr", "swingup", "mpc")
 #: of several swings
 SKIP = {("swingup_mujoco", "mpc"), ("furuta_swingup", "mpc")}
 COLUMNS = (("rmse_ss", "rmse_ss (rad)"), ("actuated", "max abs driven joint (m, rad)"),
-           ("max_abs_u", "max abs u (N; V on Furuta)"), ("controller_ms.median", "compute (ms)"),
+           ("max_abs_u", "max abs u applied (N; V on Furuta)"),
+           ("max_abs_u_command", "max abs u commanded"), ("controller_ms.median", "compute (ms)"),
            ("counters.solve_overruns", "MPC solves late"),
            ("counters.solve_failures", "MPC solves failed"))
 BEGIN, END = "<!-- full-state results: begin -->", "<!-- full-state results: end -->"
