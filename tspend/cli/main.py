@@ -65,7 +65,7 @@ from tspend.runtime.outputs import (Output, OutputRequest, PlannedOutput, claim,
 
 #: the subcommands, each the module ``tspend/cli/<name>.py``, in ``--help`` order
 COMMANDS = ("run", "crosscheck", "list", "inspect", "sweep", "export", "compare", "tune",
-            "figures", "excite", "identify")
+            "figures", "excite", "identify", "plan")
 
 DEFAULT_SCENARIO = "pendulum_mujoco"
 EXIT_OK = 0

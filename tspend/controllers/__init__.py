@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from tspend.controllers import feedback_linearization, lqr, pd, sliding_mode, swingup, wang_indirect
 from tspend.controllers import mpc
+from tspend.controllers import tvlqr
 from tspend.controllers import policy
 from tspend.controllers import excitation
 from tspend.controllers.base import Controller, Diagnostic
@@ -63,6 +64,7 @@ KINDS: dict[str, Callable[..., Controller]] = {
     "wang_indirect": wang_indirect.build,
     "swingup": swingup.build,
     "mpc": mpc.build,
+    "tvlqr": tvlqr.build,
     "policy": policy.build,
     "excited": excitation.build,
 }
@@ -77,6 +79,7 @@ CLASSES: dict[str, type[Controller]] = {
     "wang_indirect": wang_indirect.WangIndirectController,
     "swingup": swingup.SwingUpController,
     "mpc": mpc.MPCController,
+    "tvlqr": tvlqr.TVLQRController,
     "policy": policy.PolicyController,
     "excited": excitation.ExcitedController,
 }
@@ -90,6 +93,7 @@ SETTINGS: dict[str, type] = {
     "wang_indirect": wang_indirect.WangSettings,
     "swingup": swingup.SwingUpSettings,
     "mpc": mpc.MPCSettings,
+    "tvlqr": tvlqr.TVLQRSettings,
     "policy": policy.PolicySettings,
     "excited": excitation.ExcitationSettings,
 }

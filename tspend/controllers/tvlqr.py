@@ -1,0 +1,242 @@
+"""``tvlqr``: follows a planned swing-up with time-varying LQR, then balances with LQR.
+
+The plan (:mod:`.trajectory`: states ``s*_k`` and inputs ``u*_k`` on the run's step
+``dt``, from the start to the upright) is read from a file written by ``tspend plan``
+(``plan``), or made from the first observed state at the run's first sample when no file
+is named (the time it took is the ``plan_s`` diagnostic and is printed by ``tspend
+plan``).  About the plan, the deviation ``e_k = s_k - s*_k`` (angles wrapped) obeys to
+first order ``e_{k+1} = A_k e_k + B_k (u_k - u*_k)``, with ``A_k, B_k`` the zero-order-hold
+discretisation over ``dt`` of the domain's CasADi model's Jacobians at ``(s*_k, u*_k)``:
+
+    [A_k B_k; 0 1] = expm([A_c B_c; 0 0] dt)                                   (V1)
+
+(Franklin, Powell and Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998,
+sec. 4.3.3).  The gains come from the discrete Riccati recursion backwards along the
+plan (Anderson and Moore, *Optimal Control: Linear Quadratic Methods*, 1990, sec. 2.4;
+Tedrake, *Underactuated Robotics*, ch. "Trajectory optimisation", TVLQR):
+
+    K_k = (R dt + B_k^T P_{k+1} B_k)^-1 B_k^T P_{k+1} A_k
+    P_k = Q dt + A_k^T P_{k+1} (A_k - B_k K_k)                                 (V2)
+
+from ``P_n`` = the discrete algebraic Riccati solution at the upright (the cost-to-go of
+the LQR that takes over).  ``Q`` and ``R`` are the full-state LQR's (:mod:`.lqr`,
+``[controllers.lqr]``).  Each sample: ``u = u*_k - K_k e_k`` clipped to the actuator's
+range while the plan lasts; after its end, the full-state LQR of :mod:`.lqr`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+from tspend.controllers.settings import KindSettings, setting, settings_for
+from tspend.controllers.trajectory import Plan, PlanFailed, plan_swingup, read_plan
+from tspend.errors import ScenarioError
+from tspend.plants.domain import FULL_STATE, SYMBOLIC
+
+if TYPE_CHECKING:
+    from tspend.config import Scenario
+    from tspend.controllers.full_model import FullModel
+    from tspend.controllers.lqr import FullStateLQR
+
+__all__ = ["TVLQRSettings", "TVLQRController", "build", "tvlqr_gains", "plan_of"]
+
+#: modes recorded in the ``mode`` diagnostic
+FOLLOW, BALANCE = 0.0, 1.0
+
+
+@dataclass(frozen=True)
+class TVLQRSettings(KindSettings):
+    """``[controllers.tvlqr]``: the plan to follow, or how to make one (``tspend plan``
+    reads the same table)."""
+
+    plan: str = setting("", "the plan file (Parquet from 'tspend plan'; relative: to the "
+                            "working directory, the scenario's directory, then the project); "
+                            "empty: plan from the first observed state", kind="string")
+    horizon: float = setting(2.0, "s: the plan's length T, from the start to the upright",
+                             low=0.0, strict=True)
+    interval: float = setting(0.02, "s: the shooting interval h (u held over it), a whole "
+                                    "multiple of run.dt", low=0.0, strict=True)
+    step: float = setting(0.01, "s: the RK4 step of the planner's model inside an interval "
+                                "(run.dt makes the plan MuJoCo's RK4 to round-off, slower)",
+                          low=0.0, strict=True)
+    margin: float = setting(0.05, "kept from every position bound (m or rad)", low=0.0)
+    max_iter: int = setting(1000, "IPOPT's iteration limit", kind="integer", low=1)
+    tolerance: float = setting(1e-8, "IPOPT's tol", low=0.0, strict=True)
+
+
+def find_plan(path: str, scenario: "Scenario") -> Path:
+    """The plan file ``path`` names, looked for like a scenario's MJCF."""
+    from tspend.plants.domain import project_root
+
+    p = Path(path)
+    bases = [Path.cwd()]
+    if scenario.path and scenario.path != "<string>":
+        bases.append(Path(scenario.path).resolve().parent)
+    bases.append(project_root())
+    for cand in ([p] if p.is_absolute() else [b / p for b in bases]):
+        if cand.is_file():
+            return cand
+    raise ScenarioError(f"{scenario.path or scenario.name}: controllers.tvlqr.plan = {path!r}: "
+                        f"no such file")
+
+
+def tvlqr_gains(model: "FullModel", plan: Plan, Q: np.ndarray, R: float,
+                P_end: np.ndarray) -> np.ndarray:
+    """``K_k`` (n, nx) for every row of the plan but the last, by (V1)-(V2)."""
+    import casadi
+    from scipy.linalg import expm
+
+    nx, n, dt = model.size, plan.t.size - 1, plan.dt
+    f = model.symbolic()
+    s, u = casadi.SX.sym("s", nx), casadi.SX.sym("u")
+    rhs = f(s, u)
+    jac = casadi.Function("plan_jacobians", [s, u], [casadi.jacobian(rhs, s), casadi.jacobian(rhs, u)])
+    Ac, Bc = jac.map(n)(plan.states[:n].T, plan.u[:n][None, :])
+    Ac, Bc = np.asarray(Ac).reshape(nx, n, nx), np.asarray(Bc).reshape(nx, n)
+    K = np.empty((n, nx))
+    P = np.asarray(P_end, dtype=float)
+    Qd, Rd = Q * dt, R * dt
+    M = np.zeros((nx + 1, nx + 1))
+    for k in range(n - 1, -1, -1):
+        M[:nx, :nx], M[:nx, nx] = Ac[:, k, :], Bc[:, k]
+        E = expm(M * dt)
+        A, B = E[:nx, :nx], E[:nx, nx:]
+        BP = B.T @ P
+        Kk = np.linalg.solve(Rd + BP @ B, BP @ A)
+        P = Qd + A.T @ P @ (A - B @ Kk)
+        P = 0.5 * (P + P.T)
+        K[k] = Kk[0]
+    return K
+
+
+def discrete_terminal(model: "FullModel", lqr: "FullStateLQR", dt: float) -> np.ndarray:
+    """``P_n``: the discrete Riccati solution at the upright with the LQR's weights."""
+    from scipy.linalg import expm, solve_discrete_are
+
+    nx = model.size
+    M = np.zeros((nx + 1, nx + 1))
+    M[:nx, :nx], M[:nx, nx:] = lqr.A, lqr.B
+    E = expm(M * dt)
+    return solve_discrete_are(E[:nx, :nx], E[:nx, nx:], lqr.Q * dt, np.array([[lqr.R * dt]]))
+
+
+class TVLQRController(Controller):
+    """The ``tvlqr`` kind (module docstring)."""
+
+    kind = "tvlqr"
+    needs = (FULL_STATE, SYMBOLIC)
+    guarantees = ("a plan within the actuator's and positions' ranges (checked by IPOPT on the "
+                  "planner's model); local tracking of it on the linearisation about it; "
+                  "LQR's local guarantee after it; the input clipped to its range")
+
+    def __init__(self, model: "FullModel", settings: TVLQRSettings, lqr: "FullStateLQR",
+                 dt: float, order: int, plan: Plan | None, where: str,
+                 units: tuple[tuple[str, ...], str, str]) -> None:
+        self.model, self.s, self.lqr, self.dt = model, settings, lqr, float(dt)
+        self.order, self.where, self.units = order, where, units
+        self.P_end = discrete_terminal(model, lqr, self.dt)
+        self.given = plan
+        self.diagnostics = diagnostics(
+            ("mode", 1, {"panel": "mode", "description": "0 following the plan, 1 LQR"}),
+            ("u_plan", 1, {"panel": "control", "description": "the plan's input u*_k"}),
+            ("plan_error", 1, {"panel": "state", "description":
+                               "|s - s*_k|, angles wrapped (the plan's last row after it)"}),
+            ("plan_s", 1, {"panel": "solver", "unit": "s",
+                           "description": "wall time of the plan made at the first sample "
+                                          "(0: read from a file)"}))
+        self.diag = np.zeros(diag_width(self.diagnostics))
+        self.plan: Plan | None = None
+        self.K = np.zeros((0, model.size))
+        if plan is not None:
+            self._adopt(plan)
+        self.reset(None)
+
+    def _adopt(self, plan: Plan) -> None:
+        if tuple(plan.state_names) != tuple(self.model.state_names):
+            raise ScenarioError(f"{self.where}.plan: its states {', '.join(plan.state_names)} are "
+                                f"not the plant's {', '.join(self.model.state_names)}")
+        if abs(plan.dt - self.dt) > 1e-12 * max(1.0, self.dt):
+            raise ScenarioError(f"{self.where}.plan: made on a step of {plan.dt:g} s, the run's "
+                                f"is run.dt = {self.dt:g} s")
+        self.plan = plan
+        self.K = tvlqr_gains(self.model, plan, self.lqr.Q, self.lqr.R, self.P_end)
+
+    def make_plan(self, s0: np.ndarray) -> Plan:
+        """A plan from ``s0`` with this kind's settings (:func:`.trajectory.plan_swingup`)."""
+        s = self.s
+        return plan_swingup(self.model, s0, s.horizon, s.interval, self.dt, step=s.step,
+                            margin=s.margin, max_iter=s.max_iter, tolerance=s.tolerance,
+                            where=self.where, units=self.units)
+
+    def reset(self, rng: np.random.Generator | None) -> None:
+        self.t0: float | None = None
+        if self.given is None:
+            self.plan = None
+        self.diag[:] = 0.0
+
+    def act(self, t: float, state: np.ndarray, ref: np.ndarray) -> float:
+        state = np.asarray(state, dtype=float)
+        if self.t0 is None:
+            self.t0 = t
+            if self.plan is None:
+                started = time.perf_counter()
+                try:
+                    self._adopt(self.make_plan(state))
+                except PlanFailed as exc:
+                    raise RuntimeError(str(exc)) from None
+                self.diag[3] = time.perf_counter() - started
+        plan, m, d = self.plan, self.model, self.diag
+        k = int(round((t - self.t0) / self.dt))
+        if k < self.K.shape[0]:
+            e = m.error(state, plan.states[k])
+            u = float(plan.u[k] - self.K[k] @ e)
+            d[0], d[1] = FOLLOW, plan.u[k]
+        else:
+            e = m.error(state, plan.states[-1])
+            u = self.lqr.act(state, ref)
+            d[0], d[1] = BALANCE, 0.0
+        d[2] = float(np.linalg.norm(e))
+        return min(m.u_hi, max(m.u_lo, u))
+
+    def step(self, obs: Observation, dt: float) -> float:
+        return self.act(obs.t, obs.state, obs.ref)
+
+
+def plan_of(scenario: "Scenario") -> tuple["FullModel", TVLQRSettings, tuple]:
+    """The model, the settings and the units a plan of ``scenario`` is made with."""
+    from tspend.controllers.full_model import full_model
+    from tspend.plants.registry import build as build_plant
+
+    try:
+        import casadi  # noqa: F401
+    except ImportError:  # pragma: no cover - the extra is in the test extra
+        raise ScenarioError("planning needs CasADi (pip install 'tspend[mpc]')") from None
+    s: TVLQRSettings = settings_for(scenario, TVLQRSettings)
+    model = full_model(scenario)
+    plant = build_plant(scenario)
+    inp = plant.inputs[0] if plant.inputs else None
+    units = (tuple(plant.state_units), inp.name if inp else "u", inp.unit if inp else "")
+    return model, s, units
+
+
+def build(scenario: "Scenario") -> TVLQRController:
+    from tspend.controllers.lqr import LQRSettings, build_full
+
+    model, s, units = plan_of(scenario)
+    where = f"{scenario.path or scenario.name}: controllers.tvlqr"
+    lqr = build_full(scenario, settings_for(scenario, LQRSettings))
+    plan = read_plan(find_plan(s.plan, scenario), f"{where}.plan") if s.plan.strip() else None
+    if plan is None:   # the settings checked now, not at the first sample
+        from tspend.controllers.trajectory import check_plan_input
+
+        check_plan_input(model, np.zeros(model.size), s.horizon, s.interval, scenario.run.dt,
+                         s.margin, where)
+    return TVLQRController(model, s, lqr, scenario.run.dt, len(scenario.plant.x0), plan, where,
+                           units)
