@@ -2,7 +2,7 @@
 
 Trajectory optimisation (:mod:`tspend.controllers.trajectory`: direct multiple shooting,
 IPOPT, on the domain's own equations) from the scenario's initial state at its seed (the
-state a run at that seed starts from) to the upright at rest, within the actuator's range
+state a run at that seed starts from; ``--nominal``: the scenario's own, nothing drawn) to the upright at rest, within the actuator's range
 and the positions' ranges; the settings are ``[controllers.tvlqr]``'s (``horizon``,
 ``interval``, ``step``, ``margin``, ``max_iter``, ``tolerance``; ``--set`` overrides them).
 The file holds ``t``, every state by the plant's names and ``u`` on the run's step, the
@@ -34,12 +34,17 @@ def add_parser(sub) -> argparse.ArgumentParser:
     add_scenario_options(p, recording=False)
     p.add_argument("--out", required=True, metavar="PATH.parquet", help="the plan to write "
                    "(an existing file is replaced only by a complete plan)")
+    p.add_argument("--nominal", action="store_true",
+                   help="plan from the scenario's own initial state, without what [randomize] "
+                        "draws at the seed")
     add_metrics_option(p, "the solver's figures")
     return p
 
 
 def cmd(args: argparse.Namespace) -> int:
     import time
+
+    import numpy as np
 
     from tspend.controllers import unsupported
     from tspend.controllers.trajectory import PlanFailed, check_plan_input, plan_swingup, write_plan
@@ -56,7 +61,14 @@ def cmd(args: argparse.Namespace) -> int:
         requests.append(OutputRequest("--metrics", "solver figures", ".json", args.metrics))
     targets = [p.target for p in plan_outputs(requests, scenario_inputs(scn))]
     model, s, units = plan_of(scn)
-    start = build_plant(scn).full_state().copy()
+    if args.nominal:   # the scenario's own x0 and q0, nothing drawn
+        from tspend.plants.registry import build as build_nominal
+
+        machine = build_nominal(scn)
+        machine.reset(np.asarray(scn.plant.x0, dtype=float))
+        start = machine.full_state().copy()
+    else:
+        start = build_plant(scn).full_state().copy()
     where = f"{scn.path or scn.name}: controllers.tvlqr"
     check_plan_input(model, start, s.horizon, s.interval, scn.run.dt, s.margin, where)
     print(f"planning {scn.name}: {s.horizon:g} s to the upright, intervals of {s.interval:g} s "

@@ -7,6 +7,7 @@ interval ``h`` (zero-order hold, as the loop applies it), this solves (Bock and 
 
     min  sum_{k<N} h (u_k / u_s)^2                                          (T1)
     s.t. s_{k+1} = F(s_k, u_k)   (k < N),   s_0 given,   s_N = 0,           (T2)
+                                   (s_0 and s_N as bounds: met exactly)
          u_lo <= u_k <= u_hi,   q_lo + margin <= q_k <= q_hi - margin        (T3)
 
 ``u_s`` is the actuator's range (``max(|u_lo|, |u_hi|)``, 1 when unbounded), so (T1) is
@@ -155,19 +156,19 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
     FN = F.map(N, "serial")
     S = casadi.MX.sym("S", nx, N + 1)
     U = casadi.MX.sym("U", 1, N)
-    p0 = casadi.MX.sym("s0", nx)
     lo, hi, u_lo, u_hi = _bounds(model, margin)
     u_scale = max(abs(model.u_lo), abs(model.u_hi))
     u_scale = u_scale if math.isfinite(u_scale) and u_scale > 0 else 1.0
     cost = interval * casadi.sumsqr(U / u_scale)
-    g = casadi.vertcat(S[:, 0] - p0, casadi.reshape(S[:, 1:] - FN(S[:, :-1], U), -1, 1),
-                       S[:, N])
+    # the start and the upright are bounds on the first and last nodes (met exactly)
+    g = casadi.reshape(S[:, 1:] - FN(S[:, :-1], U), -1, 1)
     w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1))
-    solver = casadi.nlpsol("plan", "ipopt", {"x": w, "p": p0, "f": cost, "g": g},
+    solver = casadi.nlpsol("plan", "ipopt", {"x": w, "f": cost, "g": g},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                             "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tolerance)})
     lbx = np.concatenate([np.tile(lo, N + 1), np.full(N, u_lo)])
     ubx = np.concatenate([np.tile(hi, N + 1), np.full(N, u_hi)])
+    lbx[nx * N:nx * (N + 1)] = ubx[nx * N:nx * (N + 1)] = 0.0
     attempts = []
     for start in _representations(model, s0):
         # the initial guess: the straight line from the start to the upright, at rest, u = 0
@@ -177,7 +178,8 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
         guess[-1, model.dof:] = 0.0
         w0 = np.concatenate([guess.ravel(), np.zeros(N)])
         started = time.perf_counter()
-        sol = solver(x0=w0, p=start, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
+        lbx[:nx] = ubx[:nx] = start
+        sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
         wall = time.perf_counter() - started
         stats = solver.stats()
         attempts.append({"status": str(stats.get("return_status", "")),
