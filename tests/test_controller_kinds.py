@@ -28,7 +28,7 @@ from tspend.errors import ScenarioError
 from tspend.loop.metrics import METRIC_KEYS
 
 BASELINES = ("pd", "lqr", "feedback_linearization", "sliding_mode", "wang_indirect",
-             "swingup", "mpc", "policy", "excited")
+             "swingup", "mpc", "policy", "excited", "tvlqr")
 ADAPTIVE = ("second_type", "first_type", "wang_indirect")
 
 

@@ -112,3 +112,16 @@ def test_plan_command_exits(tmp_path) -> None:
     args = ["plan", SCENARIO, "--out", str(out), "--set", "controllers.tvlqr.horizon=1.6",
             "--metrics", str(tmp_path / "m.json")]
     assert main(args) == 0 and read_plan(out).t.size == 1601
+
+
+def test_the_batched_matrix_exponential_is_scipys() -> None:
+    from scipy.linalg import expm
+
+    from tspend.controllers.tvlqr import expm_stack
+
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(5, 7, 7)) * np.array([0.01, 0.1, 1.0, 3.0, 10.0])[:, None, None]
+    got = expm_stack(M)
+    for k in range(5):
+        want = expm(M[k])
+        assert np.abs(got[k] - want).max() <= 1e-12 * max(1.0, np.abs(want).max())

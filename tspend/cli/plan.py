@@ -11,7 +11,7 @@ tvlqr --set controllers.tvlqr.plan=PATH`` follows it.
 
 Exit status: 0 a plan was written; 1 the solver found none (why on stderr; nothing
 written); 2 bad input (a machine without a symbolic full-state model, a horizon shorter
-than 2 intervals or not a whole number of them, a start outside the bounds, an output path).
+than 2 intervals, a start outside the bounds, an output path).
 """
 
 from __future__ import annotations

@@ -103,17 +103,14 @@ def _bounds(model: "FullModel", margin: float) -> tuple[np.ndarray, np.ndarray, 
 
 def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interval: float,
                      dt: float, margin: float, where: str) -> int:
-    """The number of intervals ``N``; ScenarioError (one line) for what no solver can fix:
-    a horizon not a whole number of intervals, an interval not a whole number of steps,
+    """The number of intervals ``N`` (the horizon rounded to whole intervals); ScenarioError
+    (one line) for what no solver can fix: an interval not a whole number of steps,
     fewer than 2 intervals, a start or goal outside the bounds, an empty input range."""
     steps = interval / dt
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
         raise ScenarioError(f"{where}.interval: must be a whole multiple of run.dt = {dt:g} s, "
                             f"got {interval:g}")
-    n = horizon / interval
-    if abs(n - round(n)) > 1e-9 * max(1.0, n):
-        raise ScenarioError(f"{where}.horizon: must be a whole multiple of the interval "
-                            f"{interval:g} s, got {horizon:g}")
+    n = horizon / interval   # rounded to whole intervals
     if round(n) < 2:
         raise ScenarioError(f"{where}.horizon: {horizon:g} s is too short: at least 2 intervals "
                             f"of {interval:g} s")

@@ -56,10 +56,14 @@ class TVLQRSettings(KindSettings):
     """``[controllers.tvlqr]``: the plan to follow, or how to make one (``tspend plan``
     reads the same table)."""
 
+    #: what tspend tune searches: the plan's length (a shorter one asks more of the input)
+    SEARCH = {"horizon": (1.0, 6.0, "log")}
+
     plan: str = setting("", "the plan file (Parquet from 'tspend plan'; relative: to the "
                             "working directory, the scenario's directory, then the project); "
                             "empty: plan from the first observed state", kind="string")
-    horizon: float = setting(2.0, "s: the plan's length T, from the start to the upright",
+    horizon: float = setting(2.0, "s: the plan's length T, from the start to the upright "
+                                   "(rounded to whole intervals)",
                              low=0.0, strict=True)
     interval: float = setting(0.02, "s: the shooting interval h (u held over it), a whole "
                                     "multiple of run.dt", low=0.0, strict=True)
@@ -91,7 +95,6 @@ def tvlqr_gains(model: "FullModel", plan: Plan, Q: np.ndarray, R: float,
                 P_end: np.ndarray) -> np.ndarray:
     """``K_k`` (n, nx) for every row of the plan but the last, by (V1)-(V2)."""
     import casadi
-    from scipy.linalg import expm
 
     nx, n, dt = model.size, plan.t.size - 1, plan.dt
     f = model.symbolic()
@@ -103,11 +106,11 @@ def tvlqr_gains(model: "FullModel", plan: Plan, Q: np.ndarray, R: float,
     K = np.empty((n, nx))
     P = np.asarray(P_end, dtype=float)
     Qd, Rd = Q * dt, R * dt
-    M = np.zeros((nx + 1, nx + 1))
+    M = np.zeros((n, nx + 1, nx + 1))
+    M[:, :nx, :nx], M[:, :nx, nx] = Ac.transpose(1, 0, 2), Bc.T
+    E = expm_stack(M * dt)
     for k in range(n - 1, -1, -1):
-        M[:nx, :nx], M[:nx, nx] = Ac[:, k, :], Bc[:, k]
-        E = expm(M * dt)
-        A, B = E[:nx, :nx], E[:nx, nx:]
+        A, B = E[k, :nx, :nx], E[k, :nx, nx:]
         BP = B.T @ P
         Kk = np.linalg.solve(Rd + BP @ B, BP @ A)
         P = Qd + A.T @ P @ (A - B @ Kk)
@@ -116,14 +119,32 @@ def tvlqr_gains(model: "FullModel", plan: Plan, Q: np.ndarray, R: float,
     return K
 
 
+def expm_stack(M: np.ndarray) -> np.ndarray:
+    """``expm`` of each matrix of the stack ``M`` (k, m, m): scaling and squaring with a
+    Taylor polynomial of degree 14 (Moler and Van Loan, "Nineteen dubious ways...", SIAM
+    Review 45, 2003, method 3), batched: scipy's ``expm`` one matrix at a time costs
+    milliseconds each on a loaded machine, the plan has thousands."""
+    norm = float(np.abs(M).sum(axis=2).max()) if M.size else 0.0
+    squarings = max(0, int(math.ceil(math.log2(norm / 0.25)))) if norm > 0.25 else 0
+    X = M / 2.0 ** squarings
+    E = np.broadcast_to(np.eye(M.shape[1]), M.shape).copy()
+    term = E.copy()
+    for j in range(1, 15):   # ||X|| <= 1/4: the remainder is below 1/4^15 / 15! ~ 1e-21
+        term = term @ X / j
+        E += term
+    for _ in range(squarings):
+        E = E @ E
+    return E
+
+
 def discrete_terminal(model: "FullModel", lqr: "FullStateLQR", dt: float) -> np.ndarray:
     """``P_n``: the discrete Riccati solution at the upright with the LQR's weights."""
-    from scipy.linalg import expm, solve_discrete_are
+    from scipy.linalg import solve_discrete_are
 
     nx = model.size
-    M = np.zeros((nx + 1, nx + 1))
-    M[:nx, :nx], M[:nx, nx:] = lqr.A, lqr.B
-    E = expm(M * dt)
+    M = np.zeros((1, nx + 1, nx + 1))
+    M[0, :nx, :nx], M[0, :nx, nx:] = lqr.A, lqr.B
+    E = expm_stack(M * dt)[0]
     return solve_discrete_are(E[:nx, :nx], E[:nx, nx:], lqr.Q * dt, np.array([[lqr.R * dt]]))
 
 
