@@ -125,3 +125,22 @@ def test_the_batched_matrix_exponential_is_scipys() -> None:
     for k in range(5):
         want = expm(M[k])
         assert np.abs(got[k] - want).max() <= 1e-12 * max(1.0, np.abs(want).max())
+
+
+def test_a_plan_on_the_run_step_is_what_mujoco_does_open_loop() -> None:
+    """With the planner's RK4 step equal to run.dt, the plan's inputs applied open loop to
+    the MuJoCo plant (RK4 at 1 ms) give the plan's states: the planner's model is the
+    simulated machine (the gap is IPOPT's constraint tolerance, grown along the swing)."""
+    from tspend.loop.simulation import build_plant
+
+    scn = load_scenario(SCENARIO)
+    s0 = np.array([0.0, math.pi, 0.0, 0.0])
+    plan = plan_swingup(full_model(scn), s0, HORIZON, INTERVAL, scn.run.dt, step=scn.run.dt)
+    plant = build_plant(scn)
+    plant.reset(np.array([math.pi, 0.0]))
+    assert np.array_equal(plant.full_state(), s0)
+    worst = 0.0
+    for k in range(plan.t.size - 1):
+        plant.step(float(plan.u[k]), 0.0, scn.run.dt)
+        worst = max(worst, float(np.abs(plant.full_state() - plan.states[k + 1]).max()))
+    assert worst < 1e-7
