@@ -27,6 +27,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
+    r.add_argument("--safety", choices=("off", "cbf"),
+                   help="run the controller behind a safety filter: 'cbf', a control barrier "
+                        "function QP keeping the task's constraints (same as --set "
+                        "safety.filter=cbf; docs/safety.md)")
     return r
 
 
@@ -67,6 +71,8 @@ def cmd(args: argparse.Namespace) -> int:
         from tspend.controllers import load
 
         load(args.controller)  # before the scenario: it may carry the plug-in's table
+    if args.safety is not None:
+        args.set = [*args.set, f"safety.filter={args.safety}"]
     scn = load_with_overrides(args)
     check_viewer_url(args.connect)
     check_model_size(scn)
