@@ -96,6 +96,8 @@ class SafetyFilter(Controller):
         self.has_snapshots = inner.has_snapshots
         self.u_lo, self.u_hi = float(model.u_lo), float(model.u_hi)
         finite = [abs(v) for v in (self.u_lo, self.u_hi) if math.isfinite(v)]
+        #: an input range on both sides: v = u / u_scale lies in [-1, 1] (else per sample)
+        self.bounded = len(finite) == 2
         self.u_scale = max(finite) if finite else 1.0
         w = inner.diag.size
         self.diagnostics = tuple(inner.diagnostics) + (
@@ -160,6 +162,9 @@ class SafetyFilter(Controller):
                 continue
             rows_A.append(A)
             rows_b.append(b)
+        finite = [abs(v) for v in (self.u_lo, self.u_hi) if math.isfinite(v)]
+        self.bounded = len(finite) == 2
+        self.u_scale = max(finite) if finite else 1.0
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
         self._rows = (perm, A, b)
@@ -181,9 +186,15 @@ class SafetyFilter(Controller):
         perm, A, b = self._rows  # type: ignore[misc]
         f, g = self.model.input_map(s)
         c, d = barrier_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self.cfg.alpha_2)
+        u_c = min(max(u_c, self.u_lo), self.u_hi)
+        keep = np.abs(c) > 1e-12 * self.u_scale
         S = self.u_scale
-        v_c = min(max(u_c, self.u_lo), self.u_hi) / S
-        keep = np.abs(c) > 1e-12 * S
+        if not self.bounded:
+            # no input range to scale by: scale by this sample's command and row ends, so
+            # that |v_c| and every |e_i| <= 1 and the slack's penalty stays exact
+            ends = np.abs(d[keep] / c[keep]) if keep.any() else np.zeros(0)
+            S = max(1.0, abs(u_c), float(ends.max(initial=0.0)))
+        v_c = u_c / S
         if not keep.all():
             # the input does not reach this row's condition at this state (its relative
             # degree is higher here): nothing the filter can do about it at this sample
