@@ -25,7 +25,7 @@ half-width), ``h = b - a_q q - a_v q'`` and
 With ``v = u / u_scale`` (the input's range scaled to [-1, 1]) and every row ``c_i u <= d_i``
 normalised to ``sign(c_i) v <= d_i / (|c_i| u_scale)``, the QP per sample is::
 
-      min_{v, delta}  (v - v_c)^2 + rho delta + eps delta^2                          (S3)
+      min_{v, delta}  (v - v_c)^2 + rho delta + delta^2                              (S3)
       s.t.  sign(c_i) v - delta <= e_i,   u_lo <= u_scale v <= u_hi,   delta >= 0
 
 ``v_c`` the command clipped to the input's range.  The slack ``delta`` keeps (S3) feasible
@@ -53,8 +53,10 @@ __all__ = ["SUFFIX", "SafetyFilter", "barrier_rows", "wrap"]
 SUFFIX = "+cbf"
 #: relative change of u below which a sample does not count as changed
 CHANGED_REL = 1e-9
-#: the slack's small quadratic weight, so (S3)'s Hessian is positive definite
-SLACK_EPS = 1e-6
+#: the slack's quadratic weight eps in (S3): 1, as the input's, so the Hessian is well
+#: conditioned (daqp returned a wrong "success" with 1e-6: tests/test_safety.py); the
+#: linear weight rho still makes the penalty exact
+SLACK_EPS = 1.0
 _TIME_BINS = np.logspace(-7, 1, 801)
 
 
@@ -104,7 +106,7 @@ class SafetyFilter(Controller):
             Diagnostic("safety_u_commanded", w, panel="safety", description="the inner "
                        "controller's command before the safety filter"),
             Diagnostic("safety_du", w + 1, panel="safety", description="|u_filtered - "
-                       "u_commanded|: the filter's intervention"),
+                       "u_commanded clipped to the input's range|: the filter's intervention"),
             Diagnostic("safety_slack", w + 2, panel="safety", description="the QP's slack "
                        "(> 0: the barrier conditions could not all hold within the input's range)"))
         self.diag = np.zeros(w + 3)
@@ -224,7 +226,9 @@ class SafetyFilter(Controller):
         elapsed = time.perf_counter() - c0
         self.time_hist[np.searchsorted(_TIME_BINS, elapsed)] += 1
         self.time_max = max(self.time_max, elapsed)
-        du = abs(u - u_c) if math.isfinite(u_c) else math.inf
+        # the intervention is against the command as the actuator applies it (clipped to
+        # its range): a clip the actuator makes anyway is not the filter's doing
+        du = abs(u - min(max(u_c, self.u_lo), self.u_hi)) if math.isfinite(u_c) else math.inf
         self.samples += 1
         if du > CHANGED_REL * self.u_scale:
             self.changed += 1
