@@ -263,6 +263,18 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         else:
             text = f"not reached ({target})"
         print(f"  {'goal':<{width}}  {text}", file=stream)
+    constraints = metrics.get("constraints") or {}
+    if constraints:
+        parts = [f"{name} {c['samples_outside']} (deepest {_with(c['max_depth'], c['unit'])})"
+                 if c.get("samples_outside") else f"{name} 0"
+                 for name, c in constraints.items() if isinstance(c, dict)]
+        print(f"  {'violations':<{width}}  samples outside: {', '.join(parts)}", file=stream)
+    safety = metrics.get("safety")
+    if isinstance(safety, dict) and safety.get("samples"):
+        print(f"  {'safety filter':<{width}}  {safety['filter']} ({safety['solver']}): changed u "
+              f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "
+              f"mean |du| {_with(safety['mean_abs_du'], u)}, QP "
+              f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median", file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")
