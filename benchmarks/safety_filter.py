@@ -21,11 +21,19 @@ import warnings
 import numpy as np
 
 MACHINES = {
-    "cartpole_rail": ("pendulum_mujoco_randomized", {"effects.rail": 1.0, "run.duration": 3.0}),
+    "cartpole_rail": ("pendulum_mujoco_randomized", {
+        "effects.rail": 1.0, "run.duration": 3.0,
+        # the policy trained on this machine (docs/gym.md); a kind only this machine runs
+        "controllers.policy.path": "models/policies/pendulum_mujoco.onnx"}),
     "furuta_arm": ("furuta_mujoco", {"run.duration": 1.5, "randomize.x0": [
         {"dist": "uniform", "low": -0.15, "high": 0.15},
         {"dist": "uniform", "low": -0.5, "high": 0.5}]}),
 }
+
+
+def kinds_of(machine: str, kinds: list[str]) -> list[str]:
+    """The kinds a machine runs: ``policy`` only where its trained policy applies."""
+    return [k for k in kinds if k != "policy" or "controllers.policy.path" in MACHINES[machine][1]]
 
 
 def rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
@@ -34,7 +42,7 @@ def rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
     name, changes = MACHINES[machine]
     base = override(load_scenario(name), **changes)
     out = []
-    for kind in kinds:
+    for kind in kinds_of(machine, kinds):
         for filtered in (False, True):
             k = kind + ("+cbf" if filtered else "")
             for seed in range(seeds):
@@ -47,6 +55,34 @@ def rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
                             "safety.intervention_share": safety.get("intervention_share"),
                             "safety.qp_ms": (safety.get("qp_ms") or {}).get("median")})
     return out
+
+
+def tracking_cost(table, kinds: list[str], resamples: int) -> str:
+    """What the filter costs in tracking where it does not change the outcome: rmse of
+    KIND against KIND+cbf on the seeds both completed, paired (median difference with a
+    bootstrap 95 % interval, Wilcoxon, Holm over the kinds)."""
+    from tspend.studies.stats import holm, paired_difference
+
+    lines, results = [], []
+    for k in kinds:
+        a = table[table.controller == k].set_index("seed")
+        b = table[table.controller == k + "+cbf"].set_index("seed")
+        both = a.index[(a.status == "completed") & (b.status.reindex(a.index) == "completed")]
+        if len(both) < 2:
+            lines.append(f"| {k} vs {k}+cbf | {len(both)} | (too few seeds completed both) | | | |")
+            continue
+        r = paired_difference(a.loc[both, "rmse"], b.loc[both, "rmse"], n_resamples=resamples)
+        results.append((k, len(both), r))
+    p_holm = holm([r.p_value for _, _, r in results]) if results else []
+    for (k, n, r), ph in zip(results, p_holm):
+        lines.append(f"| {k} vs {k}+cbf | {n} | {r.median_difference:.4g} "
+                     f"[{r.ci_low:.4g}, {r.ci_high:.4g}] | {r.median_ratio:.3f} | "
+                     f"{r.p_value:.3g} | {ph:.3g} |")
+    head = ("\nTracking cost on the seeds both completed: rmse, d = A - B (negative: the "
+            "filter costs), 95 % bootstrap CI, Wilcoxon p, Holm over these rows.\n\n"
+            "| A vs B | seeds | median d [95% CI] | median A/B | p | p_holm |\n"
+            "|---|---:|---|---:|---:|---:|")
+    return "\n".join([head, *lines])
 
 
 def compute_ratio(samples: int = 2000) -> str:
@@ -90,7 +126,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--kinds", default="pd,second_type")
+    ap.add_argument("--kinds", default="pd,second_type,policy")
     ap.add_argument("--machines", default=",".join(MACHINES))
     ap.add_argument("--resamples", type=int, default=2999)
     args = ap.parse_args()
@@ -109,10 +145,13 @@ def main() -> None:
             intervention_median=("safety.intervention_share", "median"),
             qp_ms_median=("safety.qp_ms", "median"))
         print(summary.to_string())
-        names = [k + s for k in kinds for s in ("", "+cbf")]
+        here = kinds_of(machine, kinds)
+        names = [k + s for k in here for s in ("", "+cbf")]
         comp = compare(table, names, ("rmse", "violations"), n_resamples=args.resamples,
-                       pairs=[(k, k + "+cbf") for k in kinds])
+                       pairs=[(k, k + "+cbf") for k in here])
         print(markdown(comp, f"0-{args.seeds - 1}"), flush=True)
+        print(tracking_cost(table, here, args.resamples), flush=True)
+        table.to_csv(f"benchmarks/results/safety_filter_{machine}.csv", index=False)
 
 
 if __name__ == "__main__":
