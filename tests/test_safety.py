@@ -180,3 +180,20 @@ def test_filtered_run_never_leaves_the_rail_the_unfiltered_one_does():
     u_c = safe.history["safety_u_commanded"]
     np.testing.assert_allclose(np.abs(safe.history["u"] - u_c), du, atol=1e-9)  # no range here
     assert math.isfinite(safe.metrics["safety"]["qp_ms"]["median"])
+
+
+def test_cli_safety_flag_writes_the_filter_and_violations_and_refuses_a_plant_without_a_model(
+        tmp_path):
+    import json
+
+    from cli_harness import tspend
+
+    out = tmp_path / "m.json"
+    r = tspend("run", "ex3_pendulum_ode", "--controller", "pd", "--set", "effects.rail=1.0",
+               "--duration", "0.5", "--safety", "cbf", "--no-record", "--metrics", str(out),
+               cwd=tmp_path)
+    m = json.loads(out.read_text())
+    assert m["controller"]["kind"] == "pd+cbf" and m["constraints"]["rail"]["samples_outside"] == 0
+    assert 0.0 < m["safety"]["intervention_share"] <= 1.0 and "safety filter" in r.out
+    bad = tspend("run", "ex2_duffing", "--safety", "cbf", "--no-record", cwd=tmp_path)
+    assert bad.status == 2 and "no full-state model" in bad.one_error_line()
