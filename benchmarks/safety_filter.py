@@ -48,12 +48,12 @@ def rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
             for seed in range(seeds):
                 r = run(override(base, **{"run.seed": seed}), controller=k, keep_history=False)
                 m = r.metrics
-                safety = m.get("safety", {})
+                safety = m.get("safety_filter", {})
                 out.append({"scenario": machine, "controller": k, "seed": seed,
                             "status": r.end.status, "rmse": m["rmse"],
                             "violations": m["violations"], "max_violation": m["max_violation"],
-                            "safety.intervention_share": safety.get("intervention_share"),
-                            "safety.qp_ms": (safety.get("qp_ms") or {}).get("median")})
+                            "safety_filter.intervention_share": safety.get("intervention_share"),
+                            "safety_filter.qp_ms": (safety.get("qp_ms") or {}).get("median")})
     return out
 
 
@@ -142,8 +142,8 @@ def main() -> None:
             statuses=("status", lambda s: ",".join(sorted(set(s)))),
             violations_median=("violations", "median"),
             violations_max=("violations", "max"),
-            intervention_median=("safety.intervention_share", "median"),
-            qp_ms_median=("safety.qp_ms", "median"))
+            intervention_median=("safety_filter.intervention_share", "median"),
+            qp_ms_median=("safety_filter.qp_ms", "median"))
         print(summary.to_string())
         here = kinds_of(machine, kinds)
         names = [k + s for k in here for s in ("", "+cbf")]

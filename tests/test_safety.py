@@ -174,12 +174,12 @@ def test_filtered_run_never_leaves_the_rail_the_unfiltered_one_does():
     assert np.abs(safe.history["state"][:, 0]).max() < 1.0
     assert safe.metrics["constraints"]["rail"]["samples_outside"] == 0
     assert safe.metrics["violations"] == 0
-    share = safe.metrics["safety"]["intervention_share"]
+    share = safe.metrics["safety_filter"]["intervention_share"]
     du = safe.history["safety_du"]
     assert share == pytest.approx(np.mean(du > 1e-9 * 2000.0), abs=1e-3) and share > 0
     u_c = safe.history["safety_u_commanded"]
     np.testing.assert_allclose(np.abs(safe.history["u"] - u_c), du, atol=1e-9)  # no range here
-    assert math.isfinite(safe.metrics["safety"]["qp_ms"]["median"])
+    assert math.isfinite(safe.metrics["safety_filter"]["qp_ms"]["median"])
 
 
 def test_cli_safety_flag_writes_the_filter_and_violations_and_refuses_a_plant_without_a_model(
@@ -194,6 +194,6 @@ def test_cli_safety_flag_writes_the_filter_and_violations_and_refuses_a_plant_wi
                cwd=tmp_path)
     m = json.loads(out.read_text())
     assert m["controller"]["kind"] == "pd+cbf" and m["constraints"]["rail"]["samples_outside"] == 0
-    assert 0.0 < m["safety"]["intervention_share"] <= 1.0 and "safety filter" in r.out
+    assert 0.0 < m["safety_filter"]["intervention_share"] <= 1.0 and "safety filter" in r.out
     bad = tspend("run", "ex2_duffing", "--safety", "cbf", "--no-record", cwd=tmp_path)
     assert bad.status == 2 and "no full-state model" in bad.one_error_line()

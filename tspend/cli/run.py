@@ -269,7 +269,7 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
                  if c.get("samples_outside") else f"{name} 0"
                  for name, c in constraints.items() if isinstance(c, dict)]
         print(f"  {'violations':<{width}}  samples outside: {', '.join(parts)}", file=stream)
-    safety = metrics.get("safety")
+    safety = metrics.get("safety_filter")
     if isinstance(safety, dict) and safety.get("samples"):
         print(f"  {'safety filter':<{width}}  {safety['filter']} ({safety['solver']}): changed u "
               f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "

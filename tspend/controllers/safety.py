@@ -252,7 +252,7 @@ class SafetyFilter(Controller):
         return 1e3 * math.sqrt(lo * hi)
 
     def run_metrics(self) -> dict[str, Any]:
-        """``safety``: how often and how much the filter changed u, how often the QP needed
+        """``safety_filter``: how often and how much the filter changed u, how often the QP needed
         its slack, and its compute per sample (the inner controller's not counted)."""
         n = self.samples
         out = {"filter": "cbf", "solver": self.cfg.solver, "samples": n,
@@ -262,7 +262,7 @@ class SafetyFilter(Controller):
                "slack_share": self.infeasible / n if n else None,
                "qp_ms": {"median": self._median_ms(),
                          "max": 1e3 * self.time_max if n else None}}
-        return {"safety": {**self.inner.run_metrics().get("safety", {}), **out}}
+        return {**self.inner.run_metrics(), "safety_filter": out}
 
 
 def wrap(scenario: Any, inner: Controller) -> SafetyFilter:

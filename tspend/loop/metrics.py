@@ -77,7 +77,7 @@ class MachineInfo:
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
 MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_",
-                    "drawn.", "goal.", "constraints.", "safety.")
+                    "drawn.", "goal.", "constraints.", "safety_filter.")
 
 
 def is_machine_column(name: str) -> bool:
