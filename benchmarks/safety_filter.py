@@ -36,11 +36,11 @@ def kinds_of(machine: str, kinds: list[str]) -> list[str]:
     return [k for k in kinds if k != "policy" or "controllers.policy.path" in MACHINES[machine][1]]
 
 
-def rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
+def rows(machine: str, kinds: list[str], seeds: int, barrier: str = "hocbf") -> list[dict]:
     from tspend import load_scenario, override, run
 
     name, changes = MACHINES[machine]
-    base = override(load_scenario(name), **changes)
+    base = override(load_scenario(name), **changes, **{"safety.barrier": barrier})
     out = []
     for kind in kinds_of(machine, kinds):
         for filtered in (False, True):
@@ -129,14 +129,20 @@ def main() -> None:
     ap.add_argument("--kinds", default="pd,second_type,policy")
     ap.add_argument("--machines", default=",".join(MACHINES))
     ap.add_argument("--resamples", type=int, default=2999)
+    ap.add_argument("--barrier", default="hocbf", choices=("hocbf", "braking"),
+                    help="the filter's barrier for position rows ([safety] barrier)")
+    ap.add_argument("--ratio-only", action="store_true",
+                    help="only the filter's compute per sample against mj_step")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     kinds = args.kinds.split(",")
     print(compute_ratio(), flush=True)
+    if args.ratio_only:
+        return
     for machine in args.machines.split(","):
         t0 = time.perf_counter()
-        table = pd.DataFrame(rows(machine, kinds, args.seeds))
-        print(f"\n## {machine} ({time.perf_counter() - t0:.0f} s)\n")
+        table = pd.DataFrame(rows(machine, kinds, args.seeds, args.barrier))
+        print(f"\n## {machine}, barrier {args.barrier} ({time.perf_counter() - t0:.0f} s)\n")
         summary = table.groupby("controller", sort=False).agg(
             ended=("status", lambda s: int((s != "completed").sum())),
             statuses=("status", lambda s: ",".join(sorted(set(s)))),
@@ -151,7 +157,7 @@ def main() -> None:
                        pairs=[(k, k + "+cbf") for k in here])
         print(markdown(comp, f"0-{args.seeds - 1}"), flush=True)
         print(tracking_cost(table, here, args.resamples), flush=True)
-        table.to_csv(f"benchmarks/results/safety_filter_{machine}.csv", index=False)
+        table.to_csv(f"benchmarks/results/safety_filter_{machine}_{args.barrier}.csv", index=False)
 
 
 if __name__ == "__main__":

@@ -81,6 +81,33 @@ def barrier_rows(A: np.ndarray, b: np.ndarray, dof: int, s: np.ndarray, f: np.nd
     return c, d
 
 
+def braking_rows(A: np.ndarray, b: np.ndarray, dof: int, s: np.ndarray, f: np.ndarray,
+                 g: np.ndarray, alpha_1: float, a_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(c, d)`` as :func:`barrier_rows`, but a row on positions only is kept by the
+    stopping-distance barrier (S5): with ``p = a_q q``, ``v = a_q q'`` and ``h = b - p``,
+    ``h_b = h - v max(v, 0) / (2 a_max)`` (the room left once braking at ``a_max`` from
+    ``v``), relative degree 1, and ``h_b' + alpha_1 h_b >= 0``; for ``v > 0``::
+
+        (v / a_max)(a_q g) u <= -v - (v / a_max) a_q f + alpha_1 h_b                  (S5)
+
+    (``v <= 0``: moving away, ``h_b' = -v >= 0``: no condition on u, the row reads 0 u <= 1).
+    ``a_max`` (per row) is the deceleration the barrier may ask for near the bound."""
+    c, d = barrier_rows(A, b, dof, s, f, g, alpha_1, alpha_1)
+    q, q_dot = s[:dof], s[dof:]
+    for i in range(A.shape[0]):
+        a_q, a_v, a_u = A[i, :dof], A[i, dof:2 * dof], A[i, -1]
+        if a_u != 0.0 or np.any(a_v != 0.0):
+            continue
+        v = float(a_q @ q_dot)
+        if v <= 0.0:
+            c[i], d[i] = 0.0, 1.0
+            continue
+        h_b = b[i] - a_q @ q - v * v / (2.0 * a_max[i])
+        c[i] = (v / a_max[i]) * (a_q @ g)
+        d[i] = -v - (v / a_max[i]) * (a_q @ f) + alpha_1 * h_b
+    return c, d
+
+
 class SafetyFilter(Controller):
     """``inner`` behind the CBF QP (module docstring); everything else of ``inner`` shown."""
 
@@ -170,6 +197,11 @@ class SafetyFilter(Controller):
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
         self._rows = (perm, A, b)
+        # (S5)'s deceleration per row: a share of what the input's range gives at rest
+        g0 = model.input_map(np.zeros(model.size))[1]
+        reach = max(abs(self.u_lo), abs(self.u_hi)) if self.bounded else 1.0
+        self._a_max = np.array([max(self.cfg.braking * abs(row[:model.dof] @ g0) * reach, 1e-9)
+                                for row in A])
         m = A.shape[0]
         cas = self._casadi
         opts: dict = {"error_on_fail": False}
@@ -187,7 +219,10 @@ class SafetyFilter(Controller):
         """``(u, slack)``: (S3) at the full state ``s`` (the model's order) for command ``u_c``."""
         perm, A, b = self._rows  # type: ignore[misc]
         f, g = self.model.input_map(s)
-        c, d = barrier_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self.cfg.alpha_2)
+        if self.cfg.barrier == "braking":
+            c, d = braking_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self._a_max)
+        else:
+            c, d = barrier_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self.cfg.alpha_2)
         u_c = min(max(u_c, self.u_lo), self.u_hi)
         keep = np.abs(c) > 1e-12 * self.u_scale
         S = self.u_scale
