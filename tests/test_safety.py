@@ -40,6 +40,7 @@ def _scenario(**changes):
     ({"task.constraints.extra": 1}, "task.constraints.extra"),
     ({"safety.solver": "gurobi"}, "safety.solver"),
     ({"safety.alpha_1": 0.0}, "safety.alpha_1"),
+    ({"safety.barrier": "cbf"}, "safety.barrier"),
 ])
 def test_bad_constraints_and_safety_settings_name_the_key(changes, key):
     with pytest.raises(ScenarioError) as err:
@@ -197,3 +198,36 @@ def test_cli_safety_flag_writes_the_filter_and_violations_and_refuses_a_plant_wi
     assert 0.0 < m["safety_filter"]["intervention_share"] <= 1.0 and "safety filter" in r.out
     bad = tspend("run", "ex2_duffing", "--safety", "cbf", "--no-record", cwd=tmp_path)
     assert bad.status == 2 and "no full-state model" in bad.one_error_line()
+
+
+def test_braking_rows_against_h_b_along_the_model():
+    """(S5): c u <= d is -(h_b' + alpha_1 h_b) <= 0 with h_b' measured along a tight
+    solve_ivp trajectory, for a cart moving toward either end (v > 0 on that row)."""
+    from tspend.controllers.safety import braking_rows
+
+    filt, _ = _filter(**{"safety.barrier": "braking"})
+    model, cfg = filt.model, filt.cfg
+    _, A, b = filt._rows
+    a_max = filt._a_max
+    rng = np.random.default_rng(2)
+    for sign in (1.0, -1.0):
+        s = np.array([0.3 * sign, 0.05, 1.2 * sign, -0.1]) + rng.normal(scale=0.01, size=4)
+        u = float(rng.normal(scale=100.0))
+        f, g = model.input_map(s)
+        c, d = braking_rows(A, b, model.dof, s, f, g, cfg.alpha_1, a_max)
+        tau = 1e-4
+        ends = [solve_ivp(lambda t, y: model.rhs(y, u), (0.0, span), s, rtol=1e-12,
+                          atol=1e-12).y[:, -1] for span in (tau, -tau)]
+        approaching = 0
+        for i, (row, bound) in enumerate(zip(A, b)):
+            a_q = row[:model.dof]
+            h_b = lambda y: (bound - a_q @ y[:model.dof]  # noqa: E731
+                             - max(a_q @ y[model.dof:], 0.0) ** 2 / (2 * a_max[i]))
+            if a_q @ s[model.dof:] <= 0.0:
+                assert c[i] == 0.0 and d[i] > 0.0     # moving away: no condition
+                continue
+            approaching += 1
+            h_dot = (h_b(ends[0]) - h_b(ends[1])) / (2 * tau)
+            assert c[i] * u - d[i] == pytest.approx(-(h_dot + cfg.alpha_1 * h_b(s)), rel=1e-5,
+                                                    abs=1e-5)
+        assert approaching == 1
