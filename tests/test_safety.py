@@ -85,6 +85,10 @@ def test_a_hard_box_ends_the_run_as_constraint_and_a_soft_one_is_counted():
     assert got["time_outside_s"] == pytest.approx(outside.sum() * 0.001)
     assert got["max_depth"] == pytest.approx(np.max(np.abs(hinge) - 0.02))
     assert got["min_margin"] == pytest.approx(np.min(0.02 - np.abs(hinge)))
+    # the compiled loop (pd has one) and the generic one measure the same
+    generic = run(_scenario(**{"task.constraints.box.hinge": {"lo": -0.02, "hi": 0.02}}),
+                  controller="pd", compiled=False, keep_history=False)
+    assert generic.metrics["constraints"] == soft.metrics["constraints"]
 
 
 def _filter(**changes) -> tuple[SafetyFilter, object]:
