@@ -58,6 +58,11 @@ class Constraint:
     #: where it was declared, for messages ("the rail (effects.rail)", "task.constraints.box.x")
     source: str = ""
 
+    def __post_init__(self) -> None:
+        # a controller is handed these: none may change what the run is measured against
+        for a in (self.A, self.b):
+            a.flags.writeable = False
+
     @property
     def on_input(self) -> bool:
         """Whether any row involves the input (then no barrier: a bound on u itself)."""
