@@ -41,6 +41,7 @@ def _scenario(**changes):
     ({"safety.solver": "gurobi"}, "safety.solver"),
     ({"safety.alpha_1": 0.0}, "safety.alpha_1"),
     ({"safety.barrier": "cbf"}, "safety.barrier"),
+    ({"safety.margin": 1.0}, "safety.margin"),
 ])
 def test_bad_constraints_and_safety_settings_name_the_key(changes, key):
     with pytest.raises(ScenarioError) as err:

@@ -215,8 +215,8 @@ class SafetyConfig:
     barrier: str = field(default="hocbf", metadata={"choices": ("hocbf", "braking")})
     #: (S5)'s deceleration as a share of what the input's range gives at rest
     braking: float = field(default=0.1, metadata=_positive())
-    #: a fraction of each box kept as a margin against model mismatch and sampling
-    #: (0.05: the filter keeps the state 5 % of the half-width inside)
+    #: a fraction of each box's half-width kept as a margin against model mismatch and
+    #: sampling (0.05: the filter keeps the state 5 % of the half-width inside)
     margin: float = field(default=0.05, metadata={"low": 0.0})
     #: weight of the (exact, linear) penalty on the slack that keeps the QP feasible when
     #: the barrier conditions and the input's range conflict; the slack is in shares of the

@@ -370,7 +370,16 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         effects=effects, task=task,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings,
         randomize=randomize,
-        safety=SafetyConfig(**read_fields(top.table_of("safety"), SafetyConfig, "in [safety]")))
+        safety=_safety(top.table_of("safety")))
+
+
+def _safety(r: Table) -> SafetyConfig:
+    """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md)."""
+    values = read_fields(r, SafetyConfig, "in [safety]")
+    if not values.get("margin", 0.0) < 1.0:
+        raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
+                                f"half-width), got {values['margin']:g}")
+    return SafetyConfig(**values)
 
 
 def parse_toml(text: str, path: str) -> dict:

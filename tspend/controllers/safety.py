@@ -153,7 +153,6 @@ class SafetyFilter(Controller):
         self.sum_du = self.max_du = 0.0
         self.time_hist = np.zeros(_TIME_BINS.size + 1, dtype=np.int64)
         self.time_max = 0.0
-        self.unenforced: set[str] = set()
 
     def parameters(self) -> dict[str, np.ndarray]:
         return self.inner.parameters()
@@ -232,10 +231,8 @@ class SafetyFilter(Controller):
             ends = np.abs(d[keep] / c[keep]) if keep.any() else np.zeros(0)
             S = max(1.0, abs(u_c), float(ends.max(initial=0.0)))
         v_c = u_c / S
-        if not keep.all():
-            # the input does not reach this row's condition at this state (its relative
-            # degree is higher here): nothing the filter can do about it at this sample
-            self.unenforced.update(str(i) for i in np.flatnonzero(~keep))
+        # a row the input does not reach at this state (c = 0: its relative degree is higher
+        # here, or (S5) moving away) puts no condition on u at this sample
         m = max(A.shape[0], 1)
         a = np.zeros((m, 2))
         uba = np.full(m, np.inf)
