@@ -305,6 +305,7 @@ def help_text() -> str:
     lines = [f"{k.name:<{width}}  {_plain_text(k.summary)}" for k in kinds]
     lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
                  f" also package.module:Class)")
+    lines.append(f"{'KIND+cbf':<{width}}  any kind behind the CBF safety filter (docs/safety.md)")
     return "\n".join(lines) + "\n"
 
 
