@@ -206,7 +206,7 @@ def test_cli_safety_flag_writes_the_filter_and_violations_and_refuses_a_plant_wi
 
 
 def test_braking_rows_against_h_b_along_the_model():
-    """(S5): c u <= d is -(h_b' + alpha_1 h_b) <= 0 with h_b' measured along a tight
+    """(S4): c u <= d is -(h_b' + alpha_1 h_b) <= 0 with h_b' measured along a tight
     solve_ivp trajectory, for a cart moving toward either end (v > 0 on that row)."""
     from tspend.controllers.safety import braking_rows
 

@@ -209,11 +209,11 @@ class SafetyConfig:
     alpha_1: float = field(default=2.0, metadata=_positive())
     alpha_2: float = field(default=4.0, metadata=_positive())
     #: how a position row (the rail, an arm's range) is kept: "hocbf", the second-order
-    #: barrier (S1) with alpha_1, alpha_2; "braking", the stopping-distance barrier (S5),
+    #: barrier (S1) with alpha_1, alpha_2; "braking", the stopping-distance barrier (S4),
     #: which leaves u alone until the room to brake at ``braking`` x the input's authority
     #: runs out (docs/safety.md)
     barrier: str = field(default="hocbf", metadata={"choices": ("hocbf", "braking")})
-    #: (S5)'s deceleration as a share of what the input's range gives at rest
+    #: (S4)'s deceleration as a share of what the input's range gives at rest
     braking: float = field(default=0.1, metadata=_positive())
     #: a fraction of each box's half-width kept as a margin against model mismatch and
     #: sampling (0.05: the filter keeps the state 5 % of the half-width inside)

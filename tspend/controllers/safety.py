@@ -84,11 +84,11 @@ def barrier_rows(A: np.ndarray, b: np.ndarray, dof: int, s: np.ndarray, f: np.nd
 def braking_rows(A: np.ndarray, b: np.ndarray, dof: int, s: np.ndarray, f: np.ndarray,
                  g: np.ndarray, alpha_1: float, a_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(c, d)`` as :func:`barrier_rows`, but a row on positions only is kept by the
-    stopping-distance barrier (S5): with ``p = a_q q``, ``v = a_q q'`` and ``h = b - p``,
+    stopping-distance barrier (S4): with ``p = a_q q``, ``v = a_q q'`` and ``h = b - p``,
     ``h_b = h - v max(v, 0) / (2 a_max)`` (the room left once braking at ``a_max`` from
     ``v``), relative degree 1, and ``h_b' + alpha_1 h_b >= 0``; for ``v > 0``::
 
-        (v / a_max)(a_q g) u <= -v - (v / a_max) a_q f + alpha_1 h_b                  (S5)
+        (v / a_max)(a_q g) u <= -v - (v / a_max) a_q f + alpha_1 h_b                  (S4)
 
     (``v <= 0``: moving away, ``h_b' = -v >= 0``: no condition on u, the row reads 0 u <= 1).
     ``a_max`` (per row) is the deceleration the barrier may ask for near the bound."""
@@ -196,7 +196,7 @@ class SafetyFilter(Controller):
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
         self._rows = (perm, A, b)
-        # (S5)'s deceleration per row: a share of what the input's range gives at rest
+        # (S4)'s deceleration per row: a share of what the input's range gives at rest
         g0 = model.input_map(np.zeros(model.size))[1]
         reach = max(abs(self.u_lo), abs(self.u_hi)) if self.bounded else 1.0
         self._a_max = np.array([max(self.cfg.braking * abs(row[:model.dof] @ g0) * reach, 1e-9)
@@ -232,7 +232,7 @@ class SafetyFilter(Controller):
             S = max(1.0, abs(u_c), float(ends.max(initial=0.0)))
         v_c = u_c / S
         # a row the input does not reach at this state (c = 0: its relative degree is higher
-        # here, or (S5) moving away) puts no condition on u at this sample
+        # here, or (S4) moving away) puts no condition on u at this sample
         m = max(A.shape[0], 1)
         a = np.zeros((m, 2))
         uba = np.full(m, np.inf)
