@@ -163,6 +163,70 @@ class EffectsConfig:
 
 
 @dataclass(frozen=True)
+class BoxConstraint:
+    """``[task.constraints.box] NAME = {lo, hi, hard}``: ``lo <= NAME <= hi`` on a named state
+    or the input (+/-inf: open).  ``hard``: crossing it ends the run ``constraint`` (a state's
+    box only); soft: measured (tspend/constraints.py)."""
+
+    lo: float = -float("inf")
+    hi: float = float("inf")
+    hard: bool = False
+
+
+@dataclass(frozen=True)
+class LinearConstraint:
+    """``[task.constraints.linear] LABEL = {terms = {NAME = coefficient, ..}, max, min}``:
+    ``min <= sum coefficient * NAME <= max`` over named states and the input (soft: measured,
+    kept by the safety filter)."""
+
+    terms: tuple[tuple[str, float], ...] = ()
+    lo: float = -float("inf")
+    hi: float = float("inf")
+
+
+@dataclass(frozen=True)
+class ConstraintsConfig:
+    """``[task.constraints]``: the constraints a run is measured against and a safety filter
+    keeps (tspend/constraints.py, docs/safety.md)."""
+
+    #: the domain's own: every joint range and the rail (hard, as the task ends runs on
+    #: them), the actuator's range (soft)
+    defaults: bool = True
+    #: (name, box) pairs: a state's or the input's box
+    boxes: tuple[tuple[str, BoxConstraint], ...] = ()
+    #: (label, inequality) pairs
+    linear: tuple[tuple[str, LinearConstraint], ...] = ()
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """``[safety]``: a safety filter between any controller and the plant (docs/safety.md)."""
+
+    #: "off" or "cbf" (a control barrier function QP per sample, tspend/controllers/safety.py)
+    filter: str = field(default="off", metadata={"choices": ("off", "cbf")})
+    #: class-K gains of the (high-order) barrier conditions, 1/s: psi_1 = h' + alpha_1 h,
+    #: psi_1' + alpha_2 psi_1 >= 0 (a position box), h' + alpha_1 h >= 0 (a velocity's)
+    alpha_1: float = field(default=2.0, metadata=_positive())
+    alpha_2: float = field(default=4.0, metadata=_positive())
+    #: how a position row (the rail, an arm's range) is kept: "hocbf", the second-order
+    #: barrier (S1) with alpha_1, alpha_2; "braking", the stopping-distance barrier (S4),
+    #: which leaves u alone until the room to brake at ``braking`` x the input's authority
+    #: runs out (docs/safety.md)
+    barrier: str = field(default="hocbf", metadata={"choices": ("hocbf", "braking")})
+    #: (S4)'s deceleration as a share of what the input's range gives at rest
+    braking: float = field(default=0.1, metadata=_positive())
+    #: a fraction of each box's half-width kept as a margin against model mismatch and
+    #: sampling (0.05: the filter keeps the state 5 % of the half-width inside)
+    margin: float = field(default=0.05, metadata={"low": 0.0})
+    #: weight of the (exact, linear) penalty on the slack that keeps the QP feasible when
+    #: the barrier conditions and the input's range conflict; the slack is in shares of the
+    #: input's range, and above 4 it is 0 whenever the conditions can all hold
+    slack_weight: float = field(default=1000.0, metadata=_positive())
+    #: CasADi conic solver of the QP (docs/safety.md: daqp, exact and silent, by default)
+    solver: str = field(default="daqp", metadata={"choices": ("daqp", "qpoases", "osqp")})
+
+
+@dataclass(frozen=True)
 class TaskConfig:
     """``[task]``: what the controllers track and what ends a run (tspend/task.py).
 
@@ -187,6 +251,8 @@ class TaskConfig:
     goal_angle: float = field(default=0.0, metadata=_at_least_zero())
     #: s from the start by which the goal must hold (to the end of the run)
     goal_by: float = field(default=0.0, metadata=_at_least_zero())
+    #: ``[task.constraints]``: boxes and linear inequalities over states and the input
+    constraints: ConstraintsConfig = ConstraintsConfig()
 
 
 @dataclass(frozen=True)
@@ -231,3 +297,5 @@ class Scenario:
     controllers: tuple = ()
     #: what a seed draws of the plant ([randomize]; tspend.plants.randomize.Draw entries)
     randomize: tuple = ()
+    #: ``[safety]``: the safety filter (off unless set)
+    safety: SafetyConfig = SafetyConfig()

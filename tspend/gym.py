@@ -341,7 +341,7 @@ class TspendEnv(gymnasium.Env):
         N = len(self.task.names)
         state = obs[:N]
         return Observation(self.t, state, state[self.task.view_index].copy(), obs[N:],
-                           self.task.names)
+                           self.task.names, self.task.constraints)
 
     def layout(self) -> list[tuple[str, str]]:
         """``(name, unit)`` of each observation entry."""

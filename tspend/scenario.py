@@ -21,8 +21,9 @@ import numpy as np
 from tspend import signals
 from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
     MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
-from tspend.config import (ControllerConfig, EffectsConfig, OuterLoopConfig, TaskConfig,
-    ParameterChange, PlantConfig, RunConfig, Scenario, SetSpec)
+from tspend.config import (BoxConstraint, ConstraintsConfig, ControllerConfig, EffectsConfig,
+    LinearConstraint, OuterLoopConfig, ParameterChange, PlantConfig, RunConfig, SafetyConfig,
+    Scenario, SetSpec, TaskConfig)
 from tspend.controllers.paper.control_law import is_hurwitz
 from tspend.controllers import settings_classes
 from tspend.controllers.settings import parse_kind_tables
@@ -45,7 +46,7 @@ DISTURBANCE_KINDS: dict[str, type] = {
 }
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
-            "controllers", "effects", "task", "randomize")
+            "controllers", "effects", "task", "randomize", "safety")
 #: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
 #: four ``*_sets`` fields in the [controller.sets] table
 CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
@@ -287,7 +288,45 @@ def _task(r: Table, n: int) -> TaskConfig:
                       joint_limits=r.boolean("joint_limits", d.joint_limits),
                       state_bounds=tuple((str(k), bounds.number(k, low=0.0, strict=True))
                                          for k in bounds.table),
-                      goal_angle=goal_angle, goal_by=goal_by)
+                      goal_angle=goal_angle, goal_by=goal_by,
+                      constraints=_constraints(r.table_of("constraints")))
+
+
+def _constraints(r: Table) -> ConstraintsConfig:
+    """``[task.constraints]``: the names are checked against the plant's states and input
+    when the run is built (:func:`tspend.constraints.build_constraints`), the numbers here."""
+    r.check_keys(("defaults", "box", "linear"), "in [task.constraints]")
+    boxes = []
+    box_r = r.table_of("box")
+    for name in box_r.table:
+        b = box_r.table_of(name)
+        b.check_keys(("lo", "hi", "hard"), "in a box {lo, hi, hard}")
+        lo = b.number("lo", -math.inf) if b.has("lo") else -math.inf
+        hi = b.number("hi", math.inf) if b.has("hi") else math.inf
+        if not (b.has("lo") or b.has("hi")):
+            raise box_r.error(name, "give lo, hi or both (the box's ends)")
+        if not lo < hi:
+            raise b.error("hi", f"must be > lo ({lo:g}), got {hi:g}")
+        boxes.append((str(name), BoxConstraint(lo, hi, b.boolean("hard", False))))
+    linear = []
+    lin_r = r.table_of("linear")
+    for label in lin_r.table:
+        c = lin_r.table_of(label)
+        c.check_keys(("terms", "min", "max"), "in a linear constraint {terms, min, max}")
+        terms_r = c.table_of("terms", required=True)
+        terms = tuple((str(k), terms_r.number(k)) for k in terms_r.table)
+        if not terms or all(v == 0.0 for _, v in terms):
+            raise c.error("terms", "name at least one state or input with a nonzero coefficient, "
+                                   "e.g. {slider = 1.0, slider_dot = 0.5}")
+        if not (c.has("min") or c.has("max")):
+            raise lin_r.error(label, "give min, max or both (sum of terms within them)")
+        lo = c.number("min") if c.has("min") else -math.inf
+        hi = c.number("max") if c.has("max") else math.inf
+        if not lo < hi:
+            raise c.error("max", f"must be > min ({lo:g}), got {hi:g}")
+        linear.append((str(label), LinearConstraint(terms, lo, hi)))
+    return ConstraintsConfig(defaults=r.boolean("defaults", True), boxes=tuple(boxes),
+                             linear=tuple(linear))
 
 
 def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
@@ -330,7 +369,17 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         run=run, plant=plant, reference=ref, disturbance=dist, controller=ctrl,
         effects=effects, task=task,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings,
-        randomize=randomize)
+        randomize=randomize,
+        safety=_safety(top.table_of("safety")))
+
+
+def _safety(r: Table) -> SafetyConfig:
+    """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md)."""
+    values = read_fields(r, SafetyConfig, "in [safety]")
+    if not values.get("margin", 0.0) < 1.0:
+        raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
+                                f"half-width), got {values['margin']:g}")
+    return SafetyConfig(**values)
 
 
 def parse_toml(text: str, path: str) -> dict:

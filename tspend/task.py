@@ -16,7 +16,10 @@ and the plant's domain (:meth:`tspend.plants.base.Plant.default_task`):
   - ``joint_limits``: a limited joint's range ends it, ``rail_end`` for a slide joint (the
     cart's rail), ``joint_limit`` for another; ``effects.rail`` overrides the slide
     joint's range with ``[-rail, rail]``;
-  - ``state_bounds``: ``|value| > bound`` for a named state ends it ``state_bound``.
+  - ``state_bounds``: ``|value| > bound`` for a named state ends it ``state_bound``;
+  - ``constraints``: a hard box of ``[task.constraints.box]`` on a state ends it
+    ``constraint``; every constraint, the domain's defaults included, is measured
+    (:mod:`tspend.constraints`, ``Task.constraints``).
 
 A terminated run keeps its outputs up to the sample that crossed (recorded, its control
 never applied), exits with status :data:`EXIT_TERMINATED` on the CLI, and its message
@@ -37,6 +40,7 @@ from tspend.errors import ScenarioError
 from tspend.plants.base import Plant
 
 if TYPE_CHECKING:
+    from tspend.constraints import ConstraintSet
     from tspend.signals import Disturbance, Reference
 
 __all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_task"]
@@ -44,7 +48,7 @@ __all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_t
 #: the statuses of a run the task ended (each exits with EXIT_TERMINATED on the CLI)
 #: (``not_reached``: every bound held but the goal, ``task.goal_angle`` by ``task.goal_by``, was
 #: not reached: tspend.loop.runner decides it at the end of the run)
-TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound", "not_reached")
+TERMINATIONS = ("fell", "rail_end", "joint_limit", "state_bound", "not_reached", "constraint")
 
 #: the CLI's exit status for a run the task ended (the outputs are kept up to the end)
 EXIT_TERMINATED = 4
@@ -92,6 +96,8 @@ class Task:
     hi_limits: tuple[Limit | None, ...]
     reference: "Reference | None" = None
     disturbance: "Disturbance | None" = None
+    #: the constraints the run is measured against (tspend/constraints.py; None: none built)
+    constraints: "ConstraintSet | None" = None
     #: (index, lo, hi) of every bounded entry: the generic loop's per-sample check
     watched: tuple[tuple[int, float, float], ...] = field(init=False)
 
@@ -218,7 +224,23 @@ def build_task(plant: Plant, cfg: TaskConfig = TaskConfig(),
         bound(j, -value, value, Limit("state_bound", f"task.state_bounds.{name} = {value:g}{unit}",
                                       symmetric=True))
 
+    from tspend.constraints import build_constraints
+
+    # the domain's default constraints: every bound so far but the fall angle
+    own = []
+    for j in range(N):
+        limit = hi_limits[j] or lo_limits[j]
+        if limit is not None and limit.status != "fell":
+            own.append((j, float(lo[j]), float(hi[j]), limit.status))
+    constraints = build_constraints(plant, cfg.constraints, effects, own, where.rstrip(": "))
+    for name, box in cfg.constraints.boxes:
+        if box.hard:
+            j = names.index(name)  # build_constraints refused a hard box on anything else
+            unit = f" {units[j]}" if units[j] else ""
+            bound(j, box.lo, box.hi, Limit("constraint", f"task.constraints.box.{name} "
+                                                         f"[{box.lo:g}, {box.hi:g}]{unit}"))
+
     return Task(names=names, units=units, view=view,
                 view_index=np.array([names.index(v) for v in view], dtype=np.intp),
                 lo=lo, hi=hi, lo_limits=tuple(lo_limits), hi_limits=tuple(hi_limits),
-                reference=reference, disturbance=disturbance)
+                reference=reference, disturbance=disturbance, constraints=constraints)

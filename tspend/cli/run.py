@@ -27,6 +27,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
+    r.add_argument("--safety", choices=("off", "cbf"),
+                   help="run the controller behind a safety filter: 'cbf', a control barrier "
+                        "function QP keeping the task's constraints (same as --set "
+                        "safety.filter=cbf; docs/safety.md)")
     return r
 
 
@@ -67,6 +71,8 @@ def cmd(args: argparse.Namespace) -> int:
         from tspend.controllers import load
 
         load(args.controller)  # before the scenario: it may carry the plug-in's table
+    if args.safety is not None:
+        args.set = [*args.set, f"safety.filter={args.safety}"]
     scn = load_with_overrides(args)
     check_viewer_url(args.connect)
     check_model_size(scn)
@@ -257,6 +263,18 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         else:
             text = f"not reached ({target})"
         print(f"  {'goal':<{width}}  {text}", file=stream)
+    constraints = metrics.get("constraints") or {}
+    if constraints:
+        parts = [f"{name} {c['samples_outside']} (deepest {_with(c['max_depth'], c['unit'])})"
+                 if c.get("samples_outside") else f"{name} 0"
+                 for name, c in constraints.items() if isinstance(c, dict)]
+        print(f"  {'violations':<{width}}  samples outside: {', '.join(parts)}", file=stream)
+    safety = metrics.get("safety_filter")
+    if isinstance(safety, dict) and safety.get("samples"):
+        print(f"  {'safety filter':<{width}}  {safety['filter']} ({safety['solver']}): changed u "
+              f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "
+              f"mean |du| {_with(safety['mean_abs_du'], u)}, QP "
+              f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median", file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")

@@ -180,6 +180,20 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
         return _OBJECTS[spec]
     if spec in KINDS:
         return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec), "", kind_class(spec))
+    from tspend.controllers.safety import SUFFIX
+
+    if spec.endswith(SUFFIX) and len(spec) > len(SUFFIX):
+        # ``pd+cbf``: the kind behind the safety filter (docs/safety.md)
+        base = resolve(spec[:-len(SUFFIX)], option)
+
+        def filtered(scenario: "Scenario", **options) -> Controller:
+            from tspend.controllers.safety import SafetyFilter, wrap
+
+            ctrl = base.build(scenario, **options)
+            return ctrl if isinstance(ctrl, SafetyFilter) else wrap(scenario, ctrl)
+
+        return replace(base, name=base.name + SUFFIX, build=filtered,
+                       summary=f"{base.summary} (behind the CBF safety filter)")
     if plugins.is_spec(spec):
         return _plugin_kind(plugins.load_object(spec, option), spec, option)
     obj = plugins.load_entry_point(ENTRY_POINT_GROUP, spec, option)
@@ -295,6 +309,7 @@ def help_text() -> str:
     lines = [f"{k.name:<{width}}  {_plain_text(k.summary)}" for k in kinds]
     lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
                  f" also package.module:Class)")
+    lines.append(f"{'KIND+cbf':<{width}}  any kind behind the CBF safety filter (docs/safety.md)")
     return "\n".join(lines) + "\n"
 
 
@@ -307,6 +322,8 @@ def settings_class(name: str) -> type | None:
     """
     if name in SETTINGS:
         return SETTINGS[name]
+    if name.endswith("+cbf") and name != "+cbf":
+        return settings_class(name[:-len("+cbf")])
     if name in _LOADED:
         return _LOADED[name]
     if name in plugins.entry_point_names(ENTRY_POINT_GROUP):
@@ -390,10 +407,22 @@ def _plain(value: Any) -> Any:
 
 
 def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
-    """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller).
+    """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller),
+    behind the safety filter when the scenario's ``[safety]`` asks for one (or the kind is
+    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`).
 
     ``kind`` is any spec :func:`resolve` accepts.
     """
+    ctrl = _build(scenario, kind, **options)
+    if scenario.safety.filter == "cbf":
+        from tspend.controllers.safety import SafetyFilter, wrap
+
+        if not isinstance(ctrl, SafetyFilter):
+            ctrl = wrap(scenario, ctrl)
+    return ctrl
+
+
+def _build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
     if kind is None:
         kind = scenario.run.controller or None   # the scenario's own kind ([run] controller)
     if kind is None:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, NamedTuple
 import numpy as np
 
 if TYPE_CHECKING:
+    from tspend.constraints import ConstraintSet
     from tspend.plants.domain import Domain
 
 __all__ = ["CompiledController", "Controller", "Diagnostic", "Observation", "RESERVED", "chain_observation",
@@ -113,7 +114,9 @@ class Observation(NamedTuple):
     derivatives (on the cart-pole ``[hinge, hinge_dot]``); ``ref`` (n+1,) the reference
     and its derivatives; ``names`` the full state's names.  The arrays are read-only views
     of the runner's (writing into one raises ``ValueError``): a controller that keeps one
-    must copy it.
+    must copy it.  ``constraints``: the task's constraints over the full state and the
+    input (:class:`tspend.constraints.ConstraintSet`: boxes and linear inequalities, each
+    hard or soft, with their margins at any state; None when the caller has no task).
     """
 
     t: float
@@ -121,6 +124,7 @@ class Observation(NamedTuple):
     x: np.ndarray
     ref: np.ndarray
     names: tuple[str, ...] = ()
+    constraints: "ConstraintSet | None" = None
 
     def get(self, name: str) -> float:
         """The full state's entry called ``name`` (KeyError if the plant has none)."""
@@ -216,6 +220,11 @@ class Controller(ABC):
 
     def parameters(self) -> dict[str, np.ndarray]:
         """Copies of every adapted parameter (empty for a fixed controller)."""
+        return {}
+
+    def run_metrics(self) -> dict[str, Any]:
+        """The controller's own metrics over the run so far, merged into the run's at its
+        end (a safety filter's intervention and compute per sample; empty: none)."""
         return {}
 
     def snapshot(self, t: float, step: int, x: np.ndarray) -> Any:

@@ -29,7 +29,13 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
   null).  The median comes from a log-spaced histogram (1 ns .. 100 s, 2 % bins), so
   memory stays flat on long runs;
 * ``counters.<name>``: the last value of every diagnostic on the ``counters`` panel
-  (MPC's ``solve_failures``, ``solve_overruns``).
+  (MPC's ``solve_failures``, ``solve_overruns``);
+* ``constraints.<name>``: per constraint of the task (:mod:`tspend.constraints`, the
+  margin ``min(b - A [s, u])`` of (C1) at every recorded sample, ``u`` the command):
+  ``samples_outside``, ``time_outside_s``, ``max_depth`` (the largest ``-margin``, 0 when
+  never outside), ``min_margin``, ``hard``; ``violations`` (samples with any constraint
+  outside) and ``max_violation`` (the largest depth of any) are comparable metrics like
+  ``rmse`` (0: every constraint held; a run the task ended scores +inf in a comparison).
 
 :func:`flatten` turns the nested keys into ``joints.slider.max_abs`` columns (sweep rows).
 """
@@ -65,11 +71,13 @@ class MachineInfo:
     #: the task's goal: |e1| <= goal_angle from goal_by s on (0: none; tspend.config.TaskConfig)
     goal_angle: float = 0.0
     goal_by: float = 0.0
+    #: the task's constraints (tspend.constraints.ConstraintSet; None: none measured)
+    constraints: object = None
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
 MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_",
-                    "drawn.", "goal.")
+                    "drawn.", "goal.", "constraints.", "safety_filter.")
 
 
 def is_machine_column(name: str) -> bool:
@@ -91,7 +99,7 @@ def flatten(metrics: dict, prefix: str = "") -> dict:
 #: keys every metrics dictionary has (the CLI writes them as JSON)
 METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
                "control_energy", "max_abs_u", "max_abs_u_command", "tv_u_per_s", "wall_s",
-               "sim_s", "steps", "seed")
+               "sim_s", "steps", "seed", "violations", "max_violation")
 
 
 class MetricsAccumulator:
@@ -123,6 +131,11 @@ class MetricsAccumulator:
         self.ss_max_abs_e = 0.0
         self.tv_u = 0.0
         self.u_last: float | None = None
+        C = len(machine.constraints) if machine is not None and machine.constraints is not None else 0
+        self.c_outside = np.zeros(C, dtype=np.int64)
+        self.c_depth = np.zeros(C)
+        self.c_margin = np.full(C, np.inf)
+        self.any_outside = 0
 
     # sink protocol ----------------------------------------------------------------------
     def start(self, info: RunInfo) -> None:
@@ -166,6 +179,37 @@ class MetricsAccumulator:
         self.tv_u += float(np.abs(np.diff(u)).sum())
         self.u_last = float(u[-1])
         self._machine_block(block.data, u)
+        self._constraints_block(block.data, u)
+
+    def _constraints_block(self, data: dict, u: np.ndarray) -> None:
+        m = self.machine
+        state = data.get("state")
+        if m is None or m.constraints is None or not len(m.constraints) or state is None:
+            return
+        margin = m.constraints.margins(state, u)                     # (k, C)
+        # NaN (a diverged sample) is neither inside nor outside: not counted
+        outside = margin < 0.0
+        self.c_outside += outside.sum(axis=0)
+        self.any_outside += int(np.count_nonzero(outside.any(axis=1)))
+        with np.errstate(invalid="ignore"):
+            self.c_depth = np.fmax(self.c_depth, np.nanmax(np.where(outside, -margin, 0.0), axis=0))
+            self.c_margin = np.fmin(self.c_margin, np.nanmin(np.where(np.isnan(margin), np.inf,
+                                                                      margin), axis=0))
+
+    def constraints_result(self) -> dict:
+        """Per constraint: samples and time outside, largest depth, smallest margin."""
+        m = self.machine
+        if m is None or m.constraints is None:
+            return {}
+        out = {}
+        for i, c in enumerate(m.constraints):
+            out[c.name] = {"hard": c.hard, "unit": c.unit,
+                           "samples_outside": int(self.c_outside[i]),
+                           "time_outside_s": float(self.c_outside[i]) * self.dt,
+                           "max_depth": float(self.c_depth[i]),
+                           "min_margin": float(self.c_margin[i]) if self.steps and
+                           math.isfinite(self.c_margin[i]) else None}
+        return out
 
     def _machine_block(self, data: dict, u: np.ndarray) -> None:
         m = self.machine
@@ -268,5 +312,8 @@ class MetricsAccumulator:
             "sim_s": sim_s,
             "steps": n,
             "seed": self.seed,
+            "violations": int(self.any_outside) if n else None,
+            "max_violation": float(self.c_depth.max(initial=0.0)) if n else None,
             **self.machine_result(),
+            **({"constraints": self.constraints_result()} if self.c_outside.size else {}),
         }

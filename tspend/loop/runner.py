@@ -238,6 +238,9 @@ class ClosedLoop:
         for sink in sinks:
             if hasattr(sink, "result"):
                 metrics = sink.result(wall_s=wall)
+        own = self.controller.run_metrics()
+        if own:
+            metrics = {**metrics, **own}
         if status in TERMINATIONS and status != NOT_REACHED:
             message += _what_else(self.plant, metrics)
         goal = metrics.get("goal")
@@ -276,6 +279,7 @@ class ClosedLoop:
         isfinite = math.isfinite
         stop, hook, task = self.stop, self.hook, self.task
         view, names, watched = task.view_index, task.names, bool(task.watched)
+        constraints = task.constraints
         crossed = task.ended
         segment = segment_runner(plant, ctrl, hook, Buffers(X, U, D, E, F),
                                  Bounds(s.state_bound, s.control_bound), dt, task,
@@ -308,7 +312,7 @@ class ClosedLoop:
                         try:
                             u_new = _control_value(ctrl.step(Observation(
                                 t[i], _read_only(full), _read_only(seen), _read_only(ref[i]),
-                                names), dt * every))
+                                names, constraints), dt * every))
                         except (Exception, SystemExit) as exc:
                             # the controller's own failure (a plug-in's bug, a wrong return,
                             # sys.exit): the run ends as it, with what came before kept

@@ -217,7 +217,7 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario,
         lo, hi = max(lo, -sat), min(hi, sat)
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
                        drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
-                       goal_by=scenario.task.goal_by)
+                       goal_by=scenario.task.goal_by, constraints=task.constraints)
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:
