@@ -229,6 +229,20 @@ class MPCController(Controller):
         Ur = e_u @ rows + c_u
         return Sr, Ur[:N]
 
+    def running_cost(self, states: np.ndarray, refs: np.ndarray, u: np.ndarray,
+                     dt: float) -> float:
+        """The closed loop's cost: ``dt sum (e^T Q e + R (u - u_r)^2)`` over a run's samples
+        (``states`` (n, nx), ``refs`` (n, 3) reference rows, ``u`` (n,) the applied
+        inputs), the integral the MPC's stage cost sums by rectangles; the pole's error
+        wrapped."""
+        E_s, c_s, e_u, c_u = self._reference_map
+        refs = np.asarray(refs, dtype=float)
+        e = np.asarray(states, dtype=float) - (refs @ E_s.T + c_s)
+        pole = e[:, self.model.pole]
+        e[:, self.model.pole] = [wrap_angle(a) for a in pole]
+        du = np.asarray(u, dtype=float) - (refs @ e_u + c_u)
+        return float(dt * (np.einsum("ij,jk,ik->", e, self.Q, e) + self.R * du @ du))
+
     def solve(self, state: np.ndarray, ref: np.ndarray) -> tuple[float, bool, float]:
         """``(u, success, wall seconds)`` of one sample's solve from ``state``."""
         if self.rti is not None:
