@@ -23,8 +23,10 @@ same problem (tests/test_mpc_rti.py).  A cold start (no plan yet) iterates up to
 ``sqp_iterations`` times in either scheme.
 
 The QP keeps the stage structure (variables ordered by stage, (R2) as the only equality
-rows), the form HPIPM and FATROP exploit (Riccati-based interior point; Frison and Diehl,
-2020; Vanroye et al., 2023); OSQP, qrqp and DAQP take it as a sparse or dense QP.  The
+rows), the form HPIPM exploits (a Riccati-based interior point; Frison and Diehl, 2020);
+qrqp (CasADi's sparse active set), DAQP (dense active set) and OSQP (ADMM) take it as a
+general QP.  FATROP's QP interface is left out: in CasADi 3.8.2 it prints its matrices on
+every call.  The
 linearisation (``F``, its Jacobian over the horizon, (R1)'s gradient, the bounds) is one
 CasADi function, generated as C and compiled with the system's C compiler (cached by the
 source's hash under ``$TSPEND_CACHE_DIR/mpc``), or run in CasADi's virtual machine when
@@ -46,13 +48,12 @@ import numpy as np
 __all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
 
 #: the QP solvers CasADi ships that the real-time schemes can use
-QP_SOLVERS = ("hpipm", "fatrop", "osqp", "qrqp", "daqp")
+QP_SOLVERS = ("hpipm", "qrqp", "daqp", "osqp")
 
 #: each QP solver's options: quiet, errors raised (a failed QP is a failed sample)
 _QP_OPTIONS: dict[str, dict[str, Any]] = {
     "hpipm": {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-7,
                         "res_d_max": 1e-7, "res_m_max": 1e-7}},
-    "fatrop": {"fatrop": {"print_level": 0}},
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-6, "eps_rel": 1e-6, "polish": True,
                       "max_iter": 20000}, "warm_start_primal": True},
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
@@ -169,10 +170,8 @@ class RealTimeSQP:
             lin = fast
         opts = dict(_QP_OPTIONS[solver])
         opts["error_on_fail"] = True
-        if solver in ("hpipm", "fatrop"):
+        if solver == "hpipm":
             opts.update(N=N, nx=[nx] * (N + 1), nu=[1] * N + [0], ng=[0] * (N + 1))
-            if solver == "fatrop":
-                opts["structure_detection"] = "manual"
         self.qp = ca.conic("tspend_mpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()},
                            opts)
         zs, s0s, zrs = ca.MX.sym("z", self.nw), ca.MX.sym("s0", nx), ca.MX.sym("zr", self.nw)
