@@ -2,6 +2,7 @@
 
     python benchmarks/mpc_speed.py [--scenario pendulum_mujoco] [--samples 250]
                                    [--scheme rti] [--solver hpipm] [--no-dompc]
+                                   [--set effects.saturation=60 ...]
 
 1. Runs the scenario under ``mpc`` with the fast scheme (20 ms period) and keeps the
    state and reference row at every control sample.
@@ -11,7 +12,8 @@
    do-mpc (a discrete model ``x+ = F(x, u)``, the same stage and terminal costs, the
    references as time-varying parameters, IPOPT underneath).  The three are interleaved
    sample by sample, so that the machine's load falls on all alike, and timed by wall
-   clock and by the process's CPU time (the load inflates the first, much less the second).
+   clock and by the process's CPU time (the load inflates the first, much less the second);
+   "warm" leaves out the first sample (a cold start: no plan yet).
    ``--solver hpipm,qrqp`` times the fast scheme on each QP solver named (the first is the
    one run in closed loop).
 3. Prints median and max per solver and the ratios ``median(IPOPT) / median(X)`` from
@@ -124,17 +126,22 @@ def main() -> None:
     ap.add_argument("--solver", default="hpipm",
                     help="QP solver(s) of the fast scheme, comma-separated")
     ap.add_argument("--no-dompc", action="store_true", help="leave the peer out")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scenario override (a number), e.g. effects.saturation=60")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     qp_solvers = args.solver.split(",")
     base = {"controllers.mpc.horizon": args.horizon, "controllers.mpc.solver": qp_solvers[0]}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        base[key] = float(value)
     period = 0.02
     s_fast = override(load_scenario(args.scenario),
                       **{**base, "run.duration": period * args.samples,
                          "controllers.mpc.scheme": args.scheme})
     s_ipopt = override(s_fast, **{"controllers.mpc.scheme": "ipopt"})
     print(f"# mpc_speed: {args.scenario}, horizon {args.horizon}, {args.samples} samples of "
-          f"{period * 1e3:g} ms, fast scheme {args.scheme} on {args.solver}; "
+          f"{period * 1e3:g} ms, fast scheme {args.scheme} on {args.solver}; {args.set}; "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at start")
     r_fast = run(s_fast, controller="mpc")
     h = r_fast.history
@@ -160,12 +167,14 @@ def main() -> None:
             u[name].append(out)
     base_w, base_c = np.median(wall["ipopt"]), np.median(cpu["ipopt"])
     print(f"{'solver':<14} {'wall median':>12} {'wall max':>10} {'cpu median':>11} "
-          f"{'cpu max':>9} {'ipopt/x wall':>13} {'ipopt/x cpu':>12} {'max|u-u_ipopt|':>15}")
+          f"{'cpu max':>9} {'cpu max warm':>13} {'ipopt/x wall':>13} {'ipopt/x cpu':>12} "
+          f"{'max|u-u_ipopt|':>15}")
     for name in solvers:
         w, c = np.asarray(wall[name]), np.asarray(cpu[name])
         du = np.max(np.abs(np.asarray(u[name]) - np.asarray(u["ipopt"])))
         print(f"{name:<14} {np.median(w):>10.3f}ms {w.max():>8.2f}ms {np.median(c):>9.3f}ms "
-              f"{c.max():>7.2f}ms {base_w / np.median(w):>12.1f}x {base_c / np.median(c):>11.1f}x "
+              f"{c.max():>7.2f}ms {c[1:].max():>11.2f}ms "
+              f"{base_w / np.median(w):>12.1f}x {base_c / np.median(c):>11.1f}x "
               f"{du:>15.3g}")
     # the closed loop: the fast scheme's run above against IPOPT's on the same scenario
     r_ipopt = run(s_ipopt, controller="mpc")
