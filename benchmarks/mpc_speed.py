@@ -1,7 +1,7 @@
 """Per-sample compute of ``mpc``'s real-time scheme, its IPOPT reference and do-mpc, one run.
 
     python benchmarks/mpc_speed.py [--scenario pendulum_mujoco] [--samples 250]
-                                   [--scheme rti] [--solver hpipm] [--no-dompc]
+                                   [--scheme rti] [--solver qrqp] [--no-dompc]
                                    [--set effects.saturation=60 ...]
 
 1. Runs the scenario under ``mpc`` with the fast scheme (20 ms period) and keeps the
@@ -123,7 +123,7 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=250)
     ap.add_argument("--horizon", type=int, default=30)
     ap.add_argument("--scheme", default="rti", choices=("rti", "sqp"))
-    ap.add_argument("--solver", default="hpipm",
+    ap.add_argument("--solver", default="qrqp",
                     help="QP solver(s) of the fast scheme, comma-separated")
     ap.add_argument("--no-dompc", action="store_true", help="leave the peer out")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

@@ -94,7 +94,7 @@ def test_rti_keeps_the_rail_and_the_actuators_range(monkeypatch):
 
 @pytest.mark.parametrize("key, value, expect", [
     ("controllers.mpc.scheme", '"fast"', "controllers.mpc.scheme"),
-    ("controllers.mpc.solver", '"fatrop"', "hpipm, qrqp, daqp, osqp"),
+    ("controllers.mpc.solver", '"fatrop"', "qrqp, hpipm, daqp, osqp"),
 ])
 def test_bad_scheme_or_solver_is_one_line_exit_2(key, value, expect, capsys):
     assert main(["run", "pendulum_mujoco", "--controller", "mpc", "--set", f"{key}={value}",

@@ -83,7 +83,7 @@ class MPCSettings(KindSettings):
                                    "convergence), rti (one Gauss-Newton SQP step from the "
                                    "shifted plan), sqp (up to sqp_iterations such steps)",
                           kind="choice", choices=SCHEMES)
-    solver: str = setting("hpipm", "the QP solver of the rti and sqp schemes",
+    solver: str = setting("qrqp", "the QP solver of the rti and sqp schemes",
                           kind="choice", choices=QP_SOLVERS)
     sqp_iterations: int = setting(5, "SQP steps per sample of the sqp scheme (and of either "
                                      "scheme's cold start)", kind="integer", low=1)

@@ -47,8 +47,9 @@ import numpy as np
 
 __all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
 
-#: the QP solvers CasADi ships that the real-time schemes can use
-QP_SOLVERS = ("hpipm", "qrqp", "daqp", "osqp")
+#: the QP solvers CasADi ships that the real-time schemes can use (the first is the
+#: default: docs/controllers.md says why)
+QP_SOLVERS = ("qrqp", "hpipm", "daqp", "osqp")
 
 #: each QP solver's options: quiet, errors raised (a failed QP is a failed sample)
 _QP_OPTIONS: dict[str, dict[str, Any]] = {
