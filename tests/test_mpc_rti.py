@@ -101,3 +101,20 @@ def test_bad_scheme_or_solver_is_one_line_exit_2(key, value, expect, capsys):
                  "--no-record", "--duration", "0.01"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0], err
+
+
+@pytest.mark.parametrize("solver", ["qrqp", "hpipm"])
+def test_an_infeasible_qp_is_a_counted_failure_not_a_plan(solver):
+    # 5 m/s toward the rail with 1 N: no input keeps the cart inside, so the QP has no
+    # solution; its answer must be refused by the infeasibility check, and counted
+    s = override(load_scenario("ex3_pendulum_ode"),
+                 **{"effects.rail": 1.2, "effects.saturation": 1.0, "controllers.mpc.horizon": 10,
+                    "controllers.mpc.scheme": "rti", "controllers.mpc.solver": solver})
+    c = build(s, "mpc")
+    u, ok, _ = c.solve(np.array([1.1, 0.0, 5.0, 0.0]), np.zeros(3))
+    assert not ok and np.isnan(u) and c.z is None
+    u = c.act(np.array([1.1, 0.0, 5.0, 0.0]), np.zeros(3))
+    assert c.failures == 1 and abs(u) <= 1.0 and c.diag[1] == 1.0
+    # a feasible state afterwards starts cold and succeeds
+    u, ok, _ = c.solve(np.array([0.0, 0.05, 0.0, 0.0]), np.zeros(3))
+    assert ok and abs(u) <= 1.0 + 1e-9
