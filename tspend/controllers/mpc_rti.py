@@ -91,12 +91,9 @@ def compiled_function(fn: Any) -> Any:
         return fn
     with tempfile.TemporaryDirectory(prefix="tspend-mpc-") as tmp:
         c_name = f"{fn.name()}.c"
-        cwd = os.getcwd()
-        try:
-            os.chdir(tmp)
-            fn.generate(c_name, {"with_header": False})
-        finally:
-            os.chdir(cwd)
+        generator = casadi.CodeGenerator(c_name, {"with_header": False})
+        generator.add(fn)
+        generator.generate(tmp + os.sep)
         source = (Path(tmp) / c_name).read_bytes()
         key = hashlib.sha256(source).hexdigest()[:20]
         folder = cache_dir() or Path(tmp)
