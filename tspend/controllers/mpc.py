@@ -23,10 +23,13 @@ Riccati matrix (the terminal cost of the unconstrained tail), and the reference 
 continued by its harmonic model (``r(t + tau) = r cos(omega tau) + r'/omega sin(omega tau)``,
 exact for the scenario's sine; ``r`` held when ``omega = 0``).
 
-The NLP is solved by IPOPT (``solver`` options as settings), warm-started from the last
-solution shifted by one period.  A solve that fails (IPOPT's status not success) or takes
+With ``scheme = "ipopt"`` (the default) the NLP is solved by IPOPT (its options as
+settings), warm-started from the last solution shifted by one period; ``rti`` and ``sqp``
+take Gauss-Newton SQP steps on the same problem over a QP solver (:mod:`.mpc_rti`).  A solve that fails (IPOPT's status not success) or takes
 longer than the period (wall clock) is counted in the ``solve_failures`` and
-``solve_overruns`` diagnostics, which the metrics report (``counters.*``); after a failure
+``solve_overruns`` diagnostics, which the metrics report (``counters.*``), beside
+``solve_cpu_overruns`` (the thread's CPU time over the period: on a loaded machine the
+wall clock also counts waits for a core); after a failure
 the previous plan's next input is applied (the LQR's, clipped, if there is none).
 """
 
@@ -183,14 +186,21 @@ class MPCController(Controller):
                                    "description": "solves longer than the period, so far"}),
             ("iterations", 1, {"panel": "solver",
                                "description": "IPOPT iterations (rti, sqp: SQP steps)"}),
-            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}))
+            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}),
+            # the CPU time this thread spent on the sample: on a loaded machine the wall
+            # time also counts waits for a core, which no solver can shorten
+            ("solve_cpu_ms", 1, {"panel": "solver", "unit": "ms",
+                                 "description": "this thread's CPU time in the sample's solve"}),
+            ("solve_cpu_overruns", 1, {"panel": "counters",
+                                       "description": "solves whose CPU time exceeded the "
+                                                      "period, so far"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
         self.reset(None)
 
     def reset(self, rng: np.random.Generator | None) -> None:
         self.w0: np.ndarray | None = None
         self.lam_g0: np.ndarray | None = None
-        self.failures = self.overruns = 0
+        self.failures = self.overruns = self.cpu_overruns = 0
         #: the last solution: predicted states (nx, N+1) and inputs (N,), for tests
         self.plan_states = np.zeros((self.nx, self.N + 1))
         self.plan_inputs = np.zeros(self.N)
@@ -311,7 +321,9 @@ class MPCController(Controller):
         return float(self.plan_inputs[0]), True, time.perf_counter() - started
 
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
+        cpu_started = time.thread_time()
         u, ok, wall = self.solve(state, ref)
+        cpu = time.thread_time() - cpu_started
         if not ok:
             self.failures += 1
             self._plan_age += 1
@@ -321,9 +333,12 @@ class MPCController(Controller):
                 u = min(self.u_hi, max(self.u_lo, self.lqr.act(state, ref)))
         if wall > self.s.period:
             self.overruns += 1
+        if cpu > self.s.period:
+            self.cpu_overruns += 1
         d = self.diag
         d[0], d[1], d[2] = 1e3 * wall, self.failures, self.overruns
         d[4] = self._u_ref
+        d[5], d[6] = 1e3 * cpu, self.cpu_overruns
         return u
 
     def step(self, obs: Observation, dt: float) -> float:
