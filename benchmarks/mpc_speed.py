@@ -20,6 +20,9 @@
    this run; the largest difference of each first input from IPOPT's; and the closed-loop
    cost (``MPCController.running_cost``) of the fast scheme against IPOPT's, both run on
    the scenario for the same samples.
+
+``--costs pendulum_mujoco:5,furuta_mujoco:5,...`` only runs each scenario closed loop under
+IPOPT and under the fast scheme and prints the two costs, their ratio and the compute.
 """
 
 from __future__ import annotations
@@ -128,8 +131,13 @@ def main() -> None:
     ap.add_argument("--no-dompc", action="store_true", help="leave the peer out")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override (a number), e.g. effects.saturation=60")
+    ap.add_argument("--costs", metavar="SCENARIO:SECONDS,...",
+                    help="only the closed-loop costs: the fast scheme against IPOPT on each")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
+    if args.costs:
+        costs(args)
+        return
     qp_solvers = args.solver.split(",")
     base = {"controllers.mpc.horizon": args.horizon, "controllers.mpc.solver": qp_solvers[0]}
     for item in args.set:
@@ -190,6 +198,36 @@ def main() -> None:
           f"{m_ipopt['controller_ms']['median']:.3f}/{m_ipopt['controller_ms']['max']:.2f}; "
           f"failures {m_fast['counters']['solve_failures']:.0f}/"
           f"{m_ipopt['counters']['solve_failures']:.0f}")
+
+
+def costs(args) -> None:
+    """The fast scheme's closed-loop cost against IPOPT's on each scenario named."""
+    print(f"# mpc_speed --costs: {args.scheme} on {args.solver.split(',')[0]} against ipopt, "
+          f"horizon {args.horizon}; load average {os.getloadavg()[0]:.1f} at start")
+    print(f"{'scenario':<26} {'s':>4} {'J ipopt':>10} {'J fast':>10} {'fast/ipopt':>11} "
+          f"{'fast ms med/max':>16} {'ipopt ms med/max':>17} {'failures':>9}")
+    ratios = []
+    for item in args.costs.split(","):
+        name, _, seconds = item.partition(":")
+        s = override(load_scenario(name), **{"run.duration": float(seconds or 5.0),
+                                             "controllers.mpc.horizon": args.horizon,
+                                             "controllers.mpc.solver": args.solver.split(",")[0]})
+        out = {}
+        for scheme in ("ipopt", args.scheme):
+            si = override(s, **{"controllers.mpc.scheme": scheme})
+            r = run(si, controller="mpc")
+            h = r.history
+            out[scheme] = (r.controller.running_cost(h["state"], h["ref"], h["u"], si.run.dt),
+                           r.metrics, r.status)
+        (ji, mi, sti), (jf, mf, stf) = out["ipopt"], out[args.scheme]
+        ratios.append(jf / ji)
+        ms = lambda m: f"{m['controller_ms']['median']:.2f}/{m['controller_ms']['max']:.1f}"  # noqa: E731
+        print(f"{name:<26} {s.run.duration:>4g} {ji:>10.5g} {jf:>10.5g} {jf / ji:>11.6f} "
+              f"{ms(mf):>16} {ms(mi):>17} "
+              f"{mf['counters']['solve_failures']:.0f}/{mi['counters']['solve_failures']:.0f}"
+              f"{'' if sti == stf == 'completed' else f' ({sti}, {stf})'}")
+    print(f"largest |fast/ipopt - 1| over {len(ratios)} scenarios: "
+          f"{max(abs(r - 1.0) for r in ratios):.2e}")
 
 
 if __name__ == "__main__":

@@ -25,12 +25,13 @@ exact for the scenario's sine; ``r`` held when ``omega = 0``).
 
 With ``scheme = "ipopt"`` (the default) the NLP is solved by IPOPT (its options as
 settings), warm-started from the last solution shifted by one period; ``rti`` and ``sqp``
-take Gauss-Newton SQP steps on the same problem over a QP solver (:mod:`.mpc_rti`).  A solve that fails (IPOPT's status not success) or takes
-longer than the period (wall clock) is counted in the ``solve_failures`` and
-``solve_overruns`` diagnostics, which the metrics report (``counters.*``), beside
-``solve_cpu_overruns`` (the thread's CPU time over the period: on a loaded machine the
-wall clock also counts waits for a core); after a failure
-the previous plan's next input is applied (the LQR's, clipped, if there is none).
+take Gauss-Newton SQP steps on the same problem over a QP solver (:mod:`.mpc_rti`).  A
+solve that fails (IPOPT's status not success; a QP's answer infeasible) or takes longer
+than the period (wall clock) is counted in the ``solve_failures`` and ``solve_overruns``
+diagnostics, which the metrics report (``counters.*``), beside ``solve_cpu_overruns``
+(the thread's CPU time over the period: on a loaded machine the wall clock also counts
+waits for a core); after a failure the previous plan's next input is applied (the LQR's,
+clipped, if there is none).
 """
 
 from __future__ import annotations
