@@ -131,6 +131,8 @@ def main() -> None:
     ap.add_argument("--no-dompc", action="store_true", help="leave the peer out")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override (a number), e.g. effects.saturation=60")
+    ap.add_argument("--uncompiled", action="store_true",
+                    help="also the fast scheme with compiled = false (CasADi's virtual machine)")
     ap.add_argument("--costs", metavar="SCENARIO:SECONDS,...",
                     help="only the closed-loop costs: the fast scheme against IPOPT on each")
     args = ap.parse_args()
@@ -162,6 +164,9 @@ def main() -> None:
     for name in qp_solvers[1:]:
         other = build(override(s_fast, **{"controllers.mpc.solver": name}), "mpc")
         solvers[f"{args.scheme}/{name}"] = other.act
+    if args.uncompiled:
+        vm = build(override(s_fast, **{"controllers.mpc.compiled": False}), "mpc")
+        solvers[f"{args.scheme}/{qp_solvers[0]}/vm"] = vm.act
     if not args.no_dompc:
         solvers["do-mpc"] = dompc_peer(ipopt)
     wall = {k: [] for k in solvers}
