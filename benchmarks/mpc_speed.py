@@ -226,7 +226,9 @@ def costs(args) -> None:
                            r.metrics, r.status)
         (ji, mi, sti), (jf, mf, stf) = out["ipopt"], out[args.scheme]
         ratios.append(jf / ji)
-        ms = lambda m: f"{m['controller_ms']['median']:.2f}/{m['controller_ms']['max']:.1f}"  # noqa: E731
+        def ms(m: dict) -> str:
+            return f"{m['controller_ms']['median']:.2f}/{m['controller_ms']['max']:.1f}"
+
         print(f"{name:<26} {s.run.duration:>4g} {ji:>10.5g} {jf:>10.5g} {jf / ji:>11.6f} "
               f"{ms(mf):>16} {ms(mi):>17} "
               f"{mf['counters']['solve_failures']:.0f}/{mi['counters']['solve_failures']:.0f}"
