@@ -24,9 +24,9 @@ same problem (tests/test_mpc_rti.py).  A cold start (no plan yet) iterates up to
 
 The QP keeps the stage structure (variables ordered by stage, (R2) as the only equality
 rows), the form HPIPM exploits (a Riccati-based interior point; Frison and Diehl, 2020);
-qrqp (CasADi's sparse active set), DAQP (dense active set) and OSQP (ADMM) take it as a
-general QP.  FATROP's QP interface is left out: in CasADi 3.8.2 it prints its matrices on
-every call.  The
+qrqp (CasADi's sparse active set, the default: measured fastest here, docs/controllers.md),
+DAQP (dense active set) and OSQP (ADMM) take it as a general sparse QP.  FATROP's QP
+interface is left out: in CasADi 3.8.2 it prints its matrices on every call.  The
 linearisation (``F``, its Jacobian over the horizon, (R1)'s gradient, the bounds) is one
 CasADi function, generated as C and compiled with the system's C compiler (cached by the
 source's hash under ``$TSPEND_CACHE_DIR/mpc``), or run in CasADi's virtual machine when
