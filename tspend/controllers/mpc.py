@@ -23,11 +23,15 @@ Riccati matrix (the terminal cost of the unconstrained tail), and the reference 
 continued by its harmonic model (``r(t + tau) = r cos(omega tau) + r'/omega sin(omega tau)``,
 exact for the scenario's sine; ``r`` held when ``omega = 0``).
 
-The NLP is solved by IPOPT (``solver`` options as settings), warm-started from the last
-solution shifted by one period.  A solve that fails (IPOPT's status not success) or takes
-longer than the period (wall clock) is counted in the ``solve_failures`` and
-``solve_overruns`` diagnostics, which the metrics report (``counters.*``); after a failure
-the previous plan's next input is applied (the LQR's, clipped, if there is none).
+With ``scheme = "ipopt"`` (the default) the NLP is solved by IPOPT (its options as
+settings), warm-started from the last solution shifted by one period; ``rti`` and ``sqp``
+take Gauss-Newton SQP steps on the same problem over a QP solver (:mod:`.mpc_rti`).  A
+solve that fails (IPOPT's status not success; a QP's answer infeasible) or takes longer
+than the period (wall clock) is counted in the ``solve_failures`` and ``solve_overruns``
+diagnostics, which the metrics report (``counters.*``), beside ``solve_cpu_overruns``
+(the thread's CPU time over the period: on a loaded machine the wall clock also counts
+waits for a core); after a failure the previous plan's next input is applied (the LQR's,
+clipped, if there is none).
 """
 
 from __future__ import annotations
@@ -43,13 +47,17 @@ from tspend.controllers.base import Controller, Observation, diag_width, diagnos
 from tspend.plants.domain import FULL_STATE, SYMBOLIC
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
+from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
 from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
 
-__all__ = ["MPCSettings", "MPCController", "build"]
+__all__ = ["MPCSettings", "MPCController", "SCHEMES", "build"]
+
+#: how each sample's problem is solved (:attr:`MPCSettings.scheme`)
+SCHEMES = ("ipopt", "rti", "sqp")
 
 #: a bound IPOPT treats as none
 _FREE = 1e19
@@ -73,7 +81,18 @@ class MPCSettings(KindSettings):
                               strict=True)
     margin: float = setting(0.05, "kept from every position bound (m or rad)", low=0.0)
     max_iter: int = setting(100, "IPOPT's iteration limit per solve", kind="integer", low=1)
-    tolerance: float = setting(1e-6, "IPOPT's tol", low=0.0, strict=True)
+    tolerance: float = setting(1e-6, "IPOPT's tol; the sqp scheme's step size to stop at",
+                               low=0.0, strict=True)
+    scheme: str = setting("ipopt", "how each sample's problem is solved: ipopt (the NLP to "
+                                   "convergence), rti (one Gauss-Newton SQP step from the "
+                                   "shifted plan), sqp (up to sqp_iterations such steps)",
+                          kind="choice", choices=SCHEMES)
+    solver: str = setting("qrqp", "the QP solver of the rti and sqp schemes",
+                          kind="choice", choices=QP_SOLVERS)
+    sqp_iterations: int = setting(5, "SQP steps per sample of the sqp scheme (and of either "
+                                     "scheme's cold start)", kind="integer", low=1)
+    compiled: bool = setting(True, "rti, sqp: the linearisation as C compiled with gcc "
+                                   "(cached); false: CasADi's virtual machine", kind="bool")
 
 
 class MPCController(Controller):
@@ -125,7 +144,8 @@ class MPCController(Controller):
         nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g)}
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                 "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tolerance}
-        self.solver = casadi.nlpsol("mpc", "ipopt", nlp, opts)
+        self.solver = (casadi.nlpsol("mpc", "ipopt", nlp, opts)
+                       if settings.scheme == "ipopt" else None)
         self.N, self.nx = N, nx
         # bounds on the decision vector
         lo_s = np.full(nx, -_FREE)
@@ -141,27 +161,67 @@ class MPCController(Controller):
         self.lbx = np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo)])
         self.ubx = np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi)])
         self.state_lo, self.state_hi, self.u_lo, self.u_hi = lo_s, hi_s, u_lo, u_hi
+        self.rti: RealTimeSQP | None = None
+        if settings.scheme != "ipopt":
+            # the same cost's Hessian stage by stage: (x_k, u_k), then x_N
+            stage = np.zeros((nx + 1, nx + 1))
+            stage[:nx, :nx], stage[nx, nx] = 2.0 * h * self.Q, 2.0 * h * self.R
+            inf_lo = np.where(lo_s <= -_FREE, -np.inf, lo_s)
+            inf_hi = np.where(hi_s >= _FREE, np.inf, hi_s)
+            ulo = u_lo if u_lo > -_FREE else -np.inf
+            uhi = u_hi if u_hi < _FREE else np.inf
+            z_lo = np.concatenate([np.tile(np.append(inf_lo, ulo), N), inf_lo])
+            z_hi = np.concatenate([np.tile(np.append(inf_hi, uhi), N), inf_hi])
+            self.rti = RealTimeSQP(F, nx, N, stage, 2.0 * np.asarray(lqr.P, dtype=float),
+                                   z_lo, z_hi, settings.solver, settings.compiled)
+        self._reference_map = self._linear_reference_map()
+        self._u_ref = 0.0
         self.ng = nx * (N + 1)
         self.diagnostics = diagnostics(
             ("solve_ms", 1, {"panel": "solver", "unit": "ms",
-                             "description": "wall time of this sample's NLP solve"}),
+                             "description": "wall time of this sample's NLP solve "
+                                            "(rti, sqp: of the whole sample)"}),
             ("solve_failures", 1, {"panel": "counters",
                                    "description": "solves that did not succeed, so far"}),
             ("solve_overruns", 1, {"panel": "counters",
                                    "description": "solves longer than the period, so far"}),
-            ("iterations", 1, {"panel": "solver", "description": "IPOPT iterations"}),
-            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}))
+            ("iterations", 1, {"panel": "solver",
+                               "description": "IPOPT iterations (rti, sqp: SQP steps)"}),
+            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}),
+            # the CPU time this thread spent on the sample: on a loaded machine the wall
+            # time also counts waits for a core, which no solver can shorten
+            ("solve_cpu_ms", 1, {"panel": "solver", "unit": "ms",
+                                 "description": "this thread's CPU time in the sample's solve"}),
+            ("solve_cpu_overruns", 1, {"panel": "counters",
+                                       "description": "solves whose CPU time exceeded the "
+                                                      "period, so far"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
         self.reset(None)
 
     def reset(self, rng: np.random.Generator | None) -> None:
         self.w0: np.ndarray | None = None
         self.lam_g0: np.ndarray | None = None
-        self.failures = self.overruns = 0
+        self.failures = self.overruns = self.cpu_overruns = 0
         #: the last solution: predicted states (nx, N+1) and inputs (N,), for tests
         self.plan_states = np.zeros((self.nx, self.N + 1))
         self.plan_inputs = np.zeros(self.N)
         self._plan_age = self.N
+        self.z: np.ndarray | None = None
+        if self.rti is not None:
+            self.rti.reset()
+
+    def _linear_reference_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """``(E_s, c_s, e_u, c_u)``: the LQR's ``reference_state`` is affine in the
+        reference row, ``s_r = E_s row + c_s``, ``u_r = e_u . row + c_u``; read off it once
+        so that the horizon's references are two matrix products per sample."""
+        s_c, u_c = self.lqr.reference_state(np.zeros(3))
+        E_s, e_u = np.empty((self.nx, 3)), np.empty(3)
+        for i in range(3):
+            row = np.zeros(3)
+            row[i] = 1.0
+            s_i, u_i = self.lqr.reference_state(row)
+            E_s[:, i], e_u[i] = s_i - s_c, u_i - u_c
+        return E_s, np.asarray(s_c, dtype=float), e_u, float(u_c)
 
     def references(self, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(S_r (nx, N+1), U_r (N,))`` over the horizon from the reference row now."""
@@ -174,19 +234,36 @@ class MPCController(Controller):
             rdd = -om * om * r
         else:
             r, rd, rdd = np.full(N + 1, r0), np.zeros(N + 1), np.zeros(N + 1)
-        Sr = np.empty((self.nx, N + 1))
-        Ur = np.empty(N + 1)
-        for k in range(N + 1):
-            Sr[:, k], Ur[k] = self.lqr.reference_state(np.array([r[k], rd[k], rdd[k]]))
+        rows = np.vstack([r, rd, rdd])
+        E_s, c_s, e_u, c_u = self._reference_map
+        Sr = E_s @ rows + c_s[:, None]
+        Ur = e_u @ rows + c_u
         return Sr, Ur[:N]
 
+    def running_cost(self, states: np.ndarray, refs: np.ndarray, u: np.ndarray,
+                     dt: float) -> float:
+        """The closed loop's cost: ``dt sum (e^T Q e + R (u - u_r)^2)`` over a run's samples
+        (``states`` (n, nx), ``refs`` (n, 3) reference rows, ``u`` (n,) the applied
+        inputs), the integral the MPC's stage cost sums by rectangles; the pole's error
+        wrapped."""
+        E_s, c_s, e_u, c_u = self._reference_map
+        refs = np.asarray(refs, dtype=float)
+        e = np.asarray(states, dtype=float) - (refs @ E_s.T + c_s)
+        pole = e[:, self.model.pole]
+        e[:, self.model.pole] = [wrap_angle(a) for a in pole]
+        du = np.asarray(u, dtype=float) - (refs @ e_u + c_u)
+        return float(dt * (np.einsum("ij,jk,ik->", e, self.Q, e) + self.R * du @ du))
+
     def solve(self, state: np.ndarray, ref: np.ndarray) -> tuple[float, bool, float]:
-        """``(u, success, wall seconds)`` of one NLP solve from ``state``."""
+        """``(u, success, wall seconds)`` of one sample's solve from ``state``."""
+        if self.rti is not None:
+            return self._solve_rti(state, ref)
         m, N, nx = self.model, self.N, self.nx
         s0 = np.asarray(state, dtype=float).copy()
         # the pole's angle nearest the reference: a turned-over pole is not 2 pi off
         s0[m.pole] = float(ref[0]) + wrap_angle(s0[m.pole] - float(ref[0]))
         Sr, Ur = self.references(ref)
+        self._u_ref = float(Ur[0])
         if self.w0 is None:
             w0 = np.concatenate([np.tile(s0, N + 1), np.clip(Ur, self.u_lo, self.u_hi)])
         else:
@@ -211,8 +288,43 @@ class MPCController(Controller):
             return float(self.plan_inputs[0]), True, wall
         return math.nan, False, wall
 
+    def _solve_rti(self, state: np.ndarray, ref: np.ndarray) -> tuple[float, bool, float]:
+        """One sample of the rti or sqp scheme (:mod:`.mpc_rti`); the wall time is the
+        whole sample's, references and shift included."""
+        started = time.perf_counter()
+        m, N, nx, rti = self.model, self.N, self.nx, self.rti
+        s0 = np.array(state, dtype=float)
+        s0[m.pole] = float(ref[0]) + wrap_angle(s0[m.pole] - float(ref[0]))
+        Sr, Ur = self.references(ref)
+        self._u_ref = float(Ur[0])
+        zr = np.concatenate([np.vstack([Sr[:, :N], Ur[None, :]]).T.ravel(), Sr[:, N]])
+        if self.z is None:
+            # cold: the state held, the feedforward input; iterate as the sqp scheme does
+            z = np.concatenate([np.tile(np.append(s0, 0.0), N), s0])
+            z[nx:N * (nx + 1):nx + 1] = np.clip(Ur, self.u_lo, self.u_hi)
+            iterations = self.s.sqp_iterations
+        else:
+            z = rti.shifted(self.z, nx + 1)
+            iterations = self.s.sqp_iterations if self.s.scheme == "sqp" else 1
+        try:
+            z, steps = rti.iterate(z, s0, zr, iterations, self.s.tolerance)
+        except RuntimeError:
+            self.diag[3] = 0.0
+            self.z = None
+            rti.reset()
+            return math.nan, False, time.perf_counter() - started
+        self.diag[3] = float(steps)
+        self.z = z
+        body = z[:N * (nx + 1)].reshape(N, nx + 1)
+        self.plan_states = np.vstack([body[:, :nx], z[None, N * (nx + 1):]]).T
+        self.plan_inputs = body[:, nx].copy()
+        self._plan_age = 0
+        return float(self.plan_inputs[0]), True, time.perf_counter() - started
+
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
+        cpu_started = time.thread_time()
         u, ok, wall = self.solve(state, ref)
+        cpu = time.thread_time() - cpu_started
         if not ok:
             self.failures += 1
             self._plan_age += 1
@@ -222,9 +334,12 @@ class MPCController(Controller):
                 u = min(self.u_hi, max(self.u_lo, self.lqr.act(state, ref)))
         if wall > self.s.period:
             self.overruns += 1
+        if cpu > self.s.period:
+            self.cpu_overruns += 1
         d = self.diag
         d[0], d[1], d[2] = 1e3 * wall, self.failures, self.overruns
-        d[4] = self.references(ref)[1][0]
+        d[4] = self._u_ref
+        d[5], d[6] = 1e3 * cpu, self.cpu_overruns
         return u
 
     def step(self, obs: Observation, dt: float) -> float:

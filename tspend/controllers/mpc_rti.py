@@ -1,0 +1,229 @@
+"""The real-time schemes of ``mpc``: Gauss-Newton SQP with real-time iterations.
+
+The optimal control problem is :mod:`.mpc`'s (same shooting map ``F``, weights, terminal
+``P``, bounds).  Each sample takes the last plan shifted by one period as the
+linearisation point ``z = (x_0, u_0, .., x_{N-1}, u_{N-1}, x_N)`` and solves the QP in the
+step ``dz`` (Diehl, Bock and Schloeder, "A real-time iteration scheme for nonlinear
+optimization in optimal feedback control", SIAM J. Control Optim. 43(5), 2005; Gros et
+al., "From linear to nonlinear MPC: bridging the gap via the real-time iteration",
+Int. J. Control 93(1), 2020):
+
+    min  1/2 dz^T H dz + (H (z - z_r))^T dz                                  (R1)
+    s.t. dx_0 = s(t) - x_0,
+         dx_{k+1} = A_k dx_k + B_k du_k + F(x_k, u_k) - x_{k+1},             (R2)
+         lo - z <= dz <= hi - z,
+
+``A_k, B_k`` the Jacobians of ``F`` at ``(x_k, u_k)`` and ``H`` the cost's Hessian
+(constant: the cost is quadratic, so this Gauss-Newton Hessian is exact for the cost and
+drops only the dynamics' curvature).  The new plan is ``z + dz``; its first input is
+applied.  ``rti`` takes one such step per sample; ``sqp`` repeats it (``sqp_iterations``)
+until the step is below ``tolerance``.  A fixed point (``dz = 0``) satisfies the NLP's
+KKT conditions whatever the Hessian, so iterated steps converge to IPOPT's solution of the
+same problem (tests/test_mpc_rti.py).  A cold start (no plan yet) iterates up to
+``sqp_iterations`` times in either scheme.
+
+The QP keeps the stage structure (variables ordered by stage, (R2) as the only equality
+rows), the form HPIPM exploits (a Riccati-based interior point; Frison and Diehl, 2020);
+qrqp (CasADi's sparse active set, the default: measured fastest here, docs/controllers.md),
+DAQP (dense active set) and OSQP (ADMM) take it as a general sparse QP.  FATROP's QP
+interface is left out: in CasADi 3.8.2 it prints its matrices on every call.  The
+linearisation (``F``, its Jacobian over the horizon, (R1)'s gradient, the bounds) is one
+CasADi function, generated as C and compiled with the system's C compiler (cached by the
+source's hash under ``$TSPEND_CACHE_DIR/mpc``), or run in CasADi's virtual machine when
+``compiled = false`` or no compiler is found.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
+
+#: the QP solvers CasADi ships that the real-time schemes can use (the first is the
+#: default: docs/controllers.md says why)
+QP_SOLVERS = ("qrqp", "hpipm", "daqp", "osqp")
+
+#: each QP solver's options: quiet, errors raised (a failed QP is a failed sample)
+_QP_OPTIONS: dict[str, dict[str, Any]] = {
+    "hpipm": {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-7,
+                        "res_d_max": 1e-7, "res_m_max": 1e-7}},
+    "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-6, "eps_rel": 1e-6, "polish": True,
+                      "max_iter": 20000}, "warm_start_primal": True},
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
+    "daqp": {},
+}
+
+
+def cache_dir() -> Path | None:
+    """Where compiled MPC functions are kept: ``$TSPEND_CACHE_DIR/mpc``, else
+    ``$XDG_CACHE_HOME/tspend/mpc`` (``~/.cache``); None when it cannot be written."""
+    root = os.environ.get("TSPEND_CACHE_DIR")
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        root = os.path.join(base, "tspend")
+    path = Path(root) / "mpc"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=path, delete=True)
+        probe.close()
+    except OSError:
+        return None
+    return path
+
+
+def compiled_function(fn: Any) -> Any:
+    """``fn`` (a CasADi Function) generated as C, compiled with ``cc``/``gcc`` -O2 and
+    loaded back (:func:`casadi.external`); the shared object is cached by the hash of the
+    C source, so a second process pays nothing.  ``fn`` itself when no compiler is found
+    or the compilation fails (the same numbers, slower)."""
+    import casadi
+
+    compiler = shutil.which("gcc") or shutil.which("cc")
+    if compiler is None:
+        return fn
+    with tempfile.TemporaryDirectory(prefix="tspend-mpc-") as tmp:
+        c_name = f"{fn.name()}.c"
+        generator = casadi.CodeGenerator(c_name, {"with_header": False})
+        generator.add(fn)
+        generator.generate(tmp + os.sep)
+        source = (Path(tmp) / c_name).read_bytes()
+        key = hashlib.sha256(source).hexdigest()[:20]
+        folder = cache_dir() or Path(tmp)
+        so = folder / f"{fn.name()}_{key}.so"
+        if not so.is_file():
+            part = folder / f"{so.name}.{os.getpid()}.tmp"
+            done = subprocess.run([compiler, "-O2", "-fPIC", "-shared", "-o", str(part),
+                                   str(Path(tmp) / c_name), "-lm"],
+                                  capture_output=True, text=True)
+            if done.returncode != 0:
+                part.unlink(missing_ok=True)
+                return fn
+            part.replace(so)    # atomic: a concurrent process sees all of it or none
+        return casadi.external(fn.name(), str(so))
+
+
+class RealTimeSQP:
+    """Gauss-Newton SQP steps (R1)-(R2) on the shooting OCP (module docstring).
+
+    Parameters
+    ----------
+    F : casadi.Function
+        ``F(s, u) -> s+``, the shooting map over one period.
+    nx, N : int
+        State size and horizon (intervals).
+    stage_hessian, terminal_hessian : ndarray
+        ``H`` of one stage (``(nx+1, nx+1)``: the state's, then the input's) and of the
+        terminal state (``(nx, nx)``).
+    z_lo, z_hi : ndarray
+        Bounds on ``z`` (``+/-inf``: none; the first state is fixed by ``s(t)`` instead).
+    solver : str
+        One of :data:`QP_SOLVERS`.
+    compiled : bool
+        Generate and compile the linearisation with the C compiler.
+    """
+
+    def __init__(self, F: Any, nx: int, N: int, stage_hessian: np.ndarray,
+                 terminal_hessian: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray,
+                 solver: str, compiled: bool) -> None:
+        import casadi as ca
+
+        nz = nx + 1
+        self.nx, self.N, self.nz, self.nw = nx, N, nz, N * nz + nx
+        s, u = ca.SX.sym("s", nx), ca.SX.sym("u")
+        Fs = F(s, u)
+        JF = ca.Function("JF", [s, u], [Fs, ca.jacobian(Fs, ca.vertcat(s, u))])
+        z = ca.MX.sym("z", self.nw)
+        s0 = ca.MX.sym("s0", nx)
+        zr = ca.MX.sym("zr", self.nw)
+        XU = ca.reshape(z[:N * nz], nz, N)
+        Fk, Jk = JF.map(N)(XU[:nx, :], XU[nx, :])
+        nxt = ca.reshape(ca.vertcat(z[nz:], ca.MX.zeros(1)), nz, N)[:nx, :]
+        defect = ca.reshape(Fk - nxt, -1, 1)          # rows gap_0, gap_1, ..
+        blocks = ca.horzsplit(Jk, nz)
+        shift = ca.DM(ca.Sparsity.triplet(N * nx, self.nw,
+                                          [k * nx + i for k in range(N) for i in range(nx)],
+                                          [(k + 1) * nz + i for k in range(N) for i in range(nx)]),
+                      -1.0)
+        A = ca.horzcat(ca.diagcat(*blocks), ca.MX(N * nx, nx)) + ca.MX(shift)
+        H = ca.diagcat(*([ca.DM(stage_hessian)] * N), ca.DM(terminal_hessian))
+        H = ca.DM(ca.sparsify(H))
+        g = ca.mtimes(H, z - zr)
+        lo, hi = ca.DM(z_lo), ca.DM(z_hi)
+        lbx = ca.vertcat(s0 - z[:nx], lo[nx:] - z[nx:])
+        ubx = ca.vertcat(s0 - z[:nx], hi[nx:] - z[nx:])
+        lin = ca.Function("tspend_mpc_lin", [z, s0, zr], [g, A, -defect, lbx, ubx],
+                          ["z", "s0", "zr"], ["g", "a", "b", "lbx", "ubx"])
+        self.compiled = False
+        if compiled:
+            fast = compiled_function(lin)
+            self.compiled = fast is not lin
+            lin = fast
+        opts = dict(_QP_OPTIONS[solver])
+        # a failed QP is found by its result's infeasibility (below), not by an exception
+        # (CasADi prints the QP's data with it)
+        opts["error_on_fail"] = False
+        if solver == "hpipm":
+            opts.update(N=N, nx=[nx] * (N + 1), nu=[1] * N + [0], ng=[0] * (N + 1))
+        self.qp = ca.conic("tspend_mpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()},
+                           opts)
+        zs, s0s, zrs = ca.MX.sym("z", self.nw), ca.MX.sym("s0", nx), ca.MX.sym("zr", self.nw)
+        lam = ca.MX.sym("lam", self.nw + N * nx)
+        gq, Aq, bq, lq, uq = lin(zs, s0s, zrs)
+        sol = self.qp(h=H, g=gq, a=Aq, lba=bq, uba=bq, lbx=lq, ubx=uq,
+                      lam_x0=lam[:self.nw], lam_a0=lam[self.nw:])
+        dz = sol["x"]
+        # how far the QP's answer is from feasible: (R2)'s residual and the bounds' excess
+        infeasibility = ca.mmax(ca.vertcat(ca.fabs(ca.mtimes(Aq, dz) - bq), lq - dz, dz - uq))
+        #: one step, (z, s0, z_r, lam) -> [z + dz, |dz|_inf, infeasibility, lam] in one
+        #: vector, evaluated through CasADi's buffer interface on persistent arrays (a
+        #: Python call with conversions costs 0.1 ms, the buffer's a microsecond)
+        self.step = ca.Function("tspend_mpc_step", [zs, s0s, zrs, lam],
+                                [ca.vertcat(zs + dz, ca.norm_inf(dz), infeasibility,
+                                            sol["lam_x"], sol["lam_a"])])
+        self.solver = solver
+        self._z, self._s0, self._zr = np.zeros(self.nw), np.zeros(nx), np.zeros(self.nw)
+        self._lam = np.zeros(self.nw + N * nx)
+        self._out = np.zeros(2 * self.nw + 2 + N * nx)
+        self._buffer, self._evaluate = self.step.buffer()
+        for i, array in enumerate((self._z, self._s0, self._zr, self._lam)):
+            self._buffer.set_arg(i, memoryview(array))
+        self._buffer.set_res(0, memoryview(self._out))
+
+    def reset(self) -> None:
+        self._lam[:] = 0.0
+
+    def iterate(self, z: np.ndarray, s0: np.ndarray, zr: np.ndarray, iterations: int,
+                tolerance: float) -> tuple[np.ndarray, int]:
+        """``(z, steps)`` after up to ``iterations`` steps from ``z`` (fewer when a step's
+        largest entry is below ``tolerance``); raises RuntimeError when a QP's answer is
+        not finite or violates its constraints by more than 1e-6 (a failed QP)."""
+        nw, out = self.nw, self._out
+        self._z[:] = z
+        self._s0[:] = s0
+        self._zr[:] = zr
+        steps = 0
+        while steps < iterations:
+            self._evaluate()
+            steps += 1
+            size, infeasibility = out[nw], out[nw + 1]
+            if not (np.isfinite(size) and infeasibility <= 1e-6):
+                raise RuntimeError(f"the QP failed (step {size:g}, infeasibility "
+                                   f"{infeasibility:g})")
+            self._z[:] = out[:nw]
+            self._lam[:] = out[nw + 2:]
+            if size < tolerance:
+                break
+        return self._z.copy(), steps
+
+    @staticmethod
+    def shifted(z: np.ndarray, nz: int) -> np.ndarray:
+        """``z`` one stage on: ``(x_1, u_1, .., x_N)`` then its last input and state again."""
+        return np.concatenate([z[nz:], z[-nz:]])
