@@ -105,24 +105,48 @@ def test_each_machine_matches_mj_forward(name: str) -> None:
 
 
 def test_the_hand_written_cartpole_and_furuta_equations_agree() -> None:
-    """The hand-written equations (tspend/plants/cartpole_physics.py, furuta_physics.py)
-    are the derivation's oracles: the same accelerations at random states."""
+    """The hand-written equations (tspend/plants/cartpole_physics.py; the Furuta's in
+    tests/oracles/furuta_equations.py) are the derivation's oracles: the same
+    accelerations at random states."""
     rng = np.random.default_rng(7)
-    for scenario, model in (("pendulum_mujoco", "cartpole.xml"), ("furuta_mujoco", "furuta.xml")):
-        scn = load_scenario(scenario)
-        hand = DOMAINS[scn.plant.kind.split("_")[0] if "furuta" in scn.plant.kind
-                       else "cartpole"].full_model(scn)
-        machine = load_machine(ROOT / "models" / model)
-        assert machine.state_names == hand.state_names
-        lo, hi = machine.actuator.ctrlrange or (-50.0, 50.0)
-        worst = 0.0
-        for _ in range(300):
-            s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
-            u = rng.uniform(lo, hi)
-            mine = machine.accelerations(s, u)
-            theirs = np.asarray(hand.numeric(s, u), dtype=float)
-            worst = max(worst, float(np.max(np.abs(mine - theirs) / np.maximum(1.0, np.abs(theirs)))))
-        assert worst <= 1e-12, (scenario, worst)
+    scn = load_scenario("pendulum_mujoco")
+    hand = DOMAINS["cartpole"].full_model(scn)
+    machine = load_machine(ROOT / "models" / "cartpole.xml")
+    assert machine.state_names == hand.state_names
+    lo, hi = machine.actuator.ctrlrange or (-50.0, 50.0)
+    worst = 0.0
+    for _ in range(300):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        u = rng.uniform(lo, hi)
+        mine = machine.accelerations(s, u)
+        theirs = np.asarray(hand.numeric(s, u), dtype=float)
+        worst = max(worst, float(np.max(np.abs(mine - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    assert worst <= 1e-12, ("pendulum_mujoco", worst)
+
+
+def test_the_furuta_domain_steps_the_derived_equations_which_the_hand_written_agree_with() -> None:
+    """The Furuta domain's plants and models are the derived equations; the hand-written
+    ones (tests/oracles/furuta_equations.py) agree with them to 1e-12 at random states
+    (full circle, 20 rad/s, volts beyond the clip, a pendulum torque), and the
+    coefficients the domain reports are theirs."""
+    from tests.oracles import furuta_equations as fp
+
+    plant = DOMAINS["furuta"].build(load_scenario("furuta_ode"))
+    machine = plant.machine
+    oracle = fp.params_from_model(machine.model).machine()
+    rng = np.random.default_rng(8)
+    sdot, worst = np.empty(4), 0.0
+    for _ in range(1000):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        u, d = rng.uniform(-14.0, 14.0), rng.uniform(-0.02, 0.02)
+        plant.rhs_into(0.0, s, u, d, sdot)
+        theirs = np.asarray(fp.machine_accelerations(oracle, s, u, d))
+        worst = max(worst, float(np.max(np.abs(sdot[2:] - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    print(f"furuta: derived vs hand-written, worst relative difference {worst:.1e}")
+    assert worst <= 1e-12
+    for name, value in plant.parameters().items():
+        want = getattr(oracle, name)
+        assert value == pytest.approx(want, rel=1e-12, abs=1e-15), name
 
 
 def test_the_linearisation_is_mujocos_central_difference() -> None:
