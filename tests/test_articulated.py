@@ -249,3 +249,17 @@ def test_inspect_names_every_joints_role(tmp_path: Path) -> None:
     assert {k: v["role"] for k, v in facts["joints"].items()} == {
         "slider": "cart", "hinge1": "pole", "hinge2": "pole"}
     assert facts["controllable"] is True and "role cart" in r.out
+
+
+@pytest.mark.parametrize("name", ["double_cartpole_ode", "furuta_ode"])
+def test_the_compiled_loop_steps_the_derived_equations_as_the_generic_one(name, paths) -> None:
+    """The derived ODE on the compiled closed loop (RK4 over the generated ``rhs_c`` by
+    its C address) gives the generic loop's run bit for bit."""
+    s = override(load_scenario(name), **{"run.duration": 1.0})
+    fast = run(s, controller="lqr", compiled=True)
+    slow = run(s, controller="lqr", compiled=False)
+    assert paths == ["compiled", "generic"]
+    assert fast.status == slow.status == "completed"
+    assert fast.end.steps_done == slow.end.steps_done > 900
+    for key in ("u", "x", "state"):
+        np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)

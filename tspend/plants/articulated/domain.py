@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.analytic import AnalyticPlant, rk4_work
+from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
@@ -130,6 +131,47 @@ class _Named:
         return 1 if a >= b else -1
 
 
+class DerivedRHS(NamedTuple):
+    """A derived machine as the compiled closed loop steps it: the C address of its
+    generated ``rhs_c`` (a ctypes function, typed by its signature alone, so the loop's
+    compiled code is one and cached whatever the machine) and its arrays."""
+
+    fn: Any
+    u: np.ndarray
+    qfrc: np.ndarray
+    p: np.ndarray
+    M: np.ndarray
+    r: np.ndarray
+    actuator: int
+    d_joint: int
+
+
+@register_jitable
+def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
+                sdot: np.ndarray) -> None:
+    """``s' = f(s, u)`` of the derived equations into ``sdot`` (as :meth:`Machine.rhs_into`)."""
+    m.u[:] = 0.0
+    m.u[m.actuator] = u
+    m.qfrc[:] = 0.0
+    m.qfrc[m.d_joint] = d
+    m.fn(s.ctypes.data, m.u.ctypes.data, m.qfrc.ctypes.data, m.p.ctypes.data,
+         m.M.ctypes.data, m.r.ctypes.data, sdot.ctypes.data)
+
+
+COMPILED_RHS[DerivedRHS] = derived_rhs
+
+
+def derived_rhs_of(machine: Machine, d_joint: int) -> DerivedRHS:
+    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force on joint ``d_joint``."""
+    import ctypes
+
+    fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)(machine.module.rhs_c.address)
+    fn.argtypes, fn.restype = [ctypes.c_void_p] * 7, None
+    nv = machine.nv
+    return DerivedRHS(fn, np.zeros(len(machine.tree.actuators)), np.zeros(nv), machine.p,
+                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint)
+
+
 class ArticulatedODE(_Named, AnalyticPlant):
     """The derived equations (3) of :mod:`.derive`, stepped by the shared RK4."""
 
@@ -157,12 +199,13 @@ class ArticulatedODE(_Named, AnalyticPlant):
     def _rhs_params(self) -> Any:
         return self
 
-    def compiled(self) -> None:
-        """The generic loop steps it.  (Not the compiled loop: its functions are cached by
-        numba with every parameter type they were compiled for, and a type defined in a
-        generated module of the derivation cache cannot be imported by the next process
-        that loads that cache index.)"""
-        return None
+    def compiled(self) -> CompiledPlant:
+        """The plant for the compiled closed loop: RK4 over the generated ``rhs_c`` by its C
+        address (:class:`DerivedRHS`; a type of a generated module would not do: numba
+        caches the loop with every parameter type, and the next process loading that cache
+        could not import a module of the derivation cache)."""
+        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint), self.s, self._clock,
+                             self._work, self._full_order)
 
 
 class ArticulatedMujoco(_Named, Plant):
