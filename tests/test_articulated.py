@@ -263,3 +263,20 @@ def test_the_compiled_loop_steps_the_derived_equations_as_the_generic_one(name, 
     assert fast.end.steps_done == slow.end.steps_done > 900
     for key in ("u", "x", "state"):
         np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)
+
+
+@pytest.mark.parametrize("name, unit", [("double_cartpole_ode", "N"), ("acrobot_ode", "N m"),
+                                        ("furuta_ode", "V")])
+def test_the_recording_labels_u_in_the_unit_of_the_models_actuator(name, unit) -> None:
+    """u's unit in the recording and the exported table is the model's (a slide's force, a
+    hinge's torque, a motor's volts by its back-EMF bias), not a fixed one per domain."""
+    from tspend.loop.simulation import prepare, run_info
+    from tspend.recorder.series import specs_of
+
+    s = load_scenario(name)
+    parts = prepare(s, controller="lqr")
+    info = run_info(s, parts.plant, 10, controller=parts.controller, task=parts.task)
+    assert info.input_unit == unit
+    spec = next(sp for sp in specs_of(info) if sp.entity == "series/control")
+    assert f"u ({unit})" in spec.title
+    assert spec.columns[0] == "u_" + unit.replace(" ", "_")
