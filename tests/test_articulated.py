@@ -251,10 +251,11 @@ def test_inspect_names_every_joints_role(tmp_path: Path) -> None:
     assert facts["controllable"] is True and "role cart" in r.out
 
 
-@pytest.mark.parametrize("name", ["double_cartpole_ode", "furuta_ode"])
+@pytest.mark.parametrize("name", ["double_cartpole_ode", "furuta_ode", "furuta_mujoco"])
 def test_the_compiled_loop_steps_the_derived_equations_as_the_generic_one(name, paths) -> None:
     """The derived ODE on the compiled closed loop (RK4 over the generated ``rhs_c`` by
-    its C address) gives the generic loop's run bit for bit."""
+    its C address) gives the generic loop's run bit for bit; so does the Furuta's MuJoCo
+    plant on the compiled MuJoCo loop."""
     s = override(load_scenario(name), **{"run.duration": 1.0})
     fast = run(s, controller="lqr", compiled=True)
     slow = run(s, controller="lqr", compiled=False)

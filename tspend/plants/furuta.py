@@ -229,10 +229,6 @@ class MujocoFuruta(_Furuta, ArticulatedMujoco):
         ArticulatedMujoco.__init__(self, machine)
         self.actuator = machine.actuator.name
 
-    def compiled_mujoco(self, dt: float) -> None:
-        """The generic loop steps it (the Furuta's controllers run their Python laws)."""
-        return None
-
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
     # the ODE of a MuJoCo scenario is the compiled model's: one machine, two backends
