@@ -69,10 +69,7 @@ def test_compiled_kind_matches_its_previous_python_step(name, kind, settings, pa
     fast = run(scenario, controller=kind)
     parts = prepare(scenario, controller=kind)
     slow = run(scenario, prepared=replace(parts, controller=oracle(parts.controller)))
-    # the Furuta's view model is the derived equations in Python (no compiled view model):
-    # feedback linearisation's law runs in Python there
-    generic = name.startswith("furuta") and kind == "feedback_linearization"
-    assert paths == ["generic" if generic else "compiled", "generic"]
+    assert paths == ["compiled", "generic"]
     assert fast.status == "completed" or name.startswith("furuta")  # pd falls there
     assert fast.end.steps_done > 100
     assert_close_runs(fast, slow)

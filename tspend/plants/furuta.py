@@ -27,7 +27,7 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.domain import ArticulatedMujoco, ArticulatedODE
+from tspend.plants.articulated.domain import ArticulatedMujoco, ArticulatedODE, derived_view
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.base import InputInfo, Plant, velocity_name
 from tspend.plants.domain import (FULL_ACCEL, FULL_ENERGY, FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
@@ -381,13 +381,11 @@ class FurutaDomain(Domain):
         """pendulum'' over the view with the arm at rest (the arm's motion enters only
         through back-EMF and coupling, which a model of the view leaves out); affine in u
         inside the amplifier's range."""
-        from tspend.plants.articulated.domain import ArticulatedView
-
-        view = ArticulatedView(self.machine(scenario))
+        view = derived_view(self.machine(scenario))
         # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
-                          x_op=(0.0, 0.0), switching_gain=20.0)
+                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario") -> FullModel:
         """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the

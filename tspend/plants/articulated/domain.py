@@ -28,8 +28,8 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend,
+    Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -453,22 +453,38 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     return ArticulatedMujoco(_machine_of(cfg, model_path), tuple(cfg.q0))
 
 
-class ArticulatedView:
+class DerivedView(NamedTuple):
     """The paper's controllers' model of the view: the tracked pole's acceleration with
-    every other joint at rest (as :class:`~tspend.plants.domain.PlantModel` asks)."""
+    every other joint at rest (as :class:`~tspend.plants.domain.PlantModel` asks), from
+    the derived equations through :class:`DerivedRHS`, for Python and compiled code."""
 
-    def __init__(self, machine: Machine) -> None:
-        self.machine = machine
-        self.s = np.zeros(2 * machine.nv)
+    rhs: DerivedRHS
+    s: np.ndarray
+    sdot: np.ndarray
+    joint: int
 
     def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
-        m = self.machine
-        s = self.s
-        s[:] = 0.0
-        s[m.view_joint], s[m.nv + m.view_joint] = x[0], x[1]
-        sdot = np.empty_like(s)
-        m.rhs_into(s, u, d, m.view_joint, sdot)
-        return float(sdot[m.nv + m.view_joint])
+        return derived_view_accel(self, t, x, u, d)
+
+
+@register_jitable
+def derived_view_accel(v: DerivedView, t: float, x: np.ndarray, u: float, d: float) -> float:
+    nv = v.s.size // 2
+    v.s[:] = 0.0
+    v.s[v.joint] = x[0]
+    v.s[nv + v.joint] = x[1]
+    derived_rhs(v.rhs, t, v.s, u, d, v.sdot)
+    return v.sdot[nv + v.joint]
+
+
+COMPILED_VIEW_ACCEL[DerivedView] = derived_view_accel
+
+
+def derived_view(machine: Machine) -> DerivedView:
+    """``machine``'s view model (its first pole's, ``d`` on that joint)."""
+    nv = machine.nv
+    return DerivedView(derived_rhs_of(machine, machine.view_joint), np.zeros(2 * nv),
+                       np.zeros(2 * nv), machine.view_joint)
 
 
 class ArticulatedDomain(Domain):
@@ -499,9 +515,9 @@ class ArticulatedDomain(Domain):
         return self.build(scenario).machine  # type: ignore[attr-defined]
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
-        view = ArticulatedView(self.machine(scenario))
+        view = derived_view(self.machine(scenario))
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
-                          x_op=(0.0, 0.0), switching_gain=20.0)
+                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario") -> FullModel:
         """The derived equations over ``[q, q']`` (the joints' names): numbers through the
