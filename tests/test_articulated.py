@@ -147,6 +147,14 @@ def test_the_furuta_domain_steps_the_derived_equations_which_the_hand_written_ag
     for name, value in plant.parameters().items():
         want = getattr(oracle, name)
         assert value == pytest.approx(want, rel=1e-12, abs=1e-15), name
+    # the swing-up's model: q'' and the pendulum's energy, as compiled code calls them
+    model = DOMAINS["furuta"].full_model(load_scenario("furuta_ode"))
+    for _ in range(200):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        assert model.energy(s) == pytest.approx(fp.pendulum_energy(oracle, s[1], s[3]),
+                                                rel=1e-12, abs=1e-15)
+        np.testing.assert_allclose(model.numeric(s, 2.0), fp.machine_accelerations(oracle, s, 2.0, 0.0),
+                                   rtol=1e-12, atol=1e-12)
 
 
 def test_the_linearisation_is_mujocos_central_difference() -> None:

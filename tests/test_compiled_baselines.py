@@ -49,6 +49,8 @@ CASES = [
     ("swingup_mujoco", "swingup", {"run.duration": 9.0}),            # swings, then caught
     ("swingup_mujoco", "swingup", {"run.duration": 6.0, "effects.rail": 1.5}),  # brakes
     ("ex3_pendulum_ode", "swingup", {"plant.x0": [3.0, 0.0], "task.fall_angle": 0.0}),
+    # the derived equations' q'' and energy through their C entry points (DerivedFull)
+    ("furuta_swingup", "swingup", {"run.duration": 3.0}),
 ]
 
 

@@ -3,7 +3,7 @@
 The pendulum's energy about its pivot, 0 upright at rest and ``-2 m g l`` hanging, is
 the domain's (:class:`~tspend.plants.domain.FullModel`'s ``energy``:
 :func:`tspend.plants.cartpole_physics.pole_energy`,
-:class:`tspend.plants.furuta.FurutaEquations`), ``E = 1/2 J theta'^2 + V(theta)``.
+:class:`tspend.plants.articulated.domain.DerivedFull`), ``E = 1/2 J theta'^2 + V(theta)``.
 It changes only through the driven joint (and the pendulum's own damping):
 ``E' = J theta' (theta'' - theta''|_{a=0})``, so on the cart-pole ``E' = m l cos(theta)
 theta' a`` with ``a`` the cart's acceleration (Astrom and Furuta, "Swinging up a
@@ -223,21 +223,15 @@ class SwingUpController(Controller):
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
         return swingup_law(self.law, self.modes, np.asarray(state, dtype=float), ref, self.diag)
 
-    @property
-    def _compilable(self) -> bool:
-        # a NamedTuple of numbers compiled code can take (the cart-pole's); a Python object
-        # (the Furuta's derived equations) runs the same law in Python
-        return isinstance(self.model.machine, tuple)
-
     def step(self, obs: Observation, dt: float) -> float:
-        if self._compilable:   # the compiled law from Python too
+        if self.model.machine is not None:   # the compiled law from Python too
             return swingup_step(self.law, self.modes, None, obs.t, obs.state, obs.x, obs.ref,
                                 dt, self.diag)
         return self.act(obs.state, obs.ref)
 
     def compiled(self) -> CompiledController | None:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        if not self._compilable:
+        if self.model.machine is None:
             return None
         return CompiledController(swingup_step, self.law, self.modes, None)
 

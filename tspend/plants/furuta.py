@@ -27,10 +27,11 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.domain import ArticulatedMujoco, ArticulatedODE, derived_view
+from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_full_accel,
+    derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.base import InputInfo, Plant, velocity_name
-from tspend.plants.domain import (FULL_ACCEL, FULL_ENERGY, FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
+from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
     VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
     END_COLOR, bound_text)
 
@@ -39,7 +40,7 @@ if TYPE_CHECKING:
     from tspend.task import Bound
 
 __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
-           "FurutaDrawing", "FurutaEquations", "coefficients", "DOMAIN"]
+           "FurutaDrawing", "coefficients", "load_furuta", "DOMAIN"]
 
 #: where the real arm's cable stops it, rad (+/-135 deg): the default task's joint limit
 ARM_STOP_RAD = 2.356
@@ -149,28 +150,6 @@ def coefficients(machine: Machine) -> dict[str, float]:
             "motor_gear": act.gear, "motor_gain": act.gain[0], "motor_bias": act.bias[0],
             "motor_bias_position": act.bias[1], "motor_bias_velocity": act.bias[2],
             "u_min": ctrl[0], "u_max": ctrl[1], "force_min": force[0], "force_max": force[1]}
-
-
-class FurutaEquations:
-    """The derived equations as the swing-up asks for them (:data:`FULL_ACCEL`,
-    :data:`FULL_ENERGY`): ``q''(s, u)`` and the pendulum's energy about its pivot, 0
-    upright at rest (the machine's ``T + V`` with the arm at rest at 0: the arm turns
-    about the vertical, so only the pendulum's energy is left).  A Python object: the
-    swing-up runs its Python law on it."""
-
-    def __init__(self, machine: Machine) -> None:
-        self.machine = machine
-
-    def accelerations(self, s: np.ndarray, u: float) -> tuple[float, float]:
-        a = self.machine.accelerations(np.asarray(s, dtype=float), float(u))
-        return float(a[0]), float(a[1])
-
-    def energy(self, s: np.ndarray) -> float:
-        return self.machine.energy(np.array([0.0, float(s[1]), 0.0, float(s[3])]))
-
-
-FULL_ACCEL[FurutaEquations] = lambda e, s, u: e.accelerations(s, u)
-FULL_ENERGY[FurutaEquations] = lambda e, s: e.energy(s)
 
 
 def _named_task(arm: str, pendulum: str) -> TaskDefaults:
@@ -390,15 +369,16 @@ class FurutaDomain(Domain):
     def full_model(self, scenario: "Scenario") -> FullModel:
         """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
         plant's joint names): numbers through the compiled module, CasADi through the
-        derivation (no clips: the MPC bounds u itself); the energy is the pendulum's
-        (:class:`FurutaEquations`)."""
+        derivation (no clips: the MPC bounds u itself); the energy is the pendulum's with
+        the arm at rest at 0 (the arm turns about the vertical: its own energy is left
+        out), :class:`~tspend.plants.articulated.domain.DerivedFull`."""
         plant = self.build(scenario)
         m: Machine = plant.machine  # type: ignore[attr-defined]
-        equations = FurutaEquations(m)
+        full = derived_full_of(m, 1)
 
         def factory(sin, cos, tanh):
             if sin is math.sin:
-                return equations.accelerations
+                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
             def q_dd(s, u):
                 a = m.symbolic_accel(s, u)
@@ -407,9 +387,10 @@ class FurutaDomain(Domain):
             return q_dd
 
         return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=factory, energy=equations.energy,
+                         accel_factory=factory,
+                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
                          pole=1, actuated=0, angles=(True, True, False, False),
-                         parameters=coefficients(m), machine=equations, accel_unit="rad/s^2")
+                         parameters=coefficients(m), machine=full, accel_unit="rad/s^2")
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types

@@ -28,8 +28,8 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend,
-    Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE, SYMBOLIC,
+    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -451,6 +451,63 @@ def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     assert isinstance(cfg, ArticulatedConfig)
     return ArticulatedMujoco(_machine_of(cfg, model_path), tuple(cfg.q0))
+
+
+class DerivedFull(NamedTuple):
+    """A derived machine as compiled full-state controllers (the swing-up) ask for it
+    (:data:`~tspend.plants.domain.FULL_ACCEL`, :data:`~tspend.plants.domain.FULL_ENERGY`):
+    ``q''(s, u)`` and the energy of the pole ``pole`` with every other joint at rest at 0
+    (the machine's ``T + V`` there, less its value upright at rest ``V0``), through the
+    generated ``rhs_c`` and ``energy_c`` by their C addresses."""
+
+    rhs: DerivedRHS
+    energy_fn: Any
+    pole: int
+    s: np.ndarray
+    sdot: np.ndarray
+    T: np.ndarray
+    V: np.ndarray
+    pad: np.ndarray
+    V0: float
+
+
+@register_jitable
+def derived_full_accel(m: DerivedFull, s: np.ndarray, u: float) -> tuple:
+    """``q''(s, u)`` padded with zeros to 6 entries (the derivation's most joints): a
+    tuple, as compiled code without allocation can return one."""
+    derived_rhs(m.rhs, 0.0, s, u, 0.0, m.sdot)
+    q = m.sdot[m.s.size // 2:]
+    a = m.pad
+    for i in range(6):
+        a[i] = q[i] if i < q.size else 0.0
+    return a[0], a[1], a[2], a[3], a[4], a[5]
+
+
+@register_jitable
+def derived_pole_energy(m: DerivedFull, s: np.ndarray) -> float:
+    nv = m.s.size // 2
+    m.s[:] = 0.0
+    m.s[m.pole] = s[m.pole]
+    m.s[nv + m.pole] = s[nv + m.pole]
+    m.energy_fn(m.s.ctypes.data, m.s[nv:].ctypes.data, m.rhs.p.ctypes.data,
+                m.T.ctypes.data, m.V.ctypes.data)
+    return m.T[0] + m.V[0] - m.V0
+
+
+FULL_ACCEL[DerivedFull] = derived_full_accel
+FULL_ENERGY[DerivedFull] = derived_pole_energy
+
+
+def derived_full_of(machine: Machine, pole: int) -> DerivedFull:
+    """``machine``'s :class:`DerivedFull` for its pole ``pole``."""
+    import ctypes
+
+    fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 5)(machine.module.energy_c.address)
+    fn.argtypes, fn.restype = [ctypes.c_void_p] * 5, None
+    nv = machine.nv
+    full = DerivedFull(derived_rhs_of(machine, machine.view_joint), fn, pole, np.zeros(2 * nv),
+                       np.zeros(2 * nv), np.zeros(1), np.zeros(1), np.zeros(6), 0.0)
+    return full._replace(V0=derived_pole_energy(full, np.zeros(2 * nv)))
 
 
 class DerivedView(NamedTuple):
