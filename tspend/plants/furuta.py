@@ -113,10 +113,13 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
 
 def _fit(f: Callable[[float], float], basis: Sequence[Callable[[float], float]]) -> np.ndarray:
     """The coefficients of ``f`` over the trigonometric ``basis`` (least squares over 16
-    angles: exact to rounding for a trigonometric polynomial in that basis)."""
+    angles: exact to rounding for a trigonometric polynomial in that basis; a coefficient
+    within rounding of 0, 1e-12 of the largest, is 0)."""
     angles = np.linspace(-math.pi, math.pi, 16, endpoint=False)
     A = np.array([[b(a) for b in basis] for a in angles])
-    return np.linalg.lstsq(A, np.array([f(a) for a in angles]), rcond=None)[0]
+    c = np.linalg.lstsq(A, np.array([f(a) for a in angles]), rcond=None)[0]
+    c[np.abs(c) <= 1e-12 * np.max(np.abs(c))] = 0.0
+    return c
 
 
 def coefficients(machine: Machine) -> dict[str, float]:
@@ -145,7 +148,7 @@ def coefficients(machine: Machine) -> dict[str, float]:
     ctrl = act.ctrlrange or (-math.inf, math.inf)
     force = act.forcerange or (-math.inf, math.inf)
     return {"a0": a[0], "a1": a[1], "a2": a[2], "a3": a[3], "a4": a[4], "b0": b[0], "b1": b[1],
-            "b2": b[2], "m22": float(mass(0.0)[1, 1]), "v_c": float(v[0]), "v_s": float(-v[1]),
+            "b2": b[2], "m22": float(mass(0.0)[1, 1]), "v_c": float(v[0]), "v_s": 0.0 - float(v[1]),
             "arm_damping": arm.damping, "pendulum_damping": pend.damping,
             "motor_gear": act.gear, "motor_gain": act.gain[0], "motor_bias": act.bias[0],
             "motor_bias_position": act.bias[1], "motor_bias_velocity": act.bias[2],
