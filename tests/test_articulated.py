@@ -105,24 +105,56 @@ def test_each_machine_matches_mj_forward(name: str) -> None:
 
 
 def test_the_hand_written_cartpole_and_furuta_equations_agree() -> None:
-    """The hand-written equations (tspend/plants/cartpole_physics.py, furuta_physics.py)
-    are the derivation's oracles: the same accelerations at random states."""
+    """The hand-written equations (tspend/plants/cartpole_physics.py; the Furuta's in
+    tests/oracles/furuta_equations.py) are the derivation's oracles: the same
+    accelerations at random states."""
     rng = np.random.default_rng(7)
-    for scenario, model in (("pendulum_mujoco", "cartpole.xml"), ("furuta_mujoco", "furuta.xml")):
-        scn = load_scenario(scenario)
-        hand = DOMAINS[scn.plant.kind.split("_")[0] if "furuta" in scn.plant.kind
-                       else "cartpole"].full_model(scn)
-        machine = load_machine(ROOT / "models" / model)
-        assert machine.state_names == hand.state_names
-        lo, hi = machine.actuator.ctrlrange or (-50.0, 50.0)
-        worst = 0.0
-        for _ in range(300):
-            s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
-            u = rng.uniform(lo, hi)
-            mine = machine.accelerations(s, u)
-            theirs = np.asarray(hand.numeric(s, u), dtype=float)
-            worst = max(worst, float(np.max(np.abs(mine - theirs) / np.maximum(1.0, np.abs(theirs)))))
-        assert worst <= 1e-12, (scenario, worst)
+    scn = load_scenario("pendulum_mujoco")
+    hand = DOMAINS["cartpole"].full_model(scn)
+    machine = load_machine(ROOT / "models" / "cartpole.xml")
+    assert machine.state_names == hand.state_names
+    lo, hi = machine.actuator.ctrlrange or (-50.0, 50.0)
+    worst = 0.0
+    for _ in range(300):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        u = rng.uniform(lo, hi)
+        mine = machine.accelerations(s, u)
+        theirs = np.asarray(hand.numeric(s, u), dtype=float)
+        worst = max(worst, float(np.max(np.abs(mine - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    assert worst <= 1e-12, ("pendulum_mujoco", worst)
+
+
+def test_the_furuta_domain_steps_the_derived_equations_which_the_hand_written_agree_with() -> None:
+    """The Furuta domain's plants and models are the derived equations; the hand-written
+    ones (tests/oracles/furuta_equations.py) agree with them to 1e-12 at random states
+    (full circle, 20 rad/s, volts beyond the clip, a pendulum torque), and the
+    coefficients the domain reports are theirs."""
+    from tests.oracles import furuta_equations as fp
+
+    plant = DOMAINS["furuta"].build(load_scenario("furuta_ode"))
+    machine = plant.machine
+    oracle = fp.params_from_model(machine.model).machine()
+    rng = np.random.default_rng(8)
+    sdot, worst = np.empty(4), 0.0
+    for _ in range(1000):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        u, d = rng.uniform(-14.0, 14.0), rng.uniform(-0.02, 0.02)
+        plant.rhs_into(0.0, s, u, d, sdot)
+        theirs = np.asarray(fp.machine_accelerations(oracle, s, u, d))
+        worst = max(worst, float(np.max(np.abs(sdot[2:] - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    print(f"furuta: derived vs hand-written, worst relative difference {worst:.1e}")
+    assert worst <= 1e-12
+    for name, value in plant.parameters().items():
+        want = getattr(oracle, name)
+        assert value == pytest.approx(want, rel=1e-12, abs=1e-15), name
+    # the swing-up's model: q'' and the pendulum's energy, as compiled code calls them
+    model = DOMAINS["furuta"].full_model(load_scenario("furuta_ode"))
+    for _ in range(200):
+        s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
+        assert model.energy(s) == pytest.approx(fp.pendulum_energy(oracle, s[1], s[3]),
+                                                rel=1e-12, abs=1e-15)
+        np.testing.assert_allclose(model.numeric(s, 2.0), fp.machine_accelerations(oracle, s, 2.0, 0.0),
+                                   rtol=1e-12, atol=1e-12)
 
 
 def test_the_linearisation_is_mujocos_central_difference() -> None:
@@ -225,3 +257,35 @@ def test_inspect_names_every_joints_role(tmp_path: Path) -> None:
     assert {k: v["role"] for k, v in facts["joints"].items()} == {
         "slider": "cart", "hinge1": "pole", "hinge2": "pole"}
     assert facts["controllable"] is True and "role cart" in r.out
+
+
+@pytest.mark.parametrize("name", ["double_cartpole_ode", "furuta_ode", "furuta_mujoco"])
+def test_the_compiled_loop_steps_the_derived_equations_as_the_generic_one(name, paths) -> None:
+    """The derived ODE on the compiled closed loop (RK4 over the generated ``rhs_c`` by
+    its C address) gives the generic loop's run bit for bit; so does the Furuta's MuJoCo
+    plant on the compiled MuJoCo loop."""
+    s = override(load_scenario(name), **{"run.duration": 1.0})
+    fast = run(s, controller="lqr", compiled=True)
+    slow = run(s, controller="lqr", compiled=False)
+    assert paths == ["compiled", "generic"]
+    assert fast.status == slow.status == "completed"
+    assert fast.end.steps_done == slow.end.steps_done > 900
+    for key in ("u", "x", "state"):
+        np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)
+
+
+@pytest.mark.parametrize("name, unit", [("double_cartpole_ode", "N"), ("acrobot_ode", "N m"),
+                                        ("furuta_ode", "V")])
+def test_the_recording_labels_u_in_the_unit_of_the_models_actuator(name, unit) -> None:
+    """u's unit in the recording and the exported table is the model's (a slide's force, a
+    hinge's torque, a motor's volts by its back-EMF bias), not a fixed one per domain."""
+    from tspend.loop.simulation import prepare, run_info
+    from tspend.recorder.series import specs_of
+
+    s = load_scenario(name)
+    parts = prepare(s, controller="lqr")
+    info = run_info(s, parts.plant, 10, controller=parts.controller, task=parts.task)
+    assert info.input_unit == unit
+    spec = next(sp for sp in specs_of(info) if sp.entity == "series/control")
+    assert f"u ({unit})" in spec.title
+    assert spec.columns[0] == "u_" + unit.replace(" ", "_")

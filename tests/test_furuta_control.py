@@ -1,5 +1,5 @@
 """Issue 20 on the second domain: swing-up and MPC on the Furuta pendulum, from the domain's
-own model (tspend.plants.furuta_physics), against independent checks.
+own model (the equations derived from models/furuta.xml), against independent checks.
 
 * the symbolic (CasADi) equations the MPC optimises over equal the numeric ones the plant
   steps, and MuJoCo's own accelerations of models/furuta.xml;

@@ -1,4 +1,5 @@
-"""The Furuta pendulum's ODE (tspend.plants.furuta_physics) against independent oracles.
+"""The hand-written Furuta ODE (tests/oracles/furuta_equations.py, the oracle of the derived
+equations tspend steps) against independent oracles.
 
 * MuJoCo's ``mj_forward`` (recursive Newton-Euler, composite rigid bodies) on
   models/furuta.xml and on a deliberately awkward variant of it: the accelerations;
@@ -22,7 +23,7 @@ from numba import njit
 from scipy.integrate import solve_ivp
 from scipy.linalg import solve_continuous_are
 
-from tspend.plants import furuta_physics as fp
+from tests.oracles import furuta_equations as fp
 from tspend.plants.analytic import rk4_step, rk4_work
 
 MODEL = Path(__file__).resolve().parents[1] / "models" / "furuta.xml"

@@ -4,8 +4,9 @@
 what the scenario sets.
 
 The domain supplies the machine (:meth:`tspend.plants.domain.Domain.full_model`, from the
-one source of its equations: :mod:`tspend.plants.cartpole_physics`,
-:mod:`tspend.plants.furuta_physics`); this module adds the bounds, generically:
+one source of its equations: :mod:`tspend.plants.cartpole_physics`, the equations the
+articulated domain derives from the MJCF for the Furuta and the articulated machines);
+this module adds the bounds, generically:
 
 * the input's range: the plant's actuator (``plant.inputs``), tightened by
   ``effects.saturation``;

@@ -128,7 +128,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         extras=tuple(plant.extras().keys()), drawing=plant_registry.drawing(plant, scenario),
         controller_kind=controller.kind if controller is not None else "",
         diagnostics=tuple(controller.diagnostics) if controller is not None else (),
-        state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds())
+        state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds(),
+        input_unit=plant.inputs[0].unit if plant.inputs else "")
 
 
 class History:

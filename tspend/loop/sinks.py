@@ -78,6 +78,8 @@ class RunInfo:
     view: tuple[str, ...] = ()
     #: the task's bounds on the full state (rail ends, joint limits, fall angle)
     bounds: tuple[Bound, ...] = ()
+    #: u's unit as the plant's model gives it ("" = the domain's label)
+    input_unit: str = ""
 
 
 @dataclass(frozen=True)

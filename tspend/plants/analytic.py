@@ -147,7 +147,7 @@ class ThirdOrderChain(NamedTuple):
 
 #: parameter structure type -> its compiled right-hand side ``rhs(params, t, s, u, d, sdot)``;
 #: a domain with its own compiled machine registers it here (the cart-pole's
-#: ``CartPoleMachine``, the Furuta's ``FurutaMachine``)
+#: ``CartPoleMachine``, the derived machines' ``DerivedRHS``)
 COMPILED_RHS: dict[type, Callable] = {}
 
 

@@ -1,11 +1,14 @@
 """The Furuta (rotary inverted) pendulum domain: the QUBE-Servo 2 rig, on both backends.
 
-The equations of motion, the motor and the reading of a compiled model are
-:mod:`tspend.plants.furuta_physics` (docs/furuta.md derives them and gives every source);
-this module is what the rest of tspend asks about the machine: the scenario's ``[plant]``
+The equations of motion are not written here: both plants are the compiled MJCF read by
+the articulated domain (:class:`~tspend.plants.articulated.machine.Machine`), whose
+equations are derived from the model by Lagrange (:mod:`tspend.plants.articulated.derive`,
+docs/articulated.md); docs/furuta.md gives the rig's numbers and their sources, and the
+hand-written equations it derives are a test oracle (tests/oracles/furuta_equations.py).
+This module is what the rest of tspend asks about the machine: the scenario's ``[plant]``
 configuration (``furuta_ode``, ``furuta_mujoco``), the roles of the MJCF's joints (hinge
-``arm`` driven by the motor, hinge ``pendulum`` carried by the arm), both plants, the
-model the baselines assume, labels and units, the default task (view ``pendulum``,
+``arm`` driven by the motor, hinge ``pendulum`` carried by the arm), the model the
+baselines assume, labels and units, the default task (view ``pendulum``,
 ``pendulum_dot``; fall angle pi/2) and the 3D drawing.
 
 The state is MuJoCo's: ``[arm, pendulum, arm_dot, pendulum_dot]`` (rad, rad/s), the
@@ -18,65 +21,43 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
-from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant
-from tspend.plants.base import InputInfo, JointInfo, Plant, velocity_name
-from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
-    PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
+from tspend.errors import ScenarioError
+from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_full_accel,
+    derived_full_of, derived_pole_energy, derived_view)
+from tspend.plants.articulated.machine import Machine
+from tspend.plants.base import InputInfo, Plant, velocity_name
+from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
+    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
     END_COLOR, bound_text)
-from tspend.plants.furuta_physics import (FurutaMachine, FurutaParams, accelerations_factory,
-    linearize, machine_accelerations, machine_rhs, params_from_model, pendulum_energy)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.task import Bound
 
 __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
-           "FurutaDrawing", "DOMAIN"]
-
-COMPILED_RHS[FurutaMachine] = machine_rhs
-
-
-@register_jitable
-def _full_q_dd(machine: FurutaMachine, s: np.ndarray, u: float) -> tuple[float, float]:
-    # s is MuJoCo's [arm, pendulum, arm_dot, pendulum_dot]; no disturbance in a model
-    return machine_accelerations(machine, s, u, 0.0)
-
-
-@register_jitable
-def _full_energy(machine: FurutaMachine, s: np.ndarray) -> float:
-    return pendulum_energy(machine, s[1], s[3])
-
-
-# compiled full-state controllers (swing-up) reach the Furuta pendulum through these
-FULL_ACCEL[FurutaMachine] = _full_q_dd
-FULL_ENERGY[FurutaMachine] = _full_energy
+           "FurutaDrawing", "coefficients", "load_furuta", "DOMAIN"]
 
 #: where the real arm's cable stops it, rad (+/-135 deg): the default task's joint limit
 ARM_STOP_RAD = 2.356
 
-#: the state, as MuJoCo's qpos then qvel of models/furuta.xml
-STATE_UNITS = ("rad", "rad", "rad/s", "rad/s")
-
 
 @dataclass(frozen=True)
 class FurutaConfig(PlantConfig):
-    """The Furuta pendulum on the analytic backend: the QUBE-Servo 2's published numbers
-    (:class:`~tspend.plants.furuta_physics.FurutaParams`); ``x0`` is the view
-    ``[pendulum, pendulum_dot]``, the arm starting at rest at 0."""
+    """The Furuta pendulum on the analytic backend: the equations derived from
+    models/furuta.xml (the QUBE-Servo 2's published numbers, docs/furuta.md); ``x0`` is the
+    view ``[pendulum, pendulum_dot]``, the arm starting at rest at 0."""
 
     x0: tuple[float, ...] = (0.05, 0.0)
 
 
 @dataclass(frozen=True)
 class FurutaMujocoConfig(FurutaConfig):
-    """A Furuta MJCF stepped by MuJoCo, read as it is (its ODE is read back from it)."""
+    """A Furuta MJCF stepped by MuJoCo, read as it is (its ODE is derived from it)."""
 
     model: str = "models/furuta.xml"
     arm_joint: str = "arm"
@@ -90,6 +71,90 @@ class FurutaMujocoConfig(FurutaConfig):
     pendulum_damping: float = -1.0
 
 
+def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
+                actuator: str = "motor", timestep: float | None = None,
+                pendulum_damping: float | None = None) -> Machine:
+    """The Furuta MJCF at ``model_path`` compiled (``timestep``, ``pendulum_damping``
+    written into it when given) and read as an articulated machine whose pole is
+    ``pendulum`` and whose ``u`` drives ``actuator``."""
+    from tspend.plants.mjcf import read_spec
+
+    where = str(model_path)
+    if not Path(model_path).is_file():
+        raise ScenarioError(f"{where}: model file not found")
+    spec = read_spec(where)  # within the size bounds
+    try:
+        if timestep:
+            spec.option.timestep = float(timestep)
+        if pendulum_damping is not None:
+            joint = spec.joint(pendulum)
+            if joint is None:
+                raise ScenarioError(f"{where}: no joint named {pendulum!r}")
+            # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
+            damping = np.array(joint.damping, dtype=float)
+            damping[0] = float(pendulum_damping)
+            joint.damping = damping
+        model = spec.compile()
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+    names = tuple(model.joint(j).name for j in range(model.njnt))
+    for joint in (arm, pendulum):
+        if joint not in names:
+            raise ScenarioError(f"{where}: no joint named {joint!r} (joints: "
+                                f"{', '.join(names) or 'none'})")
+    if names != (arm, pendulum):
+        raise ScenarioError(f"{where}: a Furuta pendulum has the two hinges {arm!r} then "
+                            f"{pendulum!r}; the model has joints {', '.join(names)}")
+    machine = Machine(model, where, actuator, poles=(pendulum,))
+    if machine.actuated != 0:
+        raise ScenarioError(f"{where}: actuator {actuator!r} does not drive joint {arm!r}")
+    return machine
+
+
+def _fit(f: Callable[[float], float], basis: Sequence[Callable[[float], float]]) -> np.ndarray:
+    """The coefficients of ``f`` over the trigonometric ``basis`` (least squares over 16
+    angles: exact to rounding for a trigonometric polynomial in that basis; a coefficient
+    within rounding of 0, 1e-12 of the largest, is 0)."""
+    angles = np.linspace(-math.pi, math.pi, 16, endpoint=False)
+    A = np.array([[b(a) for b in basis] for a in angles])
+    c = np.linalg.lstsq(A, np.array([f(a) for a in angles]), rcond=None)[0]
+    c[np.abs(c) <= 1e-12 * np.max(np.abs(c))] = 0.0
+    return c
+
+
+def coefficients(machine: Machine) -> dict[str, float]:
+    """The derived equations of a Furuta ``machine`` in the names docs/furuta.md writes them
+    in (what ``parameters()`` reports): the mass matrix's entries ``m11 = a0 + a1 cos al +
+    a2 sin al + a3 cos 2al + a4 sin 2al``, ``m12 = b0 + b1 cos al + b2 sin al``, ``m22``
+    (kg m^2), the potential ``V = v_c cos al + v_s sin al`` (N m), each read off the
+    derived ``M(q)`` and gravity torque, then the joints' damping and the motor's law."""
+    nv = machine.nv
+    Mw, r = np.zeros(nv * nv), np.zeros(nv)
+    zeros = np.zeros(nv)
+
+    def mass(al: float) -> np.ndarray:
+        machine.module.dynamics(np.array([0.0, al]), zeros, np.zeros(len(machine.tree.actuators)),
+                                zeros, machine.p, Mw, r)
+        return Mw.reshape(nv, nv)
+
+    c, s = math.cos, math.sin
+    a = _fit(lambda al: mass(al)[0, 0], (lambda al: 1.0, c, s, lambda al: c(2 * al),
+                                         lambda al: s(2 * al)))
+    b = _fit(lambda al: mass(al)[0, 1], (lambda al: 1.0, c, s))
+    # -dV/dal = v_c sin al - v_s cos al
+    v = _fit(lambda al: machine.gravity_torque(np.array([0.0, al]))[1], (s, c))
+    arm, pend = machine.tree.joints
+    act = machine.actuator
+    ctrl = act.ctrlrange or (-math.inf, math.inf)
+    force = act.forcerange or (-math.inf, math.inf)
+    return {"a0": a[0], "a1": a[1], "a2": a[2], "a3": a[3], "a4": a[4], "b0": b[0], "b1": b[1],
+            "b2": b[2], "m22": float(mass(0.0)[1, 1]), "v_c": float(v[0]), "v_s": 0.0 - float(v[1]),
+            "arm_damping": arm.damping, "pendulum_damping": pend.damping,
+            "motor_gear": act.gear, "motor_gain": act.gain[0], "motor_bias": act.bias[0],
+            "motor_bias_position": act.bias[1], "motor_bias_velocity": act.bias[2],
+            "u_min": ctrl[0], "u_max": ctrl[1], "force_min": force[0], "force_max": force[1]}
+
+
 def _named_task(arm: str, pendulum: str) -> TaskDefaults:
     """The domain's task on a plant whose joints are called ``arm`` and ``pendulum``."""
     return DOMAIN.task.renamed({"arm": arm, "pendulum": pendulum,
@@ -97,255 +162,67 @@ def _named_task(arm: str, pendulum: str) -> TaskDefaults:
                                 "pendulum_dot": velocity_name(pendulum)})
 
 
-class FurutaODE(AnalyticPlant):
-    """The Furuta ODE of :mod:`tspend.plants.furuta_physics` stepped by the analytic RK4.
+class _Furuta:
+    """What both Furuta plants say alike, over the articulated machine's."""
 
-    The controller's view is ``[pendulum, pendulum_dot]``; the arm rides along as the
-    extras ``arm`` and ``arm_dot``.
-    """
-
+    machine: Machine
     domain = "furuta"
 
-    def __init__(self, params: FurutaParams = FurutaParams(), arm: str = "arm",
-                 pendulum: str = "pendulum") -> None:
-        super().__init__(lambda t, s, u, d: 0.0, 2, "furuta_ode", hidden_names=("arm", "arm_dot"),
-                         domain="furuta")
-        self.params, self._machine = params, params.machine()
-        self.arm_joint, self.pendulum_joint = arm, pendulum
+    @property
+    def arm_joint(self) -> str:
+        return self.machine.joint_names[0]
 
     @property
-    def state_names(self) -> tuple[str, ...]:
-        a, p = self.arm_joint, self.pendulum_joint
-        return (a, p, f"{a}_dot", f"{p}_dot")
-
-    state_units = STATE_UNITS
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return (JointInfo(self.arm_joint, "hinge", "rad"),
-                JointInfo(self.pendulum_joint, "hinge", "rad"))
+    def pendulum_joint(self) -> str:
+        return self.machine.joint_names[1]
 
     def default_task(self) -> TaskDefaults:
         return _named_task(self.arm_joint, self.pendulum_joint)
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
-        """The motor's voltage within the amplifier's range, which the ODE applies (it clips
-        u as MuJoCo clips ctrl): both backends declare the bound they apply, so the
-        saturation metrics mean the same on each."""
-        lo, hi = (float(v) for v in self.params.ctrl_range)
-        return (InputInfo("motor", "V", lo, hi),)
-
-    def extras_index(self) -> np.ndarray:
-        return np.array([0, 2], dtype=np.intp)
-
-    def reset(self, x0: np.ndarray) -> None:
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (2,):
-            raise ValueError(f"{self.name}: initial state must have 2 entries, got {x0.shape}")
-        self.s[:] = (0.0, x0[0], 0.0, x0[1])
-        self._clock[0] = 0.0
-
-    def full_state(self) -> np.ndarray:
-        return self.s.copy()
-
-    def extras(self) -> dict[str, float]:
-        return {"arm": float(self.s[0]), "arm_dot": float(self.s[2])}
+        """The motor's voltage within its control range, which both backends apply (the
+        ODE clips u as MuJoCo clips ctrl), so the saturation metrics mean the same on each."""
+        a = self.machine.actuator
+        lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
+        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
 
     def parameters(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self._machine._asdict().items()}
-
-    def _rhs_params(self) -> Any:
-        return self._machine
-
-    def compiled(self) -> None:
-        """The compiled loop reads the view as the state's first entries; the Furuta's
-        view is not, so the generic loop runs."""
-        return None
-
-    @property
-    def gain_sign(self) -> int:
-        a = machine_accelerations(self._machine, np.zeros(4), 1.0, 0.0)[1]
-        b = machine_accelerations(self._machine, np.zeros(4), 0.0, 0.0)[1]
-        return 1 if a >= b else -1
+        return coefficients(self.machine)
 
 
-class MujocoFuruta(Plant):
+class FurutaODE(_Furuta, ArticulatedODE):
+    """The derived equations of a Furuta MJCF stepped by the analytic RK4 (the generic
+    loop: see :meth:`ArticulatedODE.compiled`).  The controller's view is ``[pendulum,
+    pendulum_dot]``; the arm rides along as the extras ``arm`` and ``arm_dot``."""
+
+    def __init__(self, machine: Machine) -> None:
+        ArticulatedODE.__init__(self, machine)
+        self.name, self.domain = "furuta_ode", "furuta"
+
+
+class MujocoFuruta(_Furuta, ArticulatedMujoco):
     """The Furuta MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the
     generalised force on the pendulum joint; joint roles by name."""
 
-    order = 2
     name = "furuta_mujoco"
-    domain = "furuta"
-    state_units = STATE_UNITS
 
-    def __init__(self, model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
-                 actuator: str = "motor", timestep: float | None = None,
-                 pendulum_damping: float | None = None) -> None:
-        import mujoco
-
-        self.model_path = Path(model_path)
-        where = str(model_path)
-        if not self.model_path.is_file():
-            raise ScenarioError(f"{where}: model file not found")
-        from tspend.plants.mjcf import read_spec
-
-        spec = read_spec(where)  # within the size bounds
-        try:
-            if timestep:
-                spec.option.timestep = float(timestep)
-            if pendulum_damping is not None:
-                joint = spec.joint(pendulum)
-                if joint is None:
-                    raise ScenarioError(f"{where}: no joint named {pendulum!r}")
-                # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
-                damping = np.array(joint.damping, dtype=float)
-                damping[0] = float(pendulum_damping)
-                joint.damping = damping
-            self.model = spec.compile()
-        except ValueError as exc:
-            raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
-        m = self.model
-        for joint in (arm, pendulum):
-            if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint) < 0:
-                names = ", ".join(m.joint(j).name for j in range(m.njnt)) or "none"
-                raise ScenarioError(f"{where}: no joint named {joint!r} (joints: {names})")
-        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator) < 0:
-            raise ScenarioError(f"{where}: no actuator named {actuator!r}")
-        self.arm_joint, self.pendulum_joint, self.actuator = arm, pendulum, actuator
-        self.data = mujoco.MjData(m)
-        ja, jp = m.joint(arm).id, m.joint(pendulum).id
-        self._qa, self._qp = int(m.jnt_qposadr[ja]), int(m.jnt_qposadr[jp])
-        self._va, self._vp = int(m.jnt_dofadr[ja]), int(m.jnt_dofadr[jp])
-        self._act = m.actuator(actuator).id
-        self._ts = float(m.opt.timestep)
-        self._mj_step = mujoco.mj_step
-        w = mujoco.mjtWarning
-        self._warnings = [self.data.warning[int(k)] for k in
-                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
-        try:
-            self._params: FurutaParams | None = params_from_model(m, arm, pendulum, actuator)
-            self._departures: list[str] = []
-        except ValueError as exc:
-            self._params, self._departures = None, [str(exc)]
-        self.reset(np.zeros(2))
-
-    @property
-    def params(self) -> FurutaParams:
-        """The ODE of the compiled model (ScenarioError when the model departs from it)."""
-        if self._params is None:
-            raise ScenarioError(f"{self.model_path}: {self._departures[0]}")
-        return self._params
-
-    def mj_model(self) -> Any:
-        return self.model
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        a, p = self.arm_joint, self.pendulum_joint
-        return (a, p, f"{a}_dot", f"{p}_dot")
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        """The arm and the pendulum, with the compiled model's ranges when limited."""
-        m = self.model
-        out = []
-        for name in (self.arm_joint, self.pendulum_joint):
-            j = m.joint(name).id
-            rng = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
-            out.append(JointInfo(name, "hinge", "rad", rng))
-        return tuple(out)
-
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        """The motor's voltage, bounded by its ctrlrange when ``ctrllimited``."""
-        m, a = self.model, self._act
-        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
-            else (-math.inf, math.inf)
-        return (InputInfo(self.actuator, "V", lo, hi),)
-
-    def default_task(self) -> TaskDefaults:
-        return _named_task(self.arm_joint, self.pendulum_joint)
-
-    def extras_index(self) -> np.ndarray:
-        return np.array([0, 2], dtype=np.intp)
-
-    @property
-    def timestep(self) -> float:
-        return self._ts
-
-    def departures(self, dt: float | None = None) -> list[str]:
-        """How this model departs from the Furuta ODE (empty: not at all)."""
-        out = list(self._departures)
-        if dt is not None and abs(round(dt / self._ts) * self._ts - dt) > 1e-9 * dt:
-            out.append(f"dt = {dt:g} s is not a whole multiple of the timestep {self._ts:g} s")
-        return out
-
-    def reset(self, x0: np.ndarray) -> None:
-        import mujoco
-
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (2,):
-            raise ValueError(f"{self.name}: initial state must have 2 entries, got {x0.shape}")
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[self._qp] = x0[0]
-        self.data.qvel[self._vp] = x0[1]
-        mujoco.mj_forward(self.model, self.data)
-
-    def full_state(self) -> np.ndarray:
-        q, v = self.data.qpos, self.data.qvel
-        return np.array((q[self._qa], q[self._qp], v[self._va], v[self._vp]))
-
-    def parameters(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self.params.machine()._asdict().items()}
-
-    def check_sample_time(self, dt: float) -> None:
-        self._substeps(dt)
-
-    def _substeps(self, dt: float) -> int:
-        from tspend.plants.mujoco_plant import whole_substeps
-
-        return whole_substeps(dt, self._ts, self.model_path)
-
-    def step(self, u: float, d: float, dt: float) -> None:
-        from tspend.plants.mujoco_plant import instability_error, refuse_huge_input
-
-        refuse_huge_input(self.name, u, d, self.data.time)
-        t0 = self.data.time
-        self.data.ctrl[self._act] = u
-        self.data.qfrc_applied[self._vp] = d
-        self._mj_step(self.model, self.data, self._substeps(dt))
-        unstable = instability_error(self.name, self._warnings, t0)
-        if unstable is not None:
-            raise unstable
-
-    def extras(self) -> dict[str, float]:
-        return {"arm": float(self.data.qpos[self._qa]), "arm_dot": float(self.data.qvel[self._va])}
-
-    def compiled(self) -> None:
-        return None
-
-    def compiled_mujoco(self, dt: float) -> None:
-        return None
-
-    @property
-    def gain_sign(self) -> int:
-        return FurutaODE(self.params).gain_sign
+    def __init__(self, machine: Machine) -> None:
+        ArticulatedMujoco.__init__(self, machine)
+        self.actuator = machine.actuator.name
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
-    if isinstance(cfg, FurutaMujocoConfig):
-        # the ODE of a MuJoCo scenario is the compiled model's: one machine, two backends
-        return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
-    return FurutaODE(FurutaParams())
+    # the ODE of a MuJoCo scenario is the compiled model's: one machine, two backends
+    return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
 
 
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     mj = cfg if isinstance(cfg, FurutaMujocoConfig) else FurutaMujocoConfig(
         kind="furuta_mujoco", x0=cfg.x0, state_bound=cfg.state_bound)
-    return MujocoFuruta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
-                        mj.timestep or None,
-                        mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None)
+    return MujocoFuruta(load_furuta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
+                                    mj.timestep or None,
+                                    mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None))
 
 
 # -- drawing ------------------------------------------------------------------------------
@@ -450,35 +327,6 @@ class FurutaDrawing(Drawing):
 
 
 # -- the domain ---------------------------------------------------------------------------
-@register_jitable
-def view_accel_of(machine: FurutaMachine, s: np.ndarray, t: float, x: np.ndarray, u: float,
-                  d: float) -> float:
-    """pendulum'' over the view ``[pendulum, pendulum']`` with the arm at rest (``s``: a
-    work array of the full state)."""
-    s[0], s[1], s[2], s[3] = 0.0, x[0], 0.0, x[1]
-    return machine_accelerations(machine, s, u, d)[1]
-
-
-class FurutaView(NamedTuple):
-    """The controllers' model of the view (:class:`~tspend.plants.domain.PlantModel`), as
-    compiled code knows it; ``s`` is its work array."""
-
-    machine: FurutaMachine
-    s: np.ndarray
-
-    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
-        return view_accel_of(self.machine, self.s, t, x, u, d)
-
-
-@register_jitable
-def _compiled_view_accel(model: FurutaView, t: float, x: np.ndarray, u: float,
-                         d: float) -> float:
-    return view_accel_of(model.machine, model.s, t, x, u, d)
-
-
-COMPILED_VIEW_ACCEL[FurutaView] = _compiled_view_accel
-
-
 class FurutaDomain(Domain):
     """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm."""
 
@@ -502,50 +350,50 @@ class FurutaDomain(Domain):
                         pole="pendulum", limits=(("arm", ARM_STOP_RAD),))
     default_model = FurutaMujocoConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PUMPED_ENERGY})
+    derives_equations = True
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
 
-    def params_of_scenario(self, scenario: "Scenario") -> FurutaParams:
-        plant = self.build(scenario)
-        return plant.params  # type: ignore[attr-defined]
+    def machine(self, scenario: "Scenario") -> Machine:
+        """The scenario's machine: the compiled MJCF and its derived equations."""
+        return self.build(scenario).machine  # type: ignore[attr-defined]
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         """pendulum'' over the view with the arm at rest (the arm's motion enters only
         through back-EMF and coupling, which a model of the view leaves out); affine in u
         inside the amplifier's range."""
-        view = FurutaView(self.params_of_scenario(scenario).machine(), np.zeros(4))
+        view = derived_view(self.machine(scenario))
         # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario") -> FullModel:
-        """The Furuta ODE over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
-        joint names), from :func:`~tspend.plants.furuta_physics.accelerations_factory`
-        (over CasADi with the identity clip: the MPC bounds u itself); the energy is
-        :func:`~tspend.plants.furuta_physics.pendulum_energy`."""
+        """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
+        plant's joint names): numbers through the compiled module, CasADi through the
+        derivation (no clips: the MPC bounds u itself); the energy is the pendulum's with
+        the arm at rest at 0 (the arm turns about the vertical: its own energy is left
+        out), :class:`~tspend.plants.articulated.domain.DerivedFull`."""
         plant = self.build(scenario)
-        params: FurutaParams = plant.params  # type: ignore[attr-defined]
-        machine = params.machine()
+        m: Machine = plant.machine  # type: ignore[attr-defined]
+        full = derived_full_of(m, 1)
 
         def factory(sin, cos, tanh):
             if sin is math.sin:
-                accel = machine_accelerations
-            else:
-                accel = accelerations_factory(sin, cos, tanh, clip=lambda v, lo, hi: v)[2]
+                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
             def q_dd(s, u):
-                return accel(machine, s, u, 0.0)
+                a = m.symbolic_accel(s, u)
+                return a[0], a[1]
 
             return q_dd
 
         return FullModel(domain=self.name, state_names=tuple(plant.state_names),
                          accel_factory=factory,
-                         energy=lambda s: pendulum_energy(machine, float(s[1]), float(s[3])),
+                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
                          pole=1, actuated=0, angles=(True, True, False, False),
-                         parameters=dict(params.__dict__), machine=machine,
-                         accel_unit="rad/s^2")
+                         parameters=coefficients(m), machine=full, accel_unit="rad/s^2")
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
@@ -566,42 +414,43 @@ class FurutaDomain(Domain):
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
-        """The model read back as the Furuta ODE's parameters, with the upright's
+        """The model's derived equations in docs/furuta.md's names, with the upright's
         linearisation's open-loop poles."""
-        plant = MujocoFuruta(model_path)
-        departures = plant.departures()
+        plant = MujocoFuruta(load_furuta(model_path))
         facts: dict[str, Any] = {"domain": self.name, "joints": list(plant.state_names[:2]),
-                                 "actuator": plant.actuator, "timestep": plant.timestep}
-        if not departures:
-            p = plant.params
-            facts.update({k: (list(v) if isinstance(v, tuple) else v)
-                          for k, v in p.__dict__.items()})
-            A, _ = linearize(p)
-            facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
-        return facts, departures
+                                 "actuator": plant.actuator, "timestep": plant.timestep,
+                                 **coefficients(plant.machine)}
+        A, _ = plant.machine.linearisation()
+        facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
+        return facts, plant.departures(dt)
 
     def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
-        return linearize(self.params_of_scenario(scenario))
+        return self.machine(scenario).linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """:func:`~tspend.plants.furuta_physics.linearize` at rest; None elsewhere."""
-        if np.any(at[2:] != 0.0):
-            return None
-        return linearize(plant.params, pendulum=float(at[1]),  # type: ignore[attr-defined]
-                         arm=float(at[0]))
+        """The exact ``(A, B)`` of the derived equations at ``at`` (CasADi's derivatives)."""
+        return plant.machine.linearisation(at)  # type: ignore[attr-defined]
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
-        p: FurutaParams = plant.params  # type: ignore[attr-defined]
-        return FurutaDrawing(arm_length=float(np.linalg.norm(p.pivot)),
-                             pendulum_length=2.0 * float(np.linalg.norm(p.pendulum_com)))
+        """The QUBE's drawing, its arm (motor axis to the pendulum's hinge) and pendulum
+        (twice its hinge to its centre of mass) measured on the compiled model."""
+        import mujoco
+
+        m = plant.machine.model  # type: ignore[attr-defined]
+        data = mujoco.MjData(m)
+        mujoco.mj_forward(m, data)
+        axis = np.asarray(data.xaxis[0])
+        reach = np.asarray(data.xanchor[1]) - np.asarray(data.xanchor[0])
+        com = np.asarray(data.subtree_com[int(m.jnt_bodyid[1])]) - np.asarray(data.xanchor[1])
+        return FurutaDrawing(arm_length=float(np.linalg.norm(reach - (reach @ axis) * axis)),
+                             pendulum_length=2.0 * float(np.linalg.norm(com)))
 
     def chirp_amplitude(self, plant: Plant) -> float:
         """3 V: a third of the amplifier's range, enough to throw the pendulum over."""
         return 3.0
 
     def ode_of(self, plant: Plant) -> Plant:
-        return FurutaODE(plant.params, plant.arm_joint,  # type: ignore[attr-defined]
-                         plant.pendulum_joint)  # type: ignore[attr-defined]
+        return FurutaODE(plant.machine)  # type: ignore[attr-defined]
 
 
 #: the Furuta domain

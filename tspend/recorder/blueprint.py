@@ -109,7 +109,7 @@ def _input_title(info: RunInfo, group: str, inp: FuzzyInputInfo) -> str:
     """``"x_o1 = theta (rad)"`` (the model's), ``"comp.: e_delta"`` (the compensator's):
     short enough for a view a fifth of the screen wide (the axis under the curves gives
     the interval; the tab's name says faint curves are the initial ones)."""
-    labels = plant_labels(info.plant_kind, info.order)
+    labels = plant_labels(info.plant_kind, info.order, info.input_unit)
     quantity = None
     if inp.name.startswith("x_o") and inp.name[3:].isdigit() and int(inp.name[3:]) <= len(labels.states):
         quantity = labels.states[int(inp.name[3:]) - 1]

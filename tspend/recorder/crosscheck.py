@@ -230,7 +230,7 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
     def both(name: str) -> list[str]:
         return ["/" + series_location(name, order, extras, p, diags)[0] for p in prefixes]
 
-    specs = series_specs(order, extras, diags, info.plant_kind)
+    specs = series_specs(order, extras, diags, info.plant_kind, input_unit=info.input_unit)
 
     def names(key: str) -> list[str]:
         """The legend of the overlay of series ``key``: each name once per backend."""
@@ -258,7 +258,7 @@ def crosscheck_blueprint(info: RunInfo, keys: Sequence[tuple[str, Quantity]],
         states += [overlay, series_view(
             f"log10 |MuJoCo - ODE|, {q.with_unit()}",
             ["/" + log10_diff_entity(key)], info.duration, None, y_range=LOG10_RANGE)]
-    u = plant_labels(info.plant_kind, order).control
+    u = plant_labels(info.plant_kind, order, info.input_unit).control
     control = [series_view(f"control {u.with_unit()}: MuJoCo and ODE", both("u"), info.duration, names("u"))]
     try:
         control.append(series_view(f"compensator share of u, -u_s / b_hat{' (' + u.unit + ')' if u.unit else ''}"

@@ -174,7 +174,8 @@ def _column(label: str, unit: str) -> str:
 
 def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[Diagnostic] = (),
                  plant_kind: str = "", *, state_names: Sequence[str] = (),
-                 state_units: Sequence[str] = (), view: Sequence[str] = ()) -> list[SeriesSpec]:
+                 state_units: Sequence[str] = (), view: Sequence[str] = (),
+                 input_unit: str = "") -> list[SeriesSpec]:
     """The time-series layout for a plant of ``plant_kind`` and order ``order`` with
     ``extras`` under a controller that declares ``diagnostics``.
 
@@ -190,7 +191,7 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     the extras it repeats; ``series/reference`` holds ``r, r', .., r^(n)`` (no view: the
     tracking view shows r).  Every series carries its exported column (:attr:`SeriesSpec.columns`).
     """
-    labels = plant_labels(plant_kind, order)
+    labels = plant_labels(plant_kind, order, input_unit)
     s0 = labels.states[0]
     control = labels.control
     e_names = [_named(_error_name(s, i), s.unit) for i, s in enumerate(labels.states)]
@@ -320,7 +321,8 @@ def _with_columns(spec: SeriesSpec, labels: PlantLabels, viewed: Sequence[Quanti
 def specs_of(info: "RunInfo") -> list[SeriesSpec]:
     """:func:`series_specs` of a run (its plant, full state, view and diagnostics)."""
     return series_specs(info.order, info.extras, info.diagnostics, info.plant_kind,
-                        state_names=info.state_names, state_units=info.state_units, view=info.view)
+                        state_names=info.state_names, state_units=info.state_units, view=info.view,
+                        input_unit=info.input_unit)
 
 
 def export_columns(specs: Sequence[SeriesSpec], view: Sequence[str] = ()) -> list[tuple[str, str, int]]:

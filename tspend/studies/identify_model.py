@@ -6,9 +6,9 @@ A :class:`ParametricModel` is what :mod:`tspend.studies.identify` fits:
 
 * ``names`` / ``nominal``: every parameter it can fit, with the MJCF's own value;
 * ``rhs(s, u, d, p)``: ``s' = f(s, u, d; p)`` as CasADi expressions, built from the
-  domain's one source of equations (:func:`tspend.plants.cartpole_physics.accelerations_factory`,
-  :func:`tspend.plants.furuta_physics.accelerations_factory`) by handing them a machine
-  structure whose fields are expressions of ``p``;
+  domain's one source of equations (:func:`tspend.plants.cartpole_physics.accelerations_factory`
+  handed a machine structure whose fields are expressions of ``p``; for the Furuta the
+  derived equations of :mod:`tspend.plants.articulated`, ``p`` in their parameter vector);
 * ``write(spec, values)``: the fitted values edited into an ``mujoco.MjSpec``, returning one
   line per change (the XML comments of the calibrated model);
 * ``positions`` / ``state_names``: the measured coordinates and the state order.
@@ -170,15 +170,10 @@ def furuta_model(path: str, arm: str = "arm", pendulum: str = "pendulum",
     import casadi
     import mujoco
 
-    from tspend.plants import furuta_physics as fp
+    from tspend.plants.furuta import load_furuta
 
     model = mujoco.MjModel.from_xml_path(path)
-    try:
-        base = fp.params_from_model(model, arm, pendulum, actuator)
-    except ValueError as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
-    mach0 = base.machine()
-    gear = base.motor_gear
+    machine = load_furuta(path, arm, pendulum, actuator)
     da, dp = model.joint(arm).dofadr[0], model.joint(pendulum).dofadr[0]
     nominal = {"arm_damping": float(model.dof_damping[da]),
                "pendulum_damping": float(model.dof_damping[dp]),
@@ -192,20 +187,21 @@ def furuta_model(path: str, arm: str = "arm", pendulum: str = "pendulum",
                "pendulum_armature": "pendulum joint armature, kg m^2",
                "motor_gain": "motor torque per volt (gainprm[0]), N m/V",
                "back_emf": "motor torque lost per arm rad/s (-biasprm[2]), N m s/rad"}
-    _, _, accel = fp.accelerations_factory(casadi.sin, casadi.cos, casadi.tanh,
-                                           clip=_casadi_clip)
+    # each parameter's place in the derived equations' parameter vector (docs/articulated.md)
+    slot = {"arm_damping": f"{arm}.damping", "pendulum_damping": f"{pendulum}.damping",
+            "arm_armature": f"{arm}.armature", "pendulum_armature": f"{pendulum}.armature",
+            "motor_gain": f"{actuator}.gain0", "back_emf": f"{actuator}.bias2"}
+    index = {name: i for i, name in enumerate(machine.parameter_names)}
+    dynamics = machine.derivation.dynamics   # with MuJoCo's clips, as the plant steps
 
     def rhs(s, u, d, p):
-        v = {k: p.get(k, nominal[k]) for k in nominal}
-        mach = mach0._replace(
-            a0=mach0.a0 + (v["arm_armature"] - nominal["arm_armature"]),
-            m22=mach0.m22 + (v["pendulum_armature"] - nominal["pendulum_armature"]),
-            arm_damping=mach0.arm_damping + (v["arm_damping"] - nominal["arm_damping"]),
-            pendulum_damping=mach0.pendulum_damping
-            + (v["pendulum_damping"] - nominal["pendulum_damping"]),
-            motor_gain=v["motor_gain"], motor_bias_velocity=-v["back_emf"])
-        a, b = accel(mach, s, u, d)
-        return casadi.vertcat(s[2], s[3], a, b)
+        v = [float(x) for x in machine.p]
+        for k, name in slot.items():
+            if k in p:
+                v[index[name]] = -p[k] if k == "back_emf" else p[k]
+        M, r = dynamics(s[:2], s[2:], u, casadi.vertcat(0.0, d), casadi.vertcat(*v))
+        qdd = casadi.solve(casadi.reshape(M, 2, 2), r)
+        return casadi.vertcat(s[2], s[3], qdd[0], qdd[1])
 
     def write(spec, values):
         out = []

@@ -16,7 +16,8 @@ Where ``A, B`` come from:
   the discrete map of one step of it instead, and refuses RK4 models.
 * **an analytic plant**: the domain's exact Jacobian
   (:meth:`~tspend.plants.domain.Domain.jacobians`: ``cartpole_physics.linearize``,
-  ``furuta_physics.linearize``, the same functions ``lqr``'s full design takes its model
+  CasADi's derivatives of the derived equations for the Furuta and the articulated
+  machines, the same functions ``lqr``'s full design takes its model
   from); where the domain has no closed form (a moving state, the paper's chain plants)
   central differences of the plant's own right-hand side.
 

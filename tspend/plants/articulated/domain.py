@@ -18,17 +18,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.analytic import AnalyticPlant, rk4_work
+from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.domain import (FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE, SYMBOLIC,
+    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -130,6 +131,47 @@ class _Named:
         return 1 if a >= b else -1
 
 
+class DerivedRHS(NamedTuple):
+    """A derived machine as the compiled closed loop steps it: the C address of its
+    generated ``rhs_c`` (a ctypes function, typed by its signature alone, so the loop's
+    compiled code is one and cached whatever the machine) and its arrays."""
+
+    fn: Any
+    u: np.ndarray
+    qfrc: np.ndarray
+    p: np.ndarray
+    M: np.ndarray
+    r: np.ndarray
+    actuator: int
+    d_joint: int
+
+
+@register_jitable
+def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
+                sdot: np.ndarray) -> None:
+    """``s' = f(s, u)`` of the derived equations into ``sdot`` (as :meth:`Machine.rhs_into`)."""
+    m.u[:] = 0.0
+    m.u[m.actuator] = u
+    m.qfrc[:] = 0.0
+    m.qfrc[m.d_joint] = d
+    m.fn(s.ctypes.data, m.u.ctypes.data, m.qfrc.ctypes.data, m.p.ctypes.data,
+         m.M.ctypes.data, m.r.ctypes.data, sdot.ctypes.data)
+
+
+COMPILED_RHS[DerivedRHS] = derived_rhs
+
+
+def derived_rhs_of(machine: Machine, d_joint: int) -> DerivedRHS:
+    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force on joint ``d_joint``."""
+    import ctypes
+
+    fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)(machine.module.rhs_c.address)
+    fn.argtypes, fn.restype = [ctypes.c_void_p] * 7, None
+    nv = machine.nv
+    return DerivedRHS(fn, np.zeros(len(machine.tree.actuators)), np.zeros(nv), machine.p,
+                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint)
+
+
 class ArticulatedODE(_Named, AnalyticPlant):
     """The derived equations (3) of :mod:`.derive`, stepped by the shared RK4."""
 
@@ -157,12 +199,13 @@ class ArticulatedODE(_Named, AnalyticPlant):
     def _rhs_params(self) -> Any:
         return self
 
-    def compiled(self) -> None:
-        """The generic loop steps it.  (Not the compiled loop: its functions are cached by
-        numba with every parameter type they were compiled for, and a type defined in a
-        generated module of the derivation cache cannot be imported by the next process
-        that loads that cache index.)"""
-        return None
+    def compiled(self) -> CompiledPlant:
+        """The plant for the compiled closed loop: RK4 over the generated ``rhs_c`` by its C
+        address (:class:`DerivedRHS`; a type of a generated module would not do: numba
+        caches the loop with every parameter type, and the next process loading that cache
+        could not import a module of the derivation cache)."""
+        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint), self.s, self._clock,
+                             self._work, self._full_order)
 
 
 class ArticulatedMujoco(_Named, Plant):
@@ -410,22 +453,95 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     return ArticulatedMujoco(_machine_of(cfg, model_path), tuple(cfg.q0))
 
 
-class ArticulatedView:
-    """The paper's controllers' model of the view: the tracked pole's acceleration with
-    every other joint at rest (as :class:`~tspend.plants.domain.PlantModel` asks)."""
+class DerivedFull(NamedTuple):
+    """A derived machine as compiled full-state controllers (the swing-up) ask for it
+    (:data:`~tspend.plants.domain.FULL_ACCEL`, :data:`~tspend.plants.domain.FULL_ENERGY`):
+    ``q''(s, u)`` and the energy of the pole ``pole`` with every other joint at rest at 0
+    (the machine's ``T + V`` there, less its value upright at rest ``V0``), through the
+    generated ``rhs_c`` and ``energy_c`` by their C addresses."""
 
-    def __init__(self, machine: Machine) -> None:
-        self.machine = machine
-        self.s = np.zeros(2 * machine.nv)
+    rhs: DerivedRHS
+    energy_fn: Any
+    pole: int
+    s: np.ndarray
+    sdot: np.ndarray
+    T: np.ndarray
+    V: np.ndarray
+    pad: np.ndarray
+    V0: float
+
+
+@register_jitable
+def derived_full_accel(m: DerivedFull, s: np.ndarray, u: float) -> tuple:
+    """``q''(s, u)`` padded with zeros to 6 entries (the derivation's most joints): a
+    tuple, as compiled code without allocation can return one."""
+    derived_rhs(m.rhs, 0.0, s, u, 0.0, m.sdot)
+    q = m.sdot[m.s.size // 2:]
+    a = m.pad
+    for i in range(6):
+        a[i] = q[i] if i < q.size else 0.0
+    return a[0], a[1], a[2], a[3], a[4], a[5]
+
+
+@register_jitable
+def derived_pole_energy(m: DerivedFull, s: np.ndarray) -> float:
+    nv = m.s.size // 2
+    m.s[:] = 0.0
+    m.s[m.pole] = s[m.pole]
+    m.s[nv + m.pole] = s[nv + m.pole]
+    m.energy_fn(m.s.ctypes.data, m.s[nv:].ctypes.data, m.rhs.p.ctypes.data,
+                m.T.ctypes.data, m.V.ctypes.data)
+    return m.T[0] + m.V[0] - m.V0
+
+
+FULL_ACCEL[DerivedFull] = derived_full_accel
+FULL_ENERGY[DerivedFull] = derived_pole_energy
+
+
+def derived_full_of(machine: Machine, pole: int) -> DerivedFull:
+    """``machine``'s :class:`DerivedFull` for its pole ``pole``."""
+    import ctypes
+
+    fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 5)(machine.module.energy_c.address)
+    fn.argtypes, fn.restype = [ctypes.c_void_p] * 5, None
+    nv = machine.nv
+    full = DerivedFull(derived_rhs_of(machine, machine.view_joint), fn, pole, np.zeros(2 * nv),
+                       np.zeros(2 * nv), np.zeros(1), np.zeros(1), np.zeros(6), 0.0)
+    return full._replace(V0=derived_pole_energy(full, np.zeros(2 * nv)))
+
+
+class DerivedView(NamedTuple):
+    """The paper's controllers' model of the view: the tracked pole's acceleration with
+    every other joint at rest (as :class:`~tspend.plants.domain.PlantModel` asks), from
+    the derived equations through :class:`DerivedRHS`, for Python and compiled code."""
+
+    rhs: DerivedRHS
+    s: np.ndarray
+    sdot: np.ndarray
+    joint: int
 
     def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
-        m = self.machine
-        s = self.s
-        s[:] = 0.0
-        s[m.view_joint], s[m.nv + m.view_joint] = x[0], x[1]
-        sdot = np.empty_like(s)
-        m.rhs_into(s, u, d, m.view_joint, sdot)
-        return float(sdot[m.nv + m.view_joint])
+        return derived_view_accel(self, t, x, u, d)
+
+
+@register_jitable
+def derived_view_accel(v: DerivedView, t: float, x: np.ndarray, u: float, d: float) -> float:
+    nv = v.s.size // 2
+    v.s[:] = 0.0
+    v.s[v.joint] = x[0]
+    v.s[nv + v.joint] = x[1]
+    derived_rhs(v.rhs, t, v.s, u, d, v.sdot)
+    return v.sdot[nv + v.joint]
+
+
+COMPILED_VIEW_ACCEL[DerivedView] = derived_view_accel
+
+
+def derived_view(machine: Machine) -> DerivedView:
+    """``machine``'s view model (its first pole's, ``d`` on that joint)."""
+    nv = machine.nv
+    return DerivedView(derived_rhs_of(machine, machine.view_joint), np.zeros(2 * nv),
+                       np.zeros(2 * nv), machine.view_joint)
 
 
 class ArticulatedDomain(Domain):
@@ -456,9 +572,9 @@ class ArticulatedDomain(Domain):
         return self.build(scenario).machine  # type: ignore[attr-defined]
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
-        view = ArticulatedView(self.machine(scenario))
+        view = derived_view(self.machine(scenario))
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
-                          x_op=(0.0, 0.0), switching_gain=20.0)
+                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario") -> FullModel:
         """The derived equations over ``[q, q']`` (the joints' names): numbers through the

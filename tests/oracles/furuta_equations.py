@@ -1,4 +1,6 @@
-"""The rotary inverted (Furuta) pendulum's equations of motion, written once (docs/furuta.md).
+"""Test oracle: the rotary inverted (Furuta) pendulum's equations of motion written by hand
+(docs/furuta.md), as tspend stepped them before its equations were derived from the model
+(tspend/plants/articulated/); tests/test_articulated.py holds the derived ones to these.
 
 Coordinates, as MuJoCo's ``qpos``/``qvel`` of ``models/furuta.xml``: the state is
 ``[arm, pendulum, arm_vel, pendulum_vel]`` (rad, rad/s); ``arm`` turns about the motor's
