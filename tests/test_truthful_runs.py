@@ -228,3 +228,30 @@ def test_each_domains_two_backends_report_alike(scenario: str, controller: str,
     assert bound(a) == bound(b)
     assert abs(a.metrics["saturated_fraction"] - b.metrics["saturated_fraction"]) <= 0.01
     assert a.metrics["saturated_fraction"] > 0.0      # the case saturates, so it says something
+
+
+def test_the_recording_draws_the_applied_u_and_the_command_in_its_own_view(tmp_path: Path) -> None:
+    from tspend.recorder import RerunSink, close_recording, open_recording
+    from tspend.recorder.readback import read_scalar_series
+    from tspend.recorder.series import specs_of
+
+    scn = override(load_scenario("furuta_mujoco"), **{"run.duration": 0.5,
+                                                     "task.joint_limits": False})
+    path = tmp_path / "f.rrd"
+    rec = open_recording("applied_u", path=path)
+    try:
+        r = run(scn, controller="second_type", sinks=[RerunSink(rec)])
+    finally:
+        close_recording(rec)
+    u = r.history["u"]
+    lo, hi = r.plant.inputs[0].lo, r.plant.inputs[0].hi
+    assert np.abs(u).max() > 10 * hi  # the command chatters far past the motor's +/-10 V
+    _, applied = read_scalar_series(path, "series/control")
+    _, command = read_scalar_series(path, "series/control_command")
+    np.testing.assert_allclose(applied, np.clip(u, lo, hi), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(command, u, rtol=1e-6)
+    assert np.abs(applied).max() == pytest.approx(r.metrics["max_abs_u"])
+    # the command's view is its own, not the applied u's panel
+    views = {s.entity: s for s in specs_of(r.info)}
+    assert "commanded" in views["series/control_command"].title
+    assert "applied" in views["series/control"].title
