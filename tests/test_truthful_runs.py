@@ -8,6 +8,8 @@ actuator's range (numpy's clip of the recorded command).
 from __future__ import annotations
 
 import json
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,23 @@ from tspend.errors import ScenarioError
 from tspend.loop.simulation import run
 
 from cli_harness import ROOT, tspend
+from tspend.controllers.base import Controller
+
+
+class _PluginBase(Controller):
+    """A plug-in as a user writes one, for the tests below that need it in this module."""
+
+    kind = "plugin_base"
+
+    def __init__(self, scenario, settings=None):
+        self.order = len(scenario.plant.x0)
+        self.diag = np.zeros(0)
+
+    def reset(self, rng):
+        pass
+
+    def step(self, obs, dt):
+        return 0.0
 
 TOUCHING = "tests/models/cartpole_touching_rails.xml"
 
@@ -255,3 +274,49 @@ def test_the_recording_draws_the_applied_u_and_the_command_in_its_own_view(tmp_p
     views = {s.entity: s for s in specs_of(r.info)}
     assert "commanded" in views["series/control_command"].title
     assert "applied" in views["series/control"].title
+
+
+class SleepsInItsStep(_PluginBase):
+    """Falls asleep (as good as forever) at its eleventh sample, and says so."""
+
+    kind = "sleeps"
+    asleep = threading.Event()
+
+    def step(self, obs, dt):
+        if obs.t > 0.0095:
+            self.asleep.set()
+            time.sleep(600)  # the signal ends it
+        return 0.0
+
+
+def test_a_signal_stops_a_plugin_sleeping_in_its_step() -> None:
+    """The stop is checked between two samples, which a sleeping plug-in never reaches: the
+    signal is raised into its code instead, and the run ends as interrupted at that sample."""
+    import signal
+
+    import tspend as tspend_api
+    from tspend.loop.runner import RunInterrupted
+    from tspend.runtime.interrupts import SignalGuard
+
+    asleep = SleepsInItsStep.asleep
+
+    def send_when_asleep() -> None:
+        if asleep.wait(300):
+            # to the main thread, as the kernel delivers a SIGTERM from outside to a
+            # process whose main thread sleeps (a thread's own kill may land on itself)
+            signal.pthread_kill(threading.main_thread().ident, signal.SIGTERM)
+
+    guard = SignalGuard().install()
+    try:
+        with guard.deferred() as stop:
+            threading.Thread(target=send_when_asleep, daemon=True).start()
+            with pytest.raises(RunInterrupted) as caught:
+                tspend_api.run(override(load_scenario("ex3_pendulum_ode"),
+                                        **{"run.duration": 0.05}),
+                               controller=SleepsInItsStep, stop=stop, keep_history=False)
+    finally:
+        guard.restore()
+    assert caught.value.exit_status == 143
+    end = caught.value.end
+    assert end.status == "interrupted" and end.metrics["steps"] == 10  # the samples before
+    assert stop.in_controller is False
