@@ -26,6 +26,7 @@ classified:
 
     python benchmarks/hostile_inputs.py            # all cases, 2 at a time
     python benchmarks/hostile_inputs.py -k seed    # only cases whose name contains "seed"
+    python benchmarks/hostile_inputs.py -k misbehaving,issue33,"API gym",run-timeout  # issue 33's
 
 Prints the figures (tried, clean exit 2, internal errors, files lost, processes left,
 ...) and every case that was not clean.  Exit status 1 if any traceback, internal error,
@@ -1285,11 +1286,13 @@ def _cleanup(d: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("-k", default="", help="only cases whose name contains this")
+    ap.add_argument("-k", default="", help="only cases whose name contains this (or one of "
+                                           "several, comma-separated)")
     ap.add_argument("-j", type=int, default=2, help="cases at a time (default 2)")
     ap.add_argument("--json", metavar="PATH", help="also write the counts as JSON")
     args = ap.parse_args()
-    selected = [c for c in cases() if args.k in c.name]
+    wanted = args.k.split(",")
+    selected = [c for c in cases() if any(k in c.name for k in wanted)]
     base = Path(tempfile.mkdtemp(prefix="tspend-hostile-"))
     started = time.perf_counter()
     with ThreadPoolExecutor(args.j) as pool:

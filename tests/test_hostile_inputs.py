@@ -217,8 +217,10 @@ def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
                 break
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 129, err  # the first signal's status, not a later one's
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert "SIGHUP" in err
+    # one line, besides the notice a slow start prints while numba compiles (under load)
+    lines = [l for l in err.strip().splitlines() if not l.startswith("tspend: compiling")]
+    assert "Traceback" not in err and len(lines) == 1
+    assert "interrupted by SIGHUP" in lines[0]
     metrics = json.loads((tmp_path / "K.json").read_text())
     assert metrics["status"] == "interrupted" and metrics["steps"] > 0
     RrdReader(str(tmp_path / "K.rrd")).store()  # complete, with its footer

@@ -8,7 +8,6 @@ actuator's range (numpy's clip of the recorded command).
 from __future__ import annotations
 
 import json
-import threading
 import time
 from pathlib import Path
 
@@ -277,39 +276,31 @@ def test_the_recording_draws_the_applied_u_and_the_command_in_its_own_view(tmp_p
 
 
 class SleepsInItsStep(_PluginBase):
-    """Falls asleep (as good as forever) at its eleventh sample, and says so."""
+    """At its eleventh sample a SIGTERM arrives (raised by itself: delivered at once, to
+    this thread, no race with a sender), then it falls asleep for a minute."""
 
     kind = "sleeps"
-    asleep = threading.Event()
 
     def step(self, obs, dt):
         if obs.t > 0.0095:
-            self.asleep.set()
-            time.sleep(600)  # the signal ends it
+            import signal
+
+            signal.raise_signal(signal.SIGTERM)
+            time.sleep(60)  # without the signal raised into its code: a minute, then 11 steps
         return 0.0
 
 
 def test_a_signal_stops_a_plugin_sleeping_in_its_step() -> None:
     """The stop is checked between two samples, which a sleeping plug-in never reaches: the
-    signal is raised into its code instead, and the run ends as interrupted at that sample."""
-    import signal
-
+    signal is raised into its code instead, and the run ends as interrupted at that sample
+    (benchmarks/hostile_inputs.py sends the SIGTERM from outside, to a plug-in asleep)."""
     import tspend as tspend_api
     from tspend.loop.runner import RunInterrupted
     from tspend.runtime.interrupts import SignalGuard
 
-    asleep = SleepsInItsStep.asleep
-
-    def send_when_asleep() -> None:
-        if asleep.wait(300):
-            # to the main thread, as the kernel delivers a SIGTERM from outside to a
-            # process whose main thread sleeps (a thread's own kill may land on itself)
-            signal.pthread_kill(threading.main_thread().ident, signal.SIGTERM)
-
     guard = SignalGuard().install()
     try:
         with guard.deferred() as stop:
-            threading.Thread(target=send_when_asleep, daemon=True).start()
             with pytest.raises(RunInterrupted) as caught:
                 tspend_api.run(override(load_scenario("ex3_pendulum_ode"),
                                         **{"run.duration": 0.05}),
