@@ -28,6 +28,16 @@ classified:
     python benchmarks/hostile_inputs.py -k seed    # only cases whose name contains "seed"
     python benchmarks/hostile_inputs.py -k misbehaving,issue33,"API gym",run-timeout  # issue 33's
 
+Issue 33's cases (``-k misbehaving,issue33,"API gym",run-timeout``): plug-ins that
+misbehave at run time (raise, return NaN, a vector, a string or None, sleep, call
+``sys.exit(0)``, write into ``obs.state``, print megabytes) on ``run``, ``sweep``, ``compare``
+and ``tune``; a gym agent's bad actions and an agent writing into its observation; the
+issue's own cases (a cross-check that compared nothing, contacts at q0, the Furuta's
+saturated arm, a swing-up that never swings up, a control delay longer than the run, a CSV
+export read by pandas).  A case with a ``check`` is clean when its exit status is the
+documented one and what it left is right (the metrics' status and a recording, the
+table's rows, the report's verdict).
+
 Prints the figures (tried, clean exit 2, internal errors, files lost, processes left,
 ...) and every case that was not clean.  Exit status 1 if any traceback, internal error,
 hang, lost file or process left was seen.
