@@ -26,6 +26,17 @@ classified:
 
     python benchmarks/hostile_inputs.py            # all cases, 2 at a time
     python benchmarks/hostile_inputs.py -k seed    # only cases whose name contains "seed"
+    python benchmarks/hostile_inputs.py -k misbehaving,issue33,"API gym",run-timeout  # issue 33's
+
+Issue 33's cases (``-k misbehaving,issue33,"API gym",run-timeout``): plug-ins that
+misbehave at run time (raise, return NaN, a vector, a string or None, sleep, call
+``sys.exit(0)``, write into ``obs.state``, print megabytes) on ``run``, ``sweep``, ``compare``
+and ``tune``; a gym agent's bad actions and an agent writing into its observation; the
+issue's own cases (a cross-check that compared nothing, contacts at q0, the Furuta's
+saturated arm, a swing-up that never swings up, a control delay longer than the run, a CSV
+export read by pandas).  A case with a ``check`` is clean when its exit status is the
+documented one and what it left is right (the metrics' status and a recording, the
+table's rows, the report's verdict).
 
 Prints the figures (tried, clean exit 2, internal errors, files lost, processes left,
 ...) and every case that was not clean.  Exit status 1 if any traceback, internal error,
@@ -147,6 +158,9 @@ except ImportError:  # no pandas: plain bytes stand in
 
 #: a user's plug-in file: one good controller and several broken ones
 PLUGIN = """
+import sys
+import time
+
 import numpy as np
 from tspend.controllers.base import Controller
 
@@ -178,6 +192,74 @@ class NotAController:
 
 
 NOT_A_CLASS = 5
+
+
+# misbehaving at run time, each in its own way (issue 33)
+class StepRaises(Zero):
+    kind = "step_raises"
+
+    def step(self, obs, dt):
+        raise RuntimeError("a bug of mine")
+
+
+class StepNaN(Zero):
+    kind = "step_nan"
+
+    def step(self, obs, dt):
+        return float("nan")
+
+
+class StepVector(Zero):
+    kind = "step_vector"
+
+    def step(self, obs, dt):
+        return np.zeros(3)
+
+
+class StepString(Zero):
+    kind = "step_string"
+
+    def step(self, obs, dt):
+        return "push"
+
+
+class StepNone(Zero):
+    kind = "step_none"
+
+    def step(self, obs, dt):
+        return None
+
+
+class StepSleeps(Zero):
+    kind = "step_sleeps"
+
+    def step(self, obs, dt):
+        time.sleep(1000)
+        return 0.0
+
+
+class StepExits(Zero):
+    kind = "step_exits"
+
+    def step(self, obs, dt):
+        sys.exit(0)
+
+
+class StepMutates(Zero):
+    kind = "step_mutates"
+
+    def step(self, obs, dt):
+        obs.state[0] = 1e9
+        return 0.0
+
+
+class StepPrints(Zero):
+    kind = "step_prints"
+
+    def step(self, obs, dt):
+        if obs.t < 0.0015:
+            sys.stdout.write("x" * 4_000_000 + "\\n")  # megabytes on the user's stdout
+        return 0.0
 """
 
 
@@ -210,6 +292,9 @@ class Case:
     twin: list[str] | None = None            # a second command started at the same time
     api: str = ""              # a Python snippet run instead of the CLI
     needs: str = ""            # a module the case needs (skipped with a note if absent)
+    #: a named check of what the command left (see CHECKS); with it, the exit status and
+    #: the check make the case clean (a sweep's progress lines on stderr are no error)
+    check: str = ""
 
 
 OUT = ["--out", "K.rrd", "--metrics", "K.json"]
@@ -745,6 +830,7 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
     }
     for label, code in api.items():
         add(f"API {label}", [], api=code)
+    misbehaving_cases(add)
     # -- guarded: modules other work is adding (skipped with a note when absent)
     gym = {
         "gym unknown scenario": 'import tspend.gym, gymnasium; gymnasium.make("tspend/nope-v0")',
@@ -784,6 +870,150 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
                                                  f"controllers.policy.path={value}",
                                                  "--out", "new.parquet"],
             files={"R.onnx": os.urandom(3000)}, needs="tspend.controllers.policy")
+
+
+#: each misbehaving plug-in class: (label, class, the run's status, its exit status)
+MISBEHAVING = [("raises", "StepRaises", "controller_error", 6),
+               ("returns NaN", "StepNaN", "diverged", 3),
+               ("returns a vector", "StepVector", "controller_error", 6),
+               ("returns a string", "StepString", "controller_error", 6),
+               ("returns None", "StepNone", "controller_error", 6),
+               ("sleeps", "StepSleeps", "timeout", 7),
+               ("calls sys.exit(0)", "StepExits", "controller_error", 6),
+               ("mutates obs.state", "StepMutates", "controller_error", 6),
+               ("prints 4 MB", "StepPrints", "completed", 0)]
+TOUCHING = str(ROOT / "tests" / "models" / "cartpole_touching_rails.xml")
+#: a snippet's own verdict: exit 1 with a line saying what was wrong (not a traceback)
+FAIL = "import sys\ndef fail(why):\n    print('not as documented:', why, file=sys.stderr); sys.exit(1)\n"
+
+
+def misbehaving_cases(add) -> None:
+    """Issue 33: runs that claim no more than happened, and user code that cannot break
+    the testbed: misbehaving plug-ins on run, sweep, compare and tune, a gym agent's bad
+    actions, and the issue's own cases."""
+    quick = ["ex3_pendulum_ode", "--duration", "0.05"]
+    for label, cls, status, code in MISBEHAVING:
+        spec = f"Plug.py:{cls}"
+        if cls == "StepSleeps":
+            # a run has no time limit of its own: Ctrl-C / SIGTERM ends it, outputs kept
+            add(f"misbehaving run {label}, SIGTERM at 30 s", ["run", *quick, "--controller", spec]
+                + OUT, 143, send=(signal.SIGTERM, 30.0), may_write=("K.",),
+                check="metrics:interrupted")
+        else:
+            add(f"misbehaving run {label}", ["run", *quick, "--controller", spec] + OUT,
+                code,
+                may_write=("K.",), check=f"metrics:{status}")
+        limit = ["--run-timeout", "5"] if cls == "StepSleeps" else []
+        add(f"misbehaving sweep {label}", SW + ["--controller", spec, "--out", "new.parquet",
+                                                "--record", "none"] + limit,
+            7 if code == 7 else 0, may_write=("new.",), check=f"rows:{status}")
+        add(f"misbehaving compare {label}", CMP[:8] + ["--controller", f"lqr,{spec}"] + CMP[10:]
+            + limit, 7 if code == 7 else 0, check="compared")
+        add(f"misbehaving tune {label}", TUNE[:2] + ["--controller", spec] + TUNE[4:])
+    for command, base in (("sweep", SW), ("compare", CMP), ("tune", TUNE)):
+        for value in ("0", "-5", "nan", "inf", "1e12", "soon"):
+            add(f"{command} --run-timeout {value}", base + ["--run-timeout", value])
+    gym = {
+        "string": '"left"', "None": "None", "inf": 'float("inf")', "a dict": '{"u": 1.0}',
+    }
+    for label, action in gym.items():
+        add(f"API gym step {label}", [], needs="tspend.gym", api=(
+            "import tspend.gym, gymnasium\n"
+            "env = gymnasium.make('tspend/ex3_pendulum_ode-v0')\n"
+            f"env.reset(seed=0)\nenv.step({action})"))
+    add("API gym step 1e300 is clipped", [], expect=0, needs="tspend.gym", api=FAIL + (
+        "import tspend.gym, gymnasium\n"
+        "env = gymnasium.make('tspend/ex3_pendulum_ode-v0')\n"
+        "env.reset(seed=0)\n_, _, _, _, info = env.step([1e300])\n"
+        "hi = float(env.unwrapped.action_space.high[0])\n"
+        "if not abs(info['u']) <= max(hi, abs(env.unwrapped.u_range[1])): fail(info['u'])\n"))
+    add("API gym agent mutates the observation", [], expect=0, needs="tspend.gym", api=FAIL + (
+        "import tspend.gym, gymnasium, numpy as np\n"
+        "def trace(mutate):\n"
+        "    env = gymnasium.make('tspend/ex3_pendulum_ode-v0')\n"
+        "    obs, _ = env.reset(seed=0)\n"
+        "    for _ in range(20):\n"
+        "        if mutate:\n"
+        "            obs[:] = 1e9\n"
+        "            try:\n"
+        "                env.unwrapped.controller_observation().state[0] = 1e9\n"
+        "            except (ValueError, TypeError):\n"
+        "                pass\n"
+        "        obs, *_ = env.step(np.zeros(1, dtype=np.float32))\n"
+        "    return obs\n"
+        "if not np.array_equal(trace(False), trace(True)): fail('the agent changed the plant')\n"))
+    # the issue's own cases
+    add("issue33 crosscheck of a model touching its rails at t = 0",
+        ["crosscheck", "pendulum_mujoco", "--set", f"plant.model={TOUCHING!r}".replace("'", '"'),
+         "--set", "run.duration=1", "--no-record", "--json", "K.json"], 1,
+        may_write=("K.",), check="inconclusive")
+    add("issue33 inspect names the contacts at q0", ["inspect", TOUCHING, "--json", "K.json"], 0,
+        may_write=("K.",), check="contacts")
+    add("issue33 furuta_mujoco second_type", ["run", "furuta_mujoco", "--controller",
+                                              "second_type", "--duration", "3"] + OUT, 4,
+        may_write=("K.",), check="metrics:joint_limit")
+    add("issue33 furuta_swingup lqr", ["run", "furuta_swingup", "--controller", "lqr",
+                                       "--duration", "3", "--set", "task.goal_by=2"] + OUT, 4,
+        may_write=("K.",), check="metrics:not_reached")
+    add("issue33 control_delay longer than the run", ["run", *quick, "--set",
+                                                      "run.control_delay=5000"] + OUT)
+    add("issue33 export CSV read by pandas", [], expect=0, may_write=("x.",), api=FAIL + (
+        "import subprocess, pandas\n"
+        "for argv in (['run', 'ex3_pendulum_ode', '--duration', '0.05', '--out', 'x.rrd'],\n"
+        "             ['export', 'x.rrd', '--out', 'x.csv']):\n"
+        "    r = subprocess.run([sys.executable, '-m', 'tspend.cli', *argv], capture_output=True)\n"
+        "    if r.returncode: fail(f'{argv[0]} exit {r.returncode}')\n"
+        "try:\n"
+        "    frame = pandas.read_csv('x.csv')\n"
+        "except Exception as exc:\n"
+        "    fail(f'pandas.read_csv: {type(exc).__name__}: {exc}')\n"
+        "if list(frame.columns[:2]) != ['t_s', 'hinge_rad'] or 'u_N' not in frame: "
+        "fail(list(frame.columns))\n"))
+
+
+def _json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        return {"unreadable": f"{path.name}: {exc}"}
+
+
+def check_left(d: Path, check: str, out: str, err: str) -> str:
+    """What is wrong with what the case's command left in ``d`` ('' when nothing)."""
+    kind, _, arg = check.partition(":")
+    if kind == "metrics":
+        m = _json(d / "K.json")
+        if m.get("status") != arg:
+            return f"K.json status {m.get('status')!r}, not {arg!r} ({m.get('unreadable', '')})"
+        rec = d / "K.rrd"
+        if not rec.exists() or rec.read_bytes()[:4] != b"RRF2" or rec.stat().st_size < 1000:
+            return "no recording K.rrd"
+        if arg == "joint_limit" and not (m.get("max_abs_u") or 99) <= 10.0:
+            return f"max_abs_u {m.get('max_abs_u')} > 10 V"
+        return ""
+    if kind == "rows":
+        try:
+            import pandas as pd
+
+            rows = pd.read_parquet(d / "new.parquet")
+        except Exception as exc:  # noqa: BLE001 - any reason the table is not there
+            return f"no table: {type(exc).__name__}"
+        if len(rows) != 2 or not rows["run_key"].is_unique or set(rows["status"]) != {arg}:
+            return f"rows {list(rows['status'])}, not 2 x {arg!r}"
+        return ""
+    if kind == "compared":
+        return "" if "| lqr" in out or "lqr" in out else "no comparison printed"
+    if kind == "inconclusive":
+        m = _json(d / "K.json")
+        if m.get("inconclusive") is not True or m.get("open_loop_ok") is not False:
+            return f"verdict {str(m.get('verdict'))[:80]!r}"
+        return "" if "nothing compared" in (m.get("verdict") or "") else "not 'nothing compared'"
+    if kind == "contacts":
+        m = _json(d / "K.json")
+        found = m.get("contacts_at_q0")
+        return "" if found and found != "none" and "rail1/cart" in found else \
+            f"contacts_at_q0 {found!r}"
+    raise ValueError(f"unknown check {check}")
 
 
 # -- running them ------------------------------------------------------------------------
@@ -839,6 +1069,7 @@ class Outcome:
     left: list[str] = field(default_factory=list)   # processes still running in the directory
     twin_status: int | None = None
     skipped: str = ""
+    problem: str = ""          # what the case's check found wrong
 
     @property
     def traceback(self) -> bool:
@@ -870,6 +1101,8 @@ class Outcome:
             return True
         if self.hang or self.traceback or self.lost or self.stray or self.left:
             return False
+        if self.case.check:
+            return self.status == self.case.expect and not self.problem
         if self.case.expect == 0:
             # progress lines of a sweep go to stderr too: only an error is wrong
             return self.status == 0 and "error" not in self.err
@@ -1036,8 +1269,10 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
     if case.expect == -9:  # a killed sweep's journal and lock file are its table's
         stray = [p for p in stray if not p.startswith("k.parquet")]
     stray += [str(p.relative_to(d)) for p in d.rglob("MUJOCO_LOG.TXT")]
+    problem = check_left(d, case.check, out, err) if case.check and status is not None else ""
     _cleanup(d)
-    return Outcome(case, status, err, out, lost, sorted(set(stray)), left, twin_status)
+    return Outcome(case, status, err, out, lost, sorted(set(stray)), left, twin_status,
+                   problem=problem)
 
 
 def _has_attribute(dotted: str) -> bool:
@@ -1061,11 +1296,13 @@ def _cleanup(d: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("-k", default="", help="only cases whose name contains this")
+    ap.add_argument("-k", default="", help="only cases whose name contains this (or one of "
+                                           "several, comma-separated)")
     ap.add_argument("-j", type=int, default=2, help="cases at a time (default 2)")
     ap.add_argument("--json", metavar="PATH", help="also write the counts as JSON")
     args = ap.parse_args()
-    selected = [c for c in cases() if args.k in c.name]
+    wanted = args.k.split(",")
+    selected = [c for c in cases() if any(k in c.name for k in wanted)]
     base = Path(tempfile.mkdtemp(prefix="tspend-hostile-"))
     started = time.perf_counter()
     with ThreadPoolExecutor(args.j) as pool:
@@ -1078,7 +1315,7 @@ def main() -> int:
             first = (o.err.strip().splitlines() or [""])[0][:160]
             print(f"NOT CLEAN  {o.case.name[:50]:<50} status={o.status} expect={o.case.expect} "
                   f"lines={len(o.err.splitlines())} lost={o.lost} stray={o.stray} "
-                  f"left={o.left} :: {first}")
+                  f"left={o.left} :: {o.problem + ' :: ' if o.problem else ''}{first}")
     notes = sorted({o.skipped for o in skipped})
     for note in notes:
         n = sum(o.skipped == note for o in skipped)

@@ -250,3 +250,113 @@ def test_a_worker_killed_mid_run_costs_nothing_but_time(tmp_path):
     assert (table["status"] == "completed").all()
     direct = _direct("ex3_pendulum_ode", 5, **{"run.duration": 1.0})
     assert table["rmse_ss"].iloc[5] == direct["rmse_ss"]
+
+
+SLEEPER = ("import time\n"
+           "from tspend.controllers.base import Controller\n"
+           "class Sleeps(Controller):\n"
+           "    kind = 'sleeps'\n"
+           "    def __init__(self, scenario, settings=None):\n"
+           "        self.order = len(scenario.plant.x0)\n"
+           "    def reset(self, rng):\n"
+           "        pass\n"
+           "    def step(self, obs, dt):\n"
+           "        time.sleep(1000)\n"
+           "        return 0.0\n")
+
+
+def _processes_in(directory: Path) -> list[int]:
+    """Processes whose working directory is ``directory`` (zombies aside)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == os.getpid():
+            continue
+        try:
+            if os.readlink(f"/proc/{entry}/cwd") != str(directory):
+                continue
+            with open(f"/proc/{entry}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    continue
+        except OSError:
+            continue
+        found.append(int(entry))
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_runs_past_the_time_limit_are_timeout_rows_once_and_leave_no_process(tmp_path):
+    # one worker: the second run waits for the first's kill and a fresh pool, then is
+    # killed on its own (a run that could finish is the stand-in test's below: on a loaded
+    # machine its worker's start alone can outlast a limit short enough for a quick test)
+    (tmp_path / "sleeper.py").write_text(SLEEPER)
+    out = tmp_path / "t.parquet"
+    r = subprocess.run([sys.executable, "-m", "tspend.cli", "sweep", "ex3_pendulum_ode",
+                        "--duration", "0.2", "--controller", "sleeper.py:Sleeps",
+                        "--seeds", "0:2", "--jobs", "1", "--run-timeout", "2", "--out",
+                        str(out), "--record", "none"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 7, r.stderr  # EXIT_INCOMPLETE
+    assert "2 of 2 runs did not complete: 2 timeout" in r.stderr
+    assert "timeout" in r.stdout  # the summary's column
+    table = read_table(out)
+    assert table["run_key"].is_unique and sorted(table["seed"]) == [0, 1]
+    assert (table["status"] == "timeout").all()
+    assert table["message"].str.contains("longer than the run time limit of 2 s").all()
+    assert table["rmse_ss"].isna().all() and (table["job_s"] >= 2).all()
+    # the killed workers, the pool and its fork server are gone with the sweep
+    deadline = time.monotonic() + 5.0
+    while _processes_in(tmp_path) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _processes_in(tmp_path) == []
+
+
+def test_a_late_job_is_killed_once_and_the_jobs_that_shared_its_pool_run_again():
+    from concurrent.futures import Future
+
+    from tspend.sweep import _execute
+
+    jobs = plan.make_plan(tspend.override(tspend.load_scenario("ex2_duffing"),
+                                          **{"run.duration": 0.01}), seeds=range(4))
+    late, first, beside, last = (j.key for j in jobs)
+    began = time.monotonic()
+
+    class Executor:
+        """In-process stand-in for a pool of 2 taking jobs in order: the late job never
+        finishes; ``first`` runs beside it for 0.6 s, then ``beside`` takes its worker and
+        runs until the kill, which loses every job in flight (as the local pool's does)."""
+
+        name = "local"
+        workers = 2
+        killed: list = []
+        submitted: list = []
+
+        def submit(self, fn, job):
+            f = Future()
+            f.job = job
+            self.submitted.append(job.key)
+            return f
+
+        def wait(self, futures, timeout):
+            time.sleep(0.01)
+            done = {first: time.monotonic() - began > 0.6, beside: bool(self.killed),
+                    late: False, last: True}
+            return {f for f in futures if done[f.job.key]}
+
+        def result(self, f):
+            return {"run_key": f.job.key, "status": "completed"}
+
+        def kill(self, futures):
+            self.killed.append([f.job.key for f in futures])
+            return True
+
+        def restart(self):
+            raise AssertionError("a timeout is no worker death")
+
+    executor = Executor()
+    rows = list(_execute(executor, jobs, None, run_timeout=1.0))
+    assert sorted(r["run_key"] for r in rows) == sorted(j.key for j in jobs)  # each once
+    assert [r["run_key"] for r in rows if r["status"] == "timeout"] == [late]
+    assert executor.killed == [[late]]
+    assert executor.submitted.count(late) == 1            # never run again
+    assert executor.submitted.count(beside) == 2          # lost with the kill: run again
+    assert time.monotonic() - began >= 1.0                # not before its time

@@ -92,7 +92,11 @@ def test_export_of_furuta_mujoco_names_the_arm_and_the_pendulum(tmp_path):
         np.testing.assert_array_equal(table[column], full(result, name))
         _, back = read_scalar_series(rrd, f"series/state/{name}")
         np.testing.assert_array_equal(table[column], back)
-    np.testing.assert_array_equal(table["u_V"], result.history["u"])
+    # u_V is the input applied (the command clipped to the motor's +/-10 V), the command
+    # is a column of its own
+    lo, hi = result.plant.inputs[0].lo, result.plant.inputs[0].hi
+    np.testing.assert_array_equal(table["u_V"], np.clip(result.history["u"], lo, hi))
+    np.testing.assert_array_equal(table["u_command_V"], result.history["u"])
     meta = pq.read_schema(tmp_path / "f.parquet").metadata
     assert meta[b"scenario"] == b"furuta_mujoco" and meta[b"controller"] == b"second_type"
 

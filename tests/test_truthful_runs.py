@@ -8,6 +8,7 @@ actuator's range (numpy's clip of the recorded command).
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,23 @@ from tspend.errors import ScenarioError
 from tspend.loop.simulation import run
 
 from cli_harness import ROOT, tspend
+from tspend.controllers.base import Controller
+
+
+class _PluginBase(Controller):
+    """A plug-in as a user writes one, for the tests below that need it in this module."""
+
+    kind = "plugin_base"
+
+    def __init__(self, scenario, settings=None):
+        self.order = len(scenario.plant.x0)
+        self.diag = np.zeros(0)
+
+    def reset(self, rng):
+        pass
+
+    def step(self, obs, dt):
+        return 0.0
 
 TOUCHING = "tests/models/cartpole_touching_rails.xml"
 
@@ -228,3 +246,68 @@ def test_each_domains_two_backends_report_alike(scenario: str, controller: str,
     assert bound(a) == bound(b)
     assert abs(a.metrics["saturated_fraction"] - b.metrics["saturated_fraction"]) <= 0.01
     assert a.metrics["saturated_fraction"] > 0.0      # the case saturates, so it says something
+
+
+def test_the_recording_draws_the_applied_u_and_the_command_in_its_own_view(tmp_path: Path) -> None:
+    from tspend.recorder import RerunSink, close_recording, open_recording
+    from tspend.recorder.readback import read_scalar_series
+    from tspend.recorder.series import specs_of
+
+    scn = override(load_scenario("furuta_mujoco"), **{"run.duration": 0.5,
+                                                     "task.joint_limits": False})
+    path = tmp_path / "f.rrd"
+    rec = open_recording("applied_u", path=path)
+    try:
+        r = run(scn, controller="second_type", sinks=[RerunSink(rec)])
+    finally:
+        close_recording(rec)
+    u = r.history["u"]
+    lo, hi = r.plant.inputs[0].lo, r.plant.inputs[0].hi
+    assert np.abs(u).max() > 10 * hi  # the command chatters far past the motor's +/-10 V
+    _, applied = read_scalar_series(path, "series/control")
+    _, command = read_scalar_series(path, "series/control_command")
+    np.testing.assert_allclose(applied, np.clip(u, lo, hi), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(command, u, rtol=1e-6)
+    assert np.abs(applied).max() == pytest.approx(r.metrics["max_abs_u"])
+    # the command's view is its own, not the applied u's panel
+    views = {s.entity: s for s in specs_of(r.info)}
+    assert "commanded" in views["series/control_command"].title
+    assert "applied" in views["series/control"].title
+
+
+class SleepsInItsStep(_PluginBase):
+    """At its eleventh sample a SIGTERM arrives (raised by itself: delivered at once, to
+    this thread, no race with a sender), then it falls asleep for a minute."""
+
+    kind = "sleeps"
+
+    def step(self, obs, dt):
+        if obs.t > 0.0095:
+            import signal
+
+            signal.raise_signal(signal.SIGTERM)
+            time.sleep(60)  # without the signal raised into its code: a minute, then 11 steps
+        return 0.0
+
+
+def test_a_signal_stops_a_plugin_sleeping_in_its_step() -> None:
+    """The stop is checked between two samples, which a sleeping plug-in never reaches: the
+    signal is raised into its code instead, and the run ends as interrupted at that sample
+    (benchmarks/hostile_inputs.py sends the SIGTERM from outside, to a plug-in asleep)."""
+    import tspend as tspend_api
+    from tspend.loop.runner import RunInterrupted
+    from tspend.runtime.interrupts import SignalGuard
+
+    guard = SignalGuard().install()
+    try:
+        with guard.deferred() as stop:
+            with pytest.raises(RunInterrupted) as caught:
+                tspend_api.run(override(load_scenario("ex3_pendulum_ode"),
+                                        **{"run.duration": 0.05}),
+                               controller=SleepsInItsStep, stop=stop, keep_history=False)
+    finally:
+        guard.restore()
+    assert caught.value.exit_status == 143
+    end = caught.value.end
+    assert end.status == "interrupted" and end.metrics["steps"] == 10  # the samples before
+    assert stop.in_controller is False

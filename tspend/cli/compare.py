@@ -62,6 +62,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--tune-metric", metavar="M", help="the metric --tune minimises "
                                                       "(default rmse)")
     p.add_argument("--progress", action="store_true", help="show the sweep's progress")
+    from tspend.cli.sweep import add_run_timeout_option
+
+    add_run_timeout_option(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 
@@ -129,6 +132,9 @@ def parse_options(args: argparse.Namespace) -> dict:
         raise ScenarioError(f"compare: {runs} runs (scenarios x seeds x controllers), more "
                             f"than {MAX_RUNS}")
     check_jobs(args.jobs)
+    from tspend.sweep import check_run_timeout
+
+    check_run_timeout(args.run_timeout)
     if args.dask is not None:
         check_dask_address(args.dask)
     json_path = Path(args.metrics) if args.metrics else None
@@ -175,7 +181,8 @@ def seeds_text(seeds: list[int]) -> str:
 
 
 def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, jobs=None,
-                   dask=None, progress=False, resamples=9999, stats_seed=0, specs=None):
+                   dask=None, progress=False, resamples=9999, stats_seed=0, specs=None,
+                   run_timeout=None):
     """Sweep every kind over ``seeds`` on ``scenarios`` and compare them: (table, Comparison).
 
     ``specs``: what runs, when it differs from the kinds' names (plug-ins, ``file.py:Class``).
@@ -183,16 +190,17 @@ def run_comparison(scenarios, kinds, seeds, metrics, *, grid=None, out=None, job
     from tspend.studies.stats import compare
     from tspend.sweep import sweep
 
+    timeout = {} if run_timeout is None else {"run_timeout": run_timeout}
     table = sweep(scenarios, grid=grid, seeds=seeds, controllers=specs or kinds, jobs=jobs,
-                  dask=dask,
-                  out=out, record="none", progress=progress)
+                  dask=dask, out=out, record="none", progress=progress, **timeout)
     # a resumed --out table may hold other runs too: compare what was asked for
     table = table[table["controller"].isin(kinds) & table["seed"].isin(seeds)]
     return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples)
 
 
 def run_tuned_comparison(scenarios, kinds, seeds, metrics, tune, *, grid=None, jobs=None,
-                         dask=None, progress=False, resamples=9999, stats_seed=0):
+                         dask=None, progress=False, resamples=9999, stats_seed=0,
+                         run_timeout=None):
     """Equal budget: tune every kind (``tune``: trials, seeds, metric) on every scenario,
     then compare the tuned kinds on ``seeds``: (table, Comparison, tuned results)."""
     from tspend.scenario import load_scenario, override
@@ -206,7 +214,7 @@ def run_tuned_comparison(scenarios, kinds, seeds, metrics, tune, *, grid=None, j
         loaded.append(override(scn, **changes) if changes else scn)
     table, tuned = equal_budget(loaded, kinds, trials=tune["trials"], train_seeds=tune["seeds"],
                                 test_seeds=seeds, metric=tune["metric"], jobs=jobs, dask=dask,
-                                progress=progress)
+                                progress=progress, run_timeout=run_timeout)
     return table, compare(table, kinds, metrics, seed=stats_seed, n_resamples=resamples), tuned
 
 
@@ -245,14 +253,14 @@ def cmd(args: argparse.Namespace) -> int:
         table, comp, tuned = run_tuned_comparison(
             args.scenarios, opts["kinds"], opts["seeds"], opts["metrics"], opts["tune"],
             grid=opts["grid"], jobs=args.jobs, dask=args.dask, progress=args.progress,
-            resamples=args.resamples, stats_seed=args.stats_seed)
+            resamples=args.resamples, stats_seed=args.stats_seed, run_timeout=args.run_timeout)
         sys.stdout.write(tuned_markdown(tuned, opts["tune"]))
     else:
         table, comp = run_comparison(args.scenarios, opts["kinds"], opts["seeds"],
                                      opts["metrics"], grid=opts["grid"], out=args.out,
                                      jobs=args.jobs, dask=args.dask, progress=args.progress,
                                      resamples=args.resamples, stats_seed=args.stats_seed,
-                                     specs=opts["specs"])
+                                     specs=opts["specs"], run_timeout=args.run_timeout)
     sys.stdout.write(markdown(comp, seeds_text(opts["seeds"])))
     if opts["json_path"] is not None:
         doc = to_json(comp)
@@ -267,4 +275,6 @@ def cmd(args: argparse.Namespace) -> int:
         write_json(opts["json_path"], json.loads(json.dumps(doc, allow_nan=False)))
     if args.out:
         print(f"runs: {args.out}", file=sys.stderr)
-    return 0
+    from tspend.cli.sweep import incomplete_status
+
+    return incomplete_status(table)

@@ -51,7 +51,32 @@ def add_parser(sub) -> None:
     p.add_argument("--record", choices=("failed", "all", "none"), default="failed",
                    help="keep a Rerun recording of the runs that diverged or failed (default), "
                         "of all runs, or of none; the path is in the row")
+    add_run_timeout_option(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+
+
+def add_run_timeout_option(p) -> None:
+    """``--run-timeout S`` (sweep, compare, tune): a run past it is killed, a ``timeout`` row."""
+    from tspend.runtime.bounds import DEFAULT_RUN_TIMEOUT_S
+
+    p.add_argument("--run-timeout", type=float, default=DEFAULT_RUN_TIMEOUT_S, metavar="S",
+                   help=f"kill a run still going after S seconds of wall time; its row has "
+                        f"status 'timeout' and the others go on (default "
+                        f"{DEFAULT_RUN_TIMEOUT_S:g})")
+
+
+#: statuses of runs that did not complete: no verdict on the controller, no metrics
+INCOMPLETE = ("timeout", "failed")
+
+
+def incomplete_line(frame) -> str | None:
+    """``N of M runs did not complete: K timeout, J failed`` (None when every run did)."""
+    counts = frame["status"].value_counts()
+    parts = [f"{int(counts[s])} {s}" for s in INCOMPLETE if counts.get(s, 0)]
+    if not parts:
+        return None
+    n = sum(int(counts.get(s, 0)) for s in INCOMPLETE)
+    return f"{n} of {len(frame)} runs did not complete: {', '.join(parts)}"
 
 
 def _scenarios(args: argparse.Namespace) -> list:
@@ -82,13 +107,16 @@ def summary(frame, grid_keys: list[str]):
     from tspend.task import TERMINATIONS
 
     out = groups["status"].value_counts().unstack(fill_value=0)
-    for status in ("completed", "diverged", "failed", "controller_error", *TERMINATIONS):
+    for status in ("completed", "diverged", "failed", "controller_error", "timeout",
+                   *TERMINATIONS):
         if status not in out.columns:
             out[status] = 0
     # a run the task ended is reported by how it ended (the pole fell, the cart reached the
-    # rail's end), not as a divergence: a column for each termination that occurred
+    # rail's end), not as a divergence: a column for each termination that occurred; a
+    # controller's error and a run killed past --run-timeout too, when there were any
     ended = [s for s in TERMINATIONS if out[s].any()]
-    out = out[["completed", *ended, "diverged", "failed"]]
+    rare = [s for s in ("controller_error", "timeout") if out[s].any()]
+    out = out[["completed", *ended, "diverged", "failed", *rare]]
     ss = groups["rmse_ss"]
     out["rmse_ss median"] = ss.median()
     out["IQR"] = ss.quantile(0.75) - ss.quantile(0.25)
@@ -123,7 +151,8 @@ def cmd(args: argparse.Namespace) -> int:
     with _stop_requests(args) as stop:
         prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
                                  jobs=args.jobs, dask=args.dask, out=args.out,
-                                 record=args.record, stop=stop, wait=args.wait)
+                                 record=args.record, stop=stop, wait=args.wait,
+                                 run_timeout=args.run_timeout)
         try:
             names = ", ".join(s.name for s in scenarios)
             print(f"tspend {__version__}: sweep of {names}" +
@@ -150,4 +179,16 @@ def cmd(args: argparse.Namespace) -> int:
         print(f"recordings: {len(recorded)} in {Path(recorded.iloc[0]).parent}")
     if args.out:
         print(f"table: {args.out} ({len(frame)} rows of this sweep)")
-    return 0
+    return incomplete_status(frame)
+
+
+def incomplete_status(frame) -> int:
+    """Print the runs that did not complete (timeout, failed) on stderr: their count is
+    the exit status's reason, :data:`~tspend.cli.main.EXIT_INCOMPLETE`; else 0."""
+    from tspend.cli.main import EXIT_INCOMPLETE
+
+    line = incomplete_line(frame)
+    if line is None:
+        return 0
+    print(f"tspend: {line} (see the rows' status and message)", file=sys.stderr)
+    return EXIT_INCOMPLETE

@@ -47,6 +47,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key (kept in the tuned scenario; repeatable)")
     p.add_argument("--duration", type=float, metavar="S", help="override run.duration")
+    from tspend.cli.sweep import add_run_timeout_option
+
+    add_run_timeout_option(p)  # a trial's run past it scores +inf, like a failed one
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 
@@ -85,6 +88,9 @@ def parse_options(args: argparse.Namespace) -> dict:
     from tspend.sweep import check_dask_address, check_jobs
 
     check_jobs(args.jobs)
+    from tspend.sweep import check_run_timeout
+
+    check_run_timeout(args.run_timeout)
     if args.dask is not None:
         check_dask_address(args.dask)
     scenario = load_scenario(args.scenario)
@@ -131,7 +137,8 @@ def cmd(args: argparse.Namespace) -> int:
             result = tune(scenario, kind, trials=args.trials, seeds=opts["seeds"],
                           test_seeds=opts["test_seeds"], metric=opts["metric"], jobs=args.jobs,
                           dask=args.dask, storage=args.storage,
-                          sampler_seed=args.sampler_seed, progress=True, stop=stop)
+                          sampler_seed=args.sampler_seed, progress=True, stop=stop,
+                          run_timeout=args.run_timeout)
         except RunInterrupted as exc:
             kept = (f"the trials done are kept in {args.storage}; the same command resumes"
                     if args.storage else "nothing kept (no --storage)")

@@ -33,7 +33,7 @@ import numpy as np
 from tspend.controllers.base import Controller, Diagnostic, Observation, check_diagnostics
 from tspend.errors import DivergenceError
 from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
-from tspend.runtime.interrupts import StopRequest
+from tspend.runtime.interrupts import Interrupted, StopRequest
 from tspend.plants.base import Plant
 from tspend.signals import Disturbance, Reference
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
@@ -309,16 +309,23 @@ class ClosedLoop:
                     if g % every == 0:
                         seen = x if hook is None else hook(t[i], x, ref[i])
                         c0 = clock()
+                        stop.in_controller = True
                         try:
                             u_new = _control_value(ctrl.step(Observation(
                                 t[i], _read_only(full), _read_only(seen), _read_only(ref[i]),
                                 names, constraints), dt * every))
+                        except Interrupted as exc:
+                            # a signal while the controller's code ran (a plug-in sleeping
+                            # in its step): the stop at this sample, what came before kept
+                            raise RunInterrupted(exc.signal_name, exc.exit_status) from None
                         except (Exception, SystemExit) as exc:
                             # the controller's own failure (a plug-in's bug, a wrong return,
                             # sys.exit): the run ends as it, with what came before kept
                             return self._diverged(sinks, start, buf, t, ref, dist, i,
                                                   controller_failure(exc, float(t[i]), ctrl.kind),
                                                   CONTROLLER_ERROR)
+                        finally:
+                            stop.in_controller = False
                         C[i] = clock() - c0
                         if delay:
                             pending.append((g + delay, u_new))

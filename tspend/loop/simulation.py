@@ -119,6 +119,7 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
     kind = kind or scenario.plant.kind
     fuzzy = controller.fuzzy_inputs() if controller is not None else {}
     task = task if task is not None else scenario_task(scenario, plant)
+    u_lo, u_hi = input_range(plant, scenario)
     return RunInfo(
         scenario_name=scenario.name, scenario_text=scenario_text(scenario),
         scenario_path=scenario.path,
@@ -129,7 +130,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         controller_kind=controller.kind if controller is not None else "",
         diagnostics=tuple(controller.diagnostics) if controller is not None else (),
         state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds(),
-        input_unit=plant.inputs[0].unit if plant.inputs else "")
+        input_unit=plant.inputs[0].unit if plant.inputs else "",
+        u_lo=u_lo, u_hi=u_hi)
 
 
 class History:
@@ -205,17 +207,24 @@ class RunResult:
         return run_figure(self, every)
 
 
-def machine_info(plant: Plant, task: Task, scenario: Scenario,
-                 drawn: dict | None = None) -> MachineInfo:
-    """The joints, parameters and input range the machine metrics report."""
-    names = task.names
-    joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
+def input_range(plant: Plant, scenario: Scenario) -> tuple[float, float]:
+    """The range the plant clips ``u`` to: its input's bounds, narrowed by
+    ``effects.saturation``; (-inf, inf) for a plant without a limit."""
     lo, hi = -math.inf, math.inf
     if plant.inputs:
         lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     sat = scenario.effects.saturation
     if sat > 0.0:
         lo, hi = max(lo, -sat), min(hi, sat)
+    return float(lo), float(hi)
+
+
+def machine_info(plant: Plant, task: Task, scenario: Scenario,
+                 drawn: dict | None = None) -> MachineInfo:
+    """The joints, parameters and input range the machine metrics report."""
+    names = task.names
+    joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
+    lo, hi = input_range(plant, scenario)
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
                        drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
                        goal_by=scenario.task.goal_by, constraints=task.constraints)

@@ -16,7 +16,8 @@ key            shape       meaning
 ``x``          (k, n)      plant state read by the controller
 ``ref``        (k, n+1)    reference r, r', ..., r^(n)
 ``e``          (k, n)      tracking error e = x - r (first n entries of ref)
-``u``          (k,)        control returned by the controller
+``u``          (k,)        control returned by the controller (the command; the plant
+                           applies it clipped to ``RunInfo.u_lo``, ``u_hi``)
 ``d``          (k,)        disturbance d_d applied over the step
 ``NAME``       (k,)/(k,w)  each diagnostic the controller declares
                            (:class:`tspend.controllers.base.Diagnostic`), e.g. the paper
@@ -29,6 +30,7 @@ key            shape       meaning
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -80,6 +82,10 @@ class RunInfo:
     bounds: tuple[Bound, ...] = ()
     #: u's unit as the plant's model gives it ("" = the domain's label)
     input_unit: str = ""
+    #: the actuator's range: the plant applies ``u`` (the command) clipped to it
+    #: (:func:`tspend.loop.simulation.input_range`); +-inf: no limit
+    u_lo: float = -math.inf
+    u_hi: float = math.inf
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,12 @@ A view's title carries the unit too.  Diagnostics declared ``log`` are recorded 
 ``log10`` of their value (Rerun's plots have no logarithmic axis); the key stays the
 diagnostic's label.
 
+``series/control`` is the input the plant applied: the controller's command clipped to the
+actuator's range (``RunInfo.u_lo``, ``u_hi``), what moved the machine.  When that range is
+finite the command itself, before the clip, has its own view, ``series/control_command``
+(key ``u_command``), in the controller's tab: a command chattering far beyond the
+actuator's range no longer passes for the effort applied.
+
 Two series are derived for the reader: ``series/error_steady``, the tracked output's
 error over the steady-state window only (so its own scale, not the transient's, sets
 the axis), and ``series/compensator_share``, the compensator's share ``-u_s / b_hat`` of
@@ -18,6 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable, Sequence
+
+import math
 
 import numpy as np
 
@@ -106,6 +114,8 @@ CONTROL_PANELS = ("control",)
 COMPENSATOR_OUTPUT, GAIN_ESTIMATE = "u_s", "b_hat"
 #: key of the compensator's share of u, -u_s / b_hat
 COMPENSATOR_SHARE = "u_s_share"
+#: key (and exported column's label) of the controller's command before the actuator's clip
+U_COMMAND = "u_command"
 #: the steady-state window starts at this fraction of the run (as rmse_ss's, loop.metrics)
 STEADY_FROM = 0.5
 
@@ -172,10 +182,16 @@ def _column(label: str, unit: str) -> str:
     return Quantity(label, unit).column_name()
 
 
+def _applied(lo: float, hi: float) -> Extractor:
+    """Extractor of the input applied: the command ``u`` clipped to ``[lo, hi]``."""
+    return lambda d: np.clip(d["u"], lo, hi)
+
+
 def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[Diagnostic] = (),
                  plant_kind: str = "", *, state_names: Sequence[str] = (),
                  state_units: Sequence[str] = (), view: Sequence[str] = (),
-                 input_unit: str = "") -> list[SeriesSpec]:
+                 input_unit: str = "",
+                 u_range: tuple[float, float] = (-math.inf, math.inf)) -> list[SeriesSpec]:
     """The time-series layout for a plant of ``plant_kind`` and order ``order`` with
     ``extras`` under a controller that declares ``diagnostics``.
 
@@ -190,10 +206,15 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     (:meth:`~tspend.plants.domain.PlantLabels.of_state`), in the *plant* tab in place of
     the extras it repeats; ``series/reference`` holds ``r, r', .., r^(n)`` (no view: the
     tracking view shows r).  Every series carries its exported column (:attr:`SeriesSpec.columns`).
+
+    ``u_range``: the actuator's range; ``series/control`` is the command clipped to it
+    (what the plant applied) and, when it is finite, ``series/control_command`` the command.
     """
     labels = plant_labels(plant_kind, order, input_unit)
     s0 = labels.states[0]
     control = labels.control
+    u_lo, u_hi = (float(v) for v in u_range)
+    limited = math.isfinite(u_lo) or math.isfinite(u_hi)
     e_names = [_named(_error_name(s, i), s.unit) for i, s in enumerate(labels.states)]
     panels: dict[str, _Panel] = {
         "tracking": _Panel(f"{s0.meaning or 'output'} {s0.symbol} and reference r{_unit_suffix([s0.unit])}",
@@ -202,8 +223,11 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
         "error": _Panel("tracking error e = x - r", e_names, [f"e_{i + 1}" for i in range(order)],
                         list(PALETTE[:order]), [_col("e")], unit_in_title=False),
         "control": _Panel(f"control {control.symbol}{_unit_suffix([control.unit])}"
-                          + (f", {control.meaning}" if control.meaning else ""),
-                          [_named("u", control.unit)], ["u"], [(214, 39, 40)], [_col("u")], minmax=True),
+                          + (f", {control.meaning}" if control.meaning else "")
+                          + (f", applied (the command clipped to [{u_lo:g}, {u_hi:g}])"
+                             if limited else ""),
+                          [_named("u", control.unit)], ["u"], [(214, 39, 40)],
+                          [_applied(u_lo, u_hi) if limited else _col("u")], minmax=True),
         "disturbance": _Panel("disturbance d and its estimates", [_named("d", labels.disturbance.unit)], ["d"],
                               [(127, 127, 127)], [_col("d")]),
     }
@@ -249,6 +273,14 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
                 "series/error_steady", f"steady-state error {_error_name(s0, 0)}{_unit_suffix([s0.unit])}, "
                 f"t >= {STEADY_FROM:g} T", (e_names[0],), (PALETTE[0],),
                 _stack(_col("e", 0)), keys=("e_1_steady",), steady=True))
+    if limited:
+        # what the controller asked, beside nothing it could be mistaken for: its own view
+        specs.append(SeriesSpec(
+            "series/control_command", f"control {control.symbol} commanded, before the "
+            f"actuator's clip to [{u_lo:g}, {u_hi:g}]{_unit_suffix([control.unit])}",
+            (_named(U_COMMAND, control.unit),), ((148, 103, 189),), _stack(_col("u")),
+            keys=(U_COMMAND,), minmax=True, group="internals",
+            columns=(_column(U_COMMAND, control.unit),)))
     # the compensator's share of u right after u
     shares = [i for i, spec in enumerate(specs) if spec.entity == "series/compensator_share"]
     if shares:
@@ -322,7 +354,7 @@ def specs_of(info: "RunInfo") -> list[SeriesSpec]:
     """:func:`series_specs` of a run (its plant, full state, view and diagnostics)."""
     return series_specs(info.order, info.extras, info.diagnostics, info.plant_kind,
                         state_names=info.state_names, state_units=info.state_units, view=info.view,
-                        input_unit=info.input_unit)
+                        input_unit=info.input_unit, u_range=(info.u_lo, info.u_hi))
 
 
 def export_columns(specs: Sequence[SeriesSpec], view: Sequence[str] = ()) -> list[tuple[str, str, int]]:

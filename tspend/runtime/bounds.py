@@ -31,6 +31,11 @@ MAX_KEY = 200
 MAX_RUNS = 1_000_000
 #: worker processes per core (--jobs): each holds its own copy of the kernels
 MAX_JOBS_PER_CORE = 4
+#: a sweep's run killed past this many seconds of wall time (--run-timeout's default): the
+#: longest shipped run, pendulum_mujoco_soak's 600 s, takes 15-35 s on one core
+DEFAULT_RUN_TIMEOUT_S = 3600.0
+#: the longest --run-timeout accepted (a week)
+MAX_RUN_TIMEOUT_S = 604_800.0
 #: bootstrap resamples of a comparison (--resamples)
 MAX_RESAMPLES = 1_000_000
 #: trials of a tuning study (tspend tune --trials, compare --tune)

@@ -38,6 +38,10 @@ class StopRequest:
     def __init__(self) -> None:
         self.signal_name: str | None = None
         self.exit_status = 0
+        #: set by the loop while the controller's own code runs: a signal then raises
+        #: :class:`Interrupted` into it, since a plug-in that sleeps or loops would never
+        #: reach the check between two samples (the loop turns it into its stop)
+        self.in_controller = False
 
     def request(self, signal_name: str, exit_status: int) -> None:
         self.signal_name, self.exit_status = signal_name, exit_status
@@ -108,6 +112,8 @@ class SignalGuard:
         self.stop.request(name, status)
         if self._immediate:
             self._immediate = False
+            raise Interrupted(name, status)
+        if self.stop.in_controller:
             raise Interrupted(name, status)
 
     def hold(self) -> None:

@@ -104,7 +104,10 @@ class SweepProgress:
             self._bar.set_postfix_str(self._postfix(), refresh=True)
 
     def _postfix(self) -> str:
-        return f"diverged {self.counts['diverged']}, failed {self.counts['failed']}"
+        text = f"diverged {self.counts['diverged']}, failed {self.counts['failed']}"
+        # a run killed past --run-timeout: shown once there is one
+        timeouts = self.counts.get("timeout", 0)
+        return f"{text}, timeout {timeouts}" if timeouts else text
 
     def update(self, row: dict[str, Any]) -> None:
         status = row.get("status", "failed")

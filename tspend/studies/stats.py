@@ -22,7 +22,8 @@ Every metric compared here is "lower is better".  How each outcome enters:
   would flatter it.  Ranks, medians, quartiles and the Wilcoxon test handle ``+inf`` as "worse than
   any finite value"; a median or quartile that falls on (or between) infinite values is
   ``inf``.  Two runs that both diverged are a tie (``d = 0``);
-* ``failed`` or ``interrupted`` (an exception or a stop: no verdict on the controller):
+* ``failed``, ``timeout`` (killed past the sweep's ``--run-timeout``: the machine may have
+  been slow) or ``interrupted`` (an exception or a stop: no verdict on the controller):
   left out of the pairs, and counted in the ``failed`` column of the summary and the
   ``unpaired`` column of the pairs, so nothing is dropped silently.
 """
@@ -50,7 +51,7 @@ ROW_COLUMNS = frozenset(("scenario", "controller", "seed", "status", "message", 
                          "scenario_hash", "recording", "job_s", "run_key", "wall_s", "sim_s",
                          "steps", "max_abs_u_command") + COMPARED_METRICS)
 #: outcomes that say nothing about the controller: counted, never paired
-NOT_PAIRED = ("failed", "interrupted")
+NOT_PAIRED = ("failed", "timeout", "interrupted")
 #: the task ended the run early (issue 19's terminations): the pole fell, the cart reached
 #: the rail's end, a joint its range, a state its bound
 TERMINATED = TERMINATIONS
@@ -59,7 +60,7 @@ TERMINATED = TERMINATIONS
 WORST = ("diverged", "controller_error") + TERMINATED
 #: outcomes that count as "ended badly" in the paired exact test on outcomes (an
 #: interrupted run says nothing about anything: that seed is left out of the test)
-BAD = WORST + ("failed",)
+BAD = WORST + ("failed", "timeout")
 #: two scenarios whose runs agree to this (relative and absolute) on every metric and
 #: seed are one experiment counted twice
 DUPLICATE_TOL = 1e-12
@@ -139,7 +140,7 @@ def summarize(table, metrics: Sequence[str] = DEFAULT_METRICS,
     """Median and quartiles per scenario (and grid point), controller and metric.
 
     One row each, with the counts ``runs``, ``completed``, ``terminated`` (fell,
-    rail_end, joint_limit, state_bound), ``diverged``, ``failed`` (failed or
+    rail_end, joint_limit, state_bound), ``diverged``, ``failed`` (failed, timeout or
     interrupted) and, over completed and diverged runs (diverged as ``+inf``),
     ``median``, ``q1``, ``q3``.
     """

@@ -125,11 +125,13 @@ def _storage(url: str | None):
     return JournalStorage(JournalFileBackend(url))
 
 
-def _sweep_score(scenario, kind, seeds, metric, executor, stop) -> float:
+def _sweep_score(scenario, kind, seeds, metric, executor, stop,
+                 run_timeout: float | None = None) -> float:
     from tspend.sweep import sweep
 
+    timeout = {} if run_timeout is None else {"run_timeout": run_timeout}
     rows = sweep(scenario, seeds=list(seeds), controllers=[kind], executor=executor,
-                 record="none", stop=stop, build=False)  # tune() built it once
+                 record="none", stop=stop, build=False, **timeout)  # tune() built it once
     return score(rows, metric)
 
 
@@ -137,10 +139,13 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
          test_seeds: Sequence[int] = (), metric: str = DEFAULT_METRIC, executor: Any = None,
          jobs: int | None = None, dask: str | None = None, storage: str | None = None,
          sampler_seed: int = 0, progress: bool = False, defaults: bool = True,
-         stop: Any = None, on_trial: Callable[[int, float], None] | None = None) -> TuneResult:
+         stop: Any = None, on_trial: Callable[[int, float], None] | None = None,
+         run_timeout: float | None = None) -> TuneResult:
     """Tune ``kind`` on ``scenario`` (a :class:`tspend.config.Scenario`): ``trials``
     trials in all (counting those already in ``storage``), scored on ``seeds``; the best
-    is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings."""
+    is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings.
+    ``run_timeout``: the sweeps' per-run time limit (None: :func:`tspend.sweep.sweep`'s
+    default); a run past it scores ``+inf``."""
     from tspend.cli.extras import missing_extra
 
     problem = missing_extra("optuna", "tune")
@@ -198,7 +203,7 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
             drawn = {k: trial.suggest_float(k, s.low, s.high, log=s.log)
                      for k, s in space.items()}
             scn = override(scenario, **tuned_changes(scenario, kind, drawn))
-            value = _sweep_score(scn, kind, seeds, metric, executor, stop)
+            value = _sweep_score(scn, kind, seeds, metric, executor, stop, run_timeout)
             study.tell(trial, value)
             shown.update(study.best_value)
             if on_trial is not None:
@@ -207,12 +212,12 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
         drawn = {k: float(best.params[k]) for k in space}
         changes = tuned_changes(scenario, kind, drawn)
         tuned = override(scenario, **changes)
-        test = (_sweep_score(tuned, kind, test_seeds, metric, executor, stop)
+        test = (_sweep_score(tuned, kind, test_seeds, metric, executor, stop, run_timeout)
                 if test_seeds else None)
         d_train = d_test = None
         if defaults:
-            d_train = _sweep_score(scenario, kind, seeds, metric, executor, stop)
-            d_test = (_sweep_score(scenario, kind, test_seeds, metric, executor, stop)
+            d_train = _sweep_score(scenario, kind, seeds, metric, executor, stop, run_timeout)
+            d_test = (_sweep_score(scenario, kind, test_seeds, metric, executor, stop, run_timeout)
                       if test_seeds else None)
     finally:
         shown.close()
@@ -338,7 +343,7 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
                  train_seeds: Sequence[int], test_seeds: Sequence[int],
                  metric: str = DEFAULT_METRIC, executor: Any = None, jobs: int | None = None,
                  dask: str | None = None, storage: str | None = None, sampler_seed: int = 0,
-                 progress: bool = False, stop: Any = None):
+                 progress: bool = False, stop: Any = None, run_timeout: float | None = None):
     """Tune every kind on every scenario with the same ``trials`` on the same
     ``train_seeds``, then run each tuned kind on ``test_seeds`` (disjoint): (rows, tuned).
 
@@ -362,10 +367,12 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
             for kind in kinds:
                 r = tune(scn, kind, trials=trials, seeds=train_seeds, metric=metric,
                          executor=executor, storage=storage, sampler_seed=sampler_seed,
-                         progress=progress, defaults=False, stop=stop)
+                         progress=progress, defaults=False, stop=stop,
+                         run_timeout=run_timeout)
                 tuned[(scn.name, kind)] = r
+                timeout = {} if run_timeout is None else {"run_timeout": run_timeout}
                 rows = sweep(r.scenario, seeds=list(test_seeds), controllers=[kind],
-                             executor=executor, record="none", stop=stop)
+                             executor=executor, record="none", stop=stop, **timeout)
                 frames.append(rows.assign(scenario=scn.name))
     finally:
         if owned:

@@ -3,7 +3,8 @@
 The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)::
 
     sweep(scenarios, *, grid=None, seeds=None, controllers=None, jobs=None, dask=None,
-          out=None, record="none", progress=False, executor=None) -> pandas.DataFrame
+          out=None, record="none", progress=False, executor=None,
+          run_timeout=DEFAULT_RUN_TIMEOUT_S) -> pandas.DataFrame
 
 ``scenarios``
     one scenario (a name such as ``"ex2_duffing"``, a path to a ``.toml``, or a
@@ -35,14 +36,21 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
 ``executor``
     an executor from :func:`tspend.sweep.executors.make_executor`, reused across calls
     (its workers keep their loaded kernel); it is not closed.
+``run_timeout``
+    seconds of wall time a run may take once a worker has started it (default
+    :data:`~tspend.runtime.bounds.DEFAULT_RUN_TIMEOUT_S`, an hour, which no shipped
+    scenario comes near).  A run past it is killed with its worker process and is a row of
+    status ``timeout``; the others go on (those that shared the local pool with it are run
+    again, see :func:`_execute`).
 
 Returns the rows of this sweep, in plan order (scenario, grid point, seed, controller),
 one per run, columns:
 
 - ``scenario``; one column per grid key (named by the key, e.g. ``controller.eta``,
   holding the value; lists and tables as JSON text); ``seed``; ``controller`` (the kind);
-- ``status`` (``completed``, ``diverged``, ``failed``, or how the task ended it: ``fell``,
-  ``rail_end``, ``joint_limit``, ``state_bound``) and ``message`` (why);
+- ``status`` (``completed``, ``diverged``, ``failed``, ``controller_error``, ``timeout``
+  (killed past ``run_timeout``), or how the task ended it: ``fell``, ``rail_end``,
+  ``joint_limit``, ``state_bound``, ``not_reached``) and ``message`` (why);
 - every metric of :data:`tspend.loop.metrics.METRIC_KEYS` (``rmse_ss``, ..., ``wall_s``, the
   loop's wall time), NaN where undefined (a run that failed before its first sample);
 - ``version`` (tspend's), ``scenario_hash`` (SHA-256 of the scenario's text, 16 hex
@@ -67,6 +75,7 @@ from typing import Any, Iterable
 
 from tspend.errors import ScenarioError
 from tspend.loop.runner import RunInterrupted, StopRequest
+from tspend.runtime.bounds import DEFAULT_RUN_TIMEOUT_S, MAX_RUN_TIMEOUT_S
 from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
 from tspend.sweep.table import KEY_COLUMN, RowTable, TableLock, read_table, typed
@@ -84,7 +93,8 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           controllers: str | Iterable[str] | None = None, jobs: int | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
-          stop: StopRequest | None = None, wait: bool = False, build: bool = True):
+          stop: StopRequest | None = None, wait: bool = False, build: bool = True,
+          run_timeout: float = DEFAULT_RUN_TIMEOUT_S):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
@@ -98,7 +108,7 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
     ------
     ScenarioError
         any bad input, before a single run starts: a scenario, a grid value, seeds,
-        controller kinds, ``jobs``, ``record``, more runs than
+        controller kinds, ``jobs``, ``record``, ``run_timeout``, more runs than
         :data:`tspend.runtime.bounds.MAX_RUNS`, a scenario whose model or controller
         cannot be built, an ``out`` that is not a tspend sweep table (or is locked by
         another sweep), a journal that is a symlink or corrupt.
@@ -109,7 +119,7 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
     """
     prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=controllers,
                              jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait,
-                             build=build)
+                             build=build, run_timeout=run_timeout)
     return prepared.run(progress=progress, executor=executor, stop=stop)
 
 
@@ -128,6 +138,22 @@ def check_jobs(jobs: Any) -> None:
                             f"this machine; each worker holds its own copy of the kernels)")
 
 
+#: the status of a row whose run was killed past the sweep's ``run_timeout``
+TIMEOUT = "timeout"
+
+
+def check_run_timeout(seconds: Any) -> float:
+    """``--run-timeout``: a number of seconds, > 0 and at most
+    :data:`~tspend.runtime.bounds.MAX_RUN_TIMEOUT_S` (ScenarioError); as a float."""
+    import math
+
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or \
+            not math.isfinite(seconds) or not 0 < seconds <= MAX_RUN_TIMEOUT_S:
+        raise ScenarioError(f"--run-timeout: must be a number of seconds > 0 and at most "
+                            f"{MAX_RUN_TIMEOUT_S:.0f}, got {seconds!r:.80}")
+    return float(seconds)
+
+
 class PreparedSweep:
     """A sweep checked and planned, its table locked: :meth:`run` runs it (once).
 
@@ -135,9 +161,10 @@ class PreparedSweep:
     lock is released by :meth:`run` or :meth:`close`.
     """
 
-    def __init__(self, plan: list[Job], todo: list[Job], table, lock, jobs, dask) -> None:
+    def __init__(self, plan: list[Job], todo: list[Job], table, lock, jobs, dask,
+                 run_timeout: float = DEFAULT_RUN_TIMEOUT_S) -> None:
         self.plan, self.todo, self._table, self._lock = plan, todo, table, lock
-        self._jobs, self._dask = jobs, dask
+        self._jobs, self._dask, self.run_timeout = jobs, dask, run_timeout
         self.order = {job.key: job.index for job in plan}
 
     def close(self) -> None:
@@ -160,7 +187,7 @@ class PreparedSweep:
                 if executor is None:
                     executor = make_executor(self._jobs, self._dask)
                 shown.start(executor.workers, executor.name)
-                for row in _execute(executor, todo, stop):
+                for row in _execute(executor, todo, stop, self.run_timeout):
                     if table is not None:
                         table.append(row)
                     rows.append(row)
@@ -191,7 +218,8 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
                   controllers: str | Iterable[str] | None = None, jobs: int | None = None,
                   dask: str | None = None, out: str | Path | None = None,
                   record: str = "none", stop: StopRequest | None = None,
-                  wait: bool = False, build: bool = True) -> PreparedSweep:
+                  wait: bool = False, build: bool = True,
+                  run_timeout: float = DEFAULT_RUN_TIMEOUT_S) -> PreparedSweep:
     """Everything :func:`sweep` checks before a run starts, the plan made and ``out``
     locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
     model and each controller once now, so a broken one is one error, not a table of
@@ -202,6 +230,7 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
     if out_path is not None and (not str(out).strip() or out_path.name in ("", ".", "..")):
         raise ScenarioError(f"--out {str(out)!r:.80}: not a file name")
     check_jobs(jobs)
+    run_timeout = check_run_timeout(run_timeout)
     if dask is not None:
         check_dask_address(dask)
     if record not in RECORD_MODES:
@@ -231,7 +260,7 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
             lock.release()
         raise
     todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
-    return PreparedSweep(plan, todo, table, lock, jobs, dask)
+    return PreparedSweep(plan, todo, table, lock, jobs, dask, run_timeout)
 
 
 #: at most this many (scenario, grid point, controller) builds are tried before a sweep
@@ -291,7 +320,8 @@ def check_dask_address(address: Any) -> None:
                             f"such as tcp://127.0.0.1:8786 (a port from 1 to 65535)")
 
 
-def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
+def _execute(executor: Any, todo: list[Job], stop: StopRequest | None,
+             run_timeout: float = DEFAULT_RUN_TIMEOUT_S):
     """Rows of ``todo`` as they finish; a job whose worker process dies becomes a row too.
 
     A few jobs per worker are in flight at a time, so a sweep of a million runs holds a
@@ -303,27 +333,56 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
     fault), and only then is a ``failed`` row.  Dask retries a task whose worker died by
     itself, and reports ``KilledWorker`` once it gives up: a ``failed`` row.  Each job
     yields exactly one row.
+
+    A run that takes longer than ``run_timeout`` seconds from its start is killed with its
+    worker (:meth:`executor.kill <tspend.sweep.executors.LocalPool.kill>`) and is a
+    ``timeout`` row, once; it is not run again.  The start is when a worker took it: a pool
+    hands out jobs first in, first out, one at a time per worker, so the jobs running are
+    the ``workers`` oldest in flight (stamped at the check after they became so, 0.25 s at
+    most late).  The local pool cannot tell which worker runs which job, so the other jobs
+    in flight lose their worker too and are run again from the start (not as deaths).
     """
     waiting = deque(todo)
     alone: deque[Job] = deque()           # to run by themselves after a worker died
-    window = max(16, 4 * getattr(executor, "workers", 1))
+    workers = max(1, int(getattr(executor, "workers", 1)))
+    window = max(16, 4 * workers)
     pending: dict[Any, Job] = {}
+    order: dict[Any, int] = {}            # future -> when it was submitted (a count)
+    started: dict[Any, float] = {}        # future -> when a worker took it (monotonic s)
     deaths: dict[str, int] = {}
     solo: set[str] = set()                # keys of jobs submitted by themselves
     retries_itself = getattr(executor, "retries_itself", False)
+    submitted = 0
+
+    def submit(job: Job) -> None:
+        nonlocal submitted
+        future = executor.submit(run_job, job)
+        pending[future] = job
+        order[future] = submitted
+        submitted += 1
+
+    def forget(future: Any) -> Job:
+        order.pop(future, None)
+        started.pop(future, None)
+        return pending.pop(future)
 
     def top_up() -> None:
         if alone:
             if not pending:
                 job = alone.popleft()
                 solo.add(job.key)
-                pending[executor.submit(run_job, job)] = job
+                submit(job)
             return
         while waiting and len(pending) < window:
-            job = waiting.popleft()
-            pending[executor.submit(run_job, job)] = job
+            submit(waiting.popleft())
+
+    def stamp_started() -> None:
+        now = time.monotonic()
+        for future in sorted(pending, key=order.__getitem__)[:workers]:
+            started.setdefault(future, now)
 
     top_up()
+    stamp_started()
     while pending:
         if stop is not None and stop.signal_name is not None:
             raise RunInterrupted(stop.signal_name, stop.exit_status)
@@ -331,7 +390,7 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
         lost: list[Job] = []
         broken = False
         for future in done:
-            job = pending.pop(future)
+            job = forget(future)
             try:
                 yield executor.result(future)
             except WorkerDied as exc:
@@ -352,8 +411,30 @@ def _execute(executor: Any, todo: list[Job], stop: StopRequest | None):
             # runs them, one at a time
             alone.extend(lost + list(pending.values()))
             pending.clear()
+            order.clear()
+            started.clear()
             executor.restart()
+        else:
+            now = time.monotonic()
+            late = [f for f, t0 in started.items() if now - t0 > run_timeout]
+            if late:
+                late_jobs = [(pending[f], now - started[f]) for f in late]
+                others_lost = executor.kill(late)
+                for future in late:
+                    forget(future)
+                for job, took in late_jobs:
+                    yield _timeout_row(job, run_timeout, took)
+                if others_lost:
+                    # their worker was killed with it: run again, first, from the start
+                    again = sorted(pending, key=order.__getitem__, reverse=True)
+                    for future in again:
+                        job = pending[future]
+                        (alone if job.key in solo else waiting).appendleft(job)
+                    pending.clear()
+                    order.clear()
+                    started.clear()
         top_up()
+        stamp_started()
 
 
 #: a job whose worker dies this many times while it runs alone is a ``failed`` row
@@ -370,6 +451,16 @@ def _died_row(job: Job, why: str) -> dict[str, Any]:
     row.update({k: None for k in METRIC_COLUMNS})
     row.update(version=__version__, scenario_hash=job.scenario_hash, recording=None,
                job_s=None, run_key=job.key)
+    return row
+
+
+def _timeout_row(job: Job, limit_s: float, took_s: float) -> dict[str, Any]:
+    """The row of a run killed past the time limit: no metrics (its process is gone)."""
+    row = _died_row(job, "")
+    row.update(status=TIMEOUT,
+               message=f"killed after {took_s:.1f} s of wall time: longer than the run "
+                       f"time limit of {limit_s:g} s (--run-timeout)",
+               job_s=took_s)
     return row
 
 

@@ -95,6 +95,21 @@ class LocalPool:
         self.close(cancel=True)
         self._start()
 
+    def kill(self, futures: Iterable[Future]) -> bool:
+        """End the runs of ``futures`` (past their time limit) now: which worker runs which
+        job is the pool's secret, so every worker is killed (SIGKILL: a run stuck in
+        compiled code or ignoring SIGTERM ends too) and a fresh pool started.  Returns True:
+        the other jobs in flight are lost and must be submitted again."""
+        pool = self._pool
+        if pool is not None:
+            for process in list(getattr(pool, "_processes", {}).values()):
+                try:
+                    process.kill()
+                except (OSError, ValueError):  # already gone
+                    pass
+        self.restart()
+        return True
+
     def close(self, cancel: bool = False) -> None:
         pool, self._pool = self._pool, None
         if pool is None:
@@ -168,6 +183,25 @@ class DaskExecutor:
 
     def restart(self) -> None:
         pass
+
+    def kill(self, futures: Iterable[Any]) -> bool:
+        """End the runs of ``futures`` (past their time limit): each is cancelled, and the
+        worker processes running them are restarted by their nannies (a thread cannot be
+        stopped).  Returns False: the scheduler reruns any other task those workers held."""
+        futures = list(futures)
+        keys = {f.key for f in futures}
+        try:
+            holders = [w for w, held in self.client.processing().items()
+                       if keys.intersection(held)]
+        except Exception:  # noqa: BLE001 - the scheduler is gone: nothing more to stop
+            holders = []
+        self.client.cancel(futures, force=True)
+        if holders:
+            try:
+                self.client.restart_workers(holders, raise_for_error=False)
+            except Exception:  # noqa: BLE001 - a worker without a nanny: it shuts down
+                pass
+        return False
 
     def close(self, cancel: bool = False) -> None:
         self.client.close()
