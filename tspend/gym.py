@@ -109,6 +109,8 @@ class TspendEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    #: physics steps the reference and disturbance tables hold at least (a window of them)
+    table_window = 4096
 
     def __init__(self, scenario: str | Path = "pendulum_mujoco", *, seed: int | None = None,
                  control_period: float | None = None, frame_skip: int | None = None,
@@ -201,7 +203,7 @@ class TspendEnv(gymnasium.Env):
         # the reference and its derivatives at the physics steps' times and the disturbance
         # at each step, a window of them at a time (the same numbers as computing them
         # per step, tested): the table of a long episode would not fit in memory
-        window = max(4096, 16 * self.frame_skip)
+        window = max(self.table_window, 16 * self.frame_skip)
         self._ref_table = np.zeros((window + 1, n + 1))
         self._dist_table = np.zeros(window)
         self._fill_tables(0)
@@ -547,6 +549,7 @@ def register_all() -> list[str]:
         eid = env_id(name)
         if eid not in gymnasium.registry:
             gymnasium.register(id=eid, entry_point="tspend.gym:TspendEnv",
+                               vector_entry_point="tspend.gym_vector:TspendVectorEnv",
                                kwargs={"scenario": name}, disable_env_checker=False)
         ids.append(eid)
     return ids
