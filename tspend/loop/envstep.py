@@ -6,9 +6,9 @@ plant is a MuJoCo plant offering ``compiled_mujoco(dt)`` (as the fast loops need
 :mod:`tspend.loop.fastloop`) and nothing runs per sample in Python (no effects wrapper,
 no measurement hook), :func:`env_step` does all of that in one ``@njit`` call that calls
 MuJoCo's C ``mj_step`` itself, on the plant's own mjModel and mjData: an env step then
-costs its physics and one call.  :func:`env_steps` runs it for N envs, on numba's
-threads (``prange``: each env's mjData is its own, so the threads share nothing but the
-read-only tables).
+costs its physics and one call.  :func:`env_steps` runs it for a share of N envs,
+without the GIL, so that a vector env's threads step their shares at once (each env's
+mjData is its own: the threads share nothing they write).
 
 Why this route (measured on the 2-core machine, benchmarks/env_speed.py): ``mj_step(m,
 d, nstep=k)`` from Python is one call too, but the task's bounds must be checked after
@@ -37,7 +37,7 @@ import math
 from typing import Any
 
 import numpy as np
-from numba import carray, njit, prange, types
+from numba import carray, njit, types
 from numba.extending import intrinsic
 
 from tspend.runtime.jit import JIT
@@ -272,13 +272,15 @@ def env_step(ints: np.ndarray, floats: np.ndarray, u: float) -> tuple[int, int, 
     return code, done, reward
 
 
-@njit(parallel=True, **_JIT)
+@njit(**_JIT)
 def env_steps(ints: np.ndarray, floats: np.ndarray, u: np.ndarray, skip: np.ndarray,
-              code: np.ndarray, done: np.ndarray, reward: np.ndarray, obs: np.ndarray) -> None:
-    """:func:`env_step` for every env ``e`` (rows ``ints[e]``, ``floats[e]``) not skipped
-    (``skip[e]``: it is being reset), on numba's threads; its results in ``code[e]``,
-    ``done[e]``, ``reward[e]`` and ``obs[e]`` (its observation, copied)."""
-    for e in prange(ints.shape[0]):
+              code: np.ndarray, done: np.ndarray, reward: np.ndarray, obs: np.ndarray,
+              first: int, last: int) -> None:
+    """:func:`env_step` for the envs ``e`` in ``first .. last - 1`` (rows ``ints[e]``,
+    ``floats[e]``) not skipped (``skip[e]``: it is being reset); its results in
+    ``code[e]``, ``done[e]``, ``reward[e]`` and ``obs[e]`` (its observation, copied).
+    Without the GIL: a vector env's threads each run a share of the envs."""
+    for e in range(first, last):
         if skip[e]:
             continue
         row = ints[e]
