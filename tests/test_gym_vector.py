@@ -14,6 +14,7 @@ import pytest
 gymnasium = pytest.importorskip("gymnasium")
 
 import tspend.gym  # noqa: E402,F401
+from gymnasium.vector import AutoresetMode  # noqa: E402
 from tspend.errors import ScenarioError  # noqa: E402
 from tspend.gym import TspendEnv  # noqa: E402
 from tspend.gym_vector import TspendVectorEnv  # noqa: E402
@@ -67,21 +68,24 @@ def test_the_tables_hold_what_the_signals_give_per_step() -> None:
         assert env._dist_table[at] == scn.disturbance(t)[0]
 
 
-def _singles(scenario, n, base, **kwargs):
+def _singles(scenario, n, base, mode=AutoresetMode.NEXT_STEP, **kwargs):
     overrides = kwargs.pop("overrides", {})
     return gymnasium.vector.SyncVectorEnv(
         [lambda i=i: TspendEnv(scenario, overrides={**overrides, "run.seed": base + i}, **kwargs)
-         for i in range(n)])
+         for i in range(n)], autoreset_mode=mode)
 
 
-@pytest.mark.parametrize("normalize", [False, True])
-def test_vector_env_equals_single_envs_bit_for_bit(normalize) -> None:
+@pytest.mark.parametrize("normalize, mode", [(False, AutoresetMode.NEXT_STEP),
+                                             (True, AutoresetMode.NEXT_STEP),
+                                             (False, AutoresetMode.SAME_STEP)])
+def test_vector_env_equals_single_envs_bit_for_bit(normalize, mode) -> None:
     scenario, n, base = "pendulum_mujoco_randomized", 5, 11
     kwargs = dict(control_period=0.02, init_noise=0.1, normalize=normalize,
                   overrides={"run.duration": 0.6})
     vec = gymnasium.make_vec(f"tspend/{scenario}-v0", num_envs=n,
-                             vectorization_mode="vector_entry_point", seed=base, **kwargs)
-    ref = _singles(scenario, n, base, **kwargs)
+                             vectorization_mode="vector_entry_point", seed=base,
+                             autoreset_mode=mode, **kwargs)
+    ref = _singles(scenario, n, base, mode, **kwargs)
     assert isinstance(vec.unwrapped, TspendVectorEnv) and vec.unwrapped.compiled
     # each machine drawn at its own seed
     masses = {e.plant.parameters().get("m") for e in vec.unwrapped.envs}
@@ -99,6 +103,9 @@ def test_vector_env_equals_single_envs_bit_for_bit(normalize) -> None:
         for x, y in zip(a[:4], b[:4]):
             assert x.dtype == y.dtype
             np.testing.assert_array_equal(x, y)
+        if mode == AutoresetMode.SAME_STEP and "final_obs" in b[4]:
+            for i in np.flatnonzero(b[4]["_final_obs"]):
+                np.testing.assert_array_equal(a[4]["final_obs"][i], b[4]["final_obs"][i])
         ended += int(a[2].sum())
         resets += int(a[3].sum())
         assert set(a[4]["status"][a[2]]) <= {"fell", "rail_end", "joint_limit", "state_bound",

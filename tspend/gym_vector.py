@@ -61,6 +61,10 @@ class TspendVectorEnv(VectorEnv):
         the scenario's ``run.seed``).
     render_mode : {None, "rgb_array"}
         ``render()`` returns env 0's frame.
+    autoreset_mode : AutoresetMode or str
+        ``NEXT_STEP`` (gymnasium's default, module docstring) or ``SAME_STEP``: an env
+        whose episode ends is reset in the same step, its last observation and info in
+        ``info["final_obs"]``, ``info["final_info"]`` (what stable-baselines3 expects).
     threads : int, optional
         Threads stepping the envs (default: the cores this process may use; 1: the
         caller's thread alone).  Python threads waiting on a condition, not spinning:
@@ -78,12 +82,20 @@ class TspendVectorEnv(VectorEnv):
     def __init__(self, scenario: str | Path = "pendulum_mujoco", num_envs: int = 1, *,
                  seed: int | None = None, render_mode: str | None = None,
                  overrides: dict | None = None, threads: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  **options: Any) -> None:
         from tspend.scenario import load_scenario, override
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ScenarioError(f"num_envs {num_envs!r}: must be an integer >= 1")
         options.pop("max_episode_steps", None)   # make_vec's; the scenario's duration rules
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ScenarioError(f"autoreset_mode {autoreset_mode!r}: allowed: NextStep, "
+                                f"SameStep") from None
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise ScenarioError(f"autoreset_mode {mode.value}: allowed: NextStep, SameStep")
         scn = load_scenario(scenario)
         overrides = dict(overrides or {})
         if overrides:
@@ -95,7 +107,9 @@ class TspendVectorEnv(VectorEnv):
         first = self.envs[0]
         self.num_envs = num_envs
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, "render_fps": first.metadata["render_fps"]}
+        self.metadata = {**self.metadata, "render_fps": first.metadata["render_fps"],
+                         "autoreset_mode": mode}
+        self.autoreset_mode = mode
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(first.observation_space, num_envs)
@@ -189,11 +203,23 @@ class TspendVectorEnv(VectorEnv):
             env._u = float(u[i])
             status[i], message[i] = env._status(int(code[i]), int(done[i]), float(u[i])) \
                 if self.compiled else ended_as[i]
-        self._autoreset = terminated | truncated
+        ended = terminated | truncated
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"t": clock * self.dt, "_t": every, "u": u, "_u": every,
                  "status": status, "_status": every, "message": message,
                  "_message": terminated.copy()}
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            self._autoreset = ended
+        elif ended.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_info = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(ended):
+                final_obs[i] = self._out(self._obs[i])
+                final_info[i] = {"t": float(clock[i] * self.dt), "status": status[i],
+                                 "message": message[i], "u": float(u[i])}
+                self._obs[i], _ = self.envs[i].reset()
+            infos.update(final_obs=final_obs, _final_obs=ended, final_info=final_info,
+                         _final_info=ended)
         return self._out(self._obs), reward.copy(), terminated, truncated, infos
 
     def render(self):
