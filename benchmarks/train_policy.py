@@ -116,7 +116,7 @@ def sb3_vector(venv, idx: list[int], u_max: float):
 
 
 def make_env(scenario: str, period: float, init_noise: list[float], u_max: float,
-             duration: float | None, inputs: str = "view"):
+             duration: float | None, inputs: str = "view", reward=None):
     import gymnasium
     from gymnasium.wrappers import TransformObservation
 
@@ -124,7 +124,7 @@ def make_env(scenario: str, period: float, init_noise: list[float], u_max: float
 
     overrides = {"run.duration": duration} if duration else None
     env = gymnasium.make(f"tspend/{scenario}-v0", control_period=period,
-                         init_noise=tuple(init_noise), overrides=overrides)
+                         init_noise=tuple(init_noise), overrides=overrides, reward=reward)
     idx = selection(env, inputs)
     space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(len(idx),), dtype=np.float64)
     env = TransformObservation(env, lambda o: o[idx], space)
@@ -289,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-std", type=float, default=-1.0, help="initial log std of actions")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after (0: never)")
     p.add_argument("--out", type=Path, default=None, help="default models/policies/SCENARIO.onnx")
+    p.add_argument("--reward", type=float, nargs="+", default=None,
+                   metavar="W", help="alive, then tracking weights, then control (default: "
+                   "tspend.gym.RewardWeights()); e.g. 10 10 0.1 0.1")
     p.add_argument("--inputs", choices=("view", "full"), default="view",
                    help="the policy sees the view and the reference, or the whole state")
     p.add_argument("--vector", choices=("monitor", "tspend", "sync"), default="monitor",
@@ -314,9 +317,11 @@ def main(argv: list[str] | None = None) -> int:
     def factory(rank: int):
         def make():
             return Monitor(make_env(a.scenario, a.period, a.init_noise, a.u_max, a.duration,
-                                    a.inputs))
+                                    a.inputs, weights))
         return make
 
+    weights = tspend.gym.RewardWeights() if not a.reward else tspend.gym.RewardWeights(
+        alive=a.reward[0], tracking=tuple(a.reward[1:-1]), control=a.reward[-1])
     probe = tspend.gym.TspendEnv(a.scenario, control_period=a.period)
     idx = selection(probe, a.inputs)
     if a.vector == "monitor":
@@ -325,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         import gymnasium
         from gymnasium.vector import AutoresetMode
 
-        options = dict(control_period=a.period, init_noise=tuple(a.init_noise),
+        options = dict(control_period=a.period, init_noise=tuple(a.init_noise), reward=weights,
                        overrides={"run.duration": a.duration} if a.duration else None)
         mode = {"tspend": "vector_entry_point", "sync": "sync"}[a.vector]
         extra = dict(autoreset_mode=AutoresetMode.SAME_STEP) if a.vector == "tspend" else \
@@ -424,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
         "inputs": a.inputs,
         "throughput_env_steps_per_s": round(int(model.num_timesteps) / wall, 1),
         "reward": {"formula": "T * (alive - sum_i tracking_i e_i^2 - control (u/u_scale)^2)",
-                   **tspend.gym.RewardWeights().__dict__},
+                   **weights.__dict__},
         "policy_inputs": [names[i] for i in idx],
         "hyperparameters": {"n_steps": a.n_steps, "batch_size": a.batch, "n_epochs": 10,
                             "gamma": a.gamma, "gae_lambda": 0.95, "learning_rate": a.lr,

@@ -137,3 +137,20 @@ def test_a_machine_without_the_compiled_step_is_stepped_alike() -> None:
         act = np.full((2, 1), 5.0 * np.sin(k))
         for x, y in zip(vec.step(act)[:4], ref.step(act)[:4]):
             np.testing.assert_array_equal(x, y)
+
+
+def test_vector_env_renders_env_0() -> None:
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    vec = TspendVectorEnv("pendulum_mujoco", num_envs=2, render_mode="rgb_array", width=64,
+                          height=48, init_noise=0.3)
+    vec.reset(seed=0)
+    try:
+        frame = vec.render()
+    except tspend.gym.RenderError:
+        pytest.skip("no GL backend on this machine")
+    assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5                    # not a blank frame
+    assert vec.envs[0].render_mode == "rgb_array" and vec.envs[1].render_mode is None
+    vec.close()
