@@ -231,6 +231,12 @@ def evaluate(actor: Actor, scenario: str, period: float, duration: float) -> dic
             "rmse_ss_approx": rmse if info["status"] == "completed" else math.inf}
 
 
+def _rank(result: dict) -> tuple[float, float, float]:
+    """Which evaluation is better (smaller): a completed episode by its error, else the
+    one that lasted longer, then the return."""
+    return result["rmse_ss_approx"], -result.get("t_end", 0.0), -result["return"]
+
+
 def card_markdown(card: dict, name: str) -> str:
     """The model card for people: how it was made, from the JSON beside it."""
     best = card["best"]
@@ -351,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     curve: list[dict] = []
     evals: list[dict] = []
-    best = {"rmse_ss_approx": math.inf, "return": -math.inf}
+    best = {"rmse_ss_approx": math.inf, "return": -math.inf, "t_end": 0.0}
     metadata_base = {
         "tspend.scenario": a.scenario, "tspend.plant_kind": probe.scenario.plant.kind,
         "tspend.control_period": repr(probe.control_period),
@@ -388,8 +394,7 @@ def main(argv: list[str] | None = None) -> int:
                 result.update(timesteps=int(self.num_timesteps),
                               wall_s=round(time.perf_counter() - started, 1))
                 evals.append(result)
-                better = (result["rmse_ss_approx"], -result["return"]) < \
-                    (best["rmse_ss_approx"], -best["return"])
+                better = _rank(result) < _rank(best)
                 if better:
                     best.clear()
                     best.update(result)
@@ -406,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
     result = evaluate(final, a.scenario, a.period, a.eval_duration)
     result.update(timesteps=int(model.num_timesteps), wall_s=round(wall, 1))
     evals.append(result)
-    if (result["rmse_ss_approx"], -result["return"]) < (best["rmse_ss_approx"], -best["return"]):
+    if _rank(result) < _rank(best):
         best.clear()
         best.update(result)
         export(final, int(model.num_timesteps), result)
