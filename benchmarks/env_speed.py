@@ -9,7 +9,9 @@ contenders, so that load on a shared machine falls on all of them alike):
   against gymnasium's own ``InvertedPendulum-v5`` (``env.step`` against ``mj_step(m, d,
   frame_skip)`` on its model) -- targets: <= 1.2x, and overhead <= 2x gymnasium's;
 * vector envs at N = 1, 4, 16, 64: env-steps/s of tspend's vector env
-  (``make_vec(..., vectorization_mode="vector_entry_point")``), of ``make_vec`` "sync"
+  (``make_vec(..., vectorization_mode="vector_entry_point")``; and with ``threads=1``, the
+  caller's thread alone: their ratio is what the threads give, whatever the load), of
+  ``make_vec`` "sync"
   and "async" (one process per env; up to ``--async-max`` envs), of MuJoCo's
   ``rollout`` (physics only, no task: N models in its thread pool, one thread per core)
   and the one-core physics floor ``1 / (frame_skip x bare mj_step)`` -- target at N = 16:
@@ -172,11 +174,15 @@ def main(argv: list[str] | None = None) -> None:
     floor = 1.0 / bare            # one core: one env-step costs frame_skip bare mj_steps
     print(f"one-core physics floor 1 / (20 x bare mj_step) = {floor:.0f} env-steps/s "
           f"(on c cores: c x this)")
-    print(f"{'N':>3s} {'tspend vector':>14s} {'sync':>10s} {'async':>10s} {'rollout':>10s}  "
-          f"{'vec/floor':>9s} {'vec/sync':>8s} {'vec/async':>9s} {'vec/rollout':>11s}")
+    print(f"{'N':>3s} {'tspend vector':>14s} {'1 thread':>9s} {'sync':>10s} {'async':>10s} "
+          f"{'rollout':>10s}  {'vec/floor':>9s} {'vec/1thr':>8s} {'vec/sync':>8s} "
+          f"{'vec/async':>9s} {'vec/rollout':>11s}")
     for n in sizes:
         made = {"tspend vector": gymnasium.make_vec(ENV_ID, num_envs=n, control_period=PERIOD,
                                                     vectorization_mode="vector_entry_point"),
+                "1 thread": gymnasium.make_vec(ENV_ID, num_envs=n, control_period=PERIOD,
+                                               vectorization_mode="vector_entry_point",
+                                               threads=1),
                 "sync": gymnasium.make_vec(ENV_ID, num_envs=n, control_period=PERIOD,
                                            vectorization_mode="sync")}
         if n <= args.async_max:
@@ -196,8 +202,9 @@ def main(argv: list[str] | None = None) -> None:
         r = {k: statistics.median(v) for k, v in rates.items() if v}
         vec = r["tspend vector"]
         a = r.get("async")
-        print(f"{n:3d} {vec:14.0f} {r['sync']:10.0f} {a if a else float('nan'):10.0f} "
-              f"{r['rollout']:10.0f}  {vec / floor:9.2f} {vec / r['sync']:8.2f} "
+        one = r["1 thread"]
+        print(f"{n:3d} {vec:14.0f} {one:9.0f} {r['sync']:10.0f} {a if a else float('nan'):10.0f} "
+              f"{r['rollout']:10.0f}  {vec / floor:9.2f} {vec / one:8.2f} {vec / r['sync']:8.2f} "
               f"{vec / a if a else float('nan'):9.2f} {vec / r['rollout']:11.2f}")
     print("\ntargets: N=16 tspend vector >= 1.6x floor (2 cores); >= 3x 4,460 env-steps/s "
           "(the issue's make_vec sync at N=8) = 13,380")
