@@ -11,8 +11,10 @@
 (``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
 its disturbance and its measurement effects (:class:`tspend.plants.effects.Measurement`).
 Nothing here integrates anything: each env step holds the action (zero-order hold) over
-``frame_skip`` physics steps of ``plant.step(u, d, run.dt)``, exactly as the runner's
-sampled loop does.
+``frame_skip`` physics steps of ``run.dt``, exactly as the runner's sampled loop does; on
+a MuJoCo plant without per-sample effects in one compiled call
+(:mod:`tspend.loop.envstep`), otherwise through ``plant.step(u, d, run.dt)``.  N envs in
+one call: :mod:`tspend.gym_vector`.
 
 Observation (:attr:`TspendEnv.observation_names`, :attr:`TspendEnv.observation_units`):
 the plant's full named state (positions, then velocities, the task's view entries as the
@@ -194,8 +196,8 @@ class TspendEnv(gymnasium.Env):
         hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
         self._wraps = np.array([v in hinges for v in self.task.view], dtype=bool)
 
-        # physics steps done in this episode (an array: the compiled step advances it)
-        # (with the tables' window's first step: the compiled step's int64 row)
+        # physics steps done in this episode and the tables' window's first step, in the
+        # compiled step's int64 row (envstep.CLOCK, BASE): the compiled step advances it
         self._ints = np.zeros(envstep.INT_SLOTS, dtype=np.int64)
         self._obs = np.zeros(N + n + 1)
         self._u = 0.0
@@ -232,8 +234,8 @@ class TspendEnv(gymnasium.Env):
         if link is None:
             return None
         task, w = self.task, self.reward_weights
-        return envstep.Frame(link, mj_step_pointer(), self.frame_skip, self.horizon, self.dt, self._ref_table,
-                             self._dist_table, np.zeros(len(task.names)), self._obs,
+        return envstep.Frame(link, mj_step_pointer(), self.frame_skip, self.horizon, self.dt,
+                             self._ref_table, self._dist_table, np.zeros(len(task.names)), self._obs,
                              self._view_index, task.lo, task.hi, self._tracking,
                              self._wrap_flags, float(w.alive), float(w.control),
                              float(self.u_scale))
