@@ -17,9 +17,12 @@ contenders, so that load on a shared machine falls on all of them alike):
   and the one-core physics floor ``1 / (frame_skip x bare mj_step)`` -- target at N = 16:
   >= 1.6x the floor on 2 cores.
 
-Single-env times are per call (``time.perf_counter`` around ``step`` only: the resets of
-ended episodes are not counted); vector times are whole loops of ``step`` (autoresets
-counted).  Actions are 0 N: the pole falls after about 2 s (108 steps), so episodes end
+Single-env times are medians over calls, ``env.step`` and the bare ``mj_step`` (on the env's own
+mjData) in turn call after call (``time.perf_counter`` around each; the resets of ended
+episodes are not counted);
+vector figures are N over the median time of a ``step`` call.  Medians, because on a
+machine shared with other jobs a call the scheduler interrupts would otherwise count its
+milliseconds of someone else's work.  Actions are 0 N: the pole falls after about 2 s (108 steps), so episodes end
 and reset as in training.
 
 Run: ``python benchmarks/env_speed.py`` (about two minutes on 2 cores).
@@ -45,68 +48,58 @@ ENV_ID = "tspend/pendulum_mujoco-v0"
 PERIOD = 0.02
 
 
-def _per_step(env: Any, action: np.ndarray, steps: int) -> float:
-    """Seconds per ``env.step``, the calls alone (resets outside the clock)."""
+def _paired(env: Any, action: np.ndarray, model: Any, data: Any, nstep: int, steps: int
+            ) -> tuple[float, float]:
+    """Median seconds of ``env.step`` and of bare ``mj_step(model, data, nstep)`` on the env's
+    own mjData, call after call in turn (so that a shared machine's load, and the caches,
+    fall on both alike; the bare steps only move the env on); the resets of ended
+    episodes are outside the clock."""
     env.reset(seed=0)
-    spent = 0.0
-    clock = time.perf_counter
-    for _ in range(steps):
-        t0 = clock()
-        _, _, term, trunc, _ = env.step(action)
-        spent += clock() - t0
-        if term or trunc:
-            env.reset()
-    return spent / steps
-
-
-def _bare(model: Any, nstep: int, steps: int, qpos: np.ndarray, qvel: np.ndarray) -> float:
-    """Seconds per ``mj_step(m, d, nstep)`` from the env's start, restarted every 50 calls."""
-    data = mujoco.MjData(model)
-    spent = 0.0
+    took = np.zeros((steps, 2))
     clock = time.perf_counter
     for k in range(steps):
-        if k % 50 == 0:
-            mujoco.mj_resetData(model, data)
-            data.qpos[:], data.qvel[:] = qpos, qvel
-            mujoco.mj_forward(model, data)
         t0 = clock()
+        _, _, term, trunc, _ = env.step(action)
+        t1 = clock()
         mujoco.mj_step(model, data, nstep)
-        spent += clock() - t0
-    return spent / steps
+        t2 = clock()
+        took[k] = t1 - t0, t2 - t1
+        if term or trunc:
+            env.reset()
+    # medians: a call the scheduler interrupted (other jobs) counts as one call, not its
+    # milliseconds
+    return float(np.median(took[:, 0])), float(np.median(took[:, 1]))
 
 
-def single_env(steps: int) -> dict[str, Callable[[], float]]:
-    """The single-env contenders: seconds per step of each."""
+def single_env(steps: int) -> dict[str, Callable[[], tuple[float, float]]]:
+    """The single-env contenders: seconds per env step and per bare physics of it."""
     ours = gymnasium.make(ENV_ID, control_period=PERIOD)
     plant = ours.unwrapped.plant
     nstep = ours.unwrapped.frame_skip * round(ours.unwrapped.dt / plant.model.opt.timestep)
-    ours.reset(seed=0)
-    start = (plant.data.qpos.copy(), plant.data.qvel.copy())
     theirs = gymnasium.make("InvertedPendulum-v5")
-    theirs.reset(seed=0)
-    m2 = theirs.unwrapped.model
-    start2 = (theirs.unwrapped.data.qpos.copy(), theirs.unwrapped.data.qvel.copy())
     skip2 = theirs.unwrapped.frame_skip
-    zero = np.zeros(1)
     return {
-        "tspend env.step": lambda: _per_step(ours, zero, steps),
-        "tspend bare mj_step": lambda: _bare(plant.model, nstep, steps, *start),
-        "InvertedPendulum-v5 env.step": lambda: _per_step(theirs, np.zeros(1, np.float32),
-                                                          steps),
-        "InvertedPendulum-v5 bare mj_step": lambda: _bare(m2, skip2, steps, *start2),
+        "tspend": lambda: _paired(ours, np.zeros(1), plant.model, plant.data, nstep, steps),
+        "InvertedPendulum-v5": lambda: _paired(theirs, np.zeros(1, np.float32),
+                                               theirs.unwrapped.model, theirs.unwrapped.data,
+                                               skip2, steps),
     }
 
 
 def _vector_rate(envs: Any, steps: int) -> float:
-    """Env-steps per second of ``steps`` calls of ``envs.step`` (autoresets counted)."""
+    """Env-steps per second of ``envs.step`` (N over the median call of ``steps``;
+    autoresets counted in the calls they fall in)."""
     n = envs.num_envs
     action = np.zeros((n, 1))
     envs.reset(seed=0)
     envs.step(action)
-    t0 = time.perf_counter()
-    for _ in range(steps):
+    took = np.zeros(steps)
+    clock = time.perf_counter
+    for k in range(steps):
+        t0 = clock()
         envs.step(action)
-    return n * steps / (time.perf_counter() - t0)
+        took[k] = clock() - t0
+    return n / float(np.median(took))
 
 
 def _rollout_rate(model: Any, n: int, nstep: int, calls: int, start: np.ndarray) -> float:
@@ -120,10 +113,13 @@ def _rollout_rate(model: Any, n: int, nstep: int, calls: int, start: np.ndarray)
     control = np.zeros((n, nstep, model.nu))
     with rollout.Rollout(nthread=threads) as pool:
         pool.rollout([model] * n, datas, state, control, nstep=nstep)
-        t0 = time.perf_counter()
-        for _ in range(calls):
+        took = np.zeros(calls)
+        clock = time.perf_counter
+        for k in range(calls):
+            t0 = clock()
             pool.rollout([model] * n, datas, state, control, nstep=nstep)
-        return n * calls / (time.perf_counter() - t0)
+            took[k] = clock() - t0
+        return n / float(np.median(took))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -147,18 +143,23 @@ def main(argv: list[str] | None = None) -> None:
     contenders = single_env(args.steps)
     for f in contenders.values():      # warm up: numba's cache, the first episode
         f()
-    times: dict[str, list[float]] = {k: [] for k in contenders}
+    pairs: dict[str, list[tuple[float, float]]] = {k: [] for k in contenders}
     for _ in range(args.repeat):
         for name, f in contenders.items():
-            times[name].append(f())
-    med = {k: statistics.median(v) for k, v in times.items()}
-    ours, bare = med["tspend env.step"], med["tspend bare mj_step"]
-    theirs, bare2 = med["InvertedPendulum-v5 env.step"], med["InvertedPendulum-v5 bare mj_step"]
-    print("\n## single env (median of rounds; us per step)")
-    for k, v in med.items():
-        print(f"{k:34s} {v * 1e6:9.2f} us   {1 / v:10.0f} steps/s   "
-              f"rounds {' '.join(f'{t * 1e6:.2f}' for t in times[k])}")
-    over, over2 = ours - bare, theirs - bare2
+            pairs[name].append(f())
+    print("\n## single env (us per step: env.step, bare mj_step of its frame_skip, the "
+          "difference; median of rounds)")
+    med = {}
+    for name, runs in pairs.items():
+        env_s = statistics.median(e for e, _ in runs)
+        bare_s = statistics.median(b for _, b in runs)
+        over_s = statistics.median(e - b for e, b in runs)
+        med[name] = (env_s, bare_s, over_s)
+        print(f"{name:20s} env.step {env_s * 1e6:8.2f} us ({1 / env_s:7.0f} steps/s)  bare "
+              f"{bare_s * 1e6:8.2f} us  overhead {over_s * 1e6:7.2f} us   rounds "
+              + " ".join(f"{e * 1e6:.1f}/{b * 1e6:.1f}" for e, b in runs))
+    ours, bare, over = med["tspend"]
+    over2 = med["InvertedPendulum-v5"][2]
     print(f"tspend env.step / bare mj_step x20   {ours / bare:.3f}x   (target <= 1.2)")
     print(f"overhead tspend {over * 1e6:.2f} us, InvertedPendulum-v5 {over2 * 1e6:.2f} us: "
           f"{over / over2:.2f}x   (target <= 2)")
