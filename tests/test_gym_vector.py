@@ -84,9 +84,10 @@ def test_vector_env_equals_single_envs_bit_for_bit(normalize, mode) -> None:
                   overrides={"run.duration": 0.6})
     vec = gymnasium.make_vec(f"tspend/{scenario}-v0", num_envs=n,
                              vectorization_mode="vector_entry_point", seed=base,
-                             autoreset_mode=mode, **kwargs)
+                             autoreset_mode=mode, threads=3, **kwargs)
     ref = _singles(scenario, n, base, mode, **kwargs)
     assert isinstance(vec.unwrapped, TspendVectorEnv) and vec.unwrapped.compiled
+    assert vec.unwrapped.threads == 3          # three shares, two of them on the pool
     # each machine drawn at its own seed
     masses = {e.plant.parameters().get("m") for e in vec.unwrapped.envs}
     assert len(masses) == n
