@@ -163,18 +163,22 @@ class TspendVectorEnv(VectorEnv):
         for i, (env, s) in enumerate(zip(self.envs, seeds)):
             self._obs[i], info = env.reset(seed=s, options=options)
             infos = self._add_info(infos, info, i)
-        self._autoreset[:] = False
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
         return self._out(self._obs), infos
 
     def step(self, actions):
         """Step every env (resetting those whose episode ended at the last step); the
         batched observation, reward, terminated, truncated and info (module docstring)."""
         u = self._applied(actions)
-        reset = self._autoreset.copy()
+        reset = self._autoreset
         code, done, reward = self._code, self._done, self._reward
-        code[:], done[:], reward[:] = envstep.RUNNING, 0, 0.0
-        for i in np.flatnonzero(reset):
-            self._obs[i], _ = self.envs[i].reset()
+        code.fill(envstep.RUNNING)
+        reward.fill(0.0)
+        resetting = reset.any()
+        if resetting:
+            for i in np.flatnonzero(reset):
+                self._obs[i], _ = self.envs[i].reset()
+        ended_as: dict[int, tuple[str, str]] = {}
         if self.compiled:
             self._compiled_steps(u, reset)
             refill = code == envstep.REFILL
@@ -186,24 +190,28 @@ class TspendVectorEnv(VectorEnv):
                 self._compiled_steps(u, ~refill)
             clock = self._ints[:, envstep.CLOCK]
         else:
-            ended_as: dict[int, tuple[str, str]] = {}
             for i in np.flatnonzero(~reset):
                 self._obs[i], reward[i], ended, _, info = self.envs[i].step(u[i:i + 1])
                 if ended:
                     code[i] = envstep.ENDED
                     ended_as[i] = (info["status"], info["message"])
             clock = np.array([env._ints[envstep.CLOCK] for env in self.envs], dtype=np.int64)
-        terminated = (code != envstep.RUNNING) & ~reset
-        truncated = ~terminated & ~reset & (clock >= self._horizon)
-        status = np.where(terminated, "ended", np.where(truncated, "completed", "running"))
-        status = status.astype(object)
-        message = np.full(self.num_envs, "", dtype=object)
-        for i in np.flatnonzero(terminated):
-            env = self.envs[i]
-            env._u = float(u[i])
-            status[i], message[i] = env._status(int(code[i]), int(done[i]), float(u[i])) \
-                if self.compiled else ended_as[i]
+        terminated = code != envstep.RUNNING
+        truncated = clock >= self._horizon
+        if resetting:
+            terminated &= ~reset
+            truncated &= ~reset
+        truncated &= ~terminated
         ended = terminated | truncated
+        status = np.full(self.num_envs, "running", dtype=object)
+        message = np.full(self.num_envs, "", dtype=object)
+        if ended.any():
+            status[truncated] = "completed"
+            for i in np.flatnonzero(terminated):
+                env = self.envs[i]
+                env._u = float(u[i])
+                status[i], message[i] = env._status(int(code[i]), int(done[i]), float(u[i])) \
+                    if self.compiled else ended_as[i]
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"t": clock * self.dt, "_t": every, "u": u, "_u": every,
                  "status": status, "_status": every, "message": message,
@@ -250,7 +258,7 @@ class TspendVectorEnv(VectorEnv):
             a = np.asarray(actions, dtype=float)
         except (TypeError, ValueError):
             raise ScenarioError(f"actions {actions!r:.80}: not numbers") from None
-        if a.size != self.num_envs or not np.isfinite(a).all():
+        if a.size != self.num_envs or not np.isfinite(a.sum()) and not np.isfinite(a).all():
             raise ScenarioError(f"actions {actions!r:.80}: expected {self.num_envs} finite "
                                 f"numbers (the action space is {self.action_space})")
         a = np.minimum(np.maximum(a.reshape(-1), self._lo), self._hi)
