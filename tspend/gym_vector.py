@@ -67,9 +67,10 @@ class TspendVectorEnv(VectorEnv):
         ``info["final_obs"]``, ``info["final_info"]`` (what stable-baselines3 expects).
     threads : int, optional
         Threads stepping the envs (default: the cores this process may use; 1: the
-        caller's thread alone).  Python threads waiting on a condition, not spinning:
-        on a machine busy with other work, numba's ``prange`` (OpenMP) was measured 4x
-        slower than one thread, these no slower.
+        caller's thread alone).  Python threads waiting on a condition, not spinning (on
+        a machine busy with other work, numba's ``prange``, OpenMP, was measured 4x
+        slower than one thread); a step still waits for its slowest share, so on a busy
+        machine ``threads=1`` can be faster (docs/benchmarks.md).
     overrides : dict, optional
         Dotted scenario keys to values, as ``TspendEnv``.
     **options
