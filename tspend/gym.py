@@ -11,8 +11,10 @@
 (``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
 its disturbance and its measurement effects (:class:`tspend.plants.effects.Measurement`).
 Nothing here integrates anything: each env step holds the action (zero-order hold) over
-``frame_skip`` physics steps of ``plant.step(u, d, run.dt)``, exactly as the runner's
-sampled loop does.
+``frame_skip`` physics steps of ``run.dt``, exactly as the runner's sampled loop does; on
+a MuJoCo plant without per-sample effects in one compiled call
+(:mod:`tspend.loop.envstep`), otherwise through ``plant.step(u, d, run.dt)``.  N envs in
+one call: :mod:`tspend.gym_vector`.
 
 Observation (:attr:`TspendEnv.observation_names`, :attr:`TspendEnv.observation_units`):
 the plant's full named state (positions, then velocities, the task's view entries as the
@@ -42,6 +44,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tspend.controllers.base import Observation
+from tspend.loop import envstep
 from tspend.errors import DivergenceError, ScenarioError, TspendError
 
 __all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "env_id", "register_all"]
@@ -108,6 +111,8 @@ class TspendEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    #: physics steps the reference and disturbance tables hold at least (a window of them)
+    table_window = 4096
 
     def __init__(self, scenario: str | Path = "pendulum_mujoco", *, seed: int | None = None,
                  control_period: float | None = None, frame_skip: int | None = None,
@@ -116,6 +121,7 @@ class TspendEnv(gymnasium.Env):
                  init_noise: float | tuple[float, ...] = 0.0,
                  width: int = 640, height: int = 480, normalize: bool = False) -> None:
         from tspend.loop import simulation
+        from tspend.plants import randomize
         from tspend.scenario import load_scenario, override
 
         scn = load_scenario(scenario)
@@ -139,6 +145,9 @@ class TspendEnv(gymnasium.Env):
         self.horizon = simulation.steps_of(scn)
 
         self.plant = simulation.build_plant(scn)
+        #: where an episode starts: plant.x0 as the scenario's [randomize] drew it at its seed
+        #: (the machine build_plant made is drawn at the same seed)
+        self.x0 = np.asarray(randomize.draw(scn).scenario.plant.x0, dtype=float)
         self.task = simulation.scenario_task(scn, self.plant)
         self.order = len(self.task.view)
         n, N = self.order, len(self.task.names)
@@ -175,6 +184,8 @@ class TspendEnv(gymnasium.Env):
         self.u_range = (float(lo), float(hi))
         self.action_space = (spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32) if self.normalize
                              else spaces.Box(np.array([lo]), np.array([hi]), dtype=np.float64))
+        self._a_lo = float(self.action_space.low[0])
+        self._a_hi = float(self.action_space.high[0])
         self.action_name = self.plant.inputs[0].name if self.plant.inputs else "u"
         self.action_unit = (self.plant.inputs[0].unit if self.plant.inputs else "") or \
             self._control_unit()
@@ -185,14 +196,56 @@ class TspendEnv(gymnasium.Env):
         hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
         self._wraps = np.array([v in hinges for v in self.task.view], dtype=bool)
 
-        self._i = 0            # physics steps done in this episode
+        # physics steps done in this episode and the tables' window's first step, in the
+        # compiled step's int64 row (envstep.CLOCK, BASE): the compiled step advances it
+        self._ints = np.zeros(envstep.INT_SLOTS, dtype=np.int64)
         self._obs = np.zeros(N + n + 1)
+        self._u = 0.0
         self._hook = None
+        # the reference and its derivatives at the physics steps' times and the disturbance
+        # at each step, a window of them at a time (the same numbers as computing them
+        # per step, tested): the table of a long episode would not fit in memory
+        window = max(self.table_window, 16 * self.frame_skip)
+        self._ref_table = np.zeros((window + 1, n + 1))
+        self._dist_table = np.zeros(window)
+        self._fill_tables(0)
+        self._view_index = np.ascontiguousarray(self.task.view_index, dtype=np.int64)
+        self._wrap_flags = self._wraps.astype(np.int64)
+        #: the compiled step's view of this env (None: the Python step runs)
+        self.frame = self._compiled_frame()
+        if self.frame is not None:
+            self._ints = self.frame.ints
         self._renderer: Any = None
         self._camera: Any = None
         self._seeded = False
 
     # -- construction helpers -------------------------------------------------------
+    def _compiled_frame(self) -> envstep.Frame | None:
+        """The env for :func:`tspend.loop.envstep.env_step`, when its plant offers MuJoCo's
+        compiled step and nothing runs per sample in Python (no effects wrapper, no
+        measurement hook: :mod:`tspend.plants.effects`)."""
+        from tspend.plants.effects import needs_hook, needs_plant_wrapper
+        from tspend.plants.mujoco_plant import mj_step_pointer
+
+        effects = self.scenario.effects
+        if needs_hook(effects) or needs_plant_wrapper(effects):
+            return None
+        link = self.plant.compiled_mujoco(self.dt)
+        if link is None:
+            return None
+        task, w = self.task, self.reward_weights
+        return envstep.Frame(link, mj_step_pointer(), self.frame_skip, self.horizon, self.dt,
+                             self._ref_table, self._dist_table, np.zeros(len(task.names)), self._obs,
+                             self._view_index, task.lo, task.hi, self._tracking,
+                             self._wrap_flags, float(w.alive), float(w.control),
+                             float(self.u_scale))
+
+    def adopt_rows(self, ints: np.ndarray, floats: np.ndarray) -> None:
+        """Keep the compiled step's rows in ``ints``, ``floats`` (rows of a vector env's
+        matrices: :class:`tspend.gym_vector.TspendVectorEnv`)."""
+        self.frame.adopt(ints, floats)
+        self._ints = self.frame.ints
+
     def _frame_skip(self, control_period: float | None, frame_skip: int | None) -> int:
         if frame_skip is not None:
             if control_period is not None:
@@ -208,6 +261,25 @@ class TspendEnv(gymnasium.Env):
             raise ScenarioError(f"control_period {period!r} s: must be a whole multiple of "
                                 f"run.dt = {self.dt:g} s")
         return every
+
+    def _fill_tables(self, start: int) -> None:
+        """The tables' window from physics step ``start`` (:class:`envstep.Frame`)."""
+        t = (start + np.arange(self._dist_table.size + 1)) * self.dt
+        self._ref_table[:] = self.scenario.reference.derivatives(t, self.order)
+        self._dist_table[:] = self.scenario.disturbance(t[:-1])
+        self._ints[envstep.BASE] = start
+
+    def refill(self) -> None:
+        """The tables' window for the next step (the compiled step said REFILL)."""
+        self._table_at(int(self._ints[envstep.CLOCK]), self.frame_skip)
+
+    def _table_at(self, i: int, k: int) -> int:
+        """The row of physics step ``i`` in the tables, with steps ``i .. i + k`` in them."""
+        at = i - int(self._ints[envstep.BASE])
+        if at < 0 or at + k > self._dist_table.size:
+            self._fill_tables(i)
+            at = 0
+        return at
 
     @staticmethod
     def _per_second(unit: str, k: int) -> str:
@@ -244,15 +316,15 @@ class TspendEnv(gymnasium.Env):
             # the effects keep their own state (rate limit, a scheduled change): start afresh
             self.plant = simulation.build_plant(scn)
             self._renderer = None
-        x0 = np.asarray(scn.plant.x0, dtype=float)
+        x0 = self.x0
         if np.any(self.init_noise > 0):
             x0 = x0 + self.np_random.uniform(-self.init_noise, self.init_noise)
         self.plant.reset(x0)
         self._hook = Measurement(scn.effects, self.plant, self.dt, self.run_seed) \
             if needs_hook(scn.effects) else None
-        self._i = 0
+        self._ints[envstep.CLOCK] = 0
         self._u = 0.0
-        self._obs = self._observe()
+        self._obs[:] = self._observe()
         out = self._obs.astype(np.float32) if self.normalize else self._obs.copy()
         return out, self._info("running", "")
 
@@ -260,23 +332,71 @@ class TspendEnv(gymnasium.Env):
         """Hold ``action`` over ``frame_skip`` physics steps; the next observation, the
         reward, terminated (the task ended the run or it diverged), truncated (the
         scenario's duration reached) and info (``t``, ``status``, ``message``, ``u``)."""
-        try:
-            a = np.asarray(action, dtype=float)
-        except (TypeError, ValueError):
-            raise ScenarioError(f"action {action!r:.80}: not a number") from None
-        if a.size != 1 or not np.isfinite(a).all():
+        u = self.applied_action(action)
+        self._u = u
+        if self.frame is not None:
+            f = self.frame
+            code, done, reward = envstep.env_step(f.ints, f.floats, u)
+            if code == envstep.REFILL:
+                self.refill()
+                code, done, reward = envstep.env_step(f.ints, f.floats, u)
+            status, message = self._status(code, done, u)
+        else:
+            status, message, reward = self._python_step(u)
+        return self._outcome(status, message, reward)
+
+    def applied_action(self, action: Any) -> float:
+        """The actuator's command of an action: one finite number, clipped to the action
+        space (and mapped from [-1, 1] onto the actuator's range when ``normalize``);
+        ScenarioError otherwise."""
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+            a = float(action[0])       # the common case, without building arrays
+            bad = not math.isfinite(a)
+        else:
+            try:
+                arr = np.asarray(action, dtype=float)
+            except (TypeError, ValueError):
+                raise ScenarioError(f"action {action!r:.80}: not a number") from None
+            bad = arr.size != 1 or not np.isfinite(arr).all()
+            a = float(arr.reshape(-1)[0]) if not bad else 0.0
+        if bad:
             # a NaN or a vector would otherwise be clipped into a plausible force silently
             raise ScenarioError(f"action {action!r:.80}: expected one finite number (the "
                                 f"action space is {self.action_space})")
-        u = float(np.clip(a.reshape(-1)[0], self.action_space.low[0], self.action_space.high[0]))
+        return self._scaled(min(max(a, self._a_lo), self._a_hi))
+
+    def _scaled(self, a: float) -> float:
         if self.normalize:
             lo, hi = self.u_range
-            u = lo + 0.5 * (u + 1.0) * (hi - lo)
-        self._u = u
-        i0 = self._i
+            return lo + 0.5 * (a + 1.0) * (hi - lo)
+        return a
+
+    def _status(self, code: int, done: int, u: float) -> tuple[str, str]:
+        """(status, message) of a compiled step's outcome (:mod:`tspend.loop.envstep`)."""
+        if code == envstep.RUNNING:
+            return "running", ""
+        if code == envstep.ENDED:
+            full = self.frame.full
+            return self.task.termination(full, self._ints[envstep.CLOCK] * self.dt) or ("diverged", "")
+        if code == envstep.NOT_FINITE:
+            return "diverged", "the state is not finite"
+        i = int(self._ints[envstep.CLOCK])
+        if code == envstep.BAD_INPUT:
+            from tspend.plants.mujoco_plant import refuse_huge_input
+
+            try:
+                d = float(self._dist_table[self._table_at(i, 1)])
+                refuse_huge_input(self.plant.name, u, d, i * self.dt)
+            except DivergenceError as exc:
+                return "diverged", f"the plant failed ({exc})"
+        return "diverged", f"the plant failed ({self.plant.instability(i * self.dt)})"
+
+    def _python_step(self, u: float) -> tuple[str, str, float]:
+        """The step through ``plant.step`` (effects, measurement hooks, ODE plants)."""
+        i0 = int(self._ints[envstep.CLOCK])
         k = min(self.frame_skip, self.horizon - i0)
-        t = (i0 + np.arange(max(k, 0))) * self.dt
-        dist = self.scenario.disturbance(t) if k > 0 else t
+        at = self._table_at(i0, max(k, 0))
+        dist = self._dist_table[at:at + max(k, 0)]
         status, message = "running", ""
         done = 0
         for j in range(k):
@@ -294,20 +414,24 @@ class TspendEnv(gymnasium.Env):
                 status, message = self.task.termination(full, (i0 + j + 1) * self.dt) or \
                     ("diverged", "")
                 break
-        self._i = i0 + done
+        self._ints[envstep.CLOCK] = i0 + done
+        if status == "diverged":
+            return status, message, 0.0
+        self._obs[:] = self._observe()
+        w = self.reward_weights
+        return status, message, envstep.reward_of(self._obs, len(self.task.names),
+                                                  self._view_index, self._tracking,
+                                                  self._wrap_flags, float(w.alive),
+                                                  float(w.control), float(self.u_scale),
+                                                  u, done * self.dt)
+
+    def _outcome(self, status: str, message: str, reward: float):
         terminated = status != "running"
-        if terminated and status == "diverged":
-            # keep the last finite observation: gymnasium wants one in the space
-            obs = self._obs
-            reward = 0.0
-        else:
-            obs = self._observe()
-            reward = self._reward(obs, u, done * self.dt)
-        self._obs = obs
-        truncated = not terminated and self._i >= self.horizon
+        # a diverged step keeps the last finite observation: gymnasium wants one in the space
+        truncated = not terminated and int(self._ints[envstep.CLOCK]) >= self.horizon
         if truncated:
             status = "completed"
-        out = obs.astype(np.float32) if self.normalize else obs.copy()
+        out = self._obs.astype(np.float32) if self.normalize else self._obs.copy()
         return out, float(reward), terminated, truncated, self._info(status, message)
 
     def render(self):
@@ -332,7 +456,7 @@ class TspendEnv(gymnasium.Env):
     @property
     def t(self) -> float:
         """The time of the current sample (s)."""
-        return self._i * self.dt
+        return int(self._ints[envstep.CLOCK]) * self.dt
 
     def controller_observation(self, obs: np.ndarray | None = None) -> Observation:
         """The :class:`~tspend.controllers.base.Observation` a controller gets for the env's
@@ -350,26 +474,17 @@ class TspendEnv(gymnasium.Env):
     # -- internals ---------------------------------------------------------------------
     def _observe(self) -> np.ndarray:
         full = self.plant.full_state()
-        t = self._i * self.dt
-        ref = self.scenario.reference.derivatives(np.array([t]), self.order)[0]
+        t = int(self._ints[envstep.CLOCK]) * self.dt
+        ref = self._ref_table[self._table_at(int(self._ints[envstep.CLOCK]), 0)].copy()
         if self._hook is not None:
             # the runner's per-sample hook: the view as measured; it may shape ref in place
             x = full[self.task.view_index]
             full[self.task.view_index] = self._hook(t, x, ref)
         return np.concatenate((full, ref))
 
-    def _reward(self, obs: np.ndarray, u: float, seconds: float) -> float:
-        N, n = len(self.task.names), self.order
-        e = obs[:N][self.task.view_index] - obs[N:N + n]
-        if self._wraps.any():
-            e[self._wraps] = np.mod(e[self._wraps] + np.pi, 2 * np.pi) - np.pi
-        w = self.reward_weights
-        cost = float(self._tracking @ (e * e)) + w.control * (u / self.u_scale) ** 2
-        return seconds * (w.alive - cost)
-
     def _info(self, status: str, message: str) -> dict[str, Any]:
         info = {"t": self.t, "status": status, "message": message, "u": self._u,
-                "state": dict(zip(self.state_columns, (float(v) for v in self._obs[:len(self.state_columns)]))),
+                "state": dict(zip(self.state_columns, self._obs[:len(self.state_columns)].tolist())),
                 "u_unit": self.action_unit}
         if self.normalize:
             # a = -1 is the actuator's lo, a = +1 its hi (in u_unit)
@@ -436,6 +551,7 @@ def register_all() -> list[str]:
         eid = env_id(name)
         if eid not in gymnasium.registry:
             gymnasium.register(id=eid, entry_point="tspend.gym:TspendEnv",
+                               vector_entry_point="tspend.gym_vector:TspendVectorEnv",
                                kwargs={"scenario": name}, disable_env_checker=False)
         ids.append(eid)
     return ids
