@@ -27,7 +27,9 @@ def cmd(args: argparse.Namespace) -> int:
         except TspendError as exc:
             desc = f"(invalid: {exc})"
         name = path.stem + (" (default)" if path.stem == DEFAULT_SCENARIO else "")
-        lines = textwrap.wrap(printable(desc), columns - width - 2) or [""]
+        # break_on_hyphens off: a reader (and a search) sees "time-varying", not "time- varying"
+        lines = textwrap.wrap(printable(desc), columns - width - 2,
+                              break_on_hyphens=False) or [""]
         print(f"{name:<{width}}  {lines[0]}")
         for line in lines[1:]:
             print(f"{'':<{width}}  {line}")
