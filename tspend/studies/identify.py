@@ -44,7 +44,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from tspend.errors import ScenarioError, TspendError
-from tspend.studies.identify_model import ParametricModel
+from tspend.studies.identify_model import OFFSET, ParametricModel
 
 __all__ = ["Record", "Fit", "FitFailed", "read_record", "column", "check_names",
            "identifiability", "fit", "RANK_TOL"]
@@ -231,12 +231,14 @@ class _Problem:
         D = casadi.MX.sym("D", 1, self.K - 1)
         traj = casadi.horzcat(s0, sim(s0, U, D, th))                 # n x K
         # what the sensors read: each position plus its sensor offset (0 unless fitted/fixed)
-        off = casadi.vertcat(*model.offsets(p), *([0.0] * (n - dof)))
+        off = casadi.Function("off", [theta], [casadi.vertcat(
+            *[casadi.SX(o) for o in model.offsets(p)], casadi.SX.zeros(n - dof))])(th)
         traj_meas = traj + casadi.repmat(off, 1, self.K)
         out = casadi.vec(traj_meas[self.meas_rows, :].T)             # channel-major
         z = casadi.vertcat(s0, th)
-        seg = casadi.Function("seg", [s0, th, U, D], [out, casadi.jacobian(out, z)],
-                              _jit_options() if model.jit else {})
+        seg = casadi.Function("seg", [s0, th, U, D], [out, casadi.jacobian(out, z)])
+        if model.jit:
+            seg = _compiled(seg)
         return seg, casadi.Function("traj", [s0, th, U, D], [traj])
 
     def data(self, arr: np.ndarray) -> np.ndarray:
@@ -259,15 +261,42 @@ class _Problem:
         return out, np.transpose(jac, (1, 0, 2))
 
 
-def _jit_options() -> dict:
-    """CasADi's just-in-time compilation of a segment's simulation and sensitivities (the
-    system's C compiler ``cc``; without one, CasADi's virtual machine)."""
+def _compiled(fn):
+    """``fn`` compiled to C by the system's ``cc`` and loaded (``casadi.external``), kept in
+    the derivation cache (``$TSPEND_CACHE_DIR/articulated/identify``) under a hash of its
+    generated source, so a second process with the same machine, parameters and segment
+    length loads it without compiling; ``fn`` itself when there is no compiler or cache."""
+    import hashlib
+    import os
     import shutil
+    import subprocess
+    import tempfile
 
-    if not shutil.which("cc"):
-        return {}
-    return {"jit": True, "compiler": "shell",
-            "jit_options": {"flags": ["-O1"], "compiler": "cc"}}
+    import casadi
+
+    from tspend.plants.articulated.derive import cache_dir
+
+    cc = shutil.which("cc")
+    root = cache_dir()
+    if cc is None or root is None:
+        return fn
+    folder = root / "identify"
+    folder.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        cg = casadi.CodeGenerator("seg.c", {"with_header": False})
+        cg.add(fn)
+        cg.generate(tmp + os.sep)
+        src = Path(tmp, "seg.c").read_bytes()
+        key = hashlib.sha256(src).hexdigest()[:20]
+        lib = folder / f"seg_{key}.so"
+        if not lib.is_file():
+            out = Path(tmp, "seg.so")
+            r = subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp, "seg.c")), "-o",
+                                str(out), "-lm"], capture_output=True, text=True)
+            if r.returncode != 0:
+                return fn                   # CasADi's virtual machine, as without a compiler
+            os.replace(out, lib)            # atomic: a concurrent process sees all or nothing
+    return casadi.external(fn.name(), str(lib))
 
 
 def _initial_states(rec: Record, starts: Sequence[int], n: int, dof: int) -> np.ndarray:
@@ -389,6 +418,11 @@ def identifiability(model: ParametricModel, rec: Record, names: tuple[str, ...],
         raise ScenarioError(f"DATA: the record excites none of {', '.join(names)} (the motion "
                             f"does not depend on them: is the input '{rec.columns['input']}' zero?)")
     dead = [nm for nm, c in zip(names, norms) if c <= 1e-9 * norms.max()]
+    if dead and all(nm.endswith(OFFSET) for nm in dead):
+        raise ScenarioError(f"--params {', '.join(dead)}: the recorded motion does not depend "
+                            f"on a constant offset of {'this joint' if len(dead) == 1 else 'these joints'} "
+                            f"(the equations do not change when it moves, so each segment's "
+                            f"start absorbs the offset): not identifiable")
     if dead:
         raise ScenarioError(f"DATA: the input '{rec.columns['input']}' never excites "
                             f"{', '.join(dead)}: the recorded motion does not depend on "

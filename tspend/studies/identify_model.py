@@ -66,8 +66,9 @@ class ParametricModel:
     fixed: dict = field(default_factory=dict)
     #: names a user may ask for that cannot be fitted, with the reason
     refused: dict = field(default_factory=dict)
-    #: compile each segment's simulation to C (CasADi's jit; ``tspend identify --jit``):
-    #: ~20x faster evaluations for a compile of some 10-40 s per segment length
+    #: compile each segment's simulation to C (``tspend identify --jit``; kept in the
+    #: derivation cache): ~20x faster evaluations for a compile of some 10-40 s per
+    #: machine, parameter set and segment length
     jit: bool = False
     #: the segment functions built so far, by (parameters, fixed values, length, channels)
     compiled: dict = field(default_factory=dict, repr=False)
