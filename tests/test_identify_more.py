@@ -148,19 +148,19 @@ def test_bootstrap_spread_agrees_with_the_curvature_and_is_seeded(tmp_path):
     spec = mujoco.MjSpec.from_file(CARTPOLE)
     spec.option.timestep = 0.005                  # a coarser copy keeps the test quick
     (tmp_path / "cp5.xml").write_text(spec.to_xml())
-    hanging_cartpole(str(tmp_path / "cp5.xml"), 4.0, 5).to_csv(tmp_path / "n.csv", index=False)
+    hanging_cartpole(str(tmp_path / "cp5.xml"), 3.0, 5).to_csv(tmp_path / "n.csv", index=False)
     model = load_model(str(tmp_path / "cp5.xml"))
     rec = ident.read_record(tmp_path / "n.csv", model)
-    a = ident.fit(model, rec, ("m", "M"), segment_s=0.25, bootstrap=12,
+    a = ident.fit(model, rec, ("m", "M"), segment_s=0.25, bootstrap=10,
                   rng=np.random.default_rng(1))
-    assert a.uncertainty == "bootstrap" and a.replicates.shape == (12, 2)
+    assert a.uncertainty == "bootstrap" and a.replicates.shape == (10, 2)
     for k, truth in (("m", 1.0), ("M", 10.0)):
         ratio = a.std[k] / a.std_curvature[k]
         assert 0.5 < ratio < 2.0, (k, ratio)
         assert abs(a.values[k] - truth) < 3.0 * a.std[k], (k, a.values[k], a.std[k])
         col = a.replicates[:, a.names.index(k)]
         assert a.interval(k) == pytest.approx(tuple(np.percentile(col, [2.5, 97.5])))
-    # the same seed, the same resampling: the same replicates
-    b = ident.fit(model, rec, ("m", "M"), segment_s=0.25, bootstrap=12,
+    # the same seed, the same resampling: the same replicates, drawn in order
+    b = ident.fit(model, rec, ("m", "M"), segment_s=0.25, bootstrap=3,
                   rng=np.random.default_rng(1))
-    np.testing.assert_array_equal(a.replicates, b.replicates)
+    np.testing.assert_array_equal(a.replicates[:3], b.replicates)
