@@ -75,6 +75,7 @@ def main() -> int:
         path = str(Path(d) / "cp5.xml")
         Path(path).write_text(spec.to_xml())
         model = load_model(path)
+        model.jit = True                 # one compile, then every fit and refit in C
         for noise in ("white", "coloured"):
             for seed in range(lo, hi):
                 record(path, 6.0, seed, noise == "coloured").to_csv(Path(d) / "r.csv", index=False)

@@ -79,15 +79,11 @@ class ParametricModel:
                  if f"{j}{OFFSET}" not in self.nominal]
         self.names = tuple(self.names) + tuple(extra)
         self.nominal = {**self.nominal, **{k: 0.0 for k in extra}}
+        units = {f"{j}{OFFSET}": ("m" if any(c.endswith("_m") for c in cols) else "rad")
+                 for j, cols in zip(self.state_names[: self.dof], self.position_columns)}
         self.meaning = {**self.meaning, **{
-            k: f"sensor offset of {k[:-len(OFFSET)]} (measured - true), "
-               f"{'m' if self.state_names[i] == k[:-len(OFFSET)] and self._slide(i) else 'rad'}"
-            for i, k in enumerate(f"{j}{OFFSET}" for j in self.state_names[: self.dof])
-            if k in extra}}
-
-    def _slide(self, i: int) -> bool:
-        cols = self.position_columns[i] if i < len(self.position_columns) else ()
-        return any(c.endswith("_m") for c in cols)
+            k: f"sensor offset of {k[:-len(OFFSET)]} (measured - true), {units[k]}"
+            for k in extra}}
 
     def offsets(self, p: dict) -> list:
         """Each measured position's sensor offset (an expression of ``p``, else its fixed or
