@@ -64,6 +64,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="0:10")
     ap.add_argument("--replicates", type=int, default=30)
+    ap.add_argument("--noises", default="white,coloured", help="which noises, in this order")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "identify_bootstrap.json"))
     a = ap.parse_args()
     lo, hi = (int(x) for x in a.seeds.split(":"))
@@ -76,7 +77,7 @@ def main() -> int:
         Path(path).write_text(spec.to_xml())
         model = load_model(path)
         model.jit = True                 # one compile, then every fit and refit in C
-        for noise in ("white", "coloured"):
+        for noise in a.noises.split(","):
             for seed in range(lo, hi):
                 record(path, 6.0, seed, noise == "coloured").to_csv(Path(d) / "r.csv", index=False)
                 rec = ident.read_record(Path(d) / "r.csv", model)
@@ -99,7 +100,7 @@ def main() -> int:
                     f"{'yes' if row[k]['covered_curvature'] else 'NO'}/"
                     f"{'yes' if row[k]['covered_bootstrap'] else 'NO'}" for k in TRUTH), flush=True)
     summary = {}
-    for noise in ("white", "coloured"):
+    for noise in a.noises.split(","):
         rows = [r for r in out["rows"] if r["noise"] == noise]
         summary[noise] = {k: {"n": len(rows),
                               "covered_curvature": sum(r[k]["covered_curvature"] for r in rows),
