@@ -382,7 +382,13 @@ def articulated_model(path: str) -> ParametricModel:
         from tspend.plants.articulated.derive import parameter_table
         from tspend.plants.articulated.tree import read_tree
 
-        got_names, got = parameter_table(read_tree(spec.compile()))
+        try:
+            compiled = spec.compile()
+        except ValueError as exc:
+            raise ScenarioError(f"the calibrated model does not compile: {exc} (a principal "
+                                f"inertia alone may break the triangle inequality: give the "
+                                f"other axes' with --fix)") from None
+        got_names, got = parameter_table(read_tree(compiled))
         for name in values:
             g = float(got[list(got_names).index(name)])
             if not math.isclose(g, float(values[name]), rel_tol=1e-9, abs_tol=1e-12):
