@@ -44,7 +44,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from tspend.errors import ScenarioError, TspendError
-from tspend.studies.identify_model import ParametricModel
+from tspend.studies.identify_model import OFFSET, ParametricModel
 
 __all__ = ["Record", "Fit", "FitFailed", "read_record", "column", "check_names",
            "identifiability", "fit", "RANK_TOL"]
@@ -168,6 +168,9 @@ def check_names(model: ParametricModel, names: Sequence[str]) -> tuple[str, ...]
     names = tuple(n.strip() for n in names if n.strip())
     if not names:
         raise ScenarioError("--params: name at least one parameter; allowed: " + ", ".join(model.names))
+    for n in names:
+        if n in model.refused:
+            raise ScenarioError(f"--params {n}: not offered: {model.refused[n]}")
     unknown = [n for n in names if n not in model.names]
     if unknown:
         raise ScenarioError(f"--params: unknown for the {model.domain} ({model.path}): "
@@ -188,8 +191,6 @@ class _Problem:
 
     def __init__(self, model: ParametricModel, rec: Record, names: tuple[str, ...],
                  starts: Sequence[int], length: int, use_velocities: bool) -> None:
-        import casadi
-
         self.model, self.rec, self.names = model, rec, names
         self.starts, self.K = list(starts), int(length)
         n, dof = len(model.state_names), model.dof
@@ -197,11 +198,23 @@ class _Problem:
         self.meas_rows = list(range(dof)) + (list(range(dof, n)) if use_velocities else [])
         substeps = max(1, int(round(rec.dt / model.timestep))) if model.timestep > 0 else 1
         h = rec.dt / substeps
+        self.scales = np.array([_scale(model, nm) for nm in names])
+        key = (names, tuple(sorted(model.fixed.items())), self.K, tuple(self.meas_rows),
+               substeps, h, model.jit)
+        if key not in model.compiled:
+            model.compiled[key] = self._build(substeps, h)
+        seg, self.traj = model.compiled[key]
+        self.seg = seg.map(len(self.starts), "serial") if self.starts else seg
+
+    def _build(self, substeps: int, h: float):
+        """The segment's simulation and its Jacobian (CasADi), and its full trajectory."""
+        import casadi
+
+        model, names, n, dof = self.model, self.names, self.n, self.dof
         s = casadi.SX.sym("s", n)
         u = casadi.SX.sym("u")
         d = casadi.SX.sym("d")
         theta = casadi.SX.sym("theta", self.k)   # scaled: p = theta * scale
-        self.scales = np.array([_scale(model, nm) for nm in names])
         p = {nm: theta[i] * self.scales[i] for i, nm in enumerate(names)}
         x = s
         for _ in range(substeps):
@@ -217,11 +230,16 @@ class _Problem:
         U = casadi.MX.sym("U", 1, self.K - 1)
         D = casadi.MX.sym("D", 1, self.K - 1)
         traj = casadi.horzcat(s0, sim(s0, U, D, th))                 # n x K
-        out = casadi.vec(traj[self.meas_rows, :].T)                  # channel-major
+        # what the sensors read: each position plus its sensor offset (0 unless fitted/fixed)
+        off = casadi.Function("off", [theta], [casadi.vertcat(
+            *[casadi.SX(o) for o in model.offsets(p)], casadi.SX.zeros(n - dof))])(th)
+        traj_meas = traj + casadi.repmat(off, 1, self.K)
+        out = casadi.vec(traj_meas[self.meas_rows, :].T)             # channel-major
         z = casadi.vertcat(s0, th)
         seg = casadi.Function("seg", [s0, th, U, D], [out, casadi.jacobian(out, z)])
-        self.seg = seg.map(len(self.starts), "serial") if self.starts else seg
-        self.traj = casadi.Function("traj", [s0, th, U, D], [traj])
+        if model.jit:
+            seg = _compiled(seg)
+        return seg, casadi.Function("traj", [s0, th, U, D], [traj])
 
     def data(self, arr: np.ndarray) -> np.ndarray:
         """(K - 1) samples of ``arr`` for each segment, side by side."""
@@ -241,6 +259,44 @@ class _Problem:
         out = np.asarray(out).T.reshape(nseg, len(self.meas_rows), self.K)
         jac = np.asarray(jac).reshape(len(self.meas_rows) * self.K, nseg, self.n + self.k)
         return out, np.transpose(jac, (1, 0, 2))
+
+
+def _compiled(fn):
+    """``fn`` compiled to C by the system's ``cc`` and loaded (``casadi.external``), kept in
+    the derivation cache (``$TSPEND_CACHE_DIR/articulated/identify``) under a hash of its
+    generated source, so a second process with the same machine, parameters and segment
+    length loads it without compiling; ``fn`` itself when there is no compiler or cache."""
+    import hashlib
+    import os
+    import shutil
+    import subprocess
+    import tempfile
+
+    import casadi
+
+    from tspend.plants.articulated.derive import cache_dir
+
+    cc = shutil.which("cc")
+    root = cache_dir()
+    if cc is None or root is None:
+        return fn
+    folder = root / "identify"
+    folder.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        cg = casadi.CodeGenerator("seg.c", {"with_header": False})
+        cg.add(fn)
+        cg.generate(tmp + os.sep)
+        src = Path(tmp, "seg.c").read_bytes()
+        key = hashlib.sha256(src).hexdigest()[:20]
+        lib = folder / f"seg_{key}.so"
+        if not lib.is_file():
+            out = Path(tmp, "seg.so")
+            r = subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp, "seg.c")), "-o",
+                                str(out), "-lm"], capture_output=True, text=True)
+            if r.returncode != 0:
+                return fn                   # CasADi's virtual machine, as without a compiler
+            os.replace(out, lib)            # atomic: a concurrent process sees all or nothing
+    return casadi.external(fn.name(), str(lib))
 
 
 def _initial_states(rec: Record, starts: Sequence[int], n: int, dof: int) -> np.ndarray:
@@ -275,8 +331,20 @@ class Fit:
     status: str
     #: for the figure: (t, measured, predicted) of the validation windows, per channel
     validation_trace: dict[str, Any] = field(default_factory=dict, repr=False)
+    #: "curvature" (Gauss-Newton) or "bootstrap" (segments resampled)
+    uncertainty: str = "curvature"
+    #: the bootstrap's estimates (replicates x parameters), or None
+    replicates: np.ndarray | None = field(default=None, repr=False)
+    #: the curvature's std, kept beside the bootstrap's for comparison
+    std_curvature: dict[str, float] = field(default_factory=dict)
 
     def interval(self, name: str, z: float = 1.959963984540054) -> tuple[float, float]:
+        """The 95 % interval: +/- z std (curvature), or the bootstrap's 2.5 and 97.5 %
+        percentiles."""
+        if self.uncertainty == "bootstrap" and self.replicates is not None:
+            col = self.replicates[:, self.names.index(name)]
+            lo, hi = np.percentile(col, [2.5, 97.5])
+            return float(lo), float(hi)
         v, s = self.values[name], self.std[name]
         return v - z * s, v + z * s
 
@@ -290,7 +358,11 @@ class Fit:
                 "rms_validation_nominal": self.rms_validation_nominal,
                 "iterations": self.iterations, "segments": self.segments,
                 "segment_s": self.segment_s, "train_s": self.train_s,
-                "validation_s": self.validation_s, "status": self.status}
+                "validation_s": self.validation_s, "status": self.status,
+                "uncertainty": self.uncertainty,
+                "std_curvature": self.std_curvature,
+                "bootstrap_replicates": (0 if self.replicates is None else
+                                         int(self.replicates.shape[0]))}
 
 
 def auto_segment(model: ParametricModel, dt: float) -> float:
@@ -346,6 +418,11 @@ def identifiability(model: ParametricModel, rec: Record, names: tuple[str, ...],
         raise ScenarioError(f"DATA: the record excites none of {', '.join(names)} (the motion "
                             f"does not depend on them: is the input '{rec.columns['input']}' zero?)")
     dead = [nm for nm, c in zip(names, norms) if c <= 1e-9 * norms.max()]
+    if dead and all(nm.endswith(OFFSET) for nm in dead):
+        raise ScenarioError(f"--params {', '.join(dead)}: the recorded motion does not depend "
+                            f"on a constant offset of {'this joint' if len(dead) == 1 else 'these joints'} "
+                            f"(the equations do not change when it moves, so each segment's "
+                            f"start absorbs the offset): not identifiable")
     if dead:
         raise ScenarioError(f"DATA: the input '{rec.columns['input']}' never excites "
                             f"{', '.join(dead)}: the recorded motion does not depend on "
@@ -507,9 +584,15 @@ def _validate(model: ParametricModel, rec: Record, names, theta: np.ndarray, sca
 
 def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *,
         segment_s: float | None = None, validation: float = 0.25, head_share: float = 0.2,
-        use_velocities: bool = False, max_nfev: int = 100) -> Fit:
+        use_velocities: bool = False, max_nfev: int = 100, bootstrap: int = 0,
+        rng: np.random.Generator | None = None) -> Fit:
     """Fit ``names`` to ``rec`` (see the module docstring).  Raises FitFailed when the
-    solver stops without converging or the curvature is singular."""
+    solver stops without converging or the curvature is singular.
+
+    ``bootstrap`` > 0: the uncertainty from that many refits on the training segments
+    resampled with replacement (``rng`` draws them; each refit starts from the fit), a
+    block bootstrap that keeps each segment's own noise, coloured or not: ``std`` is the
+    replicates' spread and the interval their 2.5-97.5 % percentiles."""
     N = rec.t.size
     segment_s = segment_s or auto_segment(model, rec.dt)
     K = max(3, int(round(segment_s / rec.dt)) + 1)
@@ -552,6 +635,13 @@ def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *,
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     values = theta * prob.scales
+    std_curv = {n: float(s) for n, s in zip(names, std)}
+    replicates = None
+    if bootstrap > 0:
+        replicates = _bootstrap(prob, S0, theta, sigma, bootstrap,
+                                rng if rng is not None else np.random.default_rng(0), max_nfev)
+        std = replicates.std(axis=0, ddof=1)
+        corr = np.corrcoef(replicates, rowvar=False).reshape(k, k)
     out, _ = prob.simulate(S0, theta)
     resid = out - meas
     chans = _channel_names(model, prob.meas_rows)
@@ -570,4 +660,26 @@ def fit(model: ParametricModel, rec: Record, names: tuple[str, ...], *,
                segments=len(starts), segment_s=(K - 1) * rec.dt,
                train_s=float(rec.t[last - 1] - rec.t[0]),
                validation_s=float(rec.t[-1] - rec.t[last]), status=r.message.strip(),
-               validation_trace=trace)
+               validation_trace=trace, uncertainty="bootstrap" if bootstrap > 0 else "curvature",
+               replicates=replicates, std_curvature=std_curv)
+
+
+def _bootstrap(prob: _Problem, S0: np.ndarray, theta: np.ndarray, sigma: np.ndarray,
+               replicates: int, rng: np.random.Generator, max_nfev: int) -> np.ndarray:
+    """``replicates`` refits, each on the segments drawn with replacement (the same
+    weights; warm-started at the fit): the estimates, replicates x parameters."""
+    nseg = len(prob.starts)
+    if nseg < 2:
+        raise ScenarioError("--uncertainty bootstrap: needs at least 2 training segments "
+                            "(a longer record or a shorter --segment)")
+    out = np.empty((replicates, prob.k))
+    for b in range(replicates):
+        idx = rng.integers(0, nseg, nseg)
+        sub = _Problem(prob.model, prob.rec, prob.names, [prob.starts[i] for i in idx], prob.K,
+                       len(prob.meas_rows) > prob.dof)
+        _, th, r = _solve(sub, S0[idx], theta, sigma, True, max_nfev)
+        if r.status <= 0:
+            raise FitFailed(f"bootstrap replicate {b}: the refit did not converge "
+                            f"({r.message.strip()})")
+        out[b] = th * prob.scales
+    return out

@@ -13,7 +13,13 @@ A :class:`ParametricModel` is what :mod:`tspend.studies.identify` fits:
   line per change (the XML comments of the calibrated model);
 * ``positions`` / ``state_names``: the measured coordinates and the state order.
 
-Implemented for the cart-pole (``cartpole`` domain) and the Furuta pendulum (``furuta``).
+Implemented for the cart-pole (``cartpole`` domain), the Furuta pendulum (``furuta``) and
+any machine of the articulated domain (``articulated``: the double cart-pole and the
+other hinge/slide chains), whose equations come from :meth:`Machine.casadi_f`'s derivation
+with the named entries of its parameter vector (``link1.mass``, ``link1.ipos_z``,
+``hinge1.damping`` ...) as inputs.  Every model also offers a *sensor offset* per measured
+joint (``<joint>.offset``: the record reads ``q + offset``), which is no part of the
+MJCF.
 """
 
 from __future__ import annotations
@@ -27,7 +33,12 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 
-__all__ = ["ParametricModel", "cartpole_model", "furuta_model", "load_model"]
+__all__ = ["ParametricModel", "cartpole_model", "furuta_model", "articulated_model",
+           "load_model", "OFFSET"]
+
+#: the suffix of a sensor offset's name (``hinge1.offset``): a constant the sensor adds to
+#: the joint's position (measured = true + offset)
+OFFSET = ".offset"
 
 
 @dataclass
@@ -53,6 +64,32 @@ class ParametricModel:
     timestep: float = 0.0
     #: parameters held at a known value other than the MJCF's (``--fix gear=1.08``)
     fixed: dict = field(default_factory=dict)
+    #: names a user may ask for that cannot be fitted, with the reason
+    refused: dict = field(default_factory=dict)
+    #: compile each segment's simulation to C (``tspend identify --jit``; kept in the
+    #: derivation cache): ~20x faster evaluations for a compile of some 10-40 s per
+    #: machine, parameter set and segment length
+    jit: bool = False
+    #: the segment functions built so far, by (parameters, fixed values, length, channels)
+    compiled: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        # one sensor offset per measured joint, 0 in the model (a sensor's, not the MJCF's)
+        extra = [f"{j}{OFFSET}" for j in self.state_names[: self.dof]
+                 if f"{j}{OFFSET}" not in self.nominal]
+        self.names = tuple(self.names) + tuple(extra)
+        self.nominal = {**self.nominal, **{k: 0.0 for k in extra}}
+        units = {f"{j}{OFFSET}": ("m" if any(c.endswith("_m") for c in cols) else "rad")
+                 for j, cols in zip(self.state_names[: self.dof], self.position_columns)}
+        self.meaning = {**self.meaning, **{
+            k: f"sensor offset of {k[:-len(OFFSET)]} (measured - true), {units[k]}"
+            for k in extra}}
+
+    def offsets(self, p: dict) -> list:
+        """Each measured position's sensor offset (an expression of ``p``, else its fixed or
+        nominal value 0)."""
+        v = {**self.fixed, **p}
+        return [v.get(f"{j}{OFFSET}", 0.0) for j in self.state_names[: self.dof]]
 
     @property
     def dof(self) -> int:
@@ -68,7 +105,11 @@ class ParametricModel:
         import mujoco
 
         spec = mujoco.MjSpec.from_file(self.path)
-        changes = self._write(spec, values)
+        physical = {k: v for k, v in values.items() if not k.endswith(OFFSET)}
+        changes = self._write(spec, physical)
+        # a sensor offset is no part of the machine: named, not written
+        changes += [f"{k} ({self.meaning[k]}): {v:.6g}: not a model parameter; subtract it "
+                    f"from the measurements" for k, v in sorted(values.items()) if k.endswith(OFFSET)]
         try:
             spec.compile()
         except ValueError as exc:
@@ -237,9 +278,138 @@ def furuta_model(path: str, arm: str = "arm", pendulum: str = "pendulum",
         position_signs=(1.0, 1.0), _rhs=rhs, _write=write, timestep=float(model.opt.timestep))
 
 
+#: the articulated parameter vector's entries identify may fit, by suffix (the body's
+#: frame offsets ``pos_*``, spring references, ranges and gravity are geometry or settings)
+_ARTICULATED_FITTABLE = ("mass", "ipos_x", "ipos_y", "ipos_z", "inertia_1", "inertia_2",
+                         "inertia_3", "armature", "damping", "stiffness", "gear", "gain0",
+                         "bias1", "bias2")
+_ARTICULATED_MEANING = {
+    "mass": "mass of body {0}, kg", "ipos_x": "centre of mass of body {0}, x in its frame, m",
+    "ipos_y": "centre of mass of body {0}, y in its frame, m",
+    "ipos_z": "centre of mass of body {0}, z in its frame, m",
+    "inertia_1": "principal inertia 1 of body {0} about its centre of mass, kg m^2",
+    "inertia_2": "principal inertia 2 of body {0} about its centre of mass, kg m^2",
+    "inertia_3": "principal inertia 3 of body {0} about its centre of mass, kg m^2",
+    "armature": "armature of joint {0}", "damping": "viscous damping of joint {0}",
+    "stiffness": "stiffness of joint {0}", "gear": "gear of actuator {0}",
+    "gain0": "gain of actuator {0} (gainprm[0])", "bias1": "position bias of actuator {0} (biasprm[1])",
+    "bias2": "velocity bias of actuator {0} (biasprm[2])"}
+#: why MuJoCo's dry friction is refused (docs/identify.md)
+FRICTIONLOSS_REFUSED = (
+    "MuJoCo's frictionloss is a force of its constraint solver (soft, regularised by "
+    "solreffriction/solimpfriction, bounded by the value), not a term of the derived "
+    "equations (docs/articulated.md names it a departure): a smooth stand-in (tanh) would "
+    "fit a number that is not MuJoCo's frictionloss")
+
+
+def articulated_model(path: str) -> ParametricModel:
+    """A machine of the articulated domain (any hinge/slide tree, docs/articulated.md): its
+    parameter vector's physical entries (:data:`_ARTICULATED_FITTABLE`, named as
+    :attr:`Machine.parameter_names`: ``link1.mass``, ``link1.ipos_z``, ``link1.inertia_2``,
+    ``hinge1.damping``, ``motor.gear`` ...) as inputs of the derived equations (3) of
+    :mod:`tspend.plants.articulated.derive`, with MuJoCo's ctrl and force clips; ``d`` is a
+    generalised force on the tracked pole's joint, as the plants apply it."""
+    import casadi
+
+    from tspend.plants.articulated.machine import load_machine
+
+    mach = load_machine(path)
+    tree = mach.tree
+    allp = list(mach.parameter_names)
+    p0 = np.asarray(mach.p, dtype=float)
+    names = tuple(n for n in allp if n.rsplit(".", 1)[-1] in _ARTICULATED_FITTABLE)
+    nominal = {n: float(p0[allp.index(n)]) for n in names}
+    meaning = {n: _ARTICULATED_MEANING[n.rsplit(".", 1)[-1]].format(n.rsplit(".", 1)[0])
+               for n in names}
+    slide_units = {"armature": ("kg", "kg m^2"), "damping": ("N s/m", "N m s/rad"),
+                   "stiffness": ("N/m", "N m/rad")}
+    for j in tree.joints:
+        for k, (us, uh) in slide_units.items():
+            meaning[f"{j.name}.{k}"] += ", " + (us if j.kind == "slide" else uh)
+    nv = mach.nv
+    nu = len(tree.actuators)
+    d_joint = mach.view_joint
+    dyn = mach.derivation.dynamics           # with MuJoCo's ctrl/force clips, as it applies them
+
+    def rhs(s, u, d, p):
+        pv = casadi.vertcat(*[p[n] if n in p else float(p0[i]) for i, n in enumerate(allp)])
+        uv = casadi.vertcat(*[u if k == mach.actuator_index else 0.0 for k in range(nu)])
+        qfrc = casadi.vertcat(*[d if k == d_joint else 0.0 for k in range(nv)])
+        M, r = dyn(s[:nv], s[nv:], uv, qfrc, pv)
+        return casadi.vertcat(s[nv:], casadi.solve(casadi.reshape(M, nv, nv), r))
+
+    def write(spec, values):
+        out = []
+        for name in sorted(values):
+            owner, kind = name.rsplit(".", 1)
+            v = float(values[name])
+            if kind == "mass":
+                spec.body(owner).mass = v
+            elif kind.startswith("ipos_"):
+                ip = np.array(spec.body(owner).ipos, dtype=float)
+                ip["xyz".index(kind[-1])] = v
+                spec.body(owner).ipos = ip
+            elif kind.startswith("inertia_"):
+                b = spec.body(owner)
+                if not np.isnan(b.fullinertia[0]):
+                    raise ScenarioError(f"--out: body {owner!r} gives fullinertia; write its "
+                                        f"principal inertia by hand ({name} = {v:.6g})")
+                ii = np.array(b.inertia, dtype=float)
+                ii[int(kind[-1]) - 1] = v
+                b.inertia = ii
+            elif kind in ("damping", "stiffness"):
+                arr = np.array(getattr(spec.joint(owner), kind), dtype=float).ravel()
+                arr = np.atleast_1d(arr)
+                arr[0] = v
+                setattr(spec.joint(owner), kind, arr if arr.size > 1 else v)
+            elif kind == "armature":
+                spec.joint(owner).armature = v
+            elif kind == "gear":
+                g = np.array(spec.actuator(owner).gear, dtype=float)
+                g[0] = v
+                spec.actuator(owner).gear = g
+            elif kind in ("gain0", "bias1", "bias2"):
+                attr = "gainprm" if kind.startswith("gain") else "biasprm"
+                arr = np.array(getattr(spec.actuator(owner), attr), dtype=float)
+                arr[int(kind[-1])] = v
+                setattr(spec.actuator(owner), attr, arr)
+            out.append(f"{name} ({meaning[name]}): {nominal[name]:.6g} -> {v:.6g}")
+        # read back what MuJoCo compiled (a default or inertiafromgeom could override an edit)
+        from tspend.plants.articulated.derive import parameter_table
+        from tspend.plants.articulated.tree import read_tree
+
+        try:
+            compiled = spec.compile()
+        except ValueError as exc:
+            raise ScenarioError(f"the calibrated model does not compile: {exc} (a principal "
+                                f"inertia alone may break the triangle inequality: give the "
+                                f"other axes' with --fix)") from None
+        got_names, got = parameter_table(read_tree(compiled))
+        for name in values:
+            g = float(got[list(got_names).index(name)])
+            if not math.isclose(g, float(values[name]), rel_tol=1e-9, abs_tol=1e-12):
+                raise ScenarioError(f"--out: {name} = {values[name]:.9g} written, but the "
+                                    f"compiled model has {g:.9g}")
+        return out
+
+    refused = {f"{j.name}.frictionloss": FRICTIONLOSS_REFUSED for j in tree.joints}
+    cols = []
+    for j in tree.joints:
+        unit = "m" if j.kind == "slide" else "rad"
+        cols.append(((f"{j.name}_{unit}",), (f"{j.name}_dot_{unit}_s",)))
+    unit_u = mach.input_unit.replace(" ", "_")
+    return ParametricModel(
+        domain="articulated", path=str(path), names=names, nominal=nominal, meaning=meaning,
+        state_names=tuple(mach.state_names), position_columns=tuple(c[0] for c in cols),
+        velocity_columns=tuple(c[1] for c in cols), input_columns=(f"u_{unit_u}", "u"),
+        disturbance_columns=("d",), position_signs=(1.0,) * nv, _rhs=rhs, _write=write,
+        timestep=float(mach.model.opt.timestep), refused=refused)
+
+
 def load_model(path: str) -> ParametricModel:
     """The parametric model of the MJCF at ``path``, its domain recognised from its joints:
-    a slide and a hinge -> the cart-pole; two hinges with a motor -> the Furuta."""
+    a slide and a hinge -> the cart-pole; two hinges with a motor -> the Furuta; any other
+    hinge/slide tree -> the articulated domain (its derived equations)."""
     import mujoco
 
     p = Path(path)
@@ -259,5 +429,4 @@ def load_model(path: str) -> ParametricModel:
         return cartpole_model(str(p), names[0], names[1], act)
     if types == [hinge, hinge]:
         return furuta_model(str(p), names[0], names[1], act)
-    raise ScenarioError(f"--model {path}: joints {', '.join(names)}: identification supports "
-                        f"the cart-pole (slide + hinge) and the Furuta (two hinges) for now")
+    return articulated_model(str(p))
