@@ -129,7 +129,7 @@ def main() -> None:
     ap.add_argument("--kinds", default="pd,second_type,policy")
     ap.add_argument("--machines", default=",".join(MACHINES))
     ap.add_argument("--resamples", type=int, default=2999)
-    ap.add_argument("--barrier", default="hocbf", choices=("hocbf", "braking"),
+    ap.add_argument("--barrier", default="hocbf", choices=("hocbf", "braking", "lyapunov"),
                     help="the filter's barrier for position rows ([safety] barrier)")
     ap.add_argument("--ratio-only", action="store_true",
                     help="only the filter's compute per sample against mj_step")

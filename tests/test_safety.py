@@ -236,3 +236,29 @@ def test_braking_rows_against_h_b_along_the_model():
             assert c[i] * u - d[i] == pytest.approx(-(h_dot + cfg.alpha_1 * h_b(s)), rel=1e-5,
                                                     abs=1e-5)
         assert approaching == 1
+
+
+def test_lyapunov_barrier_keeps_rail_and_pole_where_the_cart_barrier_drops_the_pole():
+    """(S5): on the 1 m rail the cart-only barrier (S1) keeps the rail and lets the pole
+    fall; the LQR ellipsoid keeps both, and the ellipsoid lies inside the rail (its largest
+    |slider|, found by scipy on the boundary, is the tightened rail)."""
+    from tspend.controllers.safety import wrap
+
+    scn = override(load_scenario("scenarios/pendulum_finite_rail.toml"),
+                   **{"effects.rail": 1.0, "run.duration": 6.0, "safety.filter": "cbf"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cart_only = run(scn, controller="pd", keep_history=False)
+        both = run(override(scn, **{"safety.barrier": "lyapunov"}), controller="pd",
+                   keep_history=False)
+    assert cart_only.status == "fell"
+    assert cart_only.metrics["constraints"]["rail"]["samples_outside"] == 0
+    assert both.status == "completed"
+    assert both.metrics["constraints"]["rail"]["samples_outside"] == 0
+    assert both.metrics["joints"]["slider"]["max_abs"] < 1.0
+    # the ellipsoid s^T P s <= c against the rail tightened by the margin
+    filt, _ = _filter(**{"safety.barrier": "lyapunov"})
+    P, c = filt._P, filt._level
+    best = minimize(lambda s: -s[0], np.full(4, 1e-3), method="SLSQP",
+                    constraints=[{"type": "ineq", "fun": lambda s: c - s @ P @ s}])
+    assert -best.fun == pytest.approx(1.0 - 0.05, rel=1e-5)

@@ -212,7 +212,10 @@ class SafetyConfig:
     #: barrier (S1) with alpha_1, alpha_2; "braking", the stopping-distance barrier (S4),
     #: which leaves u alone until the room to brake at ``braking`` x the input's authority
     #: runs out (docs/safety.md)
-    barrier: str = field(default="hocbf", metadata={"choices": ("hocbf", "braking")})
+    #: "lyapunov": the sublevel set s^T P s <= c of the full-state LQR's Riccati matrix P,
+    #: c the largest whose ellipsoid lies inside every position row (S5): it keeps the
+    #: whole machine (pole and cart) in a set the LQR can hold, not the cart alone
+    barrier: str = field(default="hocbf", metadata={"choices": ("hocbf", "braking", "lyapunov")})
     #: (S4)'s deceleration as a share of what the input's range gives at rest
     braking: float = field(default=0.1, metadata=_positive())
     #: a fraction of each box's half-width kept as a margin against model mismatch and

@@ -22,6 +22,17 @@ half-width), ``h = b - a_q q - a_v q'`` and
 
 * a row on the input ``a_u u <= b - a_s s`` is kept as it is (relative degree 0).
 
+With ``barrier = "lyapunov"`` the position rows are replaced by one ellipsoid: ``P`` the
+full-state LQR's Riccati matrix at the upright (its default weights), ``h = c - s^T P s``
+with ``c = min_i b_i^2 / (a_i^T P^-1 a_i)`` over the position rows ``a_i s <= b_i`` (the
+largest ellipsoid inside all of them), kept by ``h' + alpha_1 h >= 0`` (relative degree
+1: ``h' = -2 s^T P s'``, ``s' = [q', f + g u]``)::
+
+      (2 s^T P_v g) u <= -2 s^T P [q'; f] + alpha_1 h                               (S5)
+
+``P_v`` the columns of ``P`` on the velocities.  The set holds the pole and the cart
+together, so keeping it does not trade the rail for a fall as (S1) on the cart alone can.
+
 With ``v = u / u_scale`` (the input's range scaled to [-1, 1]) and every row ``c_i u <= d_i``
 normalised to ``sign(c_i) v <= d_i / (|c_i| u_scale)``, the QP per sample is::
 
@@ -113,8 +124,13 @@ class SafetyFilter(Controller):
 
     has_snapshots = False
 
-    def __init__(self, inner: Controller, model: Any, cfg: SafetyConfig) -> None:
+    def __init__(self, inner: Controller, model: Any, cfg: SafetyConfig,
+                 lyapunov_P: np.ndarray | None = None) -> None:
         import casadi
+
+        #: (S5)'s P (``barrier = "lyapunov"``) and its level c (set from the rows)
+        self._P = lyapunov_P
+        self._level = math.inf
 
         self.inner = inner
         self.model = model
@@ -195,6 +211,17 @@ class SafetyFilter(Controller):
         self.u_scale = max(finite) if finite else 1.0
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
+        if self._P is not None:
+            # (S5): the position rows give way to the largest LQR ellipsoid inside them all
+            P_inv = np.linalg.inv(self._P)
+            dof = model.dof
+            on_q = np.array([not A[i, dof:].any() and A[i, :dof].any() for i in range(len(b))],
+                            dtype=bool)
+            levels = [b[i] ** 2 / float(A[i, :-1] @ P_inv @ A[i, :-1])
+                      for i in np.flatnonzero(on_q) if b[i] > 0.0]
+            if levels:
+                self._level = min(levels)
+                A, b = A[~on_q], b[~on_q]
         self._rows = (perm, A, b)
         # (S4)'s deceleration per row: a share of what the input's range gives at rest
         g0 = model.input_map(np.zeros(model.size))[1]
@@ -209,6 +236,7 @@ class SafetyFilter(Controller):
         elif self.cfg.solver == "osqp":
             opts["osqp"] = {"verbose": False, "eps_abs": 1e-10, "eps_rel": 1e-10,
                             "max_iter": 20000, "polish": True}
+        m += int(math.isfinite(self._level))
         self._solver = cas.conic("safety_filter", self.cfg.solver,
                                  {"h": cas.Sparsity.dense(2, 2), "a": cas.Sparsity.dense(max(m, 1), 2)},
                                  opts)
@@ -222,6 +250,12 @@ class SafetyFilter(Controller):
             c, d = braking_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self._a_max)
         else:
             c, d = barrier_rows(A, b, self.model.dof, s, f, g, self.cfg.alpha_1, self.cfg.alpha_2)
+        if math.isfinite(self._level):
+            P, dof = self._P, self.model.dof
+            h = self._level - s @ P @ s
+            s_dot0 = np.concatenate([s[dof:], f])
+            c = np.append(c, 2.0 * (s @ P[:, dof:]) @ g)                             # (S5)
+            d = np.append(d, -2.0 * s @ P @ s_dot0 + self.cfg.alpha_1 * h)
         u_c = min(max(u_c, self.u_lo), self.u_hi)
         keep = np.abs(c) > 1e-12 * self.u_scale
         S = self.u_scale
@@ -233,7 +267,7 @@ class SafetyFilter(Controller):
         v_c = u_c / S
         # a row the input does not reach at this state (c = 0: its relative degree is higher
         # here, or (S4) moving away) puts no condition on u at this sample
-        m = max(A.shape[0], 1)
+        m = max(c.size, 1)
         a = np.zeros((m, 2))
         uba = np.full(m, np.inf)
         k = np.flatnonzero(keep)
@@ -308,4 +342,12 @@ def wrap(scenario: Any, inner: Controller) -> SafetyFilter:
                             f"'{scenario.plant.kind}' has no full-state model (q'' = f + g u) "
                             f"for the barrier conditions; allowed: \"off\"")
     cfg = scenario.safety
-    return SafetyFilter(inner, full_model(scenario), cfg)
+    model = full_model(scenario)
+    P = None
+    if cfg.barrier == "lyapunov":
+        from tspend.controllers.lqr import default_state_weights, design_model, lqr_full_gain
+
+        A, B = design_model(scenario)
+        b_pole = float(B[model.dof + model.pole, 0])
+        _, P = lqr_full_gain(A, B, np.diag(default_state_weights(model)), b_pole ** 2)
+    return SafetyFilter(inner, model, cfg, lyapunov_P=P)
