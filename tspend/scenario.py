@@ -120,6 +120,10 @@ def _run(r: Table) -> RunConfig:
         control_delay=r.integer("control_delay", d.control_delay, low=0),
         controller=_default_kind(r),
     )
+    if not cfg.duration / cfg.dt <= MAX_STEPS:
+        # too many steps (1e308 s has no integer count): the scenario's own check refuses
+        # it below with its message; the delay check here has nothing to compare against
+        return cfg
     steps = int(round(cfg.duration / cfg.dt))
     if cfg.control_delay >= steps:
         # the controller's output would never reach the plant: nothing of it would be run

@@ -84,6 +84,12 @@ def _old_metric_list(args: argparse.Namespace) -> None:
     if value is None or value.lower().endswith(".json") or args.metric is not None:
         return
     from tspend.cli.main import say
+    from tspend.studies.stats import COMPARED_METRICS
+
+    if not all(item in COMPARED_METRICS for item in (_list(value) or ["?"])):
+        # not a list of metrics: a path, checked (and refused in one line) as the new
+        # --metrics is
+        return
 
     say("warning: --metrics M1,M2 (the metrics compared) is deprecated and goes in the next "
         "release; use --metric M1,M2 (--metrics PATH.json now writes the statistics)")

@@ -150,8 +150,6 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
 
     problem = missing_extra("optuna", "tune")
     if problem:
-        from tspend.errors import ScenarioError
-
         raise ScenarioError(problem)
     import optuna
 
