@@ -311,3 +311,21 @@ def test_a_signal_stops_a_plugin_sleeping_in_its_step() -> None:
     end = caught.value.end
     assert end.status == "interrupted" and end.metrics["steps"] == 10  # the samples before
     assert stop.in_controller is False
+
+
+@pytest.mark.parametrize("argv, words", [
+    (("run", "ex3_pendulum_ode", "--duration", "1e308"), "duration / dt"),
+    (("tune", "ex3_pendulum_ode", "--controller", "pd", "--trials", "1", "--seeds", "0:1",
+      "--storage", "sqlite:///no/such/dir/x.db", "--out", "t.toml"), "--storage"),
+    (("compare", "ex3_pendulum_ode", "--controller", "lqr,pd", "--seeds", "0:2",
+      "--metrics", "x.txt"), "must end in .json"),
+])
+def test_inputs_the_hostile_benchmark_found_are_one_line_and_exit_2(tmp_path, argv, words):
+    """Each once ended in an internal error (an OverflowError, an UnboundLocalError) or in
+    two lines (a path read as a list of metrics)."""
+    from cli_harness import tspend
+
+    r = tspend(*argv, cwd=tmp_path)
+    assert r.status == 2
+    assert words in r.one_error_line()
+    assert not (tmp_path / "t.toml").exists()
