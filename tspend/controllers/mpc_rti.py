@@ -65,18 +65,9 @@ _QP_OPTIONS: dict[str, dict[str, Any]] = {
 def cache_dir() -> Path | None:
     """Where compiled MPC functions are kept: ``$TSPEND_CACHE_DIR/mpc``, else
     ``$XDG_CACHE_HOME/tspend/mpc`` (``~/.cache``); None when it cannot be written."""
-    root = os.environ.get("TSPEND_CACHE_DIR")
-    if not root:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        root = os.path.join(base, "tspend")
-    path = Path(root) / "mpc"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=path, delete=True)
-        probe.close()
-    except OSError:
-        return None
-    return path
+    from tspend.runtime.jit import writable_cache
+
+    return writable_cache("mpc")
 
 
 def compiled_function(fn: Any) -> Any:

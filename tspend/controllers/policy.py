@@ -55,18 +55,9 @@ class PolicySettings(KindSettings):
 
 def find_policy(path: str, scenario: "Scenario") -> Path:
     """The file ``path`` names, looked for like a scenario's MJCF (ScenarioError if none)."""
-    from tspend.plants.domain import project_root
+    from tspend.plants.domain import find_named_file
 
-    p = Path(path)
-    bases = [Path.cwd()]
-    if scenario.path and scenario.path != "<string>":
-        bases.append(Path(scenario.path).resolve().parent)
-    bases.append(project_root())
-    for cand in ([p] if p.is_absolute() else [b / p for b in bases]):
-        if cand.is_file():
-            return cand
-    raise ScenarioError(f"{scenario.path or scenario.name}: controllers.policy.path = {path!r}: "
-                        f"no such file")
+    return find_named_file(path, scenario, "controllers.policy.path")
 
 
 class PolicyController(Controller):

@@ -77,18 +77,9 @@ class TVLQRSettings(KindSettings):
 
 def find_plan(path: str, scenario: "Scenario") -> Path:
     """The plan file ``path`` names, looked for like a scenario's MJCF."""
-    from tspend.plants.domain import project_root
+    from tspend.plants.domain import find_named_file
 
-    p = Path(path)
-    bases = [Path.cwd()]
-    if scenario.path and scenario.path != "<string>":
-        bases.append(Path(scenario.path).resolve().parent)
-    bases.append(project_root())
-    for cand in ([p] if p.is_absolute() else [b / p for b in bases]):
-        if cand.is_file():
-            return cand
-    raise ScenarioError(f"{scenario.path or scenario.name}: controllers.tvlqr.plan = {path!r}: "
-                        f"no such file")
+    return find_named_file(path, scenario, "controllers.tvlqr.plan")
 
 
 def tvlqr_gains(model: "FullModel", plan: Plan, Q: np.ndarray, R: float,

@@ -40,6 +40,7 @@ import numpy as np
 from numba import carray, njit, types
 from numba.extending import intrinsic
 
+from tspend.loop.fastloop import _beyond  # the task's termination check, one definition
 from tspend.runtime.jit import JIT
 
 __all__ = ["BAD_INPUT", "ENDED", "NOT_FINITE", "REFILL", "RUNNING", "UNSTABLE", "Frame",
@@ -185,16 +186,6 @@ def _read_state(qpos: np.ndarray, qvel: np.ndarray, full: np.ndarray) -> None:
         full[j] = qpos[j]
     for j in range(qvel.size):
         full[nq + j] = qvel[j]
-
-
-@njit(**_JIT)
-def _beyond(full: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
-    """The task's termination check (tspend.task.Task.ended): NaN crosses no bound."""
-    for j in range(full.size):
-        v = full[j]
-        if v < lo[j] or v > hi[j]:
-            return True
-    return False
 
 
 @njit(**_JIT)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import re
 from abc import ABC, abstractmethod
-import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -610,3 +609,20 @@ class Domain(ABC):
 def project_root() -> Path:
     """The checkout that holds ``models/`` and ``scenarios/`` (the package's parent)."""
     return Path(__file__).resolve().parents[2]
+
+
+def find_named_file(path: str, scenario: "Scenario", key: str) -> Path:
+    """The file a scenario's setting ``key`` names (a policy, a plan), looked for like a
+    scenario's MJCF: as given when absolute, else beside the working directory, the
+    scenario file and the project (ScenarioError naming ``key`` if none)."""
+    from tspend.errors import ScenarioError
+
+    p = Path(path)
+    bases = [Path.cwd()]
+    if scenario.path and scenario.path != "<string>":
+        bases.append(Path(scenario.path).resolve().parent)
+    bases.append(project_root())
+    for cand in ([p] if p.is_absolute() else [b / p for b in bases]):
+        if cand.is_file():
+            return cand
+    raise ScenarioError(f"{scenario.path or scenario.name}: {key} = {path!r}: no such file")

@@ -56,3 +56,23 @@ def invalidate_stale_cache(package_dir: Path) -> bool:
         return dropped
     except OSError:
         return False
+
+
+def writable_cache(folder: str) -> "Path | None":
+    """``$TSPEND_CACHE_DIR/<folder>``, else ``$XDG_CACHE_HOME/tspend/<folder>`` (``~/.cache``),
+    created; None when it cannot be written (then callers build anew in each process)."""
+    import os
+    import tempfile
+
+    root = os.environ.get("TSPEND_CACHE_DIR")
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        root = os.path.join(base, "tspend")
+    path = Path(root) / folder
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=path, delete=True)
+        probe.close()
+    except OSError:
+        return None
+    return path

@@ -351,18 +351,9 @@ def cache_dir() -> Path | None:
     """Where derivations are kept: ``$TSPEND_CACHE_DIR``, else ``$XDG_CACHE_HOME/tspend``,
     else ``~/.cache/tspend``; None when none of them can be written (then each process
     derives and compiles anew)."""
-    root = os.environ.get("TSPEND_CACHE_DIR")
-    if not root:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        root = os.path.join(base, "tspend")
-    path = Path(root) / "articulated"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=path, delete=True)
-        probe.close()
-    except OSError:
-        return None
-    return path
+    from tspend.runtime.jit import writable_cache
+
+    return writable_cache("articulated")
 
 
 _LOADED: dict[str, Any] = {}
