@@ -76,7 +76,7 @@ def check_names(names: Any, known: dict[str, float], where: str, prefix: str = "
         kind = QUANTITIES[parts[1]] if parts else "body or joint"
         raise ScenarioError(
             f"{where}: {prefix}{name}: the model has no {kind} {parts[0] if parts else name!r}; "
-            f"allowed: BODY.mass for bodies {', '.join(bodies) or 'none'}, JOINT.damping and "
+            f"allowed: BODY.mass for bodies {', '.join(bodies) or 'none'}; JOINT.damping and "
             f"JOINT.armature for joints {', '.join(joints) or 'none'}")
 
 
