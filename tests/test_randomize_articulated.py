@@ -170,3 +170,12 @@ def test_bad_model_name_or_value_exits_2_in_one_line(tmp_path, capsys, name, old
     assert "bad.toml" in err
     for w in words:
         assert w in err, (w, err)
+
+
+def test_set_on_a_quoted_name_updates_its_draw():
+    """``--set randomize.link1.mass.low=...`` reaches the file's ``"link1.mass"`` entry
+    (TOML reads the dotted override as nested tables)."""
+    scn = override(_at(0), **{"randomize.link1.mass.low": 0.5, "randomize.link1.mass.high": 0.6})
+    (d,) = [d for d in scn.randomize if d.name == "link1.mass"]
+    assert (d.a, d.b, d.relative) == (0.5, 0.6, True)
+    assert 0.25 <= randomize.draw(scn).values["link1.mass"] <= 0.3

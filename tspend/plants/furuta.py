@@ -102,7 +102,8 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
         write_values(spec, values, where)
         model = spec.compile()
     except ValueError as exc:
-        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
+        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
     check_values(model, values, where)
     names = tuple(model.joint(j).name for j in range(model.njnt))
     for joint in (arm, pendulum):

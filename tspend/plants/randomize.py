@@ -12,7 +12,15 @@ started from another state::
 
 Every key names a numeric ``[plant]`` key of the scenario's plant kind (the cart-poles'
 ``M m l g J gear`` and friction, the chains' own) or ``x0`` (a list of one table per entry,
-``{}`` for an entry kept).  A distribution is
+``{}`` for an entry kept).  On a machine read from its MJCF (the articulated and Furuta
+kinds) a key may also name a number of the model by its own body and joint names,
+``BODY.mass`` (its inertia scaled with it), ``JOINT.damping`` or ``JOINT.armature``
+(:mod:`tspend.plants.articulated.model_numbers`; quoted, ``"link1.mass" = {...}``, or as a
+TOML dotted key, ``link1.mass = {...}``)::
+
+    "link1.mass" = {dist = "uniform", low = 0.9, high = 1.1, relative = true}
+
+A distribution is
 
 * ``uniform``: ``low``, ``high`` (``low < high``);
 * ``normal``: ``mean``, ``std`` (> 0), optionally truncated to ``[low, high]`` (drawn by
@@ -22,7 +30,8 @@ absolute by default (the number drawn is the value), or ``relative = true`` (the
 drawn multiplies the nominal: the ``[plant]`` value, or where that is 0 the value the
 machine takes itself, :meth:`tspend.plants.domain.Domain.nominal_values`: a MuJoCo
 cart-pole's masses, length, gear and friction as its compiled model has them, the ODE's
-rod inertia and unit gear; a relative draw on a nominal that is 0 even so is refused).
+rod inertia and unit gear, a model's number as its compiled model has it; a relative draw
+on a nominal that is 0 even so is refused).
 What can be drawn must be a valid value of the key: a positive parameter needs a positive
 range (a normal one a ``low``).
 
@@ -31,7 +40,12 @@ no stream the controllers or effects draw from moves, a scenario without ``[rand
 runs bit for bit as before, and adding an entry leaves the other entries' draws as they
 were.  :func:`draw` applies the draws to the scenario's ``[plant]`` before any backend is
 built, so the ODE and MuJoCo backends of a domain get the same machine (MuJoCo through
-``MjSpec`` edits, read back after compiling: :mod:`tspend.plants.mjcf`).  The
+``MjSpec`` edits, read back after compiling: :mod:`tspend.plants.mjcf`).  A model's numbers
+go to ``plant.model_values``, written into the model's ``MjSpec`` before it compiles
+(:func:`~tspend.plants.articulated.model_numbers.write_values`); both backends are built
+from that compiled model, the derived ODE taking the numbers into its parameter vector
+(no new derivation).  Their names are checked against the model's bodies and joints when
+drawn (the model is known then).  The
 controllers are designed on the nominal scenario: a model-based baseline does not know
 the draw.  The run's metrics record the draw as ``drawn`` (flat names such as ``m`` and
 ``x0[0]``), a sweep row as ``drawn.<name>`` columns.
@@ -129,18 +143,25 @@ def takes_model_values(cfg: "PlantConfig") -> bool:
 
 def _entries(r: Table, cfg: "PlantConfig", allowed: tuple[str, ...]) -> list[tuple[str, Any]]:
     """``(name, value)`` of the table's entries, a model's names flattened: TOML reads
-    ``link1.mass = {...}`` as ``link1 = {mass = {...}}``, ``"link1.mass" = {...}`` as one key."""
+    ``link1.mass = {...}`` as ``link1 = {mass = {...}}``, ``"link1.mass" = {...}`` as one
+    key.  Where both give the same name the dotted one's keys update the quoted one's (what
+    ``--set randomize.link1.mass.low=0.8`` does to a file that quotes the name)."""
     from tspend.plants.articulated.model_numbers import QUANTITIES, split
 
     model = takes_model_values(cfg)
-    out: list[tuple[str, Any]] = []
+    out: dict[str, Any] = {}
     for key, value in r.table.items():
         if model and key not in allowed and isinstance(value, dict) and value \
                 and "dist" not in value:
-            out.extend((f"{key}.{q}", v) for q, v in value.items())
+            for q, v in value.items():
+                name = f"{key}.{q}"
+                old = out.get(name)
+                out[name] = {**old, **v} if isinstance(old, dict) and isinstance(v, dict) else v
+        elif isinstance(out.get(key), dict) and isinstance(value, dict):
+            out[key] = {**value, **out[key]}
         else:
-            out.append((key, value))
-    for name, _ in out:
+            out[key] = value
+    for name in out:
         if name in allowed or (model and split(name) is not None):
             continue
         close = difflib.get_close_matches(name, allowed, n=1)
@@ -149,7 +170,7 @@ def _entries(r: Table, cfg: "PlantConfig", allowed: tuple[str, ...]) -> list[tup
                 f"by the model's bodies and joints") if model else ""
         raise r.error(name, f"unknown key{did}; allowed for plant kind '{cfg.kind}': "
                             f"{', '.join(allowed)} (numeric [plant] keys and x0){more}")
-    return out
+    return list(out.items())
 
 
 def read_randomize(r: Table, cfg: "PlantConfig") -> tuple[Draw, ...]:

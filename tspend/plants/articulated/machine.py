@@ -274,6 +274,7 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
         write_values(spec, values, where)
         model = spec.compile()
     except ValueError as exc:
-        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
+        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
     check_values(model, values, where)
     return Machine(model, where, actuator, poles)
