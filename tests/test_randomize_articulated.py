@@ -179,3 +179,25 @@ def test_set_on_a_quoted_name_updates_its_draw():
     (d,) = [d for d in scn.randomize if d.name == "link1.mass"]
     assert (d.a, d.b, d.relative) == (0.5, 0.6, True)
     assert 0.25 <= randomize.draw(scn).values["link1.mass"] <= 0.3
+
+
+def test_a_mass_from_geoms_is_scaled_through_the_geoms():
+    """A body without an explicit inertial (the compiler's inertiafromgeom) gets its geoms'
+    mass or density scaled: mass and inertia by the same factor, the frame unchanged."""
+    from tspend.plants.articulated.model_numbers import check_values, write_values
+
+    xml = """<mujoco><worldbody><body name="b"><joint name="j" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0 0 0.5" size="0.02"/>
+      <geom type="sphere" pos="0.1 0 0.5" size="0.05" mass="0.3"/></body></worldbody></mujoco>"""
+    spec = mujoco.MjSpec.from_string(xml)
+    before = spec.compile()
+    b = before.body("b").id
+    want = 1.2 * float(before.body_mass[b])
+    write_values(spec, (("b.mass", want),), "x.xml")
+    after = spec.compile()
+    check_values(after, (("b.mass", want),), "x.xml")
+    assert float(after.body_mass[b]) == pytest.approx(want, rel=1e-12)
+    np.testing.assert_allclose(after.body_inertia[b], 1.2 * before.body_inertia[b], rtol=1e-9)
+    np.testing.assert_allclose(after.body_ipos[b], before.body_ipos[b], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(np.abs(after.body_iquat[b]), np.abs(before.body_iquat[b]),
+                               atol=1e-12)
