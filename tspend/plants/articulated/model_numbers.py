@@ -89,8 +89,8 @@ def write_values(spec: Any, values: tuple[tuple[str, float], ...], where: str) -
         return
     import mujoco
 
-    masses = [(n, v) for n, v in values if n.endswith(".mass")]
-    compiled = spec.compile() if masses else None  # compiling leaves the spec editable
+    # compiling leaves the spec editable
+    compiled = spec.compile() if any(n.endswith(".mass") for n, _ in values) else None
     from_geoms = spec.compiler.inertiafromgeom
     for name, value in values:
         element, quantity = split(name) or ("", "")
@@ -107,7 +107,7 @@ def write_values(spec: Any, values: tuple[tuple[str, float], ...], where: str) -
             explicit = body.explicitinertial and \
                 from_geoms != mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
             if explicit:
-                body.mass = float(body.mass) * scale
+                body.mass = float(value)
                 body.inertia = np.asarray(body.inertia, dtype=float) * scale
                 full = np.asarray(body.fullinertia, dtype=float)
                 if not math.isnan(full[0]):
