@@ -6,7 +6,7 @@ Rawlings, Mayne and Diehl, *Model Predictive Control*, 2nd ed., 2017, sec. 8.5),
 
     min  h sum_{k<N} [(s_k - s_r,k)^T Q (s_k - s_r,k) + R (u_k - u_r,k)^2]
          + (s_N - s_r,N)^T P (s_N - s_r,N)
-         + sum_{k<N} rho . (e_k + e_k^2)                                          (M1)
+         + sum_{k<N} (rho 1^T e_k + e_k^T e_k)                                    (M1)
     s.t. s_0 = s(t),  s_{k+1} = F(s_k, u_k),  u_lo <= u_k <= u_hi,
          q_lo + margin <= q_k <= q_hi - margin   (the rail, the joints' ranges)
          lo_c <= s_k <= hi_c                     (k >= 1: hard boxes of the task) (M2)
@@ -81,6 +81,11 @@ SCHEMES = ("ipopt", "rti", "sqp")
 #: a bound IPOPT treats as none
 _FREE = 1e19
 
+#: the slacks' quadratic weight in (M1): enough to make the QP strictly convex; the
+#: linear weight rho does the penalising (rho as quadratic weight too left the QP's
+#: Hessian with a 1e9 spread that stalled qrqp's active set)
+_SLACK_QUADRATIC = 1.0
+
 
 @dataclass(frozen=True)
 class MPCSettings(KindSettings):
@@ -106,8 +111,9 @@ class MPCSettings(KindSettings):
                                    "convergence), rti (one Gauss-Newton SQP step from the "
                                    "shifted plan), sqp (up to sqp_iterations such steps)",
                           kind="choice", choices=SCHEMES)
-    solver: str = setting("qrqp", "the QP solver of the rti and sqp schemes",
-                          kind="choice", choices=QP_SOLVERS)
+    solver: str = setting("auto", "the QP solver of the rti and sqp schemes (auto: qrqp, "
+                                  "hpipm when the OCP has soft rows (M3))",
+                          kind="choice", choices=("auto",) + QP_SOLVERS)
     sqp_iterations: int = setting(5, "SQP steps per sample of the sqp scheme (and of either "
                                      "scheme's cold start)", kind="integer", low=1)
     compiled: bool = setting(True, "rti, sqp: the linearisation as C compiled with gcc "
@@ -164,6 +170,17 @@ class MPCController(Controller):
         Sr = casadi.SX.sym("Sr", nx, N + 1)
         Ur = casadi.SX.sym("Ur", 1, N)
         Qm, P = casadi.DM(self.Q), casadi.DM(lqr.P)
+        #: the QP solver the rti and sqp schemes use (``solver``, "auto" resolved)
+        self.qp_solver = settings.solver
+        if settings.solver == "auto":
+            self.qp_solver = "hpipm" if ns else "qrqp"
+        elif settings.solver == "qrqp" and ns and settings.scheme != "ipopt":
+            # measured: with (M3)'s rows active qrqp (CasADi 3.8.2) stalls at its iteration
+            # limit or reports success on answers metres outside them
+            raise ScenarioError(f"controllers.mpc.solver: qrqp cannot take the task's soft "
+                                f"constraints ({', '.join(self.soft_names)}: rows with slacks "
+                                f"in the OCP); allowed: auto, hpipm, daqp, osqp, or "
+                                f"controllers.mpc.constraints = false")
         rho = settings.slack_weight
         cost, g = 0, [S[:, 0] - s0]
         rows = []
@@ -174,7 +191,7 @@ class MPCController(Controller):
             g.append(S[:, k + 1] - F(S[:, k], U[0, k]))
             if ns:
                 # (M3) and its exact penalty (M1)
-                cost += rho * (casadi.sum1(E[:, k]) + casadi.sumsqr(E[:, k]))
+                cost += rho * casadi.sum1(E[:, k]) + _SLACK_QUADRATIC * casadi.sumsqr(E[:, k])
                 rows.append(casadi.mtimes(casadi.DM(C), S[:, k]) + casadi.DM(D) * U[0, k]
                             - casadi.mtimes(casadi.DM(sel), E[:, k]))
         eN = S[:, N] - Sr[:, N]
@@ -204,7 +221,7 @@ class MPCController(Controller):
             # the same cost's Hessian stage by stage: (x_k, u_k, e_k), then x_N
             stage = np.zeros((nz, nz))
             stage[:nx, :nx], stage[nx, nx] = 2.0 * h * self.Q, 2.0 * h * self.R
-            stage[nx + 1:, nx + 1:] = 2.0 * rho * np.eye(ns)
+            stage[nx + 1:, nx + 1:] = 2.0 * _SLACK_QUADRATIC * np.eye(ns)
             inf_lo = np.where(lo_s <= -_FREE, -np.inf, lo_s)
             inf_hi = np.where(hi_s >= _FREE, np.inf, hi_s)
             ulo = u_lo if u_lo > -_FREE else -np.inf
@@ -215,7 +232,7 @@ class MPCController(Controller):
                                            N), inf_hi])
             G = np.hstack([C, D[:, None], -sel])
             self.rti = RealTimeSQP(F, nx, N, stage, 2.0 * np.asarray(lqr.P, dtype=float),
-                                   z_lo, z_hi, settings.solver, settings.compiled,
+                                   z_lo, z_hi, self.qp_solver, settings.compiled,
                                    stage_rows=G, stage_bound=b,
                                    stage_gradient=np.concatenate([np.zeros(nx + 1),
                                                                   np.full(ns, rho)]),

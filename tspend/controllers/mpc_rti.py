@@ -54,6 +54,10 @@ __all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
 #: default: docs/controllers.md says why)
 QP_SOLVERS = ("qrqp", "hpipm", "daqp", "osqp")
 
+#: the lower end of an inequality row of (R3): none reached (rows are in the constraint's
+#: unit, at most metres or radians per second)
+_FAR = 1e10
+
 #: each QP solver's options: quiet, errors raised (a failed QP is a failed sample)
 _QP_OPTIONS: dict[str, dict[str, Any]] = {
     "hpipm": {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-7,
@@ -61,7 +65,9 @@ _QP_OPTIONS: dict[str, dict[str, Any]] = {
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-6, "eps_rel": 1e-6, "polish": True,
                       "max_iter": 20000}, "warm_start_primal": True},
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
-    "daqp": {},
+    # daqp's default primal tolerance (1e-6) let (R3)'s rows end 2e-6 outside, which the
+    # acceptance check below refuses
+    "daqp": {"daqp": {"primal_tol": 1e-9}},
 }
 
 
@@ -180,7 +186,9 @@ class RealTimeSQP:
                                                                     N * nx + (k + 1) * nr))]
             A = A[order, :]
             rhs = ca.DM(np.tile(bG, N)) - ca.mtimes(Gall, z)
-            lba = ca.vertcat(-defect, ca.DM.ones(N * nr) * -ca.inf)[order]
+            # a far finite lower end, not -inf: with -inf qrqp (CasADi 3.8.2) reported
+            # success on answers that broke an active row by millimetres
+            lba = ca.vertcat(-defect, ca.DM.ones(N * nr) * -_FAR)[order]
             uba = ca.vertcat(-defect, rhs)[order]
         lin = ca.Function("tspend_mpc_lin", [z, s0, zr], [g, A, lba, uba, lbx, ubx],
                           ["z", "s0", "zr"], ["g", "a", "lba", "uba", "lbx", "ubx"])
@@ -214,6 +222,8 @@ class RealTimeSQP:
                                 [ca.vertcat(zs + dz, ca.norm_inf(dz), infeasibility,
                                             sol["lam_x"], sol["lam_a"])])
         self.solver = solver
+        #: the QP's data at a point, (z, s0, z_r) -> (g, A, lba, uba, lbx, ubx), and H
+        self.linearisation, self.hessian = lin, H
         self._z, self._s0, self._zr = np.zeros(self.nw), np.zeros(nx), np.zeros(self.nw)
         self._lam = np.zeros(self.nw + N * (nx + nr))
         self._out = np.zeros(2 * self.nw + 2 + N * (nx + nr))
