@@ -22,7 +22,7 @@
    the scenario for the same samples.
 
 ``--constraints`` only times the cost of the task's constraints in the OCP (docs/safety.md):
-a soft box on the cart (+/-0.6 m) and a linear row on its position, speed and force, run
+a soft box on the cart (+/-0.75 m) and a linear row on its position, speed and force, run
 closed loop with them (so that they bind), then the samples replayed, interleaved, through
 the fast scheme with and without them (``controllers.mpc.constraints``) on each QP solver
 that takes them (hpipm, daqp) and through the unconstrained default (qrqp); prints CPU
@@ -218,7 +218,7 @@ def main() -> None:
 
 
 #: the constraints ``--constraints`` adds: a soft box and a velocity-dependent linear row
-CONSTRAINTS = {"task.constraints.box.slider": {"lo": -0.6, "hi": 0.6},
+CONSTRAINTS = {"task.constraints.box.slider": {"lo": -0.75, "hi": 0.75},
                "task.constraints.linear.ahead": {"terms": {"slider": 1.0, "slider_dot": 0.3,
                                                            "force": 1e-4},
                                                  "min": -0.7, "max": 0.7}}
