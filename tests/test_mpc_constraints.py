@@ -62,15 +62,16 @@ def test_a_linear_row_holds_on_every_predicted_stage(monkeypatch):
 
 
 def test_sqp_with_rows_converges_to_ipopts_solution_of_the_same_ocp():
-    # the hard box on the cart's speed is a bound (M2), the linear row (M3) a slack row:
-    # both schemes solve one OCP, compared at a state where both are active
+    # the linear row and the hard box on the cart's speed (less the margin) are (M3)'s
+    # slack rows: both schemes solve one OCP, compared at a state where both are active
     s = _scenario(**ROW, **{"task.constraints.box.slider_dot": {"lo": -0.5, "hi": 0.5,
                                                                 "hard": True},
                             "controllers.mpc.horizon": 10, "controllers.mpc.tolerance": 1e-10})
     ipopt = build(override(s, **{"controllers.mpc.scheme": "ipopt"}), "mpc")
     sqp = build(override(s, **{"controllers.mpc.scheme": "sqp",
                                "controllers.mpc.sqp_iterations": 40}), "mpc")
-    assert ipopt.state_hi[2] == sqp.state_hi[2] == 0.5
+    assert ipopt.soft_names == sqp.soft_names == ("slider_dot", "ahead")
+    np.testing.assert_allclose(sqp.rows[2], [0.45, 0.45, 0.5, 0.5])
     state, ref = np.array([0.3, -0.05, 0.4, 0.0]), np.array([0.0, 0.0, 0.0])
     u_i, ok_i, _ = ipopt.solve(state, ref)
     u_s, ok_s, _ = sqp.solve(state, ref)
@@ -78,7 +79,7 @@ def test_sqp_with_rows_converges_to_ipopts_solution_of_the_same_ocp():
     S, U = ipopt.plan_states, ipopt.plan_inputs
     y = S[0, 1:-1] + 0.3 * S[2, 1:-1] + 1e-4 * U[1:]
     assert np.isclose(y.max(), 0.5, atol=1e-6)                  # the row is active
-    assert np.isclose(S[2, 1:].max(), 0.5, atol=1e-6)           # and the speed's bound
+    assert np.isclose(S[2, 1:-1].max(), 0.45, atol=1e-6)        # and the speed's box
     assert np.all(ipopt.plan_slacks < 1e-6) and np.all(sqp.plan_slacks < 1e-6)
     np.testing.assert_allclose(sqp.plan_inputs, ipopt.plan_inputs, atol=1e-4 * 2000.0)
     np.testing.assert_allclose(sqp.plan_states, ipopt.plan_states, atol=1e-5)

@@ -9,8 +9,8 @@ Rawlings, Mayne and Diehl, *Model Predictive Control*, 2nd ed., 2017, sec. 8.5),
          + sum_{k<N} (rho 1^T e_k + e_k^T e_k)                                    (M1)
     s.t. s_0 = s(t),  s_{k+1} = F(s_k, u_k),  u_lo <= u_k <= u_hi,
          q_lo + margin <= q_k <= q_hi - margin   (the rail, the joints' ranges)
-         lo_c <= s_k <= hi_c                     (k >= 1: hard boxes of the task) (M2)
-         C s_k + D u_k - S e_k <= b,  e_k >= 0   (k < N: soft boxes, linear rows) (M3)
+         lo_c <= s_k <= hi_c              (k >= 1: the task's hard boxes on positions) (M2)
+         C s_k + D u_k - S e_k <= b,  e_k >= 0   (k < N: every other row of the task) (M3)
 
 ``F`` is ``substeps`` RK4 steps over ``h`` of the domain's own ODE, built symbolically
 from the one source of its equations: the domain's
@@ -20,17 +20,19 @@ model is the simulated machine, not a copy.  The bounds (the actuator's range, t
 positions' ranges: a rail, a joint's range, a task's state bound) are the domain's too
 (:func:`.full_model.full_model`).  With ``constraints = true`` (the default) the OCP
 also keeps the run's constraint set (:mod:`tspend.constraints`, the ``ConstraintSet`` the
-run measures, ``Observation.constraints``): a hard box on a state is a bound on the
-predicted states (M2), like the rail, a position's box tightened by ``margin``; a box on
-the input narrows ``u_lo, u_hi``; every other row (a soft box on a state, a linear row
-``[task.constraints.linear]`` on state and input) is (M3), one slack ``e >= 0`` per
+run measures, ``Observation.constraints``): a hard box on a position is a bound on the
+predicted states (M2), like the rail; a box on the input narrows ``u_lo, u_hi``; every
+other row (a hard box on a velocity: a measured speed at its bound would leave no
+feasible ``s_1``; a soft box on a state; a linear row ``[task.constraints.linear]`` on
+state and input) is (M3), one slack ``e >= 0`` per
 constraint and stage, penalised by ``slack_weight`` (``rho``) linearly and quadratically:
 the linear term makes the penalty exact (the slack is 0 whenever the rows can hold and
 ``rho`` exceeds their multipliers: Fletcher, *Practical Methods of Optimization*, 1987,
 sec. 12.3; Kerrigan and Maciejowski, "Soft constraints and exact penalty functions in
 model predictive control", UKACC 2000), the quadratic one keeps the QP strictly convex.
 (M3) holds on stages ``k < N`` (``s_N`` is held by the terminal cost; HPIPM's stage
-structure gives the last stage no input, so no slack).  The kind declares what it needs of a domain
+structure gives the last stage no input, so no slack).  Every box keeps ``margin`` (in
+its state's unit) from its ends, a linear row none.  The kind declares what it needs of a domain
 (``needs``: a full-state model and its symbolic equations); on any other it is refused
 before anything is built.  ``P`` is the full-state LQR's
 Riccati matrix (the terminal cost of the unconstrained tail), and the reference states
@@ -300,9 +302,14 @@ class MPCController(Controller):
                         continue
                     box = a_u == 0.0 and nonzero.size == 1
                     j = int(nonzero[0]) if box else -1
-                    # a box on a position keeps the margin, as the rail does
-                    room = b_row - (abs(a_s[j]) * margin if box and j < model.dof else 0.0)
-                    if box and c.hard:
+                    # a box keeps the margin, as the rail does (in the state's unit: m or
+                    # rad, m/s or rad/s): the OCP holds it at the period's nodes on the
+                    # model, the machine moves between them and differs from the model
+                    room = b_row - (abs(a_s[j]) * margin if box else 0.0)
+                    if box and c.hard and j < model.dof:
+                        # a position's hard box: a bound, as the rail (the margin is the
+                        # room a measured state needs); a velocity's is a slack row below:
+                        # a measured speed at its bound would make the bound infeasible
                         if a_s[j] > 0.0:
                             hi_s[j] = min(hi_s[j], room / a_s[j])
                         else:
