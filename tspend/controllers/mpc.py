@@ -134,10 +134,10 @@ class MPCController(Controller):
 
     kind = "mpc"
     needs = (FULL_STATE, SYMBOLIC)
-    guarantees = ("the actuator's range, the positions' ranges (rail, joint ranges, task "
-                  "state bounds) and the task's hard boxes hold on every predicted trajectory "
-                  "of a successful solve, its soft boxes and linear rows wherever their slack "
-                  "is 0; failed or late solves counted, never silent; no stability proof, no "
+    guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, task "
+                  "state bounds, hard boxes) hold on every predicted trajectory of a "
+                  "successful solve, the task's other constraints wherever their slack is 0; "
+                  "failed or late solves counted, never silent; no stability proof, no "
                   "recursive feasibility")
 
     def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
