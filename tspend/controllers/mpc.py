@@ -105,7 +105,8 @@ class MPCSettings(KindSettings):
         None, "diagonal of Q on the full state (default: the full LQR's)", kind="list", low=0.0)
     R: float | None = setting(None, "input weight (default: the full LQR's)", low=0.0,
                               strict=True)
-    margin: float = setting(0.05, "kept from every position bound (m or rad)", low=0.0)
+    margin: float = setting(0.05, "kept from every position bound and every box of the "
+                                  "task (in its state's unit: m, rad, m/s, rad/s)", low=0.0)
     max_iter: int = setting(100, "IPOPT's iteration limit per solve", kind="integer", low=1)
     tolerance: float = setting(1e-6, "IPOPT's tol; the sqp scheme's step size to stop at",
                                low=0.0, strict=True)

@@ -25,14 +25,16 @@ same problem (tests/test_mpc_rti.py).  A cold start (no plan yet) iterates up to
 
 The QP keeps the stage structure (variables ordered by stage: a stage's state, then its
 input and its slacks; (R2)'s rows of a stage followed by its (R3) rows, the order CasADi's
-HPIPM interface reads as ``[gap_k, lincon_k]``), the form HPIPM exploits (a Riccati-based interior point; Frison and Diehl, 2020);
-qrqp (CasADi's sparse active set, the default: measured fastest here, docs/controllers.md),
-DAQP (dense active set) and OSQP (ADMM) take it as a general sparse QP.  FATROP's QP
-interface is left out: in CasADi 3.8.2 it prints its matrices on every call.  The
-linearisation (``F``, its Jacobian over the horizon, (R1)'s gradient, the bounds) is one
-CasADi function, generated as C and compiled with the system's C compiler (cached by the
+HPIPM interface reads as ``[gap_k, lincon_k]``), the form HPIPM exploits (a Riccati-based
+interior point; Frison and Diehl, 2020); qrqp (CasADi's sparse active set, the default
+without (R3): measured fastest here, docs/controllers.md), DAQP (dense active set) and
+OSQP (ADMM) take it as a general sparse QP.  FATROP's QP interface is left out: in
+CasADi 3.8.2 it prints its matrices on every call.  The linearisation (``F``, its Jacobian
+over the horizon, (R1)'s gradient, the bounds, (R3)'s right-hand side) is one CasADi
+function, generated as C and compiled with the system's C compiler (cached by the
 source's hash under ``$TSPEND_CACHE_DIR/mpc``: the rows ``G, b_G``, the bounds and the
-weights are constants in that source, so a different constraint set is another file), or run in CasADi's virtual machine when
+weights are constants in that source, so a different constraint set is another file), or
+run in CasADi's virtual machine when
 ``compiled = false`` or no compiler is found.
 """
 
