@@ -21,6 +21,13 @@
    cost (``MPCController.running_cost``) of the fast scheme against IPOPT's, both run on
    the scenario for the same samples.
 
+``--constraints`` only times the cost of the task's constraints in the OCP (docs/safety.md):
+a soft box on the cart (+/-0.75 m) and a linear row on its position, speed and force, run
+closed loop with them (so that they bind), then the samples replayed, interleaved, through
+the fast scheme with and without them (``controllers.mpc.constraints``) on each QP solver
+that takes them (hpipm, daqp) and through the unconstrained default (qrqp); prints CPU
+medians and the ratios with/without on the same solver, measured in this run.
+
 ``--costs pendulum_mujoco:5,furuta_mujoco:5,...`` only runs each scenario closed loop under
 IPOPT and under the fast scheme and prints the two costs, their ratio and the compute.
 """
@@ -133,12 +140,17 @@ def main() -> None:
                     help="a scenario override (a number), e.g. effects.saturation=60")
     ap.add_argument("--uncompiled", action="store_true",
                     help="also the fast scheme with compiled = false (CasADi's virtual machine)")
+    ap.add_argument("--constraints", action="store_true",
+                    help="only the cost of the task's constraints in the OCP")
     ap.add_argument("--costs", metavar="SCENARIO:SECONDS,...",
                     help="only the closed-loop costs: the fast scheme against IPOPT on each")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     if args.costs:
         costs(args)
+        return
+    if args.constraints:
+        constraints(args)
         return
     qp_solvers = args.solver.split(",")
     base = {"controllers.mpc.horizon": args.horizon, "controllers.mpc.solver": qp_solvers[0]}
@@ -203,6 +215,54 @@ def main() -> None:
           f"{m_ipopt['controller_ms']['median']:.3f}/{m_ipopt['controller_ms']['max']:.2f}; "
           f"failures {m_fast['counters']['solve_failures']:.0f}/"
           f"{m_ipopt['counters']['solve_failures']:.0f}")
+
+
+#: the constraints ``--constraints`` adds: a soft box and a velocity-dependent linear row
+CONSTRAINTS = {"task.constraints.box.slider": {"lo": -0.75, "hi": 0.75},
+               "task.constraints.linear.ahead": {"terms": {"slider": 1.0, "slider_dot": 0.3,
+                                                           "force": 1e-4},
+                                                 "min": -0.7, "max": 0.7}}
+
+
+def constraints(args) -> None:
+    """Per-sample CPU time with and without the task's constraints in the OCP."""
+    period = 0.02
+    s = override(load_scenario(args.scenario),
+                 **{"controllers.mpc.horizon": args.horizon, "run.duration": period * args.samples,
+                    "controllers.mpc.scheme": args.scheme, **CONSTRAINTS})
+    print(f"# mpc_speed --constraints: {args.scenario}, horizon {args.horizon}, {args.samples} "
+          f"samples, {args.scheme}; load average {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} cores at start")
+    r = run(override(s, **{"controllers.mpc.solver": "hpipm"}), controller="mpc")
+    h = r.history
+    held = np.arange(0, h["t"].size, int(round(period / s.run.dt)))
+    states, refs = h["state"][held], h["ref"][held]
+    outside = {k: v["samples_outside"] for k, v in r.metrics["constraints"].items()}
+    print(f"closed loop with them (hpipm): {r.status}, samples outside {outside}, failures "
+          f"{r.metrics['counters']['solve_failures']:.0f}")
+    cases = {}
+    for solver in ("qrqp", "hpipm", "daqp"):
+        cases[f"{solver} without"] = build(override(s, **{"controllers.mpc.solver": solver,
+                                                          "controllers.mpc.constraints": False}),
+                                           "mpc")
+        if solver != "qrqp":
+            cases[f"{solver} with"] = build(override(s, **{"controllers.mpc.solver": solver}),
+                                            "mpc")
+    cpu = {k: [] for k in cases}
+    for st, rf in zip(states, refs):
+        for name, c in cases.items():
+            _, _, ms = timed(c.act, st, rf)
+            cpu[name].append(ms)
+    print(f"{'case':<14} {'cpu median':>11} {'cpu max warm':>13} {'failures':>9} "
+          f"{'with/without':>13} {'/ qrqp without':>15}")
+    ref = np.median(cpu["qrqp without"])
+    for name, c in cases.items():
+        x = np.asarray(cpu[name])
+        solver = name.split()[0]
+        ratio = (f"{np.median(x) / np.median(cpu[solver + ' without']):>12.2f}x"
+                 if name.endswith("with") else f"{'':>13}")
+        print(f"{name:<14} {np.median(x):>9.3f}ms {x[1:].max():>11.2f}ms "
+              f"{c.failures:>9d} {ratio} {np.median(x) / ref:>14.2f}x")
 
 
 def costs(args) -> None:

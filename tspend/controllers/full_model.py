@@ -25,13 +25,21 @@ from tspend.plants.domain import FULL_STATE, FD_STEP, FullModel, wrap_angle
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.constraints import ConstraintSet
 
-__all__ = ["FullModel", "full_model", "has_full_state", "wrap_angle", "FD_STEP"]
+__all__ = ["FullModel", "full_model", "full_model_and_constraints", "has_full_state",
+           "wrap_angle", "FD_STEP"]
 
 
 def full_model(scenario: "Scenario") -> FullModel:
     """The full-state model of the scenario's plant with the actuator's range, the rail,
     the joints' ranges and the task's state bounds on positions as its bounds."""
+    return full_model_and_constraints(scenario)[0]
+
+
+def full_model_and_constraints(scenario: "Scenario") -> "tuple[FullModel, ConstraintSet]":
+    """:func:`full_model` and the run's constraint set (the task's ``constraints``, the
+    one ``Observation.constraints`` carries), from one build of the plant and task."""
     from tspend.plants import registry
     from tspend.task import build_task
 
@@ -54,7 +62,8 @@ def full_model(scenario: "Scenario") -> FullModel:
             q_lo[j] = float(task.lo[j])
         if task.hi_limits[j] is not None and task.hi_limits[j].status != "fell":
             q_hi[j] = float(task.hi[j])
-    return replace(model, u_lo=u_lo, u_hi=u_hi, q_lo=tuple(q_lo), q_hi=tuple(q_hi))
+    return (replace(model, u_lo=u_lo, u_hi=u_hi, q_lo=tuple(q_lo), q_hi=tuple(q_hi)),
+            task.constraints)
 
 
 def has_full_state(scenario: "Scenario") -> bool:

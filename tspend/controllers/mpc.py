@@ -6,8 +6,11 @@ Rawlings, Mayne and Diehl, *Model Predictive Control*, 2nd ed., 2017, sec. 8.5),
 
     min  h sum_{k<N} [(s_k - s_r,k)^T Q (s_k - s_r,k) + R (u_k - u_r,k)^2]
          + (s_N - s_r,N)^T P (s_N - s_r,N)
+         + sum_{k<N} (rho 1^T e_k + e_k^T e_k)                                    (M1)
     s.t. s_0 = s(t),  s_{k+1} = F(s_k, u_k),  u_lo <= u_k <= u_hi,
          q_lo + margin <= q_k <= q_hi - margin   (the rail, the joints' ranges)
+         lo_c <= s_k <= hi_c              (k >= 1: the task's hard boxes on positions) (M2)
+         C s_k + D u_k - S e_k <= b,  e_k >= 0   (k < N: every other row of the task) (M3)
 
 ``F`` is ``substeps`` RK4 steps over ``h`` of the domain's own ODE, built symbolically
 from the one source of its equations: the domain's
@@ -15,7 +18,21 @@ from the one source of its equations: the domain's
 whose ``accel_factory`` is the domain's equations over CasADi's sin, cos, tanh, so the
 model is the simulated machine, not a copy.  The bounds (the actuator's range, the
 positions' ranges: a rail, a joint's range, a task's state bound) are the domain's too
-(:func:`.full_model.full_model`).  The kind declares what it needs of a domain
+(:func:`.full_model.full_model`).  With ``constraints = true`` (the default) the OCP
+also keeps the run's constraint set (:mod:`tspend.constraints`, the ``ConstraintSet`` the
+run measures, ``Observation.constraints``): a hard box on a position is a bound on the
+predicted states (M2), like the rail; a box on the input narrows ``u_lo, u_hi``; every
+other row (a hard box on a velocity: a measured speed at its bound would leave no
+feasible ``s_1``; a soft box on a state; a linear row ``[task.constraints.linear]`` on
+state and input) is (M3), one slack ``e >= 0`` per
+constraint and stage, penalised by ``slack_weight`` (``rho``) linearly and quadratically:
+the linear term makes the penalty exact (the slack is 0 whenever the rows can hold and
+``rho`` exceeds their multipliers: Fletcher, *Practical Methods of Optimization*, 1987,
+sec. 12.3; Kerrigan and Maciejowski, "Soft constraints and exact penalty functions in
+model predictive control", UKACC 2000), the quadratic one keeps the QP strictly convex.
+(M3) holds on stages ``k < N`` (``s_N`` is held by the terminal cost; HPIPM's stage
+structure gives the last stage no input, so no slack).  Every box keeps ``margin`` (in
+its state's unit) from its ends, a linear row none.  The kind declares what it needs of a domain
 (``needs``: a full-state model and its symbolic equations); on any other it is refused
 before anything is built.  ``P`` is the full-state LQR's
 Riccati matrix (the terminal cost of the unconstrained tail), and the reference states
@@ -56,6 +73,7 @@ from tspend.errors import ScenarioError
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
+    from tspend.constraints import ConstraintSet
 
 __all__ = ["MPCSettings", "MPCController", "SCHEMES", "build"]
 
@@ -64,6 +82,11 @@ SCHEMES = ("ipopt", "rti", "sqp")
 
 #: a bound IPOPT treats as none
 _FREE = 1e19
+
+#: the slacks' quadratic weight in (M1): enough to make the QP strictly convex; the
+#: linear weight rho does the penalising (rho as quadratic weight too left the QP's
+#: Hessian with a 1e9 spread that stalled qrqp's active set)
+_SLACK_QUADRATIC = 1.0
 
 
 @dataclass(frozen=True)
@@ -82,7 +105,8 @@ class MPCSettings(KindSettings):
         None, "diagonal of Q on the full state (default: the full LQR's)", kind="list", low=0.0)
     R: float | None = setting(None, "input weight (default: the full LQR's)", low=0.0,
                               strict=True)
-    margin: float = setting(0.05, "kept from every position bound (m or rad)", low=0.0)
+    margin: float = setting(0.05, "kept from every position bound and every box of the "
+                                  "task (in its state's unit: m, rad, m/s, rad/s)", low=0.0)
     max_iter: int = setting(100, "IPOPT's iteration limit per solve", kind="integer", low=1)
     tolerance: float = setting(1e-6, "IPOPT's tol; the sqp scheme's step size to stop at",
                                low=0.0, strict=True)
@@ -90,12 +114,20 @@ class MPCSettings(KindSettings):
                                    "convergence), rti (one Gauss-Newton SQP step from the "
                                    "shifted plan), sqp (up to sqp_iterations such steps)",
                           kind="choice", choices=SCHEMES)
-    solver: str = setting("qrqp", "the QP solver of the rti and sqp schemes",
-                          kind="choice", choices=QP_SOLVERS)
+    solver: str = setting("auto", "the QP solver of the rti and sqp schemes (auto: qrqp, "
+                                  "hpipm when the OCP has soft rows (M3))",
+                          kind="choice", choices=("auto",) + QP_SOLVERS)
     sqp_iterations: int = setting(5, "SQP steps per sample of the sqp scheme (and of either "
                                      "scheme's cold start)", kind="integer", low=1)
     compiled: bool = setting(True, "rti, sqp: the linearisation as C compiled with gcc "
                                    "(cached); false: CasADi's virtual machine", kind="bool")
+    constraints: bool = setting(True, "keep the run's constraint set (task.constraints: "
+                                      "hard boxes as bounds, soft boxes and linear rows with "
+                                      "penalised slacks) in the OCP; false: only the model's "
+                                      "bounds", kind="bool")
+    slack_weight: float = setting(1e4, "rho of a soft row's slack, linear and quadratic "
+                                       "(an exact penalty above the rows' multipliers)",
+                                  low=0.0, strict=True)
 
 
 class MPCController(Controller):
@@ -103,12 +135,15 @@ class MPCController(Controller):
 
     kind = "mpc"
     needs = (FULL_STATE, SYMBOLIC)
-    guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, "
-                  "task state bounds) hold on every predicted trajectory of a successful solve; "
-                  "failed or late solves counted, never silent; no stability proof")
+    guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, task "
+                  "state bounds, hard boxes) hold on every predicted trajectory of a "
+                  "successful solve, the task's other constraints wherever their slack is 0; "
+                  "failed or late solves counted, never silent; no stability proof, no "
+                  "recursive feasibility")
 
     def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
-                 Q: np.ndarray, R: float, order: int) -> None:
+                 Q: np.ndarray, R: float, order: int,
+                 constraints: "ConstraintSet | None" = None) -> None:
         import casadi
 
         self.model, self.s, self.lqr = model, settings, lqr
@@ -127,56 +162,84 @@ class MPCController(Controller):
             k4 = f(sk + dh * k3, u_sym)
             sk = sk + dh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         F = casadi.Function("F", [s_sym, u_sym], [sk])
+        self.N, self.nx = N, nx
+        lo_s, hi_s, u_lo, u_hi = self._bounds(constraints if settings.constraints else None)
+        C, D, b, sel = self.rows
+        ns = sel.shape[1]
         S = casadi.SX.sym("S", nx, N + 1)
         U = casadi.SX.sym("U", 1, N)
+        E = casadi.SX.sym("E", ns, N)
         s0 = casadi.SX.sym("s0", nx)
         Sr = casadi.SX.sym("Sr", nx, N + 1)
         Ur = casadi.SX.sym("Ur", 1, N)
         Qm, P = casadi.DM(self.Q), casadi.DM(lqr.P)
+        #: the QP solver the rti and sqp schemes use (``solver``, "auto" resolved)
+        self.qp_solver = settings.solver
+        if settings.solver == "auto":
+            self.qp_solver = "hpipm" if ns else "qrqp"
+        elif settings.solver == "qrqp" and ns and settings.scheme != "ipopt":
+            # measured: with (M3)'s rows active qrqp (CasADi 3.8.2) stalls at its iteration
+            # limit or reports success on answers metres outside them
+            raise ScenarioError(f"controllers.mpc.solver: qrqp cannot take the task's soft "
+                                f"constraints ({', '.join(self.soft_names)}: rows with slacks "
+                                f"in the OCP); allowed: auto, hpipm, daqp, osqp, or "
+                                f"controllers.mpc.constraints = false")
+        rho = settings.slack_weight
         cost, g = 0, [S[:, 0] - s0]
+        rows = []
         for k in range(N):
             e = S[:, k] - Sr[:, k]
             # h x the stage: a rectangle sum of the LQR's integral cost, so P is its tail
             cost += h * (casadi.mtimes([e.T, Qm, e]) + self.R * (U[0, k] - Ur[0, k]) ** 2)
             g.append(S[:, k + 1] - F(S[:, k], U[0, k]))
+            if ns:
+                # (M3) and its exact penalty (M1)
+                cost += rho * casadi.sum1(E[:, k]) + _SLACK_QUADRATIC * casadi.sumsqr(E[:, k])
+                rows.append(casadi.mtimes(casadi.DM(C), S[:, k]) + casadi.DM(D) * U[0, k]
+                            - casadi.mtimes(casadi.DM(sel), E[:, k]))
         eN = S[:, N] - Sr[:, N]
         cost += casadi.mtimes([eN.T, P, eN])
-        # decision vector: [S (column by column), U]; the constraints all equalities
-        w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1))
+        # decision vector: [S (column by column), U, E (column by column)]; the constraints:
+        # the shooting equalities, then (M3)'s rows stage by stage
+        w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1),
+                           casadi.reshape(E, -1, 1))
         p = casadi.vertcat(s0, casadi.reshape(Sr, -1, 1), casadi.reshape(Ur, -1, 1))
-        nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g)}
+        nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g, *rows)}
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                 "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tolerance}
         self.solver = (casadi.nlpsol("mpc", "ipopt", nlp, opts)
                        if settings.scheme == "ipopt" else None)
-        self.N, self.nx = N, nx
-        # bounds on the decision vector
-        lo_s = np.full(nx, -_FREE)
-        hi_s = np.full(nx, _FREE)
-        for j in range(model.dof):
-            lo, hi = model.q_lo[j], model.q_hi[j]
-            if math.isfinite(lo):
-                lo_s[j] = lo + settings.margin
-            if math.isfinite(hi):
-                hi_s[j] = hi - settings.margin
-        u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
-        u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
-        self.lbx = np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo)])
-        self.ubx = np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi)])
+        self.ns = ns
+        self.lbg = np.concatenate([np.zeros(nx * (N + 1)), np.full(N * len(b), -np.inf)])
+        self.ubg = np.concatenate([np.zeros(nx * (N + 1)), np.tile(b, N)])
+        # bounds on the decision vector (the first state's are moot: s_0 = s(t))
+        self.lbx = np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo), np.zeros(N * ns)])
+        self.ubx = np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi),
+                                   np.full(N * ns, _FREE)])
         self.state_lo, self.state_hi, self.u_lo, self.u_hi = lo_s, hi_s, u_lo, u_hi
         self.rti: RealTimeSQP | None = None
+        nz = nx + 1 + ns
+        self.nz = nz
         if settings.scheme != "ipopt":
-            # the same cost's Hessian stage by stage: (x_k, u_k), then x_N
-            stage = np.zeros((nx + 1, nx + 1))
+            # the same cost's Hessian stage by stage: (x_k, u_k, e_k), then x_N
+            stage = np.zeros((nz, nz))
             stage[:nx, :nx], stage[nx, nx] = 2.0 * h * self.Q, 2.0 * h * self.R
+            stage[nx + 1:, nx + 1:] = 2.0 * _SLACK_QUADRATIC * np.eye(ns)
             inf_lo = np.where(lo_s <= -_FREE, -np.inf, lo_s)
             inf_hi = np.where(hi_s >= _FREE, np.inf, hi_s)
             ulo = u_lo if u_lo > -_FREE else -np.inf
             uhi = u_hi if u_hi < _FREE else np.inf
-            z_lo = np.concatenate([np.tile(np.append(inf_lo, ulo), N), inf_lo])
-            z_hi = np.concatenate([np.tile(np.append(inf_hi, uhi), N), inf_hi])
+            z_lo = np.concatenate([np.tile(np.concatenate([inf_lo, [ulo], np.zeros(ns)]), N),
+                                   inf_lo])
+            z_hi = np.concatenate([np.tile(np.concatenate([inf_hi, [uhi], np.full(ns, np.inf)]),
+                                           N), inf_hi])
+            G = np.hstack([C, D[:, None], -sel])
             self.rti = RealTimeSQP(F, nx, N, stage, 2.0 * np.asarray(lqr.P, dtype=float),
-                                   z_lo, z_hi, settings.solver, settings.compiled)
+                                   z_lo, z_hi, self.qp_solver, settings.compiled,
+                                   stage_rows=G, stage_bound=b,
+                                   stage_gradient=np.concatenate([np.zeros(nx + 1),
+                                                                  np.full(ns, rho)]),
+                                   nz=nz)
         self._reference_map = self._linear_reference_map()
         self._u_ref = 0.0
         self.ng = nx * (N + 1)
@@ -201,6 +264,71 @@ class MPCController(Controller):
         self.diag = np.zeros(diag_width(self.diagnostics))
         self.reset(None)
 
+    def _bounds(self, cs: "ConstraintSet | None") -> tuple[np.ndarray, np.ndarray, float, float]:
+        """``(state lo, state hi, u_lo, u_hi)`` of (M2) and the input, with ``self.rows =
+        (C, D, b, S)`` of (M3) (S: each row's slack, one per constraint) and
+        ``self.soft_names`` (the constraints (M3) keeps, in slack order), from the model's
+        bounds and the constraint set ``cs`` (None: the model's bounds only)."""
+        model, margin, nx = self.model, self.s.margin, self.nx
+        lo_s, hi_s = np.full(nx, -_FREE), np.full(nx, _FREE)
+        for j in range(model.dof):
+            lo, hi = model.q_lo[j], model.q_hi[j]
+            if math.isfinite(lo):
+                lo_s[j] = lo + margin
+            if math.isfinite(hi):
+                hi_s[j] = hi - margin
+        u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
+        u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
+        C, D, b, owner, names = [], [], [], [], []
+        if cs is not None:
+            # the set's columns by name: the plant's full state (then u) is the model's,
+            # but nothing here relies on the order being the same
+            if tuple(cs.names[:-1]) != tuple(model.state_names):
+                missing = set(model.state_names) - set(cs.names[:-1])
+                if missing or len(cs.names) - 1 != nx:
+                    raise ScenarioError(f"controllers.mpc: the constraints' states "
+                                        f"({', '.join(cs.names[:-1])}) are not the model's "
+                                        f"({', '.join(model.state_names)})")
+            col = [cs.names.index(n) for n in model.state_names]
+            for c in cs:
+                for a_row, b_row in zip(c.A, c.b):
+                    a_s, a_u = a_row[col], float(a_row[-1])
+                    nonzero = np.flatnonzero(a_s)
+                    if a_u != 0.0 and nonzero.size == 0:
+                        # a box on the input: the input's bound (always feasible)
+                        if a_u > 0.0:
+                            u_hi = min(u_hi, b_row / a_u)
+                        else:
+                            u_lo = max(u_lo, b_row / a_u)
+                        continue
+                    box = a_u == 0.0 and nonzero.size == 1
+                    j = int(nonzero[0]) if box else -1
+                    # a box keeps the margin, as the rail does (in the state's unit: m or
+                    # rad, m/s or rad/s): the OCP holds it at the period's nodes on the
+                    # model, the machine moves between them and differs from the model
+                    room = b_row - (abs(a_s[j]) * margin if box else 0.0)
+                    if box and c.hard and j < model.dof:
+                        # a position's hard box: a bound, as the rail (the margin is the
+                        # room a measured state needs); a velocity's is a slack row below:
+                        # a measured speed at its bound would make the bound infeasible
+                        if a_s[j] > 0.0:
+                            hi_s[j] = min(hi_s[j], room / a_s[j])
+                        else:
+                            lo_s[j] = max(lo_s[j], room / a_s[j])
+                        continue
+                    if c.name not in names:
+                        names.append(c.name)
+                    C.append(a_s)
+                    D.append(a_u)
+                    b.append(room)
+                    owner.append(names.index(c.name))
+        sel = np.zeros((len(owner), len(names)))
+        sel[np.arange(len(owner)), owner] = 1.0
+        self.rows = (np.array(C, dtype=float).reshape(-1, nx), np.array(D, dtype=float),
+                     np.array(b, dtype=float), sel)
+        self.soft_names = tuple(names)
+        return lo_s, hi_s, u_lo, u_hi
+
     def reset(self, rng: np.random.Generator | None) -> None:
         self.w0: np.ndarray | None = None
         self.lam_g0: np.ndarray | None = None
@@ -208,6 +336,8 @@ class MPCController(Controller):
         #: the last solution: predicted states (nx, N+1) and inputs (N,), for tests
         self.plan_states = np.zeros((self.nx, self.N + 1))
         self.plan_inputs = np.zeros(self.N)
+        #: and its slacks (ns, N) of (M3), one row per constraint of ``soft_names``
+        self.plan_slacks = np.zeros((self.ns, self.N))
         self._plan_age = self.N
         self.z: np.ndarray | None = None
         if self.rti is not None:
@@ -267,17 +397,21 @@ class MPCController(Controller):
         s0[m.pole] = float(ref[0]) + wrap_angle(s0[m.pole] - float(ref[0]))
         Sr, Ur = self.references(ref)
         self._u_ref = float(Ur[0])
+        ns, nS = self.ns, nx * (N + 1)
         if self.w0 is None:
-            w0 = np.concatenate([np.tile(s0, N + 1), np.clip(Ur, self.u_lo, self.u_hi)])
+            w0 = np.concatenate([np.tile(s0, N + 1), np.clip(Ur, self.u_lo, self.u_hi),
+                                 np.zeros(N * ns)])
         else:
             # shift the last plan by one period; repeat its last node
-            Sp = self.w0[:nx * (N + 1)].reshape(N + 1, nx)
-            Up = self.w0[nx * (N + 1):]
+            Sp = self.w0[:nS].reshape(N + 1, nx)
+            Up = self.w0[nS:nS + N]
+            Ep = self.w0[nS + N:].reshape(N, ns)
             w0 = np.concatenate([np.vstack([s0, Sp[2:], Sp[-1:]]).ravel(),
-                                 np.concatenate([Up[1:], Up[-1:]])])
+                                 np.concatenate([Up[1:], Up[-1:]]),
+                                 np.vstack([Ep[1:], Ep[-1:]]).ravel()])
         p = np.concatenate([s0, Sr.T.ravel(), Ur])
         started = time.perf_counter()
-        sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=0.0, ubg=0.0)
+        sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
         wall = time.perf_counter() - started
         stats = self.solver.stats()
         ok = bool(stats.get("success", False))
@@ -285,8 +419,9 @@ class MPCController(Controller):
         if ok:
             w = np.asarray(sol["x"]).ravel()
             self.w0 = w
-            self.plan_states = w[:nx * (N + 1)].reshape(N + 1, nx).T.copy()
-            self.plan_inputs = w[nx * (N + 1):].copy()
+            self.plan_states = w[:nS].reshape(N + 1, nx).T.copy()
+            self.plan_inputs = w[nS:nS + N].copy()
+            self.plan_slacks = w[nS + N:].reshape(N, ns).T.copy()
             self._plan_age = 0
             return float(self.plan_inputs[0]), True, wall
         return math.nan, False, wall
@@ -295,19 +430,21 @@ class MPCController(Controller):
         """One sample of the rti or sqp scheme (:mod:`.mpc_rti`); the wall time is the
         whole sample's, references and shift included."""
         started = time.perf_counter()
-        m, N, nx, rti = self.model, self.N, self.nx, self.rti
+        m, N, nx, nz, rti = self.model, self.N, self.nx, self.nz, self.rti
         s0 = np.array(state, dtype=float)
         s0[m.pole] = float(ref[0]) + wrap_angle(s0[m.pole] - float(ref[0]))
         Sr, Ur = self.references(ref)
         self._u_ref = float(Ur[0])
-        zr = np.concatenate([np.vstack([Sr[:, :N], Ur[None, :]]).T.ravel(), Sr[:, N]])
+        zr = np.concatenate([np.vstack([Sr[:, :N], Ur[None, :], np.zeros((self.ns, N))]
+                                       ).T.ravel(), Sr[:, N]])
         if self.z is None:
-            # cold: the state held, the feedforward input; iterate as the sqp scheme does
-            z = np.concatenate([np.tile(np.append(s0, 0.0), N), s0])
-            z[nx:N * (nx + 1):nx + 1] = np.clip(Ur, self.u_lo, self.u_hi)
+            # cold: the state held, the feedforward input, no slack; iterate as the sqp
+            # scheme does
+            z = np.concatenate([np.tile(np.append(s0, np.zeros(nz - nx)), N), s0])
+            z[nx:N * nz:nz] = np.clip(Ur, self.u_lo, self.u_hi)
             iterations = self.s.sqp_iterations
         else:
-            z = rti.shifted(self.z, nx + 1)
+            z = rti.shifted(self.z, nz)
             iterations = self.s.sqp_iterations if self.s.scheme == "sqp" else 1
         try:
             z, steps = rti.iterate(z, s0, zr, iterations, self.s.tolerance)
@@ -318,9 +455,10 @@ class MPCController(Controller):
             return math.nan, False, time.perf_counter() - started
         self.diag[3] = float(steps)
         self.z = z
-        body = z[:N * (nx + 1)].reshape(N, nx + 1)
-        self.plan_states = np.vstack([body[:, :nx], z[None, N * (nx + 1):]]).T
+        body = z[:N * nz].reshape(N, nz)
+        self.plan_states = np.vstack([body[:, :nx], z[None, N * nz:]]).T
         self.plan_inputs = body[:, nx].copy()
+        self.plan_slacks = body[:, nx + 1:].T.copy()
         self._plan_age = 0
         return float(self.plan_inputs[0]), True, time.perf_counter() - started
 
@@ -353,7 +491,7 @@ class MPCController(Controller):
 
 
 def build(scenario: "Scenario") -> MPCController:
-    from tspend.controllers.full_model import full_model
+    from tspend.controllers.full_model import full_model_and_constraints
     from tspend.controllers.lqr import LQRSettings, build_full
 
     try:
@@ -361,7 +499,7 @@ def build(scenario: "Scenario") -> MPCController:
     except ImportError:  # pragma: no cover - the extra is in the test extra
         raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
     s: MPCSettings = settings_for(scenario, MPCSettings)
-    model = full_model(scenario)
+    model, constraints = full_model_and_constraints(scenario)
     dt = scenario.run.dt
     if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
         raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "
@@ -376,4 +514,5 @@ def build(scenario: "Scenario") -> MPCController:
     else:
         Q = lqr.Q
     R = s.R if s.R is not None else lqr.R
-    return MPCController(model, s, lqr, Q, R, order=len(scenario.plant.x0))
+    return MPCController(model, s, lqr, Q, R, order=len(scenario.plant.x0),
+                         constraints=constraints)

@@ -12,6 +12,7 @@ Int. J. Control 93(1), 2020):
     s.t. dx_0 = s(t) - x_0,
          dx_{k+1} = A_k dx_k + B_k du_k + F(x_k, u_k) - x_{k+1},             (R2)
          lo - z <= dz <= hi - z,
+         G dz_k <= b_G - G z_k   (k < N: the task's rows, (M3) of :mod:`.mpc`)  (R3)
 
 ``A_k, B_k`` the Jacobians of ``F`` at ``(x_k, u_k)`` and ``H`` the cost's Hessian
 (constant: the cost is quadratic, so this Gauss-Newton Hessian is exact for the cost and
@@ -22,14 +23,18 @@ KKT conditions whatever the Hessian, so iterated steps converge to IPOPT's solut
 same problem (tests/test_mpc_rti.py).  A cold start (no plan yet) iterates up to
 ``sqp_iterations`` times in either scheme.
 
-The QP keeps the stage structure (variables ordered by stage, (R2) as the only equality
-rows), the form HPIPM exploits (a Riccati-based interior point; Frison and Diehl, 2020);
-qrqp (CasADi's sparse active set, the default: measured fastest here, docs/controllers.md),
-DAQP (dense active set) and OSQP (ADMM) take it as a general sparse QP.  FATROP's QP
-interface is left out: in CasADi 3.8.2 it prints its matrices on every call.  The
-linearisation (``F``, its Jacobian over the horizon, (R1)'s gradient, the bounds) is one
-CasADi function, generated as C and compiled with the system's C compiler (cached by the
-source's hash under ``$TSPEND_CACHE_DIR/mpc``), or run in CasADi's virtual machine when
+The QP keeps the stage structure (variables ordered by stage: a stage's state, then its
+input and its slacks; (R2)'s rows of a stage followed by its (R3) rows, the order CasADi's
+HPIPM interface reads as ``[gap_k, lincon_k]``), the form HPIPM exploits (a Riccati-based
+interior point; Frison and Diehl, 2020); qrqp (CasADi's sparse active set, the default
+without (R3): measured fastest here, docs/controllers.md), DAQP (dense active set) and
+OSQP (ADMM) take it as a general sparse QP.  FATROP's QP interface is left out: in
+CasADi 3.8.2 it prints its matrices on every call.  The linearisation (``F``, its Jacobian
+over the horizon, (R1)'s gradient, the bounds, (R3)'s right-hand side) is one CasADi
+function, generated as C and compiled with the system's C compiler (cached by the
+source's hash under ``$TSPEND_CACHE_DIR/mpc``: the rows ``G, b_G``, the bounds and the
+weights are constants in that source, so a different constraint set is another file), or
+run in CasADi's virtual machine when
 ``compiled = false`` or no compiler is found.
 """
 
@@ -51,6 +56,10 @@ __all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
 #: default: docs/controllers.md says why)
 QP_SOLVERS = ("qrqp", "hpipm", "daqp", "osqp")
 
+#: the lower end of an inequality row of (R3): none reached (rows are in the constraint's
+#: unit, at most metres or radians per second)
+_FAR = 1e10
+
 #: each QP solver's options: quiet, errors raised (a failed QP is a failed sample)
 _QP_OPTIONS: dict[str, dict[str, Any]] = {
     "hpipm": {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-7,
@@ -58,7 +67,9 @@ _QP_OPTIONS: dict[str, dict[str, Any]] = {
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-6, "eps_rel": 1e-6, "polish": True,
                       "max_iter": 20000}, "warm_start_primal": True},
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
-    "daqp": {},
+    # daqp's default primal tolerance (1e-6) let (R3)'s rows end 2e-6 outside, which the
+    # acceptance check below refuses
+    "daqp": {"daqp": {"primal_tol": 1e-9}},
 }
 
 
@@ -119,15 +130,28 @@ class RealTimeSQP:
         One of :data:`QP_SOLVERS`.
     compiled : bool
         Generate and compile the linearisation with the C compiler.
+    stage_rows, stage_bound : ndarray, optional
+        ``G`` (``(r, nz)``) and ``b_G`` (``(r,)``) of (R3): ``G z_k <= b_G`` on every stage
+        ``k < N`` (``z_k`` = its state, input and slacks).  None: no rows.
+    stage_gradient : ndarray, optional
+        A constant linear cost on each stage's ``z_k`` (``(nz,)``: the slacks' exact
+        penalty).
+    nz : int, optional
+        A stage's size: ``nx + 1`` (state, input) plus its slacks.
     """
 
     def __init__(self, F: Any, nx: int, N: int, stage_hessian: np.ndarray,
                  terminal_hessian: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray,
-                 solver: str, compiled: bool) -> None:
+                 solver: str, compiled: bool, stage_rows: np.ndarray | None = None,
+                 stage_bound: np.ndarray | None = None,
+                 stage_gradient: np.ndarray | None = None, nz: int | None = None) -> None:
         import casadi as ca
 
-        nz = nx + 1
-        self.nx, self.N, self.nz, self.nw = nx, N, nz, N * nz + nx
+        nz = nx + 1 if nz is None else nz
+        G = np.zeros((0, nz)) if stage_rows is None else np.asarray(stage_rows, dtype=float)
+        bG = np.zeros(0) if stage_bound is None else np.asarray(stage_bound, dtype=float)
+        nr = G.shape[0]
+        self.nx, self.N, self.nz, self.nw, self.nr = nx, N, nz, N * nz + nx, nr
         s, u = ca.SX.sym("s", nx), ca.SX.sym("u")
         Fs = F(s, u)
         JF = ca.Function("JF", [s, u], [Fs, ca.jacobian(Fs, ca.vertcat(s, u))])
@@ -136,9 +160,10 @@ class RealTimeSQP:
         zr = ca.MX.sym("zr", self.nw)
         XU = ca.reshape(z[:N * nz], nz, N)
         Fk, Jk = JF.map(N)(XU[:nx, :], XU[nx, :])
-        nxt = ca.reshape(ca.vertcat(z[nz:], ca.MX.zeros(1)), nz, N)[:nx, :]
+        nxt = ca.reshape(ca.vertcat(z[nz:], ca.MX.zeros(nz - nx)), nz, N)[:nx, :]
         defect = ca.reshape(Fk - nxt, -1, 1)          # rows gap_0, gap_1, ..
-        blocks = ca.horzsplit(Jk, nz)
+        # each stage's Jacobian on (x_k, u_k), nothing on its slacks
+        blocks = [ca.horzcat(b, ca.MX(nx, nz - nx - 1)) for b in ca.horzsplit(Jk, nx + 1)]
         shift = ca.DM(ca.Sparsity.triplet(N * nx, self.nw,
                                           [k * nx + i for k in range(N) for i in range(nx)],
                                           [(k + 1) * nz + i for k in range(N) for i in range(nx)]),
@@ -147,11 +172,28 @@ class RealTimeSQP:
         H = ca.diagcat(*([ca.DM(stage_hessian)] * N), ca.DM(terminal_hessian))
         H = ca.DM(ca.sparsify(H))
         g = ca.mtimes(H, z - zr)
+        if stage_gradient is not None:
+            g = g + ca.DM(np.concatenate([np.tile(stage_gradient, N), np.zeros(nx)]))
         lo, hi = ca.DM(z_lo), ca.DM(z_hi)
         lbx = ca.vertcat(s0 - z[:nx], lo[nx:] - z[nx:])
         ubx = ca.vertcat(s0 - z[:nx], hi[nx:] - z[nx:])
-        lin = ca.Function("tspend_mpc_lin", [z, s0, zr], [g, A, -defect, lbx, ubx],
-                          ["z", "s0", "zr"], ["g", "a", "b", "lbx", "ubx"])
+        lba, uba = -defect, -defect
+        if nr:
+            # (R3) on every stage, then the rows in stage order: gap_k, then stage k's rows
+            Gall = ca.DM(ca.sparsify(ca.horzcat(ca.diagcat(*([ca.DM(G)] * N)),
+                                                ca.DM(N * nr, nx))))
+            A = ca.vertcat(A, ca.MX(Gall))
+            order = [i for k in range(N) for i in
+                     list(range(k * nx, (k + 1) * nx)) + list(range(N * nx + k * nr,
+                                                                    N * nx + (k + 1) * nr))]
+            A = A[order, :]
+            rhs = ca.DM(np.tile(bG, N)) - ca.mtimes(Gall, z)
+            # a far finite lower end, not -inf: with -inf qrqp (CasADi 3.8.2) reported
+            # success on answers that broke an active row by millimetres
+            lba = ca.vertcat(-defect, ca.DM.ones(N * nr) * -_FAR)[order]
+            uba = ca.vertcat(-defect, rhs)[order]
+        lin = ca.Function("tspend_mpc_lin", [z, s0, zr], [g, A, lba, uba, lbx, ubx],
+                          ["z", "s0", "zr"], ["g", "a", "lba", "uba", "lbx", "ubx"])
         self.compiled = False
         if compiled:
             fast = compiled_function(lin)
@@ -162,17 +204,19 @@ class RealTimeSQP:
         # (CasADi prints the QP's data with it)
         opts["error_on_fail"] = False
         if solver == "hpipm":
-            opts.update(N=N, nx=[nx] * (N + 1), nu=[1] * N + [0], ng=[0] * (N + 1))
+            opts.update(N=N, nx=[nx] * (N + 1), nu=[nz - nx] * N + [0], ng=[nr] * N + [0])
         self.qp = ca.conic("tspend_mpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()},
                            opts)
         zs, s0s, zrs = ca.MX.sym("z", self.nw), ca.MX.sym("s0", nx), ca.MX.sym("zr", self.nw)
-        lam = ca.MX.sym("lam", self.nw + N * nx)
-        gq, Aq, bq, lq, uq = lin(zs, s0s, zrs)
-        sol = self.qp(h=H, g=gq, a=Aq, lba=bq, uba=bq, lbx=lq, ubx=uq,
+        lam = ca.MX.sym("lam", self.nw + N * (nx + nr))
+        gq, Aq, la, ua, lq, uq = lin(zs, s0s, zrs)
+        sol = self.qp(h=H, g=gq, a=Aq, lba=la, uba=ua, lbx=lq, ubx=uq,
                       lam_x0=lam[:self.nw], lam_a0=lam[self.nw:])
         dz = sol["x"]
-        # how far the QP's answer is from feasible: (R2)'s residual and the bounds' excess
-        infeasibility = ca.mmax(ca.vertcat(ca.fabs(ca.mtimes(Aq, dz) - bq), lq - dz, dz - uq))
+        # how far the QP's answer is from feasible: (R2)'s residual, (R3)'s and the bounds'
+        # excess (an inequality row's lower end is -inf)
+        Adz = ca.mtimes(Aq, dz)
+        infeasibility = ca.mmax(ca.vertcat(la - Adz, Adz - ua, lq - dz, dz - uq))
         #: one step, (z, s0, z_r, lam) -> [z + dz, |dz|_inf, infeasibility, lam] in one
         #: vector, evaluated through CasADi's buffer interface on persistent arrays (a
         #: Python call with conversions costs 0.1 ms, the buffer's a microsecond)
@@ -180,9 +224,11 @@ class RealTimeSQP:
                                 [ca.vertcat(zs + dz, ca.norm_inf(dz), infeasibility,
                                             sol["lam_x"], sol["lam_a"])])
         self.solver = solver
+        #: the QP's data at a point, (z, s0, z_r) -> (g, A, lba, uba, lbx, ubx), and H
+        self.linearisation, self.hessian = lin, H
         self._z, self._s0, self._zr = np.zeros(self.nw), np.zeros(nx), np.zeros(self.nw)
-        self._lam = np.zeros(self.nw + N * nx)
-        self._out = np.zeros(2 * self.nw + 2 + N * nx)
+        self._lam = np.zeros(self.nw + N * (nx + nr))
+        self._out = np.zeros(2 * self.nw + 2 + N * (nx + nr))
         self._buffer, self._evaluate = self.step.buffer()
         for i, array in enumerate((self._z, self._s0, self._zr, self._lam)):
             self._buffer.set_arg(i, memoryview(array))
@@ -205,6 +251,13 @@ class RealTimeSQP:
             self._evaluate()
             steps += 1
             size, infeasibility = out[nw], out[nw + 1]
+            if not (np.isfinite(size) and infeasibility <= 1e-6) and np.any(self._lam):
+                # the last solve's multipliers (not shifted with z) can start an active-set
+                # solver on a wrong active set that it leaves slightly infeasible (seen
+                # with qrqp and daqp once (R3)'s rows are active): once more from none
+                self._lam[:] = 0.0
+                self._evaluate()
+                size, infeasibility = out[nw], out[nw + 1]
             if not (np.isfinite(size) and infeasibility <= 1e-6):
                 raise RuntimeError(f"the QP failed (step {size:g}, infeasibility "
                                    f"{infeasibility:g})")
