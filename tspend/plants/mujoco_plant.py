@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 from dataclasses import replace
+from functools import cached_property
 from typing import Any, Final, NamedTuple
 
 import mujoco
@@ -520,6 +521,16 @@ class MujocoCartPole(MujocoPlant):
         """The ODE of the compiled model (:meth:`ModelFacts.params`): masses, COM distance,
         inertia about the pivot, joint damping and friction, gear and angle sign."""
         return self._params
+
+    @cached_property
+    def machine(self) -> Any:
+        """The compiled model as the articulated domain reads it
+        (:class:`~tspend.plants.articulated.machine.Machine`: its derived equations, the
+        hinge its pole), built when first asked, from the model as it is then.  ScenarioError
+        for a model the derivation refuses (the cart-pole steps some of those in MuJoCo)."""
+        from tspend.plants.articulated.machine import Machine
+
+        return Machine(self.model, str(self.model_path), self.actuator, (self.hinge_joint,))
 
     @property
     def gain_sign(self) -> int:
