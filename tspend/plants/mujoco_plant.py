@@ -1,4 +1,6 @@
-"""The physical cart-pole of the paper's Example 3, stepped by MuJoCo.
+"""MuJoCo plants: :class:`MujocoPlant` steps any compiled hinge/slide MJCF (the
+articulated domain's and the Furuta's plants are it with their machine's roles), and
+:class:`MujocoCartPole` is the physical cart-pole of the paper's Example 3 on it.
 
 ``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
 MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
@@ -32,6 +34,7 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
+from tspend.plants.articulated.tree import INTEGRATOR_NAMES
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import CartPoleParams
 
@@ -40,26 +43,11 @@ from tspend.plants.cartpole_physics import CartPoleParams
 OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
-INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
-    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
-    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
-    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
-    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-}
-
-_GEOM_TYPES: Final[dict[int, str]] = {
-    int(v): k.removeprefix("mjGEOM_").lower()
-    for k, v in mujoco.mjtGeom.__members__.items()
-    if k not in ("mjGEOM_NONE", "mjNGEOMTYPES")
-}
+INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {v: k for k, v in INTEGRATOR_NAMES.items()}
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
 
-# the geom rgba MuJoCo treats as "not set": a material's rgba then takes over
-_DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
-
-BodyPose = tuple[np.ndarray, np.ndarray]
 
 class MujocoLink(NamedTuple):
     """One model and its data as compiled code steps them (:mod:`tspend.loop.fastloop`): the
@@ -378,7 +366,6 @@ class MujocoCartPole(MujocoPlant):
         if not (self.model.opt.timestep > 0.0 and math.isfinite(self.model.opt.timestep)):
             raise ScenarioError(f"{where}: option timestep must be a positive number, got "
                                 f"{self.model.opt.timestep!r}")
-        self._scratch: mujoco.MjData | None = None
         self.slide_joint, self.hinge_joint, self.actuator = slide_joint, hinge_joint, actuator
 
         m = self.model
@@ -585,66 +572,6 @@ class MujocoCartPole(MujocoPlant):
     def extras_index(self) -> np.ndarray:
         """The cart's position and velocity in the full state [qpos; qvel]."""
         return np.array([self._q_cart, self.model.nq + self._v_cart], dtype=np.intp)
-
-    # --- for a 3D recorder ----------------------------------------------------------
-
-    def geoms(self) -> list[dict[str, Any]]:
-        """The model's geoms as plain data: what a recorder needs to draw them.
-
-        Each dict has ``name``, ``body`` (body name), ``type`` ('box', 'capsule',
-        'cylinder', 'sphere', 'plane', ...), ``size`` (MuJoCo's 3 numbers: half-sizes,
-        radius and half-length), ``rgba`` (the material's colour when the geom has none of
-        its own, as MuJoCo renders it) and ``pos`` / ``quat`` (wxyz) relative to the body.
-        """
-        m = self.model
-        out: list[dict[str, Any]] = []
-        for i in range(m.ngeom):
-            rgba = m.geom_rgba[i]
-            matid = int(m.geom_matid[i])
-            if matid >= 0 and tuple(float(c) for c in rgba) == _DEFAULT_GEOM_RGBA:
-                rgba = m.mat_rgba[matid]
-            out.append({
-                "name": m.geom(i).name,
-                "body": m.body(int(m.geom_bodyid[i])).name,
-                "type": _GEOM_TYPES.get(int(m.geom_type[i]), str(int(m.geom_type[i]))),
-                "size": m.geom_size[i].copy(),
-                "rgba": np.array(rgba, dtype=float),
-                "pos": m.geom_pos[i].copy(),
-                "quat": m.geom_quat[i].copy(),
-            })
-        return out
-
-    def body_poses(self) -> dict[str, BodyPose]:
-        """``{body name: (position (3,), quaternion wxyz (4,))}`` in the world frame, now."""
-        m, d = self.model, self.data
-        return {m.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy()) for i in range(m.nbody)}
-
-    def body_poses_at(self, cart_pos: float, theta: float) -> dict[str, BodyPose]:
-        """Body poses for a given cart position and pole angle (e.g. from the ODE backend).
-
-        Uses a scratch MjData, so the simulation's own state is untouched.
-        """
-        if self._scratch is None:
-            self._scratch = mujoco.MjData(self.model)
-        return self.poses_at(self.model, cart_pos, theta, self.slide_joint, self.hinge_joint,
-                             scratch=self._scratch)
-
-    @staticmethod
-    def poses_at(model: mujoco.MjModel, cart_pos: float, theta: float,
-                 slide_joint: str = "slider", hinge_joint: str = "hinge",
-                 scratch: mujoco.MjData | None = None) -> dict[str, BodyPose]:
-        """Body poses of ``model`` with the cart at ``cart_pos`` and the pole at ``theta``.
-
-        Only kinematics (``mj_kinematics``), so any state from any backend can be drawn
-        with the model's geometry.  Pass ``scratch`` to reuse an MjData across frames.
-        """
-        d = scratch if scratch is not None else mujoco.MjData(model)
-        d.qpos[:] = model.qpos0
-        d.qpos[model.jnt_qposadr[model.joint(slide_joint).id]] = cart_pos
-        d.qpos[model.jnt_qposadr[model.joint(hinge_joint).id]] = theta
-        mujoco.mj_kinematics(model, d)
-        return {model.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy())
-                for i in range(model.nbody)}
 
 
 def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
