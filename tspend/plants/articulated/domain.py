@@ -216,13 +216,9 @@ class ArticulatedMujoco(_Named, MujocoPlant):
     name = "articulated_mujoco"
 
     def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
-        import mujoco
-
         self.machine, self.q0 = machine, tuple(q0)
-        m = machine.model
-        act = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, machine.actuator.name) \
-            if machine.actuator.name else machine.actuator_index
-        self._attach(m, machine.where, act, machine.view_joint)
+        # the tree's actuators and joints are MuJoCo's, in its order (:func:`.tree.read_tree`)
+        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint)
         self.reset(np.zeros(2))
 
     def departures(self, dt: float | None = None) -> list[str]:
