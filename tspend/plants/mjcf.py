@@ -30,7 +30,8 @@ import mujoco
 import numpy as np
 
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.tree import INTEGRATOR_NAMES, collision_pairs, read_actuator, read_joint
+from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
+                                            read_actuator, read_joint)
 from tspend.plants.cartpole_physics import CartPoleParams
 
 __all__ = ["ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
@@ -235,29 +236,14 @@ def pole_inertials(model: mujoco.MjModel, data: mujoco.MjData, hinge: int
     return mass, float(np.linalg.norm(arm)), inertia, com
 
 
-_GAIN_NAMES = {int(v): k.removeprefix("mjGAIN_").lower() for k, v in mujoco.mjtGain.__members__.items()}
-_BIAS_NAMES = {int(v): k.removeprefix("mjBIAS_").lower() for k, v in mujoco.mjtBias.__members__.items()}
-_DYN_NAMES = {int(v): k.removeprefix("mjDYN_").lower() for k, v in mujoco.mjtDyn.__members__.items()}
-
-
 def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> ActuatorFacts:
     """The actuator's force law, or ScenarioError naming what the ODE cannot carry."""
     name = model.actuator(a).name
-    dyn = int(model.actuator_dyntype[a])
-    if dyn != mujoco.mjtDyn.mjDYN_NONE:
-        raise ScenarioError(f"{where}: actuator '{name}' has activation dynamics (dyntype "
-                            f"{_DYN_NAMES.get(dyn, dyn)}): its force depends on a state the "
-                            f"cart-pole ODE does not carry (use a motor, velocity, position or "
-                            f"general actuator without dynamics)")
-    gtype, btype = int(model.actuator_gaintype[a]), int(model.actuator_biastype[a])
-    if gtype not in (mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtGain.mjGAIN_AFFINE):
-        raise ScenarioError(f"{where}: actuator '{name}' has gain type "
-                            f"{_GAIN_NAMES.get(gtype, gtype)}: only fixed and affine gains "
-                            f"are modelled")
-    if btype not in (mujoco.mjtBias.mjBIAS_NONE, mujoco.mjtBias.mjBIAS_AFFINE):
-        raise ScenarioError(f"{where}: actuator '{name}' has bias type "
-                            f"{_BIAS_NAMES.get(btype, btype)}: only none and affine biases "
-                            f"are modelled")
+    refused = law_refusals(model, a)
+    if refused:
+        raise ScenarioError(f"{where}: {'; '.join(refused)}: the cart-pole ODE cannot carry it "
+                            f"(use a motor, velocity, position or general actuator without "
+                            f"dynamics, its gain fixed or affine, its bias none or affine)")
     law = read_actuator(model, a)
     (g0, g1, g2), (b0, b1, b2) = law.gain, law.bias
     if (g1, g2, b0, b1, b2) == (0.0,) * 5:

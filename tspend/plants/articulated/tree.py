@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 __all__ = ["BodyFacts", "JointFacts", "ActuatorFacts", "Tree", "read_tree", "read_joint",
-           "read_actuator", "collision_pairs", "INTEGRATOR_NAMES", "ROLES"]
+           "read_actuator", "law_refusals", "collision_pairs", "INTEGRATOR_NAMES", "ROLES"]
 
 #: the roles a joint can play (docs/machines.md): a cart on a rail, a pole that must stay
 #: up, an arm turning about a vertical axis, a balanced rotor (reaction wheel)
@@ -134,6 +134,26 @@ def _limited(flag: Any, rng: Any) -> tuple[float, float] | None:
     return (float(rng[0]), float(rng[1])) if bool(flag) else None
 
 
+def _kind(enum: Any, value: int) -> str:
+    return enum(value).name.split("_", 1)[1].lower()
+
+
+def law_refusals(m: mujoco.MjModel, a: int) -> list[str]:
+    """What of actuator ``a``'s force law no equations of state and input can carry:
+    activation dynamics, a gain other than fixed or affine, a bias other than none or affine."""
+    name, out = m.actuator(a).name or str(a), []
+    dyn, gain, bias = int(m.actuator_dyntype[a]), int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
+    if dyn != int(mujoco.mjtDyn.mjDYN_NONE):
+        out.append(f"actuator {name!r} has activation dynamics (dyntype {_kind(mujoco.mjtDyn, dyn)})")
+    if gain not in (int(mujoco.mjtGain.mjGAIN_FIXED), int(mujoco.mjtGain.mjGAIN_AFFINE)):
+        out.append(f"actuator {name!r} has a gain that is neither fixed nor affine (gaintype "
+                   f"{_kind(mujoco.mjtGain, gain)})")
+    if bias not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)):
+        out.append(f"actuator {name!r} has a bias that is neither none nor affine (biastype "
+                   f"{_kind(mujoco.mjtBias, bias)})")
+    return out
+
+
 def _refusals(m: mujoco.MjModel) -> list[str]:
     out = []
     kinds = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
@@ -155,14 +175,7 @@ def _refusals(m: mujoco.MjModel) -> list[str]:
         name = m.actuator(a).name or str(a)
         if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             out.append(f"actuator {name!r} does not drive a joint directly")
-        if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            out.append(f"actuator {name!r} has activation dynamics")
-        if int(m.actuator_gaintype[a]) not in (int(mujoco.mjtGain.mjGAIN_FIXED),
-                                               int(mujoco.mjtGain.mjGAIN_AFFINE)):
-            out.append(f"actuator {name!r} has a gain that is neither fixed nor affine")
-        if int(m.actuator_biastype[a]) not in (int(mujoco.mjtBias.mjBIAS_NONE),
-                                               int(mujoco.mjtBias.mjBIAS_AFFINE)):
-            out.append(f"actuator {name!r} has a bias that is neither none nor affine")
+        out.extend(law_refusals(m, a))
         if np.any(np.asarray(m.actuator_gainprm[a, 3:]) != 0) or \
                 np.any(np.asarray(m.actuator_biasprm[a, 3:]) != 0):
             out.append(f"actuator {name!r} uses gain or bias terms beyond the affine three")
