@@ -80,24 +80,12 @@ def _initial(machine: Machine, q0: tuple[float, ...], x0: np.ndarray, where: str
 
 
 class _Named:
-    """What both backends say alike of their machine."""
+    """What both backends say alike of their machine (the state's names: each its own,
+    from the one compiled model)."""
 
     machine: Machine
     domain = "articulated"
     order = 2
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.machine.state_names
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return self.machine.state_units
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
-                     for j in self.machine.tree.joints)
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
@@ -186,6 +174,20 @@ class ArticulatedODE(_Named, AnalyticPlant):
         self._work = rk4_work(self.s.size)
         self._full_order = np.arange(self.s.size, dtype=np.intp)
         self._d_joint = machine.view_joint
+
+    # the MuJoCo plant names its state from the same compiled model (MujocoPlant)
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.machine.state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.machine.state_units
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
+                     for j in self.machine.tree.joints)
 
     def reset(self, x0: np.ndarray) -> None:
         self.s[:] = _initial(self.machine, self.q0, x0, self.machine.where)
