@@ -489,12 +489,6 @@ class MujocoCartPole(MujocoPlant):
         """What the ODE of this model (:attr:`params`) does not reproduce."""
         return mjcf.unmodelled(self.facts, dt)
 
-    @property
-    def cart_joints(self) -> tuple[JointInfo, JointInfo]:
-        """The slide joint and the hinge (what the cart-pole ODE of this model is named by)."""
-        by_name = {j.name: j for j in self._joints}
-        return by_name[self.slide_joint], by_name[self.hinge_joint]
-
     def default_task(self) -> TaskDefaults:
         """The domain's task (``task_defaults``, in the model's ``slider``/``hinge`` roles),
         on this model's joints."""
