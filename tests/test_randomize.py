@@ -213,7 +213,9 @@ def test_run_seeds_draw_different_machines(tmp_path):
 
 
 def test_furuta_draws_its_initial_state_on_both_backends():
-    """The Furuta reads its machine from the MJCF (no numeric [plant] keys): x0 only."""
+    """The Furuta reads its machine from the MJCF: x0 drawn on both backends, a key that is
+    neither its [plant]'s nor a model's number refused (the model's numbers are drawn in
+    tests/test_randomize_articulated.py)."""
     from tspend.scenario import parse_scenario
 
     text = (ROOT / "scenarios" / "furuta_mujoco.toml").read_text() + (

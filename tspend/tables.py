@@ -208,8 +208,9 @@ class Table:
 
 def read_fields(r: Table, cls: type, context: str, skip: tuple[str, ...] = ()) -> dict[str, Any]:
     """Every field of dataclass ``cls`` present in the table, read by its type and checked
-    by its metadata (``low``, ``strict``, ``choices``); unknown keys are errors."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    by its metadata (``low``, ``strict``, ``choices``); unknown keys are errors.  A field
+    whose metadata says ``internal`` is set by tspend, not read from a table."""
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
     r.check_keys(tuple(fields), context)
     values: dict[str, Any] = {}
     for name, f in fields.items():

@@ -50,9 +50,11 @@ ARM_STOP_RAD = 2.356
 class FurutaConfig(PlantConfig):
     """The Furuta pendulum on the analytic backend: the equations derived from
     models/furuta.xml (the QUBE-Servo 2's published numbers, docs/furuta.md); ``x0`` is the
-    view ``[pendulum, pendulum_dot]``, the arm starting at rest at 0."""
+    view ``[pendulum, pendulum_dot]``, the arm starting at rest at 0.  ``model_values``:
+    what ``[randomize]`` drew of the model's numbers (not a ``[plant]`` key)."""
 
     x0: tuple[float, ...] = (0.05, 0.0)
+    model_values: tuple = field(default=(), metadata={"internal": True})
 
 
 @dataclass(frozen=True)
@@ -73,10 +75,13 @@ class FurutaMujocoConfig(FurutaConfig):
 
 def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
                 actuator: str = "motor", timestep: float | None = None,
-                pendulum_damping: float | None = None) -> Machine:
-    """The Furuta MJCF at ``model_path`` compiled (``timestep``, ``pendulum_damping``
-    written into it when given) and read as an articulated machine whose pole is
-    ``pendulum`` and whose ``u`` drives ``actuator``."""
+                pendulum_damping: float | None = None,
+                values: tuple[tuple[str, float], ...] = ()) -> Machine:
+    """The Furuta MJCF at ``model_path`` compiled (``timestep``, ``pendulum_damping`` and
+    then ``values``, the ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs of
+    :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
+    as an articulated machine whose pole is ``pendulum`` and whose ``u`` drives ``actuator``."""
+    from tspend.plants.articulated.model_numbers import check_values, write_values
     from tspend.plants.mjcf import read_spec
 
     where = str(model_path)
@@ -94,9 +99,12 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
             damping = np.array(joint.damping, dtype=float)
             damping[0] = float(pendulum_damping)
             joint.damping = damping
+        write_values(spec, values, where)
         model = spec.compile()
     except ValueError as exc:
-        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
+        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
+    check_values(model, values, where)
     names = tuple(model.joint(j).name for j in range(model.njnt))
     for joint in (arm, pendulum):
         if joint not in names:
@@ -222,7 +230,8 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
         kind="furuta_mujoco", x0=cfg.x0, state_bound=cfg.state_bound)
     return MujocoFuruta(load_furuta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
                                     mj.timestep or None,
-                                    mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None))
+                                    mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None,
+                                    tuple(cfg.model_values)))
 
 
 # -- drawing ------------------------------------------------------------------------------
@@ -358,6 +367,14 @@ class FurutaDomain(Domain):
     def machine(self, scenario: "Scenario") -> Machine:
         """The scenario's machine: the compiled MJCF and its derived equations."""
         return self.build(scenario).machine  # type: ignore[attr-defined]
+
+    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
+        """The compiled model's ``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``
+        (:mod:`~tspend.plants.articulated.model_numbers`): what a ``[randomize]`` entry
+        may name, and its nominal (``plant.pendulum_damping`` applied)."""
+        from tspend.plants.articulated.model_numbers import model_values
+
+        return model_values(self.machine(scenario).model)
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         """pendulum'' over the view with the arm at rest (the arm's motion enters only

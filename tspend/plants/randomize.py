@@ -12,7 +12,15 @@ started from another state::
 
 Every key names a numeric ``[plant]`` key of the scenario's plant kind (the cart-poles'
 ``M m l g J gear`` and friction, the chains' own) or ``x0`` (a list of one table per entry,
-``{}`` for an entry kept).  A distribution is
+``{}`` for an entry kept).  On a machine read from its MJCF (the articulated and Furuta
+kinds) a key may also name a number of the model by its own body and joint names,
+``BODY.mass`` (its inertia scaled with it), ``JOINT.damping`` or ``JOINT.armature``
+(:mod:`tspend.plants.articulated.model_numbers`; quoted, ``"link1.mass" = {...}``, or as a
+TOML dotted key, ``link1.mass = {...}``)::
+
+    "link1.mass" = {dist = "uniform", low = 0.9, high = 1.1, relative = true}
+
+A distribution is
 
 * ``uniform``: ``low``, ``high`` (``low < high``);
 * ``normal``: ``mean``, ``std`` (> 0), optionally truncated to ``[low, high]`` (drawn by
@@ -22,7 +30,8 @@ absolute by default (the number drawn is the value), or ``relative = true`` (the
 drawn multiplies the nominal: the ``[plant]`` value, or where that is 0 the value the
 machine takes itself, :meth:`tspend.plants.domain.Domain.nominal_values`: a MuJoCo
 cart-pole's masses, length, gear and friction as its compiled model has them, the ODE's
-rod inertia and unit gear; a relative draw on a nominal that is 0 even so is refused).
+rod inertia and unit gear, a model's number as its compiled model has it; a relative draw
+on a nominal that is 0 even so is refused).
 What can be drawn must be a valid value of the key: a positive parameter needs a positive
 range (a normal one a ``low``).
 
@@ -31,7 +40,12 @@ no stream the controllers or effects draw from moves, a scenario without ``[rand
 runs bit for bit as before, and adding an entry leaves the other entries' draws as they
 were.  :func:`draw` applies the draws to the scenario's ``[plant]`` before any backend is
 built, so the ODE and MuJoCo backends of a domain get the same machine (MuJoCo through
-``MjSpec`` edits, read back after compiling: :mod:`tspend.plants.mjcf`).  The
+``MjSpec`` edits, read back after compiling: :mod:`tspend.plants.mjcf`).  A model's numbers
+go to ``plant.model_values``, written into the model's ``MjSpec`` before it compiles
+(:func:`~tspend.plants.articulated.model_numbers.write_values`); both backends are built
+from that compiled model, the derived ODE taking the numbers into its parameter vector
+(no new derivation).  Their names are checked against the model's bodies and joints when
+drawn (the model is known then).  The
 controllers are designed on the nominal scenario: a model-based baseline does not know
 the draw.  The run's metrics record the draw as ``drawn`` (flat names such as ``m`` and
 ``x0[0]``), a sweep row as ``drawn.<name>`` columns.
@@ -40,6 +54,7 @@ the draw.  The run's metrics record the draw as ``drawn`` (flat names such as ``
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import zlib
 from dataclasses import dataclass
@@ -55,7 +70,7 @@ if TYPE_CHECKING:
     from tspend.config import PlantConfig, Scenario
 
 __all__ = ["Draw", "Drawn", "DISTRIBUTIONS", "STREAM", "draw", "read_randomize",
-           "randomizable"]
+           "randomizable", "takes_model_values"]
 
 #: the distributions a ``[randomize]`` entry may name
 DISTRIBUTIONS = ("uniform", "normal")
@@ -120,15 +135,55 @@ def randomizable(cfg: "PlantConfig") -> tuple[str, ...]:
                  and f.name not in NOT_DRAWN) + ("x0",)
 
 
+def takes_model_values(cfg: "PlantConfig") -> bool:
+    """Whether ``cfg``'s kind reads its machine from an MJCF whose numbers a draw may name
+    (``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``: the articulated and Furuta kinds)."""
+    return any(f.name == "model_values" for f in dataclasses.fields(cfg))
+
+
+def _entries(r: Table, cfg: "PlantConfig", allowed: tuple[str, ...]) -> list[tuple[str, Any]]:
+    """``(name, value)`` of the table's entries, a model's names flattened: TOML reads
+    ``link1.mass = {...}`` as ``link1 = {mass = {...}}``, ``"link1.mass" = {...}`` as one
+    key.  Where both give the same name the dotted one's keys update the quoted one's (what
+    ``--set randomize.link1.mass.low=0.8`` does to a file that quotes the name)."""
+    from tspend.plants.articulated.model_numbers import QUANTITIES, split
+
+    model = takes_model_values(cfg)
+    out: dict[str, Any] = {}
+    for key, value in r.table.items():
+        if model and key not in allowed and isinstance(value, dict) and value \
+                and "dist" not in value:
+            for q, v in value.items():
+                name = f"{key}.{q}"
+                old = out.get(name)
+                out[name] = {**old, **v} if isinstance(old, dict) and isinstance(v, dict) else v
+        elif isinstance(out.get(key), dict) and isinstance(value, dict):
+            out[key] = {**value, **out[key]}
+        else:
+            out[key] = value
+    for name in out:
+        if name in allowed or (model and split(name) is not None):
+            continue
+        close = difflib.get_close_matches(name, allowed, n=1)
+        did = f" (did you mean '{close[0]}'?)" if close else ""
+        more = (f", or {' '.join(f'{k.upper()}.{q}' for q, k in QUANTITIES.items())} named "
+                f"by the model's bodies and joints") if model else ""
+        raise r.error(name, f"unknown key{did}; allowed for plant kind '{cfg.kind}': "
+                            f"{', '.join(allowed)} (numeric [plant] keys and x0){more}")
+    return list(out.items())
+
+
 def read_randomize(r: Table, cfg: "PlantConfig") -> tuple[Draw, ...]:
-    """The ``[randomize]`` table of a scenario whose ``[plant]`` is ``cfg``, checked."""
+    """The ``[randomize]`` table of a scenario whose ``[plant]`` is ``cfg``, checked (a
+    model's names against its bodies and joints when drawn: :func:`draw`)."""
+    from tspend.plants.articulated.model_numbers import LOWER_BOUNDS, split
+
     allowed = randomizable(cfg)
-    r.check_keys(allowed, f"for plant kind '{cfg.kind}' (numeric [plant] keys and x0)")
     fields = {f.name: f for f in dataclasses.fields(cfg)}
     draws: list[Draw] = []
-    for key in r.table:
+    for key, value in _entries(r, cfg, allowed):
         if key == "x0":
-            entries = r.table[key]
+            entries = value
             n = len(cfg.x0)
             if not isinstance(entries, list) or len(entries) != n or \
                     not all(isinstance(e, dict) for e in entries):
@@ -140,8 +195,16 @@ def read_randomize(r: Table, cfg: "PlantConfig") -> tuple[Draw, ...]:
                     sub = Table(r.path, e, f"{r.prefix}{name}.")
                     draws.append(_read_one(sub, name, cfg.x0[i], None, False))
             continue
+        if not isinstance(value, dict):
+            raise r.error(key, f"must be a table such as {{dist = \"uniform\", low = 0.9, "
+                               f"high = 1.1}}, got {value!r}")
+        sub = Table(r.path, value, f"{r.prefix}{key}.")
+        if key not in fields:
+            # a model's number: its bound is the quantity's, its nominal known when drawn
+            low, strict = LOWER_BOUNDS[split(key)[1]]  # type: ignore[index]
+            draws.append(_read_one(sub, key, 0.0, low, strict))
+            continue
         meta = fields[key].metadata
-        sub = r.table_of(key, required=True)
         # a key whose 0 is the machine's own value (metadata ``own``) cannot be drawn 0
         draws.append(_read_one(sub, key, float(getattr(cfg, key)), meta.get("low"),
                                bool(meta.get("strict", False) or meta.get("own", False))))
@@ -190,13 +253,18 @@ def _rng(seed: int, name: str) -> np.random.Generator:
 
 def draw(scenario: "Scenario") -> Drawn:
     """The scenario's ``[randomize]`` drawn with its ``run.seed``, applied to ``[plant]``
-    (the same scenario and ``{}`` when it has none)."""
+    (the same scenario and ``{}`` when it has none).  A model's number goes to
+    ``plant.model_values``, which the backends write into the MJCF before compiling."""
+    from tspend.plants.articulated.model_numbers import check_names
+
     draws = scenario.randomize
     if not draws:
         return Drawn(scenario, {})
     cfg = scenario.plant
+    fields = {f.name for f in dataclasses.fields(cfg)}
     x0 = list(cfg.x0)
-    changes: dict[str, float] = {}
+    changes: dict[str, Any] = {}
+    model_values: list[tuple[str, float]] = []
     values: dict[str, float] = {}
     own: dict[str, float] | None = None
     for d in draws:
@@ -204,16 +272,30 @@ def draw(scenario: "Scenario") -> Drawn:
             i = int(d.name[3:-1])
             x0[i] = values[d.name] = d.sample(_rng(scenario.run.seed, d.name), x0[i])
             continue
-        nominal = float(getattr(cfg, d.name))
+        in_plant = d.name in fields
+        nominal = float(getattr(cfg, d.name)) if in_plant else 0.0
+        if not in_plant and own is None:
+            own = _machine_values(scenario)
+            model = domain_of(cfg.kind).model_file(cfg)
+            check_names([e.name for e in draws if e.name not in fields
+                         and not e.name.startswith("x0[")], own,
+                        f"{scenario.path} (model {model})")
         if d.relative and nominal == 0.0:
             if own is None:
                 own = _machine_values(scenario)
             nominal = float(own.get(d.name, 0.0))
             if nominal == 0.0:
+                what = "[plant] value" if in_plant else "model's value"
                 raise ScenarioError(
-                    f"{scenario.path}: randomize.{d.name}.relative: the [plant] value of "
+                    f"{scenario.path}: randomize.{d.name}.relative: the {what} of "
                     f"{d.name} is 0 and so is the machine's own, so a relative draw is always "
                     f"0: give a nominal value or draw it absolute")
-        changes[d.name] = values[d.name] = d.sample(_rng(scenario.run.seed, d.name), nominal)
+        values[d.name] = d.sample(_rng(scenario.run.seed, d.name), nominal)
+        if in_plant:
+            changes[d.name] = values[d.name]
+        else:
+            model_values.append((d.name, values[d.name]))
+    if model_values:
+        changes["model_values"] = tuple(model_values)
     plant = dataclasses.replace(cfg, x0=tuple(x0), **changes)
     return Drawn(dataclasses.replace(scenario, plant=plant), values)

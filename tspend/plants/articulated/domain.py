@@ -50,7 +50,9 @@ class ArticulatedConfig(PlantConfig):
     initial positions of every joint in the model's order (() = all 0; the view's pole
     takes ``x0[0]``); ``poles``: the joints the task keeps upright (() = every joint
     gravity acts on, docs/machines.md); ``actuator``: the one ``u`` drives ("" = the
-    model's only one); ``timestep`` > 0 replaces the model's.
+    model's only one); ``timestep`` > 0 replaces the model's.  ``model_values``: what
+    ``[randomize]`` drew of the model's numbers, written into it before it compiles
+    (:mod:`.model_numbers`; not a ``[plant]`` key).
     """
 
     kind: str = "articulated_mujoco"
@@ -60,6 +62,7 @@ class ArticulatedConfig(PlantConfig):
     poles: tuple[str, ...] = field(default=(), metadata={"strings": True})
     actuator: str = ""
     timestep: float = field(default=0.0, metadata={"low": 0.0})
+    model_values: tuple = field(default=(), metadata={"internal": True})
 
 
 def _initial(machine: Machine, q0: tuple[float, ...], x0: np.ndarray, where: str) -> np.ndarray:
@@ -351,7 +354,8 @@ class ModelDrawing(Drawing):
 
 # -- the domain ---------------------------------------------------------------------------
 def _machine_of(cfg: ArticulatedConfig, model_path: Path) -> Machine:
-    return load_machine(model_path, cfg.timestep, cfg.actuator, tuple(cfg.poles))
+    return load_machine(model_path, cfg.timestep, cfg.actuator, tuple(cfg.poles),
+                        tuple(cfg.model_values))
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -481,6 +485,13 @@ class ArticulatedDomain(Domain):
 
     def machine(self, scenario: "Scenario") -> Machine:
         return self.build(scenario).machine  # type: ignore[attr-defined]
+
+    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
+        """The compiled model's ``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``
+        (:mod:`.model_numbers`): what a ``[randomize]`` entry may name, and its nominal."""
+        from tspend.plants.articulated.model_numbers import model_values
+
+        return model_values(self.machine(scenario).model)
 
     def plant_model(self, scenario: "Scenario") -> PlantModel:
         view = derived_view(self.machine(scenario))
