@@ -13,7 +13,6 @@ import math
 from functools import partial
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pytest
 
@@ -215,36 +214,16 @@ def test_overrides_stretch_the_pole_and_keep_a_rod() -> None:
     assert m.body_mass[m.body("cart").id] == pytest.approx(20.0)
     assert m.body_inertia[pole][:2] == pytest.approx([2.0 * 1.0**2 / 12.0] * 2)
     assert m.opt.gravity.tolist() == pytest.approx([0.0, 0.0, -9.81])
-    geoms = {g["name"]: g for g in mj.geoms()}
-    assert geoms["pole"]["size"][1] == pytest.approx(0.5)  # half-length l
-    assert geoms["pole"]["pos"].tolist() == pytest.approx([0.0, 0.0, 0.5])
-    assert geoms["tip"]["pos"].tolist() == pytest.approx([0.0, 0.0, 1.0])
-    assert geoms["pivot"]["size"].tolist() == pytest.approx([0.09, 0.2, 0.0])  # across: unchanged
+    assert m.geom_size[m.geom("pole").id][1] == pytest.approx(0.5)  # half-length l
+    assert m.geom_pos[m.geom("pole").id].tolist() == pytest.approx([0.0, 0.0, 0.5])
+    assert m.geom_pos[m.geom("tip").id].tolist() == pytest.approx([0.0, 0.0, 1.0])
+    assert m.geom_size[m.geom("pivot").id].tolist() == pytest.approx([0.09, 0.2, 0.0])  # across: unchanged
 
 
-def test_geoms_and_poses_for_a_recorder(default_plant: MujocoCartPole) -> None:
-    geoms = default_plant.geoms()
-    by_name = {g["name"]: g for g in geoms}
-    assert by_name["cart_body"]["type"] == "box" and by_name["cart_body"]["body"] == "cart"
-    assert by_name["pole"]["type"] == "capsule" and by_name["pole"]["body"] == "pole"
-    assert by_name["floor"]["type"] == "plane" and by_name["rail"]["body"] == "world"
-    assert by_name["tip"]["type"] == "sphere"
-    assert all(len(g["rgba"]) == 4 and len(g["quat"]) == 4 for g in geoms)
-    assert not np.allclose(by_name["pole"]["rgba"], [0.5, 0.5, 0.5, 1.0])  # material colour
-
+def test_positive_theta_leans_the_pole_toward_minus_x(default_plant: MujocoCartPole) -> None:
     default_plant.reset(np.array([0.4, 0.0]))
-    poses = default_plant.body_poses()
-    assert set(poses) == {"world", "cart", "pole"}
-    pivot, quat = poses["pole"]
-    assert quat.shape == (4,)
-    # the same pose from the static helper, at a cart position the simulation never had
-    drawn = default_plant.body_poses_at(2.0, 0.4)
-    assert drawn["pole"][0] == pytest.approx(pivot + [2.0, 0.0, 0.0])
-    assert drawn["pole"][1] == pytest.approx(quat)
-    assert pole(default_plant)[0] == 0.4  # the simulation's own data untouched
+    m, d = default_plant.model, default_plant.data
     # theta > 0 leans the pole toward -x: the tip is at pivot + 2l (-sin, 0, cos)
-    tip_local = by_name["tip"]["pos"]
-    rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, drawn["pole"][1])
-    tip = drawn["pole"][0] + rot.reshape(3, 3) @ tip_local
-    assert tip == pytest.approx(drawn["pole"][0] + 6.0 * np.array([-math.sin(0.4), 0.0, math.cos(0.4)]))
+    tip = d.geom_xpos[m.geom("tip").id]
+    pivot = d.xanchor[m.joint("hinge").id]
+    assert tip == pytest.approx(pivot + 6.0 * np.array([-math.sin(0.4), 0.0, math.cos(0.4)]))

@@ -30,15 +30,12 @@ import mujoco
 import numpy as np
 
 from tspend.errors import ScenarioError
+from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
+                                            read_actuator, read_joint)
 from tspend.plants.cartpole_physics import CartPoleParams
 
 __all__ = ["ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
            "unmodelled", "apply_overrides", "verify_overrides", "collision_pairs"]
-
-#: MuJoCo integrators by their MJCF names
-INTEGRATOR_NAMES = {mujoco.mjtIntegrator.mjINT_RK4: "RK4", mujoco.mjtIntegrator.mjINT_EULER: "Euler",
-                    mujoco.mjtIntegrator.mjINT_IMPLICIT: "implicit",
-                    mujoco.mjtIntegrator.mjINT_IMPLICITFAST: "implicitfast"}
 
 # Axial inertia of the rod relative to its transverse one: never enters the planar
 # dynamics but must be positive; reproduces models/cartpole.xml's 1e-4 kg m^2.
@@ -189,18 +186,17 @@ class ModelFacts:
 
 
 def _joint(model: mujoco.MjModel, data: mujoco.MjData, j: int) -> JointFacts:
-    dof, adr = int(model.jnt_dofadr[j]), int(model.jnt_qposadr[j])
-    off = model.opt.disableflags
-    return JointFacts(name=model.joint(j).name,
-                      damping=0.0 if off & _DSBL.mjDSBL_DAMPER else float(model.dof_damping[dof]),
+    """Joint ``j`` (:func:`~tspend.plants.articulated.tree.read_joint`) with its dry friction,
+    whether its limit acts and its world direction at the pose of ``data``."""
+    t, off = read_joint(model, j), model.opt.disableflags
+    return JointFacts(name=model.joint(j).name, damping=t.damping,
                       frictionloss=0.0 if off & (_DSBL.mjDSBL_FRICTIONLOSS | _DSBL.mjDSBL_CONSTRAINT)
-                      else float(model.dof_frictionloss[dof]),
-                      armature=float(model.dof_armature[dof]),
-                      stiffness=0.0 if off & _DSBL.mjDSBL_SPRING else float(model.jnt_stiffness[j]),
-                      limited=bool(model.jnt_limited[j]) and not off & (
+                      else float(model.dof_frictionloss[int(model.jnt_dofadr[j])]),
+                      armature=t.armature, stiffness=t.stiffness,
+                      limited=t.range is not None and not off & (
                           _DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT),
                       range=(float(model.jnt_range[j][0]), float(model.jnt_range[j][1])),
-                      spring_ref=float(model.qpos_spring[adr]), axis=_vec(data.xaxis[j]))
+                      spring_ref=t.springref, axis=_vec(data.xaxis[j]))
 
 
 def subtree(model: mujoco.MjModel, root: int) -> list[int]:
@@ -240,34 +236,16 @@ def pole_inertials(model: mujoco.MjModel, data: mujoco.MjData, hinge: int
     return mass, float(np.linalg.norm(arm)), inertia, com
 
 
-_GAIN_NAMES = {int(v): k.removeprefix("mjGAIN_").lower() for k, v in mujoco.mjtGain.__members__.items()}
-_BIAS_NAMES = {int(v): k.removeprefix("mjBIAS_").lower() for k, v in mujoco.mjtBias.__members__.items()}
-_DYN_NAMES = {int(v): k.removeprefix("mjDYN_").lower() for k, v in mujoco.mjtDyn.__members__.items()}
-
-
 def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> ActuatorFacts:
     """The actuator's force law, or ScenarioError naming what the ODE cannot carry."""
     name = model.actuator(a).name
-    dyn = int(model.actuator_dyntype[a])
-    if dyn != mujoco.mjtDyn.mjDYN_NONE:
-        raise ScenarioError(f"{where}: actuator '{name}' has activation dynamics (dyntype "
-                            f"{_DYN_NAMES.get(dyn, dyn)}): its force depends on a state the "
-                            f"cart-pole ODE does not carry (use a motor, velocity, position or "
-                            f"general actuator without dynamics)")
-    gtype, btype = int(model.actuator_gaintype[a]), int(model.actuator_biastype[a])
-    if gtype not in (mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtGain.mjGAIN_AFFINE):
-        raise ScenarioError(f"{where}: actuator '{name}' has gain type "
-                            f"{_GAIN_NAMES.get(gtype, gtype)}: only fixed and affine gains "
-                            f"are modelled")
-    if btype not in (mujoco.mjtBias.mjBIAS_NONE, mujoco.mjtBias.mjBIAS_AFFINE):
-        raise ScenarioError(f"{where}: actuator '{name}' has bias type "
-                            f"{_BIAS_NAMES.get(btype, btype)}: only none and affine biases "
-                            f"are modelled")
-    gp, bp = model.actuator_gainprm[a], model.actuator_biasprm[a]
-    g0 = float(gp[0])
-    g1, g2 = (float(gp[1]), float(gp[2])) if gtype == mujoco.mjtGain.mjGAIN_AFFINE else (0.0, 0.0)
-    b0, b1, b2 = (float(bp[0]), float(bp[1]), float(bp[2])) \
-        if btype == mujoco.mjtBias.mjBIAS_AFFINE else (0.0, 0.0, 0.0)
+    refused = law_refusals(model, a)
+    if refused:
+        raise ScenarioError(f"{where}: {'; '.join(refused)}: the cart-pole ODE cannot carry it "
+                            f"(use a motor, velocity, position or general actuator without "
+                            f"dynamics, its gain fixed or affine, its bias none or affine)")
+    law = read_actuator(model, a)
+    (g0, g1, g2), (b0, b1, b2) = law.gain, law.bias
     if (g1, g2, b0, b1, b2) == (0.0,) * 5:
         kind = "motor"
     elif (g1, g2, b0, b1) == (0.0,) * 4 and b2 == -g0:
@@ -276,49 +254,14 @@ def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> Actuator
         kind = "position"
     else:
         kind = "general"
-    off = model.opt.disableflags
-    ctrl = (tuple(float(v) for v in model.actuator_ctrlrange[a])
-            if model.actuator_ctrllimited[a] and not off & _DSBL.mjDSBL_CLAMPCTRL else None)
-    force = (tuple(float(v) for v in model.actuator_forcerange[a])
-             if model.actuator_forcelimited[a] else None)
     joint = (tuple(float(v) for v in model.jnt_actfrcrange[slide])
              if model.jnt_actfrclimited[slide] else None)
     damping = float(model.actuator_damping[a]) if hasattr(model, "actuator_damping") else 0.0
     armature = float(model.actuator_armature[a]) if hasattr(model, "actuator_armature") else 0.0
-    return ActuatorFacts(name=name, kind=kind, gear=float(model.actuator_gear[a][0]), gain=g0,
+    return ActuatorFacts(name=name, kind=kind, gear=law.gear, gain=g0,
                          gain_length=g1, gain_velocity=g2, bias=b0, bias_length=b1,
-                         bias_velocity=b2, ctrl_range=ctrl, force_range=force,  # type: ignore[arg-type]
+                         bias_velocity=b2, ctrl_range=law.ctrlrange, force_range=law.forcerange,
                          joint_force_range=joint, damping=damping, armature=armature)  # type: ignore[arg-type]
-
-
-def collision_pairs(model: mujoco.MjModel) -> list[str]:
-    """Geom pairs that can touch (contype/conaffinity, explicit pairs; not within one
-    body, not between static geoms, not parent-child unless the filter is off)."""
-    if model.opt.disableflags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT):
-        return []
-    filter_parent = not model.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT
-    excluded = {frozenset((int(model.exclude_signature[k]) >> 16,
-                           int(model.exclude_signature[k]) & 0xFFFF))
-                for k in range(model.nexclude)}
-    out = []
-    for i in range(model.ngeom):
-        for j in range(i + 1, model.ngeom):
-            bi, bj = int(model.geom_bodyid[i]), int(model.geom_bodyid[j])
-            wi, wj = int(model.body_weldid[bi]), int(model.body_weldid[bj])
-            if wi == wj or frozenset((bi, bj)) in excluded:
-                continue
-            # MuJoCo's parent filter spares the world: a body touches the ground it hangs from
-            if filter_parent and wi and wj and (
-                    int(model.body_weldid[model.body_parentid[wi]]) == wj
-                    or int(model.body_weldid[model.body_parentid[wj]]) == wi):
-                continue
-            if (int(model.geom_contype[i]) & int(model.geom_conaffinity[j])) or (
-                    int(model.geom_contype[j]) & int(model.geom_conaffinity[i])):
-                out.append(f"{model.geom(i).name or f'geom{i}'}/{model.geom(j).name or f'geom{j}'}")
-    for k in range(model.npair):
-        g1, g2 = int(model.pair_geom1[k]), int(model.pair_geom2[k])
-        out.append(f"{model.geom(g1).name or f'geom{g1}'}/{model.geom(g2).name or f'geom{g2}'}")
-    return out
 
 
 def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuator: str,

@@ -1,4 +1,6 @@
-"""The physical cart-pole of the paper's Example 3, stepped by MuJoCo.
+"""MuJoCo plants: :class:`MujocoPlant` steps any compiled hinge/slide MJCF (the
+articulated domain's and the Furuta's plants are it with their machine's roles), and
+:class:`MujocoCartPole` is the physical cart-pole of the paper's Example 3 on it.
 
 ``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
 MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
@@ -24,6 +26,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 from dataclasses import replace
+from functools import cached_property
 from typing import Any, Final, NamedTuple
 
 import mujoco
@@ -31,6 +34,7 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
+from tspend.plants.articulated.tree import INTEGRATOR_NAMES
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import CartPoleParams
 
@@ -39,34 +43,16 @@ from tspend.plants.cartpole_physics import CartPoleParams
 OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
 
 #: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
-INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {
-    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
-    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
-    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
-    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-}
-
-_GEOM_TYPES: Final[dict[int, str]] = {
-    int(v): k.removeprefix("mjGEOM_").lower()
-    for k, v in mujoco.mjtGeom.__members__.items()
-    if k not in ("mjGEOM_NONE", "mjNGEOMTYPES")
-}
+INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {v: k for k, v in INTEGRATOR_NAMES.items()}
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
 
-# the geom rgba MuJoCo treats as "not set": a material's rgba then takes over
-_DEFAULT_GEOM_RGBA: Final[tuple[float, ...]] = (0.5, 0.5, 0.5, 1.0)
-
-BodyPose = tuple[np.ndarray, np.ndarray]
-
-_ONE_DOF: Final[tuple[int, ...]] = (int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE))
-
 
 class MujocoLink(NamedTuple):
     """One model and its data as compiled code steps them (:mod:`tspend.loop.fastloop`): the
-    addresses of mjModel and mjData for ``mj_step``, MjData's arrays in place, the indices
-    of theta, theta', the cart and the motor, and the step's constants."""
+    addresses of mjModel and mjData for ``mj_step``, MjData's arrays in place, the degree of
+    freedom ``d`` pushes (``omega``, times ``d_to_tau``), the motor and the step's constants."""
 
     model_address: int
     data_address: int
@@ -78,10 +64,7 @@ class MujocoLink(NamedTuple):
     bad_qpos: int
     bad_qvel: int
     bad_qacc: int
-    theta: int
     omega: int
-    cart_pos: int
-    cart_vel: int
     actuator: int
     d_to_tau: float
     nstep: int
@@ -143,12 +126,152 @@ def _names(elements: Any) -> str:
     return ", ".join(e.name or "<unnamed>" for e in elements) or "none"
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = float(np.linalg.norm(v))
-    return v / n if n > 0.0 else np.array([0.0, 0.0, 1.0])
+class MujocoPlant(Plant):
+    """A compiled hinge/slide MJCF stepped by MuJoCo, behind the Plant protocol: what every
+    MuJoCo plant shares (the cart-pole's, the articulated domain's, the Furuta's).
+
+    A subclass compiles its model and calls :meth:`_attach` with the actuator ``u`` drives
+    and the degree of freedom ``d`` pushes (a generalised force ``d_to_tau d``); it says how
+    :meth:`reset` places the joints (:meth:`_place`).  The state is ``[qpos; qvel]``, each
+    joint's position named after it and its velocity ``<joint>_dot``.
+    """
+
+    order: int = 2
+
+    def _attach(self, model: mujoco.MjModel, model_path: str | Path, actuator: int,
+                d_dof: int, d_to_tau: float = 1.0) -> None:
+        self.model, self.model_path = model, Path(model_path)
+        self.data: mujoco.MjData = mujoco.MjData(model)
+        self._act, self._d_dof, self._d_to_tau = int(actuator), int(d_dof), d_to_tau
+        self._ts = float(model.opt.timestep)
+        # dt -> substep count, so the common case (same dt every call) skips the check
+        self._last_dt, self._last_k = math.nan, 0
+        # numpy views into MjData, taken once: fetching them through the binding costs
+        # more per step than the physics of a small model
+        d = self.data
+        self._qpos, self._qvel = d.qpos, d.qvel
+        self._ctrl, self._qfrc = d.ctrl, d.qfrc_applied
+        # MuJoCo silently resets the simulation on NaN/huge qpos, qvel or qacc and only
+        # counts a warning: watch those counters so a blow-up cannot pass as [0, 0]
+        w = mujoco.mjtWarning
+        self._warnings = [d.warning[int(k)] for k in
+                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
+        names = [model.joint(j).name or f"joint{j}" for j in range(model.njnt)]
+        slide = [int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE)
+                 for j in range(model.njnt)]
+        units = tuple("m" if s else "rad" for s in slide)
+        self._state_names = tuple(names) + tuple(velocity_name(n) for n in names)
+        self._state_units = units + tuple(f"{u}/s" for u in units)
+        self._joints = tuple(
+            JointInfo(n, "slide" if s else "hinge", u,
+                      (float(model.jnt_range[j, 0]), float(model.jnt_range[j, 1]))
+                      if model.jnt_limited[j] else None)
+            for j, (n, s, u) in enumerate(zip(names, slide, units)))
+
+    def mj_model(self) -> mujoco.MjModel:
+        return self.model
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
+        return self._state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self._state_units
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """Every joint of the compiled model, its range when ``limited``."""
+        return self._joints
+
+    def full_state(self) -> np.ndarray:
+        return np.concatenate((self._qpos, self._qvel))
+
+    @property
+    def timestep(self) -> float:
+        """The physics timestep; ``step``'s dt must be a whole multiple of it."""
+        return self._ts
+
+    @property
+    def t(self) -> float:
+        """Simulated time since the last reset."""
+        return float(self.data.time)
+
+    def constraint_active(self) -> str:
+        """What constraint MuJoCo applies now or at its next step ("" = none: the equations
+        hold): a limited joint at or within its margin of its range, or a contact (the
+        first one found).  Dry friction is a departure named before the run; what else
+        makes constraints (tendons, equalities) is refused or named before it too."""
+        m, d = self.model, self.data
+        for j in range(m.njnt):
+            if m.jnt_limited[j]:
+                q = float(d.qpos[m.jnt_qposadr[j]])
+                lo, hi = (float(v) for v in m.jnt_range[j])
+                margin = float(m.jnt_margin[j])
+                if q <= lo + margin or q >= hi - margin:
+                    return (f"joint '{m.joint(j).name}' reached its range [{lo:g}, {hi:g}] "
+                            f"(at {q:.6g})")
+        if d.ncon > 0:
+            c = d.contact[0]
+            return (f"contact between geoms '{m.geom(int(c.geom[0])).name}' and "
+                    f"'{m.geom(int(c.geom[1])).name}'")
+        return ""
+
+    def _place(self, x0: np.ndarray) -> None:
+        """Write the initial state of ``x0`` into ``self.data`` (after ``mj_resetData``)."""
+        raise NotImplementedError
+
+    def reset(self, x0: np.ndarray) -> None:
+        """The model's reset state with :meth:`_place`'s ``x0``, no input, clock at 0."""
+        mujoco.mj_resetData(self.model, self.data)
+        self._place(np.asarray(x0, dtype=float))
+        mujoco.mj_forward(self.model, self.data)
+
+    def compiled_mujoco(self, dt: float) -> MujocoLink | None:
+        """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
+        C ``mj_step`` on its model and data) at sample time ``dt``; None when MuJoCo's
+        library cannot be found."""
+        if mj_step_pointer() is None:
+            return None
+        w = mujoco.mjtWarning
+        return MujocoLink(self.model._address, self.data._address, self._qpos, self._qvel,
+                          self._ctrl, self._qfrc, self.data.warning.number,
+                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
+                          self._d_dof, self._act, self._d_to_tau, self._substeps(dt), _MJ_MAXVAL)
+
+    def instability(self, t0: float) -> DivergenceError | None:
+        """The error :meth:`step` raises when MuJoCo found NaN, Inf or huge values (and
+        reset the simulation) in a step from time ``t0``; None when it did not."""
+        return instability_error(self.name, self._warnings, t0)
+
+    def step(self, u: float, d: float, dt: float) -> None:
+        """Advance by ``dt`` (a whole number of physics steps) with u and d held.
+
+        Raises ScenarioError if dt is not a multiple of the timestep, DivergenceError if
+        u or d is not finite or MuJoCo had to reset an unstable simulation.
+        """
+        if dt != self._last_dt:
+            self._last_k = self._substeps(dt)
+            self._last_dt = dt
+        refuse_huge_input(self.name, u, d, self.data.time)
+        t0 = self.data.time
+        self._ctrl[self._act] = u
+        self._qfrc[self._d_dof] = self._d_to_tau * d
+        mujoco.mj_step(self.model, self.data, self._last_k)
+        unstable = self.instability(t0)
+        if unstable is not None:
+            raise unstable
+
+    def check_sample_time(self, dt: float) -> None:
+        """Raise ScenarioError now, before a run, if dt is not a multiple of the timestep."""
+        self._substeps(dt)
+
+    def _substeps(self, dt: float) -> int:
+        return whole_substeps(dt, self._ts, self.model_path)
 
 
-class MujocoCartPole(Plant):
+class MujocoCartPole(MujocoPlant):
     """Example 3's cart-pole as a MuJoCo model, behind the Plant protocol.
 
     Parameters
@@ -182,7 +305,6 @@ class MujocoCartPole(Plant):
         actuator that does not drive the slide joint, or an unknown integrator.
     """
 
-    order: int = 2
     name: str = "cartpole_mujoco"
     domain: str = "cartpole"
 
@@ -244,8 +366,6 @@ class MujocoCartPole(Plant):
         if not (self.model.opt.timestep > 0.0 and math.isfinite(self.model.opt.timestep)):
             raise ScenarioError(f"{where}: option timestep must be a positive number, got "
                                 f"{self.model.opt.timestep!r}")
-        self.data: mujoco.MjData = mujoco.MjData(self.model)
-        self._scratch: mujoco.MjData | None = None
         self.slide_joint, self.hinge_joint, self.actuator = slide_joint, hinge_joint, actuator
 
         m = self.model
@@ -256,9 +376,6 @@ class MujocoCartPole(Plant):
         self._q_cart = int(m.jnt_qposadr[self._slide_id])
         self._v_cart = int(m.jnt_dofadr[self._slide_id])
         self._q_th = int(m.jnt_qposadr[self._hinge_id])
-        self._v_th = int(m.jnt_dofadr[self._hinge_id])
-        self._act = m.actuator(actuator).id
-        self._ts = float(m.opt.timestep)
 
         self.facts = mjcf.read_facts(m, slide_joint, hinge_joint, actuator, where)
         if keys:
@@ -273,13 +390,15 @@ class MujocoCartPole(Plant):
             self.overridden["gear"] = float(gear)
         self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
-        self._d_to_tau = self._params.disturbance_torque
-
-        # dt -> substep count, so the common case (same dt every call) skips the check
-        self._last_dt = math.nan
-        self._last_k = 0
-        self._bind_views()
-        self._describe_state()
+        self._attach(m, self.model_path, m.actuator(actuator).id, m.jnt_dofadr[self._hinge_id],
+                     self._params.disturbance_torque)
+        a = self._act
+        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
+            else (-math.inf, math.inf)
+        # u is what the actuator takes: a force for a motor, a speed or a position for a
+        # velocity or position servo
+        unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
+        self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
         self.reset(np.zeros(2))
 
     # --- construction helpers -------------------------------------------------------
@@ -356,78 +475,6 @@ class MujocoCartPole(Plant):
                 continue
             geom.size = size
 
-    def _describe_state(self) -> None:
-        """Names, units and ranges of the full state [qpos; qvel], read off the compiled
-        model: a 1-DOF joint's position is named after it, its velocity ``<joint>_dot``;
-        a ball or free joint's coordinates get ``_<k>`` suffixes."""
-        m = self.model
-        kinds = {int(mujoco.mjtJoint.mjJNT_SLIDE): ("slide", "m", "m/s"),
-                 int(mujoco.mjtJoint.mjJNT_HINGE): ("hinge", "rad", "rad/s"),
-                 int(mujoco.mjtJoint.mjJNT_BALL): ("ball", "", "rad/s"),
-                 int(mujoco.mjtJoint.mjJNT_FREE): ("free", "", "")}
-        pos_names, vel_names = [""] * m.nq, [""] * m.nv
-        pos_units, vel_units = [""] * m.nq, [""] * m.nv
-        joints = []
-        for j in range(m.njnt):
-            name = m.joint(j).name or f"joint{j}"
-            kind, unit, vel_unit = kinds[int(m.jnt_type[j])]
-            qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
-            nq = {"free": 7, "ball": 4}.get(kind, 1)
-            nv = {"free": 6, "ball": 3}.get(kind, 1)
-            for k in range(nq):
-                pos_names[qa + k] = name if nq == 1 else f"{name}_{k}"
-                pos_units[qa + k] = unit
-            for k in range(nv):
-                vel_names[va + k] = velocity_name(name) if nv == 1 else f"{name}_dot_{k}"
-                vel_units[va + k] = vel_unit
-            limited = bool(m.jnt_limited[j])
-            joints.append(JointInfo(name, kind, unit, (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1]))
-                                    if limited else None))
-        self._state_names = tuple(pos_names + vel_names)
-        self._state_units = tuple(pos_units + vel_units)
-        self._joints = tuple(joints)
-        a = self._act
-        lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
-            else (-math.inf, math.inf)
-        # u is what the actuator takes: a force for a motor, a speed or a position for a
-        # velocity or position servo
-        unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
-        self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
-
-    def _bind_views(self) -> None:
-        # numpy views into MjData, taken once: fetching them through the binding costs
-        # more per step than the physics of this 2-DOF model
-        d = self.data
-        self._qpos, self._qvel = d.qpos, d.qvel
-        self._ctrl, self._qfrc = d.ctrl, d.qfrc_applied
-        # MuJoCo silently resets the simulation on NaN/huge qpos, qvel or qacc and only
-        # counts a warning: watch those counters so a blow-up cannot pass as [0, 0]
-        w = mujoco.mjtWarning
-        self._warnings = [d.warning[int(k)] for k in
-                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
-
-    # --- the Plant interface --------------------------------------------------------
-
-    def mj_model(self) -> mujoco.MjModel:
-        return self.model
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
-        return self._state_names
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return self._state_units
-
-    def full_state(self) -> np.ndarray:
-        return np.concatenate((self._qpos, self._qvel))
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        """Every joint of the compiled model, its range when ``limited``."""
-        return self._joints
-
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
         """The motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``."""
@@ -442,30 +489,6 @@ class MujocoCartPole(Plant):
         """What the ODE of this model (:attr:`params`) does not reproduce."""
         return mjcf.unmodelled(self.facts, dt)
 
-    def constraint_active(self) -> str:
-        """What constraint MuJoCo applies now or at its next step ("" = none): a limited
-        joint at or beyond its range, or a contact (the last one found)."""
-        m, d = self.model, self.data
-        for j in range(m.njnt):
-            if m.jnt_limited[j] and int(m.jnt_type[j]) in _ONE_DOF:
-                q = float(d.qpos[m.jnt_qposadr[j]])
-                lo, hi = (float(v) for v in m.jnt_range[j])
-                margin = float(m.jnt_margin[j])
-                if q <= lo + margin or q >= hi - margin:
-                    return (f"joint '{m.joint(j).name}' reached its range [{lo:g}, {hi:g}] "
-                            f"(at {q:.6g})")
-        if d.ncon > 0:
-            c = d.contact[0]
-            return (f"contact between geoms '{m.geom(int(c.geom[0])).name}' and "
-                    f"'{m.geom(int(c.geom[1])).name}'")
-        return ""
-
-    @property
-    def cart_joints(self) -> tuple[JointInfo, JointInfo]:
-        """The slide joint and the hinge (what the cart-pole ODE of this model is named by)."""
-        by_name = {j.name: j for j in self._joints}
-        return by_name[self.slide_joint], by_name[self.hinge_joint]
-
     def default_task(self) -> TaskDefaults:
         """The domain's task (``task_defaults``, in the model's ``slider``/``hinge`` roles),
         on this model's joints."""
@@ -479,6 +502,16 @@ class MujocoCartPole(Plant):
         """The ODE of the compiled model (:meth:`ModelFacts.params`): masses, COM distance,
         inertia about the pivot, joint damping and friction, gear and angle sign."""
         return self._params
+
+    @cached_property
+    def machine(self) -> Any:
+        """The compiled model as the articulated domain reads it
+        (:class:`~tspend.plants.articulated.machine.Machine`: its derived equations, the
+        hinge its pole), built when first asked, from the model as it is then.  ScenarioError
+        for a model the derivation refuses (the cart-pole steps some of those in MuJoCo)."""
+        from tspend.plants.articulated.machine import Machine
+
+        return Machine(self.model, str(self.model_path), self.actuator, (self.hinge_joint,))
 
     @property
     def gain_sign(self) -> int:
@@ -518,67 +551,13 @@ class MujocoCartPole(Plant):
         self._params = replace(self._params, M=p.M, m=p.m, l=p.l, J=p.J)
         self._d_to_tau = self._params.disturbance_torque
 
-    @property
-    def timestep(self) -> float:
-        """The physics timestep; ``step``'s dt must be a whole multiple of it."""
-        return self._ts
-
-    @property
-    def t(self) -> float:
-        """Simulated time since the last reset."""
-        return float(self.data.time)
-
-    def reset(self, x0: np.ndarray) -> None:
-        """Pole at ``x0 = [theta, theta']``, cart at rest at 0, no force, clock at 0."""
-        x0 = np.asarray(x0, dtype=float)
+    def _place(self, x0: np.ndarray) -> None:
+        """Pole at ``x0 = [theta, theta']``, cart at rest where the model puts it."""
         if x0.shape != (self.order,):
-            raise ValueError(f"{self.name}: initial state must have {self.order} entries, got {x0.shape}")
-        mujoco.mj_resetData(self.model, self.data)
+            raise ValueError(f"{self.name}: initial state must have {self.order} entries, "
+                             f"got {x0.shape}")
         self._qpos[self._q_th] = x0[0]
-        self._qvel[self._v_th] = x0[1]
-        mujoco.mj_forward(self.model, self.data)
-
-    def compiled_mujoco(self, dt: float) -> MujocoLink | None:
-        """This plant for a compiled closed loop stepping it at sample time ``dt`` (None
-        when MuJoCo's library cannot be found)."""
-        if mj_step_pointer() is None:
-            return None
-        w = mujoco.mjtWarning
-        return MujocoLink(self.model._address, self.data._address, self._qpos, self._qvel,
-                          self._ctrl, self._qfrc, self.data.warning.number,
-                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
-                          self._q_th, self._v_th, self._q_cart, self._v_cart, self._act,
-                          self._d_to_tau, self._substeps(dt), _MJ_MAXVAL)
-
-    def instability(self, t0: float) -> DivergenceError | None:
-        """The error :meth:`step` raises when MuJoCo found NaN, Inf or huge values (and
-        reset the simulation) in a step from time ``t0``; None when it did not."""
-        return instability_error(self.name, self._warnings, t0)
-
-    def step(self, u: float, d: float, dt: float) -> None:
-        """Advance by ``dt`` (a whole number of physics steps) with u and d held.
-
-        Raises ScenarioError if dt is not a multiple of the timestep, DivergenceError if
-        u or d is not finite or MuJoCo had to reset an unstable simulation.
-        """
-        if dt != self._last_dt:
-            self._last_k = self._substeps(dt)
-            self._last_dt = dt
-        refuse_huge_input(self.name, u, d, self.data.time)
-        t0 = self.data.time
-        self._ctrl[self._act] = u
-        self._qfrc[self._v_th] = self._d_to_tau * d
-        mujoco.mj_step(self.model, self.data, self._last_k)
-        unstable = self.instability(t0)
-        if unstable is not None:
-            raise unstable
-
-    def check_sample_time(self, dt: float) -> None:
-        """Raise ScenarioError now, before a run, if dt is not a multiple of the timestep."""
-        self._substeps(dt)
-
-    def _substeps(self, dt: float) -> int:
-        return whole_substeps(dt, self._ts, self.model_path)
+        self._qvel[self._d_dof] = x0[1]
 
     def extras(self) -> dict[str, float]:
         return {"cart_pos": float(self._qpos[self._q_cart]),
@@ -587,66 +566,6 @@ class MujocoCartPole(Plant):
     def extras_index(self) -> np.ndarray:
         """The cart's position and velocity in the full state [qpos; qvel]."""
         return np.array([self._q_cart, self.model.nq + self._v_cart], dtype=np.intp)
-
-    # --- for a 3D recorder ----------------------------------------------------------
-
-    def geoms(self) -> list[dict[str, Any]]:
-        """The model's geoms as plain data: what a recorder needs to draw them.
-
-        Each dict has ``name``, ``body`` (body name), ``type`` ('box', 'capsule',
-        'cylinder', 'sphere', 'plane', ...), ``size`` (MuJoCo's 3 numbers: half-sizes,
-        radius and half-length), ``rgba`` (the material's colour when the geom has none of
-        its own, as MuJoCo renders it) and ``pos`` / ``quat`` (wxyz) relative to the body.
-        """
-        m = self.model
-        out: list[dict[str, Any]] = []
-        for i in range(m.ngeom):
-            rgba = m.geom_rgba[i]
-            matid = int(m.geom_matid[i])
-            if matid >= 0 and tuple(float(c) for c in rgba) == _DEFAULT_GEOM_RGBA:
-                rgba = m.mat_rgba[matid]
-            out.append({
-                "name": m.geom(i).name,
-                "body": m.body(int(m.geom_bodyid[i])).name,
-                "type": _GEOM_TYPES.get(int(m.geom_type[i]), str(int(m.geom_type[i]))),
-                "size": m.geom_size[i].copy(),
-                "rgba": np.array(rgba, dtype=float),
-                "pos": m.geom_pos[i].copy(),
-                "quat": m.geom_quat[i].copy(),
-            })
-        return out
-
-    def body_poses(self) -> dict[str, BodyPose]:
-        """``{body name: (position (3,), quaternion wxyz (4,))}`` in the world frame, now."""
-        m, d = self.model, self.data
-        return {m.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy()) for i in range(m.nbody)}
-
-    def body_poses_at(self, cart_pos: float, theta: float) -> dict[str, BodyPose]:
-        """Body poses for a given cart position and pole angle (e.g. from the ODE backend).
-
-        Uses a scratch MjData, so the simulation's own state is untouched.
-        """
-        if self._scratch is None:
-            self._scratch = mujoco.MjData(self.model)
-        return self.poses_at(self.model, cart_pos, theta, self.slide_joint, self.hinge_joint,
-                             scratch=self._scratch)
-
-    @staticmethod
-    def poses_at(model: mujoco.MjModel, cart_pos: float, theta: float,
-                 slide_joint: str = "slider", hinge_joint: str = "hinge",
-                 scratch: mujoco.MjData | None = None) -> dict[str, BodyPose]:
-        """Body poses of ``model`` with the cart at ``cart_pos`` and the pole at ``theta``.
-
-        Only kinematics (``mj_kinematics``), so any state from any backend can be drawn
-        with the model's geometry.  Pass ``scratch`` to reuse an MjData across frames.
-        """
-        d = scratch if scratch is not None else mujoco.MjData(model)
-        d.qpos[:] = model.qpos0
-        d.qpos[model.jnt_qposadr[model.joint(slide_joint).id]] = cart_pos
-        d.qpos[model.jnt_qposadr[model.joint(hinge_joint).id]] = theta
-        mujoco.mj_kinematics(model, d)
-        return {model.body(i).name: (d.xpos[i].copy(), d.xquat[i].copy())
-                for i in range(model.nbody)}
 
 
 def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,

@@ -24,12 +24,13 @@ import numpy as np
 from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.errors import DivergenceError, ScenarioError
+from tspend.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE, SYMBOLIC,
     VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
+from tspend.plants.mujoco_plant import MujocoPlant
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -82,24 +83,12 @@ def _initial(machine: Machine, q0: tuple[float, ...], x0: np.ndarray, where: str
 
 
 class _Named:
-    """What both backends say alike of their machine."""
+    """What both backends say alike of their machine (the state's names: each its own,
+    from the one compiled model)."""
 
     machine: Machine
     domain = "articulated"
     order = 2
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.machine.state_names
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return self.machine.state_units
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
-                     for j in self.machine.tree.joints)
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
@@ -189,6 +178,20 @@ class ArticulatedODE(_Named, AnalyticPlant):
         self._full_order = np.arange(self.s.size, dtype=np.intp)
         self._d_joint = machine.view_joint
 
+    # the MuJoCo plant names its state from the same compiled model (MujocoPlant)
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.machine.state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.machine.state_units
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
+                     for j in self.machine.tree.joints)
+
     def reset(self, x0: np.ndarray) -> None:
         self.s[:] = _initial(self.machine, self.q0, x0, self.machine.where)
         self._clock[0] = 0.0
@@ -211,35 +214,17 @@ class ArticulatedODE(_Named, AnalyticPlant):
                              self._work, self._full_order)
 
 
-class ArticulatedMujoco(_Named, Plant):
-    """The MJCF stepped by MuJoCo: ``u`` is the actuator's ctrl, ``d`` the generalised
-    force on the tracked pole's joint."""
+class ArticulatedMujoco(_Named, MujocoPlant):
+    """The MJCF stepped by MuJoCo (:class:`~tspend.plants.mujoco_plant.MujocoPlant`): ``u``
+    is the actuator's ctrl, ``d`` the generalised force on the tracked pole's joint."""
 
     name = "articulated_mujoco"
 
     def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
-        import mujoco
-
         self.machine, self.q0 = machine, tuple(q0)
-        self.model = machine.model
-        self.model_path = Path(machine.where)
-        self.data = mujoco.MjData(self.model)
-        m = self.model
-        self._act = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, machine.actuator.name) \
-            if machine.actuator.name else machine.actuator_index
-        self._dof = machine.view_joint
-        self._ts = float(m.opt.timestep)
-        w = mujoco.mjtWarning
-        self._warnings = [self.data.warning[int(k)] for k in
-                          (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
+        # the tree's actuators and joints are MuJoCo's, in its order (:func:`.tree.read_tree`)
+        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint)
         self.reset(np.zeros(2))
-
-    def mj_model(self) -> Any:
-        return self.model
-
-    @property
-    def timestep(self) -> float:
-        return self._ts
 
     def departures(self, dt: float | None = None) -> list[str]:
         out = list(self.machine.tree.departures)
@@ -249,85 +234,11 @@ class ArticulatedMujoco(_Named, Plant):
             out.append(f"dt = {dt:g} s is not a whole multiple of the timestep {self._ts:g} s")
         return out
 
-    def constraint_active(self) -> str:
-        """The first constraint MuJoCo applies now (a contact, a joint's limit within its
-        margin, dry friction), in words; "" when none: the derived equations hold."""
-        import mujoco
-
-        d, m = self.data, self.model
-        if d.ncon:
-            c = d.contact[0]
-            return (f"contact between geoms {m.geom(c.geom1).name!r} and "
-                    f"{m.geom(c.geom2).name!r}")
-        C = mujoco.mjtConstraint
-        for i in range(d.nefc):
-            kind, obj = int(d.efc_type[i]), int(d.efc_id[i])
-            if kind == int(C.mjCNSTR_LIMIT_JOINT):
-                return f"joint {m.joint(obj).name!r} at its limit"
-            if kind == int(C.mjCNSTR_FRICTION_DOF):
-                continue  # dry friction is a departure named before the run
-            return f"a constraint of type {C(kind).name}"
-        return ""
-
-    def reset(self, x0: np.ndarray) -> None:
-        import mujoco
-
+    def _place(self, x0: np.ndarray) -> None:
         s = _initial(self.machine, self.q0, x0, self.machine.where)
-        mujoco.mj_resetData(self.model, self.data)
         nv = self.machine.nv
         self.data.qpos[:] = s[:nv]
         self.data.qvel[:] = s[nv:]
-        mujoco.mj_forward(self.model, self.data)
-
-    def full_state(self) -> np.ndarray:
-        return np.concatenate([self.data.qpos, self.data.qvel])
-
-    @property
-    def t(self) -> float:
-        return float(self.data.time)
-
-    def check_sample_time(self, dt: float) -> None:
-        self._substeps(dt)
-
-    def _substeps(self, dt: float) -> int:
-        from tspend.plants.mujoco_plant import whole_substeps
-
-        return whole_substeps(dt, self._ts, self.model_path)
-
-    def compiled_mujoco(self, dt: float) -> Any:
-        """This plant for a compiled closed loop (:mod:`tspend.loop.fastloop` calls MuJoCo's
-        C ``mj_step`` on its model and data; the full state is ``[qpos, qvel]``)."""
-        import mujoco
-
-        from tspend.plants.mujoco_plant import MujocoLink, mj_step_pointer
-
-        if mj_step_pointer() is None:
-            return None
-        w = mujoco.mjtWarning
-        v = self._dof
-        return MujocoLink(self.model._address, self.data._address, self.data.qpos, self.data.qvel,
-                          self.data.ctrl, self.data.qfrc_applied, self.data.warning.number,
-                          int(w.mjWARN_BADQPOS), int(w.mjWARN_BADQVEL), int(w.mjWARN_BADQACC),
-                          v, v, 0, 0, int(self._act), 1.0, self._substeps(dt), 1e10)
-
-    def instability(self, t0: float) -> DivergenceError | None:
-        from tspend.plants.mujoco_plant import instability_error
-
-        return instability_error(self.name, self._warnings, t0)
-
-    def step(self, u: float, d: float, dt: float) -> None:
-        import mujoco
-
-        from tspend.plants.mujoco_plant import refuse_huge_input
-
-        refuse_huge_input(self.name, u, d, self.data.time)
-        t0 = self.data.time
-        self.data.ctrl[self._act] = u
-        self.data.qfrc_applied[self._dof] = d
-        mujoco.mj_step(self.model, self.data, self._substeps(dt))
-        unstable = self.instability(t0)
-        if unstable is not None:
-            raise unstable
 
 
 # -- drawing ------------------------------------------------------------------------------

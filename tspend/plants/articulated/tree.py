@@ -25,13 +25,20 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["BodyFacts", "JointFacts", "ActuatorFacts", "Tree", "read_tree", "ROLES"]
+__all__ = ["BodyFacts", "JointFacts", "ActuatorFacts", "Tree", "read_tree", "read_joint",
+           "read_actuator", "law_refusals", "collision_pairs", "INTEGRATOR_NAMES", "ROLES"]
 
 #: the roles a joint can play (docs/machines.md): a cart on a rail, a pole that must stay
 #: up, an arm turning about a vertical axis, a balanced rotor (reaction wheel)
 ROLES = ("cart", "pole", "arm", "rotor")
 
 _HINGE, _SLIDE = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
+_DSBL = mujoco.mjtDisableBit
+
+#: MuJoCo integrators by their MJCF names
+INTEGRATOR_NAMES = {mujoco.mjtIntegrator.mjINT_RK4: "RK4", mujoco.mjtIntegrator.mjINT_EULER: "Euler",
+                    mujoco.mjtIntegrator.mjINT_IMPLICIT: "implicit",
+                    mujoco.mjtIntegrator.mjINT_IMPLICITFAST: "implicitfast"}
 
 
 @dataclass(frozen=True)
@@ -127,6 +134,26 @@ def _limited(flag: Any, rng: Any) -> tuple[float, float] | None:
     return (float(rng[0]), float(rng[1])) if bool(flag) else None
 
 
+def _kind(enum: Any, value: int) -> str:
+    return enum(value).name.split("_", 1)[1].lower()
+
+
+def law_refusals(m: mujoco.MjModel, a: int) -> list[str]:
+    """What of actuator ``a``'s force law no equations of state and input can carry:
+    activation dynamics, a gain other than fixed or affine, a bias other than none or affine."""
+    name, out = m.actuator(a).name or str(a), []
+    dyn, gain, bias = int(m.actuator_dyntype[a]), int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
+    if dyn != int(mujoco.mjtDyn.mjDYN_NONE):
+        out.append(f"actuator {name!r} has activation dynamics (dyntype {_kind(mujoco.mjtDyn, dyn)})")
+    if gain not in (int(mujoco.mjtGain.mjGAIN_FIXED), int(mujoco.mjtGain.mjGAIN_AFFINE)):
+        out.append(f"actuator {name!r} has a gain that is neither fixed nor affine (gaintype "
+                   f"{_kind(mujoco.mjtGain, gain)})")
+    if bias not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)):
+        out.append(f"actuator {name!r} has a bias that is neither none nor affine (biastype "
+                   f"{_kind(mujoco.mjtBias, bias)})")
+    return out
+
+
 def _refusals(m: mujoco.MjModel) -> list[str]:
     out = []
     kinds = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
@@ -148,14 +175,7 @@ def _refusals(m: mujoco.MjModel) -> list[str]:
         name = m.actuator(a).name or str(a)
         if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             out.append(f"actuator {name!r} does not drive a joint directly")
-        if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            out.append(f"actuator {name!r} has activation dynamics")
-        if int(m.actuator_gaintype[a]) not in (int(mujoco.mjtGain.mjGAIN_FIXED),
-                                               int(mujoco.mjtGain.mjGAIN_AFFINE)):
-            out.append(f"actuator {name!r} has a gain that is neither fixed nor affine")
-        if int(m.actuator_biastype[a]) not in (int(mujoco.mjtBias.mjBIAS_NONE),
-                                               int(mujoco.mjtBias.mjBIAS_AFFINE)):
-            out.append(f"actuator {name!r} has a bias that is neither none nor affine")
+        out.extend(law_refusals(m, a))
         if np.any(np.asarray(m.actuator_gainprm[a, 3:]) != 0) or \
                 np.any(np.asarray(m.actuator_biasprm[a, 3:]) != 0):
             out.append(f"actuator {name!r} uses gain or bias terms beyond the affine three")
@@ -177,18 +197,64 @@ def _refusals(m: mujoco.MjModel) -> list[str]:
     return out
 
 
-def collision_pairs(m: mujoco.MjModel) -> list[str]:
-    """The geom pairs of different bodies that MuJoCo's collision filter lets touch."""
-    if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CONTACT):
+def collision_pairs(model: mujoco.MjModel) -> list[str]:
+    """Geom pairs that can touch (contype/conaffinity, explicit pairs; not within one
+    body, not between static geoms, not parent-child unless the filter is off)."""
+    if model.opt.disableflags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT):
         return []
+    filter_parent = not model.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT
+    excluded = {frozenset((int(model.exclude_signature[k]) >> 16,
+                           int(model.exclude_signature[k]) & 0xFFFF))
+                for k in range(model.nexclude)}
     out = []
-    for a in range(m.ngeom):
-        for b in range(a + 1, m.ngeom):
-            if m.geom_bodyid[a] == m.geom_bodyid[b]:
+    for i in range(model.ngeom):
+        for j in range(i + 1, model.ngeom):
+            bi, bj = int(model.geom_bodyid[i]), int(model.geom_bodyid[j])
+            wi, wj = int(model.body_weldid[bi]), int(model.body_weldid[bj])
+            if wi == wj or frozenset((bi, bj)) in excluded:
                 continue
-            if (m.geom_contype[a] & m.geom_conaffinity[b]) or (m.geom_contype[b] & m.geom_conaffinity[a]):
-                out.append(f"{m.geom(a).name or a!s}/{m.geom(b).name or b!s}")
+            # MuJoCo's parent filter spares the world: a body touches the ground it hangs from
+            if filter_parent and wi and wj and (
+                    int(model.body_weldid[model.body_parentid[wi]]) == wj
+                    or int(model.body_weldid[model.body_parentid[wj]]) == wi):
+                continue
+            if (int(model.geom_contype[i]) & int(model.geom_conaffinity[j])) or (
+                    int(model.geom_contype[j]) & int(model.geom_conaffinity[i])):
+                out.append(f"{model.geom(i).name or f'geom{i}'}/{model.geom(j).name or f'geom{j}'}")
+    for k in range(model.npair):
+        g1, g2 = int(model.pair_geom1[k]), int(model.pair_geom2[k])
+        out.append(f"{model.geom(g1).name or f'geom{g1}'}/{model.geom(g2).name or f'geom{g2}'}")
     return out
+
+
+def read_joint(m: mujoco.MjModel, j: int, body: int = -1) -> JointFacts:
+    """Joint ``j`` of the compiled model as MuJoCo applies it (a disabled damper or spring
+    reads 0); ``body``: its body's index in :attr:`Tree.bodies`."""
+    flags = int(m.opt.disableflags)
+    dof, adr = int(m.jnt_dofadr[j]), int(m.jnt_qposadr[j])
+    return JointFacts(
+        name=m.joint(j).name or f"joint{j}",
+        kind="hinge" if int(m.jnt_type[j]) == _HINGE else "slide",
+        body=body, axis=_t(m.jnt_axis[j]), anchor=_t(m.jnt_pos[j]), qpos0=float(m.qpos0[adr]),
+        armature=float(m.dof_armature[dof]),
+        damping=0.0 if flags & _DSBL.mjDSBL_DAMPER else float(np.ravel(m.dof_damping[dof])[0]),
+        stiffness=0.0 if flags & _DSBL.mjDSBL_SPRING else float(np.ravel(m.jnt_stiffness[j])[0]),
+        springref=float(m.qpos_spring[adr]), range=_limited(m.jnt_limited[j], m.jnt_range[j]))
+
+
+def read_actuator(m: mujoco.MjModel, a: int, joint: int = -1) -> ActuatorFacts:
+    """Actuator ``a``'s force law as MuJoCo applies it (a fixed gain's or no bias's terms
+    read 0, a disabled clamp no ctrl range); ``joint``: its joint's index in :attr:`Tree.joints`."""
+    affine_gain = int(m.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_AFFINE)
+    affine_bias = int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE)
+    gain = m.actuator_gainprm[a]
+    return ActuatorFacts(
+        name=m.actuator(a).name or f"actuator{a}", joint=joint, gear=float(m.actuator_gear[a, 0]),
+        gain=(float(gain[0]), *((float(gain[1]), float(gain[2])) if affine_gain else (0.0, 0.0))),
+        bias=_t(m.actuator_biasprm[a, :3]) if affine_bias else (0.0, 0.0, 0.0),
+        ctrlrange=None if int(m.opt.disableflags) & _DSBL.mjDSBL_CLAMPCTRL
+        else _limited(m.actuator_ctrllimited[a], m.actuator_ctrlrange[a]),
+        forcerange=_limited(m.actuator_forcelimited[a], m.actuator_forcerange[a]))
 
 
 def read_tree(m: mujoco.MjModel) -> Tree:
@@ -198,11 +264,7 @@ def read_tree(m: mujoco.MjModel) -> Tree:
     joints: list[JointFacts] = []
     index_of_body: dict[int, int] = {}
     dof_of_joint: dict[int, int] = {}
-    flags = int(m.opt.disableflags)
-    no_damper = bool(flags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER))
-    no_spring = bool(flags & int(mujoco.mjtDisableBit.mjDSBL_SPRING))
-    no_clamp = bool(flags & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL))
-    if flags & int(mujoco.mjtDisableBit.mjDSBL_ACTUATION):
+    if int(m.opt.disableflags) & _DSBL.mjDSBL_ACTUATION:
         refusals.append("actuation is disabled (<flag actuation=\"disable\"/>)")
     if not refusals:
         for b in range(1, m.nbody):
@@ -210,19 +272,9 @@ def read_tree(m: mujoco.MjModel) -> Tree:
             parent = int(m.body_parentid[b])
             mine = []
             for j in jids:
-                dof = int(m.jnt_dofadr[j])
                 dof_of_joint[j] = len(joints)
                 mine.append(len(joints))
-                joints.append(JointFacts(
-                    name=m.joint(j).name or f"joint{j}",
-                    kind="hinge" if int(m.jnt_type[j]) == _HINGE else "slide",
-                    body=len(bodies), axis=_t(m.jnt_axis[j]), anchor=_t(m.jnt_pos[j]),
-                    qpos0=float(m.qpos0[int(m.jnt_qposadr[j])]),
-                    armature=float(m.dof_armature[dof]),
-                    damping=0.0 if no_damper else float(np.ravel(m.dof_damping[dof])[0]),
-                    stiffness=0.0 if no_spring else float(np.ravel(m.jnt_stiffness[j])[0]),
-                    springref=float(m.qpos_spring[int(m.jnt_qposadr[j])]),
-                    range=_limited(m.jnt_limited[j], m.jnt_range[j])))
+                joints.append(read_joint(m, j, len(bodies)))
             index_of_body[b] = len(bodies)
             bodies.append(BodyFacts(
                 name=m.body(b).name or f"body{b}", parent=index_of_body.get(parent, -1),
@@ -236,19 +288,7 @@ def read_tree(m: mujoco.MjModel) -> Tree:
     actuators: list[ActuatorFacts] = []
     if not refusals:
         for a in range(m.nu):
-            j = int(m.actuator_trnid[a, 0])
-            actuators.append(ActuatorFacts(
-                name=m.actuator(a).name or f"actuator{a}", joint=dof_of_joint[j],
-                gear=float(m.actuator_gear[a, 0]),
-                gain=(float(m.actuator_gainprm[a, 0]),
-                      *((float(m.actuator_gainprm[a, 1]), float(m.actuator_gainprm[a, 2]))
-                        if int(m.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_AFFINE)
-                        else (0.0, 0.0))),
-                bias=tuple(float(v) for v in m.actuator_biasprm[a, :3])
-                if int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE) else (0.0, 0.0, 0.0),
-                ctrlrange=None if no_clamp else _limited(m.actuator_ctrllimited[a],
-                                                         m.actuator_ctrlrange[a]),
-                forcerange=_limited(m.actuator_forcelimited[a], m.actuator_forcerange[a])))
+            actuators.append(read_actuator(m, a, dof_of_joint[int(m.actuator_trnid[a, 0])]))
         if np.any(np.abs(np.asarray(m.actuator_gear)[:, 1:]) > 0):
             refusals.append("an actuator's gear has rotational terms")
     departures = []
@@ -266,8 +306,6 @@ def read_tree(m: mujoco.MjModel) -> Tree:
         gravity = (0.0, 0.0, 0.0)
     else:
         gravity = _t(m.opt.gravity)
-    from tspend.plants.mjcf import INTEGRATOR_NAMES
-
     return Tree(bodies=tuple(bodies), joints=tuple(joints), actuators=tuple(actuators),
                 gravity=gravity, timestep=float(m.opt.timestep),
                 integrator=INTEGRATOR_NAMES.get(m.opt.integrator, str(m.opt.integrator)),
