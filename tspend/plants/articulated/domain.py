@@ -10,7 +10,7 @@ roles and so the default task (every pole within the fall angle of upright, the 
 range), and the drawing (the model's own geoms, posed by MuJoCo's kinematics).
 
 Both plants share the state's names; ``d`` is a generalised force on the tracked pole's
-joint.  The view the paper's controllers see is ``[pole, pole']`` of the first pole.
+joint (times ``d_scale``, 1 here; the MuJoCo cart-pole's ``-m l / (M + m)``).  The view the paper's controllers see is ``[pole, pole']`` of the first pole.
 """
 
 from __future__ import annotations
@@ -144,6 +144,8 @@ class DerivedRHS(NamedTuple):
     r: np.ndarray
     actuator: int
     d_joint: int
+    #: the generalised force on ``d_joint`` per unit d (1; the cart-pole's -m l / (M + m))
+    d_scale: float
 
 
 @register_jitable
@@ -153,7 +155,7 @@ def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
     m.u[:] = 0.0
     m.u[m.actuator] = u
     m.qfrc[:] = 0.0
-    m.qfrc[m.d_joint] = d
+    m.qfrc[m.d_joint] = m.d_scale * d
     m.fn(s.ctypes.data, m.u.ctypes.data, m.qfrc.ctypes.data, m.p.ctypes.data,
          m.M.ctypes.data, m.r.ctypes.data, sdot.ctypes.data)
 
@@ -161,15 +163,17 @@ def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
 COMPILED_RHS[DerivedRHS] = derived_rhs
 
 
-def derived_rhs_of(machine: Machine, d_joint: int) -> DerivedRHS:
-    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force on joint ``d_joint``."""
+def derived_rhs_of(machine: Machine, d_joint: int, d_scale: float = 1.0) -> DerivedRHS:
+    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force ``d_scale d`` on joint
+    ``d_joint``."""
     import ctypes
 
     fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)(machine.module.rhs_c.address)
     fn.argtypes, fn.restype = [ctypes.c_void_p] * 7, None
     nv = machine.nv
     return DerivedRHS(fn, np.zeros(len(machine.tree.actuators)), np.zeros(nv), machine.p,
-                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint)
+                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint,
+                      float(d_scale))
 
 
 class ArticulatedODE(_Named, AnalyticPlant):
@@ -185,6 +189,8 @@ class ArticulatedODE(_Named, AnalyticPlant):
         self._work = rk4_work(self.s.size)
         self._full_order = np.arange(self.s.size, dtype=np.intp)
         self._d_joint = machine.view_joint
+        #: the generalised force on ``_d_joint`` per unit d (:class:`DerivedRHS`)
+        self._d_scale = 1.0
 
     def reset(self, x0: np.ndarray) -> None:
         self.s[:] = _initial(self.machine, self.q0, x0, self.machine.where)
@@ -194,7 +200,7 @@ class ArticulatedODE(_Named, AnalyticPlant):
         return self.s.copy()
 
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
-        self.machine.rhs_into(s, u, d, self._d_joint, sdot)
+        self.machine.rhs_into(s, u, self._d_scale * d, self._d_joint, sdot)
 
     def _rhs_params(self) -> Any:
         return self
@@ -204,7 +210,8 @@ class ArticulatedODE(_Named, AnalyticPlant):
         address (:class:`DerivedRHS`; a type of a generated module would not do: numba
         caches the loop with every parameter type, and the next process loading that cache
         could not import a module of the derivation cache)."""
-        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint), self.s, self._clock,
+        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint, self._d_scale), self.s,
+                             self._clock,
                              self._work, self._full_order)
 
 
@@ -537,10 +544,10 @@ def derived_view_accel(v: DerivedView, t: float, x: np.ndarray, u: float, d: flo
 COMPILED_VIEW_ACCEL[DerivedView] = derived_view_accel
 
 
-def derived_view(machine: Machine) -> DerivedView:
-    """``machine``'s view model (its first pole's, ``d`` on that joint)."""
+def derived_view(machine: Machine, d_scale: float = 1.0) -> DerivedView:
+    """``machine``'s view model (its first pole's, ``d_scale d`` on that joint)."""
     nv = machine.nv
-    return DerivedView(derived_rhs_of(machine, machine.view_joint), np.zeros(2 * nv),
+    return DerivedView(derived_rhs_of(machine, machine.view_joint, d_scale), np.zeros(2 * nv),
                        np.zeros(2 * nv), machine.view_joint)
 
 
