@@ -778,8 +778,8 @@ class CartPoleDomain(Domain):
         """The nominal machine over the full state ``[slider, hinge, slider_dot,
         hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
         derived from the compiled model (numbers through the compiled module, CasADi through
-        the derivation, no clips: the MPC bounds u itself; the energy the pole's with the
-        cart at rest, :class:`~tspend.plants.articulated.domain.DerivedFull`); for
+        the derivation, both with MuJoCo's clips of ctrl and force; the energy the pole's
+        with the cart at rest, :class:`~tspend.plants.articulated.domain.DerivedFull`); for
         ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
         (its ranges clipped by ``casadi.fmin``/``fmax``) and
         :func:`~tspend.plants.cartpole_physics.pole_energy`."""
@@ -795,7 +795,13 @@ class CartPoleDomain(Domain):
                     return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
                 def q_dd(s, u):
-                    a = m.symbolic_accel(s, u)
+                    import casadi as ca  # only for a symbolic model (MPC)
+
+                    # with MuJoCo's clips of ctrl and force, as (C1)-(C2)'s model has them
+                    uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
+                                        for k in range(len(m.tree.actuators))])
+                    M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
+                    a = ca.solve(ca.reshape(M, 2, 2), r)
                     return a[0], a[1]
 
                 return q_dd
