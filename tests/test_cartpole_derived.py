@@ -131,3 +131,54 @@ def test_the_ode_twin_runs_the_same_on_the_compiled_and_the_generic_loop(paths) 
     assert fast.status == slow.status == "completed"
     for key in ("u", "x", "state"):
         np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)
+
+
+def _third_party() -> list:
+    return sorted((ROOT / "tests" / "models").glob("cartpole_*.xml")) + \
+        sorted((ROOT / "tests" / "models" / "third_party").glob("*.xml"))
+
+
+@pytest.mark.parametrize("model", _third_party(), ids=lambda p: p.stem)
+def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(model) -> None:
+    """The test models (tilted hinge, leaning COM, reversed axis, velocity, position and
+    general actuators, contacts, dm_control's and gymnasium's): the derived equations
+    where the derivation takes the model (200 random states, the hand-written oracle's
+    dry friction left out as the derived ones leave it), and the hand-written ones where
+    it refuses it (a joint's actuatorfrcrange), the linearisation finite either way."""
+    import warnings
+    from dataclasses import replace
+
+    from tspend.errors import ScenarioError
+    from tspend.plants.mujoco_plant import guess_names
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        slide, hinge, act = guess_names(model, None, None, None)
+        try:
+            plant = MujocoCartPole(model, slide, hinge, act)
+        except ScenarioError:
+            pytest.skip("not a cart-pole (refused by the cart-pole too)")
+    machine = cartpole_machine(plant)
+    if model.stem == "cartpole_general_actuator":
+        assert machine is None   # actuatorfrcrange: refused by the derivation
+        assert isinstance(DOMAIN.ode_of(plant), type(DOMAIN.build(load_scenario("ex3_pendulum_ode"))))
+        return
+    assert machine is not None, model
+    ode = DerivedCartPoleODE(plant, machine)
+    oracle = replace(plant.params, cart_friction=0.0, hinge_friction=0.0).machine()
+    lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
+    if not math.isfinite(lo):
+        lo, hi = -50.0, 50.0
+    rng = np.random.default_rng(5)
+    sdot, worst = np.empty(4), 0.0
+    for _ in range(200):
+        s = np.array([rng.uniform(-1.0, 1.0), rng.uniform(-math.pi, math.pi),
+                      rng.uniform(-20.0, 20.0), rng.uniform(-20.0, 20.0)])
+        u, d = rng.uniform(1.2 * lo, 1.2 * hi), rng.uniform(-1.0, 1.0)
+        ode.rhs_into(0.0, s, u, d, sdot)
+        q_dd, x_dd = machine_accelerations(oracle, s[1], s[3], s[0], s[2], u, d)
+        theirs = np.array([x_dd, q_dd])
+        worst = max(worst, float(np.max(np.abs(sdot[2:] - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    assert worst <= 1e-12, (model.stem, worst)
+    A, B = machine.linearisation()
+    assert np.all(np.isfinite(A)) and np.all(np.isfinite(B))
