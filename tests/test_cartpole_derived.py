@@ -111,7 +111,7 @@ def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c
     assert twin.parameters() == DOMAIN.build(scn).parameters()
     ex3 = load_scenario("ex3_pendulum_ode")
     assert not isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
-    assert DOMAIN.machine(ex3) is None
+    assert DOMAIN.nominal_derived(ex3) is None
     # the task check's need, from both inverse dynamics, on the same machine
     from tspend.plants.cartpole import reference_force
 

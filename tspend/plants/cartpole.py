@@ -765,13 +765,14 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
-    def machine(self, scenario: "Scenario") -> Machine | None:
+    def nominal_derived(self, scenario: "Scenario", plant: Plant | None = None) -> Machine | None:
         """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
-        (:func:`nominal_machine` of :func:`cartpole_machine`); None for ``cartpole_ode``
-        (the paper's own equations) and for a model the derivation refuses."""
+        (:func:`nominal_machine` of :func:`cartpole_machine` of its ``plant``, built when
+        not given); None for ``cartpole_ode`` (the paper's own equations) and for a model
+        the derivation refuses."""
         if not isinstance(scenario.plant, MujocoCartPoleConfig):
             return None
-        machine = cartpole_machine(self.build(scenario))
+        machine = cartpole_machine(plant if plant is not None else self.build(scenario))
         return nominal_machine(machine) if machine is not None else None
 
     def full_model(self, scenario: "Scenario") -> FullModel:
@@ -785,7 +786,7 @@ class CartPoleDomain(Domain):
         :func:`~tspend.plants.cartpole_physics.pole_energy`."""
         plant = self.build(scenario)
         params = _nominal(plant.params)  # type: ignore[attr-defined]
-        derived = self.machine(scenario)
+        derived = self.nominal_derived(scenario, plant)
         if derived is not None:
             m = derived
             full = derived_full_of(m, m.view_joint)
@@ -837,8 +838,9 @@ class CartPoleDomain(Domain):
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        params = self.params_of_scenario(scenario)
-        derived = self.machine(scenario)
+        plant = self.build(scenario)
+        params = _nominal(plant.params)  # type: ignore[attr-defined]
+        derived = self.nominal_derived(scenario, plant)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
         view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
                      else CartPoleView(params.machine()))
@@ -849,7 +851,7 @@ class CartPoleDomain(Domain):
         """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
         exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
         for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
-        derived = self.machine(scenario)
+        derived = self.nominal_derived(scenario)
         if derived is not None:
             return derived.linearisation()
         return self.full_model(scenario).linearisation()
