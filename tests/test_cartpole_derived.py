@@ -19,7 +19,7 @@ from tspend import load_scenario, override
 from tspend.loop.simulation import run
 from tspend.plants.cartpole import (DOMAIN, DerivedCartPoleODE, cartpole_machine,
                                     nominal_machine)
-from tspend.plants.cartpole_physics import machine_accelerations
+from tspend.plants.cartpole_physics import machine_accelerations, pole_energy
 from tspend.plants.mujoco_plant import MujocoCartPole
 
 from cli_harness import ROOT
@@ -82,6 +82,9 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
         s = np.array([rng.uniform(-5, 5), x[0], rng.uniform(-20, 20), x[1]])
         q_dd, x_dd = machine_accelerations(nominal, s[1], s[3], s[0], s[2], u, 0.0)
         np.testing.assert_allclose(full.numeric(s, u), (x_dd, q_dd), rtol=1e-12, atol=1e-12)
+        # the swing-up's energy of the pole
+        assert full.energy(s) == pytest.approx(pole_energy(nominal, s[1], s[3]), rel=1e-12,
+                                               abs=1e-12)
     A, B = DOMAIN.linearisation(scn)
     h = 1e-6
     A_fd, B_fd = np.zeros((4, 4)), np.zeros((4, 1))
