@@ -370,11 +370,6 @@ def _compiled_view_accel(model: CartPoleView, t: float, x: np.ndarray, u: float,
 COMPILED_VIEW_ACCEL[CartPoleView] = _compiled_view_accel
 
 
-def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], float]:
-    """theta'' of (C1)-(C2) as ``f(t, x, u, d)`` over the view (:func:`view_accel_of`)."""
-    return CartPoleView(p.machine()).accel
-
-
 #: samples of r(t) the task check evaluates the need on (at most)
 NEED_SAMPLES = 4000
 
