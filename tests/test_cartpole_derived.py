@@ -26,24 +26,24 @@ from cli_harness import ROOT
 
 MODEL = ROOT / "models" / "cartpole.xml"
 
-#: (overrides, gear, cart damping, hinge damping): the paper's machine, a heavier pole
-#: with its own inertia and a geared motor, a light short one with damped joints
+#: (overrides, gear, damping and dry friction): the paper's machine, a heavier pole with
+#: its own inertia and a geared motor, a light short one with damped joints and friction
 MACHINES = [
-    ({}, None, None, None),
-    ({"M": 4.0, "m": 2.5, "l": 0.7, "J": 1.9}, 3.5, None, None),
-    ({"M": 1.3, "m": 0.2, "l": 0.35, "g": 9.81}, 0.5, 0.8, 0.03),
+    ({}, None, {}),
+    ({"M": 4.0, "m": 2.5, "l": 0.7, "J": 1.9}, 3.5, {}),
+    ({"M": 1.3, "m": 0.2, "l": 0.35, "g": 9.81}, 0.5,
+     {"cart_damping": 0.8, "hinge_damping": 0.03, "cart_friction": 1.5, "hinge_friction": 0.02}),
 ]
 
 
-@pytest.mark.parametrize("overrides, gear, cart_damping, hinge_damping", MACHINES)
+@pytest.mark.parametrize("overrides, gear, friction", MACHINES)
 def test_the_hand_written_equations_are_the_oracle_of_the_derived_ones(
-        overrides, gear, cart_damping, hinge_damping) -> None:
+        overrides, gear, friction) -> None:
     """1,000 random states: both angles over the full circle, rates to 20 rad/s (m/s),
     the cart anywhere on 10 m, u over 1.2 x the control range (the clip included), a
-    disturbance: derived and hand-written accelerations within 1e-12 (relative where
-    larger than 1)."""
-    plant = MujocoCartPole(MODEL, overrides=overrides, gear=gear, cart_damping=cart_damping,
-                           hinge_damping=hinge_damping)
+    disturbance: the ODE twin's derived accelerations (its smooth dry friction included)
+    and the hand-written ones within 1e-12 (relative where larger than 1)."""
+    plant = MujocoCartPole(MODEL, overrides=overrides, gear=gear, **friction)
     machine = cartpole_machine(plant)
     assert machine is not None
     ode = DerivedCartPoleODE(plant, machine)
@@ -125,9 +125,11 @@ def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c
     np.testing.assert_allclose(derived, hand, rtol=1e-10, atol=1e-10)
 
 
-def test_the_ode_twin_runs_the_same_on_the_compiled_and_the_generic_loop(paths) -> None:
-    """With the scenario's disturbance (the hinge torque -d m l / (M + m)), bit for bit."""
-    s = override(load_scenario("pendulum_mujoco"), **{"run.duration": 1.0})
+@pytest.mark.parametrize("name", ["pendulum_mujoco", "pendulum_friction"])
+def test_the_ode_twin_runs_the_same_on_the_compiled_and_the_generic_loop(name, paths) -> None:
+    """With the scenario's disturbance (the hinge torque -d m l / (M + m)) and dry
+    friction, bit for bit."""
+    s = override(load_scenario(name), **{"run.duration": 1.0})
     fast = run(s, controller="lqr", compiled=True, plant_kind="cartpole_ode")
     slow = run(s, controller="lqr", compiled=False, plant_kind="cartpole_ode")
     assert paths == ["compiled", "generic"]
@@ -145,11 +147,9 @@ def _third_party() -> list:
 def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(model) -> None:
     """The test models (tilted hinge, leaning COM, reversed axis, velocity, position and
     general actuators, contacts, dm_control's and gymnasium's): the derived equations
-    where the derivation takes the model (200 random states, the hand-written oracle's
-    dry friction left out as the derived ones leave it), and the hand-written ones where
+    where the derivation takes the model (200 random states), and the hand-written ones where
     it refuses it (a joint's actuatorfrcrange), the linearisation finite either way."""
     import warnings
-    from dataclasses import replace
 
     from tspend.errors import ScenarioError
     from tspend.plants.mujoco_plant import guess_names
@@ -168,7 +168,7 @@ def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(mo
         return
     assert machine is not None, model
     ode = DerivedCartPoleODE(plant, machine)
-    oracle = replace(plant.params, cart_friction=0.0, hinge_friction=0.0).machine()
+    oracle = plant.params.machine()
     lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     if not math.isfinite(lo):
         lo, hi = -50.0, 50.0

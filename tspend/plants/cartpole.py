@@ -260,10 +260,12 @@ def nominal_machine(machine: Machine) -> Machine:
 class DerivedCartPoleODE(ArticulatedODE):
     """The ODE twin of a MuJoCo cart-pole: the equations derived from its compiled model
     (:class:`~tspend.plants.articulated.domain.ArticulatedODE`), ``d`` applied as MuJoCo's
-    cart-pole applies it, the hinge torque ``-d m l / (M + m)``.  What it says of itself
-    (inputs, joints, task, ``params``, the extras ``cart_pos``, ``cart_vel``) is the MuJoCo
-    plant's, so both backends describe one machine.  Dry friction (``frictionloss``) is not
-    in the derived equations: a departure the cross-check names."""
+    cart-pole applies it, the hinge torque ``-d m l / (M + m)``, and MuJoCo's soft dry
+    friction (``frictionloss``) as the smooth ``F tanh(v / v_s)`` the hand-written ODE has
+    (:func:`~tspend.plants.articulated.domain.applied_forces`; they agree in kind, a
+    departure the cross-check names).  What it says of itself (inputs, joints, task,
+    ``params``, the extras ``cart_pos``, ``cart_vel``) is the MuJoCo plant's, so both
+    backends describe one machine."""
 
     def __init__(self, source: Plant, machine: Machine) -> None:
         ArticulatedODE.__init__(self, machine)
@@ -275,6 +277,9 @@ class DerivedCartPoleODE(ArticulatedODE):
         self._params: CartPoleParams = source.params  # type: ignore[attr-defined]
         self._d_scale = self._params.disturbance_torque
         self._cart = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide")
+        # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
+        self._dry[self._cart] = self._params.cart_friction
+        self._dry[machine.view_joint] = self._params.hinge_friction
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
