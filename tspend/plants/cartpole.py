@@ -4,10 +4,12 @@ Two kinds, two sources of equations:
 
 * ``cartpole_mujoco`` (the MJCF stepped by MuJoCo): every model a controller assumes
   (the view's model, the full model, the linearisation, the jacobians, the inverse
-  dynamics of the task check) and its ODE twin (the cross-check's, ``--backend ode``) are
-  the equations *derived* from the compiled (overridden) model by the articulated domain
-  (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md), nominal for
-  the controllers (the joints' damping and dry friction left out).  A model the derivation
+  dynamics of the task check) and its ODE twin (the cross-check's, and
+  ``run(..., plant_kind="cartpole_ode")``'s) are the equations *derived* from the compiled
+  (overridden) model by the articulated domain
+  (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
+  the controllers (the joints' damping and dry friction left out), the twin with the
+  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``.  A model the derivation
   refuses but the cart-pole reads (a joint's ``actuatorfrcrange``, say) falls back to the
   hand-written equations below.
 * ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
@@ -54,7 +56,8 @@ if TYPE_CHECKING:
     from tspend.task import Bound, Task
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
-           "CartPoleODE", "DerivedCartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "DRY_FRICTION_SLIP",
+           "CartPoleODE", "DerivedCartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN",
+           "DRY_FRICTION_SLIP",
            "accelerations", "gain_sign", "rhs", "machine_rhs", "machine_accelerations",
            "cartpole_ode_plant", "cartpole_machine", "nominal_machine"]
 
