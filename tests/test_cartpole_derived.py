@@ -115,14 +115,17 @@ def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c
     ex3 = load_scenario("ex3_pendulum_ode")
     assert not isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
     assert DOMAIN.nominal_derived(ex3) is None
-    # the task check's need, from both inverse dynamics, on the same machine
+    # the task check's need, from both inverse dynamics, on the same machine (with its
+    # damping and dry friction on pendulum_friction)
     from tspend.plants.cartpole import reference_force
 
-    p = DOMAIN.build(scn).params
-    derived = reference_force(p, scn, cartpole_machine(DOMAIN.build(scn)))
-    hand = reference_force(p, scn)
-    assert derived is not None and hand is not None
-    np.testing.assert_allclose(derived, hand, rtol=1e-10, atol=1e-10)
+    for name in ("pendulum_mujoco", "pendulum_friction"):
+        scn = load_scenario(name)
+        p = DOMAIN.build(scn).params
+        derived = reference_force(p, scn, cartpole_machine(DOMAIN.build(scn)))
+        hand = reference_force(p, scn)
+        assert derived is not None and hand is not None
+        np.testing.assert_allclose(derived, hand, rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.parametrize("name", ["pendulum_mujoco", "pendulum_friction"])

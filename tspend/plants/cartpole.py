@@ -36,8 +36,8 @@ from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
-from tspend.plants.articulated.domain import (ArticulatedODE, derived_full_accel, derived_full_of,
-    derived_pole_energy, derived_view)
+from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
+    derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
@@ -325,12 +325,14 @@ class DerivedCartPoleODE(ArticulatedODE):
 
 
 def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
-                              cart_vel: float, d_torque: float) -> tuple[float, float]:
+                              cart_vel: float, d_torque: float, dry: np.ndarray
+                              ) -> tuple[float, float]:
     """``(F, x'')`` of the derived equations ``M(q) q'' = r(q, q', u) + qfrc``: the
     generalised force on the cart and its acceleration that give the pole ``q'' = q_dd``
     at ``(q, q')`` with the cart at 0 moving at ``cart_vel`` (the pole's row solved for
-    x'', then the cart's for F), the actuator, the cart's spring and the disturbance's
-    hinge torque ``d_torque`` as :func:`cartpole_physics.inverse_dynamics` has them.
+    x'', then the cart's for F), the actuator, the cart's spring, the disturbance's hinge
+    torque ``d_torque`` and each joint's smooth dry friction ``dry`` as
+    :func:`cartpole_physics.inverse_dynamics` has them.
     ``F`` is +/-inf where the rail cannot move the pole."""
     nv = machine.nv
     c, h = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide"), machine.view_joint
@@ -341,7 +343,7 @@ def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
     s = np.zeros(2 * nv)
     s[h], s[nv + h], s[nv + c] = q, w, cart_vel
     qfrc = np.zeros(nv)
-    qfrc[h] = d_torque
+    applied_forces(qfrc, s, h, 1.0, d_torque, dry)
     M, r = np.zeros(nv * nv), np.zeros(nv)
     machine.module.dynamics(s[:nv], s[nv:], np.zeros(len(machine.tree.actuators)), qfrc, p, M, r)
     M = M.reshape(nv, nv)
@@ -397,12 +399,16 @@ def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | 
         return None
     d = np.asarray(scenario.disturbance(t), dtype=float)
     hand = p.machine()
+    if machine is not None:
+        dry = np.zeros(machine.nv)
+        dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
+        dry[machine.view_joint] = p.hinge_friction
     force = np.empty(n + 1)
     v = 0.0
     for k in range(n + 1):
         if machine is not None:
             force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
-                                                       p.disturbance_torque * d[k])
+                                                       p.disturbance_torque * d[k], dry)
         else:
             force[k], x_dd = inverse_dynamics(hand, r[k, 0], r[k, 1], r[k, 2], v, d[k])
         if k < n and math.isfinite(x_dd):
