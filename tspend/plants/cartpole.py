@@ -1,15 +1,31 @@
 """The cart-pole domain: everything the cart-pole means, for the rest of tspend.
 
-Its equations of motion (C1)-(C2) are :mod:`tspend.plants.cartpole_physics` (written
-once; compiled code and the MuJoCo backend import them from there); this module holds
-the scenario's ``[plant]`` configuration of either backend, the analytic plant, the roles
-of the MJCF's joints (``slide`` = the cart, ``hinge`` = the pole) and how each backend is
-built, the model the baselines assume (the linearisation at the upright), labels and
-units, the default task (view ``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
+Two kinds, two sources of equations:
+
+* ``cartpole_mujoco`` (the MJCF stepped by MuJoCo): every model a controller assumes
+  (the view's model, the full model, the linearisation, the jacobians, the inverse
+  dynamics of the task check) and its ODE twin (the cross-check's, and
+  ``run(..., plant_kind="cartpole_ode")``'s) are the equations *derived* from the compiled
+  (overridden) model by the articulated domain
+  (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
+  the controllers (the joints' damping and dry friction left out), the twin with the
+  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``.  A model the derivation
+  refuses but the cart-pole reads (a joint's ``actuatorfrcrange``, say) falls back to the
+  hand-written equations below.
+* ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
+  equations (C1)-(C2) of :mod:`tspend.plants.cartpole_physics`, as the paper writes them
+  (issue 32's exception); they are also the test oracle of the derived ones
+  (tests/test_cartpole_derived.py).
+
+This module holds the scenario's ``[plant]`` configuration of either backend, the analytic
+plants, the roles of the MJCF's joints (``slide`` = the cart, ``hinge`` = the pole) and how
+each backend is built, the model the baselines assume, labels and units, the default task
+(view ``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -20,6 +36,12 @@ from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
+from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
+    derived_full_of, derived_pole_energy, derived_view)
+from tspend.plants.articulated.machine import Machine
+from tspend.plants.articulated.derive import parameter_table
+from tspend.plants.articulated.tree import read_tree
+from tspend.plants.effects import EffectsPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
@@ -34,9 +56,10 @@ if TYPE_CHECKING:
     from tspend.task import Bound, Task
 
 __all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
-           "CartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "DRY_FRICTION_SLIP",
+           "CartPoleODE", "DerivedCartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN",
+           "DRY_FRICTION_SLIP",
            "accelerations", "gain_sign", "rhs", "machine_rhs", "machine_accelerations",
-           "cartpole_ode_plant"]
+           "cartpole_ode_plant", "cartpole_machine", "nominal_machine"]
 
 
 
@@ -204,6 +227,130 @@ def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: s
     return CartPoleODE(params, slide_joint, hinge_joint, joint_ranges)
 
 
+# -- the derived equations of a MuJoCo cart-pole ----------------------------------------
+def cartpole_machine(plant: Plant) -> Machine | None:
+    """The articulated machine of a MuJoCo cart-pole ``plant``: its compiled (overridden)
+    model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
+    the machine of a :class:`DerivedCartPoleODE` is its own.  None for a plant without a
+    MuJoCo model, or one the derivation refuses that the hand-written (C1)-(C2) take (a
+    joint's ``actuatorfrcrange``, say): those keep the hand-written equations."""
+    if isinstance(plant, EffectsPlant):
+        plant = plant.inner
+    if isinstance(plant, DerivedCartPoleODE):
+        return plant.machine
+    if plant.mj_model() is None:
+        return None
+    try:
+        return plant.machine  # type: ignore[attr-defined]
+    except ScenarioError:
+        return None
+
+
+def nominal_machine(machine: Machine) -> Machine:
+    """``machine`` as the controllers assume it: its joints' damping 0 (a copy; the
+    derived equations have no dry friction), as :func:`_nominal` leaves a rig's friction
+    out of the hand-written machine."""
+    nominal = copy.copy(machine)
+    nominal.p = machine.p.copy()
+    for i, name in enumerate(machine.parameter_names):
+        if name.endswith(".damping"):
+            nominal.p[i] = 0.0
+    return nominal
+
+
+class DerivedCartPoleODE(ArticulatedODE):
+    """The ODE twin of a MuJoCo cart-pole: the equations derived from its compiled model
+    (:class:`~tspend.plants.articulated.domain.ArticulatedODE`), ``d`` applied as MuJoCo's
+    cart-pole applies it, the hinge torque ``-d m l / (M + m)``, and MuJoCo's soft dry
+    friction (``frictionloss``) as the smooth ``F tanh(v / v_s)`` the hand-written ODE has
+    (:func:`~tspend.plants.articulated.domain.applied_forces`; they agree in kind, a
+    departure the cross-check names).  What it says of itself (inputs, joints, task,
+    ``params``, the extras ``cart_pos``, ``cart_vel``) is the MuJoCo plant's, so both
+    backends describe one machine."""
+
+    def __init__(self, source: Plant, machine: Machine) -> None:
+        ArticulatedODE.__init__(self, machine)
+        self.name, self.domain = "cartpole_ode", "cartpole"
+        self._source = source
+        self._inputs, self._joints = source.inputs, source.joints
+        self._task = source.default_task()
+        self._gain_sign = source.gain_sign
+        self._params: CartPoleParams = source.params  # type: ignore[attr-defined]
+        self._d_scale = self._params.disturbance_torque
+        self._cart = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide")
+        # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
+        self._dry[self._cart] = self._params.cart_friction
+        self._dry[machine.view_joint] = self._params.hinge_friction
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        return self._inputs
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return self._joints
+
+    def default_task(self) -> TaskDefaults:
+        return self._task
+
+    @property
+    def gain_sign(self) -> int:
+        return self._gain_sign
+
+    @property
+    def params(self) -> CartPoleParams:
+        """The MuJoCo plant's :class:`CartPoleParams` (the names the metrics show)."""
+        return self._params
+
+    def parameters(self) -> dict[str, float]:
+        return self._params.finite()
+
+    def set_params(self, params: CartPoleParams) -> None:
+        """Change M, m, l (J) while it runs (a payload picked up): written into the
+        compiled model as the MuJoCo plant writes them, the derived parameter vector read
+        again from it; the state is kept."""
+        self._source.set_params(params)  # type: ignore[attr-defined]
+        self.machine.p[:] = parameter_table(read_tree(self._source.mj_model()))[1]
+        self._params = self._source.params  # type: ignore[attr-defined]
+        self._d_scale = self._params.disturbance_torque
+
+    def extras(self) -> dict[str, float]:
+        nv = self.machine.nv
+        return {"cart_pos": float(self.s[self._cart]), "cart_vel": float(self.s[nv + self._cart])}
+
+    def extras_index(self) -> np.ndarray:
+        return np.array([self._cart, self.machine.nv + self._cart], dtype=np.intp)
+
+
+def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
+                              cart_vel: float, d_torque: float, dry: np.ndarray
+                              ) -> tuple[float, float]:
+    """``(F, x'')`` of the derived equations ``M(q) q'' = r(q, q', u) + qfrc``: the
+    generalised force on the cart and its acceleration that give the pole ``q'' = q_dd``
+    at ``(q, q')`` with the cart at 0 moving at ``cart_vel`` (the pole's row solved for
+    x'', then the cart's for F), the actuator, the cart's spring, the disturbance's hinge
+    torque ``d_torque`` and each joint's smooth dry friction ``dry`` as
+    :func:`cartpole_physics.inverse_dynamics` has them.
+    ``F`` is +/-inf where the rail cannot move the pole."""
+    nv = machine.nv
+    c, h = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide"), machine.view_joint
+    p = machine.p.copy()
+    for i, name in enumerate(machine.parameter_names):
+        if name.endswith(".gear") or name == f"{machine.joint_names[c]}.stiffness":
+            p[i] = 0.0  # no actuator (F is its force), the cart's position free
+    s = np.zeros(2 * nv)
+    s[h], s[nv + h], s[nv + c] = q, w, cart_vel
+    qfrc = np.zeros(nv)
+    applied_forces(qfrc, s, h, 1.0, d_torque, dry)
+    M, r = np.zeros(nv * nv), np.zeros(nv)
+    machine.module.dynamics(s[:nv], s[nv:], np.zeros(len(machine.tree.actuators)), qfrc, p, M, r)
+    M = M.reshape(nv, nv)
+    if M[h, c] == 0.0:
+        return math.copysign(math.inf, r[h] - M[h, h] * q_dd), math.nan
+    x_dd = (r[h] - M[h, h] * q_dd) / M[h, c]
+    return float(M[c, c] * x_dd + M[c, h] * q_dd - r[c]), float(x_dd)
+
+
 @register_jitable
 def view_accel_of(machine: CartPoleMachine, t: float, x: np.ndarray, u: float,
                   d: float) -> float:
@@ -231,19 +378,17 @@ def _compiled_view_accel(model: CartPoleView, t: float, x: np.ndarray, u: float,
 COMPILED_VIEW_ACCEL[CartPoleView] = _compiled_view_accel
 
 
-def accel_fn(p: CartPoleParams) -> Callable[[float, np.ndarray, float, float], float]:
-    """theta'' of (C1)-(C2) as ``f(t, x, u, d)`` over the view (:func:`view_accel_of`)."""
-    return CartPoleView(p.machine()).accel
-
-
 #: samples of r(t) the task check evaluates the need on (at most)
 NEED_SAMPLES = 4000
 
 
-def reference_force(p: CartPoleParams, scenario: "Scenario") -> tuple[float, float, float] | None:
-    """``(t, least, largest)`` cart force the ODE ``p`` needs to follow the scenario's
+def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | None = None
+                    ) -> tuple[float, float, float] | None:
+    """``(t, least, largest)`` cart force the machine needs to follow the scenario's
     reference with its disturbance (``t``: when the larger need in size is); None when
-    the reference is not smooth enough to have ``r''``."""
+    the reference is not smooth enough to have ``r''``.  The machine's derived equations
+    when ``machine`` is given (:func:`_derived_inverse_dynamics`), else the hand-written
+    ODE ``p``'s (:func:`cartpole_physics.inverse_dynamics`)."""
     n = int(min(NEED_SAMPLES, max(2, round(scenario.run.duration / scenario.run.dt))))
     t = np.linspace(0.0, scenario.run.duration, n + 1)
     try:
@@ -251,11 +396,19 @@ def reference_force(p: CartPoleParams, scenario: "Scenario") -> tuple[float, flo
     except (ValueError, NotImplementedError):
         return None
     d = np.asarray(scenario.disturbance(t), dtype=float)
-    machine = p.machine()
+    hand = p.machine()
+    if machine is not None:
+        dry = np.zeros(machine.nv)
+        dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
+        dry[machine.view_joint] = p.hinge_friction
     force = np.empty(n + 1)
     v = 0.0
     for k in range(n + 1):
-        force[k], x_dd = inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v, d[k])
+        if machine is not None:
+            force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
+                                                       p.disturbance_torque * d[k], dry)
+        else:
+            force[k], x_dd = inverse_dynamics(hand, r[k, 0], r[k, 1], r[k, 2], v, d[k])
         if k < n and math.isfinite(x_dd):
             v += x_dd * (t[k + 1] - t[k])
     k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
@@ -619,15 +772,54 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
+    def nominal_derived(self, scenario: "Scenario", plant: Plant | None = None) -> Machine | None:
+        """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
+        (:func:`nominal_machine` of :func:`cartpole_machine` of its ``plant``, built when
+        not given); None for ``cartpole_ode`` (the paper's own equations) and for a model
+        the derivation refuses."""
+        if not isinstance(scenario.plant, MujocoCartPoleConfig):
+            return None
+        machine = cartpole_machine(plant if plant is not None else self.build(scenario))
+        return nominal_machine(machine) if machine is not None else None
+
     def full_model(self, scenario: "Scenario") -> FullModel:
-        """(C1)-(C2) over the full state ``[slider, hinge, slider_dot, hinge_dot]`` (the
-        plant's own joint names) on the nominal machine of :meth:`params_of_scenario`,
-        from :func:`~tspend.plants.cartpole_physics.accelerations_factory`: the general
-        geometry and the actuator's force law with its ranges, numerically and over CasADi
-        (its ranges clipped by ``casadi.fmin``/``fmax``); the energy is
+        """The nominal machine over the full state ``[slider, hinge, slider_dot,
+        hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
+        derived from the compiled model (numbers through the compiled module, CasADi through
+        the derivation, both with MuJoCo's clips of ctrl and force; the energy the pole's
+        with the cart at rest, :class:`~tspend.plants.articulated.domain.DerivedFull`); for
+        ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
+        (its ranges clipped by ``casadi.fmin``/``fmax``) and
         :func:`~tspend.plants.cartpole_physics.pole_energy`."""
         plant = self.build(scenario)
         params = _nominal(plant.params)  # type: ignore[attr-defined]
+        derived = self.nominal_derived(scenario, plant)
+        if derived is not None:
+            m = derived
+            full = derived_full_of(m, m.view_joint)
+
+            def derived_factory(sin, cos, tanh):
+                if sin is math.sin:
+                    return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
+
+                def q_dd(s, u):
+                    import casadi as ca  # only for a symbolic model (MPC)
+
+                    # with MuJoCo's clips of ctrl and force, as (C1)-(C2)'s model has them
+                    uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
+                                        for k in range(len(m.tree.actuators))])
+                    M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
+                    a = ca.solve(ca.reshape(M, 2, 2), r)
+                    return a[0], a[1]
+
+                return q_dd
+
+            return FullModel(domain=self.name, state_names=tuple(plant.state_names),
+                             accel_factory=derived_factory,
+                             energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
+                             pole=m.view_joint, actuated=m.actuated,
+                             angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
+                             parameters=params.finite(), machine=full, accel_unit="m/s^2")
         machine = params.machine()
 
         def factory(sin, cos, tanh):
@@ -653,15 +845,30 @@ class CartPoleDomain(Domain):
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        view = CartPoleView(self.params_of_scenario(scenario).machine())
+        plant = self.build(scenario)
+        params = _nominal(plant.params)  # type: ignore[attr-defined]
+        derived = self.nominal_derived(scenario, plant)
+        # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
+        view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
+                     else CartPoleView(params.machine()))
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
     def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
-        """The nominal machine's ``(A, B)`` at the upright at rest: central differences of
-        the one cart-pole ODE (:meth:`FullModel.linearisation`; the general geometry an
-        MJCF gives has no closed form worth a second copy of the equations)."""
+        """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
+        exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
+        for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
+        derived = self.nominal_derived(scenario)
+        if derived is not None:
+            return derived.linearisation()
         return self.full_model(scenario).linearisation()
+
+    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The exact ``(A, B)`` of a derived ODE twin's equations at ``at`` (CasADi's
+        derivatives); None for the hand-written ODE (central differences then)."""
+        if isinstance(plant, DerivedCartPoleODE):
+            return plant.machine.linearisation(at)
+        return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
         params: CartPoleParams = plant.params  # type: ignore[attr-defined]
@@ -677,8 +884,9 @@ class CartPoleDomain(Domain):
         """Before a balancing run (the task ends on a fall): the force the reference and
         the disturbance need against what the actuator can give.
 
-        The need is the inverse dynamics of the ODE (:func:`cartpole_physics.inverse_dynamics`)
-        along ``r(t)`` over the run, the cart's velocity integrated from rest: a lower
+        The need is the inverse dynamics along ``r(t)`` over the run (``cartpole_mujoco``:
+        of the equations derived from the compiled model, :func:`_derived_inverse_dynamics`;
+        ``cartpole_ode``: of (C1)-(C2), :func:`cartpole_physics.inverse_dynamics`), the cart's velocity integrated from rest: a lower
         bound (a controller also has to bring x0 to r and hold the cart).  The actuator's
         force is at rest, over ``ctrlrange`` (and ``effects.saturation``), ``forcerange``
         and the joint's ``actuatorfrcrange``.  ScenarioError when the need exceeds it.
@@ -691,7 +899,9 @@ class CartPoleDomain(Domain):
                                       sat if sat > 0 else math.inf)
         if lo == -math.inf and hi == math.inf:
             return
-        need = reference_force(p, scenario)
+        derived = (cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig)
+                   else None)
+        need = reference_force(p, scenario, derived)
         if need is None:
             return
         t, f_lo, f_hi = need
@@ -749,7 +959,13 @@ class CartPoleDomain(Domain):
         return force / abs(p.force_per_u)
 
     def ode_of(self, plant: Plant) -> Plant:
-        """The ODE of the MuJoCo ``plant``'s machine, with its joints' names and ranges."""
+        """The ODE of the MuJoCo ``plant``'s machine: the equations derived from its
+        compiled model (:class:`DerivedCartPoleODE`); the hand-written (C1)-(C2) of its
+        :class:`CartPoleParams`, with its joints' names and ranges, for a model the
+        derivation refuses."""
+        machine = cartpole_machine(plant)
+        if machine is not None:
+            return DerivedCartPoleODE(plant, machine)
         ranges = {j.name: j.range for j in plant.joints if j.range is not None}
         return cartpole_ode_plant(plant.params, plant.slide_joint,  # type: ignore[attr-defined]
                                   plant.hinge_joint, ranges)  # type: ignore[attr-defined]

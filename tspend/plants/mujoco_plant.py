@@ -550,6 +550,8 @@ class MujocoCartPole(MujocoPlant):
         m.body_subtreemass[pole] = p.m
         self._params = replace(self._params, M=p.M, m=p.m, l=p.l, J=p.J)
         self._d_to_tau = self._params.disturbance_torque
+        # the derived machine is read from the model: the next one asked for reads these
+        self.__dict__.pop("machine", None)
 
     def _place(self, x0: np.ndarray) -> None:
         """Pole at ``x0 = [theta, theta']``, cart at rest where the model puts it."""

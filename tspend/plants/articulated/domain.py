@@ -10,7 +10,7 @@ roles and so the default task (every pole within the fall angle of upright, the 
 range), and the drawing (the model's own geoms, posed by MuJoCo's kinematics).
 
 Both plants share the state's names; ``d`` is a generalised force on the tracked pole's
-joint.  The view the paper's controllers see is ``[pole, pole']`` of the first pole.
+joint (times ``d_scale``, 1 here; the MuJoCo cart-pole's ``-m l / (M + m)``).  The view the paper's controllers see is ``[pole, pole']`` of the first pole.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from tspend.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.cartpole_physics import DRY_FRICTION_SLIP
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE, SYMBOLIC,
     VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 from tspend.plants.mujoco_plant import MujocoPlant
@@ -136,6 +137,27 @@ class DerivedRHS(NamedTuple):
     r: np.ndarray
     actuator: int
     d_joint: int
+    #: the generalised force on ``d_joint`` per unit d (1; the cart-pole's -m l / (M + m))
+    d_scale: float
+    #: each joint's smooth dry friction force (:func:`applied_forces`; 0: none)
+    dry: np.ndarray
+
+
+@register_jitable
+def applied_forces(qfrc: np.ndarray, s: np.ndarray, d_joint: int, d_scale: float, d: float,
+                   dry: np.ndarray) -> None:
+    """The generalised forces a derived ODE applies besides its equations, into ``qfrc``:
+    ``d_scale d`` on joint ``d_joint``, and on each joint ``j`` with ``dry[j] > 0`` the
+    smooth dry friction ``-dry[j] tanh(q'_j / v_s)`` (the cart-pole's ODE twin: MuJoCo's
+    ``frictionloss`` is a soft constraint, this its smooth stand-in, as the hand-written
+    cart-pole has it; every other machine leaves dry friction out, a named departure).
+    One function for the generic and the compiled loop, so they agree bit for bit."""
+    nv = qfrc.size
+    qfrc[:] = 0.0
+    qfrc[d_joint] = d_scale * d
+    for j in range(nv):
+        if dry[j] > 0.0:
+            qfrc[j] -= dry[j] * math.tanh(s[nv + j] / DRY_FRICTION_SLIP)
 
 
 @register_jitable
@@ -144,8 +166,7 @@ def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
     """``s' = f(s, u)`` of the derived equations into ``sdot`` (as :meth:`Machine.rhs_into`)."""
     m.u[:] = 0.0
     m.u[m.actuator] = u
-    m.qfrc[:] = 0.0
-    m.qfrc[m.d_joint] = d
+    applied_forces(m.qfrc, s, m.d_joint, m.d_scale, d, m.dry)
     m.fn(s.ctypes.data, m.u.ctypes.data, m.qfrc.ctypes.data, m.p.ctypes.data,
          m.M.ctypes.data, m.r.ctypes.data, sdot.ctypes.data)
 
@@ -153,15 +174,18 @@ def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
 COMPILED_RHS[DerivedRHS] = derived_rhs
 
 
-def derived_rhs_of(machine: Machine, d_joint: int) -> DerivedRHS:
-    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force on joint ``d_joint``."""
+def derived_rhs_of(machine: Machine, d_joint: int, d_scale: float = 1.0,
+                   dry: np.ndarray | None = None) -> DerivedRHS:
+    """``machine``'s :class:`DerivedRHS`, ``d`` a generalised force ``d_scale d`` on joint
+    ``d_joint``, ``dry`` each joint's smooth dry friction force (None: none)."""
     import ctypes
 
     fn = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)(machine.module.rhs_c.address)
     fn.argtypes, fn.restype = [ctypes.c_void_p] * 7, None
     nv = machine.nv
     return DerivedRHS(fn, np.zeros(len(machine.tree.actuators)), np.zeros(nv), machine.p,
-                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint)
+                      np.zeros(nv * nv), np.zeros(nv), machine.actuator_index, d_joint,
+                      float(d_scale), np.zeros(nv) if dry is None else np.array(dry, dtype=float))
 
 
 class ArticulatedODE(_Named, AnalyticPlant):
@@ -177,6 +201,11 @@ class ArticulatedODE(_Named, AnalyticPlant):
         self._work = rk4_work(self.s.size)
         self._full_order = np.arange(self.s.size, dtype=np.intp)
         self._d_joint = machine.view_joint
+        #: the generalised force on ``_d_joint`` per unit d, each joint's dry friction
+        #: force (:func:`applied_forces`)
+        self._d_scale = 1.0
+        self._dry = np.zeros(machine.nv)
+        self._qfrc = np.zeros(machine.nv)
 
     # the MuJoCo plant names its state from the same compiled model (MujocoPlant)
     @property
@@ -200,7 +229,8 @@ class ArticulatedODE(_Named, AnalyticPlant):
         return self.s.copy()
 
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
-        self.machine.rhs_into(s, u, d, self._d_joint, sdot)
+        applied_forces(self._qfrc, s, self._d_joint, self._d_scale, d, self._dry)
+        self.machine.rhs_forced(s, u, self._qfrc, sdot)
 
     def _rhs_params(self) -> Any:
         return self
@@ -210,7 +240,8 @@ class ArticulatedODE(_Named, AnalyticPlant):
         address (:class:`DerivedRHS`; a type of a generated module would not do: numba
         caches the loop with every parameter type, and the next process loading that cache
         could not import a module of the derivation cache)."""
-        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint), self.s, self._clock,
+        return CompiledPlant(derived_rhs_of(self.machine, self._d_joint, self._d_scale,
+                                            self._dry), self.s, self._clock,
                              self._work, self._full_order)
 
 
@@ -452,10 +483,10 @@ def derived_view_accel(v: DerivedView, t: float, x: np.ndarray, u: float, d: flo
 COMPILED_VIEW_ACCEL[DerivedView] = derived_view_accel
 
 
-def derived_view(machine: Machine) -> DerivedView:
-    """``machine``'s view model (its first pole's, ``d`` on that joint)."""
+def derived_view(machine: Machine, d_scale: float = 1.0) -> DerivedView:
+    """``machine``'s view model (its first pole's, ``d_scale d`` on that joint)."""
     nv = machine.nv
-    return DerivedView(derived_rhs_of(machine, machine.view_joint), np.zeros(2 * nv),
+    return DerivedView(derived_rhs_of(machine, machine.view_joint, d_scale), np.zeros(2 * nv),
                        np.zeros(2 * nv), machine.view_joint)
 
 

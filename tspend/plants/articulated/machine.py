@@ -194,11 +194,16 @@ class Machine:
     def rhs_into(self, s: np.ndarray, u: float, d: float, d_joint: int, sdot: np.ndarray) -> None:
         """``s' = f(s, u)`` of equations (3), with the clips, ``d`` a generalised force on
         joint ``d_joint``."""
-        self._u[:] = 0.0
-        self._u[self.actuator_index] = u
         self._qfrc[:] = 0.0
         self._qfrc[d_joint] = d
-        self.module.rhs(s, self._u, self._qfrc, self.p, self._M, self._r, sdot)
+        self.rhs_forced(s, u, self._qfrc, sdot)
+
+    def rhs_forced(self, s: np.ndarray, u: float, qfrc: np.ndarray, sdot: np.ndarray) -> None:
+        """``s' = f(s, u)`` of equations (3), with the clips, the generalised forces
+        ``qfrc`` on the joints."""
+        self._u[:] = 0.0
+        self._u[self.actuator_index] = u
+        self.module.rhs(s, self._u, qfrc, self.p, self._M, self._r, sdot)
 
     def accelerations(self, s: np.ndarray, u: float) -> np.ndarray:
         sdot = np.empty(2 * self.nv)

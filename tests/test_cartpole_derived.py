@@ -1,0 +1,188 @@
+"""The MuJoCo cart-pole's controller-side equations come from the derivation (issue 32).
+
+The hand-written (C1)-(C2) of tspend/plants/cartpole_physics.py (kept for the paper's
+``cartpole_ode``) are the oracle: the equations derived from the compiled
+models/cartpole.xml, with the same numbers written into it, give the same accelerations
+at random states; the derived linearisation is the hand-written one's central
+difference; the ODE twin applies d as the MuJoCo plant does, and steps the same on the
+compiled and the generic loop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tspend import load_scenario, override
+from tspend.loop.simulation import run
+from tspend.plants.cartpole import (DOMAIN, DerivedCartPoleODE, cartpole_machine,
+                                    nominal_machine)
+from tspend.plants.cartpole_physics import machine_accelerations, pole_energy
+from tspend.plants.mujoco_plant import MujocoCartPole
+
+from cli_harness import ROOT
+
+MODEL = ROOT / "models" / "cartpole.xml"
+
+#: (overrides, gear, damping and dry friction): the paper's machine, a heavier pole with
+#: its own inertia and a geared motor, a light short one with damped joints and friction
+MACHINES = [
+    ({}, None, {}),
+    ({"M": 4.0, "m": 2.5, "l": 0.7, "J": 1.9}, 3.5, {}),
+    ({"M": 1.3, "m": 0.2, "l": 0.35, "g": 9.81}, 0.5,
+     {"cart_damping": 0.8, "hinge_damping": 0.03, "cart_friction": 1.5, "hinge_friction": 0.02}),
+]
+
+
+@pytest.mark.parametrize("overrides, gear, friction", MACHINES)
+def test_the_hand_written_equations_are_the_oracle_of_the_derived_ones(
+        overrides, gear, friction) -> None:
+    """1,000 random states: both angles over the full circle, rates to 20 rad/s (m/s),
+    the cart anywhere on 10 m, u over 1.2 x the control range (the clip included), a
+    disturbance: the ODE twin's derived accelerations (its smooth dry friction included)
+    and the hand-written ones within 1e-12 (relative where larger than 1)."""
+    plant = MujocoCartPole(MODEL, overrides=overrides, gear=gear, **friction)
+    machine = cartpole_machine(plant)
+    assert machine is not None
+    ode = DerivedCartPoleODE(plant, machine)
+    oracle = plant.params.machine()
+    lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
+    rng = np.random.default_rng(32)
+    sdot, worst = np.empty(4), 0.0
+    for _ in range(1000):
+        s = np.array([rng.uniform(-5.0, 5.0), rng.uniform(-math.pi, math.pi),
+                      rng.uniform(-20.0, 20.0), rng.uniform(-20.0, 20.0)])
+        u, d = rng.uniform(1.2 * lo, 1.2 * hi), rng.uniform(-5.0, 5.0)
+        ode.rhs_into(0.0, s, u, d, sdot)
+        q_dd, x_dd = machine_accelerations(oracle, s[1], s[3], s[0], s[2], u, d)
+        theirs = np.array([x_dd, q_dd])
+        worst = max(worst, float(np.max(np.abs(sdot[2:] - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    print(f"cartpole {overrides} gear {gear}: derived vs hand-written, worst {worst:.1e}")
+    assert worst <= 1e-12
+
+
+def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
+    """pendulum_friction: the view's model, the full model, the linearisation leave the
+    damping and dry friction out as the hand-written nominal machine does; the
+    linearisation is exact (the hand-written one's central difference agrees to 1e-7)."""
+    scn = load_scenario("pendulum_friction")
+    plant = DOMAIN.build(scn)
+    assert plant.params.cart_damping > 0 or plant.params.cart_friction > 0
+    nominal = DOMAIN.params_of_scenario(scn).machine()
+    view = DOMAIN.plant_model(scn)
+    full = DOMAIN.full_model(scn)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        x = np.array([rng.uniform(-math.pi, math.pi), rng.uniform(-20.0, 20.0)])
+        u, d = rng.uniform(-50.0, 50.0), rng.uniform(-1.0, 1.0)
+        want = machine_accelerations(nominal, x[0], x[1], 0.0, 0.0, u, d)[0]
+        assert view.accel(0.0, x, u, d) == pytest.approx(want, rel=1e-12, abs=1e-12)
+        s = np.array([rng.uniform(-5, 5), x[0], rng.uniform(-20, 20), x[1]])
+        q_dd, x_dd = machine_accelerations(nominal, s[1], s[3], s[0], s[2], u, 0.0)
+        np.testing.assert_allclose(full.numeric(s, u), (x_dd, q_dd), rtol=1e-12, atol=1e-12)
+        # the swing-up's energy of the pole
+        assert full.energy(s) == pytest.approx(pole_energy(nominal, s[1], s[3]), rel=1e-12,
+                                               abs=1e-12)
+    A, B = DOMAIN.linearisation(scn)
+    h = 1e-6
+    A_fd, B_fd = np.zeros((4, 4)), np.zeros((4, 1))
+
+    def f(s, u):
+        q_dd, x_dd = machine_accelerations(nominal, s[1], s[3], s[0], s[2], u, 0.0)
+        return np.array([s[2], s[3], x_dd, q_dd])
+
+    for k in range(4):
+        e = np.zeros(4)
+        e[k] = h
+        A_fd[:, k] = (f(e, 0.0) - f(-e, 0.0)) / (2 * h)
+    B_fd[:, 0] = (f(np.zeros(4), h) - f(np.zeros(4), -h)) / (2 * h)
+    np.testing.assert_allclose(A, A_fd, rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(B, B_fd, rtol=1e-7, atol=1e-9)
+    # the nominal machine keeps the model's numbers but its dampers
+    machine = cartpole_machine(plant)
+    kept = nominal_machine(machine)
+    for name, a, b in zip(machine.parameter_names, machine.p, kept.p):
+        assert b == (0.0 if name.endswith(".damping") else a), name
+
+
+def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c2() -> None:
+    scn = load_scenario("pendulum_mujoco")
+    twin = DOMAIN.build(scn, "cartpole_ode")
+    assert isinstance(twin, DerivedCartPoleODE)
+    assert twin.parameters() == DOMAIN.build(scn).parameters()
+    ex3 = load_scenario("ex3_pendulum_ode")
+    assert not isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
+    assert DOMAIN.nominal_derived(ex3) is None
+    # the task check's need, from both inverse dynamics, on the same machine (with its
+    # damping and dry friction on pendulum_friction)
+    from tspend.plants.cartpole import reference_force
+
+    for name in ("pendulum_mujoco", "pendulum_friction"):
+        scn = load_scenario(name)
+        p = DOMAIN.build(scn).params
+        derived = reference_force(p, scn, cartpole_machine(DOMAIN.build(scn)))
+        hand = reference_force(p, scn)
+        assert derived is not None and hand is not None
+        np.testing.assert_allclose(derived, hand, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["pendulum_mujoco", "pendulum_friction"])
+def test_the_ode_twin_runs_the_same_on_the_compiled_and_the_generic_loop(name, paths) -> None:
+    """With the scenario's disturbance (the hinge torque -d m l / (M + m)) and dry
+    friction, bit for bit."""
+    s = override(load_scenario(name), **{"run.duration": 1.0})
+    fast = run(s, controller="lqr", compiled=True, plant_kind="cartpole_ode")
+    slow = run(s, controller="lqr", compiled=False, plant_kind="cartpole_ode")
+    assert paths == ["compiled", "generic"]
+    assert fast.status == slow.status == "completed"
+    for key in ("u", "x", "state"):
+        np.testing.assert_array_equal(fast.history[key], slow.history[key], err_msg=key)
+
+
+def _third_party() -> list:
+    # the parallel hinge is refused by the cart-pole itself (tests/test_mjcf_cartpoles.py)
+    return [p for p in sorted((ROOT / "tests" / "models").glob("cartpole_*.xml"))
+            if p.stem != "cartpole_parallel_hinge"] + \
+        sorted((ROOT / "tests" / "models" / "third_party").glob("*.xml"))
+
+
+@pytest.mark.parametrize("model", _third_party(), ids=lambda p: p.stem)
+def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(model) -> None:
+    """The test models (tilted hinge, leaning COM, reversed axis, velocity, position and
+    general actuators, contacts, dm_control's and gymnasium's): the derived equations
+    where the derivation takes the model (200 random states), and the hand-written ones where
+    it refuses it (a joint's actuatorfrcrange), the linearisation finite either way."""
+    import warnings
+
+    from tspend.plants.mujoco_plant import guess_names
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        slide, hinge, act = guess_names(model, None, None, None)
+        plant = MujocoCartPole(model, slide, hinge, act)
+    machine = cartpole_machine(plant)
+    if model.stem == "cartpole_general_actuator":
+        assert machine is None   # actuatorfrcrange: refused by the derivation
+        assert isinstance(DOMAIN.ode_of(plant), type(DOMAIN.build(load_scenario("ex3_pendulum_ode"))))
+        return
+    assert machine is not None, model
+    ode = DerivedCartPoleODE(plant, machine)
+    oracle = plant.params.machine()
+    lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
+    if not math.isfinite(lo):
+        lo, hi = -50.0, 50.0
+    rng = np.random.default_rng(5)
+    sdot, worst = np.empty(4), 0.0
+    for _ in range(200):
+        s = np.array([rng.uniform(-1.0, 1.0), rng.uniform(-math.pi, math.pi),
+                      rng.uniform(-20.0, 20.0), rng.uniform(-20.0, 20.0)])
+        u, d = rng.uniform(1.2 * lo, 1.2 * hi), rng.uniform(-1.0, 1.0)
+        ode.rhs_into(0.0, s, u, d, sdot)
+        q_dd, x_dd = machine_accelerations(oracle, s[1], s[3], s[0], s[2], u, d)
+        theirs = np.array([x_dd, q_dd])
+        worst = max(worst, float(np.max(np.abs(sdot[2:] - theirs) / np.maximum(1.0, np.abs(theirs)))))
+    assert worst <= 1e-12, (model.stem, worst)
+    A, B = machine.linearisation()
+    assert np.all(np.isfinite(A)) and np.all(np.isfinite(B))
