@@ -63,16 +63,7 @@ def dompc_peer(c):
     u = model.set_variable("_u", "u", (1, 1))
     sr = model.set_variable("_tvp", "sr", (nx, 1))
     ur = model.set_variable("_tvp", "ur", (1, 1))
-    s_sym, u_sym = ca.SX.sym("s", nx), ca.SX.sym("u")
-    f = c.model.symbolic()
-    sk, dh = s_sym, h / c.s.substeps
-    for _ in range(c.s.substeps):            # the same RK4 map as the controller's F
-        k1 = f(sk, u_sym)
-        k2 = f(sk + dh / 2 * k1, u_sym)
-        k3 = f(sk + dh / 2 * k2, u_sym)
-        k4 = f(sk + dh * k3, u_sym)
-        sk = sk + dh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    F = ca.Function("F", [s_sym, u_sym], [sk])
+    F = c.model.rk4_map(h, c.s.substeps, name="F")   # the controller's own RK4 map
     model.set_rhs("s", F(x, u))
     model.setup()
     mpc = do_mpc.controller.MPC(model)

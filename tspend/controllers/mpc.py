@@ -151,17 +151,8 @@ class MPCController(Controller):
         self.sample_period = settings.period
         self.Q, self.R = np.asarray(Q, dtype=float), float(R)
         N, nx, h = settings.horizon, model.size, settings.period
-        f = model.symbolic()
-        s_sym, u_sym = casadi.SX.sym("s", nx), casadi.SX.sym("u")
         # F: substeps RK4 steps over h (u held): the same hold the plant sees
-        sk, dh = s_sym, h / settings.substeps
-        for _ in range(settings.substeps):
-            k1 = f(sk, u_sym)
-            k2 = f(sk + dh / 2 * k1, u_sym)
-            k3 = f(sk + dh / 2 * k2, u_sym)
-            k4 = f(sk + dh * k3, u_sym)
-            sk = sk + dh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        F = casadi.Function("F", [s_sym, u_sym], [sk])
+        F = model.rk4_map(h, settings.substeps, name="F")
         self.N, self.nx = N, nx
         lo_s, hi_s, u_lo, u_hi = self._bounds(constraints if settings.constraints else None)
         C, D, b, sel = self.rows

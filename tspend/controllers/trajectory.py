@@ -40,7 +40,7 @@ from tspend.errors import ScenarioError
 if TYPE_CHECKING:
     from tspend.plants.domain import FullModel
 
-__all__ = ["Plan", "PlanFailed", "plan_swingup", "rk4_step_function", "read_plan", "write_plan",
+__all__ = ["Plan", "PlanFailed", "plan_swingup", "read_plan", "write_plan",
            "PLAN_FORMAT"]
 
 #: a bound IPOPT treats as none
@@ -73,20 +73,6 @@ class Plan:
     @property
     def horizon(self) -> float:
         return float(self.t[-1] - self.t[0])
-
-
-def rk4_step_function(model: "FullModel", dt: float) -> Any:
-    """``s_next = G(s, u)``: one classical RK4 step of ``dt`` (u held), a CasADi Function."""
-    import casadi
-
-    f = model.symbolic()
-    s = casadi.SX.sym("s", model.size)
-    u = casadi.SX.sym("u")
-    k1 = f(s, u)
-    k2 = f(s + dt / 2 * k1, u)
-    k3 = f(s + dt / 2 * k2, u)
-    k4 = f(s + dt * k3, u)
-    return casadi.Function("rk4", [s, u], [s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
 
 
 def _bounds(model: "FullModel", margin: float) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -145,7 +131,7 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
         raise ScenarioError(f"{where}.step: must divide the interval {interval:g} s into whole "
                             f"steps, got {step:g}")
     nx, K = model.size, int(round(interval / step))
-    G = rk4_step_function(model, step)
+    G = model.rk4_map(step)
     # one interval: K steps of G with u held (mapaccum feeds each step's output to the next)
     Gk = G.mapaccum("interval", K)
     su, uu = casadi.SX.sym("s", nx), casadi.SX.sym("u")
@@ -192,7 +178,7 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
                            intervals=N, nlp_variables=int(w.shape[0]),
                            start_state=[float(v) for v in start])
             figures["step_s"] = float(step)
-            return _fine(model, rk4_step_function(model, dt), nodes, u_nodes,
+            return _fine(model, model.rk4_map(dt), nodes, u_nodes,
                          int(round(interval / dt)), dt, interval, figures, units)
     why = "; ".join(f"{a['status']} after {a['iterations']} iterations" for a in attempts)
     raise PlanFailed(f"{where}: IPOPT found no plan to the upright in {horizon:g} s ({why})")

@@ -369,6 +369,23 @@ class FullModel:
 
         return f
 
+    def rk4_map(self, dt: float, substeps: int = 1, name: str = "rk4") -> Any:
+        """``s_next = G(s, u)``: ``substeps`` classical RK4 steps of ``dt / substeps`` over
+        :meth:`symbolic` with u held (the shooting map of MPC and planning), a CasADi
+        Function named ``name``."""
+        import casadi
+
+        f = self.symbolic()
+        s, u = casadi.SX.sym("s", self.size), casadi.SX.sym("u")
+        sk, dh = s, dt / substeps
+        for _ in range(substeps):
+            k1 = f(sk, u)
+            k2 = f(sk + dh / 2 * k1, u)
+            k3 = f(sk + dh / 2 * k2, u)
+            k4 = f(sk + dh * k3, u)
+            sk = sk + dh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return casadi.Function(name, [s, u], [sk])
+
     def linearisation(self, s_op: np.ndarray | None = None,
                       u_op: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """``(A, B)`` at ``(s*, u*)`` (default the upright at rest) by central differences."""

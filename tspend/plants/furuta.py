@@ -81,30 +81,24 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
     then ``values``, the ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs of
     :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
     as an articulated machine whose pole is ``pendulum`` and whose ``u`` drives ``actuator``."""
-    from tspend.plants.articulated.model_numbers import check_values, write_values
+    from tspend.plants.articulated.model_numbers import compile_with_values
     from tspend.plants.mjcf import read_spec
 
     where = str(model_path)
     if not Path(model_path).is_file():
         raise ScenarioError(f"{where}: model file not found")
     spec = read_spec(where)  # within the size bounds
-    try:
-        if timestep:
-            spec.option.timestep = float(timestep)
-        if pendulum_damping is not None:
-            joint = spec.joint(pendulum)
-            if joint is None:
-                raise ScenarioError(f"{where}: no joint named {pendulum!r}")
-            # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
-            damping = np.array(joint.damping, dtype=float)
-            damping[0] = float(pendulum_damping)
-            joint.damping = damping
-        write_values(spec, values, where)
-        model = spec.compile()
-    except ValueError as exc:
-        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
-        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
-    check_values(model, values, where)
+    if timestep:
+        spec.option.timestep = float(timestep)
+    if pendulum_damping is not None:
+        joint = spec.joint(pendulum)
+        if joint is None:
+            raise ScenarioError(f"{where}: no joint named {pendulum!r}")
+        # MuJoCo 4's damping is [linear, polynomial terms]: only the linear one set
+        damping = np.array(joint.damping, dtype=float)
+        damping[0] = float(pendulum_damping)
+        joint.damping = damping
+    model = compile_with_values(spec, values, where)
     names = tuple(model.joint(j).name for j in range(model.njnt))
     for joint in (arm, pendulum):
         if joint not in names:

@@ -266,20 +266,13 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
     """The MJCF at ``path`` compiled (``timestep`` > 0 replaces the model's; ``values``,
     ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into it first:
     :mod:`.model_numbers`) and read."""
-    from tspend.plants.articulated.model_numbers import check_values, write_values
+    from tspend.plants.articulated.model_numbers import compile_with_values
     from tspend.plants.mjcf import read_spec
 
     where = str(path)
     if not Path(path).is_file():
         raise ScenarioError(f"{where}: model file not found")
     spec = read_spec(where)
-    try:
-        if timestep:
-            spec.option.timestep = float(timestep)
-        write_values(spec, values, where)
-        model = spec.compile()
-    except ValueError as exc:
-        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
-        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
-    check_values(model, values, where)
-    return Machine(model, where, actuator, poles)
+    if timestep:
+        spec.option.timestep = float(timestep)
+    return Machine(compile_with_values(spec, values, where), where, actuator, poles)

@@ -29,7 +29,7 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 
-__all__ = ["QUANTITIES", "LOWER_BOUNDS", "split", "model_values", "write_values", "check_values",
+__all__ = ["QUANTITIES", "LOWER_BOUNDS", "split", "model_values", "write_values", "check_values", "compile_with_values",
            "check_names"]
 
 #: the quantities a name may end with, and the kind of element each belongs to
@@ -144,3 +144,16 @@ def check_values(model: Any, values: tuple[tuple[str, float], ...], where: str) 
         if not abs(have - value) <= _TOOK * max(abs(value), 1e-300):
             raise ScenarioError(f"{where}: randomize.{name}: written {value:.17g}, but the "
                                 f"compiled model has {have:.17g}")
+
+
+def compile_with_values(spec: Any, values: tuple[tuple[str, float], ...], where: str) -> Any:
+    """``spec`` with ``values`` written in (:func:`write_values`), compiled and checked
+    (:func:`check_values`); ScenarioError when MuJoCo refuses it, naming the values drawn."""
+    try:
+        write_values(spec, values, where)
+        model = spec.compile()
+    except ValueError as exc:
+        drawn = f" (with {', '.join(f'{n} = {v:g}' for n, v in values)} drawn)" if values else ""
+        raise ScenarioError(f"{where}: cannot compile MJCF{drawn}: {exc}") from exc
+    check_values(model, values, where)
+    return model
