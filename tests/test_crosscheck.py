@@ -56,7 +56,7 @@ def test_any_mjcf_cartpole_with_named_joints_runs(tmp_path):
     """Another MJCF (joints and actuator renamed, written by MjSpec) runs by naming them."""
     import mujoco
 
-    from tspend.scenario import project_root
+    from tspend.shipped import data_root as project_root
 
     spec = mujoco.MjSpec.from_file(str(project_root() / "models" / "cartpole.xml"))
     spec.joint("slider").name = "cart_x"

@@ -19,6 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tspend import signals
+from tspend.shipped import scenario_search_path
 from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
     MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
 from tspend.config import (BoxConstraint, ConstraintsConfig, ControllerConfig, EffectsConfig,
@@ -29,7 +30,6 @@ from tspend.controllers import settings_classes
 from tspend.controllers.settings import parse_kind_tables
 from tspend.errors import ScenarioError
 from tspend.tables import Table, read_fields
-from tspend.plants.domain import project_root
 from tspend.plants.randomize import read_randomize
 from tspend.plants.registry import PLANT_KINDS, resolve_model_path
 
@@ -57,16 +57,17 @@ SETS_KEYS = ("states", "u", "e_delta", "x_norm")
 
 
 def scenario_dirs() -> list[Path]:
-    dirs = [Path.cwd() / "scenarios", project_root() / "scenarios"]
+    """The existing folders of the scenario search path, each once, in search order
+    (:func:`tspend.shipped.scenario_search_path`)."""
     seen: list[Path] = []
-    for d in dirs:
+    for d in scenario_search_path():
         if d.is_dir() and d.resolve() not in [s.resolve() for s in seen]:
             seen.append(d)
     return seen
 
 
 def available_scenarios() -> list[Path]:
-    """Every scenario file, by name, from ./scenarios then the project's scenarios/."""
+    """Every scenario file, by name, the first found on the search path (scenario_dirs)."""
     found: dict[str, Path] = {}
     for d in scenario_dirs():
         for p in sorted(d.glob("*.toml")):

@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
-           "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ", "project_root",
+           "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ",
            "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
            "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
            "bound_text", "name_slug", "unit_slug"]
@@ -520,18 +520,12 @@ class Domain(ABC):
         return self.default_model
 
     def model_path(self, scenario: "Scenario") -> Path:
-        """The scenario's MJCF: as given, else next to the scenario, else the project's."""
-        p = Path(self.model_file(scenario.plant))
-        if p.is_absolute():
-            return p
-        bases = [Path.cwd()]
-        if scenario.path and scenario.path != "<string>":
-            bases.append(Path(scenario.path).resolve().parent)
-        bases.append(project_root())
-        for base in bases:
-            if (base / p).is_file():
-                return base / p
-        return p
+        """The scenario's MJCF (:func:`tspend.shipped.locate`; as written when not found,
+        so the loader's message names it)."""
+        from tspend.shipped import locate
+
+        p = self.model_file(scenario.plant)
+        return locate(p, scenario.path) or Path(p)
 
     def build(self, scenario: "Scenario", kind: str | None = None) -> Plant:
         """The scenario's plant, or the same machine on backend ``kind`` of this domain,
@@ -623,23 +617,13 @@ class Domain(ABC):
         raise NotImplementedError(f"domain {self.name!r} has no analytic twin of its MuJoCo plant")
 
 
-def project_root() -> Path:
-    """The checkout that holds ``models/`` and ``scenarios/`` (the package's parent)."""
-    return Path(__file__).resolve().parents[2]
-
-
 def find_named_file(path: str, scenario: "Scenario", key: str) -> Path:
     """The file a scenario's setting ``key`` names (a policy, a plan), looked for like a
-    scenario's MJCF: as given when absolute, else beside the working directory, the
-    scenario file and the project (ScenarioError naming ``key`` if none)."""
+    scenario's MJCF (:func:`tspend.shipped.locate`; ScenarioError naming ``key`` if none)."""
     from tspend.errors import ScenarioError
+    from tspend.shipped import locate
 
-    p = Path(path)
-    bases = [Path.cwd()]
-    if scenario.path and scenario.path != "<string>":
-        bases.append(Path(scenario.path).resolve().parent)
-    bases.append(project_root())
-    for cand in ([p] if p.is_absolute() else [b / p for b in bases]):
-        if cand.is_file():
-            return cand
+    found = locate(path, scenario.path)
+    if found is not None:
+        return found
     raise ScenarioError(f"{scenario.path or scenario.name}: {key} = {path!r}: no such file")

@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from tspend.loop.sinks import RunEnd, RunInfo
+from tspend.shipped import data_root
 
 
 def _json_default(obj: object) -> object:
@@ -38,19 +39,15 @@ def _md_table(rows: Sequence[tuple[str, object]], header: tuple[str, str] = ("ke
     return "\n".join(lines)
 
 
-#: the repository (or installed package's parent): shipped scenarios and models are shown relative to it
-_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
-
-
 def portable_path(path: object) -> str:
     """``path`` as a recording may show it: relative to the working directory or to the
-    tspend repository when inside one, else the file's name alone.  Nothing in a
+    shipped data (``models/cartpole.xml``) when inside one, else the file's name alone.  Nothing in a
     recording refers to the machine it was made on."""
     text = str(path)
     if not text or not os.path.isabs(text):
         return text
     resolved = Path(text).resolve()
-    for base in (Path.cwd().resolve(), _PACKAGE_ROOT):
+    for base in (Path.cwd().resolve(), data_root()):
         try:
             return resolved.relative_to(base).as_posix()
         except ValueError:

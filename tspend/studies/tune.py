@@ -277,13 +277,13 @@ def _with_text(result: TuneResult, base, changes: dict[str, Any]) -> TuneResult:
 
 
 def _shown_path(path: str) -> str:
-    """The scenario's path relative to the project (scenarios/x.toml) when it is in it."""
+    """The scenario's path relative to the shipped data (scenarios/x.toml) when it is there."""
     from pathlib import Path
 
-    from tspend.scenario import project_root
+    from tspend.shipped import data_root
 
     try:
-        return str(Path(path).resolve().relative_to(project_root()))
+        return str(Path(path).resolve().relative_to(data_root()))
     except (ValueError, OSError):
         return str(path)
 

@@ -125,9 +125,10 @@ def init_worker(sweep_pid: int | None = None) -> None:
 
 def warm(_: int = 0) -> int:
     """Load the controller kernel in this worker (what the first run would otherwise pay)."""
-    from tspend.scenario import load_scenario, project_root
+    from tspend.scenario import load_scenario
     from tspend.loop.simulation import build_controller
+    from tspend.shipped import data_root
 
-    # the project's own file, whatever the caller's directory holds
-    build_controller(load_scenario(project_root() / "scenarios" / "ex3_pendulum_ode.toml"))
+    # the shipped file, whatever the caller's folders hold
+    build_controller(load_scenario(data_root() / "scenarios" / "ex3_pendulum_ode.toml"))
     return os.getpid()

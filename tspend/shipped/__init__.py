@@ -1,0 +1,53 @@
+"""Where the shipped models, policies, scenarios and plans are.
+
+The repository keeps them at its top level (``models/``, ``models/policies/``,
+``scenarios/``, ``scenarios/plans/``), where users and the documents expect them. The
+wheel ships the same folders inside this package (pyproject.toml maps the data packages
+``tspend.shipped.models`` and ``tspend.shipped.scenarios`` onto them), so an installed
+tspend finds them through :mod:`importlib.resources` from any working folder; a source
+checkout (editable install, or the tree on ``PYTHONPATH``) finds them beside the package.
+"""
+
+from __future__ import annotations
+
+import os
+from importlib.resources import files
+from pathlib import Path
+
+__all__ = ["data_root", "scenario_search_path", "locate", "SCENARIO_PATH_VARIABLE"]
+
+#: the environment variable that names a user's own folders of scenarios (os.pathsep
+#: separated), searched before ./scenarios and the shipped ones; ``tspend --scenario-path``
+#: prepends to it
+SCENARIO_PATH_VARIABLE = "TSPEND_SCENARIO_PATH"
+
+
+def data_root() -> Path:
+    """The folder holding the shipped ``models/`` and ``scenarios/``: inside the installed
+    package when tspend came from its wheel, else the source checkout's top level."""
+    inside = Path(str(files(__name__)))
+    if (inside / "scenarios").is_dir():
+        return inside
+    return Path(__file__).resolve().parents[2]
+
+
+def scenario_search_path() -> list[Path]:
+    """The folders searched for a scenario by name, first match wins: the folders of
+    ``TSPEND_SCENARIO_PATH`` (as given), ``./scenarios``, then the shipped scenarios."""
+    given = [Path(p) for p in os.environ.get(SCENARIO_PATH_VARIABLE, "").split(os.pathsep) if p]
+    return [*given, Path.cwd() / "scenarios", data_root() / "scenarios"]
+
+
+def locate(path: str | os.PathLike, scenario_path: str = "") -> Path | None:
+    """The file a scenario names (its MJCF, a policy, a plan), or None: ``path`` as given
+    when absolute; else relative to the scenario file's folder, then the working folder,
+    then the shipped data (so ``models/cartpole.xml`` in a shipped scenario, or in one a
+    user wrote with ``tspend show``, is the shipped model wherever tspend runs)."""
+    p = Path(path)
+    if p.is_absolute():
+        return p if p.is_file() else None
+    bases = []
+    if scenario_path and scenario_path != "<string>":
+        bases.append(Path(scenario_path).resolve().parent)
+    bases += [Path.cwd(), data_root()]
+    return next((b / p for b in bases if (b / p).is_file()), None)
