@@ -39,9 +39,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium
-import numpy as np
-from gymnasium import spaces
+from tspend.runtime.extras import require
+
+require("gymnasium", "tspend.gym")  # else one line naming the extra, not a bare ModuleNotFoundError
+
+import gymnasium  # noqa: E402
+import numpy as np  # noqa: E402
+from gymnasium import spaces  # noqa: E402
 
 from tspend.controllers.base import Observation
 from tspend.loop import envstep

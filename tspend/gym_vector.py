@@ -34,10 +34,14 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import gymnasium
-import numpy as np
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
+from tspend.runtime.extras import require
+
+require("gymnasium", "tspend.gym_vector")  # else one line naming the extra
+
+import gymnasium  # noqa: E402
+import numpy as np  # noqa: E402
+from gymnasium.vector import AutoresetMode, VectorEnv  # noqa: E402
+from gymnasium.vector.utils import batch_space  # noqa: E402
 
 from tspend.errors import ScenarioError
 from tspend.gym import TspendEnv

@@ -344,7 +344,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
     raw = parse_toml(text, path)
     where = path
     for key, value in overrides:
-        _set_dotted(raw, key, value, path)
+        set_dotted(raw, key, value, path)
         where = f"{path} (with overrides)"
     top = Table(where, raw, "")
     top.check_keys(TOP_KEYS)
@@ -427,7 +427,7 @@ def _check_name(top: Table) -> None:
         raise top.error("name", f"must be 1 to {MAX_NAME} characters, got {len(name)}")
 
 
-def _set_dotted(raw: dict, key: str, value: Any, path: str) -> None:
+def set_dotted(raw: dict, key: str, value: Any, path: str) -> None:
     from tspend.runtime.bounds import MAX_KEY
 
     if not isinstance(key, str):

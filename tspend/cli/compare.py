@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tspend.cli.main import add_metrics_option
+from tspend.cli.common import add_metrics_option
 from tspend.errors import ScenarioError
 
 
@@ -83,7 +83,7 @@ def _old_metric_list(args: argparse.Namespace) -> None:
     value = args.metrics
     if value is None or value.lower().endswith(".json") or args.metric is not None:
         return
-    from tspend.cli.main import say
+    from tspend.cli.common import say
     from tspend.studies.stats import COMPARED_METRICS
 
     if not all(item in COMPARED_METRICS for item in (_list(value) or ["?"])):
@@ -98,7 +98,7 @@ def _old_metric_list(args: argparse.Namespace) -> None:
 
 def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
-    from tspend.cli.main import check_writable, parse_set_value
+    from tspend.cli.common import check_writable, parse_set_value
     from tspend.controllers import KINDS, load
     from tspend.studies.stats import COMPARED_METRICS, DEFAULT_METRICS
     from tspend.sweep.plan import parse_seeds
@@ -248,7 +248,7 @@ def tuned_markdown(tuned: dict, tune: dict) -> str:
 def cmd(args: argparse.Namespace) -> int:
     import json
 
-    from tspend.cli.main import controller_help, write_json
+    from tspend.cli.common import controller_help, write_json
     from tspend.studies.stats import _json_number, markdown, to_json
 
     if controller_help(args):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed,
+from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claimed,
     add_metrics_option, add_scenario_options, check_model_size, check_viewer_url, finite, format_value,
     load_with_overrides, plan, printable, recording_request, release_warnings, say,
     scenario_inputs)
@@ -52,7 +52,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 
 def _mujoco_model(scn) -> list[str]:
-    from tspend.cli.main import uses_mujoco
+    from tspend.cli.common import uses_mujoco
     from tspend.scenario import resolve_model_path
 
     return [] if uses_mujoco(scn) else [str(resolve_model_path(scn))]

@@ -18,7 +18,7 @@ import argparse
 import json
 import math
 
-from tspend.cli.main import EXIT_OK, finite, plan
+from tspend.cli.common import EXIT_OK, finite, plan
 from tspend.errors import ScenarioError
 from tspend.runtime.outputs import OutputRequest, display
 

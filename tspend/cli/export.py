@@ -29,7 +29,7 @@ __all__ = ["CSV_METADATA", "FORMATS", "add_parser", "cmd", "write_table"]
 
 
 def add_parser(sub) -> None:
-    from tspend.cli.main import add_deprecated_alias
+    from tspend.cli.common import add_deprecated_alias
 
     p = sub.add_parser("export", help="write a recording's time series as Parquet or CSV",
                        description="Write a recording's time series as one table: t_s, every "

@@ -47,7 +47,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     bp.add_argument("table", metavar="RUNS.parquet")
     bp.add_argument("--metric", default="rmse_ss", metavar="M1,M2,...",
                     help="one figure per metric (default rmse_ss)")
-    from tspend.cli.main import add_deprecated_alias
+    from tspend.cli.common import add_deprecated_alias
 
     add_deprecated_alias(bp, "--metrics", "--metric", "M1,M2,...")  # --metrics is a file elsewhere
 
@@ -82,7 +82,7 @@ def _read(path: str):
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.cli.main import controller_help
+    from tspend.cli.common import controller_help
     from tspend.controllers import load
     from tspend.studies.figures import Figures, box_figure, heatmap_figure, paper_figures
     from tspend.studies.stats import COMPARED_METRICS

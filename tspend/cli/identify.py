@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from tspend.cli.main import EXIT_OK, finite, plan, say
+from tspend.cli.common import EXIT_OK, finite, plan, say
 from tspend.errors import ScenarioError
 from tspend.runtime.outputs import OutputRequest, display
 

@@ -19,18 +19,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the pole's hinge joint (default: the only hinge joint)")
     p.add_argument("--actuator", default=None, metavar="NAME",
                    help="the actuator on the slide joint (default: the only one driving it)")
-    from tspend.cli.main import finite
+    from tspend.cli.common import finite
 
     p.add_argument("--dt", type=finite(), default=None,
                    help="control period to check the timestep against")
-    from tspend.cli.main import add_metrics_option
+    from tspend.cli.common import add_metrics_option
 
     add_metrics_option(p, "the facts", old="--json")
     return p
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.cli.main import say
+    from tspend.cli.common import say
     from tspend.runtime.native_logs import mujoco_warnings_in_errors
 
     # MuJoCo's warnings: in the error line, or one warning line each; never a log file
@@ -42,7 +42,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from tspend.cli.main import check_writable, write_json
+    from tspend.cli.common import check_writable, write_json
 
     json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
@@ -60,7 +60,7 @@ def _cmd(args: argparse.Namespace) -> int:
     article = "an" if domain.name[:1] in "aeiou" else "a"
     print(f"{args.model}: {article} {domain.name} model")
     for key, value in facts.items():
-        print(f"  {key:<20} {_show(value)}")
+        print(f"  {key:<20} {show_value(value)}")
     if departures:
         print(f"departures from the {domain.name} ODE:")
         for line in departures:
@@ -72,9 +72,9 @@ def _cmd(args: argparse.Namespace) -> int:
     return 0
 
 
-def _show(value) -> str:
+def show_value(value) -> str:
     if isinstance(value, dict):
-        return ", ".join(f"{k} {_show(v)}" for k, v in value.items())
+        return ", ".join(f"{k} {show_value(v)}" for k, v in value.items())
     if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
         return "; ".join(value)
     return str(value)

@@ -7,7 +7,7 @@ import argparse
 import shutil
 import textwrap
 
-from tspend.cli.main import DEFAULT_SCENARIO, EXIT_OK, printable
+from tspend.cli.common import DEFAULT_SCENARIO, EXIT_OK, printable
 from tspend.errors import TspendError
 
 

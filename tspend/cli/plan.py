@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from tspend.cli.main import (EXIT_OK, add_metrics_option, add_scenario_options, load_with_overrides,
+from tspend.cli.common import (EXIT_OK, add_metrics_option, add_scenario_options, load_with_overrides,
                              plan as plan_outputs, printable, say, scenario_inputs)
 from tspend.runtime.outputs import OutputRequest, display
 

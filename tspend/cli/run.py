@@ -7,7 +7,7 @@ import json
 import re
 
 from tspend import __version__
-from tspend.cli.main import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
+from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
     EXIT_TERMINATED, Claimed,
     add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
@@ -211,7 +211,7 @@ def json_units(prepared) -> dict:
 
 
 def _with(value, unit: str) -> str:
-    from tspend.cli.main import format_value
+    from tspend.cli.common import format_value
 
     text = format_value(value)
     return f"{text} {unit}" if unit and isinstance(value, (int, float)) else text

@@ -80,7 +80,7 @@ def incomplete_line(frame) -> str | None:
 
 
 def _scenarios(args: argparse.Namespace) -> list:
-    from tspend.cli.main import parse_set_value
+    from tspend.cli.common import parse_set_value
     from tspend.scenario import load_scenario, override
 
     changes = {}
@@ -128,14 +128,14 @@ def _stop_requests(args: argparse.Namespace):
     guard = getattr(args, "guard", None)  # the CLI's signal guard, when it provides one
     if guard is not None:
         return guard.deferred()
-    from tspend.cli.main import stop_on_signals
+    from tspend.cli.common import stop_on_signals
 
     return stop_on_signals()
 
 
 def cmd(args: argparse.Namespace) -> int:
     from tspend import __version__
-    from tspend.cli.main import controller_help
+    from tspend.cli.common import controller_help
     from tspend.sweep import plan as sweep_plan, read_table
 
     if controller_help(args):
@@ -184,8 +184,8 @@ def cmd(args: argparse.Namespace) -> int:
 
 def incomplete_status(frame) -> int:
     """Print the runs that did not complete (timeout, failed) on stderr: their count is
-    the exit status's reason, :data:`~tspend.cli.main.EXIT_INCOMPLETE`; else 0."""
-    from tspend.cli.main import EXIT_INCOMPLETE
+    the exit status's reason, :data:`~tspend.cli.common.EXIT_INCOMPLETE`; else 0."""
+    from tspend.cli.common import EXIT_INCOMPLETE
 
     line = incomplete_line(frame)
     if line is None:

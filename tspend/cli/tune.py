@@ -16,7 +16,7 @@ from tspend.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from tspend.cli.main import bounded_int
+    from tspend.cli.common import bounded_int
 
     p = subparsers.add_parser(
         "tune", help="tune a controller kind's settings on a scenario (Optuna)",
@@ -56,7 +56,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def parse_options(args: argparse.Namespace) -> dict:
     """Everything checked before a single run starts (bad input: ScenarioError)."""
-    from tspend.cli.main import parse_set_value
+    from tspend.cli.common import parse_set_value
     from tspend.controllers import KINDS
     from tspend.controllers import search_space
     from tspend.scenario import load_scenario, override
@@ -121,7 +121,7 @@ def check_out(path: str, kind: str) -> None:
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.cli.main import Claimed, plan, scenario_inputs
+    from tspend.cli.common import Claimed, plan, scenario_inputs
     from tspend.cli.sweep import _stop_requests
     from tspend.loop.runner import RunInterrupted
     from tspend.runtime.outputs import OutputRequest, display

@@ -122,12 +122,14 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float) -> tuple[np.
 
 def lqr_full_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray,
                   R: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(K, P)`` by python-control's ``control.lqr`` (the ``control`` extra)."""
-    try:
-        import control
-    except ImportError:  # pragma: no cover - the extra is in the test extra
-        raise ScenarioError("controllers.lqr: design = 'full' needs python-control "
-                            "(pip install 'tspend[control]')") from None
+    """``(K, P)`` by python-control's ``control.lqr`` (a core dependency)."""
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("control", "controllers.lqr")
+    if problem:
+        raise ScenarioError(problem)
+    import control
+
     K, P, _ = control.lqr(A, B, Q, np.array([[R]]))
     return np.asarray(K, dtype=float), np.asarray(P, dtype=float)
 

@@ -1,4 +1,4 @@
-"""``mpc``: nonlinear model-predictive control with CasADi (the ``mpc`` extra).
+"""``mpc``: nonlinear model-predictive control with CasADi (CasADi, a core dependency).
 
 Every control period ``h`` (default 20 ms, :attr:`MPCController.sample_period`; the
 runner holds ``u`` in between) it solves, by multiple shooting (Bock and Plitt, 1984;
@@ -485,10 +485,11 @@ def build(scenario: "Scenario") -> MPCController:
     from tspend.controllers.full_model import full_model_and_constraints
     from tspend.controllers.lqr import LQRSettings, build_full
 
-    try:
-        import casadi  # noqa: F401
-    except ImportError:  # pragma: no cover - the extra is in the test extra
-        raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("casadi", "controller 'mpc'")
+    if problem:
+        raise ScenarioError(problem)
     s: MPCSettings = settings_for(scenario, MPCSettings)
     model, constraints = full_model_and_constraints(scenario)
     dt = scenario.run.dt

@@ -226,10 +226,11 @@ def plan_of(scenario: "Scenario") -> tuple["FullModel", TVLQRSettings, tuple]:
     from tspend.controllers.full_model import full_model
     from tspend.plants.registry import build as build_plant
 
-    try:
-        import casadi  # noqa: F401
-    except ImportError:  # pragma: no cover - the extra is in the test extra
-        raise ScenarioError("planning needs CasADi (pip install 'tspend[mpc]')") from None
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("casadi", "planning")
+    if problem:
+        raise ScenarioError(problem)
     s: TVLQRSettings = settings_for(scenario, TVLQRSettings)
     model = full_model(scenario)
     plant = build_plant(scenario)

@@ -4,8 +4,7 @@ and after adaptation, box plots of a comparison across seeds, heat maps of a two
 Every figure is written as PNG and PDF with the data it draws beside it as CSV (same
 name, ``.csv``), each file atomically, so a reader can check or replot any curve.  One style for all
 (:data:`STYLE`, applied with ``matplotlib.rc_context``: no global state), one colour per
-controller kind, axis labels with units.  matplotlib is an optional extra
-(``pip install 'tspend[plot]'``); figures are drawn on ``matplotlib.figure.Figure``
+controller kind, axis labels with units.  matplotlib is a core dependency; figures are drawn on ``matplotlib.figure.Figure``
 objects with the Agg canvas, never through pyplot, so no display is needed.
 """
 
@@ -61,12 +60,14 @@ def state_units(plant_kind: str, order: int) -> tuple[tuple[str, ...], str]:
 
 
 def _matplotlib():
-    try:
-        import matplotlib
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise ScenarioError("figures need matplotlib: pip install 'tspend[plot]'") from None
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("matplotlib", "figures")
+    if problem:
+        raise ScenarioError(problem)
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     return matplotlib, Figure, FigureCanvasAgg
 
 

@@ -29,7 +29,7 @@ away from rest, or its frictionless twin.
 The central differences' step ``h = FD_STEP (1 + |v|)`` leaves a truncation error
 ``~h^2`` and a rounding error ``~1e-16 / h``: ~1e-10 relative on the plants here.
 
-python-control is the ``control`` extra (``pip install 'tspend[control]'``).
+python-control is a core dependency.
 """
 
 from __future__ import annotations
@@ -224,11 +224,12 @@ def linearize(scenario_or_plant: Any, at: Any = None) -> Any:
         python-control missing, an unknown scenario, a bad ``at``, or a plant with nothing
         to differentiate.
     """
-    try:
-        import control
-    except ImportError:
-        raise ScenarioError("linearize: needs python-control (pip install 'tspend[control]')") \
-            from None
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("control", "linearize")
+    if problem:
+        raise ScenarioError(problem)
+    import control
     plant, output, name = _plant_and_output(scenario_or_plant)
     s = _operating_point(plant, at)
     A, B = jacobians(plant, s)

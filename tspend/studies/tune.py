@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
 from tspend.errors import ScenarioError
+from tspend.scenario_toml import dump_toml
 
 #: the metric a tuning minimises unless asked otherwise
 DEFAULT_METRIC = "rmse"
@@ -146,7 +147,7 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
     is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings.
     ``run_timeout``: the sweeps' per-run time limit (None: :func:`tspend.sweep.sweep`'s
     default); a run past it scores ``+inf``."""
-    from tspend.cli.extras import missing_extra
+    from tspend.runtime.extras import missing_extra
 
     problem = missing_extra("optuna", "tune")
     if problem:
@@ -286,47 +287,6 @@ def _shown_path(path: str) -> str:
         return str(Path(path).resolve().relative_to(data_root()))
     except (ValueError, OSError):
         return str(path)
-
-
-_BARE = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def _key(k: str) -> str:
-    return k if _BARE.match(k) else json.dumps(k)
-
-
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)  # the shortest text that reads back as the same double
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string is a JSON string for these characters
-    if isinstance(v, list):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"cannot write {type(v).__name__} as TOML")
-
-
-def dump_toml(doc: dict, _path: tuple[str, ...] = ()) -> str:
-    """``doc`` (what ``tomllib`` reads) as TOML: scalars and arrays first, then each
-    sub-table under its ``[dotted.header]``; arrays of tables are written inline."""
-    lines = [f"{_key(k)} = {_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
-    out = "\n".join(lines) + ("\n" if lines else "")
-    for k, v in doc.items():
-        if isinstance(v, dict):
-            path = _path + (k,)
-            body = dump_toml(v, path)
-            header = "[" + ".".join(_key(p) for p in path) + "]\n"
-            out += ("\n" if out else "") + header + body
-    return out
 
 
 def tuned_kind(text: str) -> tuple[str, str] | None:
