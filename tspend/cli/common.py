@@ -14,6 +14,7 @@ import math
 import os
 import re
 import sys
+import textwrap
 import traceback
 import warnings
 from pathlib import Path
@@ -49,8 +50,44 @@ class UsageError(ScenarioError):
     """A command-line problem argparse found (exit 2, one line)."""
 
 
+_RST_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")
+_RST_LITERAL = re.compile(r"``([^`]+)``")
+
+
+def plain_text(text: str) -> str:
+    """Help text as a terminal shows it: reStructuredText roles and literals (from a
+    docstring) become plain words and quotes."""
+    return _RST_LITERAL.sub(r"'\1'", _RST_ROLE.sub(r"\1", text))
+
+
+class PlainHelpFormatter(argparse.HelpFormatter):
+    """Help as plain text: no reStructuredText markup, and lines broken only between words
+    (a long name such as pendulum_damping is never split across two lines)."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        text = " ".join(plain_text(text).split())
+        return textwrap.wrap(text, width, break_long_words=False, break_on_hyphens=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        text = " ".join(plain_text(text).split())
+        return textwrap.fill(text, width, initial_indent=indent, subsequent_indent=indent,
+                             break_long_words=False, break_on_hyphens=False)
+
+
+class PlainRawDescriptionFormatter(PlainHelpFormatter):
+    """:class:`PlainHelpFormatter` that keeps the description's and epilog's own lines."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "".join(indent + line for line in plain_text(text).splitlines(keepends=True))
+
+
 class Parser(argparse.ArgumentParser):
-    """argparse's parser, whose errors are one line (UsageError, exit 2)."""
+    """argparse's parser, whose errors are one line (UsageError, exit 2) and whose help is
+    plain text (:class:`PlainHelpFormatter`), for the command and every subcommand."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", PlainHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         # "tspend: error: run: ...": the program's name is said once, by say()

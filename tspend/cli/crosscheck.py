@@ -15,7 +15,9 @@ from tspend.runtime.outputs import OutputRequest, display, slug
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     c = subparsers.add_parser("crosscheck", help="run a scenario on its MuJoCo and its ODE backend")
-    c.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO)
+    c.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO,
+                   help=f"a scenario name (tspend list) or a .toml file with a MuJoCo plant "
+                        f"(default: {DEFAULT_SCENARIO})")
     add_scenario_options(c)
     add_metrics_option(c, "the cross-check figures", old="--json")
     c.add_argument("--tol", type=finite(), default=1e-8,

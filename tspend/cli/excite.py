@@ -28,7 +28,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                        description=__doc__.split("\n\n")[1].replace("\n", " "))
     p.add_argument("scenario", metavar="SCENARIO", help="a scenario name or .toml path")
     p.add_argument("--out", required=True, metavar="PATH.toml", help="the experiment to write")
-    p.add_argument("--signal", choices=("multisine", "chirp", "prbs"), default="multisine")
+    p.add_argument("--signal", choices=("multisine", "chirp", "prbs"), default="multisine",
+                   help="the excitation added to the stabilising command: a multisine (default), "
+                        "a chirp or a pseudo-random binary sequence")
     p.add_argument("--inner", default="lqr", metavar="KIND",
                    help="the stabilising controller the excitation is added to (default lqr)")
     p.add_argument("--amplitude", type=finite(), metavar="U",

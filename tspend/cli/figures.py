@@ -24,7 +24,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               description="Figures as PNG and PDF with their data "
                                           "as CSV: the paper's, box plots of a comparison, "
                                           "heat maps of a two-key sweep.")
-    sub = p.add_subparsers(dest="figure", required=True)
+    sub = p.add_subparsers(dest="figure", required=True, metavar="FIGURE",
+                           help="which figures: paper, box or heatmap")
 
     def common(q):
         q.add_argument("--out", default="figures", metavar="DIR",
@@ -44,7 +45,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
     bp = sub.add_parser("box", help="box plots across seeds of a sweep/compare table")
     common(bp)
-    bp.add_argument("table", metavar="RUNS.parquet")
+    bp.add_argument("table", metavar="RUNS.parquet",
+                    help="a table written by tspend sweep or tspend compare --out")
     bp.add_argument("--metric", default="rmse_ss", metavar="M1,M2,...",
                     help="one figure per metric (default rmse_ss)")
     from tspend.cli.common import add_deprecated_alias
@@ -53,10 +55,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
     hp = sub.add_parser("heatmap", help="median of a metric over a two-key sweep")
     common(hp)
-    hp.add_argument("table", metavar="RUNS.parquet")
+    hp.add_argument("table", metavar="RUNS.parquet",
+                    help="a table written by tspend sweep over two --grid keys")
     hp.add_argument("--x", required=True, metavar="KEY", help="grid column on the x axis")
     hp.add_argument("--y", required=True, metavar="KEY", help="grid column on the y axis")
-    hp.add_argument("--metric", default="rmse_ss", metavar="M", help="default rmse_ss")
+    hp.add_argument("--metric", default="rmse_ss", metavar="M", help="the metric whose median is drawn (default rmse_ss)")
     return p
 
 

@@ -1,5 +1,6 @@
-"""``tspend list``: every scenario with its whole description, wrapped to the terminal's
-width under its name (``tspend inspect`` and the file itself say the rest)."""
+"""tspend list: every scenario on the search path with its whole description, wrapped to the
+terminal's width under its name; --long adds its plant kind, machine, default controller and
+duration (tspend show prints every key)."""
 
 from __future__ import annotations
 
@@ -12,27 +13,60 @@ from tspend.errors import TspendError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    return subparsers.add_parser("list", help="list the scenarios with their descriptions")
+    p = subparsers.add_parser(
+        "list", help="list the scenarios with their descriptions",
+        description="List every scenario found on the search path (--scenario-path, "
+                    "$TSPEND_SCENARIO_PATH, ./scenarios, then the shipped ones; the first "
+                    "of a name wins), with its description, then the search path itself.")
+    p.add_argument("--long", action="store_true",
+                   help="add each scenario's plant kind, machine (its model file), default "
+                        "controller, duration and file")
+    return p
+
+
+def facts(scn) -> str:
+    """The one line --long adds: kind, machine, controller, duration."""
+    from pathlib import Path
+
+    model = getattr(scn.plant, "model", "") or ""
+    machine = Path(model).name if model else "(analytic)"
+    controller = scn.run.controller or ("first_type" if scn.controller.adaptation == "first"
+                                        else "second_type")
+    return (f"plant {scn.plant.kind}, machine {machine}, controller {controller}, "
+            f"{scn.run.duration:g} s")
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.scenario import available_scenarios, load_scenario
+    from tspend.scenario import available_scenarios, load_scenario, scenario_dirs
+    from tspend.shipped import scenario_search_path
 
     paths = available_scenarios()
     width = max((len(p.stem) for p in paths), default=0) + len(" (default)")
     columns = max(shutil.get_terminal_size((100, 24)).columns, width + 30)
     for path in paths:
+        extra = ""
         try:
-            desc = " ".join(load_scenario(path).description.split())
+            scn = load_scenario(path)
+            desc = " ".join(scn.description.split())
+            if args.long:
+                extra = f"[{facts(scn)}; {path}]"
         except TspendError as exc:
             desc = f"(invalid: {exc})"
         name = path.stem + (" (default)" if path.stem == DEFAULT_SCENARIO else "")
         # break_on_hyphens off: a reader (and a search) sees "time-varying", not "time- varying"
         lines = textwrap.wrap(printable(desc), columns - width - 2,
                               break_on_hyphens=False) or [""]
+        if extra:
+            lines += textwrap.wrap(printable(extra), columns - width - 2,
+                                   break_on_hyphens=False, break_long_words=False)
         print(f"{name:<{width}}  {lines[0]}")
         for line in lines[1:]:
             print(f"{'':<{width}}  {line}")
+    found = {d.resolve() for d in scenario_dirs()}
+    print("\nsearched, in order (the first scenario of a name wins):")
+    for folder in scenario_search_path():
+        note = "" if folder.resolve() in found else "  (not there)"
+        print(f"  {folder}{note}")
     return EXIT_OK
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import traceback
 import warnings
 
@@ -27,7 +28,8 @@ from tspend import __version__
 from tspend.cli import (common, compare, crosscheck, excite, export, figures, identify,
                         inspect, plan, run, show, sweep, tune)
 from tspend.cli import list as list_command
-from tspend.cli.common import EXIT_INTERNAL, Parser, ReaderGoneTolerant, release_warnings, say
+from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,
+                               ReaderGoneTolerant, release_warnings, say)
 from tspend.errors import TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard
 from tspend.shipped import SCENARIO_PATH_VARIABLE
@@ -61,8 +63,8 @@ Every error is one line on stderr, "tspend: error: ...".
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="tspend", description=DESCRIPTION, epilog=EXIT_STATUSES,
-               formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="tspend", description=textwrap.fill(DESCRIPTION, 88), epilog=EXIT_STATUSES,
+               formatter_class=PlainRawDescriptionFormatter)
     p.add_argument("--version", action="version", version=f"tspend {__version__}",
                    help="print tspend's version and exit")
     p.add_argument("--scenario-path", action="append", default=[], metavar="DIR",
