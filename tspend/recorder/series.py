@@ -66,6 +66,12 @@ class SeriesSpec:
     #: each series' column in an exported table, unit at the end (``theta_rad``);
     #: "" leaves it out (a copy of a series exported from another entity)
     columns: tuple[str, ...] = ()
+    #: recorded at every recorded sample: the state, the reference and the applied input
+    #: (what a run is); every other series is a diagnostic (thinned by a compact recording)
+    every_sample: bool = False
+    #: the entity each exported column belongs with in the table's order (the samples
+    #: entity of a compact recording holds columns of several); empty: this one
+    origins: tuple[str, ...] = ()
 
     @property
     def legend(self) -> bool:
@@ -313,7 +319,10 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     # only labels the views)
     viewed = (tuple(full[list(state_names).index(v)]._replace(column=name_slug(v)) for v in view)
               if full and all(v in state_names for v in view) else labels.states)
-    return [_with_columns(spec, labels, viewed, bool(full), diagnostics) for spec in specs]
+    exact = ("series/reference", "series/control") + (() if full else ("series/tracking",))
+    return [_with_columns(replace(spec, every_sample=spec.entity in exact
+                                  or spec.entity.startswith("series/state/")),
+                          labels, viewed, bool(full), diagnostics) for spec in specs]
 
 
 def _with_columns(spec: SeriesSpec, labels: PlantLabels, viewed: Sequence[Quantity], full: bool,
@@ -364,14 +373,64 @@ def export_columns(specs: Sequence[SeriesSpec], view: Sequence[str] = ()) -> lis
     first = [f"series/state/{name}" for name in view] + ["series/reference", "series/control",
                                                            "series/disturbance"]
     rank = {entity: i for i, entity in enumerate(first)}
-    ordered = sorted(enumerate(specs), key=lambda item: (
-        rank.get(item[1].entity, len(first) + (0 if item[1].entity.startswith("series/state/") else 1)),
-        item[0]))
-    out: list[tuple[str, str, int]] = []
-    for _, spec in ordered:
+    order = {spec.entity: i for i, spec in enumerate(specs)}
+
+    def place(origin: str, index: int) -> tuple[int, int, int]:
+        return (rank.get(origin, len(first) + (0 if origin.startswith("series/state/") else 1)),
+                order.get(origin, len(specs)), index)
+
+    found = []
+    for spec in specs:
+        taken: dict[str, int] = {}  # the samples' columns: their place in their origin
         for j, column in enumerate(spec.columns):
+            origin = spec.origins[j] if spec.origins else spec.entity
+            index = taken.get(origin, 0) if spec.origins else j
+            taken[origin] = index + 1
             if column:
-                out.append((column, spec.entity, j))
+                found.append((place(origin, index), column, spec.entity, j))
+    found.sort(key=lambda item: item[0])
+    return [(column, entity, j) for _, column, entity, j in found]
+
+
+#: a compact recording's entity of every sample of the state, the reference r and the
+#: applied input, the columns an export takes them from (no view draws it)
+SAMPLES_ENTITY = "series/samples"
+
+
+def compact_specs(specs: Sequence[SeriesSpec]) -> list[SeriesSpec]:
+    """The specs of a compact recording (docs/recordings.md): the state, r and the applied
+    input go at every sample into one entity, :data:`SAMPLES_ENTITY` (a row of Rerun costs
+    ~28 bytes besides its values, so one row for all of them instead of one per series
+    cuts a default run's recording by two thirds); every view, theirs too, becomes a
+    diagnostic the sink thins, and exports its columns only where the samples do not hold
+    them (r's derivatives)."""
+    getters: list[Extractor] = []
+    names: list[str] = []
+    keys: list[str] = []
+    colors: list[Color] = []
+    columns: list[str] = []
+    origins: list[str] = []
+    out: list[SeriesSpec] = []
+    for spec in specs:
+        if not spec.every_sample:
+            out.append(spec)
+            continue
+        # the reference's derivatives stay diagnostics: r itself is what was tracked
+        take = 1 if spec.entity == "series/reference" else len(spec.lookup)
+        getters.append(lambda d, f=spec.extract, k=take: f(d)[:, :k])
+        names += spec.names[:take]
+        keys += spec.lookup[:take]
+        colors += spec.colors[:take]
+        columns += spec.columns[:take] if spec.columns else [""] * take
+        origins += [spec.entity] * take
+        kept = ("",) * take + tuple(spec.columns[take:]) if spec.columns else ()
+        out.append(replace(spec, every_sample=False, columns=kept))
+    if not getters:
+        return list(specs)
+    out.append(SeriesSpec(SAMPLES_ENTITY, "every sample of the state, r and the applied input",
+                          tuple(names), tuple(colors), _stack(*getters), keys=tuple(keys),
+                          group="", every_sample=True, columns=tuple(columns),
+                          origins=tuple(origins)))
     return out
 
 

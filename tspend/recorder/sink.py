@@ -19,12 +19,21 @@ from tspend.recorder.common import BMF_WIDTH, PALETTE, Color, join_path, prefix_
 from tspend.recorder.documents import (metrics_markdown, run_markdown, scenario_markdown,
     status_markdown)
 from tspend.recorder.fuzzy_axes import axis_parts, term_label_positions
-from tspend.recorder.series import END_ENTITY, STEADY_FROM, SeriesSpec, export_columns, specs_of
+from tspend.recorder.series import (END_ENTITY, STEADY_FROM, SeriesSpec, compact_specs,
+    export_columns, specs_of)
 from tspend.recorder.stream import close_recording, flush
 
 
 #: rate of the 3D cart-pole frames (Hz of simulated time)
 FRAME_HZ = 50.0
+#: a compact recording's rate of the views and diagnostics (Hz of simulated time); the
+#: state, the reference and the applied input keep every sample in their own entity
+#: (series.compact_specs, docs/recordings.md). The sink's default, 0, records every series
+#: at every sample; tspend run and sweep record compactly unless told otherwise.
+DIAGNOSTICS_HZ = 50.0
+#: a compact recording's rate of the controller's inner snapshots (membership functions,
+#: firing, consequents: they adapt over seconds), Hz of simulated time
+SNAPSHOT_HZ = 2.0
 #: 3D frames and inner snapshots are sent in batches of this many rows (2 s at 50 Hz) ...
 DECIMATED_ROWS = 100
 #: ... or after this much wall time, so a live viewer stays current
@@ -118,7 +127,9 @@ class RerunSink:
     recording; ``label`` (default: the prefix) is appended to series names and
     ``variant`` 1 lightens the colours, so overlaid runs stay distinguishable.
     ``curves_every`` decimates the per-step series (1 = every step, exact);
-    ``frame_hz`` is the rate of 3D frames; ``decimated_rows`` and ``max_latency_s``
+    ``diagnostics_hz`` > 0 makes the recording compact (:func:`~tspend.recorder.series.compact_specs`:
+    the state, r and the applied input at every recorded step in one entity, every view and
+    diagnostic at this rate of simulated time); ``frame_hz`` is the rate of 3D frames; ``decimated_rows`` and ``max_latency_s``
     bound how long 3D frames and snapshots wait before they are sent.  At :meth:`start`
     the sink sends :func:`build_blueprint` for ``blueprint_prefixes``: ``"own"`` (its own
     prefix), a list (e.g. all runs of a shared recording, from one of its sinks), or
@@ -137,6 +148,7 @@ class RerunSink:
 
     def __init__(self, rec: rr.RecordingStream | None, *, prefix: str = "", label: str | None = None,
                  curves_every: int = 1, frame_hz: float = FRAME_HZ,
+                 diagnostics_hz: float = 0.0,
                  blueprint_prefixes: Sequence[str] | Literal["own"] | None = "own",
                  variant: int | None = None, decimated_rows: int = DECIMATED_ROWS,
                  max_latency_s: float = MAX_LATENCY_S) -> None:
@@ -144,6 +156,13 @@ class RerunSink:
             raise ValueError("curves_every must be >= 1")
         if not frame_hz > 0:
             raise ValueError(f"frame_hz must be > 0, got {frame_hz}")
+        if not diagnostics_hz >= 0:
+            raise ValueError(f"diagnostics_hz must be >= 0, got {diagnostics_hz}")
+        self.diagnostics_hz = float(diagnostics_hz)
+        #: the diagnostics' stride in samples, a multiple of curves_every (set by start)
+        self._diagnostics_every = int(curves_every)
+        #: a compact recording's time of the next snapshot kept (None: the first comes)
+        self._next_snapshot_t: float | None = None
         self.rec = rec
         self.prefix = prefix.strip("/")
         self.label = prefix_label(prefix) if label is None else label
@@ -196,8 +215,12 @@ class RerunSink:
                            for j, inp in enumerate(inputs)}
         self._frames, self._frame_rows = [], 0
         self._last_flush, self._last_t = time.monotonic(), 0.0
-        self._specs = specs_of(info)
+        self._specs = compact_specs(specs_of(info)) if self.diagnostics_hz > 0 else specs_of(info)
+        self._next_snapshot_t = None
         self._frame_every = max(1, int(round(1.0 / (self.frame_hz * info.dt)))) if info.dt > 0 else 1
+        if self.diagnostics_hz > 0 and info.dt > 0:
+            wanted = max(1, int(round(1.0 / (self.diagnostics_hz * info.dt))))
+            self._diagnostics_every = self.curves_every * max(1, -(-wanted // self.curves_every))
         if info.model_inputs or info.compensator_inputs:
             check_tensor_type()  # before anything is written: a newer SDK may have changed TensorData
         self._log_documents(info)
@@ -245,9 +268,15 @@ class RerunSink:
             self._flush_decimated()
 
     def inner(self, snap: InnerSnapshot) -> None:
-        """Buffer a snapshot (copied: the runner may reuse its arrays)."""
+        """Buffer a snapshot (copied: the runner may reuse its arrays); a compact recording
+        keeps one per 1 / SNAPSHOT_HZ s of simulated time (the first one always)."""
         if self.rec is None:
             return
+        if self.diagnostics_hz > 0:
+            due = self._next_snapshot_t
+            if due is not None and float(snap.t) < due:
+                return
+            self._next_snapshot_t = float(snap.t) + 1.0 / SNAPSHOT_HZ - 1e-9
         self._snaps.append(snap)
         self._last_t = max(self._last_t, float(snap.t))
 
@@ -299,11 +328,15 @@ class RerunSink:
     def _send_series(self, start: int, data: dict[str, np.ndarray], t: np.ndarray) -> None:
         rows = np.arange((-start) % self.curves_every, t.size, self.curves_every)
         times = time_column(t[rows])
+        every = self._diagnostics_every
+        thin = np.arange((-start) % every, t.size, every)
+        thin_times = time_column(t[thin])
         assert self.info is not None
         steady_from = STEADY_FROM * self.info.duration - 0.5 * self.info.dt
-        steady_rows = rows[t[rows] >= steady_from]
+        steady_rows = thin[t[thin] >= steady_from]
         for spec in self._specs:
-            picked, index = (steady_rows, None) if spec.steady else (rows, times)
+            picked, index = ((steady_rows, None) if spec.steady else (rows, times)
+                             if spec.every_sample else (thin, thin_times))
             if picked.size == 0:
                 continue
             try:
