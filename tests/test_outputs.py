@@ -23,15 +23,16 @@ from cli_harness import assert_intact, snapshot, spawn, tspend, user_files
 from tspend.runtime import outputs
 from tspend.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, claim, plan_outputs
-from tspend.recorder import read_scalar_series, series_location
+from tspend.recorder import read_scalar_series
+from tspend.recorder.series import SAMPLES_ENTITY
 
 SHORT = ("--duration", "0.05")
 
 
 def _samples(rrd: Path) -> int:
-    """Samples of the pole angle in a recording, read back through a complete footer."""
+    """Samples of the state in a (compact) recording, read back through a complete footer."""
     RrdReader(str(rrd)).store()  # raises on a file without its footer
-    return len(read_scalar_series(rrd, *series_location("x1", 2))[0])
+    return len(read_scalar_series(rrd, SAMPLES_ENTITY)[0])
 
 
 # -- the module on its own -------------------------------------------------------------

@@ -23,7 +23,7 @@ from tspend.cli.main import build_parser, main
 
 README = ROOT / "README.md"
 QUICK_START = (
-    "python3 -m venv .venv && .venv/bin/pip install -e . && .venv/bin/tspend run",
+    "python3 -m venv .venv && .venv/bin/pip install . && .venv/bin/tspend run",
     "python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && "
     ".venv/bin/python -m pytest -q",
 )

@@ -15,6 +15,8 @@ import pyarrow as pa
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from tspend.studies.timeseries import recording_table
+
 import tspend
 from tspend.cli.main import main
 from tspend.recorder import read_scalar_series
@@ -266,7 +268,8 @@ def test_rail_ends_drawn_and_a_terminated_run_marked_where_it_ended(tmp_path: Pa
     assert any("rail_end +0.05 m" in str(v) for v in styles["/world/rail/ends/labels"]["Points3D:labels"][0])
     rays = styles["/world/cart/bounds"]["LineStrips3D:strips"][0]
     assert len(rays) == 2  # the fall angle, pi/2 either side
-    t_x, x1 = read_scalar_series(rrd, "series/tracking", 1)
+    table, _ = recording_table(rrd)  # every sample (the views are thinned)
+    t_x, x1 = table["t_s"].to_numpy(), table["hinge_rad"].to_numpy()
     t_end, marked = read_scalar_series(rrd, "series/end")
     assert t_end.tolist() == [t_x[-1]] and marked.tolist() == [x1[-1]]
     events = [row for chunk in RrdReader(rrd).stream().filter(content="/events").to_chunks()

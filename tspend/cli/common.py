@@ -164,8 +164,10 @@ def bounded_int(low: int, high: int):
     return parse
 
 
-def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> None:
-    """The options of every command that runs a scenario: overrides and recording."""
+def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True,
+                         compact: bool = True) -> None:
+    """The options of every command that runs a scenario: overrides and recording
+    (``compact``: --diagnostics-hz, the rate of a compact recording's views)."""
     from tspend.runtime.bounds import MAX_SEED
 
     p.add_argument("--duration", type=finite(), metavar="S", help="override run.duration")
@@ -183,13 +185,14 @@ def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True) -> 
         p.add_argument("--record-every", type=bounded_int(1, MAX_COUNT), default=1, metavar="N",
                        help="record every Nth sample of the time series (default 1: every "
                             "one, exact); 10 makes long recordings ten times smaller")
-        p.add_argument("--diagnostics-hz", type=finite(0.0, 1e9, strict=False), default=50.0,
-                       metavar="HZ",
-                       help="rate of simulated time at which the plots and the controller's "
-                            "diagnostics are recorded (default 50; its membership functions at "
-                            "2 Hz); the state, the reference and the applied input keep every "
-                            "sample whatever this is; 0 records every series and snapshot as it "
-                            "comes (about three times larger)")
+        if compact:
+            p.add_argument("--diagnostics-hz", type=finite(0.0, 1e9, strict=False), default=50.0,
+                           metavar="HZ",
+                           help="rate of simulated time at which the plots and the controller's "
+                                "diagnostics are recorded (default 50; its membership functions at "
+                                "2 Hz); the state, the reference and the applied input keep every "
+                                "sample whatever this is; 0 records every series and snapshot as it "
+                                "comes (about three times larger)")
         p.add_argument("--spawn", action="store_true", help="also stream to a live Rerun viewer")
         p.add_argument("--connect", metavar="URL",
                        help="also stream to a running Rerun viewer "

@@ -18,7 +18,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     c.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO,
                    help=f"a scenario name (tspend list) or a .toml file with a MuJoCo plant "
                         f"(default: {DEFAULT_SCENARIO})")
-    add_scenario_options(c)
+    # every sample of both backends: the recorded differences are drawn from them
+    add_scenario_options(c, compact=False)
     add_metrics_option(c, "the cross-check figures", old="--json")
     c.add_argument("--tol", type=finite(), default=1e-8,
                    help="open-loop tolerance on the tracked state's max difference (default 1e-8)")

@@ -45,7 +45,8 @@ def open_sinks(args: argparse.Namespace, app_name: str, path, prefixes: tuple[st
     if rec is None:  # no viewer reachable and nothing to save: the run goes on headless
         return None, []
     sinks = [RerunSink(rec, prefix=p, blueprint_prefixes=prefixes if i == 0 else None,
-                       curves_every=args.record_every, diagnostics_hz=args.diagnostics_hz)
+                       curves_every=args.record_every,
+                       diagnostics_hz=getattr(args, "diagnostics_hz", 0.0))
              for i, p in enumerate(prefixes)]
     return rec, sinks
 

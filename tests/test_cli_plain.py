@@ -1,0 +1,145 @@
+"""What a new user meets outside the checkout: plain help, tspend show and list, extras named
+in one line, the scenario search path, and a compact default recording that keeps every
+sample of the state, the reference and the applied input."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tspend.cli.main import build_parser, main
+
+RST = ("``", ":mod:", ":class:", ":func:", ":meth:", ":data:", "%%")
+
+
+def _parsers(parser: argparse.ArgumentParser, name: str = "tspend"):
+    yield name, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub, child in action.choices.items():
+                yield from _parsers(child, f"{name} {sub}")
+
+
+def test_every_help_is_plain_text_with_every_option_explained():
+    parsers = list(_parsers(build_parser()))
+    assert len(parsers) >= 16  # the command, 13 subcommands, figures' three kinds
+    for name, parser in parsers:
+        text = parser.format_help()
+        for mark in RST:
+            assert mark not in text, f"{name} --help shows {mark!r}"
+        words = set(text.split())
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help and action.help.strip(), f"{name}: {action.dest} has no help"
+            if action.help is argparse.SUPPRESS:
+                continue
+            # no word of the help is broken across two lines
+            for word in (action.help % vars(action) if "%" in action.help else action.help).split():
+                plain = word.replace("``", "'")
+                if "`" not in plain and len(plain) > 3:
+                    assert plain in words, f"{name} {action.dest}: {plain!r} broken or changed"
+
+
+def test_show_prints_a_scenario_that_runs_the_same(tmp_path, monkeypatch, capsys):
+    from tspend.scenario import available_scenarios, load_scenario, parse_scenario
+    from tspend.scenario_toml import resolved_document, resolved_toml
+
+    for path in available_scenarios():  # every shipped scenario reads back as itself
+        scn = load_scenario(path)
+        text = resolved_toml(scn)
+        again = parse_scenario(text, str(tmp_path / "x.toml"))
+        assert again.run == scn.run and again.plant == scn.plant, path.stem
+        doc = resolved_document(scn)
+        assert "safety" in doc and "task" in doc and "lambda" in doc["controller"]
+    monkeypatch.chdir(tmp_path)
+    assert main(["show", "pendulum_mujoco", "--set", "controller.eta=0.01"]) == 0
+    shown = capsys.readouterr().out
+    assert "# the machine as compiled from cartpole.xml" in shown
+    assert "cart_mass            10.0" in shown
+    (tmp_path / "mine.toml").write_text(shown)
+    a = main(["run", "mine.toml", "--duration", "0.3", "--metrics", "a.json", "--no-record"])
+    b = main(["run", "pendulum_mujoco", "--duration", "0.3", "--set", "controller.eta=0.01",
+              "--metrics", "b.json", "--no-record"])
+    assert a == b == 0
+    ma, mb = (json.loads((tmp_path / f).read_text()) for f in ("a.json", "b.json"))
+    for key in ("rmse", "rmse_ss", "max_abs_u", "control_energy", "steps"):
+        assert ma[key] == mb[key], key
+
+
+def test_show_refuses_bad_input_in_one_line(capsys):
+    assert main(["show", "no_such_scenario"]) == 2
+    assert main(["show", "pendulum_mujoco", "--set", "controller.eta=-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("tspend: error:") for line in err)
+
+
+def test_scenario_search_path_and_list_long(tmp_path, monkeypatch, capsys):
+    from tspend.shipped import data_root
+
+    mine = tmp_path / "lab"
+    mine.mkdir()
+    text = (data_root() / "scenarios" / "ex2_duffing.toml").read_text()
+    (mine / "my_duffing.toml").write_text(text.replace('name = "ex2_duffing"', 'name = "my_duffing"'))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("TSPEND_SCENARIO_PATH", raising=False)
+    assert main(["--scenario-path", str(mine), "list", "--long"]) == 0
+    out = capsys.readouterr().out
+    assert "my_duffing" in out and "plant duffing, machine (analytic)" in out
+    assert f"  {mine}\n" in out  # the search path, in order, ends the listing
+    assert main(["list"]) == 0
+    assert "my_duffing" not in capsys.readouterr().out  # the option held for its command only
+    monkeypatch.setenv("TSPEND_SCENARIO_PATH", str(mine))
+    assert main(["run", "my_duffing", "--duration", "0.05", "--no-record"]) == 0
+
+
+def test_a_module_that_needs_an_extra_names_it_in_one_line():
+    code = ("import sys; sys.modules['gymnasium'] = None\n"
+            "try:\n    import tspend.gym\nexcept ImportError as exc:\n    print(exc)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip().splitlines() == [
+        "tspend.gym needs gymnasium, an optional extra: pip install 'tspend[gym]'"]
+
+
+def test_controller_help_names_only_extras_that_exist():
+    import tomllib
+    from pathlib import Path
+
+    from tspend.controllers import help_text
+
+    extras = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    defined = set(extras["project"]["optional-dependencies"])
+    import re
+
+    named = set(re.findall(r"tspend\[([a-z]+)\]", help_text()))
+    assert named <= defined
+    assert all(extras["project"]["optional-dependencies"][e] for e in defined)  # none empty
+
+
+def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
+    """The default run's recording: every sample of the state, r and u as the run had them,
+    the diagnostics thinned, and about a third of the full recording's size."""
+    import tspend
+    from tspend.studies.timeseries import recording_table
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--duration", "2", "--out", "c.rrd", "--metrics", "m.json"]) == 0
+    assert main(["run", "--duration", "2", "--out", "f.rrd", "--diagnostics-hz", "0"]) == 0
+    compact, full = (tmp_path / "c.rrd").stat().st_size, (tmp_path / "f.rrd").stat().st_size
+    assert compact < 0.5 * full
+    table, _ = recording_table(tmp_path / "c.rrd")
+    whole, _ = recording_table(tmp_path / "f.rrd")
+    ref = tspend.run("pendulum_mujoco", duration=2.0).to_pandas()
+    assert len(table) == len(ref) == 2000
+    for column in ("hinge_rad", "hinge_dot_rad_s", "slider_m", "slider_dot_m_s", "ref_rad", "u_N"):
+        assert table[column].notna().all(), column
+        np.testing.assert_array_equal(table[column].to_numpy(), whole[column].to_numpy())
+        np.testing.assert_array_equal(table[column].to_numpy(), ref[column].to_numpy())
+    assert table["d_N"].notna().sum() == 100  # a diagnostic at 50 Hz

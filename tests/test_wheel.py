@@ -1,0 +1,95 @@
+"""The wheel is the product: built from this checkout, installed where the checkout is not
+on the path, and run from an empty folder it lists, shows and runs the shipped scenarios
+(issue: tspend outside its checkout)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_package_list_is_every_package():
+    """pyproject.toml lists the packages by hand (the shipped data are mapped packages): a
+    package added to tspend/ and left out of the list would be missing from the wheel."""
+    from setuptools import find_packages
+
+    listed = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    code = {p for p in listed if not p.startswith("tspend.shipped.")}
+    assert code == set(find_packages(str(ROOT), include=["tspend*"]))
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """(python environment, empty working folder) with tspend from a freshly built wheel."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    dist, site, work = tmp / "dist", tmp / "site", tmp / "work"
+    work.mkdir()
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist),
+                    str(ROOT)], check=True, capture_output=True, timeout=600)
+    wheel = next(dist.glob("tspend-*.whl"))
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
+                    str(site), str(wheel)], check=True, capture_output=True, timeout=600)
+    env = {k: v for k, v in os.environ.items() if k != "TSPEND_SCENARIO_PATH"}
+    env["PYTHONPATH"] = str(site)
+    return env, work, site
+
+
+def _tspend(installed, *args, timeout=600):
+    env, work, _ = installed
+    return subprocess.run([sys.executable, "-m", "tspend.cli", *args], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_tspend_comes_from_the_wheel(installed):
+    env, work, site = installed
+    out = subprocess.run([sys.executable, "-c", "import tspend, tspend.shipped as s; "
+                          "print(tspend.__file__); print(s.data_root())"],
+                         cwd=work, env=env, capture_output=True, text=True, check=True).stdout
+    package, data = out.split()
+    assert Path(package).is_relative_to(site) and Path(data).is_relative_to(site)
+    assert not Path(package).is_relative_to(ROOT)
+
+
+def test_list_show_and_run_from_an_empty_folder(installed):
+    _, work, _ = installed
+    listed = _tspend(installed, "list")
+    assert listed.returncode == 0, listed.stderr
+    names = [line.split()[0] for line in listed.stdout.splitlines()
+             if line and not line.startswith(" ") and not line.startswith("searched")]
+    assert len(names) >= 35 and "pendulum_mujoco" in names and "double_cartpole_swingup" in names
+    shown = _tspend(installed, "show", "pendulum_mujoco")
+    assert shown.returncode == 0, shown.stderr
+    (work / "p.toml").write_text(shown.stdout)
+    a = _tspend(installed, "run", "p.toml", "--duration", "0.3", "--metrics", "a.json",
+                "--no-record")
+    b = _tspend(installed, "run", "--duration", "0.3", "--metrics", "b.json", "--out", "x.rrd")
+    assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
+    ma, mb = (json.loads((work / f).read_text()) for f in ("a.json", "b.json"))
+    assert ma["steps"] == mb["steps"] == 300
+    for key in ("rmse", "rmse_ss", "max_abs_u", "control_energy", "iae"):
+        assert ma[key] == mb[key], key
+    assert (work / "x.rrd").stat().st_size > 0
+    # a planned swing-up finds its plan, and the policy kind its network, in the wheel
+    plan = _tspend(installed, "run", "double_cartpole_swingup", "--duration", "0.05",
+                   "--no-record")
+    assert plan.returncode == 0, plan.stderr
+    assert not any(p.name not in ("p.toml", "a.json", "b.json", "x.rrd") for p in work.iterdir())
+
+
+def test_python_call_from_an_empty_folder(installed):
+    env, work, _ = installed
+    code = ("import tspend\n"
+            "r = tspend.run('pendulum_mujoco', controller='lqr', duration=0.2)\n"
+            "print(r.status, r.metrics['steps'])\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=work, env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["completed", "200"]
