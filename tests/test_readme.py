@@ -45,13 +45,22 @@ def blocks(path: Path, language: str = "") -> list[str]:
 
 
 def tspend_lines(path: Path) -> list[list[str]]:
-    """Every ``tspend ...`` line of the plain code blocks, as argv (comments dropped)."""
+    """Every ``tspend ...`` line of the plain code blocks, as argv (comments dropped; a
+    ``> FILE`` redirection kept at the end, :func:`redirected` takes it off)."""
     out = []
     for block in blocks(path):
         for line in block.splitlines():
             if line.startswith("tspend "):
                 out.append(shlex.split(line, comments=True)[1:])
     return out
+
+
+def redirected(argv: list[str]) -> tuple[list[str], str | None]:
+    """``(argv, FILE)`` of a line ending ``> FILE``; ``(argv, None)`` otherwise."""
+    if ">" in argv:
+        i = argv.index(">")
+        return argv[:i], argv[i + 1]
+    return argv, None
 
 
 def test_readme_is_short_and_keeps_the_quick_start() -> None:
@@ -75,7 +84,7 @@ def test_every_command_parses(doc: str) -> None:
     assert len(lines) >= 8
     parser = build_parser()
     for argv in lines:
-        parser.parse_args(argv)  # a bad option raises UsageError
+        parser.parse_args(redirected(argv)[0])  # a bad option raises UsageError
 
 
 def shortened(argv: list[str]) -> list[str]:
@@ -88,9 +97,12 @@ def test_readme_commands_run(tmp_path: Path, monkeypatch, capsys) -> None:
         os.symlink(ROOT / name, tmp_path / name)
     monkeypatch.chdir(tmp_path)
     for argv in tspend_lines(README):
-        status = main(shortened(argv))
-        err = capsys.readouterr().err
-        assert status == 0, (argv, err)
+        argv, into = redirected(argv)
+        status = main(shortened(argv) if into is None else argv)
+        captured = capsys.readouterr()
+        assert status == 0, (argv, captured.err)
+        if into is not None:
+            (tmp_path / into).write_text(captured.out)
     assert (tmp_path / "m.json").exists() and (tmp_path / "duffing.csv").exists()
 
 
@@ -105,7 +117,7 @@ def test_every_tour_line_runs_after_the_first_command_or_names_its_extra() -> No
         for line in block.splitlines():
             if not line.startswith("tspend "):
                 continue
-            args = parser.parse_args(shlex.split(line, comments=True)[1:])
+            args = parser.parse_args(redirected(shlex.split(line, comments=True)[1:])[0])
             for module, _ in needed(args):
                 extra = EXTRAS[module][1]
                 checked += extra is not None

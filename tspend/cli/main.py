@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"a folder of your own scenarios, searched (in the order given, "
                         f"repeatable) before the folders of ${SCENARIO_PATH_VARIABLE}, "
                         f"./scenarios and the shipped ones; 'tspend list' shows the search path")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                           help="one of the commands below ('tspend COMMAND --help')")
     for module in COMMANDS:
         known = set(sub.choices)
         module.add_parser(sub)

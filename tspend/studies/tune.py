@@ -248,11 +248,11 @@ def _num(v: float | None) -> str:
 def _with_text(result: TuneResult, base, changes: dict[str, Any]) -> TuneResult:
     from dataclasses import replace
 
-    from tspend.scenario import _set_dotted
+    from tspend.scenario import set_dotted
 
     raw = tomllib.loads(base.text)
     for key, value in list(base.overrides) + list(changes.items()):
-        _set_dotted(raw, key, value, base.path)
+        set_dotted(raw, key, value, base.path)
     r = result
     head = [
         f'# tspend tune: controller = "{r.kind}", scenario = "{r.base_name}"',
