@@ -17,8 +17,8 @@ Exit status (the ``EXIT_*`` constants):
       replaced is untouched and the metrics are printed to stdout as JSON as well
 6     the controller failed (status ``controller_error``): it raised, returned something
       that is not one number, or called ``sys.exit``; outputs kept up to that sample
-7     ``sweep``, ``compare``: runs did not complete (status ``timeout``, killed past
-      ``--run-timeout``, or ``failed``); every other run's row is kept, and stderr says
+7     ``sweep``, ``compare``: runs did not complete (status ``controller_error``,
+      ``timeout``, killed past ``--run-timeout``, or ``failed``); every other run's row is kept, and stderr says
       how many
 70    internal error (a bug: please report it with the ``--debug`` traceback)
 129   SIGHUP, 130 SIGINT (Ctrl-C), 143 SIGTERM: outputs completed up to the stop
@@ -82,7 +82,8 @@ EXIT_WRITE_FAILED = 5
 #: the controller failed: raised, returned no number, or called sys.exit (a plug-in's
 #: error; the recording and metrics are kept up to the sample before)
 EXIT_CONTROLLER_ERROR = 6
-#: sweep, compare: some runs did not complete (timeout, failed); their rows are kept
+#: sweep, compare: some runs did not complete (controller_error, timeout, failed); their
+#: rows are kept
 EXIT_INCOMPLETE = 7
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)

@@ -56,6 +56,8 @@ clipped, if there is none).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import time
 from dataclasses import dataclass
@@ -402,7 +404,11 @@ class MPCController(Controller):
                                  np.vstack([Ep[1:], Ep[-1:]]).ravel()])
         p = np.concatenate([s0, Sr.T.ravel(), Ur])
         started = time.perf_counter()
-        sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        # a signal during the solve: CasADi catches it and prints a warning through Python's
+        # stderr; the loop honours the stop at the next sample and says so in its own line
+        with contextlib.redirect_stderr(io.StringIO()):
+            sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg,
+                              ubg=self.ubg)
         wall = time.perf_counter() - started
         stats = self.solver.stats()
         ok = bool(stats.get("success", False))
