@@ -1055,8 +1055,8 @@ def prepare(d: Path, case: Case) -> None:
     elif case.setup == "journal_hardlink":
         os.link(d / "notes.txt", d / "H.parquet.journal")
     if case.setup == "locked_partial":
-        # another run holds K.partial.rrd: a helper process keeps it locked
-        (d / "K.partial.rrd").write_bytes(b"")
+        # another run holds .K.partial.rrd: a helper process keeps it locked
+        (d / ".K.partial.rrd").write_bytes(b"")
 
 
 @dataclass
@@ -1188,7 +1188,7 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
     prepare(d, case)
     before = snapshot(d)
     locker = None
-    lock_target = {"locked_partial": "K.partial.rrd", "table_locked": "L.parquet.lock"}.get(
+    lock_target = {"locked_partial": ".K.partial.rrd", "table_locked": "L.parquet.lock"}.get(
         case.setup)
     if lock_target:
         locker = subprocess.Popen([sys.executable, "-c", "import fcntl,os,sys,time;"

@@ -196,7 +196,7 @@ def test_a_signal_during_start_up_ends_the_command_cleanly(tmp_path, sig, status
 def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
     before = user_files(tmp_path)
     proc = spawn("run", "pendulum_mujoco", "--duration", "600", *OUT, cwd=tmp_path)
-    partial = tmp_path / "K.partial.rrd"
+    partial = tmp_path / ".K.partial.rrd"
     deadline = time.time() + 120
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 300_000):
         time.sleep(0.05)
