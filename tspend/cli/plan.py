@@ -71,7 +71,7 @@ def cmd(args: argparse.Namespace) -> int:
     else:
         start = build_plant(scn).full_state().copy()
     where = f"{scn.path or scn.name}: controllers.tvlqr"
-    check_plan_input(model, start, s.horizon, s.interval, scn.run.dt, s.margin, where)
+    check_plan_input(model, start, s.horizon, s.interval, scn.run.dt, s.margin, where, s.step)
     print(f"planning {scn.name}: {s.horizon:g} s to the upright, intervals of {s.interval:g} s "
           f"(RK4 step {s.step:g} s), from {', '.join(f'{n} = {v:.4g}' for n, v in zip(model.state_names, start))}",
           flush=True)

@@ -71,6 +71,7 @@ from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
 from tspend.errors import ScenarioError
+from tspend.runtime.bounds import MAX_MPC_HORIZON, MAX_MPC_SUBSTEPS
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -101,8 +102,9 @@ class MPCSettings(KindSettings):
     period: float = setting(0.02, "s: control period (a whole multiple of run.dt); "
                                   "run.control_period overrides", low=0.0, strict=True)
     horizon: int = setting(30, "N, shooting intervals of one period each", kind="integer",
-                           low=1)
-    substeps: int = setting(2, "RK4 steps per interval", kind="integer", low=1)
+                           low=1, high=MAX_MPC_HORIZON)
+    substeps: int = setting(2, "RK4 steps per interval", kind="integer", low=1,
+                            high=MAX_MPC_SUBSTEPS)
     state_weights: tuple[float, ...] | None = setting(
         None, "diagonal of Q on the full state (default: the full LQR's)", kind="list", low=0.0)
     R: float | None = setting(None, "input weight (default: the full LQR's)", low=0.0,

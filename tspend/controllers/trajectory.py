@@ -100,11 +100,19 @@ def _bounds(model: "FullModel", margin: float) -> tuple[np.ndarray, np.ndarray, 
 
 
 def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interval: float,
-                     dt: float, margin: float, where: str) -> int:
+                     dt: float, margin: float, where: str, step: float | None = None) -> int:
     """The number of intervals ``N`` (the horizon rounded to whole intervals); ScenarioError
     (one line) for what no solver can fix: an interval not a whole number of steps,
-    fewer than 2 intervals, a start or goal outside the bounds, an empty input range."""
+    fewer than 2 intervals, a step that does not divide the interval, a problem beyond
+    the bounds of :mod:`tspend.runtime.bounds` (intervals, RK4 steps, rows), a start or
+    goal outside the bounds, an empty input range."""
+    from tspend.runtime.bounds import (MAX_PLAN_INTERVALS, MAX_PLAN_RK4_STEPS, MAX_PLAN_ROWS,
+                                       MAX_PLAN_SUBSTEPS)
+
     steps = interval / dt
+    if steps > MAX_PLAN_ROWS:
+        raise ScenarioError(f"{where}.interval: {interval:g} s is more than {MAX_PLAN_ROWS:g} "
+                            f"steps of run.dt = {dt:g} s")
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
         raise ScenarioError(f"{where}.interval: must be a whole multiple of run.dt = {dt:g} s, "
                             f"got {interval:g}")
@@ -112,6 +120,19 @@ def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interva
     if round(n) < 2:
         raise ScenarioError(f"{where}.horizon: {horizon:g} s is too short: at least 2 intervals "
                             f"of {interval:g} s")
+    if n > MAX_PLAN_INTERVALS or n * steps > MAX_PLAN_ROWS:
+        raise ScenarioError(f"{where}.horizon: {horizon:g} s is {n:.4g} intervals of "
+                            f"{interval:g} s ({n * steps:.4g} rows of {dt:g} s); at most "
+                            f"{MAX_PLAN_INTERVALS} intervals and {MAX_PLAN_ROWS:g} rows")
+    if step is not None:
+        k = interval / step
+        if k > MAX_PLAN_SUBSTEPS or round(n) * k > MAX_PLAN_RK4_STEPS:
+            raise ScenarioError(f"{where}.step: {step:g} s makes {k:.4g} RK4 steps an interval "
+                                f"and {round(n) * k:.4g} in all; at most {MAX_PLAN_SUBSTEPS} and "
+                                f"{MAX_PLAN_RK4_STEPS}")
+        if abs(k - round(k)) > 1e-9 * max(1.0, k) or round(k) < 1:
+            raise ScenarioError(f"{where}.step: must divide the interval {interval:g} s into "
+                                f"whole steps, got {step:g}")
     lo, hi, u_lo, u_hi = _bounds(model, margin)
     if not u_lo < u_hi:
         raise ScenarioError(f"{where}: the input's range [{model.u_lo:g}, {model.u_hi:g}] is empty")
@@ -143,11 +164,7 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
 
     s0 = np.asarray(s0, dtype=float)
     step = dt if step is None else step
-    N = check_plan_input(model, s0, horizon, interval, dt, margin, where)
-    if abs(interval / step - round(interval / step)) > 1e-9 * max(1.0, interval / step) \
-            or round(interval / step) < 1:
-        raise ScenarioError(f"{where}.step: must divide the interval {interval:g} s into whole "
-                            f"steps, got {step:g}")
+    N = check_plan_input(model, s0, horizon, interval, dt, margin, where, step)
     nx, K = model.size, int(round(interval / step))
     G = model.rk4_map(step)
     # one interval: K steps of G with u held (mapaccum feeds each step's output to the next)
