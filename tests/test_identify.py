@@ -181,3 +181,20 @@ def test_the_figure_of_a_one_joint_machine_is_drawn(tmp_path):
     fit_figure(SimpleNamespace(validation_trace=trace),
                SimpleNamespace(dof=1, state_names=("hinge", "hinge_dot")), tmp_path / "f.png")
     assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_excite_touches_no_file_of_the_users_and_names_no_temporary_file(tmp_path, capsys,
+                                                                        monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ".x.toml.check.toml").write_text("the user's\n")
+    assert main(["excite", "ex2_duffing", "--out", "x.toml"]) == 0   # an unbounded input
+    assert (tmp_path / ".x.toml.check.toml").read_text() == "the user's\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".x.toml.check.toml", "x.toml"]
+    kept = (tmp_path / "x.toml").read_text()
+    capsys.readouterr()
+    for extra, words in ((("--f-max", "1e6"), "at most 10000 times --f-min"),
+                         (("--f-max", "600"), "above 500 Hz, half the rate")):
+        assert main(["excite", "pendulum_mujoco", "--out", "x.toml", *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and "trial.toml" not in err[0], err
+    assert (tmp_path / "x.toml").read_text() == kept
