@@ -374,3 +374,21 @@ def test_a_sweep_of_failing_plugins_is_not_every_run_completed(tmp_path: Path) -
         import pandas as pd
 
         assert list(pd.read_parquet(out)["status"]) == ["controller_error"] * 2
+
+
+def test_the_recording_of_a_run_that_failed_at_its_first_sample_is_exported(
+        tmp_path: Path) -> None:
+    (tmp_path / "mine.py").write_text(PLUGINS)
+    rec = tmp_path / "r.rrd"
+    r = tspend("run", "ex3_pendulum_ode", "--controller", f"{tmp_path / 'mine.py'}:Vector",
+               "--duration", "0.05", "--out", str(rec), cwd=ROOT, timeout=300)
+    assert r.status == 6, r.err
+    r = tspend("export", str(rec), "--out", str(tmp_path / "r.csv"), cwd=ROOT, timeout=300)
+    assert r.status == 0, r.err
+    import pandas as pd
+
+    table = pd.read_csv(tmp_path / "r.csv")
+    assert len(table) == 0 and list(table.columns[:2]) == ["t_s", "hinge_rad"]
+    assert "u_N" in table.columns
+    meta = json.loads((tmp_path / "r.csv.json").read_text())
+    assert "controller_error" in json.dumps(meta) or meta.get("scenario") == "ex3_pendulum_ode"

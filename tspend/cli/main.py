@@ -505,6 +505,20 @@ class _ReaderGoneTolerant:
         return getattr(self._stream, name)
 
 
+#: commands that load MuJoCo models outside a run's own handling of MuJoCo's warnings
+_MUJOCO_COMMANDS = ("plan", "excite", "identify", "tune", "figures", "compare")
+
+
+def _native_logs(command: str):
+    """For :data:`_MUJOCO_COMMANDS`: MuJoCo's warnings collected into the one-line error,
+    never a ``MUJOCO_LOG.TXT`` in the working folder (other commands pay no MuJoCo import)."""
+    from contextlib import nullcontext
+
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    return mujoco_warnings_in_errors(True) if command in _MUJOCO_COMMANDS else nullcontext()
+
+
 # -- entry point -------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     guard = SignalGuard().install()  # first: a signal from here on has its exit status
@@ -522,7 +536,7 @@ def main(argv: list[str] | None = None) -> int:
         check_needed(args)  # a missing optional package: one line naming its extra, no work
         # warnings (numpy's overflow on the way to a bad value, say) would add lines to
         # the one-line error: kept, and printed after a command that succeeds
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, _native_logs(args.command):
             args.warnings = caught
             status = args.handler(args)
         release_warnings(args)
