@@ -253,6 +253,40 @@ class StepMutates(Zero):
         return 0.0
 
 
+class StepGeneratorExit(Zero):
+    kind = "step_generator_exit"
+
+    def step(self, obs, dt):
+        raise GeneratorExit("closed")
+
+
+class StepCancelled(Zero):
+    kind = "step_cancelled"
+
+    def step(self, obs, dt):
+        import asyncio
+        raise asyncio.CancelledError("cancelled")
+
+
+class MyBase(BaseException):
+    pass
+
+
+class StepOwnBase(Zero):
+    kind = "step_own_base"
+
+    def step(self, obs, dt):
+        raise MyBase("mine")
+
+
+class StepOsExit(Zero):
+    kind = "step_os_exit"
+
+    def step(self, obs, dt):
+        import os
+        os._exit(0)
+
+
 class StepPrints(Zero):
     kind = "step_prints"
 
@@ -295,6 +329,8 @@ class Case:
     #: a named check of what the command left (see CHECKS); with it, the exit status and
     #: the check make the case clean (a sweep's progress lines on stderr are no error)
     check: str = ""
+    #: environment variables for the command ("{d}" stands for the case's directory)
+    env: dict[str, str] = field(default_factory=dict)
 
 
 OUT = ["--out", "K.rrd", "--metrics", "K.json"]
@@ -832,6 +868,7 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
     for label, code in api.items():
         add(f"API {label}", [], api=code)
     misbehaving_cases(add)
+    issue44_cases(add)
     # -- guarded: modules other work is adding (skipped with a note when absent)
     gym = {
         "gym unknown scenario": 'import tspend.gym, gymnasium; gymnasium.make("tspend/nope-v0")',
@@ -881,6 +918,9 @@ MISBEHAVING = [("raises", "StepRaises", "controller_error", 6),
                ("returns None", "StepNone", "controller_error", 6),
                ("sleeps", "StepSleeps", "timeout", 7),
                ("calls sys.exit(0)", "StepExits", "controller_error", 6),
+               ("raises GeneratorExit", "StepGeneratorExit", "controller_error", 6),
+               ("raises CancelledError", "StepCancelled", "controller_error", 6),
+               ("raises its own BaseException", "StepOwnBase", "controller_error", 6),
                ("mutates obs.state", "StepMutates", "controller_error", 6),
                ("prints 4 MB", "StepPrints", "completed", 0)]
 TOUCHING = str(ROOT / "tests" / "models" / "cartpole_touching_rails.xml")
@@ -905,11 +945,14 @@ def misbehaving_cases(add) -> None:
                 code,
                 may_write=("K.",), check=f"metrics:{status}")
         limit = ["--run-timeout", "5"] if cls == "StepSleeps" else []
+        # a run that did not complete (a controller's error, a timeout): "not every run
+        # completed", exit 7 (issue 44)
+        incomplete = 7 if status in ("controller_error", "timeout") else 0
         add(f"misbehaving sweep {label}", SW + ["--controller", spec, "--out", "new.parquet",
                                                 "--record", "none"] + limit,
-            7 if code == 7 else 0, may_write=("new.",), check=f"rows:{status}")
+            incomplete, may_write=("new.",), check=f"rows:{status}")
         add(f"misbehaving compare {label}", CMP[:8] + ["--controller", f"lqr,{spec}"] + CMP[10:]
-            + limit, 7 if code == 7 else 0, check="compared")
+            + limit, incomplete, check="compared")
         add(f"misbehaving tune {label}", TUNE[:2] + ["--controller", spec] + TUNE[4:])
     for command, base in (("sweep", SW), ("compare", CMP), ("tune", TUNE)):
         for value in ("0", "-5", "nan", "inf", "1e12", "soon"):
@@ -972,6 +1015,226 @@ def misbehaving_cases(add) -> None:
         "fail(list(frame.columns))\n"))
 
 
+# -- issue 44: interrupted solves, plan files, failed runs in sweeps, caches, bounds,
+#    commands that must not replace a user's files, stray files, exports ----------------
+ONE_HINGE = """<mujoco model="one hinge">
+  <option timestep="0.001"/>
+  <worldbody>
+    <body name="link1">
+      <joint name="hinge" type="hinge" axis="0 1 0" damping="0.05"/>
+      <inertial pos="0 0 -0.5" mass="1" diaginertia="0.02 0.02 0.001"/>
+    </body>
+  </worldbody>
+  <actuator><motor name="motor" joint="hinge" gear="1" ctrlrange="-5 5" ctrllimited="true"/></actuator>
+</mujoco>
+"""
+
+
+def _record_csv(model_text: str, joints: tuple[str, ...], seconds: float) -> str:
+    """A record MuJoCo simulates open loop under a multisine (what identify reads)."""
+    import numpy as np
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_string(model_text)
+    d = mujoco.MjData(m)
+    n = int(round(seconds / m.opt.timestep))
+    t = np.arange(n) * m.opt.timestep
+    u = 2.0 * np.sin(2 * np.pi * np.multiply.outer(t, [0.5, 1.3, 2.9])).sum(1)
+    q = np.empty((n, len(joints)))
+    adr = [m.joint(j).qposadr[0] for j in joints]
+    for i in range(n):
+        q[i] = d.qpos[adr]
+        d.ctrl[0] = u[i]
+        mujoco.mj_step(m, d)
+    cols = {"t_s": t, **{f"{j}_{'m' if j == 'slider' else 'rad'}": q[:, k]
+                        for k, j in enumerate(joints)}, "u": u}
+    lines = [",".join(cols)] + [",".join(repr(float(v[i])) for v in cols.values())
+                                for i in range(n)]
+    return "\n".join(lines) + "\n"
+
+
+def _plan_file(**change) -> bytes:
+    """A plan for swingup_mujoco's states on its 1 ms step, with ``change`` made to it."""
+    import numpy as np
+
+    from tspend.controllers.trajectory import Plan, write_plan
+
+    n, dt = 6, 0.001
+    fields = dict(t=dt * np.arange(n), states=np.zeros((n, 4)), u=np.zeros(n),
+                  state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
+                  state_units=("m", "rad", "m/s", "rad/s"), u_name="force", u_unit="N",
+                  dt=dt, interval=0.002)
+    fields.update(change)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "p.parquet"
+        write_plan(Plan(**fields), path)
+        return path.read_bytes()
+
+
+#: one warm cache (a derived acrobot, MPC's compiled solver), made once, copied per case
+_WARM: dict[str, Path] = {}
+_WARM_LOCK = __import__("threading").Lock()
+ARTICULATED_RUN = ["run", "acrobot_mujoco", "--duration", "0.01", "--no-record"]
+MPC_RUN = ["run", "pendulum_mujoco", "--controller", "mpc", "--duration", "0.02", "--no-record"]
+
+
+def _warm_cache(base: Path) -> Path:
+    with _WARM_LOCK:
+        if "cache" not in _WARM:
+            folder = base / "warm-cache"
+            env = dict(os.environ, TSPEND_CACHE_DIR=str(folder))
+            for argv in (ARTICULATED_RUN, MPC_RUN):
+                subprocess.run([sys.executable, "-m", "tspend.cli", *argv], cwd=base, env=env,
+                               capture_output=True, timeout=600)
+            _WARM["cache"] = folder
+        return _WARM["cache"]
+
+
+def _damage_cache(d: Path, base: Path, damage: str) -> None:
+    """Copy the warm cache into the case's ``cache/`` and damage one entry as ``damage``."""
+    warm = _warm_cache(base)
+    shutil.copytree(warm, d / "cache")
+    modules = sorted((d / "cache" / "articulated").glob("tspend_articulated_*.py"))
+    pycache = d / "cache" / "articulated" / "__pycache__"
+    for module in modules if damage.startswith("module") else ():
+        if damage == "module garbage":
+            module.write_bytes(os.urandom(3000))
+        elif damage == "module empty":
+            module.write_bytes(b"")
+        elif damage == "module truncated":
+            module.write_bytes(module.read_bytes()[: module.stat().st_size // 2])
+        elif damage == "module a directory":
+            module.unlink()
+            module.mkdir()
+        elif damage == "module of another machine":
+            # another machine's derivation (three joints) under this key, stamped as its own
+            text = module.read_text().replace("NV = 2", "NV = 3")
+            body = text.rsplit("# tspend-cache", 1)[0]
+            digest = hashlib.sha256(body.encode()).hexdigest()
+            module.write_text(f"{body}# tspend-cache key={'f' * 24} sha256={digest}\n")
+    if damage == "numba code truncated":
+        for f in sorted(pycache.glob("*.nbc")):
+            f.write_bytes(f.read_bytes()[:100])
+    elif damage == "numba index truncated":
+        for f in sorted(pycache.glob("*.nbi")):
+            f.write_bytes(f.read_bytes()[:10])
+    elif damage == "mpc so corrupted":
+        for f in (d / "cache" / "mpc").glob("*.so"):
+            f.write_bytes(b"\x7fELF" + os.urandom(4000))
+
+
+def issue44_cases(add) -> None:
+    """Issue 44 (part B): every command honours an interrupt, solves included; plan files
+    are checked on load; failed runs make a sweep or comparison incomplete; a plug-in's
+    BaseException is its error and os._exit leaves no visible partial file; caches are
+    checked and rebuilt; every size and physical value is bounded at load; identify and
+    excite replace nothing of the user's and leave nothing behind."""
+    plan = ["plan", "double_cartpole_swingup", "--out", "p.parquet"]
+    mine = {"p.parquet": b"PAR1 the user's own plan"}
+    for sig, status in ((signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)):
+        add(f"issue44 plan {signal.Signals(sig).name} at 3 s", plan, status, files=mine,
+            send=(sig, 3.0))
+    add("issue44 plan SIGINT at 6 s", plan, 130, files=mine, send=(signal.SIGINT, 6.0))
+    # plan files
+    import numpy as np
+
+    bad_plans = {
+        "t backwards": dict(t=0.001 * np.arange(6)[::-1]),
+        "NaN in u": dict(u=np.array([0.0, 1.0, np.nan, 0.0, 0.0, 0.0])),
+        "inf in a state": dict(states=np.full((6, 4), np.inf)),
+        "0 rows": dict(t=np.zeros(0), states=np.zeros((0, 4)), u=np.zeros(0)),
+        "1 row": dict(t=np.zeros(1), states=np.zeros((1, 4)), u=np.zeros(1)),
+    }
+    for label, change in bad_plans.items():
+        add(f"issue44 plan file {label}", ["run", "swingup_mujoco", "--controller", "tvlqr",
+                                           "--duration", "0.05", "--set",
+                                           'controllers.tvlqr.plan="bad.parquet"'] + OUT,
+            files={"bad.parquet": _plan_file(**change)})
+    add("issue44 plan file junk", ["run", "swingup_mujoco", "--controller", "tvlqr", "--set",
+                                   'controllers.tvlqr.plan="junk.parquet"'] + OUT)
+    # a plug-in that ends its own process: nothing visible of the outputs it had
+    add("issue44 plug-in os._exit(0) in run", ["run", "ex3_pendulum_ode", "--duration", "0.05",
+                                              "--controller", "Plug.py:StepOsExit"] + OUT, 0,
+        may_write=(".K.",))
+    add("issue44 plug-in os._exit(0) in sweep", SW + ["--controller", "Plug.py:StepOsExit",
+                                                      "--out", "new.parquet", "--record", "none"],
+        7, may_write=("new.", ".new."), check="rows:failed")
+    # caches: damaged entries are rebuilt with one line saying so
+    for damage in ("module garbage", "module empty", "module truncated", "module a directory",
+                   "module of another machine", "numba code truncated", "numba index truncated"):
+        add(f"issue44 cache {damage}", ARTICULATED_RUN, 0, setup=f"cache:{damage}",
+            env={"TSPEND_CACHE_DIR": "{d}/cache"}, may_write=("cache/",), check="said:rebuilt")
+    add("issue44 cache mpc so corrupted", MPC_RUN, 0, setup="cache:mpc so corrupted",
+        env={"TSPEND_CACHE_DIR": "{d}/cache"}, may_write=("cache/",), check="said:rebuilt")
+    add("issue44 cache not writable", ARTICULATED_RUN, 0, setup="tmp",
+        env={"TSPEND_CACHE_DIR": "{d}/notes.txt/cache", "TMPDIR": "{d}/tmp"},
+        check="empty:tmp")
+    # bounds on what sizes work
+    for label, value in (("horizon 2000 s", "controllers.tvlqr.horizon=2000"),
+                         ("horizon 1e6 s", "controllers.tvlqr.horizon=1e6"),
+                         ("step 1e-9", "controllers.tvlqr.step=1e-9"),
+                         ("interval 1e6", "controllers.tvlqr.interval=1e6")):
+        add(f"issue44 plan {label}", plan + ["--set", value], files=mine)
+    for label, value in (("horizon 1000000", "controllers.mpc.horizon=1000000"),
+                         ("substeps 100000", "controllers.mpc.substeps=100000")):
+        add(f"issue44 mpc {label}", ["run", "pendulum_mujoco", "--controller", "mpc",
+                                     "--duration", "0.05", "--set", value] + OUT)
+    cartpole = model_text()
+    record = {"R.csv": _record_csv(cartpole, ("hinge", "slider"), 1.0),
+              "cal.xml": "<!-- the user's calibration -->\n", "fit.json": '{"mine": 1}\n',
+              "fig.png": b"\x89PNG the user's figure"}
+    ident = ["identify", "R.csv", "--model", "M.xml", "--params", "m", "--out", "cal.xml",
+             "--metrics", "fit.json"]
+    for label, extra in (("--segment 1e-9", ["--segment", "1e-9"]),
+                         ("--bootstrap 1e9", ["--uncertainty", "bootstrap", "--bootstrap",
+                                              "1000000000"]),
+                         ("--seed -1", ["--seed", "-1"]),
+                         ("--fix M=-5", ["--fix", "M=-5"]),
+                         ("--fix gear=0", ["--fix", "gear=0"]),
+                         ("--validation 1e-6 --figure", ["--validation", "1e-6", "--segment",
+                                                         "0.3", "--figure", "fig.png"])):
+        add(f"issue44 identify {label}", ident + extra, files=record)
+    one = {"one.csv": _record_csv(ONE_HINGE, ("hinge",), 3.0), "One.xml": ONE_HINGE,
+           **{k: v for k, v in record.items() if k != "R.csv"}}
+    add("issue44 identify --figure on a one-hinge model", [
+        "identify", "one.csv", "--model", "One.xml", "--params", "link1.mass", "--segment",
+        "0.5", "--out", "cal.xml", "--metrics", "fit.json", "--figure", "fig.png"], 0,
+        files=one, may_write=("cal.xml", "fit.json", "fig.png"), check="png:fig.png")
+    add("issue44 excite --f-max 1e6", ["excite", "pendulum_mujoco", "--out", "x.toml",
+                                       "--f-max", "1e6"])
+    add("issue44 excite --f-max above half the input's rate",
+        ["excite", "pendulum_mujoco", "--out", "x.toml", "--f-max", "600"])
+    add("issue44 excite keeps a user's .x.toml.check.toml", ["excite", "pendulum_mujoco",
+                                                             "--out", "x.toml"], 0,
+        files={".x.toml.check.toml": "the user's own\n"}, may_write=("x.toml",))
+    add("issue44 excite ex2_duffing", ["excite", "ex2_duffing", "--out", "x.toml"], 0,
+        may_write=("x.toml",), check="notsaid:trial.toml")
+    # physical values of an MJCF
+    for label, old, new in (("infinite pole mass", 'mass="1"', 'mass="inf"'),
+                            ("infinite cart mass", 'mass="10"', 'mass="inf"'),
+                            ("negative pole mass", 'mass="1"', 'mass="-5"'),
+                            ("infinite inertia", 'diaginertia="1 1 1"', 'diaginertia="inf 1 1"')):
+        files = {"Q.toml": render(MUJOCO, plant__model='"Q.xml"'),
+                 "Q.xml": model_text(**{old: new})}
+        add(f"issue44 MJCF {label}", ["run", "Q.toml", "--duration", "0.05"] + OUT, files=files)
+        add(f"issue44 MJCF {label}, inspect", ["inspect", "Q.xml", "--json", "K.json"],
+            files=files)
+    # every recording a run leaves can be exported
+    add("issue44 export a run that failed at its first sample", [], expect=0,
+        may_write=("x.",), api=FAIL + (
+            "import subprocess, pandas\n"
+            "r = subprocess.run([sys.executable, '-m', 'tspend.cli', 'run', 'ex3_pendulum_ode',\n"
+            "                    '--duration', '0.05', '--controller', 'Plug.py:StepRaises',\n"
+            "                    '--out', 'x.rrd'], capture_output=True)\n"
+            "if r.returncode != 6: fail(f'run exit {r.returncode}')\n"
+            "r = subprocess.run([sys.executable, '-m', 'tspend.cli', 'export', 'x.rrd', '--out',\n"
+            "                    'x.csv'], capture_output=True, text=True)\n"
+            "if r.returncode: fail(f'export exit {r.returncode}: {r.stderr.strip()}')\n"
+            "frame = pandas.read_csv('x.csv')\n"
+            "if len(frame) or list(frame.columns[:2]) != ['t_s', 'hinge_rad']: "
+            "fail(list(frame.columns))\n"))
+
+
 def _json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
@@ -1014,6 +1277,15 @@ def check_left(d: Path, check: str, out: str, err: str) -> str:
         found = m.get("contacts_at_q0")
         return "" if found and found != "none" and "rail1/cart" in found else \
             f"contacts_at_q0 {found!r}"
+    if kind == "said":
+        return "" if arg in err else f"stderr does not say {arg!r}"
+    if kind == "notsaid":
+        return f"stderr names {arg!r}" if arg in err + out else ""
+    if kind == "empty":
+        left = sorted(p.name for p in (d / arg).iterdir()) if (d / arg).is_dir() else ["(gone)"]
+        return f"{arg}/ holds {left[:5]}" if left else ""
+    if kind == "png":
+        return "" if (d / arg).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" else f"{arg} is no PNG"
     raise ValueError(f"unknown check {check}")
 
 
@@ -1054,9 +1326,13 @@ def prepare(d: Path, case: Case) -> None:
         (d / "O.parquet.journal").write_text('{"tspend_journal": "Mine.parquet"}\n')
     elif case.setup == "journal_hardlink":
         os.link(d / "notes.txt", d / "H.parquet.journal")
+    if case.setup.startswith("cache:"):
+        _damage_cache(d, d.parent, case.setup.partition(":")[2])
+    elif case.setup == "tmp":
+        (d / "tmp").mkdir()
     if case.setup == "locked_partial":
-        # another run holds K.partial.rrd: a helper process keeps it locked
-        (d / "K.partial.rrd").write_bytes(b"")
+        # another run holds .K.partial.rrd: a helper process keeps it locked
+        (d / ".K.partial.rrd").write_bytes(b"")
 
 
 @dataclass
@@ -1188,7 +1464,7 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
     prepare(d, case)
     before = snapshot(d)
     locker = None
-    lock_target = {"locked_partial": "K.partial.rrd", "table_locked": "L.parquet.lock"}.get(
+    lock_target = {"locked_partial": ".K.partial.rrd", "table_locked": "L.parquet.lock"}.get(
         case.setup)
     if lock_target:
         locker = subprocess.Popen([sys.executable, "-c", "import fcntl,os,sys,time;"
@@ -1199,6 +1475,7 @@ def run_case(case: Case, base: Path, index: int) -> Outcome:
         locker.stdout.readline()
         before = snapshot(d)
     env = dict(os.environ)
+    env.update({k: v.replace("{d}", str(d)) for k, v in case.env.items()})
     if case.api:
         cmd = [sys.executable, "-c", API_PRELUDE, case.api]
     else:

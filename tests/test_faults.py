@@ -88,7 +88,7 @@ def test_signal_flushes_recording(tmp_path, sig, code):
     deadline = time.time() + 60
     # wait until the run is under way: the recording (written beside its target until
     # the run ends) holds some blocks
-    partial = tmp_path / "s.partial.rrd"
+    partial = tmp_path / ".s.partial.rrd"
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 200_000):
         time.sleep(0.2)
     proc.send_signal(sig)

@@ -196,7 +196,7 @@ def test_a_signal_during_start_up_ends_the_command_cleanly(tmp_path, sig, status
 def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
     before = user_files(tmp_path)
     proc = spawn("run", "pendulum_mujoco", "--duration", "600", *OUT, cwd=tmp_path)
-    partial = tmp_path / "K.partial.rrd"
+    partial = tmp_path / ".K.partial.rrd"
     deadline = time.time() + 120
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 300_000):
         time.sleep(0.05)
@@ -259,3 +259,70 @@ def test_a_signal_inside_an_unraisable_callback_is_dropped_quietly(monkeypatch):
     finally:
         guard.restore()
     assert [type(e) for e in seen] == [RuntimeError]
+
+
+# -- issue 44 (part B): bounds at load, an interrupted solve, os._exit in a plug-in --------
+ISSUE44_BAD_INPUT = {
+    "plan horizon 2000 s": (("plan", "double_cartpole_swingup", "--out", "p.parquet", "--set",
+                             "controllers.tvlqr.horizon=2000"), "at most 10000 intervals"),
+    "plan step 1e-9": (("plan", "double_cartpole_swingup", "--out", "p.parquet", "--set",
+                        "controllers.tvlqr.step=1e-9"), "RK4 steps an interval"),
+    "mpc.horizon 1e6": (("run", "pendulum_mujoco", "--controller", "mpc", *SHORT, *OUT, "--set",
+                         "controllers.mpc.horizon=1000000"), "must be from 1 to 1000"),
+    "mpc.substeps 1e5": (("run", "pendulum_mujoco", "--controller", "mpc", *SHORT, *OUT, "--set",
+                          "controllers.mpc.substeps=100000"), "must be from 1 to 100"),
+    "MJCF infinite mass": (("run", "P.toml", *SHORT, *OUT), "body 'pole': mass = inf"),
+}
+
+
+@pytest.mark.parametrize("case", list(ISSUE44_BAD_INPUT))
+def test_issue44_sizes_and_physical_values_are_refused_at_load(tmp_path, case):
+    argv, phrase = ISSUE44_BAD_INPUT[case]
+    user_files(tmp_path)
+    (tmp_path / "p.parquet").write_bytes(b"PAR1 the user's plan")
+    if case == "MJCF infinite mass":
+        text = (tmp_path / "M.xml").read_text()
+        (tmp_path / "M.xml").write_text(text.replace('mass="1"', 'mass="inf"'))
+    before = snapshot(tmp_path)
+    r = tspend(*argv, cwd=tmp_path, timeout=300)
+    line = r.one_error_line()
+    assert r.status == 2 and phrase in line, line
+    assert_intact(tmp_path, before)
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupt_during_a_plans_solve_ends_it_and_keeps_the_old_plan(tmp_path, sig,
+                                                                          status):
+    (tmp_path / "p.parquet").write_bytes(b"PAR1 the user's plan")
+    before = snapshot(tmp_path)
+    proc = spawn("plan", "double_cartpole_swingup", "--out", "p.parquet", cwd=tmp_path)
+    # the banner is printed just before the solve starts: the signal lands inside IPOPT
+    assert proc.stdout.readline().startswith("planning double_cartpole_swingup")
+    time.sleep(1.0)
+    proc.send_signal(sig)
+    sent = time.monotonic()
+    out, err = proc.communicate(timeout=120)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert proc.returncode == status, err
+    assert time.monotonic() - sent < 20.0     # not the rest of the solve, nor a second try
+    assert len(lines) == 1 and "interrupted by" in lines[0] and "no plan" not in err, err
+    assert_intact(tmp_path, before)
+
+
+def test_a_plugin_that_ends_its_process_leaves_no_visible_partial_output(tmp_path):
+    (tmp_path / "Plug.py").write_text(
+        "import os\nimport numpy as np\nfrom tspend.controllers.base import Controller\n"
+        "class Exits(Controller):\n    kind = 'exits'\n"
+        "    def __init__(self, scenario):\n        self.order = len(scenario.plant.x0)\n"
+        "        self.diagnostics = ()\n        self.diag = np.zeros(0)\n"
+        "    def reset(self, rng):\n        pass\n"
+        "    def step(self, obs, dt):\n        os._exit(0)\n")
+    before = user_files(tmp_path)
+    r = tspend("run", "ex3_pendulum_ode", *SHORT, *OUT, "--controller", "Plug.py:Exits",
+               cwd=tmp_path, timeout=300)
+    assert r.status == 0
+    visible = [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")]
+    assert sorted(visible) == sorted(set(before) | {"Plug.py"}), visible
+    assert_intact(tmp_path, {**before, "Plug.py": snapshot(tmp_path)["Plug.py"]},
+                  allow_new=(".K.partial",))

@@ -146,3 +146,55 @@ def test_excitation_stays_within_its_amplitude_and_starts_quietly(signal):
     assert np.all(e[t < s.start_s] == 0.0)
     late = e[t > s.start_s + s.ramp_s]
     assert np.max(np.abs(late)) > 0.6 * 2.5 and abs(np.mean(late)) < 0.2 * 2.5
+
+
+@pytest.mark.parametrize("extra, words", [
+    (("--segment", "1e-9"), "--segment 1e-09: shorter than 10 samples"),
+    (("--uncertainty", "bootstrap", "--bootstrap", "1000000000"), "from 1 to 10000"),
+    (("--seed", "-1"), "--seed: must be an integer from 0"),
+    (("--fix", "M=-5"), "--fix M=-5: must be >= 0 (cart mass, kg)"),
+    (("--fix", "gear=0"), "--fix gear=0: must not be 0"),
+    (("--validation", "1e-6", "--segment", "0.3", "--figure", "fig.png"), "no validation windows"),
+])
+def test_bad_numbers_are_refused_and_nothing_of_the_users_is_replaced(extra, words, tmp_path,
+                                                                      capsys):
+    mujoco_record(CARTPOLE, T=1.0).to_csv(tmp_path / "r.csv", index=False)
+    for name in ("cal.xml", "fit.json", "fig.png"):
+        (tmp_path / name).write_text(f"the user's {name}\n")
+    status = main(["identify", str(tmp_path / "r.csv"), "--model", CARTPOLE, "--params", "m",
+                   "--out", str(tmp_path / "cal.xml"), "--metrics", str(tmp_path / "fit.json"),
+                   *[str(tmp_path / a) if a == "fig.png" else a for a in extra]])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and words in err[0], err
+    for name in ("cal.xml", "fit.json", "fig.png"):
+        assert (tmp_path / name).read_text() == f"the user's {name}\n"
+
+
+def test_the_figure_of_a_one_joint_machine_is_drawn(tmp_path):
+    from types import SimpleNamespace
+
+    from tspend.cli.identify import fit_figure
+
+    t = np.linspace(0.0, 1.0, 11)[None, :]
+    trace = {"t": t, "head": 2, "measured": np.zeros((1, 1, 11)),
+             "predicted": np.zeros((1, 1, 11)), "predicted_nominal": np.ones((1, 1, 11))}
+    fit_figure(SimpleNamespace(validation_trace=trace),
+               SimpleNamespace(dof=1, state_names=("hinge", "hinge_dot")), tmp_path / "f.png")
+    assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_excite_touches_no_file_of_the_users_and_names_no_temporary_file(tmp_path, capsys,
+                                                                        monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ".x.toml.check.toml").write_text("the user's\n")
+    assert main(["excite", "ex2_duffing", "--out", "x.toml"]) == 0   # an unbounded input
+    assert (tmp_path / ".x.toml.check.toml").read_text() == "the user's\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".x.toml.check.toml", "x.toml"]
+    kept = (tmp_path / "x.toml").read_text()
+    capsys.readouterr()
+    for extra, words in ((("--f-max", "1e6"), "at most 10000 times --f-min"),
+                         (("--f-max", "600"), "above 500 Hz, half the rate")):
+        assert main(["excite", "pendulum_mujoco", "--out", "x.toml", *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and "trial.toml" not in err[0], err
+    assert (tmp_path / "x.toml").read_text() == kept

@@ -108,3 +108,28 @@ def test_qrqp_with_soft_rows_is_one_line_exit_2(capsys):
                  "--set", "task.constraints.box.slider={lo=-0.6, hi=0.6}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "controllers.mpc.solver" in err[0] and "hpipm" in err[0], err
+
+
+def test_a_damaged_compiled_solver_is_rebuilt_not_loaded(monkeypatch, tmp_path):
+    import warnings
+
+    from tspend.runtime.cache import SIDECAR, binary_problem
+
+    monkeypatch.setenv("TSPEND_CACHE_DIR", str(tmp_path))
+    build(_scenario(**BOX), "mpc")
+    objects = sorted((tmp_path / "mpc").glob("*.so"))
+    assert objects and all((o.parent / (o.name + SIDECAR)).is_file() for o in objects)
+    good = {o: o.read_bytes() for o in objects}
+    # garbage in one, another's bytes in a second (both keep their names)
+    objects[0].write_bytes(b"\x7fELF garbage" * 100)
+    if len(objects) > 1:
+        objects[1].write_bytes(good[objects[0]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        a = build(_scenario(**BOX), "mpc")
+    said = [str(w.message) for w in caught if "rebuilt" in str(w.message)]
+    assert len(said) == min(2, len(objects)) and "checksum" in said[0], said
+    assert a.rti.compiled
+    for o in objects:
+        key = o.stem.rsplit("_", 1)[1]
+        assert binary_problem(o, key) is None and o.read_bytes() == good[o]

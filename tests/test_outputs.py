@@ -69,7 +69,7 @@ def test_an_explicit_target_is_replaced_only_at_commit(tmp_path):
     target.write_text("old")
     out = claim(plan_outputs([OutputRequest("--metrics", "metrics", ".json", str(target))]))[0]
     out.write(b"new")
-    assert target.read_text() == "old" and out.partial.name == "K.partial.json"
+    assert target.read_text() == "old" and out.partial.name == ".K.partial.json"
     out.commit()
     assert target.read_text() == "new" and not out.partial.exists()
 
@@ -206,7 +206,7 @@ def test_parallel_runs_never_share_a_default_name(tmp_path):
 def test_a_second_run_aimed_at_the_same_file_is_refused(tmp_path):
     before = user_files(tmp_path)
     first = spawn("run", "pendulum_mujoco", "--duration", "600", "--out", "K.rrd", cwd=tmp_path)
-    partial = tmp_path / "K.partial.rrd"
+    partial = tmp_path / ".K.partial.rrd"
     deadline = time.time() + 120
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size == 0):
         time.sleep(0.05)
@@ -278,14 +278,14 @@ def test_a_full_tmpfs_fails_the_run_and_keeps_the_old_files(tmp_path):
 def test_sigkill_leaves_a_readable_partial_recording_under_a_name_that_says_so(tmp_path):
     before = user_files(tmp_path)
     proc = spawn("run", "pendulum_mujoco", "--duration", "600", "--out", "K.rrd", cwd=tmp_path)
-    partial = tmp_path / "K.partial.rrd"
+    partial = tmp_path / ".K.partial.rrd"
     deadline = time.time() + 120
     # 1 MB: some 30 chunks (the first ones, with the model's geometry, are the largest)
     while time.time() < deadline and (not partial.exists() or partial.stat().st_size < 1_000_000):
         time.sleep(0.1)
     proc.kill()
     proc.communicate(timeout=60)
-    assert_intact(tmp_path, before, allow_new=("K.partial.rrd",))
+    assert_intact(tmp_path, before, allow_new=(".K.partial.rrd",))
     with pytest.warns(Warning, match="no footer"):  # killed: the footer never came
         chunks = sum(1 for _ in RrdReader(str(partial)).stream())
     assert chunks > 10

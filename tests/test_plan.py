@@ -144,3 +144,48 @@ def test_a_plan_on_the_run_step_is_what_mujoco_does_open_loop() -> None:
         plant.step(float(plan.u[k]), 0.0, scn.run.dt)
         worst = max(worst, float(np.abs(plant.full_state() - plan.states[k + 1]).max()))
     assert worst < 1e-7
+
+
+def _small_plan(**change) -> "Plan":
+    from tspend.controllers.trajectory import Plan
+
+    n, dt = 5, 0.001
+    t = dt * np.arange(n)
+    fields = dict(t=t, states=np.zeros((n, 4)), u=np.zeros(n),
+                  state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
+                  state_units=("m", "rad", "m/s", "rad/s"), u_name="force", u_unit="N",
+                  dt=dt, interval=0.002)
+    fields.update(change)
+    return Plan(**fields)
+
+
+@pytest.mark.parametrize("label,change,phrase", [
+    ("t backwards", {"t": 0.001 * np.arange(5)[::-1]}, "t does not increase at row 1"),
+    ("t repeated", {"t": np.array([0.0, 0.001, 0.001, 0.002, 0.003])}, "t does not increase"),
+    ("NaN in u", {"u": np.array([0.0, 1.0, np.nan, 0.0, 0.0])}, "column u holds nan at row 2"),
+    ("inf in a state", {"states": np.where(np.eye(5, 4) > 0, np.inf, 0.0)},
+     "column slider holds inf at row 0"),
+    ("0 rows", {"t": np.zeros(0), "states": np.zeros((0, 4)), "u": np.zeros(0)}, "0 rows"),
+    ("1 row", {"t": np.zeros(1), "states": np.zeros((1, 4)), "u": np.zeros(1)}, "1 rows"),
+    ("off its step", {"t": np.array([0.0, 0.001, 0.005, 0.006, 0.007])}, "not on its step"),
+])
+def test_a_bad_plan_file_is_refused_on_load(tmp_path, label, change, phrase) -> None:
+    from tspend.errors import ScenarioError
+
+    path = tmp_path / "bad.parquet"
+    write_plan(_small_plan(**change), path)
+    with pytest.raises(ScenarioError, match=phrase):
+        read_plan(path)
+    write_plan(_small_plan(), tmp_path / "good.parquet")
+    assert read_plan(tmp_path / "good.parquet").t.size == 5
+
+
+def test_run_refuses_a_plan_running_backwards_with_exit_2(tmp_path, capsys) -> None:
+    path = tmp_path / "bad.parquet"
+    write_plan(_small_plan(t=0.001 * np.arange(5)[::-1]), path)
+    rec = tmp_path / "r.rrd"
+    status = main(["run", SCENARIO, "--controller", "tvlqr", "--duration", "0.01", "--set",
+                   f"controllers.tvlqr.plan={str(path)!r}".replace("'", '"'), "--out", str(rec)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "t does not increase" in err[0], err
+    assert not rec.exists()

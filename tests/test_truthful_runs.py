@@ -95,6 +95,32 @@ class Exits(_Base):
 
     def step(self, obs, dt):
         sys.exit(0)
+
+
+class GenExit(_Base):
+    kind = "generator_exit"
+
+    def step(self, obs, dt):
+        raise GeneratorExit("closed")
+
+
+class Cancelled(_Base):
+    kind = "cancelled"
+
+    def step(self, obs, dt):
+        import asyncio
+        raise asyncio.CancelledError("cancelled")
+
+
+class Mine(BaseException):
+    pass
+
+
+class OwnBase(_Base):
+    kind = "own_base"
+
+    def step(self, obs, dt):
+        raise Mine("of my own")
 '''
 
 
@@ -145,7 +171,10 @@ def test_a_failing_plugin_ends_its_run_with_its_own_status_and_keeps_the_outputs
 @pytest.mark.parametrize("cls,what", [("Mutates", "read-only"),
                                       ("Vector", "not one number"),
                                       ("Word", "not a number"),
-                                      ("Exits", "SystemExit(0)")])
+                                      ("Exits", "SystemExit(0)"),
+                                      ("GenExit", "GeneratorExit: closed"),
+                                      ("Cancelled", "CancelledError: cancelled"),
+                                      ("OwnBase", "Mine: of my own")])
 def test_every_kind_of_controller_failure_is_the_controllers(tmp_path: Path, cls: str,
                                                              what: str) -> None:
     (tmp_path / "mine.py").write_text(PLUGINS)
@@ -329,3 +358,37 @@ def test_inputs_the_hostile_benchmark_found_are_one_line_and_exit_2(tmp_path, ar
     assert r.status == 2
     assert words in r.one_error_line()
     assert not (tmp_path / "t.toml").exists()
+
+
+def test_a_sweep_of_failing_plugins_is_not_every_run_completed(tmp_path: Path) -> None:
+    # a BaseException of the plug-in's own and sys.exit: rows controller_error, exit 7
+    (tmp_path / "mine.py").write_text(PLUGINS)
+    for cls in ("OwnBase", "Exits"):
+        out = tmp_path / f"{cls}.parquet"
+        r = tspend("sweep", "ex3_pendulum_ode", "--duration", "0.05", "--seeds", "0:2",
+                   "--jobs", "1", "--controller", f"{tmp_path / 'mine.py'}:{cls}", "--out",
+                   str(out), "--record", "none", cwd=ROOT, timeout=300)
+        assert r.status == 7, (cls, r.status, r.err)
+        assert "2 of 2 runs did not complete: 2 controller_error" in r.err
+        assert "Traceback" not in r.err
+        import pandas as pd
+
+        assert list(pd.read_parquet(out)["status"]) == ["controller_error"] * 2
+
+
+def test_the_recording_of_a_run_that_failed_at_its_first_sample_is_exported(
+        tmp_path: Path) -> None:
+    (tmp_path / "mine.py").write_text(PLUGINS)
+    rec = tmp_path / "r.rrd"
+    r = tspend("run", "ex3_pendulum_ode", "--controller", f"{tmp_path / 'mine.py'}:Vector",
+               "--duration", "0.05", "--out", str(rec), cwd=ROOT, timeout=300)
+    assert r.status == 6, r.err
+    r = tspend("export", str(rec), "--out", str(tmp_path / "r.csv"), cwd=ROOT, timeout=300)
+    assert r.status == 0, r.err
+    import pandas as pd
+
+    table = pd.read_csv(tmp_path / "r.csv")
+    assert len(table) == 0 and list(table.columns[:2]) == ["t_s", "hinge_rad"]
+    assert "u_N" in table.columns
+    meta = json.loads((tmp_path / "r.csv.json").read_text())
+    assert meta["columns"] == list(table.columns)

@@ -39,7 +39,8 @@ EXIT_WRITE_FAILED = 5
 #: the controller failed: raised, returned no number, or called sys.exit (a plug-in's
 #: error; the recording and metrics are kept up to the sample before)
 EXIT_CONTROLLER_ERROR = 6
-#: sweep, compare: some runs did not complete (timeout, failed); their rows are kept
+#: sweep, compare: some runs did not complete (controller_error, timeout, failed); their
+#: rows are kept
 EXIT_INCOMPLETE = 7
 EXIT_INTERNAL = 70
 #: the largest value accepted by options taking a count (--record-every)

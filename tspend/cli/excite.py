@@ -92,6 +92,14 @@ def cmd(args: argparse.Namespace) -> int:
     load_kind(args.inner, "--inner")
     if args.f_max <= args.f_min:
         raise ScenarioError(f"--f-max {args.f_max:g}: must exceed --f-min ({args.f_min:g})")
+    from tspend.controllers.excitation import MAX_BAND_RATIO, nyquist_hz
+
+    if args.f_max > MAX_BAND_RATIO * args.f_min:
+        raise ScenarioError(f"--f-max {args.f_max:g}: at most {MAX_BAND_RATIO:g} times --f-min "
+                            f"({args.f_min:g})")
+    if args.f_max > nyquist_hz(scn):
+        raise ScenarioError(f"--f-max {args.f_max:g}: above {nyquist_hz(scn):g} Hz, half the "
+                            f"rate {scn.name} applies its input at")
     data = tomllib.loads(Path(src).read_text(encoding="utf-8"))
     plant = data.setdefault("plant", {})
     if "model" in plant:
@@ -110,7 +118,9 @@ def cmd(args: argparse.Namespace) -> int:
     except ScenarioError:
         u_lo, u_hi = -math.inf, math.inf
     exc = {"inner": args.inner, "signal": args.signal, "f_min_hz": args.f_min,
-           "f_max_hz": args.f_max, "u_lo": u_lo, "u_hi": u_hi, "amplitude": 1.0}
+           "f_max_hz": args.f_max, "amplitude": 1.0}
+    # an unbounded actuator's range is left out (the kind's default: no clip)
+    exc.update({k: v for k, v in (("u_lo", u_lo), ("u_hi", u_hi)) if math.isfinite(v)})
     data.setdefault("controllers", {})["excited"] = exc
     data["description"] = (f"Identification experiment on {Path(src).stem}: {args.signal} "
                            f"{args.f_min:g}-{args.f_max:g} Hz added to {args.inner}'s command "
@@ -122,10 +132,23 @@ def cmd(args: argparse.Namespace) -> int:
         exc["amplitude"], note = _size(data, src, args.share, u_lo, u_hi)
     text = dump_toml(data)
     target = plans[0].target
-    tmp_check = Path(target).with_name(f".{Path(target).name}.check.toml")
-    try:   # the experiment must load as a scenario before it is written
-        tmp_check.write_text(text, encoding="utf-8")
-        load_scenario(tmp_check)
+    import os
+    import tempfile
+
+    # the experiment must load as a scenario before it is written: checked from a file
+    # beside the target (its relative paths are the target's), created exclusively under a
+    # fresh hidden name, so no file of the user's is touched
+    fd, name = tempfile.mkstemp(prefix=f".{Path(target).name[:100]}.", suffix=".check.toml",
+                                dir=Path(target).parent)
+    tmp_check = Path(name)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        try:
+            load_scenario(tmp_check)
+        except ScenarioError as exc:
+            raise ScenarioError(str(exc).replace(str(tmp_check), f"the experiment for {target}")
+                                ) from None
     finally:
         tmp_check.unlink(missing_ok=True)
     from tspend.runtime.outputs import write_atomic
@@ -155,11 +178,17 @@ def _size(data: dict, src, share: float, u_lo: float, u_hi: float) -> tuple[floa
     quiet.pop("randomize", None)
     if "x0" in quiet.get("plant", {}):
         quiet["plant"]["x0"] = [0.0] * len(quiet["plant"]["x0"])
-    with tempfile.TemporaryDirectory() as d:
+    with tempfile.TemporaryDirectory(prefix="tspend-excite-") as d:
         path = Path(d) / "trial.toml"
         path.write_text(dump_toml(quiet), encoding="utf-8")
-        r = tspend.run(path, keep_history=True)
-        task = build_task(r.plant, r.scenario.task, r.scenario.effects, where=str(path))
+        try:
+            r = tspend.run(path, keep_history=True)
+            task = build_task(r.plant, r.scenario.task, r.scenario.effects, where=str(path))
+        except ScenarioError as exc:  # named by the user's scenario, not the trial's file
+            raise ScenarioError(str(exc).replace(str(path), f"{src} (the trial run)")) from None
+    if "state" not in r.history or not len(r.history["state"]):
+        raise ScenarioError(f"{src}: the trial run at amplitude {trial:g} ended '{r.status}' "
+                            f"at its first sample ({r.end.message[:200]}); give --amplitude")
     state = np.asarray(r.history["state"])
     u = np.asarray(r.history["u"]).ravel()
     if r.status not in ("completed",):

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import argparse
 
-from tspend.cli.common import EXIT_OK, finite, plan, say
+from tspend.cli.common import EXIT_OK, bounded_int, finite, plan, say
 from tspend.errors import ScenarioError
+from tspend.runtime.bounds import MAX_BOOTSTRAP, MAX_SEED, MIN_SEGMENT_SAMPLES
 from tspend.runtime.outputs import OutputRequest, display
 
 
@@ -21,7 +22,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "identify", help="fit a machine's parameters to a recorded run; write the calibrated MJCF",
         description="Fit the named physical parameters of MODEL.xml to a recorded run (tspend's "
                     "export, or any CSV/Parquet whose columns the options map) by multiple "
-                    "shooting of the machine's own equations; report each with its 95 % "
+                    "shooting of the machine's own equations; report each with its 95 %% "
                     "interval, the fit and the prediction error on a held-back validation "
                     "segment; write a copy of the MJCF with the fitted values. Exit 2: bad "
                     "data or an unidentifiable set of parameters; exit 3: the fit did not "
@@ -29,10 +30,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("data", metavar="DATA", help="a .csv or .parquet time series")
     p.add_argument("--model", required=True, metavar="MODEL.xml", help="the machine's MJCF")
     p.add_argument("--params", required=True, metavar="KEYS",
-                   help="comma-separated parameters to fit, e.g. m,l,M (cart-pole: m, l, M, "
-                        "gear, cart_damping, hinge_damping; Furuta: arm_damping, "
-                        "pendulum_damping, arm_armature, pendulum_armature, motor_gain, "
-                        "back_emf; articulated: the parameter "
+                   help="comma-separated parameters to fit (cart-pole: m,l,M,gear,cart_damping,"
+                        "hinge_damping; Furuta: arm_damping,pendulum_damping,arm_armature,"
+                        "pendulum_armature,motor_gain,back_emf; articulated: the parameter "
                         "vector's names, link1.mass, link1.ipos_z, link1.inertia_2, "
                         "hinge1.damping, motor.gear ...; every model: JOINT.offset, a sensor's "
                         "constant offset); the others keep the model's values")
@@ -53,15 +53,17 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--validation", type=finite(0.0, 0.9), default=0.25, metavar="SHARE",
                    help="the share of the record held back at its end (default 0.25)")
     p.add_argument("--segment", type=finite(), metavar="S",
-                   help="length of each shooting segment, s (default: 2 / the nominal machine's "
+                   help="length of each shooting segment, s, at least "
+                        f"{MIN_SEGMENT_SAMPLES} samples (default: 2 / the nominal machine's "
                         "fastest unstable eigenvalue, within [50 samples, 2 s])")
     p.add_argument("--uncertainty", choices=("curvature", "bootstrap"), default="curvature",
                    help="the intervals: the fit's Gauss-Newton curvature (default; white noise) "
                         "or a bootstrap over the training segments (resampled with replacement "
                         "and refitted: holds for coloured noise too)")
-    p.add_argument("--bootstrap", type=int, default=100, metavar="N",
-                   help="bootstrap replicates (with --uncertainty bootstrap; default 100)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--bootstrap", type=bounded_int(1, MAX_BOOTSTRAP), default=100, metavar="N",
+                   help=f"bootstrap replicates (with --uncertainty bootstrap; default 100, at "
+                        f"most {MAX_BOOTSTRAP})")
+    p.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0,
                    help="seed of the bootstrap's resampling (numpy Generator; default 0)")
     p.add_argument("--jit", action="store_true",
                    help="compile each segment's simulation to C with CasADi's jit (the system's "
@@ -97,6 +99,9 @@ def cmd(args: argparse.Namespace) -> int:
     rec = ident.read_record(args.data, model, time=args.time, positions=_cols(args.positions),
                             velocities=_cols(args.velocities), input=args.input,
                             use_velocities=args.use_velocities)
+    if args.segment is not None and args.segment < MIN_SEGMENT_SAMPLES * rec.dt * (1 - 1e-9):
+        raise ScenarioError(f"--segment {args.segment:g}: shorter than {MIN_SEGMENT_SAMPLES} "
+                            f"samples of the record's {rec.dt:g} s")
     if float(rec.u.std()) == 0.0:
         raise ScenarioError(f"DATA: the input '{rec.columns['input']}' is constant: it excites "
                             f"nothing (record an excitation: tspend excite)")
@@ -105,10 +110,17 @@ def cmd(args: argparse.Namespace) -> int:
                     use_velocities=args.use_velocities,
                     bootstrap=args.bootstrap if args.uncertainty == "bootstrap" else 0,
                     rng=np.random.default_rng(args.seed))
+    targets = {p.request.option: p.target for p in plans}
+    figure = None
+    if "--figure" in targets:  # drawn before anything is written: a failure replaces nothing
+        import io
+
+        buffer = io.BytesIO()
+        fit_figure(fit, model, buffer)
+        figure = buffer.getvalue()
     print(report(fit, model))
     from tspend.runtime.outputs import write_atomic
 
-    targets = {p.request.option: p.target for p in plans}
     if "--out" in targets:
         changes = model.write({**model.fixed, **fit.values}, targets["--out"])
         print(f"calibrated model: {display(targets['--out'])} ({len(changes)} change(s) named "
@@ -120,7 +132,7 @@ def cmd(args: argparse.Namespace) -> int:
         write_atomic(targets["--metrics"], lambda tmp: tmp.write_text(text), what="metrics")
         print(f"metrics: {display(targets['--metrics'])}")
     if "--figure" in targets:
-        write_atomic(targets["--figure"], lambda tmp: fit_figure(fit, model, tmp), what="figure")
+        write_atomic(targets["--figure"], lambda tmp: tmp.write_bytes(figure), what="figure")
         print(f"figure: {display(targets['--figure'])}")
     return EXIT_OK
 
@@ -142,8 +154,24 @@ def _fixed(items, model, names) -> dict:
             raise ScenarioError(f"--fix {item}: not a number: {text!r}") from None
         if not math.isfinite(value):
             raise ScenarioError(f"--fix {item}: must be finite")
+        problem = physical_problem(key, value)
+        if problem:
+            raise ScenarioError(f"--fix {key}={text.strip()[:40]}: {problem} "
+                                f"({model.meaning.get(key, key)})")
         out[key] = value
     return out
+
+
+def physical_problem(key: str, value: float) -> str:
+    """What no machine can have ("" when none): a negative mass, inertia, armature or
+    damping, a zero gear or gain (the input would move nothing)."""
+    leaf = key.rsplit(".", 1)[-1]
+    if (leaf in ("m", "M", "mass") or leaf.startswith("inertia") or "damping" in leaf
+            or "armature" in leaf) and value < 0:
+        return "must be >= 0"
+    if ("gear" in leaf or "gain" in leaf) and value == 0:
+        return "must not be 0: the input would move nothing"
+    return ""
 
 
 def report(fit, model) -> str:
@@ -180,7 +208,8 @@ def fit_figure(fit, model, path) -> None:
     if not tr:
         raise ScenarioError("--figure: no validation windows to draw (--validation 0?)")
     dof = model.dof
-    fig, axes = plt.subplots(dof, 1, figsize=(9, 2.6 * dof), sharex=True)
+    fig, axes = plt.subplots(dof, 1, figsize=(9, 2.6 * dof), sharex=True, squeeze=False)
+    axes = axes[:, 0]  # one hinge: still a column of one
     head = tr["head"]
     for c in range(dof):
         ax = axes[c]

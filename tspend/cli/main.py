@@ -55,7 +55,7 @@ EXIT_STATUSES = """exit status:
   5    an output could not be completed (disk full, I/O error); the file it would have
        replaced is untouched
   6    the controller failed (controller_error); outputs kept up to that sample
-  7    sweep, compare: some runs did not complete (timeout, failed, controller_error)
+  7    sweep, compare: some runs did not complete (controller_error, timeout, failed)
   70   internal error (a bug: please report it with the --debug traceback)
   129, 130, 143: stopped by SIGHUP, SIGINT (Ctrl-C), SIGTERM; outputs completed up to the stop
 Every error is one line on stderr, "tspend: error: ...".
@@ -79,6 +79,20 @@ def build_parser() -> argparse.ArgumentParser:
         for added in set(sub.choices) - known:  # whatever names the module registered
             sub.choices[added].set_defaults(handler=module.cmd)
     return p
+
+
+#: commands that load MuJoCo models outside a run's own handling of MuJoCo's warnings
+_MUJOCO_COMMANDS = ("plan", "excite", "identify", "tune", "figures", "compare")
+
+
+def _native_logs(command: str):
+    """For :data:`_MUJOCO_COMMANDS`: MuJoCo's warnings collected into the one-line error,
+    never a ``MUJOCO_LOG.TXT`` in the working folder (other commands pay no MuJoCo import)."""
+    from contextlib import nullcontext
+
+    from tspend.runtime.native_logs import mujoco_warnings_in_errors
+
+    return mujoco_warnings_in_errors(True) if command in _MUJOCO_COMMANDS else nullcontext()
 
 
 def _prepend_scenario_path(folders: list[str]) -> None:
@@ -107,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         check_needed(args)  # a missing optional package: one line naming its extra, no work
         # warnings (numpy's overflow on the way to a bad value, say) would add lines to
         # the one-line error: kept, and printed after a command that succeeds
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, _native_logs(args.command):
             args.warnings = caught
             status = args.handler(args)
         release_warnings(args)

@@ -47,7 +47,8 @@ def cmd(args: argparse.Namespace) -> int:
     import numpy as np
 
     from tspend.controllers import unsupported
-    from tspend.controllers.trajectory import PlanFailed, check_plan_input, plan_swingup, write_plan
+    from tspend.controllers.trajectory import (PlanFailed, check_plan_input,
+                                               plan_swingup, write_plan)
     from tspend.controllers.tvlqr import plan_of
     from tspend.errors import ScenarioError
     from tspend.loop.simulation import build_plant
@@ -70,16 +71,21 @@ def cmd(args: argparse.Namespace) -> int:
     else:
         start = build_plant(scn).full_state().copy()
     where = f"{scn.path or scn.name}: controllers.tvlqr"
-    check_plan_input(model, start, s.horizon, s.interval, scn.run.dt, s.margin, where)
+    check_plan_input(model, start, s.horizon, s.interval, scn.run.dt, s.margin, where, s.step)
     print(f"planning {scn.name}: {s.horizon:g} s to the upright, intervals of {s.interval:g} s "
           f"(RK4 step {s.step:g} s), from {', '.join(f'{n} = {v:.4g}' for n, v in zip(model.state_names, start))}",
           flush=True)
     started = time.perf_counter()
+    guard = getattr(args, "guard", None)
+    # IPOPT turns a signal's exception into a status of its own: the guard knows better
+    stopped = None if guard is None else (lambda: guard.stop.signal_name is not None)
     try:
         result = plan_swingup(model, start, s.horizon, s.interval, scn.run.dt, step=s.step,
                               margin=s.margin, max_iter=s.max_iter, tolerance=s.tolerance,
-                              where=where, units=units)
+                              where=where, units=units, stopped=stopped)
     except PlanFailed as exc:
+        if guard is not None:
+            guard.raise_if_stopped()  # an interrupt, not "no plan": its own exit status
         say(f"no plan: {printable(exc)}; nothing written")
         return EXIT_NO_PLAN
     wall = time.perf_counter() - started

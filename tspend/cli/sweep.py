@@ -65,8 +65,10 @@ def add_run_timeout_option(p) -> None:
                         f"{DEFAULT_RUN_TIMEOUT_S:g})")
 
 
-#: statuses of runs that did not complete: no verdict on the controller, no metrics
-INCOMPLETE = ("timeout", "failed")
+#: statuses of runs that did not complete: no verdict on the controller, no metrics (a
+#: controller that raised or exited ended its run before the end: a sweep of them is no
+#: success)
+INCOMPLETE = ("controller_error", "timeout", "failed")
 
 
 def incomplete_line(frame) -> str | None:
@@ -183,7 +185,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 
 def incomplete_status(frame) -> int:
-    """Print the runs that did not complete (timeout, failed) on stderr: their count is
+    """Print the runs that did not complete (controller_error, timeout, failed) on stderr: their count is
     the exit status's reason, :data:`~tspend.cli.common.EXIT_INCOMPLETE`; else 0."""
     from tspend.cli.common import EXIT_INCOMPLETE
 

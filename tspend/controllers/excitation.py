@@ -31,6 +31,7 @@ import numpy as np
 
 from tspend.controllers.base import Controller, Diagnostic, Observation
 from tspend.controllers.settings import KindSettings, setting, settings_for
+from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -51,7 +52,7 @@ class ExcitationSettings(KindSettings):
     amplitude: float = setting(1.0, "peak of the excitation, in u's units", low=0.0)
     f_min_hz: float = setting(0.1, "lowest frequency, Hz", low=0.0, strict=True)
     f_max_hz: float = setting(3.0, "highest frequency, Hz", low=0.0, strict=True)
-    n_freq: int = setting(16, "multisine: number of sines", kind="integer", low=1)
+    n_freq: int = setting(16, "multisine: number of sines", kind="integer", low=1, high=1000)
     sweep_s: float = setting(10.0, "chirp: length of one sweep, s", low=0.0, strict=True)
     start_s: float = setting(0.5, "the excitation starts here, s", low=0.0)
     ramp_s: float = setting(1.0, "and reaches its amplitude this much later, s", low=0.0)
@@ -62,6 +63,10 @@ class ExcitationSettings(KindSettings):
     def check(self, n: int):
         if self.f_max_hz <= self.f_min_hz:
             return "f_max_hz", f"must exceed f_min_hz ({self.f_min_hz:g})"
+        if self.f_max_hz > MAX_BAND_RATIO * self.f_min_hz:
+            # the multisine's peak is found on a grid of 160 f_max / f_min samples
+            return "f_max_hz", (f"at most {MAX_BAND_RATIO:g} times f_min_hz ({self.f_min_hz:g}), "
+                                f"got {self.f_max_hz:g}")
         if self.u_hi <= self.u_lo:
             return "u_hi", f"must exceed u_lo ({self.u_lo:g})"
         if self.inner == "excited":
@@ -96,6 +101,8 @@ def excitation(s: ExcitationSettings, t: np.ndarray | float) -> np.ndarray:
 
 
 _PEAKS: dict = {}
+#: the widest band of an excitation, f_max_hz / f_min_hz (four decades)
+MAX_BAND_RATIO = 1e4
 
 
 def _multisine_peak(s: ExcitationSettings) -> float:
@@ -149,4 +156,16 @@ def build(scenario: "Scenario") -> ExcitedController:
     from tspend.controllers import build as build_kind
 
     s: ExcitationSettings = settings_for(scenario, ExcitationSettings)
+    nyquist = nyquist_hz(scenario)
+    if s.f_max_hz > nyquist:
+        raise ScenarioError(f"{scenario.path or scenario.name}: controllers.excited.f_max_hz: "
+                            f"{s.f_max_hz:g} Hz is above {nyquist:g} Hz, half the rate the "
+                            f"input is applied at")
     return ExcitedController(build_kind(scenario, s.inner), s)
+
+
+def nyquist_hz(scenario: "Scenario") -> float:
+    """Half the rate the input changes at (the control period, else the run's step): an
+    excitation above it is aliased, not applied."""
+    period = getattr(scenario.run, "control_period", 0.0) or scenario.run.dt
+    return 0.5 / max(period, scenario.run.dt)

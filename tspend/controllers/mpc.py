@@ -56,6 +56,8 @@ clipped, if there is none).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import time
 from dataclasses import dataclass
@@ -69,6 +71,7 @@ from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
 from tspend.errors import ScenarioError
+from tspend.runtime.bounds import MAX_MPC_HORIZON, MAX_MPC_SUBSTEPS
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -99,8 +102,9 @@ class MPCSettings(KindSettings):
     period: float = setting(0.02, "s: control period (a whole multiple of run.dt); "
                                   "run.control_period overrides", low=0.0, strict=True)
     horizon: int = setting(30, "N, shooting intervals of one period each", kind="integer",
-                           low=1)
-    substeps: int = setting(2, "RK4 steps per interval", kind="integer", low=1)
+                           low=1, high=MAX_MPC_HORIZON)
+    substeps: int = setting(2, "RK4 steps per interval", kind="integer", low=1,
+                            high=MAX_MPC_SUBSTEPS)
     state_weights: tuple[float, ...] | None = setting(
         None, "diagonal of Q on the full state (default: the full LQR's)", kind="list", low=0.0)
     R: float | None = setting(None, "input weight (default: the full LQR's)", low=0.0,
@@ -402,7 +406,11 @@ class MPCController(Controller):
                                  np.vstack([Ep[1:], Ep[-1:]]).ravel()])
         p = np.concatenate([s0, Sr.T.ravel(), Ur])
         started = time.perf_counter()
-        sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        # a signal during the solve: CasADi catches it and prints a warning through Python's
+        # stderr; the loop honours the stop at the next sample and says so in its own line
+        with contextlib.redirect_stderr(io.StringIO()):
+            sol = self.solver(x0=w0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg,
+                              ubg=self.ubg)
         wall = time.perf_counter() - started
         stats = self.solver.stats()
         ok = bool(stats.get("success", False))

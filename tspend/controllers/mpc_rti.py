@@ -50,6 +50,8 @@ from typing import Any
 
 import numpy as np
 
+from tspend.runtime import cache
+
 __all__ = ["QP_SOLVERS", "RealTimeSQP", "compiled_function"]
 
 #: the QP solvers CasADi ships that the real-time schemes can use (the first is the
@@ -113,16 +115,32 @@ def compiled_function(fn: Any) -> Any:
         key = hashlib.sha256(source).hexdigest()[:20]
         folder = cache_dir() or Path(tmp)
         so = folder / f"{fn.name()}_{key}.so"
-        if not so.is_file():
-            part = folder / f"{so.name}.{os.getpid()}.tmp"
+        # checked before it is loaded (a damaged or foreign shared object could crash the
+        # process): the sidecar's key, machine and checksum (tspend.runtime.cache)
+        problem = cache.binary_problem(so, key)
+        if problem is not None:
+            if problem != "missing":
+                cache.rebuilt("compiled MPC function", so, problem)
+                cache.discard_binary(so)
+            part = Path(tmp) / f"{so.name}.part"
             done = subprocess.run([compiler, optimisation(len(source)), "-fPIC", "-shared", "-o", str(part),
                                    str(Path(tmp) / c_name), "-lm"],
                                   capture_output=True, text=True)
             if done.returncode != 0:
-                part.unlink(missing_ok=True)
                 return fn
-            part.replace(so)    # atomic: a concurrent process sees all of it or none
+            # built in the private folder, then moved: a concurrent process sees all of it
+            # or none (a copy first when the cache is on another file system)
+            staged = part if folder == Path(tmp) else _stage(part, folder)
+            cache.write_binary(so, staged, key)
         return casadi.external(fn.name(), str(so))
+
+
+def _stage(part: Path, folder: Path) -> Path:
+    """``part`` copied into ``folder`` under a fresh hidden name (exclusively created)."""
+    fd, name = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".tmp", dir=folder)
+    os.close(fd)
+    shutil.copyfile(part, name)
+    return Path(name)
 
 
 class RealTimeSQP:

@@ -45,23 +45,29 @@ class KindSettings:
 
 def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
             strict: bool = False, length: str | None = None,
-            choices: tuple[str, ...] = (), name: str | None = None) -> Any:
+            choices: tuple[str, ...] = (), name: str | None = None,
+            high: float | None = None) -> Any:
     """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``, ``string``,
     ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``list`` (numbers, any length), ``matrix`` (n x n, symmetric positive
     definite) or ``sets`` (n tables ``{terms, lo, hi}``); ``name`` is the key in the
-    file when the field's name cannot be it (``lambda``)."""
+    file when the field's name cannot be it (``lambda``); ``high``: the largest number or
+    integer accepted (a setting that sizes work is bounded)."""
     meta = {"doc": doc, "kind": kind, "low": low, "strict": strict, "length": length,
-            "choices": choices, "name": name}
+            "choices": choices, "name": name, "high": high}
     return dataclasses.field(default=default, metadata=meta)
 
 
 def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
     meta, key = f.metadata, key_of(f)
     kind = meta["kind"]
+    high = meta.get("high")
     if kind == "number":
-        return r.number(key, low=meta["low"], strict=meta["strict"])
+        v = r.number(key, low=meta["low"], strict=meta["strict"])
+        if high is not None and v > high:
+            raise r.error(key, f"must be at most {high:g}, got {v:g}")
+        return v
     if kind == "integer":
-        return r.integer(key, low=int(meta["low"] or 0))
+        return r.integer(key, low=int(meta["low"] or 0), high=None if high is None else int(high))
     if kind == "bool":
         v = r.table[key]
         if not isinstance(v, bool):

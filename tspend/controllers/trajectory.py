@@ -28,6 +28,8 @@ transcription tries the representation nearest zero first, then the other.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import time
 from dataclasses import dataclass, field
@@ -51,6 +53,16 @@ PLAN_FORMAT = "tspend-plan-1"
 
 class PlanFailed(RuntimeError):
     """The solver found no plan (its status says why); nothing is written."""
+
+
+class PlanStopped(PlanFailed):
+    """The solve was cut short, not finished: a signal (CasADi turns the exception a
+    signal handler raises inside IPOPT's iteration callback into the status below) or an
+    error in an evaluation.  No other start is tried: the caller honours the signal."""
+
+
+#: IPOPT's status when an exception left its callbacks (a signal handler's, among them)
+_STOPPED = "NonIpopt_Exception_Thrown"
 
 
 @dataclass
@@ -88,11 +100,19 @@ def _bounds(model: "FullModel", margin: float) -> tuple[np.ndarray, np.ndarray, 
 
 
 def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interval: float,
-                     dt: float, margin: float, where: str) -> int:
+                     dt: float, margin: float, where: str, step: float | None = None) -> int:
     """The number of intervals ``N`` (the horizon rounded to whole intervals); ScenarioError
     (one line) for what no solver can fix: an interval not a whole number of steps,
-    fewer than 2 intervals, a start or goal outside the bounds, an empty input range."""
+    fewer than 2 intervals, a step that does not divide the interval, a problem beyond
+    the bounds of :mod:`tspend.runtime.bounds` (intervals, RK4 steps, rows), a start or
+    goal outside the bounds, an empty input range."""
+    from tspend.runtime.bounds import (MAX_PLAN_INTERVALS, MAX_PLAN_RK4_STEPS, MAX_PLAN_ROWS,
+                                       MAX_PLAN_SUBSTEPS)
+
     steps = interval / dt
+    if steps > MAX_PLAN_ROWS:
+        raise ScenarioError(f"{where}.interval: {interval:g} s is more than {MAX_PLAN_ROWS:g} "
+                            f"steps of run.dt = {dt:g} s")
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
         raise ScenarioError(f"{where}.interval: must be a whole multiple of run.dt = {dt:g} s, "
                             f"got {interval:g}")
@@ -100,6 +120,19 @@ def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interva
     if round(n) < 2:
         raise ScenarioError(f"{where}.horizon: {horizon:g} s is too short: at least 2 intervals "
                             f"of {interval:g} s")
+    if n > MAX_PLAN_INTERVALS or n * steps > MAX_PLAN_ROWS:
+        raise ScenarioError(f"{where}.horizon: {horizon:g} s is {n:.4g} intervals of "
+                            f"{interval:g} s ({n * steps:.4g} rows of {dt:g} s); at most "
+                            f"{MAX_PLAN_INTERVALS} intervals and {MAX_PLAN_ROWS:g} rows")
+    if step is not None:
+        k = interval / step
+        if k > MAX_PLAN_SUBSTEPS or round(n) * k > MAX_PLAN_RK4_STEPS:
+            raise ScenarioError(f"{where}.step: {step:g} s makes {k:.4g} RK4 steps an interval "
+                                f"and {round(n) * k:.4g} in all; at most {MAX_PLAN_SUBSTEPS} and "
+                                f"{MAX_PLAN_RK4_STEPS}")
+        if abs(k - round(k)) > 1e-9 * max(1.0, k) or round(k) < 1:
+            raise ScenarioError(f"{where}.step: must divide the interval {interval:g} s into "
+                                f"whole steps, got {step:g}")
     lo, hi, u_lo, u_hi = _bounds(model, margin)
     if not u_lo < u_hi:
         raise ScenarioError(f"{where}: the input's range [{model.u_lo:g}, {model.u_hi:g}] is empty")
@@ -117,19 +150,21 @@ def check_plan_input(model: "FullModel", s0: np.ndarray, horizon: float, interva
 
 def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: float, dt: float,
                  step: float | None = None, margin: float = 0.05, max_iter: int = 1000, tolerance: float = 1e-8,
-                 where: str = "plan", units: tuple[tuple[str, ...], str, str] | None = None) -> Plan:
+                 where: str = "plan", units: tuple[tuple[str, ...], str, str] | None = None,
+                 stopped: Any = None) -> Plan:
     """Solve (T1)-(T3) (module docstring) from ``s0``; raises :class:`PlanFailed` when
     IPOPT finds no plan from any representation of the start, ScenarioError for bad input
-    (:func:`check_plan_input`).  ``units``: ``(state units, input name, input unit)``."""
+    (:func:`check_plan_input`).  ``units``: ``(state units, input name, input unit)``.
+
+    ``stopped``: a callable, true once a stop was requested (a signal: the CLI's guard);
+    it is asked after every solve, and :class:`PlanStopped` is raised instead of trying
+    the next start or handing back a plan.  IPOPT reports a signal only as an exception
+    in its callback (:data:`_STOPPED`), which ends the tries as well."""
     import casadi
 
     s0 = np.asarray(s0, dtype=float)
     step = dt if step is None else step
-    N = check_plan_input(model, s0, horizon, interval, dt, margin, where)
-    if abs(interval / step - round(interval / step)) > 1e-9 * max(1.0, interval / step) \
-            or round(interval / step) < 1:
-        raise ScenarioError(f"{where}.step: must divide the interval {interval:g} s into whole "
-                            f"steps, got {step:g}")
+    N = check_plan_input(model, s0, horizon, interval, dt, margin, where, step)
     nx, K = model.size, int(round(interval / step))
     G = model.rk4_map(step)
     # one interval: K steps of G with u held (mapaccum feeds each step's output to the next)
@@ -162,9 +197,15 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
         w0 = np.concatenate([guess.ravel(), np.zeros(N)])
         started = time.perf_counter()
         lbx[:nx] = ubx[:nx] = start
-        sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
+        # CasADi prints, through Python's stderr, a warning for the signal it caught: the
+        # command says it in its own line
+        with contextlib.redirect_stderr(io.StringIO()):
+            sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
         wall = time.perf_counter() - started
         stats = solver.stats()
+        if (stopped is not None and stopped()) or stats.get("return_status") == _STOPPED:
+            raise PlanStopped(f"{where}: the solve was stopped after {wall:.3g} s "
+                              f"({stats.get('return_status', '')}); no plan")
         attempts.append({"status": str(stats.get("return_status", "")),
                          "iterations": int(stats.get("iter_count", 0)),
                          "solve_s": wall, "success": bool(stats.get("success", False))})
@@ -255,11 +296,37 @@ def read_plan(path: Any, where: str = "plan") -> Plan:
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
     if meta.get("tspend:format") != PLAN_FORMAT:
         raise ScenarioError(f"{where}: {path}: not a tspend plan (written by 'tspend plan')")
-    units = json.loads(meta["tspend:units"])
-    grid = json.loads(meta["tspend:grid"])
-    names = tuple(c for c in table.column_names if c not in ("t", "u"))
-    data = {c: table.column(c).to_numpy() for c in table.column_names}
-    return Plan(data["t"], np.column_stack([data[n] for n in names]), data["u"], names,
-                tuple(units.get(n, "") for n in names), meta.get("tspend:input", "u"),
-                units.get("u", ""), float(grid["dt"]), float(grid["interval"]),
-                json.loads(meta.get("tspend:solver", "{}")))
+    bad = f"{where}: {path}: not a valid plan"
+    try:
+        units = json.loads(meta["tspend:units"])
+        grid = json.loads(meta["tspend:grid"])
+        solver = json.loads(meta.get("tspend:solver", "{}"))
+        dt, interval = float(grid["dt"]), float(grid["interval"])
+        names = tuple(c for c in table.column_names if c not in ("t", "u"))
+        data = {c: np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=float)
+                for c in table.column_names}
+        t, u = data["t"], data["u"]
+        states = np.column_stack([data[n] for n in names]) if names else np.zeros((t.size, 0))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ScenarioError(f"{bad} ({type(exc).__name__}: {str(exc)[:100]})") from None
+    # what a follower relies on: a time that runs forward on the plan's step, at least one
+    # interval to follow, and numbers everywhere (a NaN would be the run's "divergence")
+    if t.size < 2:
+        raise ScenarioError(f"{bad}: {t.size} rows, at least 2 needed")
+    if not names:
+        raise ScenarioError(f"{bad}: no state columns")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ScenarioError(f"{bad}: its step dt = {dt!r} is not a positive number")
+    for label, values in (("t", t), ("u", u), *((n, data[n]) for n in names)):
+        if not np.all(np.isfinite(values)):
+            row = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise ScenarioError(f"{bad}: column {label} holds {float(values[row])} at row {row}")
+    steps = np.diff(t)
+    if not np.all(steps > 0):
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise ScenarioError(f"{bad}: t does not increase at row {row} ({t[row - 1]:g} then "
+                            f"{t[row]:g} s)")
+    if np.max(np.abs(steps - dt)) > 1e-6 * dt:
+        raise ScenarioError(f"{bad}: t is not on its step dt = {dt:g} s")
+    return Plan(t, states, u, names, tuple(units.get(n, "") for n in names),
+                meta.get("tspend:input", "u"), units.get("u", ""), dt, interval, solver)

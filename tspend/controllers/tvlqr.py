@@ -250,6 +250,6 @@ def build(scenario: "Scenario") -> TVLQRController:
         from tspend.controllers.trajectory import check_plan_input
 
         check_plan_input(model, np.zeros(model.size), s.horizon, s.interval, scenario.run.dt,
-                         s.margin, where)
+                         s.margin, where, s.step)
     return TVLQRController(model, s, lqr, scenario.run.dt, len(scenario.plant.x0), plan, where,
                            units)

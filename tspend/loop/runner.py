@@ -318,9 +318,16 @@ class ClosedLoop:
                             # a signal while the controller's code ran (a plug-in sleeping
                             # in its step): the stop at this sample, what came before kept
                             raise RunInterrupted(exc.signal_name, exc.exit_status) from None
-                        except (Exception, SystemExit) as exc:
+                        except KeyboardInterrupt:
+                            raise  # Ctrl-C without the CLI's handlers: the run's stop
+                        except BaseException as exc:
+                            if stop.signal_name is not None:
+                                # the signal's exception, turned into another by the code it
+                                # interrupted (IPOPT's "no plan" for a solve cut short)
+                                raise RunInterrupted(stop.signal_name, stop.exit_status) from None
                             # the controller's own failure (a plug-in's bug, a wrong return,
-                            # sys.exit): the run ends as it, with what came before kept
+                            # sys.exit, a BaseException of its own: GeneratorExit,
+                            # CancelledError): the run ends as it, what came before kept
                             return self._diverged(sinks, start, buf, t, ref, dist, i,
                                                   controller_failure(exc, float(t[i]), ctrl.kind),
                                                   CONTROLLER_ERROR)

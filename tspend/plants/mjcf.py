@@ -638,7 +638,34 @@ def read_spec(path: "str | os.PathLike[str]") -> "mujoco.MjSpec":
     bodies = len(spec.bodies)
     if bodies > MAX_BODIES:
         raise ScenarioError(f"{where}: {bodies} bodies, more than {MAX_BODIES}")
+    _check_physical_values(spec, where)
     return spec
+
+
+#: the physical values of an MJCF that must be finite (an unset one is NaN in MjSpec), and
+#: those of them that must not be negative
+_PHYSICAL = (("bodies", "body", ("mass", "inertia", "fullinertia", "ipos"), ("mass",)),
+             ("geoms", "geom", ("mass", "density", "size"), ("mass", "density")),
+             ("joints", "joint", ("damping", "armature", "stiffness", "frictionloss", "range"),
+              ("damping", "armature", "frictionloss")),
+             ("actuators", "actuator", ("gear", "gainprm", "biasprm", "ctrlrange"), ()))
+
+
+def _check_physical_values(spec: "mujoco.MjSpec", where: str) -> None:
+    """An infinite mass, inertia, damping, gear, ... (or a negative mass) is refused here,
+    in one line naming it, before the equations built from it fail inside a solver."""
+    for collection, label, names, nonnegative in _PHYSICAL:
+        for element in getattr(spec, collection):
+            for name in names:
+                try:
+                    values = np.asarray(getattr(element, name), dtype=float).ravel()
+                except (AttributeError, TypeError, ValueError):
+                    continue
+                if np.isinf(values).any() or (name in nonnegative and (values < 0).any()):
+                    shown = " ".join(f"{v:g}" for v in values[:6])
+                    need = "finite and >= 0" if name in nonnegative else "finite"
+                    raise ScenarioError(f"{where}: {label} {element.name or '(unnamed)'!r}: "
+                                        f"{name} = {shown}: must be {need}")
 
 
 def _check_xml_sizes(path: "str | os.PathLike[str]", where: str, depth: int = 0) -> None:

@@ -46,3 +46,17 @@ MAX_MODEL_BYTES = 10_000_000
 #: cells of one heightfield (nrow x ncol) and bodies of a model
 MAX_HFIELD_CELLS = 10_000_000
 MAX_BODIES = 10_000
+
+#: a planned trajectory (tspend plan, tvlqr): shooting intervals, RK4 steps inside one
+#: interval, RK4 steps of the whole NLP, and rows of the plan on the run's step (the shipped
+#: plans: 150 intervals of 2 steps, 3000 rows)
+MAX_PLAN_INTERVALS = 10_000
+MAX_PLAN_SUBSTEPS = 1000
+MAX_PLAN_RK4_STEPS = 100_000
+MAX_PLAN_ROWS = 1_000_000
+#: MPC: shooting intervals of the horizon and RK4 steps per interval (the shipped: 30 x 2)
+MAX_MPC_HORIZON = 1000
+MAX_MPC_SUBSTEPS = 100
+#: identify: bootstrap replicates (each a refit) and the shortest --segment, in samples
+MAX_BOOTSTRAP = 10_000
+MIN_SEGMENT_SAMPLES = 10

@@ -42,6 +42,12 @@ def invalidate_stale_cache(package_dir: Path) -> bool:
         current = sources_digest(package_dir)
         stamp = package_dir / "__pycache__" / STAMP
         if stamp.is_file() and stamp.read_text().strip() == current:
+            # the sources are the same: each cached function is checked against the
+            # manifest of what numba wrote (a truncated file is removed and recompiled)
+            from tspend.runtime.cache import check_numba_files
+
+            for cache_dir in package_dir.rglob("__pycache__"):
+                check_numba_files(cache_dir, "", "compiled code", echo=True)
             return False
         dropped = False
         for cache_dir in package_dir.rglob("__pycache__"):

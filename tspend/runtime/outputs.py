@@ -8,7 +8,7 @@ The life of an output (a recording, a metrics or report JSON):
    the file name fits the file system, and that no two outputs and no output and input
    are the same file, by resolved path and by identity (hard links, symlinks).
 2. :func:`claim` creates beside each target, by exclusive creation, the partial file the
-   data goes to (``NAME.partial.rrd``) and holds a lock on it while the command runs, so
+   data goes to (``.NAME.partial.rrd``, hidden) and holds a lock on it while the command runs, so
    a second run aimed at the same file is refused.  A default name carries the seed and
    the time and is made unique by the same exclusive creation: parallel runs never
    share one.
@@ -16,8 +16,9 @@ The life of an output (a recording, a metrics or report JSON):
    so an existing file is only ever replaced by a complete one; :meth:`Output.discard`
    removes it instead.
 
-A run killed outright (SIGKILL) leaves ``NAME.partial.rrd`` behind: the name says the
-file is incomplete, and the target it was meant to replace is untouched.
+A run killed outright (SIGKILL, or ``os._exit`` in a plug-in) leaves the hidden
+``.NAME.partial.rrd`` behind: the name says the file is incomplete, a listing does not
+show it among the outputs, and the target it was meant to replace is untouched.
 
 Only the standard library is used, so checks run before any heavy import.
 """
@@ -303,13 +304,16 @@ def _sync_directory(directory: Path) -> None:
 
 
 def _partial_names(target: Path) -> Iterable[Path]:
-    """``NAME.partial.rrd``, then ``NAME.partial-2.rrd``, ... within the name limit."""
+    """``.NAME.partial.rrd``, then ``.NAME.partial-2.rrd``, ... within the name limit.
+
+    Hidden (a leading dot): a process that ends without its cleanup (``os._exit`` in a
+    plug-in, SIGKILL) leaves nothing that a listing shows beside the user's outputs."""
     limit = _name_max(target.parent)
     for k in range(1, MAX_CANDIDATES + 1):
         tag = PARTIAL_TAG if k == 1 else f"{PARTIAL_TAG}-{k}"
-        room = limit - len(os.fsencode(tag + target.suffix))
+        room = limit - len(os.fsencode("." + tag + target.suffix))
         stem = os.fsencode(target.stem)[:room].decode("utf-8", "ignore")
-        yield target.with_name(f"{stem}{tag}{target.suffix}")
+        yield target.with_name(f".{stem}{tag}{target.suffix}")
 
 
 def _lock(fd: int) -> bool:

@@ -105,9 +105,11 @@ class SweepProgress:
 
     def _postfix(self) -> str:
         text = f"diverged {self.counts['diverged']}, failed {self.counts['failed']}"
-        # a run killed past --run-timeout: shown once there is one
-        timeouts = self.counts.get("timeout", 0)
-        return f"{text}, timeout {timeouts}" if timeouts else text
+        # a controller's error and a run killed past --run-timeout: shown once there is one
+        for status in ("controller_error", "timeout"):
+            if self.counts.get(status, 0):
+                text += f", {status} {self.counts[status]}"
+        return text
 
     def update(self, row: dict[str, Any]) -> None:
         status = row.get("status", "failed")

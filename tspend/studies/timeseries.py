@@ -165,11 +165,14 @@ def recording_table(path: str | os.PathLike[str]):
                          "made by an older tspend or is not a run's recording")
     cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     series: dict[str, "pd.Series"] = {}
+    names: list[str] = []   # every listed column, sent or not
     several = len(listed) > 1
     for prefix in sorted(listed):
         spec = listed[prefix]
         for column, entity, instance in zip(spec.get("columns", []), spec.get("entities", []),
                                             spec.get("instances", [])):
+            name = f"{prefix.replace('/', '_')}_{column}" if several else column
+            names.append(name)
             if entity not in cache:
                 try:
                     t, values = read_scalar_series(path, entity)
@@ -178,10 +181,15 @@ def recording_table(path: str | os.PathLike[str]):
                 t_ns = np.rint(t * 1e9).astype(np.int64)
                 cache[entity] = (t_ns, values[:, None] if values.ndim == 1 else values)
             t_ns, values = cache[entity]
-            name = f"{prefix.replace('/', '_')}_{column}" if several else column
             series[name] = pd.Series(values[:, int(instance)], index=t_ns)
-    if not series:
+    if not names:
         raise ValueError("no time series in this recording")
+    if not series:
+        # a run that ended at its first sample (a controller's error there): its columns,
+        # no rows; the metadata still says how it ended
+        table = pd.DataFrame({"t_s": np.zeros(0), **{n: np.zeros(0) for n in names}})
+        return table, {prefix: {k: _first(v) for k, v in values.items()}
+                       for prefix, values in runs.items()}
     table = pd.concat(series, axis=1, join="outer").sort_index()
     table.insert(0, "t_s", table.index.to_numpy() * 1e-9)
     table = table.reset_index(drop=True)

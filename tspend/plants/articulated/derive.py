@@ -33,9 +33,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import math
-import os
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -366,15 +364,22 @@ def compiled_module(tree: Tree, derivation: Callable[[], Derivation]) -> Any:
     key = structure_cache_key(tree)
     if key in _LOADED:
         return _LOADED[key]
+    from tspend.runtime import cache
+
     folder = cache_dir()
-    if folder is None:
-        folder = Path(tempfile.mkdtemp(prefix="tspend-articulated-"))
+    if folder is None:  # removed when this process ends: nothing left in the temp folder
+        folder = cache.private_folder("tspend-articulated-")
     path = folder / f"tspend_articulated_{key}.py"
-    if not path.is_file():
-        text = module_source(derivation())
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+    # checked before it is imported: its key (another machine's module would index this
+    # one's arrays out of bounds) and its checksum; numba's files for it likewise
+    problem = cache.text_problem(path, key)
+    if problem is not None:
+        if problem != "missing":
+            cache.rebuilt("derivation", path, problem)
+            cache.discard(path)
+        cache.write_atomically(path, cache.stamped(module_source(derivation()), key).encode())
+    cache.check_numba_files(folder / "__pycache__", f"tspend_articulated_{key}.",
+                            "compiled derivation")
     name = f"tspend_articulated_{key}"
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
