@@ -52,12 +52,77 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     return _built(randomize.draw(scenario).scenario, kind)
 
 
+def machine_kind_hint(scenario: Scenario) -> str:
+    """When the scenario's model is another domain's machine (a double pendulum on a cart
+    given to the single cart-pole's kind, say): which plant kind takes it, and a shipped
+    scenario of that kind on a model with the same joints ("" when the model fits the
+    scenario's own domain, or cannot be read: the error says enough then)."""
+    import tomllib
+
+    from tspend.plants.mjcf import read_spec
+
+    def joint_types(path) -> tuple[str, ...] | None:
+        try:
+            model = read_spec(path).compile()
+        except Exception:  # an unreadable model: no hint, the error itself stands
+            return None
+        return tuple(str(mujoco_joint_type(int(t))) for t in model.jnt_type), model
+
+    try:
+        path = plant_registry.resolve_model_path(scenario)
+    except Exception:
+        return ""
+    found = joint_types(path) if path is not None and path.is_file() else None
+    if found is None:
+        return ""
+    types, model = found
+    own = plant_registry.domain_of(scenario.plant.kind)
+    if own.fits_model(model):
+        return ""
+    domain = next((d for d in plant_registry.DOMAINS.values()
+                   if d is not own and d.mujoco_kind() and d.fits_model(model)), None)
+    if domain is None:
+        return ""
+    kind = domain.mujoco_kind()
+    from tspend.scenario import available_scenarios, load_scenario
+
+    named = ""
+    for file in available_scenarios():
+        try:
+            with open(file, "rb") as fh:
+                if tomllib.load(fh).get("plant", {}).get("kind") != kind:
+                    continue
+            other = load_scenario(file)
+            theirs = joint_types(plant_registry.resolve_model_path(other))
+        except Exception:  # a scenario that does not load is no example
+            continue
+        if theirs is not None and theirs[0] == types:
+            named = file.stem
+            break
+    where = f" (scenario {named}, with plant.model set to this file)" if named else ""
+    return (f"a model with joints {', '.join(types)} is the {domain.name} domain's machine: "
+            f"run it as plant.kind = \"{kind}\"{where}")
+
+
+def mujoco_joint_type(code: int) -> str:
+    """MuJoCo's joint type code as MJCF names it ("slide", "hinge", "ball", "free")."""
+    import mujoco
+
+    return mujoco.mjtJoint(code).name.removeprefix("mjJNT_").lower()
+
+
 def _built(scenario: Scenario, kind: str | None) -> Plant:
     """:func:`build_plant` of a scenario whose draws are applied already."""
     refused = effects_unsupported(scenario.effects, plant_registry.domain_of(scenario.plant.kind))
     if refused:
         raise ScenarioError(f"{scenario.path}: {refused}")
-    plant = plant_registry.build(scenario, kind)
+    try:
+        plant = plant_registry.build(scenario, kind)
+    except ScenarioError as exc:
+        hint = machine_kind_hint(scenario)
+        if not hint:
+            raise
+        raise ScenarioError(f"{exc}; {hint}") from exc
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
         warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
