@@ -155,6 +155,30 @@ def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
         scenario.controller, gain_sign="negative" if sign < 0 else "positive"))
 
 
+def with_input_sets(scenario: Scenario, plant: Plant) -> tuple[Scenario, str]:
+    """The paper's controller's input sets (``[controller.sets] u``, in the units of u,
+    sized for the scenario's own actuator) scaled to ``plant``'s actuator range where they
+    reach beyond it, and the line saying so ("" when unchanged): sets for a 40 N motor on
+    an actuator of control range +/-1 would keep it saturated.  A range the sets fit is
+    left alone (the scenario's ``effects.saturation`` is a limit the controller is not
+    told of)."""
+    inner = getattr(plant, "inner", plant)
+    if not inner.inputs:
+        return scenario, ""
+    inp = inner.inputs[0]
+    sets = scenario.controller.u_sets
+    lo, hi = float(inp.lo), float(inp.hi)
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo) or \
+            (sets.lo >= lo - 1e-12 * (hi - lo) and sets.hi <= hi + 1e-12 * (hi - lo)):
+        return scenario, ""
+    unit = f" {inp.unit}" if inp.unit else ""
+    line = (f"controller.sets.u [{sets.lo:g}, {sets.hi:g}] reaches beyond actuator "
+            f"'{inp.name}''s range [{lo:g}, {hi:g}]{unit}: the paper's controller's input sets "
+            f"are scaled to that range")
+    return replace(scenario, controller=replace(
+        scenario.controller, u_sets=replace(sets, lo=lo, hi=hi))), line
+
+
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
                      kind: str | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
@@ -196,6 +220,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         diagnostics=tuple(controller.diagnostics) if controller is not None else (),
         state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds(),
         input_unit=plant.inputs[0].unit if plant.inputs else "",
+        force_unit=getattr(plant.inputs[0], "force_unit", "") if plant.inputs else "",
+        force_per_unit=getattr(plant.inputs[0], "force_per_unit", 1.0) if plant.inputs else 1.0,
         u_lo=u_lo, u_hi=u_hi)
 
 
@@ -290,9 +316,12 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario,
     names = task.names
     joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
     lo, hi = input_range(plant, scenario)
+    inp = plant.inputs[0] if plant.inputs else None
+    units = dict(u_unit=inp.unit, force_unit=getattr(inp, "force_unit", ""),
+                 force_per_unit=getattr(inp, "force_per_unit", 1.0)) if inp is not None else {}
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
                        drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
-                       goal_by=scenario.task.goal_by, constraints=task.constraints)
+                       goal_by=scenario.task.goal_by, constraints=task.constraints, **units)
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:
@@ -338,9 +367,12 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
     plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
-    scenario = with_gain_sign(scenario, plant)
-    return Prepared(scenario, plant, build_controller(scenario, kind=controller), task,
-                    drawn.values)
+    scenario, scaled = with_input_sets(with_gain_sign(scenario, plant), plant)
+    ctrl = build_controller(scenario, kind=controller)
+    if scaled and ctrl.fuzzy_inputs():
+        # only a controller with fuzzy input sets reads them
+        warnings.warn(scaled, ModelWarning, stacklevel=2)
+    return Prepared(scenario, plant, ctrl, task, drawn.values)
 
 
 def steps_of(scenario: Scenario) -> int:

@@ -190,7 +190,9 @@ class _Furuta:
         ODE clips u as MuJoCo clips ctrl), so the saturation metrics mean the same on each."""
         a = self.machine.actuator
         lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
-        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
+        m = self.machine
+        # u is a voltage: the torque it applies at rest beside it
+        return (InputInfo(a.name, m.input_unit, lo, hi, m.force_unit, m.force_per_unit),)
 
     def parameters(self) -> dict[str, float]:
         return coefficients(self.machine)

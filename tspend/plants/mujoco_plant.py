@@ -405,7 +405,13 @@ class MujocoCartPole(MujocoPlant):
         # u is what the actuator takes: a force for a motor, a speed or a position for a
         # velocity or position servo
         unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
-        self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
+        per_unit = self.facts.gear * self.facts.gain
+        if unit == "N" and per_unit != 1.0 and "gear" not in self.overridden:
+            # the model's own gear or gain other than 1: u is its control, the force beside
+            # it (a gear the scenario sets or draws is plant.gear: u stays the ODE's force)
+            self._inputs = (InputInfo(self.actuator, "ctrl", lo, hi, "N", per_unit),)
+        else:
+            self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
         self.reset(np.zeros(2))
 
     # --- construction helpers -------------------------------------------------------

@@ -100,7 +100,11 @@ class _Named:
     def inputs(self) -> tuple[InputInfo, ...]:
         a = self.machine.actuator
         lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
-        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
+        m = self.machine
+        unit = m.input_unit
+        forced = unit != m.force_unit
+        return (InputInfo(a.name, unit, lo, hi, m.force_unit if forced else "",
+                          m.force_per_unit if forced else 1.0),)
 
     def default_task(self) -> TaskDefaults:
         m = self.machine

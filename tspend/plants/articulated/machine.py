@@ -31,6 +31,10 @@ __all__ = ["Machine", "load_machine", "set_integrator"]
 
 _DERIVED: dict[str, Derivation] = {}
 
+#: the unit of a ``u`` that is an actuator's control, not a force (a geared motor's): the
+#: force it applies is beside it (:attr:`Machine.force_per_unit`)
+CONTROL_UNIT = "ctrl"
+
 
 def derivation_of(tree: Tree) -> Derivation:
     """``tree``'s equations, derived once per process for each tree shape (the numbers of
@@ -128,7 +132,21 @@ class Machine:
             return bytes(m.text_data[adr:adr + size]).split(b"\0")[0].decode()
         if self.actuator.bias[2] != 0.0:
             return "V"
+        if self.force_per_unit != 1.0:
+            # a geared motor or a gain other than 1: u is the actuator's control, not the
+            # force (the force is force_per_unit u at rest): "ctrl", its control units
+            return CONTROL_UNIT
+        return self.force_unit
+
+    @property
+    def force_unit(self) -> str:
+        """The unit of the generalised force the actuator applies to its joint."""
         return "N" if self.tree.joints[self.actuated].kind == "slide" else "N m"
+
+    @property
+    def force_per_unit(self) -> float:
+        """The force (torque) on the actuated joint per unit of ``u`` at rest: gear x gain."""
+        return float(self.actuator.gear * self.actuator.gain[0])
 
     @property
     def poles(self) -> tuple[int, ...]:
