@@ -61,12 +61,13 @@ def machine_kind_hint(scenario: Scenario) -> str:
 
     from tspend.plants.mjcf import read_spec
 
-    def joint_types(path) -> tuple[str, ...] | None:
+    def joint_types(path) -> tuple[tuple[str, ...], object] | None:
+        """``(joint types in the model's order, compiled model)``; None: unreadable."""
         try:
             model = read_spec(path).compile()
         except Exception:  # an unreadable model: no hint, the error itself stands
             return None
-        return tuple(str(mujoco_joint_type(int(t))) for t in model.jnt_type), model
+        return tuple(mujoco_joint_type(int(t)) for t in model.jnt_type), model
 
     try:
         path = plant_registry.resolve_model_path(scenario)
