@@ -890,7 +890,7 @@ FAIL = "import sys\ndef fail(why):\n    print('not as documented:', why, file=sy
 
 
 # -- issue 44, part A (i44a): its hostile inputs, a block of their own ---------------------
-DOUBLE_ON_CART = str(ROOT / "tests" / "models" / "third_party" / "gymnasium_double_pendulum_ranges.xml")
+DOUBLE_ON_CART = str(ROOT / "tests" / "models" / "gymnasium_double_pendulum_ranges.xml")
 
 
 def issue44a_cases(add) -> None:
