@@ -869,6 +869,7 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
         add(f"API {label}", [], api=code)
     misbehaving_cases(add)
     issue44_cases(add)
+    issue44a_cases(add)  # issue 44, part A
     # -- guarded: modules other work is adding (skipped with a note when absent)
     gym = {
         "gym unknown scenario": 'import tspend.gym, gymnasium; gymnasium.make("tspend/nope-v0")',
@@ -926,6 +927,39 @@ MISBEHAVING = [("raises", "StepRaises", "controller_error", 6),
 TOUCHING = str(ROOT / "tests" / "models" / "cartpole_touching_rails.xml")
 #: a snippet's own verdict: exit 1 with a line saying what was wrong (not a traceback)
 FAIL = "import sys\ndef fail(why):\n    print('not as documented:', why, file=sys.stderr); sys.exit(1)\n"
+
+
+# -- issue 44, part A (i44a): its hostile inputs, a block of their own ---------------------
+DOUBLE_ON_CART = str(ROOT / "tests" / "models" / "gymnasium_double_pendulum_ranges.xml")
+
+
+def issue44a_cases(add) -> None:
+    """Issue 44 part A: a slide named as a pole, another machine's model given to a kind,
+    plant.integrator on the articulated and Furuta machines, gym reward weights that would
+    pay for ending early.  Each is exit 2 with one line."""
+    quick = ["--duration", "0.05"] + OUT
+    add("issue44a slide as a pole", ["run", "double_cartpole_mujoco", "--set",
+                                     'plant.poles=["slider"]'] + quick)
+    add("issue44a cart-pole kind on a double pendulum",
+        ["run", "pendulum_mujoco", "--set", f'plant.model="{DOUBLE_ON_CART}"', "--set",
+         'plant.actuator="slide"'] + quick)
+    add("issue44a furuta kind on a double pendulum",
+        ["run", "furuta_mujoco", "--set", f'plant.model="{DOUBLE_ON_CART}"', "--set",
+         'plant.actuator="slide"'] + quick)
+    for kind in ("double_cartpole_mujoco", "furuta_mujoco", "acrobot_ode"):
+        for value in ('"RK5"', "4", '"rk4"'):
+            add(f"issue44a {kind} plant.integrator={value}",
+                ["run", kind, "--set", f"plant.integrator={value}"] + quick)
+    for label, weights in (("alive 0", '{"alive": 0.0}'), ("alive -1", '{"alive": -1.0}'),
+                           ("alive nan", '{"alive": float("nan")}'),
+                           ("control -1", '{"control": -1.0}'),
+                           ("tracking negative", '{"tracking": (1.0, -1.0)}'),
+                           ("tracking a string", '{"tracking": "x"}'),
+                           ("unknown key", '{"alvie": 1.0}'), ("a list", "[1.0]")):
+        add(f"issue44a API gym reward {label}", [], needs="tspend.gym", api=(
+            "import tspend.gym\n"
+            f"tspend.gym.TspendEnv('ex3_pendulum_ode', reward={weights})"))
+# -- end of issue 44, part A --------------------------------------------------------------
 
 
 def misbehaving_cases(add) -> None:

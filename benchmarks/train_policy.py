@@ -433,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
         "training_episode_s": a.duration, "n_envs": a.n_envs, "envs": a.vector,
         "inputs": a.inputs,
         "throughput_env_steps_per_s": round(int(model.num_timesteps) / wall, 1),
-        "reward": {"formula": "T * (alive - sum_i tracking_i e_i^2 - control (u/u_scale)^2)",
+        "reward": {"formula": "T * alive / (1 + sum_i tracking_i e_i^2 + control (u/u_scale)^2)",
                    **weights.__dict__},
         "policy_inputs": [names[i] for i in idx],
         "hyperparameters": {"n_steps": a.n_steps, "batch_size": a.batch, "n_epochs": 10,

@@ -23,11 +23,14 @@ controller measures them) followed by the reference and its derivatives
 actuator's force (or torque, voltage), a Box with the actuator's bounds (tightened by
 ``effects.saturation``).  Reward per step, over the step's duration ``T``::
 
-    reward = T * (alive - sum_i tracking_i * e_i**2 - control * (u / u_scale)**2)
+    c = sum_i tracking_i * e_i**2 + control * (u / u_scale)**2
+    reward = T * alive / (1 + c)  =  T * alive - T * alive * c / (1 + c)
 
 with ``e = x_view - r[:n]`` (angles of revolute joints wrapped to (-pi, pi]) at the end
 of the step, ``u_scale`` the actuator's bound (1 when unbounded); :class:`RewardWeights`
-holds the defaults.  An episode terminates when the task ends the run (``fell``,
+holds the defaults.  The survival reward ``T * alive`` outweighs the tracking and effort
+penalty, which stays below it however large ``c``: every step survived pays, so ending an
+episode early never does (as gymnasium's pendulums pay for every step alive).  An episode terminates when the task ends the run (``fell``,
 ``rail_end``, ``joint_limit``, ``state_bound``; ``diverged`` for a non-finite state or a
 plant failure: ``info["status"]``) and is truncated at the scenario's ``run.duration``.
 """
@@ -68,15 +71,41 @@ class RenderError(TspendError):
 class RewardWeights:
     """The reward's weights (module docstring).
 
-    ``alive``: reward per second while the task runs (so that ending early never pays);
-    ``tracking``: weights on the squared errors of the view's entries, the output then its
-    derivatives (the output's unit^-2, ...); entries past the view's length are ignored,
-    missing ones are 0; ``control``: weight on ``(u / u_scale)**2``.
+    ``alive`` > 0: the most a second survived earns (every step survived pays, so that
+    ending early never pays); ``tracking`` >= 0: weights on the squared errors of the view's
+    entries, the output then its derivatives (the output's unit^-2, ...); entries past the
+    view's length are ignored, missing ones are 0; ``control`` >= 0: weight on
+    ``(u / u_scale)**2``.  The penalty of a step is ``alive * c / (1 + c)`` for ``c`` the
+    weighted sum (module docstring).
     """
 
     alive: float = 1.0
     tracking: tuple[float, ...] = (100.0, 1.0, 0.0)
     control: float = 1.0
+
+    def __post_init__(self) -> None:
+        def number(name: str, v: Any) -> float:
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                raise ScenarioError(f"reward.{name}: a number, got {v!r:.40}") from None
+            if not math.isfinite(f):
+                raise ScenarioError(f"reward.{name}: must be finite, got {v!r:.40}")
+            return f
+
+        if not number("alive", self.alive) > 0.0:
+            raise ScenarioError(f"reward.alive: must be > 0 (the reward of a step survived), "
+                                f"got {self.alive!r:.40}")
+        if number("control", self.control) < 0.0:
+            raise ScenarioError(f"reward.control: must be >= 0, got {self.control!r:.40}")
+        tracking = tuple(self.tracking) if isinstance(self.tracking, (list, tuple)) else None
+        if tracking is None or len(tracking) > 16:
+            raise ScenarioError(f"reward.tracking: a list of up to 16 weights, got "
+                                f"{self.tracking!r:.40}")
+        if any(number("tracking", w) < 0.0 for w in tracking):
+            raise ScenarioError(f"reward.tracking: every weight must be >= 0, got "
+                                f"{self.tracking!r:.40}")
+        object.__setattr__(self, "tracking", tuple(float(w) for w in tracking))
 
 
 def env_id(scenario: str) -> str:
@@ -137,6 +166,13 @@ class TspendEnv(gymnasium.Env):
         self.scenario = scn
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
+        if not isinstance(reward, (RewardWeights, dict, type(None))):
+            raise ScenarioError(f"reward: a RewardWeights or a dict, got {type(reward).__name__}")
+        unknown = sorted(set(reward or {}) - set(RewardWeights.__dataclass_fields__)) \
+            if isinstance(reward, dict) else []
+        if unknown:
+            raise ScenarioError(f"reward: unknown key(s) {', '.join(map(str, unknown))}; allowed: "
+                                f"{', '.join(RewardWeights.__dataclass_fields__)}")
         self.reward_weights = reward if isinstance(reward, RewardWeights) else \
             RewardWeights(**dict(reward or {}))
         self._first_seed = scn.run.seed if seed is None else int(seed)

@@ -244,6 +244,12 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
     for key, unit, note in shown:
         print(f"  {key:<{width}}  {_with(metrics[key], unit)}" + (f"  ({note})" if note else ""),
               file=stream)
+    act = metrics.get("actuator") or {}
+    if act.get("force_unit") and act.get("max_abs_force") is not None:
+        # u is the actuator's control (a geared motor's, a voltage): the force it applied
+        force = act["force_unit"]
+        print(f"  {'actuator force':<{width}}  up to {_with(act['max_abs_force'], force)} applied "
+              f"({_with(act['force_per_u'], force)} per {u or 'unit'} of u at rest)", file=stream)
     joints = metrics.get("joints") or {}
     states = units.get("states", {})
     if joints:

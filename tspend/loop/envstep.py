@@ -167,8 +167,10 @@ class Frame:
 def reward_of(obs: np.ndarray, n_state: int, view_index: np.ndarray, tracking: np.ndarray,
               wraps: np.ndarray, alive: float, control: float, u_scale: float, u: float,
               seconds: float) -> float:
-    """``seconds * (alive - sum_i tracking_i e_i^2 - control (u / u_scale)^2)`` with
-    ``e = x_view - r[:n]``, angles wrapped to [-pi, pi) (tspend.gym's docstring)."""
+    """``seconds * alive / (1 + c)``, ``c = sum_i tracking_i e_i^2 + control (u / u_scale)^2``
+    with ``e = x_view - r[:n]``, angles wrapped to [-pi, pi) (tspend.gym's docstring): the
+    survival reward ``seconds * alive`` less a penalty ``seconds * alive * c / (1 + c)`` that
+    never reaches it, so every step survived pays and ending early never does."""
     cost = 0.0
     for k in range(view_index.size):
         e = obs[view_index[k]] - obs[n_state + k]
@@ -176,7 +178,7 @@ def reward_of(obs: np.ndarray, n_state: int, view_index: np.ndarray, tracking: n
             e = np.mod(e + np.pi, 2 * np.pi) - np.pi
         cost += tracking[k] * (e * e)
     s = u / u_scale
-    return seconds * (alive - (cost + control * (s * s)))
+    return seconds * alive / (1.0 + cost + control * (s * s))
 
 
 @njit(**_JIT)

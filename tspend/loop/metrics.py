@@ -73,11 +73,17 @@ class MachineInfo:
     goal_by: float = 0.0
     #: the task's constraints (tspend.constraints.ConstraintSet; None: none measured)
     constraints: object = None
+    #: u's unit ("ctrl" for a geared motor's control), and where u is not the force the
+    #: actuator applies, that force's unit and the force per unit of u at rest
+    #: (:class:`tspend.plants.base.InputInfo`)
+    u_unit: str = ""
+    force_unit: str = ""
+    force_per_unit: float = 1.0
 
 
 #: the flattened machine metrics' columns start with one of these (sweep rows)
 MACHINE_PREFIXES = ("joints.", "plant.", "counters.", "controller_ms.", "saturated_",
-                    "drawn.", "goal.", "constraints.", "safety_filter.")
+                    "drawn.", "goal.", "constraints.", "safety_filter.", "actuator.")
 
 
 def is_machine_column(name: str) -> bool:
@@ -268,6 +274,20 @@ class MetricsAccumulator:
         met = (reached is not None and reached <= m.goal_by + 1e-12) if judged else None
         return {"angle_rad": m.goal_angle, "by_s": m.goal_by, "reached_at_s": reached, "met": met}
 
+    def actuator_result(self) -> dict:
+        """u's unit ("ctrl" for a geared motor's control), and where u is not the force:
+        the force's unit, the force per unit of u at rest and the largest force applied
+        and commanded (max_abs_u and max_abs_u_command times it)."""
+        m = self.machine
+        out: dict = {"u_unit": m.u_unit}
+        if m.force_unit:
+            n = self.steps
+            k = m.force_per_unit
+            out.update(force_unit=m.force_unit, force_per_u=k,
+                       max_abs_force=abs(k) * self.max_abs_u_applied if n else None,
+                       max_abs_force_command=abs(k) * self.max_abs_u if n else None)
+        return out
+
     def machine_result(self) -> dict:
         """The whole machine's metrics (module docstring); empty without a MachineInfo."""
         out: dict = {}
@@ -280,6 +300,7 @@ class MetricsAccumulator:
             out["saturated_fraction"] = self.saturated / self.steps if self.steps else None
             out["saturated_at_end_s"] = self.saturated_at_end * self.dt
             out["drawn"] = dict(m.drawn)
+            out["actuator"] = self.actuator_result()
             if m.goal_angle > 0.0:
                 out["goal"] = self.goal_result()
         out["controller_ms"] = {"median": self._median_ms(),

@@ -167,9 +167,15 @@ def _what_else(plant: Plant, metrics: dict) -> str:
         parts.append(f"MuJoCo applied {active}")
     sat = metrics.get("saturated_at_end_s") or 0.0
     if sat >= SATURATED_FOR_S:
+        act = metrics.get("actuator") or {}
+        unit = f" {act['u_unit']}" if act.get("u_unit") else ""
+        applied = metrics.get("max_abs_u", float("nan"))
+        force = (f" ({act['force_per_u'] * applied:.4g} {act['force_unit']} at rest)"
+                 if act.get("force_unit") and applied is not None else "")
+        # the command is u, never a force: the actuator clipped it before any force
         parts.append(f"the actuator was saturated for the last {sat:.3g} s (commanded up to "
-                     f"{metrics.get('max_abs_u_command', float('nan')):.4g}, applied at most "
-                     f"{metrics.get('max_abs_u', float('nan')):.4g})")
+                     f"{metrics.get('max_abs_u_command', float('nan')):.4g}{unit}, applied at "
+                     f"most {applied:.4g}{unit}{force})")
     return ("; while " + " and ".join(parts)) if parts else ""
 
 

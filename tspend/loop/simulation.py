@@ -52,12 +52,78 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     return _built(randomize.draw(scenario).scenario, kind)
 
 
+def machine_kind_hint(scenario: Scenario) -> str:
+    """When the scenario's model is another domain's machine (a double pendulum on a cart
+    given to the single cart-pole's kind, say): which plant kind takes it, and a shipped
+    scenario of that kind on a model with the same joints ("" when the model fits the
+    scenario's own domain, or cannot be read: the error says enough then)."""
+    import tomllib
+
+    from tspend.plants.mjcf import read_spec
+
+    def joint_types(path) -> tuple[tuple[str, ...], object] | None:
+        """``(joint types in the model's order, compiled model)``; None: unreadable."""
+        try:
+            model = read_spec(path).compile()
+        except Exception:  # an unreadable model: no hint, the error itself stands
+            return None
+        return tuple(mujoco_joint_type(int(t)) for t in model.jnt_type), model
+
+    try:
+        path = plant_registry.resolve_model_path(scenario)
+    except Exception:
+        return ""
+    found = joint_types(path) if path is not None and path.is_file() else None
+    if found is None:
+        return ""
+    types, model = found
+    own = plant_registry.domain_of(scenario.plant.kind)
+    if own.fits_model(model):
+        return ""
+    domain = next((d for d in plant_registry.DOMAINS.values()
+                   if d is not own and d.mujoco_kind() and d.fits_model(model)), None)
+    if domain is None:
+        return ""
+    kind = domain.mujoco_kind()
+    from tspend.scenario import available_scenarios, load_scenario
+
+    named = ""
+    for file in available_scenarios():
+        try:
+            with open(file, "rb") as fh:
+                if tomllib.load(fh).get("plant", {}).get("kind") != kind:
+                    continue
+            other = load_scenario(file)
+            theirs = joint_types(plant_registry.resolve_model_path(other))
+        except Exception:  # a scenario that does not load is no example
+            continue
+        if theirs is not None and theirs[0] == types:
+            named = file.stem
+            break
+    where = f" (scenario {named}, with plant.model set to this file)" if named else ""
+    return (f"a model with joints {', '.join(types)} is the {domain.name} domain's machine: "
+            f"run it as plant.kind = \"{kind}\"{where}")
+
+
+def mujoco_joint_type(code: int) -> str:
+    """MuJoCo's joint type code as MJCF names it ("slide", "hinge", "ball", "free")."""
+    import mujoco
+
+    return mujoco.mjtJoint(code).name.removeprefix("mjJNT_").lower()
+
+
 def _built(scenario: Scenario, kind: str | None) -> Plant:
     """:func:`build_plant` of a scenario whose draws are applied already."""
     refused = effects_unsupported(scenario.effects, plant_registry.domain_of(scenario.plant.kind))
     if refused:
         raise ScenarioError(f"{scenario.path}: {refused}")
-    plant = plant_registry.build(scenario, kind)
+    try:
+        plant = plant_registry.build(scenario, kind)
+    except ScenarioError as exc:
+        hint = machine_kind_hint(scenario)
+        if not hint:
+            raise
+        raise ScenarioError(f"{exc}; {hint}") from exc
     plant.check_sample_time(scenario.run.dt)
     for line in plant.departures(scenario.run.dt):
         warnings.warn(f"{plant.model_path}: {line}", ModelWarning, stacklevel=2)  # type: ignore[attr-defined]
@@ -88,6 +154,30 @@ def with_gain_sign(scenario: Scenario, plant: Plant) -> Scenario:
     sign = plant.gain_sign
     return replace(scenario, controller=replace(
         scenario.controller, gain_sign="negative" if sign < 0 else "positive"))
+
+
+def with_input_sets(scenario: Scenario, plant: Plant) -> tuple[Scenario, str]:
+    """The paper's controller's input sets (``[controller.sets] u``, in the units of u,
+    sized for the scenario's own actuator) scaled to ``plant``'s actuator range where they
+    reach beyond it, and the line saying so ("" when unchanged): sets for a 40 N motor on
+    an actuator of control range +/-1 would keep it saturated.  A range the sets fit is
+    left alone (the scenario's ``effects.saturation`` is a limit the controller is not
+    told of)."""
+    inner = getattr(plant, "inner", plant)
+    if not inner.inputs:
+        return scenario, ""
+    inp = inner.inputs[0]
+    sets = scenario.controller.u_sets
+    lo, hi = float(inp.lo), float(inp.hi)
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo) or \
+            (sets.lo >= lo - 1e-12 * (hi - lo) and sets.hi <= hi + 1e-12 * (hi - lo)):
+        return scenario, ""
+    unit = f" {inp.unit}" if inp.unit else ""
+    line = (f"controller.sets.u [{sets.lo:g}, {sets.hi:g}] reaches beyond actuator "
+            f"'{inp.name}''s range [{lo:g}, {hi:g}]{unit}: the paper's controller's input sets "
+            f"are scaled to that range")
+    return replace(scenario, controller=replace(
+        scenario.controller, u_sets=replace(sets, lo=lo, hi=hi))), line
 
 
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
@@ -131,6 +221,8 @@ def run_info(scenario: Scenario, plant: Plant, steps: int, kind: str | None = No
         diagnostics=tuple(controller.diagnostics) if controller is not None else (),
         state_names=task.names, state_units=task.units, view=task.view, bounds=task.bounds(),
         input_unit=plant.inputs[0].unit if plant.inputs else "",
+        force_unit=getattr(plant.inputs[0], "force_unit", "") if plant.inputs else "",
+        force_per_unit=getattr(plant.inputs[0], "force_per_unit", 1.0) if plant.inputs else 1.0,
         u_lo=u_lo, u_hi=u_hi)
 
 
@@ -225,9 +317,12 @@ def machine_info(plant: Plant, task: Task, scenario: Scenario,
     names = task.names
     joints = tuple((j.name, names.index(j.name)) for j in plant.joints if j.name in names)
     lo, hi = input_range(plant, scenario)
+    inp = plant.inputs[0] if plant.inputs else None
+    units = dict(u_unit=inp.unit, force_unit=getattr(inp, "force_unit", ""),
+                 force_per_unit=getattr(inp, "force_per_unit", 1.0)) if inp is not None else {}
     return MachineInfo(joints=joints, parameters=dict(plant.parameters()), u_lo=lo, u_hi=hi,
                        drawn=dict(drawn or {}), goal_angle=scenario.task.goal_angle,
-                       goal_by=scenario.task.goal_by, constraints=task.constraints)
+                       goal_by=scenario.task.goal_by, constraints=task.constraints, **units)
 
 
 def control_every(run: "RunConfig", ctrl: Controller) -> int:
@@ -273,9 +368,12 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
     plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
-    scenario = with_gain_sign(scenario, plant)
-    return Prepared(scenario, plant, build_controller(scenario, kind=controller), task,
-                    drawn.values)
+    scenario, scaled = with_input_sets(with_gain_sign(scenario, plant), plant)
+    ctrl = build_controller(scenario, kind=controller)
+    if scaled and ctrl.fuzzy_inputs():
+        # only a controller with fuzzy input sets reads them
+        warnings.warn(scaled, ModelWarning, stacklevel=2)
+    return Prepared(scenario, plant, ctrl, task, drawn.values)
 
 
 def steps_of(scenario: Scenario) -> int:

@@ -82,6 +82,10 @@ class RunInfo:
     bounds: tuple[Bound, ...] = ()
     #: u's unit as the plant's model gives it ("" = the domain's label)
     input_unit: str = ""
+    #: where u is not the force the actuator applies (a geared motor's ctrl, a voltage):
+    #: that force's unit and the force per unit of u at rest ("" and 1: u is the force)
+    force_unit: str = ""
+    force_per_unit: float = 1.0
     #: the actuator's range: the plant applies ``u`` (the command) clipped to it
     #: (:func:`tspend.loop.simulation.input_range`); +-inf: no limit
     u_lo: float = -math.inf

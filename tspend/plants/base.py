@@ -42,12 +42,19 @@ class JointInfo:
 
 @dataclass(frozen=True)
 class InputInfo:
-    """One control input: its name, unit and bounds (+/-inf when unbounded)."""
+    """One control input: its name, unit and bounds (+/-inf when unbounded).
+
+    ``force_unit``: where ``u`` is not itself the force or torque the actuator applies (a
+    geared motor, a gain other than 1, a voltage), that force's unit ("N", "N m"), and
+    ``force_per_unit`` the force per unit of ``u`` at rest (gear x gain); "" and 1 where
+    ``u`` is the force."""
 
     name: str
     unit: str = ""
     lo: float = -math.inf
     hi: float = math.inf
+    force_unit: str = ""
+    force_per_unit: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -83,7 +83,7 @@ class EffectsPlant(Plant):
         sat = self.cfg.saturation
         if sat <= 0.0:
             return self.inner.inputs
-        return tuple(InputInfo(i.name, i.unit, max(i.lo, -sat), min(i.hi, sat))
+        return tuple(replace(i, lo=max(i.lo, -sat), hi=min(i.hi, sat))
                      for i in self.inner.inputs)
 
     def parameters(self) -> dict[str, float]:

@@ -27,9 +27,9 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_full_accel,
-    derived_full_of, derived_pole_energy, derived_view)
-from tspend.plants.articulated.machine import Machine
+from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedMujoco, ArticulatedODE,
+    derived_full_accel, derived_full_of, derived_pole_energy, derived_view)
+from tspend.plants.articulated.machine import Machine, set_integrator
 from tspend.plants.base import InputInfo, Plant, velocity_name
 from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
     VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
@@ -67,6 +67,8 @@ class FurutaMujocoConfig(FurutaConfig):
     actuator: str = "motor"
     #: physics timestep, s (0 keeps the model's); dt must be a whole multiple of it
     timestep: float = field(default=0.0, metadata={"low": 0.0})
+    #: MuJoCo's integrator of the model ("" keeps the model's; the ODE is stepped by RK4)
+    integrator: str = field(default="", metadata={"choices": INTEGRATOR_CHOICES})
     #: the pendulum joint's viscous damping, N m s/rad (negative keeps the model's, Quanser's
     #: 0.0005); the least certain number of the rig (docs/furuta.md), so a scenario may
     #: take another rig's identified value
@@ -76,7 +78,7 @@ class FurutaMujocoConfig(FurutaConfig):
 def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendulum",
                 actuator: str = "motor", timestep: float | None = None,
                 pendulum_damping: float | None = None,
-                values: tuple[tuple[str, float], ...] = ()) -> Machine:
+                values: tuple[tuple[str, float], ...] = (), integrator: str = "") -> Machine:
     """The Furuta MJCF at ``model_path`` compiled (``timestep``, ``pendulum_damping`` and
     then ``values``, the ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs of
     :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
@@ -90,6 +92,7 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
     spec = read_spec(where)  # within the size bounds
     if timestep:
         spec.option.timestep = float(timestep)
+    set_integrator(spec, integrator, where)
     if pendulum_damping is not None:
         joint = spec.joint(pendulum)
         if joint is None:
@@ -187,7 +190,9 @@ class _Furuta:
         ODE clips u as MuJoCo clips ctrl), so the saturation metrics mean the same on each."""
         a = self.machine.actuator
         lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
-        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
+        m = self.machine
+        # u is a voltage: the torque it applies at rest beside it
+        return (InputInfo(a.name, m.input_unit, lo, hi, m.force_unit, m.force_per_unit),)
 
     def parameters(self) -> dict[str, float]:
         return coefficients(self.machine)
@@ -225,7 +230,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     return MujocoFuruta(load_furuta(model_path, mj.arm_joint, mj.pendulum_joint, mj.actuator,
                                     mj.timestep or None,
                                     mj.pendulum_damping if mj.pendulum_damping >= 0.0 else None,
-                                    tuple(cfg.model_values)))
+                                    tuple(cfg.model_values), mj.integrator))
 
 
 # -- drawing ------------------------------------------------------------------------------

@@ -126,6 +126,28 @@ def _names(elements: Any) -> str:
     return ", ".join(e.name or "<unnamed>" for e in elements) or "none"
 
 
+def active_constraint(m: mujoco.MjModel, d: mujoco.MjData) -> str:
+    """What constraint MuJoCo applies in the state of ``d`` now or at its next step ("" =
+    none: the equations hold): a limited joint at or within its margin of its range, or a
+    contact (the first one found; ``d.ncon`` as the last ``mj_forward`` or step of ``d``
+    left it).  Dry friction is a departure named before the run; what else makes
+    constraints (tendons, equalities) is refused or named before it too.  Any data of the
+    model, not only a plant's own: the cross-check asks it of each random state."""
+    for j in range(m.njnt):
+        if m.jnt_limited[j]:
+            q = float(d.qpos[m.jnt_qposadr[j]])
+            lo, hi = (float(v) for v in m.jnt_range[j])
+            margin = float(m.jnt_margin[j])
+            if q <= lo + margin or q >= hi - margin:
+                return (f"joint '{m.joint(j).name}' reached its range [{lo:g}, {hi:g}] "
+                        f"(at {q:.6g})")
+    if d.ncon > 0:
+        c = d.contact[0]
+        return (f"contact between geoms '{m.geom(int(c.geom[0])).name}' and "
+                f"'{m.geom(int(c.geom[1])).name}'")
+    return ""
+
+
 class MujocoPlant(Plant):
     """A compiled hinge/slide MJCF stepped by MuJoCo, behind the Plant protocol: what every
     MuJoCo plant shares (the cart-pole's, the articulated domain's, the Furuta's).
@@ -200,23 +222,8 @@ class MujocoPlant(Plant):
 
     def constraint_active(self) -> str:
         """What constraint MuJoCo applies now or at its next step ("" = none: the equations
-        hold): a limited joint at or within its margin of its range, or a contact (the
-        first one found).  Dry friction is a departure named before the run; what else
-        makes constraints (tendons, equalities) is refused or named before it too."""
-        m, d = self.model, self.data
-        for j in range(m.njnt):
-            if m.jnt_limited[j]:
-                q = float(d.qpos[m.jnt_qposadr[j]])
-                lo, hi = (float(v) for v in m.jnt_range[j])
-                margin = float(m.jnt_margin[j])
-                if q <= lo + margin or q >= hi - margin:
-                    return (f"joint '{m.joint(j).name}' reached its range [{lo:g}, {hi:g}] "
-                            f"(at {q:.6g})")
-        if d.ncon > 0:
-            c = d.contact[0]
-            return (f"contact between geoms '{m.geom(int(c.geom[0])).name}' and "
-                    f"'{m.geom(int(c.geom[1])).name}'")
-        return ""
+        hold): :func:`active_constraint` of this plant's own data."""
+        return active_constraint(self.model, self.data)
 
     def _place(self, x0: np.ndarray) -> None:
         """Write the initial state of ``x0`` into ``self.data`` (after ``mj_resetData``)."""
@@ -398,7 +405,13 @@ class MujocoCartPole(MujocoPlant):
         # u is what the actuator takes: a force for a motor, a speed or a position for a
         # velocity or position servo
         unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
-        self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
+        per_unit = self.facts.gear * self.facts.gain
+        if unit == "N" and per_unit != 1.0 and "gear" not in self.overridden:
+            # the model's own gear or gain other than 1: u is its control, the force beside
+            # it (a gear the scenario sets or draws is plant.gear: u stays the ODE's force)
+            self._inputs = (InputInfo(self.actuator, "ctrl", lo, hi, "N", per_unit),)
+        else:
+            self._inputs = (InputInfo(self.actuator, unit, lo, hi),)
         self.reset(np.zeros(2))
 
     # --- construction helpers -------------------------------------------------------

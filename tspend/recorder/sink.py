@@ -477,7 +477,9 @@ class RerunSink:
         self.rec.log(self._path("info/run"), rr.AnyValues(
             scenario=info.scenario_name, seed=int(info.seed), controller=info.controller_kind,
             plant_kind=info.plant_kind, version=info.version, dt_s=float(info.dt),
-            duration_s=float(info.duration)), static=True)
+            duration_s=float(info.duration), u_unit=info.input_unit,
+            # the force the actuator applies per unit of u at rest, where u is not it
+            force_unit=info.force_unit, force_per_u=float(info.force_per_unit)), static=True)
 
     def _log_fuzzy_styles(self, info: RunInfo) -> None:
         for group, inputs in (("model", info.model_inputs), ("compensator", info.compensator_inputs)):

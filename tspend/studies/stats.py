@@ -190,6 +190,8 @@ class PairedResult:
     b_worse: int = 0
     worst_ratio: float = math.nan  # max over seeds of A/B: A's worst seed against B
     best_ratio: float = math.nan   # min over seeds of A/B: B's worst seed is 1 / this
+    ties: int = 0                 # seeds where d = 0 (both ended counts as a tie)
+    all_ended: bool = False       # every run of both ended (diverged or ended by the task)
     notes: tuple[str, ...] = field(default=())
 
 
@@ -238,8 +240,17 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
     with np.errstate(divide="ignore"):  # log 0 = -inf: A at 0, or B diverged
         ratios = _ratio(a, b) if (a >= 0).all() and (b >= 0).all() else None
         ratio = float(np.exp(median(np.log(ratios)))) if ratios is not None else nan
-    deterministic = bool(n > 1 and np.all(a == a[0]) and np.all(b == b[0])) or n == 1
-    if deterministic:
+    # seed-independent: the same outcome at every seed from runs that did not end (an
+    # ended run's +inf says nothing of how alike the runs were)
+    finite = bool(np.isfinite(a).all() and np.isfinite(b).all())
+    deterministic = finite and (bool(n > 1 and np.all(a == a[0]) and np.all(b == b[0])) or n == 1)
+    all_ended = bool(np.isposinf(a).all() and np.isposinf(b).all())
+    if np.all(d == 0) and not deterministic:
+        # every pair ties: nothing to test and nobody wins
+        lo = hi = med
+        p = nan
+        verdict = ""
+    elif deterministic:
         lo = hi = med
         p = nan
         verdict = "A" if med < 0 else "B" if med > 0 else ""
@@ -254,7 +265,7 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
                         method="percentile", vectorized=True,
                         rng=np.random.default_rng(seed)).confidence_interval), d)
             lo, hi = float(ci[0]), float(ci[1])
-        p = 1.0 if np.all(d == 0) else float(stats.wilcoxon(d, zero_method="wilcox").pvalue)
+        p = float(stats.wilcoxon(d, zero_method="wilcox").pvalue)
         verdict = ""
         if p < alpha and hi < 0:
             verdict = "A"
@@ -268,7 +279,8 @@ def paired_difference(a: Sequence[float], b: Sequence[float], *, seed: int = 0,
         a_diverged=int(np.isposinf(a).sum()), b_diverged=int(np.isposinf(b).sum()),
         a_worse=int((d > 0).sum()), b_worse=int((d < 0).sum()),
         worst_ratio=float(ratios.max()) if ratios is not None else nan,
-        best_ratio=float(ratios.min()) if ratios is not None else nan)
+        best_ratio=float(ratios.min()) if ratios is not None else nan,
+        ties=int((d == 0).sum()), all_ended=all_ended)
 
 
 def paired_outcomes(rows, a: str, b: str, metric: str) -> tuple[np.ndarray, np.ndarray, list]:
@@ -540,6 +552,19 @@ def _tail(k: int, n: int, worst: float) -> str:
     return f"{k}/{n} (worst {fmt_ratio(worst)}×)"
 
 
+def _wins(r) -> str:
+    """"5/8": seeds where A was lower; with ties "2/8, 3 tied"; "none (all tied)" when every
+    pair ties (a tie is nobody's win)."""
+    ties = int(getattr(r, "ties", 0))
+    if not r.pairs:
+        return "0/0"
+    if ties == r.pairs:
+        return "none (all tied)"
+    if ties:
+        return f"{r.b_worse}/{r.pairs}, {ties} tied"
+    return f"{r.wins:g}/{r.pairs}"
+
+
 def markdown(comp: Comparison, seeds_text: str = "") -> str:
     """The comparison as Markdown: per scenario (and grid point) a table of median
     [Q1, Q3] per controller and metric with the share of runs that ended badly, the
@@ -611,11 +636,15 @@ def markdown(comp: Comparison, seeds_text: str = "") -> str:
                 extra.append(f"{r.unpaired} unpaired")
             if r.deterministic:
                 extra.append("seed-independent: one observation")
+            if getattr(r, "all_ended", False):
+                extra.append("every run ended")
+            elif r.ties == r.pairs and r.pairs:
+                extra.append("every pair tied")
             p = _fmt_p(r.p_value) + (f" ({'; '.join(extra)})" if extra else "")
             b_worst = 1.0 / r.best_ratio if r.best_ratio else math.inf
             lines.append(f"| {r.a} vs {r.b} | {r.metric} | {r.pairs} | {fmt(r.median_difference)} "
                          f"[{fmt(r.ci_low)}, {fmt(r.ci_high)}] | {fmt_ratio(r.median_ratio)} | "
-                         f"{r.wins:g}/{r.pairs} | {_tail(r.a_worse, r.pairs, r.worst_ratio)} | "
+                         f"{_wins(r)} | {_tail(r.a_worse, r.pairs, r.worst_ratio)} | "
                          f"{_tail(r.b_worse, r.pairs, b_worst)} | {p} | {_fmt_p(r.p_holm)} | "
                          f"{verdict_text(r)} |")
         lines.append("")

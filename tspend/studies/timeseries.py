@@ -134,7 +134,8 @@ def _static_values(path: str | os.PathLike[str], suffix: str,
 
 
 #: the run's identity a recording holds (``info/run``), copied into an export's metadata
-RUN_KEYS = ("scenario", "seed", "controller", "plant_kind", "version", "dt_s", "duration_s")
+RUN_KEYS = ("scenario", "seed", "controller", "plant_kind", "version", "dt_s", "duration_s",
+            "u_unit", "force_unit", "force_per_u")
 
 
 def _first(value):

@@ -39,6 +39,9 @@ if TYPE_CHECKING:
 __all__ = ["ArticulatedConfig", "ArticulatedODE", "ArticulatedMujoco", "ArticulatedDomain",
            "ModelDrawing", "DOMAIN"]
 
+#: what ``plant.integrator`` takes on every MuJoCo machine ("" keeps the model's)
+INTEGRATOR_CHOICES = ("", "RK4", "Euler", "implicit", "implicitfast")
+
 #: the fall angle of every pole by default: a pole past the horizontal has fallen
 FALL_ANGLE_RAD = math.pi / 2
 
@@ -63,6 +66,8 @@ class ArticulatedConfig(PlantConfig):
     poles: tuple[str, ...] = field(default=(), metadata={"strings": True})
     actuator: str = ""
     timestep: float = field(default=0.0, metadata={"low": 0.0})
+    #: MuJoCo's integrator of the model ("" keeps the model's; the ODE is stepped by RK4)
+    integrator: str = field(default="", metadata={"choices": INTEGRATOR_CHOICES})
     model_values: tuple = field(default=(), metadata={"internal": True})
 
 
@@ -95,7 +100,11 @@ class _Named:
     def inputs(self) -> tuple[InputInfo, ...]:
         a = self.machine.actuator
         lo, hi = a.ctrlrange if a.ctrlrange is not None else (-math.inf, math.inf)
-        return (InputInfo(a.name, self.machine.input_unit, lo, hi),)
+        m = self.machine
+        unit = m.input_unit
+        forced = unit != m.force_unit
+        return (InputInfo(a.name, unit, lo, hi, m.force_unit if forced else "",
+                          m.force_per_unit if forced else 1.0),)
 
     def default_task(self) -> TaskDefaults:
         m = self.machine
@@ -386,7 +395,7 @@ class ModelDrawing(Drawing):
 # -- the domain ---------------------------------------------------------------------------
 def _machine_of(cfg: ArticulatedConfig, model_path: Path) -> Machine:
     return load_machine(model_path, cfg.timestep, cfg.actuator, tuple(cfg.poles),
-                        tuple(cfg.model_values))
+                        tuple(cfg.model_values), cfg.integrator)
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:

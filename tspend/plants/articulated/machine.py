@@ -27,9 +27,13 @@ from tspend.errors import ScenarioError
 from tspend.plants.articulated.derive import Derivation, compiled_module, derive, parameter_table
 from tspend.plants.articulated.tree import Tree, read_tree
 
-__all__ = ["Machine", "load_machine"]
+__all__ = ["Machine", "load_machine", "set_integrator"]
 
 _DERIVED: dict[str, Derivation] = {}
+
+#: the unit of a ``u`` that is an actuator's control, not a force (a geared motor's): the
+#: force it applies is beside it (:attr:`Machine.force_per_unit`)
+CONTROL_UNIT = "ctrl"
 
 
 def derivation_of(tree: Tree) -> Derivation:
@@ -128,7 +132,21 @@ class Machine:
             return bytes(m.text_data[adr:adr + size]).split(b"\0")[0].decode()
         if self.actuator.bias[2] != 0.0:
             return "V"
+        if self.force_per_unit != 1.0:
+            # a geared motor or a gain other than 1: u is the actuator's control, not the
+            # force (the force is force_per_unit u at rest): "ctrl", its control units
+            return CONTROL_UNIT
+        return self.force_unit
+
+    @property
+    def force_unit(self) -> str:
+        """The unit of the generalised force the actuator applies to its joint."""
         return "N" if self.tree.joints[self.actuated].kind == "slide" else "N m"
+
+    @property
+    def force_per_unit(self) -> float:
+        """The force (torque) on the actuated joint per unit of ``u`` at rest: gear x gain."""
+        return float(self.actuator.gear * self.actuator.gain[0])
 
     @property
     def poles(self) -> tuple[int, ...]:
@@ -141,10 +159,17 @@ class Machine:
 
     def _roles(self, poles: tuple[str, ...]) -> tuple[str, ...]:
         names = self.joint_names
+        hinges = [j.name for j in self.tree.joints if j.kind == "hinge"]
         for p in poles:
             if p not in names:
                 raise ScenarioError(f"{self.where}: plant.poles: no joint named {p!r} (joints: "
                                     f"{', '.join(names)})")
+            if p not in hinges:
+                # the task watches only its poles for a fall: a slide cannot fall, and a
+                # pole that cannot fall leaves the real ones unwatched
+                raise ScenarioError(f"{self.where}: plant.poles: {p!r} is a slide joint, and a "
+                                    f"pole must be a hinge that can fall (hinges: "
+                                    f"{', '.join(hinges) or 'none'})")
         rng = np.random.default_rng(0)
         roles = []
         g = np.asarray(self.tree.gravity, dtype=float)
@@ -262,8 +287,10 @@ class Machine:
 
 
 def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
-                 poles: tuple[str, ...] = (), values: tuple[tuple[str, float], ...] = ()) -> Machine:
-    """The MJCF at ``path`` compiled (``timestep`` > 0 replaces the model's; ``values``,
+                 poles: tuple[str, ...] = (), values: tuple[tuple[str, float], ...] = (),
+                 integrator: str = "") -> Machine:
+    """The MJCF at ``path`` compiled (``timestep`` > 0 replaces the model's, ``integrator``
+    ("" keeps the model's) its MuJoCo integrator; ``values``,
     ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into it first:
     :mod:`.model_numbers`) and read."""
     from tspend.plants.articulated.model_numbers import compile_with_values
@@ -275,4 +302,19 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
     spec = read_spec(where)
     if timestep:
         spec.option.timestep = float(timestep)
+    set_integrator(spec, integrator, where)
     return Machine(compile_with_values(spec, values, where), where, actuator, poles)
+
+
+def set_integrator(spec: Any, integrator: str, where: str) -> None:
+    """Write MuJoCo's ``integrator`` ("RK4", "Euler", "implicit", "implicitfast"; "" keeps
+    the model's) into ``spec`` (``plant.integrator`` of every MuJoCo machine)."""
+    if not integrator:
+        return
+    from tspend.plants.articulated.tree import INTEGRATOR_NAMES
+
+    by_name = {v: k for k, v in INTEGRATOR_NAMES.items()}
+    if integrator not in by_name:
+        raise ScenarioError(f"{where}: unknown integrator {integrator!r} (allowed: "
+                            f"{', '.join(by_name)})")
+    spec.option.integrator = by_name[integrator]
