@@ -33,6 +33,7 @@ from tspend.controllers.base import Controller, Diagnostic, Observation
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 __all__ = ["ExcitationSettings", "ExcitedController", "SIGNALS", "excitation", "build"]
@@ -117,6 +118,11 @@ class ExcitedController(Controller):
     """The ``excited`` kind: another kind's command plus the excitation."""
 
     kind = "excited"
+    Settings = ExcitationSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     guarantees = "the inner kind's, for the excitation's amplitude small enough"
 
     def __init__(self, inner: Controller, settings: ExcitationSettings) -> None:
@@ -145,8 +151,8 @@ class ExcitedController(Controller):
         return self.inner.parameters()
 
 
-def build(scenario: "Scenario") -> ExcitedController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> ExcitedController:
     from tspend.controllers import build as build_kind
 
     s: ExcitationSettings = settings_for(scenario, ExcitationSettings)
-    return ExcitedController(build_kind(scenario, s.inner), s)
+    return ExcitedController(build_kind(scenario, s.inner, machine=machine), s)

@@ -71,6 +71,7 @@ from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
 from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
     from tspend.constraints import ConstraintSet
@@ -134,6 +135,11 @@ class MPCController(Controller):
     """The ``mpc`` kind (module docstring)."""
 
     kind = "mpc"
+    Settings = MPCSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (FULL_STATE, SYMBOLIC)
     guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, task "
                   "state bounds, hard boxes) hold on every predicted trajectory of a "
@@ -481,7 +487,7 @@ class MPCController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> MPCController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> MPCController:
     from tspend.controllers.full_model import full_model_and_constraints
     from tspend.controllers.lqr import LQRSettings, build_full
 
@@ -490,12 +496,12 @@ def build(scenario: "Scenario") -> MPCController:
     except ImportError:  # pragma: no cover - the extra is in the test extra
         raise ScenarioError("controller 'mpc' needs CasADi (pip install 'tspend[mpc]')") from None
     s: MPCSettings = settings_for(scenario, MPCSettings)
-    model, constraints = full_model_and_constraints(scenario)
+    model, constraints = full_model_and_constraints(scenario, machine)
     dt = scenario.run.dt
     if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
         raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "
                             f"of run.dt = {dt:g} s, got {s.period:g}")
-    lqr = build_full(scenario, settings_for(scenario, LQRSettings))
+    lqr = build_full(scenario, settings_for(scenario, LQRSettings), machine)
     if s.state_weights is not None:
         if len(s.state_weights) != model.size:
             raise ScenarioError(f"{scenario.path}: controllers.mpc.state_weights: needs "

@@ -745,17 +745,6 @@ class CartPoleDomain(Domain):
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, MujocoCartPoleConfig) else self.default_model
 
-    def params_of_scenario(self, scenario: "Scenario") -> CartPoleParams:
-        """The cart-pole a model-based controller assumes: the machine the plant is.
-
-        For ``cartpole_ode`` the scenario's parameters; for ``cartpole_mujoco`` read back
-        from the compiled model (masses, COM distance, pole inertia, damping, gear and the
-        hinge axis' sign), so a baseline on a third-party MJCF assumes the machine MuJoCo
-        actually simulates.  Friction is left out: a nominal model knows the rigid body,
-        not what a rig adds to it.
-        """
-        return _nominal(self.build(scenario).params)  # type: ignore[attr-defined]
-
     def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
         """A MuJoCo cart-pole's keys left at 0 as its compiled model has them (``M`` the
         cart's mass, ``m``, ``l``, ``J`` the pole's, ``gear`` the force per unit u at
@@ -772,17 +761,17 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
-    def nominal_derived(self, scenario: "Scenario", plant: Plant | None = None) -> Machine | None:
+    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine | None:
         """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
-        (:func:`nominal_machine` of :func:`cartpole_machine` of its ``plant``, built when
-        not given); None for ``cartpole_ode`` (the paper's own equations) and for a model
-        the derivation refuses."""
+        (:func:`nominal_machine` of :func:`cartpole_machine` of its nominal ``plant``);
+        None for ``cartpole_ode`` (the paper's own equations) and for a model the
+        derivation refuses."""
         if not isinstance(scenario.plant, MujocoCartPoleConfig):
             return None
-        machine = cartpole_machine(plant if plant is not None else self.build(scenario))
+        machine = cartpole_machine(plant)
         return nominal_machine(machine) if machine is not None else None
 
-    def full_model(self, scenario: "Scenario") -> FullModel:
+    def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The nominal machine over the full state ``[slider, hinge, slider_dot,
         hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
         derived from the compiled model (numbers through the compiled module, CasADi through
@@ -791,7 +780,7 @@ class CartPoleDomain(Domain):
         ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
         (its ranges clipped by ``casadi.fmin``/``fmax``) and
         :func:`~tspend.plants.cartpole_physics.pole_energy`."""
-        plant = self.build(scenario)
+        plant = machine
         params = _nominal(plant.params)  # type: ignore[attr-defined]
         derived = self.nominal_derived(scenario, plant)
         if derived is not None:
@@ -841,27 +830,26 @@ class CartPoleDomain(Domain):
                          parameters=params.finite(), machine=machine,
                          accel_unit="m/s^2")
 
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        plant = self.build(scenario)
-        params = _nominal(plant.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, plant)
+        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        derived = self.nominal_derived(scenario, machine)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
         view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
                      else CartPoleView(params.machine()))
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
-    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
         """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
         exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
         for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
-        derived = self.nominal_derived(scenario)
+        derived = self.nominal_derived(scenario, machine)
         if derived is not None:
             return derived.linearisation()
-        return self.full_model(scenario).linearisation()
+        return self.full_model(scenario, machine).linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The exact ``(A, B)`` of a derived ODE twin's equations at ``at`` (CasADi's
