@@ -338,11 +338,9 @@ _LOADED: dict[str, type] = {}
 
 def search_space(kind: str) -> "dict[str, Search]":
     """The declared search space of ``kind``: ``{key in the file: Search}``."""
-    from tspend.controllers.settings import PAPER_KINDS, PAPER_SEARCH, search_table
+    from tspend.controllers.settings import search_table
 
-    if kind in PAPER_KINDS:
-        return search_table(kind, PAPER_SEARCH)
-    if kind in KINDS and _table_settings(KINDS[kind]):
+    if kind in KINDS and KINDS[kind].Settings is not None:
         return search_table(kind, KINDS[kind].Settings.SEARCH)  # type: ignore[union-attr]
     raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}")
 
@@ -362,11 +360,11 @@ def settings_of(scenario: "Scenario", kind_name: str | None) -> dict[str, Any]:
     """The settings the kind runs with, as plain values (for the metrics JSON)."""
     from tspend.controllers.settings import settings_for
 
-    if kind_name is None or kind_name in _PAPER_SUMMARY:
-        cfg = scenario.controller
-        if kind_name is not None:
-            cfg = replace(cfg, adaptation="first" if kind_name == "first_type" else "second")
-        return _plain(dataclasses.asdict(cfg))
+    if kind_name is None:
+        return _plain(dataclasses.asdict(scenario.controller))
+    if kind_name in KINDS:
+        own = KINDS[kind_name].settings_in(scenario)
+        return _plain(dataclasses.asdict(own)) if own is not None else {}
     cls = settings_class(kind_name)
     if cls is None:
         return {}

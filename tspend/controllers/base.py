@@ -213,9 +213,17 @@ class Controller(ABC):
         """
         if cls.Settings is None:
             return cls(scenario)  # type: ignore[call-arg]
+        return cls(scenario, cls.settings_in(scenario))  # type: ignore[call-arg]
+
+    @classmethod
+    def settings_in(cls, scenario: Any) -> Any:
+        """The settings the kind runs with on ``scenario``: its ``[controllers.KIND]``
+        table, else the defaults of :attr:`Settings` (None: the kind has none)."""
+        if cls.Settings is None:
+            return None
         from tspend.controllers.settings import settings_for
 
-        return cls(scenario, settings_for(scenario, cls.Settings))  # type: ignore[call-arg]
+        return settings_for(scenario, cls.Settings)
 
     @classmethod
     def unsupported(cls, domain: "Domain") -> str | None:

@@ -9,9 +9,8 @@ Two kinds, two sources of equations:
   (overridden) model by the articulated domain
   (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
   the controllers (the joints' damping and dry friction left out), the twin with the
-  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``.  A model the derivation
-  refuses but the cart-pole reads (a joint's ``actuatorfrcrange``, say) falls back to the
-  hand-written equations below.
+  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``; a model
+  the derivation refuses is refused in one line naming what to change.
 * ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
   equations (C1)-(C2) of :mod:`tspend.plants.cartpole_physics`, as the paper writes them
   (issue 32's exception); they are also the test oracle of the derived ones
@@ -231,19 +230,16 @@ def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: s
 def cartpole_machine(plant: Plant) -> Machine | None:
     """The articulated machine of a MuJoCo cart-pole ``plant``: its compiled (overridden)
     model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
-    the machine of a :class:`DerivedCartPoleODE` is its own.  None for a plant without a
-    MuJoCo model, or one the derivation refuses that the hand-written (C1)-(C2) take (a
-    joint's ``actuatorfrcrange``, say): those keep the hand-written equations."""
+    the machine of a :class:`DerivedCartPoleODE` is its own.  None for the paper's ODE
+    (``cartpole_ode``: (C1)-(C2) as written).  ScenarioError (one line naming what to
+    change) for a model the derivation refuses."""
     if isinstance(plant, EffectsPlant):
         plant = plant.inner
     if isinstance(plant, DerivedCartPoleODE):
         return plant.machine
     if plant.mj_model() is None:
         return None
-    try:
-        return plant.machine  # type: ignore[attr-defined]
-    except ScenarioError:
-        return None
+    return plant.machine  # type: ignore[attr-defined]
 
 
 def nominal_machine(machine: Machine) -> Machine:
@@ -764,11 +760,8 @@ class CartPoleDomain(Domain):
     def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine | None:
         """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
         (:func:`nominal_machine` of :func:`cartpole_machine` of its nominal ``plant``);
-        None for ``cartpole_ode`` (the paper's own equations) and for a model the
-        derivation refuses."""
-        if not isinstance(scenario.plant, MujocoCartPoleConfig):
-            return None
-        machine = cartpole_machine(plant)
+        None for ``cartpole_ode`` (the paper's own equations)."""
+        machine = cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig) else None
         return nominal_machine(machine) if machine is not None else None
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
@@ -948,15 +941,8 @@ class CartPoleDomain(Domain):
 
     def ode_of(self, plant: Plant) -> Plant:
         """The ODE of the MuJoCo ``plant``'s machine: the equations derived from its
-        compiled model (:class:`DerivedCartPoleODE`); the hand-written (C1)-(C2) of its
-        :class:`CartPoleParams`, with its joints' names and ranges, for a model the
-        derivation refuses."""
-        machine = cartpole_machine(plant)
-        if machine is not None:
-            return DerivedCartPoleODE(plant, machine)
-        ranges = {j.name: j.range for j in plant.joints if j.range is not None}
-        return cartpole_ode_plant(plant.params, plant.slide_joint,  # type: ignore[attr-defined]
-                                  plant.hinge_joint, ranges)  # type: ignore[attr-defined]
+        compiled model (:class:`DerivedCartPoleODE`)."""
+        return DerivedCartPoleODE(plant, cartpole_machine(plant))  # type: ignore[arg-type]
 
 
 #: the cart-pole domain

@@ -392,13 +392,16 @@ class AdaptiveFuzzyController(Controller):
     adaptation = "second"
 
     @classmethod
-    def from_scenario(cls, scenario, machine=None) -> "AdaptiveFuzzyController":
-        """The kind's controller on the scenario's ``[controller]`` settings, with the
-        kind's :attr:`adaptation`; it needs no model, so no ``machine``."""
+    def settings_in(cls, scenario) -> ControllerConfig:
+        """The scenario's ``[controller]`` settings with the kind's :attr:`adaptation`."""
         cfg = scenario.controller
-        if cfg.adaptation != cls.adaptation:
-            cfg = replace(cfg, adaptation=cls.adaptation)
-        return make_controller(cfg)
+        return cfg if cfg.adaptation == cls.adaptation else replace(cfg, adaptation=cls.adaptation)
+
+    @classmethod
+    def from_scenario(cls, scenario, machine=None) -> "AdaptiveFuzzyController":
+        """The kind's controller on :meth:`settings_in`; it needs no model, so no
+        ``machine``."""
+        return make_controller(cls.settings_in(scenario))
 
     def __init__(self, cfg: ControllerConfig) -> None:
         self.cfg = cfg
