@@ -4,9 +4,9 @@
 what the scenario sets.
 
 The runner hands the nominal machine (:func:`tspend.loop.simulation.nominal_machine`);
-its domain supplies the equations (:meth:`tspend.plants.domain.Domain.full_model`, from the
-one source of its equations: :mod:`tspend.plants.cartpole_physics`, the equations the
-articulated domain derives from the MJCF for the Furuta and the articulated machines);
+its domain supplies the equations (:meth:`tspend.plants.domain.Domain.full_model`: those
+derived from the MJCF for every MuJoCo machine, the paper's (C1)-(C2) for
+``cartpole_ode``);
 this module adds the bounds, generically:
 
 * the input's range: the plant's actuator (``plant.inputs``), tightened by

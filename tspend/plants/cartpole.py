@@ -41,7 +41,7 @@ from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
     machine_accelerations, machine_rhs, pole_energy, rhs)
@@ -160,26 +160,19 @@ COMPILED_RHS[CartPoleMachine] = machine_rhs
 
 # -- the analytic backend ---------------------------------------------------------------
 class CartPoleODE(AnalyticPlant):
-    """The cart-pole ODE (C1)-(C2), with the cart as hidden states, so the ODE backend can
-    draw the cart and meet a finite rail too.  Its joints take the MJCF's names (and
-    ranges) when it is built from a MuJoCo scenario (``slider``/``hinge`` by default).
+    """The paper's cart-pole ODE (C1)-(C2) (``cartpole_ode``), with the cart as hidden
+    states, so the ODE backend can draw the cart and meet a finite rail too.
 
     Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
     ``(slider, hinge, slider_dot, hinge_dot)``.
     """
 
-    def __init__(self, params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                 hinge_joint: str = "hinge",
-                 joint_ranges: dict[str, tuple[float, float]] | None = None) -> None:
-        names = (slide_joint, hinge_joint, velocity_name(slide_joint), velocity_name(hinge_joint))
+    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
         super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
                          2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
-                         domain="cartpole", state_names=names,
+                         domain="cartpole", state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
                          state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
-        self.slide_joint, self.hinge_joint = slide_joint, hinge_joint
-        ranges = joint_ranges or {}
-        self._joints = (JointInfo(slide_joint, "slide", "m", ranges.get(slide_joint)),
-                        JointInfo(hinge_joint, "hinge", "rad", ranges.get(hinge_joint)))
+        self._joints = (JointInfo("slider", "slide", "m", None), JointInfo("hinge", "hinge", "rad", None))
         self.set_params(params)
 
     @property
@@ -195,10 +188,7 @@ class CartPoleODE(AnalyticPlant):
         return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
 
     def default_task(self) -> TaskDefaults:
-        """The cart-pole domain's task on this plant's joint names."""
-        return DOMAIN.task.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
-                                    "slider_dot": velocity_name(self.slide_joint),
-                                    "hinge_dot": velocity_name(self.hinge_joint)})
+        return DOMAIN.task
 
     @property
     def gain_sign(self) -> int:
@@ -220,10 +210,8 @@ class CartPoleODE(AnalyticPlant):
         return CompiledPlant(self._machine, self.s, self._clock, self._work, self.full_order)
 
 
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                       hinge_joint: str = "hinge",
-                       joint_ranges: dict[str, tuple[float, float]] | None = None) -> CartPoleODE:
-    return CartPoleODE(params, slide_joint, hinge_joint, joint_ranges)
+def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
+    return CartPoleODE(params)
 
 
 # -- the derived equations of a MuJoCo cart-pole ----------------------------------------
