@@ -202,3 +202,21 @@ def test_the_papers_example_3_equation_is_the_views_model_on_the_papers_machine(
         u, d = rng.uniform(-300.0, 300.0), rng.uniform(-0.1, 0.1)
         want = cartpole_accel(0.0, x, u, d)
         assert view.accel(0.0, x, u, d) == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+def test_a_cartpole_the_derivation_refuses_is_refused_in_one_line(tmp_path, capsys) -> None:
+    """A cart-pole MJCF whose equations cannot be derived (gravity compensation on the
+    pole) is refused when it is built, in one line naming the cause and what to change,
+    exit 2; nothing falls back to hand-written equations."""
+    from tspend.cli.main import main
+
+    text = (ROOT / "models" / "cartpole.xml").read_text()
+    assert '<body name="pole" pos="0 0 0.25">' in text
+    model = tmp_path / "gravcomp.xml"
+    model.write_text(text.replace('<body name="pole" pos="0 0 0.25">',
+                                  '<body name="pole" pos="0 0 0.25" gravcomp="1">'))
+    status = main(["run", "pendulum_mujoco", "--no-record", "--duration", "0.1",
+                   "--set", f"plant.model={model}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1, err
+    assert "gravity compensation (gravcomp)" in err[0] and "change the model" in err[0]

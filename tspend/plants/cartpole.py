@@ -426,11 +426,16 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
         overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
-    return MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
-                          actuator=mj.actuator, overrides=overrides,
-                          integrator=mj.integrator or None, timestep=mj.timestep or None,
-                          gear=mj.gear or None,
-                          task_defaults=DOMAIN.task, **friction)
+    plant = MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
+                           actuator=mj.actuator, overrides=overrides,
+                           integrator=mj.integrator or None, timestep=mj.timestep or None,
+                           gear=mj.gear or None,
+                           task_defaults=DOMAIN.task, **friction)
+    # a cart-pole is an articulated machine: its equations (the controllers' models, the
+    # ODE twin, the task check) are derived from the model, so a model that cannot be
+    # derived is refused here, in one line naming what to change, not midway
+    cartpole_machine(plant)
+    return plant
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
