@@ -25,7 +25,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from tspend import load_scenario  # noqa: E402
-from tspend.controllers import KINDS, build  # noqa: E402
+from tspend.controllers import KINDS  # noqa: E402
+from tspend.loop.simulation import build_controller  # noqa: E402
 from tspend.controllers.base import chain_observation  # noqa: E402
 
 
@@ -62,7 +63,7 @@ def bare_mj_step(blocks: int, per_block: int) -> float:
 
 def kind_cost(scenario_name: str, kind: str, blocks: int, per_block: int) -> float:
     s = load_scenario(scenario_name)
-    ctrl = build(s, kind)
+    ctrl = build_controller(s, kind=kind)  # designed on the nominal machine
     ctrl.reset(np.random.default_rng(0))
     rng = np.random.default_rng(1)
     n = ctrl.order

@@ -151,7 +151,8 @@ def test_the_furuta_domain_steps_the_derived_equations_which_the_hand_written_ag
         want = getattr(oracle, name)
         assert value == pytest.approx(want, rel=1e-12, abs=1e-15), name
     # the swing-up's model: q'' and the pendulum's energy, as compiled code calls them
-    model = DOMAINS["furuta"].full_model(load_scenario("furuta_ode"))
+    scn = load_scenario("furuta_ode")
+    model = DOMAINS["furuta"].full_model(scn, DOMAINS["furuta"].build(scn))
     for _ in range(200):
         s = np.concatenate([rng.uniform(-math.pi, math.pi, 2), rng.uniform(-20, 20, 2)])
         assert model.energy(s) == pytest.approx(fp.pendulum_energy(oracle, s[1], s[3]),

@@ -17,7 +17,7 @@ import pytest
 
 from tspend import load_scenario, override
 from tspend.loop.simulation import run
-from tspend.plants.cartpole import (DOMAIN, DerivedCartPoleODE, cartpole_machine,
+from tspend.plants.cartpole import (DOMAIN, _nominal, DerivedCartPoleODE, cartpole_machine,
                                     nominal_machine)
 from tspend.plants.cartpole_physics import machine_accelerations, pole_energy
 from tspend.plants.mujoco_plant import MujocoCartPole
@@ -70,9 +70,10 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
     scn = load_scenario("pendulum_friction")
     plant = DOMAIN.build(scn)
     assert plant.params.cart_damping > 0 or plant.params.cart_friction > 0
-    nominal = DOMAIN.params_of_scenario(scn).machine()
-    view = DOMAIN.plant_model(scn)
-    full = DOMAIN.full_model(scn)
+    machine_ = DOMAIN.build(scn)   # the nominal machine the runner hands a controller
+    nominal = _nominal(machine_.params).machine()
+    view = DOMAIN.plant_model(scn, machine_)
+    full = DOMAIN.full_model(scn, machine_)
     rng = np.random.default_rng(3)
     for _ in range(200):
         x = np.array([rng.uniform(-math.pi, math.pi), rng.uniform(-20.0, 20.0)])
@@ -85,7 +86,7 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
         # the swing-up's energy of the pole
         assert full.energy(s) == pytest.approx(pole_energy(nominal, s[1], s[3]), rel=1e-12,
                                                abs=1e-12)
-    A, B = DOMAIN.linearisation(scn)
+    A, B = DOMAIN.linearisation(scn, machine_)
     h = 1e-6
     A_fd, B_fd = np.zeros((4, 4)), np.zeros((4, 1))
 
@@ -114,7 +115,7 @@ def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c
     assert twin.parameters() == DOMAIN.build(scn).parameters()
     ex3 = load_scenario("ex3_pendulum_ode")
     assert not isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
-    assert DOMAIN.nominal_derived(ex3) is None
+    assert DOMAIN.nominal_derived(ex3, DOMAIN.build(ex3)) is None
     # the task check's need, from both inverse dynamics, on the same machine (with its
     # damping and dry friction on pendulum_friction)
     from tspend.plants.cartpole import reference_force
@@ -149,11 +150,12 @@ def _third_party() -> list:
 
 
 @pytest.mark.parametrize("model", _third_party(), ids=lambda p: p.stem)
-def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(model) -> None:
+def test_every_cartpole_derives_and_agrees_with_c1_c2(model) -> None:
     """The test models (tilted hinge, leaning COM, reversed axis, velocity, position and
-    general actuators, contacts, dm_control's and gymnasium's): the derived equations
-    where the derivation takes the model (200 random states), and the hand-written ones where
-    it refuses it (a joint's actuatorfrcrange), the linearisation finite either way."""
+    general actuators, a joint's actuatorfrcrange, contacts, dm_control's and gymnasium's):
+    the derived equations against the hand-written oracle (C1)-(C2) at 200 random states
+    (the general actuator's force clamped by its joint's range at many of them), the
+    linearisation finite."""
     import warnings
 
     from tspend.plants.mujoco_plant import guess_names
@@ -162,11 +164,7 @@ def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(mo
         warnings.simplefilter("ignore")
         slide, hinge, act = guess_names(model, None, None, None)
         plant = MujocoCartPole(model, slide, hinge, act)
-    machine = cartpole_machine(plant)
-    if model.stem == "cartpole_general_actuator":
-        assert machine is None   # actuatorfrcrange: refused by the derivation
-        assert isinstance(DOMAIN.ode_of(plant), type(DOMAIN.build(load_scenario("ex3_pendulum_ode"))))
-        return
+    machine = cartpole_machine(plant)   # every one derives (actuatorfrcrange included)
     assert machine is not None, model
     ode = DerivedCartPoleODE(plant, machine)
     oracle = plant.params.machine()
@@ -186,3 +184,39 @@ def test_every_cartpole_the_derivation_takes_agrees_and_the_others_keep_c1_c2(mo
     assert worst <= 1e-12, (model.stem, worst)
     A, B = machine.linearisation()
     assert np.all(np.isfinite(A)) and np.all(np.isfinite(B))
+
+
+@pytest.mark.parametrize("name", ["ex3_pendulum_ode", "pendulum_mujoco"])
+def test_the_papers_example_3_equation_is_the_views_model_on_the_papers_machine(name) -> None:
+    """The paper's own Example 3 ODE (tspend.plants.analytic.cartpole_accel, as printed)
+    against the pole's equation the model-based kinds get on the paper's machine: the
+    hand-written (C1)-(C2) (ex3_pendulum_ode) and the equations derived from
+    models/cartpole.xml (pendulum_mujoco)."""
+    from tspend.plants.analytic import cartpole_accel
+
+    scn = load_scenario(name)
+    view = DOMAIN.plant_model(scn, DOMAIN.build(scn))
+    rng = np.random.default_rng(43)
+    for _ in range(300):
+        x = np.array([rng.uniform(-1.4, 1.4), rng.uniform(-5.0, 5.0)])
+        u, d = rng.uniform(-300.0, 300.0), rng.uniform(-0.1, 0.1)
+        want = cartpole_accel(0.0, x, u, d)
+        assert view.accel(0.0, x, u, d) == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+def test_a_cartpole_the_derivation_refuses_is_refused_in_one_line(tmp_path, capsys) -> None:
+    """A cart-pole MJCF whose equations cannot be derived (gravity compensation on the
+    pole) is refused when it is built, in one line naming the cause and what to change,
+    exit 2; nothing falls back to hand-written equations."""
+    from tspend.cli.main import main
+
+    text = (ROOT / "models" / "cartpole.xml").read_text()
+    assert '<body name="pole" pos="0 0 0.25">' in text
+    model = tmp_path / "gravcomp.xml"
+    model.write_text(text.replace('<body name="pole" pos="0 0 0.25">',
+                                  '<body name="pole" pos="0 0 0.25" gravcomp="1">'))
+    status = main(["run", "pendulum_mujoco", "--no-record", "--duration", "0.1",
+                   "--set", f"plant.model={model}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1, err
+    assert "gravity compensation (gravcomp)" in err[0] and "change the model" in err[0]

@@ -21,6 +21,7 @@ import pytest
 
 from tspend import load_scenario, override, run
 from tspend.controllers.full_model import full_model, wrap_angle
+from tspend.loop.simulation import nominal_machine
 from mpc_plans import run_keeping_plans
 
 
@@ -35,7 +36,7 @@ def test_symbolic_furuta_equations_are_the_numeric_ones_and_mujocos():
     import mujoco
 
     s = load_scenario("furuta_mujoco")
-    model = full_model(s)
+    model = full_model(s, nominal_machine(s))
     f = model.symbolic()
     x, u = casadi.SX.sym("x", 4), casadi.SX.sym("u")
     F = casadi.Function("F", [x, u], [f(x, u)])
@@ -63,7 +64,7 @@ def test_furuta_swingup_energy_rises_until_the_catch():
     h = r.history
     caught = int(np.argmax(h["mode"] > 0.5))
     assert caught > 0 and h["t"][caught] < 4.0
-    model = full_model(s)
+    model = full_model(s, nominal_machine(s))
     state, u = h["state"][:caught], h["u"][:caught]
     # E' is affine in u: what the input adds is E'(u) - E'(u_0), u_0 the voltage that
     # leaves the arm unaccelerated; the law never takes energy out

@@ -125,9 +125,9 @@ def test_missing_python_control_is_a_clear_error(monkeypatch):
 def test_lqr_full_design_is_lqr_on_the_linearisation(scenario):
     # the kind designs on the domain's exact Jacobian; on these models (no friction) it is
     # MuJoCo's own linearisation, and its gain is control.lqr on the StateSpace
-    from tspend.controllers import build
+    from tspend.loop.simulation import build_controller
 
-    ctrl = build(load_scenario(scenario), "lqr")
+    ctrl = build_controller(load_scenario(scenario), kind="lqr")
     sys_ = tspend.linearize(scenario)
     np.testing.assert_allclose(ctrl.A, sys_.A, atol=1e-9 * np.abs(sys_.A).max())
     np.testing.assert_allclose(ctrl.B, sys_.B, atol=1e-9 * np.abs(sys_.B).max())

@@ -238,9 +238,11 @@ def test_mpc_model_is_the_general_ode_symbolically(model: Path) -> None:
     import casadi
 
     from tspend.controllers.full_model import full_model
+    from tspend.loop.simulation import nominal_machine
 
     slide, hinge, act = ALL[model]
-    fm = full_model(scenario_on(model, ALL[model]))
+    scn = scenario_on(model, ALL[model])
+    fm = full_model(scn, nominal_machine(scn))
     S, U = casadi.SX.sym("s", 4), casadi.SX.sym("u")
     f = casadi.Function("f", [S, U], [fm.symbolic()(S, U)])
     plant = MujocoCartPole(model, slide, hinge, act, timestep=0.001)

@@ -14,6 +14,7 @@ pytest.importorskip("casadi")
 
 from tspend.cli.main import main  # noqa: E402
 from tspend.controllers.full_model import full_model  # noqa: E402
+from tspend.loop.simulation import nominal_machine  # noqa: E402
 from tspend.controllers.trajectory import (PlanFailed, plan_swingup, read_plan,  # noqa: E402
                                            write_plan)
 from tspend.loop.simulation import run  # noqa: E402
@@ -27,7 +28,7 @@ HORIZON, INTERVAL, STEP = 1.6, 0.02, 0.01
 @pytest.fixture(scope="module")
 def planned():
     scn = load_scenario(SCENARIO)
-    model = full_model(scn)
+    model = full_model(scn, nominal_machine(scn))
     s0 = np.array([0.0, math.pi, 0.0, 0.0])
     plan = plan_swingup(model, s0, HORIZON, INTERVAL, scn.run.dt, step=STEP, margin=0.05,
                         units=(("m", "rad", "m/s", "rad/s"), "force", "N"))
@@ -135,7 +136,7 @@ def test_a_plan_on_the_run_step_is_what_mujoco_does_open_loop() -> None:
 
     scn = load_scenario(SCENARIO)
     s0 = np.array([0.0, math.pi, 0.0, 0.0])
-    plan = plan_swingup(full_model(scn), s0, HORIZON, INTERVAL, scn.run.dt, step=scn.run.dt)
+    plan = plan_swingup(full_model(scn, nominal_machine(scn)), s0, HORIZON, INTERVAL, scn.run.dt, step=scn.run.dt)
     plant = build_plant(scn)
     plant.reset(np.array([math.pi, 0.0]))
     assert np.array_equal(plant.full_state(), s0)

@@ -156,7 +156,7 @@ def test_controller_help_lists_every_kind(tmp_path: Path, monkeypatch, capsys, c
 def test_builtin_kind_records_its_settings(tmp_path: Path, monkeypatch, capsys) -> None:
     from dataclasses import fields
 
-    from tspend.controllers import SETTINGS
+    from tspend.controllers import KINDS
 
     monkeypatch.chdir(tmp_path)
     status, _, err = in_process(capsys, "run", "ex2_duffing", "--controller", "lqr",
@@ -165,7 +165,7 @@ def test_builtin_kind_records_its_settings(tmp_path: Path, monkeypatch, capsys) 
     assert status == 0, err
     ctl = json.loads((tmp_path / "m.json").read_text())["controller"]
     assert ctl["kind"] == "lqr" and ctl["settings"]["R"] == 0.5
-    assert set(ctl["settings"]) == {f.name for f in fields(SETTINGS["lqr"])}
+    assert set(ctl["settings"]) == {f.name for f in fields(KINDS["lqr"].Settings)}
     status, _, err = in_process(capsys, "run", "ex2_duffing", "--duration", "0.5", "--no-record",
                                 "--metrics", "p.json", "--set", "controller.adaptation=first")
     ctl = json.loads((tmp_path / "p.json").read_text())["controller"]

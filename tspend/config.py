@@ -24,6 +24,14 @@ class SetSpec:
 class ControllerConfig:
     """The adaptive fuzzy controller of section 3 (defaults: Example 3's design values)."""
 
+    # what ``tspend tune`` searches for the paper's kinds, as every kind's settings class
+    # declares it (a class attribute, not a field): the rates of (25)-(27), Q of Lemma 1 as
+    # a scale of the identity, lambda of (18) as (s + p)^n, and the boundary layer of
+    # (21) (0 = the paper's sign)
+    SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
+              "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, 10.0, "log", "poles"),
+              "boundary_layer": (0.0, 1.0, "linear")}
+
     #: lambda_1 .. lambda_n of (18): s^n + lambda_n s^(n-1) + .. + lambda_1 must be Hurwitz
     lam: tuple[float, ...] = (1.0, 2.0)
     #: Q of Lemma 1, symmetric positive definite (n x n)

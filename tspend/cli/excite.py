@@ -111,9 +111,10 @@ def cmd(args: argparse.Namespace) -> int:
     data["reference"] = {"kind": "constant", "value": 0.0}
     data["disturbance"] = {"kind": "zero"}
     from tspend.controllers.full_model import full_model
+    from tspend.loop.simulation import nominal_machine
 
     try:
-        fm = full_model(scn)
+        fm = full_model(scn, nominal_machine(scn))
         u_lo, u_hi = fm.u_lo, fm.u_hi
     except ScenarioError:
         u_lo, u_hi = -math.inf, math.inf

@@ -51,7 +51,7 @@ def cmd(args: argparse.Namespace) -> int:
                                                plan_swingup, write_plan)
     from tspend.controllers.tvlqr import plan_of
     from tspend.errors import ScenarioError
-    from tspend.loop.simulation import build_plant
+    from tspend.loop.simulation import build_plant, nominal_machine
 
     scn = load_with_overrides(args)
     why = unsupported(scn, "tvlqr")
@@ -61,7 +61,7 @@ def cmd(args: argparse.Namespace) -> int:
     if args.metrics is not None:
         requests.append(OutputRequest("--metrics", "solver figures", ".json", args.metrics))
     targets = [p.target for p in plan_outputs(requests, scenario_inputs(scn))]
-    model, s, units = plan_of(scn)
+    model, s, units = plan_of(scn, nominal_machine(scn))
     if args.nominal:   # the scenario's own x0 and q0, nothing drawn
         from tspend.plants.registry import build as build_nominal
 

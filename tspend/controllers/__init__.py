@@ -1,20 +1,24 @@
 """Controllers behind one protocol (:mod:`tspend.controllers.base`), chosen by kind.
 
-``KINDS`` maps each kind to the function that builds it from a scenario: the paper's
-``second_type`` (the default) and ``first_type`` (antecedents fixed), and the baselines
-to compare them with, one module each (``pd``, ``lqr``, ``feedback_linearization``,
-``sliding_mode``, ``wang_indirect``; see docs/controllers.md).  A builder takes the
-scenario and the keyword options, and returns a controller that has not been reset yet.
-``SETTINGS`` maps each baseline kind to its settings dataclass, read from the scenario's
-``[controllers.KIND]`` table (:mod:`.settings`).
+:data:`KINDS` is the one registry of controller kinds: kind -> its class.  The class
+carries everything the kind is: its settings dataclass (``Settings``, read from the
+scenario's ``[controllers.KIND]`` table, :mod:`.settings`; the paper's kinds read
+``[controller]``), what it needs of a plant's domain (``needs``), the domains it is made
+for (``domains``), what it guarantees, and how it is built
+(``Class.from_scenario(scenario, machine)``, the nominal machine the runner built:
+:func:`tspend.loop.simulation.nominal_machine`).  The kinds: the paper's ``second_type``
+(the default) and ``first_type`` (antecedents fixed), and the baselines to compare them
+with, one module each (``pd``, ``lqr``, ``feedback_linearization``, ``sliding_mode``,
+``wang_indirect``, ...; see docs/controllers.md).
 
 A controller of one's own is named like a kind, by a spec (:func:`resolve`):
 ``path/to/file.py:Class``, ``package.module:Class``, or the name an installed package
 registers under the entry-point group ``tspend.controllers``.  ``Class`` is a
 :class:`Controller` built as ``Class(scenario, settings)`` when it declares a ``Settings``
 dataclass (read from ``[controllers.<Class.kind>]``, see :mod:`.settings`), else as
-``Class(scenario)``; a function ``f(scenario) -> Controller`` works too.
-``examples/custom_controller.py`` and docs/writing-a-controller.md show one.
+``Class(scenario)`` (:meth:`Controller.from_scenario`); a function
+``f(scenario) -> Controller`` works too.  ``examples/custom_controller.py`` and
+docs/writing-a-controller.md show one.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from tspend.controllers import tvlqr
 from tspend.controllers import policy
 from tspend.controllers import excitation
 from tspend.controllers.base import Controller, Diagnostic
+from tspend.controllers.paper.controller import AdaptiveFuzzyController, FirstTypeController
 from tspend.controllers.settings import KindSettings
 from tspend.errors import ScenarioError
 from tspend.runtime import plugins
@@ -39,65 +44,24 @@ from tspend.runtime import plugins
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.controllers.settings import Search
+    from tspend.plants.base import Plant
 
 
-def _paper(adaptation: str | None) -> Callable[..., Controller]:
-    def build(scenario: "Scenario") -> Controller:
-        from tspend.controllers.paper.controller import make_controller
-
-        cfg = scenario.controller
-        if adaptation is not None and cfg.adaptation != adaptation:
-            cfg = replace(cfg, adaptation=adaptation)
-        return make_controller(cfg)
-
-    return build
+#: controller kind -> its class (what it declares: ``Settings``, ``needs``, ``domains``,
+#: ``guarantees``; how it is built: ``from_scenario``), in the order kinds are listed
+KINDS: dict[str, type[Controller]] = {cls.kind: cls for cls in (
+    AdaptiveFuzzyController, FirstTypeController, pd.PDController, lqr.LQRController,
+    feedback_linearization.FeedbackLinearizationController,
+    sliding_mode.SlidingModeController, wang_indirect.WangIndirectController,
+    swingup.SwingUpController, mpc.MPCController, tvlqr.TVLQRController,
+    policy.PolicyController, excitation.ExcitedController)}
 
 
-#: controller kind -> builder(scenario, **options)
-KINDS: dict[str, Callable[..., Controller]] = {
-    "second_type": _paper("second"),
-    "first_type": _paper("first"),
-    "pd": pd.build,
-    "lqr": lqr.build,
-    "feedback_linearization": feedback_linearization.build,
-    "sliding_mode": sliding_mode.build,
-    "wang_indirect": wang_indirect.build,
-    "swingup": swingup.build,
-    "mpc": mpc.build,
-    "tvlqr": tvlqr.build,
-    "policy": policy.build,
-    "excited": excitation.build,
-}
-
-#: built-in kind -> its controller class (what it declares: ``needs``, ``domains``,
-#: ``guarantees``); the paper's kinds are :func:`kind_class`'s
-CLASSES: dict[str, type[Controller]] = {
-    "pd": pd.PDController,
-    "lqr": lqr.LQRController,
-    "feedback_linearization": feedback_linearization.FeedbackLinearizationController,
-    "sliding_mode": sliding_mode.SlidingModeController,
-    "wang_indirect": wang_indirect.WangIndirectController,
-    "swingup": swingup.SwingUpController,
-    "mpc": mpc.MPCController,
-    "tvlqr": tvlqr.TVLQRController,
-    "policy": policy.PolicyController,
-    "excited": excitation.ExcitedController,
-}
-
-#: baseline kind -> its settings dataclass, read from [controllers.KIND]
-SETTINGS: dict[str, type] = {
-    "pd": pd.PDSettings,
-    "lqr": lqr.LQRSettings,
-    "feedback_linearization": feedback_linearization.FeedbackLinearizationSettings,
-    "sliding_mode": sliding_mode.SlidingModeSettings,
-    "wang_indirect": wang_indirect.WangSettings,
-    "swingup": swingup.SwingUpSettings,
-    "mpc": mpc.MPCSettings,
-    "tvlqr": tvlqr.TVLQRSettings,
-    "policy": policy.PolicySettings,
-    "excited": excitation.ExcitationSettings,
-}
-
+def _table_settings(cls: type[Controller]) -> type | None:
+    """The kind's settings class when it is read from ``[controllers.KIND]`` (the paper's
+    ``[controller]`` is read by the scenario reader itself)."""
+    st = cls.Settings
+    return st if st is not None and issubclass(st, KindSettings) else None
 
 
 #: the entry-point group of installed controller packages (``name = "module:Class"``)
@@ -116,7 +80,8 @@ class Kind:
     """A controller kind, built in or a plug-in, as :func:`resolve` finds it."""
 
     name: str                                  # what ``controller.kind`` records
-    build: Callable[["Scenario"], Controller]  # the scenario -> a controller, not reset
+    #: (scenario, nominal machine or None) -> a controller, not reset
+    build: Callable[..., Controller]
     settings: type | None                      # its [controllers.NAME] dataclass, if any
     summary: str                               # one line for ``--controller help``
     source: str = ""                           # the spec it came from ("" if built in)
@@ -144,19 +109,15 @@ def _plugin_kind(obj: object, spec: str, option: str) -> Kind:
             raise ScenarioError(f"{option} {spec}: {obj.__name__}.Settings must be a dataclass "
                                 f"subclassing tspend.controllers.settings.KindSettings")
         doc = (obj.__doc__ or "").strip().splitlines()
-        cls = obj
-
-        def build(scenario: "Scenario") -> Controller:
-            if settings is None:
-                return cls(scenario)
-            from tspend.controllers.settings import settings_for
-
-            return cls(scenario, settings_for(scenario, settings))
+        build = obj.from_scenario
     elif callable(obj):
         name = getattr(obj, "kind", None) or getattr(obj, "__name__", "plugin")
         settings = getattr(obj, "Settings", None)
         doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
-        build = obj  # type: ignore[assignment]
+        factory = obj
+
+        def build(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+            return factory(scenario)  # a user's factory takes the scenario alone
     else:
         raise ScenarioError(f"{option} {spec}: is a {type(obj).__name__}, not a Controller "
                             f"class or a function returning one")
@@ -179,18 +140,19 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     if spec in _OBJECTS:  # a class or an instance handed to tspend.run (python_object_spec)
         return _OBJECTS[spec]
     if spec in KINDS:
-        return Kind(spec, KINDS[spec], SETTINGS.get(spec), _summary(spec), "", kind_class(spec))
+        cls = KINDS[spec]
+        return Kind(spec, cls.from_scenario, _table_settings(cls), _summary(spec), "", cls)
     from tspend.controllers.safety import SUFFIX
 
     if spec.endswith(SUFFIX) and len(spec) > len(SUFFIX):
         # ``pd+cbf``: the kind behind the safety filter (docs/safety.md)
         base = resolve(spec[:-len(SUFFIX)], option)
 
-        def filtered(scenario: "Scenario", **options) -> Controller:
+        def filtered(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
             from tspend.controllers.safety import SafetyFilter, wrap
 
-            ctrl = base.build(scenario, **options)
-            return ctrl if isinstance(ctrl, SafetyFilter) else wrap(scenario, ctrl)
+            ctrl = base.build(scenario, machine)
+            return ctrl if isinstance(ctrl, SafetyFilter) else wrap(scenario, ctrl, machine)
 
         return replace(base, name=base.name + SUFFIX, build=filtered,
                        summary=f"{base.summary} (behind the CBF safety filter)")
@@ -218,7 +180,7 @@ def python_object_spec(obj: object, option: str = "controller") -> str:
         instance = obj
         kind = _plugin_kind(type(obj), f"python:{type(obj).__qualname__}", option)
 
-        def build(scenario: "Scenario") -> Controller:
+        def build(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
             return instance
 
         kind = dataclasses.replace(kind, build=build)
@@ -237,11 +199,26 @@ def python_object_spec(obj: object, option: str = "controller") -> str:
 
 def kind_class(name: str) -> type[Controller]:
     """The controller class of the built-in kind ``name`` (KeyError for another)."""
-    if name in _PAPER_SUMMARY:
-        from tspend.controllers.paper.controller import AdaptiveFuzzyController
+    return KINDS[name]
 
-        return AdaptiveFuzzyController
-    return CLASSES[name]
+
+def needs_machine(scenario: "Scenario", kind: str | None = None) -> bool:
+    """Whether building the kind ``kind`` (any spec :func:`build` takes; None: the
+    scenario's own) for ``scenario`` designs on a model of the plant, so the runner must
+    hand it the nominal machine: a built-in kind that needs a model of the plant's domain,
+    the ``excited`` kind around one, and any kind behind the safety filter."""
+    from tspend.controllers.safety import SUFFIX
+
+    if kind is None:
+        kind = scenario.run.controller or None
+    if scenario.safety.filter == "cbf" or (kind or "").endswith(SUFFIX):
+        return True
+    cls = KINDS.get(kind or "")
+    if cls is excitation.ExcitedController:
+        from tspend.controllers.settings import settings_for
+
+        return needs_machine(scenario, settings_for(scenario, excitation.ExcitationSettings).inner)
+    return cls is not None and bool(cls.needs)
 
 
 def unsupported(scenario: "Scenario", kind: str, cls: type[Controller] | None = None) -> str | None:
@@ -320,8 +297,8 @@ def settings_class(name: str) -> type | None:
     loaded (so a plug-in named on the command line has its ``[controllers.NAME]`` table
     and ``--set`` overrides validated like a built-in kind's).
     """
-    if name in SETTINGS:
-        return SETTINGS[name]
+    if name in KINDS:
+        return _table_settings(KINDS[name])
     if name.endswith("+cbf") and name != "+cbf":
         return settings_class(name[:-len("+cbf")])
     if name in _LOADED:
@@ -341,10 +318,10 @@ class _KindSettingsView(Mapping):
         return cls
 
     def __iter__(self):
-        return iter([*SETTINGS, *_LOADED])
+        return iter([*(k for k, c in KINDS.items() if _table_settings(c)), *_LOADED])
 
     def __len__(self) -> int:
-        return len(SETTINGS) + len(_LOADED)
+        return len(list(iter(self)))
 
 
 def settings_classes() -> Mapping[str, type]:
@@ -361,12 +338,10 @@ _LOADED: dict[str, type] = {}
 
 def search_space(kind: str) -> "dict[str, Search]":
     """The declared search space of ``kind``: ``{key in the file: Search}``."""
-    from tspend.controllers.settings import PAPER_KINDS, PAPER_SEARCH, search_table
+    from tspend.controllers.settings import search_table
 
-    if kind in PAPER_KINDS:
-        return search_table(kind, PAPER_SEARCH)
-    if kind in SETTINGS:
-        return search_table(kind, SETTINGS[kind].SEARCH)
+    if kind in KINDS and KINDS[kind].Settings is not None:
+        return search_table(kind, KINDS[kind].Settings.SEARCH)  # type: ignore[union-attr]
     raise ValueError(f"unknown controller kind {kind!r}; allowed: {', '.join(KINDS)}")
 
 
@@ -385,11 +360,11 @@ def settings_of(scenario: "Scenario", kind_name: str | None) -> dict[str, Any]:
     """The settings the kind runs with, as plain values (for the metrics JSON)."""
     from tspend.controllers.settings import settings_for
 
-    if kind_name is None or kind_name in _PAPER_SUMMARY:
-        cfg = scenario.controller
-        if kind_name is not None:
-            cfg = replace(cfg, adaptation="first" if kind_name == "first_type" else "second")
-        return _plain(dataclasses.asdict(cfg))
+    if kind_name is None:
+        return _plain(dataclasses.asdict(scenario.controller))
+    if kind_name in KINDS:
+        own = KINDS[kind_name].settings_in(scenario)
+        return _plain(dataclasses.asdict(own)) if own is not None else {}
     cls = settings_class(kind_name)
     if cls is None:
         return {}
@@ -406,35 +381,40 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
+def build(scenario: "Scenario", kind: str | None = None,
+          machine: "Plant | None" = None) -> Controller:
     """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller),
     behind the safety filter when the scenario's ``[safety]`` asks for one (or the kind is
     spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`).
 
-    ``kind`` is any spec :func:`resolve` accepts.
+    ``kind`` is any spec :func:`resolve` accepts; ``machine`` the nominal machine the
+    runner built for a kind that designs on one (:func:`needs_machine`;
+    :func:`tspend.loop.simulation.nominal_machine`).
     """
-    ctrl = _build(scenario, kind, **options)
+    ctrl = _build(scenario, kind, machine)
     if scenario.safety.filter == "cbf":
         from tspend.controllers.safety import SafetyFilter, wrap
 
         if not isinstance(ctrl, SafetyFilter):
-            ctrl = wrap(scenario, ctrl)
+            ctrl = wrap(scenario, ctrl, machine)
     return ctrl
 
 
-def _build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
+def _build(scenario: "Scenario", kind: str | None, machine: "Plant | None") -> Controller:
     if kind is None:
         kind = scenario.run.controller or None   # the scenario's own kind ([run] controller)
     if kind is None:
-        return _paper(None)(scenario, **options)
+        from tspend.controllers.paper.controller import make_controller
+
+        return make_controller(scenario.controller)  # the file's [controller] as it is
     found = load(kind)
     refused = unsupported(scenario, kind, found.cls)
     if refused:
         raise ScenarioError(refused)
     if not found.source:
-        return found.build(scenario, **options)
+        return found.build(scenario, machine)
     try:
-        ctrl = found.build(scenario, **options)
+        ctrl = found.build(scenario, machine)
     except ScenarioError:
         raise
     except Exception as exc:  # the user's code: one line, exit 2, nothing written yet
@@ -451,7 +431,7 @@ def _build(scenario: "Scenario", kind: str | None = None, **options) -> Controll
     return ctrl
 
 
-__all__ = ["KINDS", "CLASSES", "SETTINGS", "kind_class", "kinds_table", "unsupported",
+__all__ = ["KINDS", "kind_class", "needs_machine", "kinds_table", "unsupported",
            "search_space", "ENTRY_POINT_GROUP", "Controller", "Diagnostic", "Kind",
            "available", "build", "help_text", "load", "resolve", "settings_class",
            "settings_classes", "settings_of"]

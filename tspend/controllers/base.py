@@ -196,6 +196,34 @@ class Controller(ABC):
     domains: tuple[str, ...] = ()
     #: what the kind guarantees, in one line (docs/controllers.md's table)
     guarantees: str = ""
+    #: the kind's settings dataclass, read from the scenario's ``[controllers.KIND]`` table
+    #: (:mod:`tspend.controllers.settings`; the paper's kinds: ``[controller]``); None:
+    #: the kind has no settings
+    Settings: "type | None" = None
+
+    @classmethod
+    def from_scenario(cls, scenario: Any, machine: Any = None) -> "Controller":
+        """The kind's controller for ``scenario``, not reset yet.  ``machine``: the
+        nominal machine (a plant built from the scenario as written, before ``[randomize]``
+        draws: :func:`tspend.loop.simulation.nominal_machine`) a kind that :attr:`needs`
+        a model designs on; None for a kind that needs none.
+
+        By default a plug-in's convention: ``cls(scenario, settings)`` when the class
+        declares :attr:`Settings`, else ``cls(scenario)``; the built-in kinds override it.
+        """
+        if cls.Settings is None:
+            return cls(scenario)  # type: ignore[call-arg]
+        return cls(scenario, cls.settings_in(scenario))  # type: ignore[call-arg]
+
+    @classmethod
+    def settings_in(cls, scenario: Any) -> Any:
+        """The settings the kind runs with on ``scenario``: its ``[controllers.KIND]``
+        table, else the defaults of :attr:`Settings` (None: the kind has none)."""
+        if cls.Settings is None:
+            return None
+        from tspend.controllers.settings import settings_for
+
+        return settings_for(scenario, cls.Settings)
 
     @classmethod
     def unsupported(cls, domain: "Domain") -> str | None:

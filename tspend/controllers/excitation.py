@@ -34,6 +34,7 @@ from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 __all__ = ["ExcitationSettings", "ExcitedController", "SIGNALS", "excitation", "build"]
@@ -124,6 +125,11 @@ class ExcitedController(Controller):
     """The ``excited`` kind: another kind's command plus the excitation."""
 
     kind = "excited"
+    Settings = ExcitationSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     guarantees = "the inner kind's, for the excitation's amplitude small enough"
 
     def __init__(self, inner: Controller, settings: ExcitationSettings) -> None:
@@ -152,7 +158,7 @@ class ExcitedController(Controller):
         return self.inner.parameters()
 
 
-def build(scenario: "Scenario") -> ExcitedController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> ExcitedController:
     from tspend.controllers import build as build_kind
 
     s: ExcitationSettings = settings_for(scenario, ExcitationSettings)
@@ -161,7 +167,7 @@ def build(scenario: "Scenario") -> ExcitedController:
         raise ScenarioError(f"{scenario.path or scenario.name}: controllers.excited.f_max_hz: "
                             f"{s.f_max_hz:g} Hz is above {nyquist:g} Hz, half the rate the "
                             f"input is applied at")
-    return ExcitedController(build_kind(scenario, s.inner), s)
+    return ExcitedController(build_kind(scenario, s.inner, machine=machine), s)
 
 
 def nyquist_hz(scenario: "Scenario") -> float:

@@ -47,6 +47,7 @@ from tspend.runtime.jit import JIT
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 
@@ -177,6 +178,11 @@ class FeedbackLinearizationController(Controller):
     """The ``feedback_linearization`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "feedback_linearization"
+    Settings = FeedbackLinearizationSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (VIEW_MODEL,)
     guarantees = ("exact linear error dynamics where the view's model is exact and "
                   "df/du != 0 (the oracle)")
@@ -231,7 +237,7 @@ class FeedbackLinearizationController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> FeedbackLinearizationController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> FeedbackLinearizationController:
     s: FeedbackLinearizationSettings = settings_for(scenario, FeedbackLinearizationSettings)
     lam = np.asarray(s.lam if s.lam is not None else scenario.controller.lam)
-    return FeedbackLinearizationController(plant_model(scenario), lam, s.tol, s.max_iter)
+    return FeedbackLinearizationController(plant_model(scenario, machine), lam, s.tol, s.max_iter)

@@ -3,9 +3,10 @@
 (the equations, the energy, which joint is driven and which is the pendulum), bounded by
 what the scenario sets.
 
-The domain supplies the machine (:meth:`tspend.plants.domain.Domain.full_model`, from the
-one source of its equations: :mod:`tspend.plants.cartpole_physics`, the equations the
-articulated domain derives from the MJCF for the Furuta and the articulated machines);
+The runner hands the nominal machine (:func:`tspend.loop.simulation.nominal_machine`);
+its domain supplies the equations (:meth:`tspend.plants.domain.Domain.full_model`: those
+derived from the MJCF for every MuJoCo machine, the paper's (C1)-(C2) for
+``cartpole_ode``);
 this module adds the bounds, generically:
 
 * the input's range: the plant's actuator (``plant.inputs``), tightened by
@@ -25,31 +26,37 @@ from tspend.plants.domain import FULL_STATE, FD_STEP, FullModel, wrap_angle
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.plants.base import Plant
     from tspend.constraints import ConstraintSet
 
 __all__ = ["FullModel", "full_model", "full_model_and_constraints", "has_full_state",
            "wrap_angle", "FD_STEP"]
 
 
-def full_model(scenario: "Scenario") -> FullModel:
-    """The full-state model of the scenario's plant with the actuator's range, the rail,
-    the joints' ranges and the task's state bounds on positions as its bounds."""
-    return full_model_and_constraints(scenario)[0]
+def full_model(scenario: "Scenario", machine: "Plant") -> FullModel:
+    """The full-state model of the scenario's plant on ``machine`` (the nominal machine
+    the runner built, :func:`tspend.loop.simulation.nominal_machine`) with the actuator's
+    range, the rail, the joints' ranges and the task's state bounds on positions as its
+    bounds."""
+    return full_model_and_constraints(scenario, machine)[0]
 
 
-def full_model_and_constraints(scenario: "Scenario") -> "tuple[FullModel, ConstraintSet]":
+def full_model_and_constraints(scenario: "Scenario",
+                               machine: "Plant") -> "tuple[FullModel, ConstraintSet]":
     """:func:`full_model` and the run's constraint set (the task's ``constraints``, the
-    one ``Observation.constraints`` carries), from one build of the plant and task."""
+    one ``Observation.constraints`` carries) of the nominal ``machine`` and its task."""
     from tspend.plants import registry
     from tspend.task import build_task
 
+    if machine is None:
+        raise TypeError("full_model: the kind designs on a model: pass the nominal machine")
     kind = scenario.plant.kind
     domain = registry.domain_of(kind)
-    model = domain.full_model(scenario) if FULL_STATE in domain.provides else None
+    model = domain.full_model(scenario, machine) if FULL_STATE in domain.provides else None
     if model is None:
         raise ScenarioError(f"{scenario.path}: plant '{kind}' (domain {domain.name}) has no "
                             f"full-state model to design on")
-    plant = registry.build(scenario)
+    plant = machine
     u_lo, u_hi = (plant.inputs[0].lo, plant.inputs[0].hi) if plant.inputs else (-math.inf, math.inf)
     effects = scenario.effects
     if effects.saturation > 0.0:

@@ -74,6 +74,7 @@ from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.full_model import FullModel
 
@@ -181,6 +182,11 @@ class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "lqr"
+    Settings = LQRSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (VIEW_MODEL,)
     guarantees = ("local exponential stability at the upright on the linearisation: of the whole "
                   "machine with a full state (exact sine tracking on the linear model), else of "
@@ -365,14 +371,14 @@ def reference_omega_of(scenario: "Scenario") -> float:
     return float(ref.omega) if isinstance(ref, Sine) else 0.0
 
 
-def design_model(scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+def design_model(scenario: "Scenario", machine: "Plant") -> tuple[np.ndarray, np.ndarray]:
     """``(A, B)`` of the full design: the domain's exact Jacobian at the upright
     (``Domain.linearisation``), the function :func:`tspend.linearize` uses on an analytic
     plant, applied to the nominal machine the model-based kinds assume (the cart-pole's
     leaves out the friction a rig adds: its slope at rest is no linear model of it)."""
     from tspend.plants.registry import domain_of
 
-    AB = domain_of(scenario.plant.kind).linearisation(scenario)
+    AB = domain_of(scenario.plant.kind).linearisation(scenario, machine)
     if AB is None:  # pragma: no cover - every full-state domain has one
         raise ScenarioError(f"{scenario.path}: plant '{scenario.plant.kind}' has no full-state "
                             f"linearisation")
@@ -399,10 +405,10 @@ def unstabilisable(A: np.ndarray, B: np.ndarray, names: tuple[str, ...] = ()) ->
     return ""
 
 
-def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
+def build_full(scenario: "Scenario", s: LQRSettings, machine: "Plant") -> FullStateLQR:
     from tspend.controllers.full_model import full_model
 
-    model = full_model(scenario)
+    model = full_model(scenario, machine)
     where = f"{scenario.path}: controllers.lqr"
     if s.state_weights is not None:
         if len(s.state_weights) != model.size:
@@ -411,7 +417,7 @@ def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
         w = np.asarray(s.state_weights, dtype=float)
     else:
         w = default_state_weights(model)
-    A, B = design_model(scenario)
+    A, B = design_model(scenario, machine)
     why = unstabilisable(A, B, model.state_names)
     if why:
         raise ScenarioError(f"{where}: {why}")
@@ -424,7 +430,7 @@ def build_full(scenario: "Scenario", s: LQRSettings) -> FullStateLQR:
         raise ScenarioError(f"{where}.state_weights: no stabilising LQR gain ({exc})") from None
 
 
-def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> "LQRController | FullStateLQR":
     from tspend.controllers.full_model import has_full_state
 
     s: LQRSettings = settings_for(scenario, LQRSettings)
@@ -434,8 +440,8 @@ def build(scenario: "Scenario") -> "LQRController | FullStateLQR":
             raise ScenarioError(f"{scenario.path}: controllers.lqr.design: 'full' needs a "
                                 f"plant with a full state (the cart-pole, the Furuta pendulum); "
                                 f"plant '{scenario.plant.kind}' has only the view: use 'view'")
-        return build_full(scenario, s)
-    model = plant_model(scenario)
+        return build_full(scenario, s, machine)
+    model = plant_model(scenario, machine)
     A, B = model.state_space()
     b = float(B[-1, 0])
     if b == 0.0:

@@ -74,6 +74,7 @@ from tspend.errors import ScenarioError
 from tspend.runtime.bounds import MAX_MPC_HORIZON, MAX_MPC_SUBSTEPS
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
     from tspend.constraints import ConstraintSet
@@ -138,6 +139,11 @@ class MPCController(Controller):
     """The ``mpc`` kind (module docstring)."""
 
     kind = "mpc"
+    Settings = MPCSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (FULL_STATE, SYMBOLIC)
     guarantees = ("the actuator's range and the positions' ranges (rail, joint ranges, task "
                   "state bounds, hard boxes) hold on every predicted trajectory of a "
@@ -489,7 +495,7 @@ class MPCController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> MPCController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> MPCController:
     from tspend.controllers.full_model import full_model_and_constraints
     from tspend.controllers.lqr import LQRSettings, build_full
 
@@ -499,12 +505,12 @@ def build(scenario: "Scenario") -> MPCController:
     if problem:
         raise ScenarioError(problem)
     s: MPCSettings = settings_for(scenario, MPCSettings)
-    model, constraints = full_model_and_constraints(scenario)
+    model, constraints = full_model_and_constraints(scenario, machine)
     dt = scenario.run.dt
     if abs(s.period / dt - round(s.period / dt)) > 1e-9 * max(1.0, s.period / dt):
         raise ScenarioError(f"{scenario.path}: controllers.mpc.period: must be a whole multiple "
                             f"of run.dt = {dt:g} s, got {s.period:g}")
-    lqr = build_full(scenario, settings_for(scenario, LQRSettings))
+    lqr = build_full(scenario, settings_for(scenario, LQRSettings), machine)
     if s.state_weights is not None:
         if len(s.state_weights) != model.size:
             raise ScenarioError(f"{scenario.path}: controllers.mpc.state_weights: needs "

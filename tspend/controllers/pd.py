@@ -34,6 +34,7 @@ from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 
@@ -96,6 +97,11 @@ class PDController(Controller):
     """The ``pd`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "pd"
+    Settings = PDSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (VIEW_MODEL,)
     guarantees = ("exponential stability of the view's error where df/du stays near its "
                   "nominal b0 (the linearisation's margins); nothing beyond the view")
@@ -125,9 +131,9 @@ class PDController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> PDController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> PDController:
     s: PDSettings = settings_for(scenario, PDSettings)
-    model = plant_model(scenario)
+    model = plant_model(scenario, machine)
     gains = np.asarray(s.gains) if s.gains else gains_from_poles(model.order, s.bandwidth)
     b0 = finite_or(s.b0, model.linearisation()[1])
     return PDController(gains, b0)

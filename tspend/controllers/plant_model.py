@@ -17,10 +17,15 @@ from tspend.plants.registry import domain_of
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
+    from tspend.plants.base import Plant
 
 __all__ = ["FD_STEP", "PlantModel", "plant_model"]
 
 
-def plant_model(scenario: "Scenario") -> PlantModel:
-    """The model of the scenario's plant (every kind the scenario loader accepts)."""
-    return domain_of(scenario.plant.kind).plant_model(scenario)
+def plant_model(scenario: "Scenario", machine: "Plant") -> PlantModel:
+    """The model of the scenario's plant (every kind the scenario loader accepts) on
+    ``machine``, the nominal machine the runner built
+    (:func:`tspend.loop.simulation.nominal_machine`)."""
+    if machine is None:
+        raise TypeError("plant_model: the kind designs on a model: pass the nominal machine")
+    return domain_of(scenario.plant.kind).plant_model(scenario, machine)

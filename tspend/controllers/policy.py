@@ -32,6 +32,7 @@ from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.errors import ScenarioError
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 __all__ = ["PolicyController", "PolicySettings", "build", "find_policy"]
@@ -64,6 +65,11 @@ class PolicyController(Controller):
     """The ``policy`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "policy"
+    Settings = PolicySettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     guarantees = ("none beyond what its training showed: it runs on the machine and "
                   "observation layout it was trained on (checked against the model's metadata)")
 
@@ -121,7 +127,7 @@ class PolicyController(Controller):
         return float(np.asarray(out).reshape(-1)[0])
 
 
-def build(scenario: "Scenario") -> PolicyController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> PolicyController:
     s: PolicySettings = settings_for(scenario, PolicySettings)
     where = f"{scenario.path or scenario.name}: controllers.policy"
     if not s.path.strip():

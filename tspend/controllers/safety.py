@@ -331,8 +331,9 @@ class SafetyFilter(Controller):
         return {**self.inner.run_metrics(), "safety_filter": out}
 
 
-def wrap(scenario: Any, inner: Controller) -> SafetyFilter:
-    """``inner`` behind the scenario's ``[safety]`` filter on the domain's full-state model.
+def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:
+    """``inner`` behind the scenario's ``[safety]`` filter on the domain's full-state model
+    of the nominal ``machine`` (:func:`tspend.loop.simulation.nominal_machine`).
 
     Raises ScenarioError (one line) when the plant's domain has no full-state model."""
     from tspend.controllers.full_model import full_model, has_full_state
@@ -342,12 +343,12 @@ def wrap(scenario: Any, inner: Controller) -> SafetyFilter:
                             f"'{scenario.plant.kind}' has no full-state model (q'' = f + g u) "
                             f"for the barrier conditions; allowed: \"off\"")
     cfg = scenario.safety
-    model = full_model(scenario)
+    model = full_model(scenario, machine)
     P = None
     if cfg.barrier == "lyapunov":
         from tspend.controllers.lqr import default_state_weights, design_model, lqr_full_gain
 
-        A, B = design_model(scenario)
+        A, B = design_model(scenario, machine)
         b_pole = float(B[model.dof + model.pole, 0])
         _, P = lqr_full_gain(A, B, np.diag(default_state_weights(model)), b_pole ** 2)
     return SafetyFilter(inner, model, cfg, lyapunov_P=P)

@@ -23,6 +23,7 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
+from tspend.config import ControllerConfig
 from tspend.tables import Table
 
 if TYPE_CHECKING:
@@ -176,12 +177,9 @@ class Search(NamedTuple):
         raise AssertionError(f"unknown search form {self.form!r}")
 
 
-#: what ``tspend tune`` searches for the paper's kinds ([controller]): the rates of
-#: (25)-(27), Q of Lemma 1 as a scale of the identity, lambda of (18) as (s + p)^n, and
-#: the boundary layer of (21) (0 = the paper's sign)
-PAPER_SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
-                "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, 10.0, "log", "poles"),
-                "boundary_layer": (0.0, 1.0, "linear")}
+#: what ``tspend tune`` searches for the paper's kinds ([controller]): their settings
+#: class's declaration, as every kind's
+PAPER_SEARCH = ControllerConfig.SEARCH
 
 
 def search_table(kind: str, table: dict) -> dict[str, Search]:

@@ -51,6 +51,7 @@ from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 #: phi = k / LAYER_RATE when phi is not given
@@ -136,6 +137,11 @@ class SlidingModeController(Controller):
     """The ``sliding_mode`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "sliding_mode"
+    Settings = SlidingModeSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (VIEW_MODEL,)
     guarantees = ("reaches the boundary layer in finite time while the model error stays "
                   "below the switching gain")
@@ -174,9 +180,9 @@ class SlidingModeController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> SlidingModeController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> SlidingModeController:
     st: SlidingModeSettings = settings_for(scenario, SlidingModeSettings)
-    model = plant_model(scenario)
+    model = plant_model(scenario, machine)
     n = model.order
     a, b = model.linearisation()
     c = np.asarray(st.c) if st.c is not None else gains_from_poles(n - 1, st.surface_pole)

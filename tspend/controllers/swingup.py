@@ -52,6 +52,7 @@ from tspend.runtime.jit import JIT
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
 
@@ -177,6 +178,11 @@ class SwingUpController(Controller):
     """The ``swingup`` kind (module docstring)."""
 
     kind = "swingup"
+    Settings = SwingUpSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (FULL_STATE, PUMPED_ENERGY)
     guarantees = ("the energy the input adds is never negative until the catch (A-F 2000); "
                   "the driven joint's range respected by braking, the input clipped to its "
@@ -239,12 +245,12 @@ class SwingUpController(Controller):
         return {}
 
 
-def build(scenario: "Scenario") -> SwingUpController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> SwingUpController:
     from tspend.controllers.full_model import full_model
     from tspend.controllers.lqr import LQRSettings, build_full
 
     s: SwingUpSettings = settings_for(scenario, SwingUpSettings)
     lqr_settings: LQRSettings = settings_for(scenario, LQRSettings)
-    model = full_model(scenario)
-    return SwingUpController(model, s, build_full(scenario, lqr_settings),
+    model = full_model(scenario, machine)
+    return SwingUpController(model, s, build_full(scenario, lqr_settings, machine),
                              order=len(scenario.plant.x0))

@@ -41,6 +41,7 @@ from tspend.errors import ScenarioError
 from tspend.plants.domain import FULL_STATE, SYMBOLIC
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.full_model import FullModel
     from tspend.controllers.lqr import FullStateLQR
@@ -143,6 +144,11 @@ class TVLQRController(Controller):
     """The ``tvlqr`` kind (module docstring)."""
 
     kind = "tvlqr"
+    Settings = TVLQRSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (FULL_STATE, SYMBOLIC)
     guarantees = ("a plan within the actuator's and positions' ranges (checked by IPOPT on the "
                   "planner's model); local tracking of it on the linearisation about it; "
@@ -221,10 +227,10 @@ class TVLQRController(Controller):
         return self.act(obs.t, obs.state, obs.ref)
 
 
-def plan_of(scenario: "Scenario") -> tuple["FullModel", TVLQRSettings, tuple]:
-    """The model, the settings and the units a plan of ``scenario`` is made with."""
+def plan_of(scenario: "Scenario", machine: "Plant") -> tuple["FullModel", TVLQRSettings, tuple]:
+    """The model, the settings and the units a plan of ``scenario`` is made with, on the
+    nominal ``machine`` (:func:`tspend.loop.simulation.nominal_machine`)."""
     from tspend.controllers.full_model import full_model
-    from tspend.plants.registry import build as build_plant
 
     from tspend.runtime.extras import missing_extra
 
@@ -232,19 +238,18 @@ def plan_of(scenario: "Scenario") -> tuple["FullModel", TVLQRSettings, tuple]:
     if problem:
         raise ScenarioError(problem)
     s: TVLQRSettings = settings_for(scenario, TVLQRSettings)
-    model = full_model(scenario)
-    plant = build_plant(scenario)
-    inp = plant.inputs[0] if plant.inputs else None
-    units = (tuple(plant.state_units), inp.name if inp else "u", inp.unit if inp else "")
+    model = full_model(scenario, machine)
+    inp = machine.inputs[0] if machine.inputs else None
+    units = (tuple(machine.state_units), inp.name if inp else "u", inp.unit if inp else "")
     return model, s, units
 
 
-def build(scenario: "Scenario") -> TVLQRController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> TVLQRController:
     from tspend.controllers.lqr import LQRSettings, build_full
 
-    model, s, units = plan_of(scenario)
+    model, s, units = plan_of(scenario, machine)
     where = f"{scenario.path or scenario.name}: controllers.tvlqr"
-    lqr = build_full(scenario, settings_for(scenario, LQRSettings))
+    lqr = build_full(scenario, settings_for(scenario, LQRSettings), machine)
     plan = read_plan(find_plan(s.plan, scenario), f"{where}.plan") if s.plan.strip() else None
     if plan is None:   # the settings checked now, not at the first sample
         from tspend.controllers.trajectory import check_plan_input

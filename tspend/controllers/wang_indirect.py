@@ -72,6 +72,7 @@ from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
+    from tspend.plants.base import Plant
     from tspend.config import Scenario
 
 
@@ -262,6 +263,11 @@ class WangIndirectController(Controller):
     """The ``wang_indirect`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
     kind = "wang_indirect"
+    Settings = WangSettings
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        return build(scenario, machine)
     needs = (VIEW_MODEL,)
     guarantees = ("bounded tracking error (Lyapunov, with the supervisor) under the fuzzy "
                   "approximation's assumptions")
@@ -325,10 +331,10 @@ class WangIndirectController(Controller):
         return {"theta_f": self.theta_f.copy(), "theta_g": self.theta_g.copy()}
 
 
-def build(scenario: "Scenario") -> WangIndirectController:
+def build(scenario: "Scenario", machine: "Plant | None" = None) -> WangIndirectController:
     s: WangSettings = settings_for(scenario, WangSettings)
     cfg = scenario.controller
-    model = plant_model(scenario)
+    model = plant_model(scenario, machine)
     b0 = model.linearisation()[1]
     if b0 <= 0.0:
         raise ScenarioError(f"{scenario.path}: controllers.wang_indirect: g_hat is kept > 0, "

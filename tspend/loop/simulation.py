@@ -19,6 +19,7 @@ from tspend import __version__
 from tspend.config import RunConfig, Scenario
 from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
+from tspend.controllers import needs_machine as controller_needs_machine
 from tspend.controllers.base import Controller
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
@@ -180,10 +181,22 @@ def with_input_sets(scenario: Scenario, plant: Plant) -> tuple[Scenario, str]:
         scenario.controller, u_sets=replace(sets, lo=lo, hi=hi))), line
 
 
+def nominal_machine(scenario: Scenario) -> Plant:
+    """The machine a controller designs on: the scenario's plant as the file writes it,
+    NOT the one ``[randomize]`` draws for the run's seed.
+
+    Nominal on purpose: a model-based controller knows the machine's data sheet, not the
+    draw (a randomised run measures how it copes with the difference, and the draw would
+    otherwise leak into the design: :mod:`tspend.plants.randomize`).  Built once per run
+    and handed to the controller's builder; it is never stepped."""
+    return plant_registry.build(scenario)
+
+
 def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
-                     kind: str | None = None) -> Controller:
+                     kind: str | None = None, machine: Plant | None = None) -> Controller:
     """The controller ``kind`` (default: the scenario's own), reset with ``rng``
-    (default: a generator seeded with the scenario's seed).
+    (default: a generator seeded with the scenario's seed), designed on ``machine``
+    (default: the :func:`nominal_machine`, built here when the kind designs on one).
 
     Raises
     ------
@@ -191,7 +204,9 @@ def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
         ``scenario`` is not a Scenario, ``kind`` is unknown, or its settings are invalid.
     """
     _check_scenario(scenario)
-    ctrl = build_controller_kind(scenario, kind)
+    if machine is None and controller_needs_machine(scenario, kind):
+        machine = nominal_machine(scenario)  # nominal, not drawn: see nominal_machine
+    ctrl = build_controller_kind(scenario, kind, machine)
     ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
     return ctrl
 
@@ -363,12 +378,15 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     """Build the plant (model file, joint names, timestep), its task and the controller
     without running: every error a scenario can still raise surfaces here, as a
     ScenarioError.  The plant is the machine ``[randomize]`` draws at the scenario's
-    seed; the controller is built on the nominal scenario, so it does not know the draw."""
+    seed; the controller is designed on the nominal machine (:func:`nominal_machine`,
+    built once when the kind designs on a model), so it does not know the draw."""
     drawn = randomize.draw(scenario)
     plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
     plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
     scenario, scaled = with_input_sets(with_gain_sign(scenario, plant), plant)
+    # the controller designs on the nominal machine (built in build_controller), not on
+    # `plant`, the draw
     ctrl = build_controller(scenario, kind=controller)
     if scaled and ctrl.fuzzy_inputs():
         # only a controller with fuzzy input sets reads them

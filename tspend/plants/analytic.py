@@ -43,6 +43,26 @@ def duffing_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     return -0.1 * x2 - x1 ** 3.0 + 12.0 * math.cos(t) + u + d
 
 
+#: Example 3's cart-pole: cart and pole masses (kg), the pole's half length (m), gravity
+EX3_M_KG, EX3_M_POLE_KG, EX3_L_M, EX3_G = 10.0, 1.0, 3.0, 9.8
+
+
+@register_jitable
+def cartpole_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
+    """Example 3, the cart-pole, as the paper writes it (x1 the pole's angle from upright,
+    u the force on the cart, M = 10 kg, m = 1 kg, l = 3 m the pole's half length, g = 9.8):
+    ``x2' = (m l x2^2 sin x1 cos x1 - (M + m) g sin x1 - u cos x1 + d_d)
+    / (m l cos^2 x1 - 4/3 l (M + m))``.
+
+    The uniform rod's equation of the pole with the cart free; the plants of the
+    ``cartpole`` domain carry the cart as well, and their view's equation is this one on
+    the paper's machine (tests/test_cartpole_derived.py)."""
+    M, m, l, g = EX3_M_KG, EX3_M_POLE_KG, EX3_L_M, EX3_G
+    s, c = math.sin(x[0]), math.cos(x[0])
+    return ((m * l * x[1] * x[1] * s * c - (M + m) * g * s - u * c + d)
+            / (m * l * c * c - 4.0 / 3.0 * l * (M + m)))
+
+
 @register_jitable
 def third_order_accel(t: float, x: np.ndarray, u: float, d: float) -> float:
     """A nonaffine third-order plant (not in the paper) to exercise n = 3.
@@ -326,7 +346,7 @@ class ChainDomain(Domain):
     def make(self) -> AnalyticPlant:
         return AnalyticPlant(self.accel, self.order, self.name)
 
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         chain = _CHAIN_OF.get(self.accel)
         return PlantModel(self.name, self.order, self.accel, affine_in_u=self.affine_in_u,
                           x_op=(0.0,) * self.order, switching_gain=self.switching_gain,

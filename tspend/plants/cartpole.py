@@ -9,9 +9,8 @@ Two kinds, two sources of equations:
   (overridden) model by the articulated domain
   (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
   the controllers (the joints' damping and dry friction left out), the twin with the
-  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``.  A model the derivation
-  refuses but the cart-pole reads (a joint's ``actuatorfrcrange``, say) falls back to the
-  hand-written equations below.
+  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``; a model
+  the derivation refuses is refused in one line naming what to change.
 * ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
   equations (C1)-(C2) of :mod:`tspend.plants.cartpole_physics`, as the paper writes them
   (issue 32's exception); they are also the test oracle of the derived ones
@@ -42,7 +41,7 @@ from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
+from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
 from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
     accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
     machine_accelerations, machine_rhs, pole_energy, rhs)
@@ -161,26 +160,19 @@ COMPILED_RHS[CartPoleMachine] = machine_rhs
 
 # -- the analytic backend ---------------------------------------------------------------
 class CartPoleODE(AnalyticPlant):
-    """The cart-pole ODE (C1)-(C2), with the cart as hidden states, so the ODE backend can
-    draw the cart and meet a finite rail too.  Its joints take the MJCF's names (and
-    ranges) when it is built from a MuJoCo scenario (``slider``/``hinge`` by default).
+    """The paper's cart-pole ODE (C1)-(C2) (``cartpole_ode``), with the cart as hidden
+    states, so the ODE backend can draw the cart and meet a finite rail too.
 
     Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
     ``(slider, hinge, slider_dot, hinge_dot)``.
     """
 
-    def __init__(self, params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                 hinge_joint: str = "hinge",
-                 joint_ranges: dict[str, tuple[float, float]] | None = None) -> None:
-        names = (slide_joint, hinge_joint, velocity_name(slide_joint), velocity_name(hinge_joint))
+    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
         super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
                          2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
-                         domain="cartpole", state_names=names,
+                         domain="cartpole", state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
                          state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
-        self.slide_joint, self.hinge_joint = slide_joint, hinge_joint
-        ranges = joint_ranges or {}
-        self._joints = (JointInfo(slide_joint, "slide", "m", ranges.get(slide_joint)),
-                        JointInfo(hinge_joint, "hinge", "rad", ranges.get(hinge_joint)))
+        self._joints = (JointInfo("slider", "slide", "m", None), JointInfo("hinge", "hinge", "rad", None))
         self.set_params(params)
 
     @property
@@ -196,10 +188,7 @@ class CartPoleODE(AnalyticPlant):
         return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
 
     def default_task(self) -> TaskDefaults:
-        """The cart-pole domain's task on this plant's joint names."""
-        return DOMAIN.task.renamed({"slider": self.slide_joint, "hinge": self.hinge_joint,
-                                    "slider_dot": velocity_name(self.slide_joint),
-                                    "hinge_dot": velocity_name(self.hinge_joint)})
+        return DOMAIN.task
 
     @property
     def gain_sign(self) -> int:
@@ -221,29 +210,24 @@ class CartPoleODE(AnalyticPlant):
         return CompiledPlant(self._machine, self.s, self._clock, self._work, self.full_order)
 
 
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams(), slide_joint: str = "slider",
-                       hinge_joint: str = "hinge",
-                       joint_ranges: dict[str, tuple[float, float]] | None = None) -> CartPoleODE:
-    return CartPoleODE(params, slide_joint, hinge_joint, joint_ranges)
+def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
+    return CartPoleODE(params)
 
 
 # -- the derived equations of a MuJoCo cart-pole ----------------------------------------
 def cartpole_machine(plant: Plant) -> Machine | None:
     """The articulated machine of a MuJoCo cart-pole ``plant``: its compiled (overridden)
     model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
-    the machine of a :class:`DerivedCartPoleODE` is its own.  None for a plant without a
-    MuJoCo model, or one the derivation refuses that the hand-written (C1)-(C2) take (a
-    joint's ``actuatorfrcrange``, say): those keep the hand-written equations."""
+    the machine of a :class:`DerivedCartPoleODE` is its own.  None for the paper's ODE
+    (``cartpole_ode``: (C1)-(C2) as written).  ScenarioError (one line naming what to
+    change) for a model the derivation refuses."""
     if isinstance(plant, EffectsPlant):
         plant = plant.inner
     if isinstance(plant, DerivedCartPoleODE):
         return plant.machine
     if plant.mj_model() is None:
         return None
-    try:
-        return plant.machine  # type: ignore[attr-defined]
-    except ScenarioError:
-        return None
+    return plant.machine  # type: ignore[attr-defined]
 
 
 def nominal_machine(machine: Machine) -> Machine:
@@ -442,11 +426,16 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
         overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
-    return MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
-                          actuator=mj.actuator, overrides=overrides,
-                          integrator=mj.integrator or None, timestep=mj.timestep or None,
-                          gear=mj.gear or None,
-                          task_defaults=DOMAIN.task, **friction)
+    plant = MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
+                           actuator=mj.actuator, overrides=overrides,
+                           integrator=mj.integrator or None, timestep=mj.timestep or None,
+                           gear=mj.gear or None,
+                           task_defaults=DOMAIN.task, **friction)
+    # a cart-pole is an articulated machine: its equations (the controllers' models, the
+    # ODE twin, the task check) are derived from the model, so a model that cannot be
+    # derived is refused here, in one line naming what to change, not midway
+    cartpole_machine(plant)
+    return plant
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -745,17 +734,6 @@ class CartPoleDomain(Domain):
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, MujocoCartPoleConfig) else self.default_model
 
-    def params_of_scenario(self, scenario: "Scenario") -> CartPoleParams:
-        """The cart-pole a model-based controller assumes: the machine the plant is.
-
-        For ``cartpole_ode`` the scenario's parameters; for ``cartpole_mujoco`` read back
-        from the compiled model (masses, COM distance, pole inertia, damping, gear and the
-        hinge axis' sign), so a baseline on a third-party MJCF assumes the machine MuJoCo
-        actually simulates.  Friction is left out: a nominal model knows the rigid body,
-        not what a rig adds to it.
-        """
-        return _nominal(self.build(scenario).params)  # type: ignore[attr-defined]
-
     def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
         """A MuJoCo cart-pole's keys left at 0 as its compiled model has them (``M`` the
         cart's mass, ``m``, ``l``, ``J`` the pole's, ``gear`` the force per unit u at
@@ -772,17 +750,14 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
-    def nominal_derived(self, scenario: "Scenario", plant: Plant | None = None) -> Machine | None:
+    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine | None:
         """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
-        (:func:`nominal_machine` of :func:`cartpole_machine` of its ``plant``, built when
-        not given); None for ``cartpole_ode`` (the paper's own equations) and for a model
-        the derivation refuses."""
-        if not isinstance(scenario.plant, MujocoCartPoleConfig):
-            return None
-        machine = cartpole_machine(plant if plant is not None else self.build(scenario))
+        (:func:`nominal_machine` of :func:`cartpole_machine` of its nominal ``plant``);
+        None for ``cartpole_ode`` (the paper's own equations)."""
+        machine = cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig) else None
         return nominal_machine(machine) if machine is not None else None
 
-    def full_model(self, scenario: "Scenario") -> FullModel:
+    def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The nominal machine over the full state ``[slider, hinge, slider_dot,
         hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
         derived from the compiled model (numbers through the compiled module, CasADi through
@@ -791,7 +766,7 @@ class CartPoleDomain(Domain):
         ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
         (its ranges clipped by ``casadi.fmin``/``fmax``) and
         :func:`~tspend.plants.cartpole_physics.pole_energy`."""
-        plant = self.build(scenario)
+        plant = machine
         params = _nominal(plant.params)  # type: ignore[attr-defined]
         derived = self.nominal_derived(scenario, plant)
         if derived is not None:
@@ -841,27 +816,26 @@ class CartPoleDomain(Domain):
                          parameters=params.finite(), machine=machine,
                          accel_unit="m/s^2")
 
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        plant = self.build(scenario)
-        params = _nominal(plant.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, plant)
+        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        derived = self.nominal_derived(scenario, machine)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
         view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
                      else CartPoleView(params.machine()))
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
-    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
+    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
         """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
         exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
         for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
-        derived = self.nominal_derived(scenario)
+        derived = self.nominal_derived(scenario, machine)
         if derived is not None:
             return derived.linearisation()
-        return self.full_model(scenario).linearisation()
+        return self.full_model(scenario, machine).linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The exact ``(A, B)`` of a derived ODE twin's equations at ``at`` (CasADi's
@@ -960,15 +934,8 @@ class CartPoleDomain(Domain):
 
     def ode_of(self, plant: Plant) -> Plant:
         """The ODE of the MuJoCo ``plant``'s machine: the equations derived from its
-        compiled model (:class:`DerivedCartPoleODE`); the hand-written (C1)-(C2) of its
-        :class:`CartPoleParams`, with its joints' names and ranges, for a model the
-        derivation refuses."""
-        machine = cartpole_machine(plant)
-        if machine is not None:
-            return DerivedCartPoleODE(plant, machine)
-        ranges = {j.name: j.range for j in plant.joints if j.range is not None}
-        return cartpole_ode_plant(plant.params, plant.slide_joint,  # type: ignore[attr-defined]
-                                  plant.hinge_joint, ranges)  # type: ignore[attr-defined]
+        compiled model (:class:`DerivedCartPoleODE`)."""
+        return DerivedCartPoleODE(plant, cartpole_machine(plant))  # type: ignore[arg-type]
 
 
 #: the cart-pole domain

@@ -42,6 +42,16 @@ actuator: ``g0 = kv``, ``b2 = -kv``; a position actuator: ``g0 = kp``, ``b1 = -k
 Dry friction is smooth here, ``F tanh(v / v_s)``, so an RK4 step stays well defined; MuJoCo's
 ``frictionloss`` is a soft constraint instead, so on dry friction the two backends agree
 in kind, not to rounding (the cross-check names it as a departure).
+
+Where these hand-written equations are used, and nowhere else (every MuJoCo cart-pole's
+equations are derived from its model, :mod:`tspend.plants.articulated`):
+
+* the ``cartpole_ode`` plant, the paper's machine built from ``[plant]`` numbers with no
+  MJCF (``ex3_pendulum_ode``; the paper's own Example 3 equation is
+  :func:`tspend.plants.analytic.cartpole_accel`, their oracle);
+* the test oracle of the derived equations (tests/test_cartpole_derived.py);
+* the grey-box model ``tspend identify`` fits to a cart-pole's record
+  (:func:`tspend.studies.identify_model.cartpole_model`).
 """
 
 from __future__ import annotations

@@ -547,16 +547,21 @@ class Domain(ABC):
         """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``
         (the cart-pole: its actuator cannot give the force the reference needs)."""
 
+    # The three models a model-based controller designs on take ``machine``: the nominal
+    # machine the runner built once (tspend.loop.simulation.nominal_machine, a plant of
+    # this domain built from the scenario as written); none of them builds a plant.
+
     @abstractmethod
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         """The model the model-based controllers assume for the scenario's plant."""
 
-    def full_model(self, scenario: "Scenario") -> FullModel | None:
+    def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel | None:
         """The machine's full-state model, its bounds left free (None: the domain has only
         its view).  A domain returning one lists :data:`FULL_STATE` in :attr:`provides`."""
         return None
 
-    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray] | None:
+    def linearisation(self, scenario: "Scenario",
+                      machine: Plant) -> tuple[np.ndarray, np.ndarray] | None:
         """``(A, B)`` of the FULL state (``plant.state_names`` order) of the model the
         model-based controllers assume (``lqr``'s full design) about the domain's
         equilibrium, or None when the domain has none beyond the view's."""

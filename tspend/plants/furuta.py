@@ -375,23 +375,23 @@ class FurutaDomain(Domain):
 
         return model_values(self.machine(scenario).model)
 
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         """pendulum'' over the view with the arm at rest (the arm's motion enters only
         through back-EMF and coupling, which a model of the view leaves out); affine in u
         inside the amplifier's range."""
-        view = derived_view(self.machine(scenario))
+        view = derived_view(machine.machine)  # type: ignore[attr-defined]
         # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
         # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
-    def full_model(self, scenario: "Scenario") -> FullModel:
+    def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
         plant's joint names): numbers through the compiled module, CasADi through the
         derivation (no clips: the MPC bounds u itself); the energy is the pendulum's with
         the arm at rest at 0 (the arm turns about the vertical: its own energy is left
         out), :class:`~tspend.plants.articulated.domain.DerivedFull`."""
-        plant = self.build(scenario)
+        plant = machine
         m: Machine = plant.machine  # type: ignore[attr-defined]
         full = derived_full_of(m, 1)
 
@@ -440,8 +440,8 @@ class FurutaDomain(Domain):
         facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
         return facts, plant.departures(dt)
 
-    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
-        return self.machine(scenario).linearisation()
+    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
+        return machine.machine.linearisation()  # type: ignore[attr-defined]
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The exact ``(A, B)`` of the derived equations at ``at`` (CasADi's derivatives)."""

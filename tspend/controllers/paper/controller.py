@@ -29,6 +29,7 @@ hands them to other compiled code (a closed loop in numba calls
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -381,9 +382,26 @@ class AdaptiveFuzzyController(Controller):
     companion-form state); :meth:`sample` takes ``x`` and ``ref`` directly.
     """
 
+    kind = "second_type"
     has_snapshots = True
     guarantees = ("bounded tracking error of the view (Theorem 1's Lyapunov argument), from "
                   "the sign of df/du only; nothing about joints outside the view")
+    #: the settings: the scenario's ``[controller]`` table
+    Settings = ControllerConfig
+    #: what adapts ("second": consequents and membership functions; "first": consequents)
+    adaptation = "second"
+
+    @classmethod
+    def settings_in(cls, scenario) -> ControllerConfig:
+        """The scenario's ``[controller]`` settings with the kind's :attr:`adaptation`."""
+        cfg = scenario.controller
+        return cfg if cfg.adaptation == cls.adaptation else replace(cfg, adaptation=cls.adaptation)
+
+    @classmethod
+    def from_scenario(cls, scenario, machine=None) -> "AdaptiveFuzzyController":
+        """The kind's controller on :meth:`settings_in`; it needs no model, so no
+        ``machine``."""
+        return make_controller(cls.settings_in(scenario))
 
     def __init__(self, cfg: ControllerConfig) -> None:
         self.cfg = cfg
@@ -523,6 +541,14 @@ class AdaptiveFuzzyController(Controller):
             grid, curves = self.curves(group, j)
             out.append((grid, curves, float(fir.z[j]), fir.mu[j]))
         return tuple(out)
+
+
+class FirstTypeController(AdaptiveFuzzyController):
+    """The kind ``first_type``: the paper's controller with the membership functions fixed
+    (only the consequents adapt), the paper's implicit baseline."""
+
+    kind = "first_type"
+    adaptation = "first"
 
 
 def make_controller(cfg: ControllerConfig) -> AdaptiveFuzzyController:

@@ -72,6 +72,9 @@ def parameter_table(tree: Tree) -> tuple[tuple[str, ...], np.ndarray]:
         add(f"{j.name}.damping", j.damping)
         add(f"{j.name}.stiffness", j.stiffness)
         add(f"{j.name}.springref", j.springref)
+        if j.actfrcrange is not None:
+            add(f"{j.name}.actfrc_lo", j.actfrcrange[0])
+            add(f"{j.name}.actfrc_hi", j.actfrcrange[1])
     for a in tree.actuators:
         add(f"{a.name}.gear", a.gear)
         for k, v in enumerate(a.gain):
@@ -213,6 +216,11 @@ def derive(tree: Tree) -> Derivation:
             if clamp and a.forcerange is not None:
                 f = ca.fmin(ca.fmax(f, par(f"{a.name}.force_lo")), par(f"{a.name}.force_hi"))
             tau[a.joint] = tau[a.joint] + gear * f
+        if clamp:  # MuJoCo clamps the joint's total actuator force (actuatorfrcrange)
+            for j, jf in enumerate(tree.joints):
+                if jf.actfrcrange is not None:
+                    tau[j] = ca.fmin(ca.fmax(tau[j], par(f"{jf.name}.actfrc_lo")),
+                                     par(f"{jf.name}.actfrc_hi"))
         return ca.vertcat(*tau) if nv else ca.SX.zeros(0)
 
     M_flat = ca.reshape(M, nv * nv, 1)

@@ -533,15 +533,15 @@ class ArticulatedDomain(Domain):
 
         return model_values(self.machine(scenario).model)
 
-    def plant_model(self, scenario: "Scenario") -> PlantModel:
-        view = derived_view(self.machine(scenario))
+    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
+        view = derived_view(machine.machine)  # type: ignore[attr-defined]
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
-    def full_model(self, scenario: "Scenario") -> FullModel:
+    def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The derived equations over ``[q, q']`` (the joints' names): numbers through the
         compiled module, CasADi through the derivation (no clips: MPC bounds u)."""
-        m = self.machine(scenario)
+        m: Machine = machine.machine  # type: ignore[attr-defined]
         nv = m.nv
 
         def factory(sin, cos, tanh):
@@ -562,8 +562,8 @@ class ArticulatedDomain(Domain):
                          machine=None, poles=poles,
                          accel_unit="m/s^2" if m.tree.joints[m.actuated].kind == "slide" else "rad/s^2")
 
-    def linearisation(self, scenario: "Scenario") -> tuple[np.ndarray, np.ndarray]:
-        return self.machine(scenario).linearisation()
+    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
+        return machine.machine.linearisation()  # type: ignore[attr-defined]
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         return plant.machine.linearisation(at)  # type: ignore[attr-defined]

@@ -63,7 +63,9 @@ class Machine:
         self.model, self.where = model, where
         self.tree = read_tree(model)
         if self.tree.refusals:
-            raise ScenarioError(f"{where}: cannot derive its equations: {'; '.join(self.tree.refusals)}")
+            raise ScenarioError(f"{where}: cannot derive its equations: {'; '.join(self.tree.refusals)}"
+                                f" (change the model so it has none of these: docs/articulated.md "
+                                f"lists what is derived)")
         if not self.tree.actuators:
             raise ScenarioError(f"{where}: the model has no actuator to drive")
         names = [a.name for a in self.tree.actuators]

@@ -9,9 +9,8 @@ stiffness with its spring reference, the actuators as MuJoCo applies them (joint
 transmission, gear, fixed or affine gain and bias, control and force ranges) and gravity.
 
 What the derived equations cannot be is returned as *refusals* (free or ball joints,
-tendons, equality constraints, actuator dynamics, fluid forces, gravity compensation, a
-joint-space actuator force limit): the domain refuses such a model with exit 2 naming
-them.  What it can be but does not model exactly (dry friction, contacts that can occur)
+tendons, equality constraints, actuator dynamics, fluid forces, gravity compensation):
+the domain refuses such a model with exit 2 naming them.  What it can be but does not model exactly (dry friction, contacts that can occur)
 is returned as *departures*, named on every run as the cart-pole's are.
 """
 
@@ -56,6 +55,8 @@ class JointFacts:
     stiffness: float
     springref: float
     range: tuple[float, float] | None
+    #: the clamp of the total actuator force on the joint (``actuatorfrcrange``), None: none
+    actfrcrange: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,10 @@ class Tree:
         for b in self.bodies:
             parts.append((b.parent, b.quat, b.iquat, b.joints))
         for j in self.joints:
-            parts.append((j.kind, j.body, j.axis, j.anchor, j.qpos0))
+            # a joint's force clamp only where there is one: the keys of every other tree
+            # (and so their cached modules) stay what they were
+            parts.append((j.kind, j.body, j.axis, j.anchor, j.qpos0)
+                         + (("actfrcrange",) if j.actfrcrange is not None else ()))
         for a in self.actuators:
             parts.append((a.joint, a.ctrlrange is not None, a.forcerange is not None))
         text = repr(parts).encode()
@@ -185,8 +189,6 @@ def _refusals(m: mujoco.MjModel) -> list[str]:
         out.append("a body has gravity compensation (gravcomp)")
     if m.opt.density or m.opt.viscosity or np.any(np.asarray(m.opt.wind) != 0):
         out.append("the model has fluid forces (density, viscosity or wind)")
-    if np.any(np.asarray(m.jnt_actfrclimited)):
-        out.append("a joint limits its actuator force (actuatorfrcrange)")
     for name in ("dof_dampingpoly", "jnt_stiffnesspoly"):
         v = getattr(m, name, None)
         if v is not None and np.any(np.asarray(v) != 0):
@@ -239,7 +241,8 @@ def read_joint(m: mujoco.MjModel, j: int, body: int = -1) -> JointFacts:
         armature=float(m.dof_armature[dof]),
         damping=0.0 if flags & _DSBL.mjDSBL_DAMPER else float(np.ravel(m.dof_damping[dof])[0]),
         stiffness=0.0 if flags & _DSBL.mjDSBL_SPRING else float(np.ravel(m.jnt_stiffness[j])[0]),
-        springref=float(m.qpos_spring[adr]), range=_limited(m.jnt_limited[j], m.jnt_range[j]))
+        springref=float(m.qpos_spring[adr]), range=_limited(m.jnt_limited[j], m.jnt_range[j]),
+        actfrcrange=_limited(m.jnt_actfrclimited[j], m.jnt_actfrcrange[j]))
 
 
 def read_actuator(m: mujoco.MjModel, a: int, joint: int = -1) -> ActuatorFacts:
