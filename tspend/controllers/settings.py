@@ -170,11 +170,18 @@ class Search(NamedTuple):
         raise AssertionError(f"unknown search form {self.form!r}")
 
 
+#: the largest closed-loop pole (rad/s) any kind's search reaches: the same cap on the same
+#: quantity for every kind (PD's bandwidth, the poles of lambda (18), feedback
+#: linearisation's and Wang's, the sliding surface's), so no kind is tuned against a lower
+#: ceiling than another (issue 42); 1000 rad/s is the 1 ms sample rate's own limit
+#: (pole x dt = 1)
+POLE_CAP = 1000.0
+
 #: what ``tspend tune`` searches for the paper's kinds ([controller]): the rates of
 #: (25)-(27), Q of Lemma 1 as a scale of the identity, lambda of (18) as (s + p)^n, and
 #: the boundary layer of (21) (0 = the paper's sign)
 PAPER_SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
-                "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, 10.0, "log", "poles"),
+                "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, POLE_CAP, "log", "poles"),
                 "boundary_layer": (0.0, 1.0, "linear")}
 
 
