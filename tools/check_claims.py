@@ -58,17 +58,18 @@ def _lookup(doc, key: str):
     return doc
 
 
-def check_markers(paths: list[Path]) -> tuple[int, list[str]]:
-    """Every ``<!-- data: FILE KEY -->`` figure: (checked, problems)."""
+def check_markers(paths: list[Path], root: Path = ROOT) -> tuple[int, list[str]]:
+    """Every ``<!-- data: FILE KEY -->`` figure (FILE relative to ``root``): (checked,
+    problems)."""
     checked, problems = 0, []
     for path in paths:
         text = path.read_text(encoding="utf-8")
         for m in DATA_MARKER.finditer(text):
             printed, file, key = m.group(1), m.group(2), m.group(3)
             line = text.count("\n", 0, m.start()) + 1
-            where = f"{path.relative_to(ROOT)}:{line}"
+            where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{line}"
             try:
-                value = float(_lookup(json.loads((ROOT / file).read_text()), key))
+                value = float(_lookup(json.loads((root / file).read_text()), key))
             except (OSError, KeyError, IndexError, ValueError, TypeError) as exc:
                 problems.append(f"{where}: {file} {key}: cannot read ({exc})")
                 continue
