@@ -201,12 +201,14 @@ _SHIM = '''#!{python}
 import os, sys
 sys.path.insert(0, {root!r})
 sys.path.insert(1, {tools!r})
-argv = sys.argv[1:]
-if os.environ.get("TSPEND_DOCS_SHORT") == "1" and argv:
-    from check_docs import shortened
-    argv = shortened(argv)
-from tspend.cli.main import main
-sys.exit(main(argv))
+# a sweep's worker processes re-import the main module: only the main process runs main()
+if __name__ == "__main__":
+    argv = sys.argv[1:]
+    if os.environ.get("TSPEND_DOCS_SHORT") == "1" and argv:
+        from check_docs import shortened
+        argv = shortened(argv)
+    from tspend.cli.main import main
+    sys.exit(main(argv))
 '''
 
 
