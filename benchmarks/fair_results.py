@@ -373,7 +373,7 @@ def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
     what = f"`{c['metric']}` on {c['scenario']}, {c['a']} against {c['b']}"
     if c["shown"]:
         worse = c["b"] if c["better"] == c["a"] else c["a"]
-        head = f"**shown**: {c['better']} better than {worse} on {what}"
+        head = f"**shown**: {c['better']} better than {worse} on `{c['metric']}` ({c['scenario']})"
     else:
         verdicts = [s["verdict"] or "none" for s in (c["test"], c["confirm"]) if s]
         head = (f"**not shown**: {what} (verdicts on the two sets: {', '.join(verdicts)})")

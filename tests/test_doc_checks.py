@@ -88,9 +88,9 @@ def test_a_figure_agrees_to_its_printed_digits(printed, value, ok) -> None:
 def test_marked_figures_are_checked_against_their_data(tmp_path: Path) -> None:
     (tmp_path / "d.json").write_text(json.dumps({"a": {"b": [1.0, 0.0313]}}))
     doc = tmp_path / "doc.md"
-    doc.write_text("holds 0.0313 rad <!-- data: d.json a.b.1 --> and 1.00 <!-- data: d.json a.b.0 -->\n")
+    doc.write_text("holds 0.0313 rad <!-- data: d.json a/b/1 --> and 3.13 % <!-- data: d.json a/b/1 x100 -->\n")
     assert check_claims.check_markers([doc], root=tmp_path) == (2, [])
-    doc.write_text("holds 0.0314 rad <!-- data: d.json a.b.1 -->\n")
+    doc.write_text("holds 0.0314 rad <!-- data: d.json a/b/1 -->\n")
     n, problems = check_claims.check_markers([doc], root=tmp_path)
     assert n == 1 and "prints 0.0314" in problems[0]
 

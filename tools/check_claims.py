@@ -12,9 +12,11 @@ Two kinds of claims are checked:
   bootstrap) and must equal the committed text, and ``claims.json`` must equal the claims
   rebuilt from the runs. Every number in the sections is counted as a checked figure.
 * **Marked figures.** Anywhere in README.md and docs/*.md, a number followed by
-  ``<!-- data: FILE KEY -->`` (FILE relative to the repository, a JSON file; KEY a dotted
-  path into it, list entries by index) must equal the file's value to the digits printed
-  (a figure printed as 0.0123 holds for any value that rounds to it).
+  ``<!-- data: FILE KEY -->`` (FILE relative to the repository, a JSON file; KEY a path
+  into it with ``/`` between the steps, list entries by index; an optional ``xSCALE``
+  after it multiplies the value: ``x100`` for a fraction printed in %) must equal the
+  file's value to the digits printed (a figure printed as 0.0123 holds for any value that
+  rounds to it).
 
 ``--recompute N``: re-runs N of the kept test runs (``runs.parquet``) from the committed
 tuned scenarios (``tuned/SCENARIO-KIND.toml``) with today's code and fails when a metric
@@ -37,8 +39,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
 FAIR = ROOT / "docs" / "results" / "fair"
 NUMBER = re.compile(r"[-−]?\d+(?:,\d{3})*(?:\.\d+)?(?:e[-+]?\d+)?", re.I)
-DATA_MARKER = re.compile(r"(" + NUMBER.pattern + r")[^\d<]{0,12}<!--\s*data:\s*(\S+)\s+(\S+)\s*-->",
-                         re.I)
+DATA_MARKER = re.compile(r"(" + NUMBER.pattern + r")[^\d<]{0,12}"
+                         r"<!--\s*data:\s*(\S+)\s+(\S+)(?:\s+x(\S+))?\s*-->", re.I)
 
 
 def agrees(printed: str, value: float) -> bool:
@@ -53,7 +55,7 @@ def agrees(printed: str, value: float) -> bool:
 
 
 def _lookup(doc, key: str):
-    for part in key.split("."):
+    for part in key.split("/"):
         doc = doc[int(part)] if isinstance(doc, list) else doc[part]
     return doc
 
@@ -66,10 +68,11 @@ def check_markers(paths: list[Path], root: Path = ROOT) -> tuple[int, list[str]]
         text = path.read_text(encoding="utf-8")
         for m in DATA_MARKER.finditer(text):
             printed, file, key = m.group(1), m.group(2), m.group(3)
+            scale = float(m.group(4)) if m.group(4) else 1.0
             line = text.count("\n", 0, m.start()) + 1
             where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{line}"
             try:
-                value = float(_lookup(json.loads((root / file).read_text()), key))
+                value = scale * float(_lookup(json.loads((root / file).read_text()), key))
             except (OSError, KeyError, IndexError, ValueError, TypeError) as exc:
                 problems.append(f"{where}: {file} {key}: cannot read ({exc})")
                 continue
