@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -327,11 +328,16 @@ def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path
 
 
 def _verdict_figures(r) -> dict:
-    """One pair's figures on one seed set, as the claims file keeps them."""
+    """One pair's figures on one seed set, as the claims file keeps them (a run that fell or
+    diverged scores inf: kept as the string "inf", which float() reads back)."""
+    def num(v) -> float | str:
+        v = float(v)
+        return v if math.isfinite(v) else str(v)
+
     return {"verdict": r.verdict or "", "negligible": bool(r.negligible), "pairs": int(r.pairs),
-            "median_ratio": float(r.median_ratio), "median_difference": float(r.median_difference),
-            "ci_low": float(r.ci_low), "ci_high": float(r.ci_high), "p_holm": float(r.p_holm),
-            "wins": float(r.wins)}
+            "median_ratio": num(r.median_ratio), "median_difference": num(r.median_difference),
+            "ci_low": num(r.ci_low), "ci_high": num(r.ci_high), "p_holm": num(r.p_holm),
+            "wins": num(r.wins)}
 
 
 def headline_claims(comp, comp2, test, confirm) -> dict:
@@ -370,10 +376,12 @@ def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
     from tspend.studies.stats import fmt, fmt_ratio, _fmt_p
 
     def figs(s: dict, seeds: str) -> str:
-        ph = _fmt_p(s["p_holm"])
-        return (f"seeds {seeds}: difference {c['a']} − {c['b']} {fmt(s['median_difference'])} "
-                f"[{fmt(s['ci_low'])}, {fmt(s['ci_high'])}], median ratio "
-                f"{fmt_ratio(s['median_ratio'])}, Holm p {ph if ph.startswith('<') else '= ' + ph}")
+        ph = _fmt_p(float(s["p_holm"]))
+        return (f"seeds {seeds}: difference {c['a']} − {c['b']} "
+                f"{fmt(float(s['median_difference']))} [{fmt(float(s['ci_low']))}, "
+                f"{fmt(float(s['ci_high']))}], median ratio "
+                f"{fmt_ratio(float(s['median_ratio']))}, Holm p "
+                f"{ph if ph.startswith('<') else '= ' + ph}")
 
     parts = [figs(c["test"], test_text)] + ([figs(c["confirm"], confirm_text)]
                                             if c["confirm"] else [])
