@@ -132,7 +132,7 @@ def recompute(n: int) -> tuple[int, list[str]]:
     for r in picked.itertuples():
         scenario = FAIR / "tuned" / f"{r.scenario}-{r.controller}.toml"
         got = tspend.run(str(scenario), controller=r.controller, seed=int(r.seed),
-                         record=None).metrics
+                         keep_history=False).metrics
         for metric in fr_metrics():
             old, new = getattr(r, metric), got.get(metric)
             if old is None or new is None or (isinstance(old, float) and math.isnan(old)):
