@@ -29,9 +29,9 @@ whose later commands need its runs whole (an identification needs its 16 s of da
 marked ``<!-- check_docs: full -->``: not shortened under ``--short``.
 
 ``--short``: runs are shortened the way tests/test_readme.py does it (``--duration``,
-``--seeds 0:2``, ``--jobs 1``, ``--resamples``, fewer trials and seeds for the benchmark
-scripts through ``TSPEND_DOCS_SHORT=1``); every other word of the command is the
-document's. Exit 0 when every command ran with its expected status; 1 otherwise.
+``--seeds`` of two, ``--jobs 1``, ``--resamples``, ``--trials 2``; the benchmark
+scripts are skipped, named); every other word of the command is the document's. Python
+blocks run as written. Exit 0 when every command ran with its expected status; 1 otherwise.
 """
 
 from __future__ import annotations
