@@ -1,24 +1,33 @@
 """The fair comparison: every kind tuned on an equal budget, compared on randomised machines.
 
     nice python benchmarks/fair_results.py                    # the budget the page states
-    nice python benchmarks/fair_results.py --trials 4 --train-seeds 100:102 --test-seeds 0:6 \\
-        --out /tmp/fair --page /tmp/fair.md                   # a quick look
+    nice python benchmarks/fair_results.py --trials-per-parameter 2 --train-seeds 100:102 \\
+        --test-seeds 0:4 --confirm-seeds 200:204 --out /tmp/fair --page /tmp/fair.md \\
+        --readme /tmp/readme.md                               # a quick look
 
 For every scenario (default: ``ex3_pendulum_ode_randomized`` and
 ``pendulum_mujoco_randomized``, whose ``[randomize]`` tables draw the initial state, the
 pole's mass and half-length, the cart's mass and the actuator's gain at every seed) and
 every controller kind, :func:`tspend.studies.tune.equal_budget` tunes the kind with the
-same number of Optuna TPE trials on the same training seeds (objective: the median
-``rmse`` over them, a run that fell or diverged scoring worst), then runs the tuned kind
-on the test seeds, disjoint from the training ones.  :func:`tspend.studies.stats.compare`
-pairs the test runs by seed (each seed one drawn machine, the same for every kind) over
-every pair of kinds, with Holm's correction over the whole family.
+same number of Optuna TPE trials *per setting it searches* on the same training seeds
+(objective: the median ``rmse`` over them, a run that fell or diverged scoring worst),
+moves out any edge of a range whose optimum lies in its outer 5 % and tunes again
+(``--widen-rounds``), then runs the tuned kind on two sets of seeds disjoint from the
+training ones: the test seeds and a confirmation set fixed before any wording.
+:func:`tspend.studies.stats.compare` pairs the runs of each set by seed (each seed one
+drawn machine, the same for every kind) over every pair of kinds, with Holm's correction
+over each set's whole family.  A headline claim (:data:`HEADLINES`) is "shown" only when
+both sets give the same verdict (Holm p < 0.05, interval excluding 0, not negligible);
+otherwise it is worded "not shown".
 
 It writes, in ``--out``: the test runs (``runs.parquet``), the statistics
-(``comparison.json``), the tuned scenarios (``tuned/SCENARIO-KIND.toml``, each runnable
+(``comparison.json`` on the test seeds, ``comparison_confirm.json`` on the confirmation
+seeds), the headline claims with their figures on both sets (``claims.json``, what
+``tools/check_claims.py`` checks the README and the page against), the tuned scenarios (``tuned/SCENARIO-KIND.toml``, each runnable
 and headed by its budget and scores) and the studies' journal (``tune.journal``: a rerun
 resumes the trials); and it replaces the section between the markers below in the page
-(docs/results.md; ``benchmarks/results.py`` keeps that section when it rewrites the rest).
+(docs/results.md; ``benchmarks/results.py`` keeps that section when it rewrites the rest)
+and the claims between :data:`README_BEGIN` and :data:`README_END` in ``--readme``.
 Every sentence of the section is generated from the statistics; the earlier claims it
 re-examines are the verdicts of ``docs/results/comparison.json`` (the hand-tuned baselines
 on the fixed machine) on the scenarios these randomise.
@@ -28,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -43,15 +53,28 @@ KINDS = ("second_type", "first_type", "pd", "lqr", "sliding_mode", "feedback_lin
 METRICS = ("rmse", "rmse_ss", "max_abs_e_ss", "control_energy", "tv_u_per_s")
 BEGIN = "<!-- benchmarks/fair_results.py: begin (generated; rerun it, do not edit) -->"
 END = "<!-- benchmarks/fair_results.py: end -->"
+README_BEGIN = "<!-- benchmarks/fair_results.py claims: begin (generated from docs/results/fair/claims.json) -->"
+README_END = "<!-- benchmarks/fair_results.py claims: end -->"
+#: the claims the README states, each (scenario, A, B, metric): a verdict on A against B
+HEADLINES = (
+    ("pendulum_mujoco_randomized", "second_type", "pd", "rmse"),
+    ("pendulum_mujoco_randomized", "second_type", "pd", "control_energy"),
+    ("pendulum_mujoco_randomized", "second_type", "lqr", "rmse_ss"),
+    ("ex3_pendulum_ode_randomized", "second_type", "lqr", "rmse_ss"),
+    ("pendulum_mujoco_randomized", "second_type", "feedback_linearization", "rmse_ss"),
+    ("ex3_pendulum_ode_randomized", "second_type", "feedback_linearization", "rmse_ss"),
+    ("pendulum_mujoco_randomized", "second_type", "first_type", "rmse"),
+    ("pendulum_mujoco_randomized", "second_type", "first_type", "rmse_ss"),
+)
 
 
-def splice(page: str, section: str) -> str:
+def splice(page: str, section: str, begin: str = BEGIN, end: str = END) -> str:
     """``page`` with the marked section replaced by ``section`` (inserted before the first
     ``## `` heading when the page has no markers yet)."""
-    block = f"{BEGIN}\n{section.rstrip()}\n{END}"
-    if BEGIN in page and END in page:
-        head, rest = page.split(BEGIN, 1)
-        return head + block + rest.split(END, 1)[1]
+    block = f"{begin}\n{section.rstrip()}\n{end}"
+    if begin in page and end in page:
+        head, rest = page.split(begin, 1)
+        return head + block + rest.split(end, 1)[1]
     at = page.find("\n## ")
     if at < 0:
         return page.rstrip() + "\n\n" + block + "\n"
@@ -129,6 +152,12 @@ def earlier_claims(comp, path: Path) -> tuple[list[str], list[str]]:
     return holds, fails
 
 
+def _earlier_rows() -> int:
+    """How many rows the earlier page's comparison holds (its Holm family)."""
+    path = ROOT / "docs" / "results" / "comparison.json"
+    return len(json.loads(path.read_text())["pairs"]) if path.is_file() else 0
+
+
 def _short(v) -> str:
     """A tuned value in 3 significant figures (lists and matrices entry by entry)."""
     from tspend.studies.stats import fmt
@@ -144,9 +173,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--page", default=str(ROOT / "docs" / "results.md"))
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--controller", default=",".join(KINDS), help="kinds K1,K2,...")
-    ap.add_argument("--trials", type=int, default=12)
+    ap.add_argument("--trials-per-parameter", type=int, default=8,
+                    help="Optuna trials per setting a kind searches (the fair budget)")
+    ap.add_argument("--trials", type=int, default=None,
+                    help="the same trials for every kind instead (the old, unfair budget)")
+    ap.add_argument("--widen-rounds", type=int, default=2,
+                    help="times a range whose optimum lies in its outer 5 %% is widened and "
+                         "the kind tuned again")
     ap.add_argument("--train-seeds", default="100:104")
     ap.add_argument("--test-seeds", default="0:20")
+    ap.add_argument("--confirm-seeds", default="200:220",
+                    help="the second test set, fixed before the wording, that confirms a claim")
+    ap.add_argument("--readme", default=str(ROOT / "README.md"),
+                    help="the file whose marked claims section is rewritten")
     ap.add_argument("--metric", default="rmse", help="the metric the tuning minimises")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--fresh", action="store_true", help="forget the studies in --out")
@@ -154,13 +193,17 @@ def main(argv: list[str] | None = None) -> int:
                     help="run nothing: rewrite the page from the runs and tuned settings "
                          "kept in --out")
     args = ap.parse_args(argv)
+    for name in ("trials_per_parameter", "trials", "widen_rounds", "jobs"):
+        v = getattr(args, name)
+        if v is not None and not (0 <= v <= 1000) or (name != "widen_rounds" and v == 0):
+            ap.error(f"--{name.replace('_', '-')}: {v} is outside 1..1000")
 
     import pandas as pd
 
     import tspend
     from tspend.scenario import load_scenario
     from tspend.studies.stats import compare, to_json
-    from tspend.studies.tune import equal_budget, score
+    from tspend.studies.tune import budget_trials, equal_budget, position, score
     from tspend.sweep.executors import make_executor
     from tspend.sweep.plan import parse_seeds
 
@@ -168,13 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     saved = out / "comparison.json"
     if args.render:
-        doc = json.loads(saved.read_text())
-        rows = pd.read_parquet(out / "runs.parquet")
-        scenarios = [load_scenario(s) for s in doc["scenarios"]]
-        kinds, train, test = doc["controllers"], doc["train_seeds"], doc["test_seeds"]
-        budget = dict(trials=doc["trials"], metric=doc["metric"], wall_s=doc["wall_s"],
-                      jobs=doc.get("jobs", args.jobs), runs=doc["runs"])
-        tuned = {tuple(k.split("/")): v for k, v in doc["tuned"].items()}
+        rows, scenarios, kinds, tuned, train, test, confirm, budget = load_saved(out)
     else:
         journal = out / "tune.journal"
         if args.fresh:
@@ -182,20 +219,33 @@ def main(argv: list[str] | None = None) -> int:
         scenarios = [load_scenario(s.strip()) for s in args.scenarios.split(",") if s.strip()]
         kinds = [k.strip() for k in args.controller.split(",") if k.strip()]
         train, test = parse_seeds(args.train_seeds), parse_seeds(args.test_seeds)
+        confirm = parse_seeds(args.confirm_seeds)
+        if set(confirm) & (set(test) | set(train)):
+            ap.error("--confirm-seeds: must be disjoint from the test and training seeds")
         started = time.perf_counter()
-        runs = len(scenarios) * len(kinds) * (args.trials * len(train) + len(test))
-        print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds x "
-              f"({args.trials} trials x {len(train)} train seeds + {len(test)} test seeds) = "
-              f"{runs} runs", file=sys.stderr)
+        trials_of = {k: args.trials if args.trials is not None
+                     else budget_trials(k, args.trials_per_parameter) for k in kinds}
+        runs = len(scenarios) * sum(trials_of[k] * len(train) + len(test) + len(confirm)
+                                    for k in kinds)
+        print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds, trials "
+              + ", ".join(f"{k} {n}" for k, n in trials_of.items())
+              + f" x {len(train)} train seeds + {len(test)} + {len(confirm)} test seeds = "
+              f"{runs} runs at least (more where a range is widened)", file=sys.stderr)
         executor = make_executor(args.jobs)
         try:
             rows, results = equal_budget(scenarios, kinds, trials=args.trials,
-                                         train_seeds=train, test_seeds=test,
+                                         trials_per_parameter=None if args.trials is not None
+                                         else args.trials_per_parameter,
+                                         train_seeds=train, test_seeds=[*test, *confirm],
                                          metric=args.metric, executor=executor,
-                                         storage=str(journal), progress=True)
+                                         storage=str(journal), progress=True,
+                                         widen_rounds=args.widen_rounds)
         finally:
             executor.close()
-        budget = dict(trials=args.trials, metric=args.metric,
+        runs = sum(sum(r.rounds) * len(train) + len(test) + len(confirm)
+                   for r in results.values())
+        budget = dict(trials=args.trials, trials_per_parameter=args.trials_per_parameter
+                      if args.trials is None else None, metric=args.metric,
                       wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs)
         rows.to_parquet(out / "runs.parquet")
         (out / "tuned").mkdir(exist_ok=True)
@@ -204,22 +254,167 @@ def main(argv: list[str] | None = None) -> int:
         # the test score as tune states it: the median of the metric over the test seeds
         tuned = {(scn, kind): {"values": r.values, "train_score": r.train_score,
                                "test_score": score(rows[(rows.scenario == scn)
-                                                        & (rows.controller == kind)],
-                                                   args.metric)}
+                                                        & (rows.controller == kind)
+                                                        & rows.seed.isin(test)], args.metric),
+                               "rounds": list(r.rounds),
+                               "space": {key: {"low": sp.low, "high": sp.high, "log": sp.log,
+                                               "optimum": r.drawn[key],
+                                               "position": position(sp, r.drawn[key])}
+                                         for key, sp in r.space.items()}}
                  for (scn, kind), r in results.items()}
 
-    comp = compare(rows, kinds, METRICS)
-    doc = to_json(comp)
-    doc.update(train_seeds=train, test_seeds=test, scenarios=[s.name for s in scenarios],
-               version=tspend.__version__, **budget,
-               tuned={f"{s}/{k}": v for (s, k), v in tuned.items()})
+    page, readme = Path(args.page), Path(args.readme)
+    doc, doc2, claims, section, readme_section = build(
+        rows, scenarios, kinds, tuned, train, test, confirm, budget, out, page, readme)
     saved.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    page = Path(args.page)
-    section = render(comp, scenarios, tuned, train, test, budget, out, page)
+    if doc2 is not None:
+        (out / "comparison_confirm.json").write_text(json.dumps(doc2, indent=1,
+                                                                allow_nan=False) + "\n")
+    (out / "claims.json").write_text(json.dumps(claims, indent=1, allow_nan=False) + "\n")
     old = page.read_text() if page.is_file() else "# Results\n"
     page.write_text(splice(old, section))
+    if readme.is_file() and README_BEGIN in readme.read_text():
+        readme.write_text(splice(readme.read_text(), readme_section, README_BEGIN, README_END))
     print(f"wrote {page} ({budget['wall_s']:.0f} s of runs)", file=sys.stderr)
     return 0
+
+
+def load_saved(out: Path):
+    """What a run kept in ``out``: (rows, scenarios, kinds, tuned, train, test, confirm,
+    budget), as :func:`build` takes them."""
+    import pandas as pd
+
+    from tspend.scenario import load_scenario
+
+    doc = json.loads((out / "comparison.json").read_text())
+    rows = pd.read_parquet(out / "runs.parquet")
+    scenarios = [load_scenario(s) for s in doc["scenarios"]]
+    budget = dict(trials=doc["trials"], trials_per_parameter=doc.get("trials_per_parameter"),
+                  metric=doc["metric"], wall_s=doc["wall_s"], jobs=doc.get("jobs", 2),
+                  runs=doc["runs"])
+    tuned = {tuple(k.split("/")): v for k, v in doc["tuned"].items()}
+    return (rows, scenarios, doc["controllers"], tuned, doc["train_seeds"], doc["test_seeds"],
+            doc.get("confirm_seeds", []), budget)
+
+
+def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path, page: Path,
+          readme: Path):
+    """Everything written from the runs: (comparison doc, confirmation doc or None, claims,
+    the page's section, the README's claims section).  tools/check_claims.py calls it on
+    the kept runs and compares with what is committed."""
+    import tspend
+    from tspend.cli.compare import seeds_text
+    from tspend.studies.stats import compare, to_json
+
+    comp = compare(rows[rows.seed.isin(test)], kinds, METRICS)
+    doc = to_json(comp)
+    doc.update(train_seeds=train, test_seeds=test, confirm_seeds=confirm,
+               scenarios=[s.name for s in scenarios], version=tspend.__version__, **budget,
+               tuned={f"{s}/{k}": v for (s, k), v in tuned.items()})
+    comp2 = doc2 = None
+    if confirm:
+        comp2 = compare(rows[rows.seed.isin(confirm)], kinds, METRICS)
+        doc2 = to_json(comp2)
+        doc2.update(confirm_seeds=confirm, scenarios=[s.name for s in scenarios])
+    claims = headline_claims(comp, comp2, test, confirm)
+    # the optima still in the outer 5 % of their ranges after the widening rounds
+    claims["at_edge"] = [f"{scn}/{kind}/{key}" for (scn, kind), t in tuned.items()
+                         for key, sp in t.get("space", {}).items()
+                         if not 0.05 <= sp["position"] <= 0.95]
+    claims["trials_per_parameter"] = budget.get("trials_per_parameter")
+    claims["train_seeds"] = seeds_text(train)
+    section = render(comp, scenarios, tuned, train, test, budget, out, page, claims)
+    return doc, doc2, claims, section, readme_claims(claims, page, readme)
+
+
+def _verdict_figures(r) -> dict:
+    """One pair's figures on one seed set, as the claims file keeps them (a run that fell or
+    diverged scores inf: kept as the string "inf", which float() reads back)."""
+    def num(v) -> float | str:
+        v = float(v)
+        return v if math.isfinite(v) else str(v)
+
+    return {"verdict": r.verdict or "", "negligible": bool(r.negligible), "pairs": int(r.pairs),
+            "median_ratio": num(r.median_ratio), "median_difference": num(r.median_difference),
+            "ci_low": num(r.ci_low), "ci_high": num(r.ci_high), "p_holm": num(r.p_holm),
+            "wins": num(r.wins)}
+
+
+def headline_claims(comp, comp2, test, confirm) -> dict:
+    """Each of :data:`HEADLINES` on both seed sets: shown when both give the same verdict
+    (significant after Holm, interval excluding 0, not negligible)."""
+    from tspend.cli.compare import seeds_text
+
+    out = {"test_seeds": seeds_text(test), "confirm_seeds": seeds_text(confirm),
+           "family_test": comp.settings["correction"],
+           "family_confirm": comp2.settings["correction"] if comp2 is not None else "",
+           "claims": []}
+    for scn, a, b, metric in HEADLINES:
+        sets = []
+        for c in (comp, comp2):
+            if c is None:
+                continue
+            m = c.pairs[(c.pairs.scenario == scn) & (c.pairs.metric == metric)
+                        & (c.pairs.a == a) & (c.pairs.b == b)]
+            if m.empty:
+                continue
+            sets.append(_verdict_figures(m.iloc[0]))
+        if not sets:
+            continue
+        v = {s["verdict"] for s in sets}
+        shown = (len(sets) == 2 and len(v) == 1 and "" not in v
+                 and not any(s["negligible"] for s in sets))
+        out["claims"].append({"key": f"{scn}/{a}/{b}/{metric}", "scenario": scn, "a": a,
+                              "b": b, "metric": metric, "shown": shown,
+                              "better": sets[0]["verdict"] if shown else "",
+                              "test": sets[0], "confirm": sets[1] if len(sets) > 1 else None})
+    return out
+
+
+def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
+    """A headline claim in words, every figure from the claims file."""
+    from tspend.studies.stats import fmt, fmt_ratio, _fmt_p
+
+    def figs(s: dict, seeds: str) -> str:
+        ph = _fmt_p(float(s["p_holm"]))
+        return (f"seeds {seeds}: difference {c['a']} − {c['b']} "
+                f"{fmt(float(s['median_difference']))} [{fmt(float(s['ci_low']))}, "
+                f"{fmt(float(s['ci_high']))}], median ratio "
+                f"{fmt_ratio(float(s['median_ratio']))}, Holm p "
+                f"{ph if ph.startswith('<') else '= ' + ph}")
+
+    parts = [figs(c["test"], test_text)] + ([figs(c["confirm"], confirm_text)]
+                                            if c["confirm"] else [])
+    what = f"`{c['metric']}` on {c['scenario']}, {c['a']} against {c['b']}"
+    if c["shown"]:
+        worse = c["b"] if c["better"] == c["a"] else c["a"]
+        head = f"**shown**: {c['better']} better than {worse} on `{c['metric']}` ({c['scenario']})"
+    else:
+        verdicts = [s["verdict"] or "none" for s in (c["test"], c["confirm"]) if s]
+        head = (f"**not shown**: {what} (verdicts on the two sets: {', '.join(verdicts)})")
+    return f"{head}; " + "; ".join(parts) + f" <!-- claim: {c['key']} -->"
+
+
+def readme_claims(claims: dict, page: Path, readme: Path) -> str:
+    """The README's claims, generated from the claims file."""
+    rel = Path(os.path.relpath(page.resolve(), readme.parent.resolve())).as_posix()
+    edge = claims.get("at_edge", [])
+    ranges = ("on ranges where no optimum lies in the outer 5 %" if not edge else
+              f"on ranges widened where an optimum lay in the outer 5 % ({len(edge)} still "
+              f"there: {', '.join(edge)})")
+    per = claims.get("trials_per_parameter")
+    lines = [f"Every kind tuned on the same training seeds ({claims.get('train_seeds', '')}) "
+             f"with the same budget per setting it searches"
+             + (f" ({per} Optuna trials each: a coarse search)" if per else "")
+             + f", {ranges} ([{rel}]({rel}): the budget, the ranges and the optima), then run "
+             f"on two sets of seeds that "
+             f"draw the machine and the initial state: the test seeds {claims['test_seeds']} "
+             f"and a confirmation set {claims['confirm_seeds']} fixed before this wording. "
+             f"Medians of paired differences with 95 % bootstrap intervals, Holm-adjusted p "
+             f"({claims['family_test']}). A claim is shown only when both sets give it:", ""]
+    lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
+              for c in claims["claims"]]
+    return "\n".join(lines)
 
 
 def pair_table(comp, scenario: str) -> list[str]:
@@ -244,7 +439,8 @@ def pair_table(comp, scenario: str) -> list[str]:
     return lines
 
 
-def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -> str:
+def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
+           claims: dict | None = None) -> str:
     """The page's section, every sentence from the statistics."""
     import tspend
     from tspend.cli.compare import seeds_text
@@ -254,6 +450,24 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -
         return Path(os.path.relpath(Path(p).resolve(), page.parent.resolve())).as_posix()
 
     trials, metric = budget["trials"], budget["metric"]
+    per = budget.get("trials_per_parameter")
+    if per:
+        budget_text = (f"**Budget, the same per setting searched:** {per} Optuna TPE trials "
+                       f"(sampler seed 0) per setting a kind searches, × {len(train)} training "
+                       f"seeds ({seeds_text(train)}): a kind searching five settings (the "
+                       f"paper's kinds: eta, gamma, Q, the pole of lambda, the boundary layer) "
+                       f"gets {5 * per} trials, a kind searching one (PD's bandwidth, LQR's R, "
+                       f"feedback linearisation's pole) {per}. Where an optimum lay in the outer "
+                       f"5 % of its range, that edge was moved out and the kind tuned again "
+                       f"with its full budget (the rounds column). Every closed-loop pole a "
+                       f"search sets (PD's bandwidth, the poles of lambda, the sliding surface's "
+                       f"pole) starts from the same range, 0.2-1000 rad/s (1000: the 1 ms "
+                       f"sample's own limit); LQR's R sets its poles through the Riccati "
+                       f"equation, so it has no pole range of its own.")
+    else:
+        budget_text = (f"**Budget, the same trials for every kind:** {trials} Optuna TPE trials "
+                       f"(sampler seed 0) × {len(train)} training seeds ({seeds_text(train)}), "
+                       f"whatever the number of settings a kind searches.")
     lines = [
         "## Fair comparison: every kind tuned on an equal budget, on randomised machines",
         "",
@@ -264,13 +478,10 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -
         f"`{rel(out / 'comparison.json')}`; the tuned scenarios, each runnable and headed by "
         f"its budget and scores: `{rel(out / 'tuned')}/`.",
         "",
-        f"**Budget, the same for every kind:** {trials} Optuna TPE trials (sampler seed 0; "
-        f"TPE's first 10 trials are random, so this is a coarse search) × {len(train)} "
-        f"training seeds ({seeds_text(train)}) = {trials * len(train)} runs per kind and "
-        f"scenario, minimising the median `{metric}` over the training seeds (a run that fell "
-        f"or diverged scores worst); each kind searches its declared space (`tspend tune "
-        f"--controller KIND`; the paper's kinds over eta, gamma, Q, lambda and the boundary "
-        f"layer). The tuned kinds are then compared on the {len(test)} test seeds "
+        budget_text + f" Each trial minimises the median `{metric}` over the training seeds (a "
+        f"run that fell or diverged scores worst); TPE's first 10 trials are random, so a "
+        f"small budget is a coarse search. The tuned kinds are then compared on the "
+        f"{len(test)} test seeds "
         f"{seeds_text(test)}, disjoint from the training ones, paired by seed, over every "
         f"pair of kinds, with Holm's correction ({comp.settings['correction']}). A verdict "
         f"needs Holm-adjusted p < 0.05 and a 95% bootstrap interval of the median difference "
@@ -294,6 +505,29 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -
         vals = ", ".join(f"{k} = {_short(v)}" for k, v in t["values"].items())
         lines.append(f"| {scn} | {kind} | {vals} | {fmt(t['train_score'])} | "
                      f"{fmt(t['test_score'])} |")
+    if any("space" in t for t in tuned.values()):
+        lines += ["", "### Optima and ranges", "",
+                  "Each searched number, the range of its last tuning round and where the "
+                  "optimum lies in it (0 % the low end, 100 % the high end; on the log scale "
+                  "for a log range). An optimum in the outer 5 % is marked: where it is at a "
+                  "setting's own limit (a boundary layer of 0) the range cannot be widened.", "",
+                  "| scenario | kind | setting | range | optimum | position | rounds (trials) |",
+                  "|---|---|---|---|---:|---:|---|"]
+        for (scn, kind), t in tuned.items():
+            for key, sp in t.get("space", {}).items():
+                edge = sp["position"] < 0.05 or sp["position"] > 0.95
+                lines.append(f"| {scn} | {kind} | {key} | {fmt(sp['low'])}-{fmt(sp['high'])} "
+                             f"{'log' if sp['log'] else 'linear'} | {fmt(sp['optimum'])} | "
+                             f"{100 * sp['position']:.1f} %{' (at the edge)' if edge else ''} | "
+                             f"{', '.join(map(str, t.get('rounds', [])))} |")
+    if claims and claims.get("claims"):
+        lines += ["", "### Headline claims on both seed sets", "",
+                  f"Test seeds {claims['test_seeds']} ({claims['family_test']}); confirmation "
+                  f"seeds {claims['confirm_seeds']}, fixed before any wording "
+                  f"({claims['family_confirm']}). Shown only when both sets give the same "
+                  f"verdict.", ""]
+        lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
+                  for c in claims["claims"]]
     lines += ["", "### Verdicts that survive Holm's correction", "",
               "Per pair and metric, the better kind, the median ratio worse/better over the "
               "test seeds and the Holm-adjusted p (— : no difference shown).", ""]
@@ -309,7 +543,8 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path) -
     lines += ["", "### Earlier claims re-examined", "",
               "The verdicts below were stated on the fixed machine with hand-tuned baselines "
               "(the rest of this page, `docs/results/comparison.json`; the Holm p there is "
-              "recomputed over that page's 300 rows). Each is checked against the tuned "
+              f"recomputed over that page's {_earlier_rows()} rows). Each is checked against "
+              "the tuned "
               "kinds on the randomised machine above.", "",
               f"**No longer hold ({len(fails)}):**", ""]
     lines += [f"- {f}." for f in fails] or ["- none."]

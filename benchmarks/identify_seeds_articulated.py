@@ -51,6 +51,16 @@ def sh(args: list[str]) -> str:
     return r.stdout
 
 
+def _column(df: pd.DataFrame, name: str) -> str:
+    """The export's column for ``name``: ``name`` itself or ``name_<unit>`` (u_N, d_N)."""
+    if name in df.columns:
+        return name
+    found = [c for c in df.columns if c.startswith(f"{name}_") and c.count("_") == 1]
+    if len(found) != 1:
+        raise SystemExit(f"the export has no single column for {name!r}: {list(df.columns)}")
+    return found[0]
+
+
 def draw(seed: int, nominal: dict[str, float]) -> dict[str, float]:
     rng = np.random.default_rng((seed, 0xA27))
     out = {}
@@ -92,7 +102,10 @@ def main() -> int:
             sh([*TSPEND, "export", str(rrd), "--out", str(csv)])
             df = pd.read_csv(csv, comment="#")
             rng = np.random.default_rng((seed, 0x1DE))
-            noisy = pd.DataFrame({"t_s": df["t_s"], "u": df["u"], "d": df["d"]})
+            # the export names the input and disturbance with their units (u_N, d_N);
+            # identify reads either form
+            u_col, d_col = _column(df, "u"), _column(df, "d")
+            noisy = pd.DataFrame({"t_s": df["t_s"], u_col: df[u_col], d_col: df[d_col]})
             for c in ("slider_m", "hinge1_rad", "hinge2_rad"):
                 noisy[c] = df[c] + a.noise * rng.standard_normal(len(df))
             ncsv = d / f"n{seed}.csv"

@@ -47,12 +47,14 @@ def test_paper_case_tracks(name):
 
 
 def test_metrics_match_golden_values():
-    """Behaviour does not change: every paper case reproduces its recorded metrics."""
+    """Behaviour does not change: every paper case reproduces its recorded metrics to a
+    relative 1e-11, the tolerance README.md states (the largest drift measured between
+    builds was 1.6e-12, on the tuned case 1's max_abs_e_ss)."""
     golden = json.loads(GOLDEN.read_text())
     for name, expected in golden.items():
         got = _result(name).metrics
         for key, value in expected.items():
-            assert got[key] == pytest.approx(value, rel=1e-6, abs=1e-12), (name, key)
+            assert got[key] == pytest.approx(value, rel=1e-11, abs=0.0), (name, key)
 
 
 def test_same_seed_same_arrays_and_metrics():

@@ -365,9 +365,28 @@ def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert open_recording("tspend_test", path=None) is None
 
 
-def test_sink_without_recording_records_nothing() -> None:
-    info = make_info(steps=1000)
-    drive(RerunSink(None), info, make_run(2, 1000), completed(1000))
+def test_sink_without_recording_records_nothing(tmp_path: Path, monkeypatch) -> None:
+    """A sink handed no recording logs nowhere: not to a global recording that happens to
+    be active (Rerun's fallback for a call without ``recording=``), not to a file."""
+    monkeypatch.chdir(tmp_path)
+    fallback = rr.RecordingStream("tspend_fallback")
+    fallback.save(tmp_path / "global.rrd")
+    rr.set_global_data_recording(fallback)
+    try:
+        info = make_info(steps=1000)
+        drive(RerunSink(None), info, make_run(2, 1000), completed(1000))
+    finally:
+        rr.set_global_data_recording(None)
+        close_recording(fallback)
+    logged = {p for p in entity_paths(tmp_path / "global.rrd") if not p.startswith("/__")}
+    assert logged == set(), logged
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["global.rrd"]
+    # the check can fail: the same drive with the global recording does log there
+    control = rr.RecordingStream("tspend_control")
+    control.save(tmp_path / "control.rrd")
+    drive(RerunSink(control), info, make_run(2, 1000), completed(1000))
+    close_recording(control)
+    assert {p for p in entity_paths(tmp_path / "control.rrd") if not p.startswith("/__")}
 
 
 def test_labelled_range_keeps_two_decade_ticks_labelled() -> None:

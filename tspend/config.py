@@ -11,6 +11,14 @@ from dataclasses import dataclass, field
 from tspend.signals import Disturbance, Reference
 
 
+#: the largest closed-loop pole (rad/s) any kind's search reaches: the same cap on the same
+#: quantity for every kind (PD's bandwidth, the poles of lambda (18), feedback
+#: linearisation's and Wang's, the sliding surface's), so no kind is tuned against a lower
+#: ceiling than another (issue 42); 1000 rad/s is the 1 ms sample rate's own limit
+#: (pole x dt = 1). tspend.controllers.settings re-exports it.
+POLE_CAP = 1000.0
+
+
 @dataclass(frozen=True)
 class SetSpec:
     """``terms`` evenly spaced fuzzy sets on ``[lo, hi]`` for one antecedent input."""
@@ -29,7 +37,7 @@ class ControllerConfig:
     # a scale of the identity, lambda of (18) as (s + p)^n, and the boundary layer of
     # (21) (0 = the paper's sign)
     SEARCH = {"eta": (1e-4, 0.1, "log"), "gamma": (0.01, 20.0, "log"),
-              "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, 10.0, "log", "poles"),
+              "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, POLE_CAP, "log", "poles"),
               "boundary_layer": (0.0, 1.0, "linear")}
 
     #: lambda_1 .. lambda_n of (18): s^n + lambda_n s^(n-1) + .. + lambda_1 must be Hurwitz

@@ -232,11 +232,12 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         ("rmse", e, ""), ("rmse_ss", e, "steady state"), ("max_abs_e", e, ""),
         ("max_abs_e_ss", e, "steady state"), ("iae", f"{e} s".strip(), ""),
         ("ise", f"{e2} s".strip(), ""), ("itae", f"{e} s^2".strip(), ""),
-        ("control_energy", f"{u}^2 s" if u else "s", "integral of u^2"),
+        ("control_energy", f"{u}^2 s" if u else "s", "integral of the applied u^2"),
+        ("control_energy_command", f"{u}^2 s" if u else "s", "integral of the commanded u^2"),
         ("max_abs_u", u, "applied, after the actuator's clip"
          if "max_abs_u_command" in metrics else ""),
         ("max_abs_u_command", u, "what the controller asked"),
-        ("tv_u_per_s", f"{u}/s" if u else "1/s", "total variation of u per second"),
+        ("tv_u_per_s", f"{u}/s" if u else "1/s", "total variation of the command per second"),
         ("caught_at_s", "s", "the swing-up caught the pole"),
         ("sim_s", "s", ""), ("steps", "", ""), ("wall_s", "s", "")]
     shown = [(k, unit, note) for k, unit, note in rows if k in metrics]

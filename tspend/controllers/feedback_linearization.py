@@ -44,7 +44,7 @@ from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.plant_model import PlantModel, plant_model
 from tspend.plants.domain import central_df_du, view_accel
 from tspend.runtime.jit import JIT
-from tspend.controllers.settings import KindSettings, setting, settings_for
+from tspend.controllers.settings import POLE_CAP, KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -56,7 +56,7 @@ class FeedbackLinearizationSettings(KindSettings):
     """``[controllers.feedback_linearization]``."""
 
     #: what ``tspend tune`` searches: lambda as (s + p)^n, so it stays Hurwitz
-    SEARCH = {"lambda": (0.2, 50.0, "log", "poles")}
+    SEARCH = {"lambda": (0.2, POLE_CAP, "log", "poles")}
 
     lam: tuple[float, ...] | None = setting(
         None, "lambda_1 .. lambda_n of the target error dynamics (default: the scenario's "

@@ -91,7 +91,7 @@ class LQRSettings(KindSettings):
     """``[controllers.lqr]``."""
 
     #: what ``tspend tune`` searches: only Q/R matters, so R against the default Q
-    SEARCH = {"R": (1e-6, 1e6, "log")}
+    SEARCH = {"R": (1e-6, 1e12, "log")}
 
     Q: tuple[tuple[float, ...], ...] | None = setting(
         None, "view design: state weight on e, n x n SPD (default diag(10^n, .., 100, 10))",

@@ -31,7 +31,7 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
+from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -43,7 +43,7 @@ class PDSettings(KindSettings):
     """``[controllers.pd]``."""
 
     #: what ``tspend tune`` searches (controllers.settings.Search: low, high, scale[, form])
-    SEARCH = {"bandwidth": (0.5, 100.0, "log")}
+    SEARCH = {"bandwidth": (0.2, POLE_CAP, "log")}
 
     gains: tuple[float, ...] | None = setting(
         None, "k_1 .. k_n on e_1 .. e_n (default: coefficients of (s + bandwidth)^n)",

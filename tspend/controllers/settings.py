@@ -23,7 +23,7 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
-from tspend.config import ControllerConfig
+from tspend.config import POLE_CAP, ControllerConfig  # noqa: F401 (POLE_CAP: re-exported)
 from tspend.tables import Table
 
 if TYPE_CHECKING:
@@ -178,7 +178,7 @@ class Search(NamedTuple):
 
 
 #: what ``tspend tune`` searches for the paper's kinds ([controller]): their settings
-#: class's declaration, as every kind's
+#: class's declaration, as every kind's (its lambda poles capped by POLE_CAP, as every kind's)
 PAPER_SEARCH = ControllerConfig.SEARCH
 
 

@@ -48,7 +48,7 @@ from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
+from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -63,7 +63,7 @@ class SlidingModeSettings(KindSettings):
     """``[controllers.sliding_mode]``."""
 
     #: what ``tspend tune`` searches (controllers.settings.Search: low, high, scale[, form])
-    SEARCH = {"surface_pole": (0.2, 50.0, "log"), "k": (0.01, 100.0, "log"),
+    SEARCH = {"surface_pole": (0.2, POLE_CAP, "log"), "k": (0.01, 100.0, "log"),
               "phi": (1e-4, 10.0, "log")}
 
     c: tuple[float, ...] | None = setting(

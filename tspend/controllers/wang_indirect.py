@@ -69,7 +69,7 @@ from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.gaussian_basis import GaussianGrid, GaussianTable, basis_into, gaussian_grid
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
-from tspend.controllers.settings import KindSettings, finite_or, setting, settings_for
+from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -81,7 +81,7 @@ class WangSettings(KindSettings):
     """``[controllers.wang_indirect]``."""
 
     #: what ``tspend tune`` searches: lambda as (s + p)^n (Hurwitz), the f rate
-    SEARCH = {"lambda": (0.2, 20.0, "log", "poles"), "gamma_f": (1.0, 1e4, "log")}
+    SEARCH = {"lambda": (0.2, POLE_CAP, "log", "poles"), "gamma_f": (1.0, 1e4, "log")}
 
     lam: tuple[float, ...] | None = setting(
         None, "lambda_1 .. lambda_n (default: the scenario's [controller] lambda)",

@@ -2,17 +2,21 @@
 
 The paper gives figures only; these are the numbers a researcher can quote.  All
 integrals are rectangle sums over the controller samples (the signals are piecewise
-constant at the sample rate), on the tracking error of the output ``e_1 = x_1 - r``:
+constant at the sample rate), on the tracking error of the output ``e_1 = x_1 - r``.
+Each input metric says which u it uses: the *command* (what the controller asked) or the
+*applied* input (the command clipped to the actuator's range ``[u_lo, u_hi]`` when the
+accumulator knows it, :class:`MachineInfo`; without one the two are the same):
 
 * ``rmse``, ``max_abs_e``: over the whole run; ``rmse_ss``, ``max_abs_e_ss``: over the
   steady-state window, the last half of the run (``t >= duration / 2``);
 * ``iae`` = int |e1| dt, ``ise`` = int e1^2 dt, ``itae`` = int t |e1| dt;
-* ``control_energy`` = int u^2 dt of the command;
-* ``max_abs_u``: the largest input *applied* (the command clipped to the actuator's range,
-  when the accumulator knows it: :class:`MachineInfo`), ``max_abs_u_command``: the
-  largest the controller asked for;
-* ``tv_u_per_s``: chattering, the total variation of the command per second of
-  simulated time.
+* ``control_energy`` = int u^2 dt of the *applied* input (what the actuator delivered,
+  so ``control_energy <= max_abs_u^2 * sim_s``), ``control_energy_command`` = int u^2 dt
+  of the *command* (a saturating controller's command can be far larger);
+* ``max_abs_u``: the largest input *applied*, ``max_abs_u_command``: the largest
+  *command*;
+* ``tv_u_per_s``: chattering, the total variation of the *command* per second of
+  simulated time (what the controller does, clipped or not).
 
 Of the whole machine (issue 20; when the accumulator is given a :class:`MachineInfo`):
 
@@ -22,7 +26,7 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
 * ``drawn``: what the scenario's ``[randomize]`` drew at the run's seed (``{}``: nothing;
   :mod:`tspend.plants.randomize`);
 * ``saturated_fraction``: the fraction of samples whose u lay outside the actuator's
-  range (the command the actuator clipped); ``saturated_at_end_s``: for how long, at the
+  range (the *command* the actuator clipped); ``saturated_at_end_s``: for how long, at the
   end of the run, every sample was (a run the task ended says so in its message);
 * ``controller_ms.median``, ``controller_ms.max``: the controller's wall time per
   evaluation (generic loop only: a compiled loop does not time single samples; then
@@ -104,7 +108,8 @@ def flatten(metrics: dict, prefix: str = "") -> dict:
 
 #: keys every metrics dictionary has (the CLI writes them as JSON)
 METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "itae",
-               "control_energy", "max_abs_u", "max_abs_u_command", "tv_u_per_s", "wall_s",
+               "control_energy", "control_energy_command", "max_abs_u", "max_abs_u_command",
+               "tv_u_per_s", "wall_s",
                "sim_s", "steps", "seed", "violations", "max_violation")
 
 
@@ -127,6 +132,7 @@ class MetricsAccumulator:
         self.seed = seed
         self.steps = 0
         self.sum_e2 = self.sum_abs_e = self.sum_t_abs_e = self.sum_u2 = 0.0
+        self.sum_u2_applied = 0.0
         self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
         #: the last sample's time at which |e1| lay outside the goal (None: never)
         self.last_outside: float | None = None
@@ -174,6 +180,7 @@ class MetricsAccumulator:
                 self.last_outside = float(t[outside[-1]])
         applied = np.clip(u, m.u_lo, m.u_hi) if m is not None else u
         self.max_abs_u_applied = max(self.max_abs_u_applied, float(np.abs(applied).max()))
+        self.sum_u2_applied += float(applied @ applied)
         steady = t >= self.ss_start - 0.5 * self.dt
         if steady.any():
             e_ss = e1[steady]
@@ -325,7 +332,8 @@ class MetricsAccumulator:
             "iae": finite(self.sum_abs_e * dt),
             "ise": finite(self.sum_e2 * dt),
             "itae": finite(self.sum_t_abs_e * dt),
-            "control_energy": finite(self.sum_u2 * dt),
+            "control_energy": finite(self.sum_u2_applied * dt),
+            "control_energy_command": finite(self.sum_u2 * dt),
             "max_abs_u": finite(self.max_abs_u_applied) if n else None,
             "max_abs_u_command": finite(self.max_abs_u) if n else None,
             "tv_u_per_s": finite(self.tv_u / sim_s) if n else None,

@@ -43,13 +43,15 @@ from tspend.task import TERMINATIONS
 #: metrics a comparison can use (all "lower is better"); the rest of METRIC_KEYS
 #: describe the run (its length, wall time, seed), not the controller
 COMPARED_METRICS = tuple(k for k in METRIC_KEYS
-                         if k not in ("wall_s", "sim_s", "steps", "seed", "max_abs_u_command"))
+                         if k not in ("wall_s", "sim_s", "steps", "seed", "max_abs_u_command",
+                                      "control_energy_command"))
 #: what ``tspend compare`` shows unless asked otherwise
 DEFAULT_METRICS = ("rmse", "rmse_ss", "max_abs_e_ss", "control_energy", "tv_u_per_s")
 #: columns of a sweep row that are not grid values
 ROW_COLUMNS = frozenset(("scenario", "controller", "seed", "status", "message", "version",
                          "scenario_hash", "recording", "job_s", "run_key", "wall_s", "sim_s",
-                         "steps", "max_abs_u_command") + COMPARED_METRICS)
+                         "steps", "max_abs_u_command", "control_energy_command")
+                        + COMPARED_METRICS)
 #: outcomes that say nothing about the controller: counted, never paired
 NOT_PAIRED = ("failed", "timeout", "interrupted")
 #: the task ended the run early (issue 19's terminations): the pole fell, the cart reached

@@ -15,8 +15,11 @@ the same call counts the trials already completed and runs only the rest.
 The result is a complete scenario: the original's tables with its overrides applied and
 the tuned values in ``[controllers.KIND]`` (``[controller]`` for the paper's kinds), as
 TOML text headed by comments giving the budget and the train and test scores
-(:func:`scenario_toml`).  :func:`equal_budget` tunes every kind with the same number of
-trials on the same training seeds and compares them on disjoint test seeds.
+(:func:`scenario_toml`).  :func:`equal_budget` tunes every kind on the same training
+seeds with the same budget per parameter searched (``trials_per_parameter`` x the kind's
+number of searched settings: a kind searching five settings gets five times the trials of
+a kind searching one), widens a range whose optimum lies in its outer
+:data:`EDGE_SHARE` and tunes again, and runs the tuned kinds on disjoint test seeds.
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ from tspend.scenario_toml import dump_toml
 #: the metric a tuning minimises unless asked otherwise
 DEFAULT_METRIC = "rmse"
 #: the first line of a tuned scenario: what ``--out`` checks before replacing a file
+#: an optimum within this share of its range's width (log width on a log scale) of an edge
+#: is "at the edge": the range may be what stopped it (issue 42)
+EDGE_SHARE = 0.05
 MARKER = re.compile(r'^# tspend tune: controller = "([A-Za-z0-9_]+)", scenario = "(.*)"$')
 
 
@@ -58,6 +64,9 @@ class TuneResult:
     sampler_seed: int = 0
     study_name: str = ""
     text: str = field(default="", repr=False)
+    #: the ranges searched (key -> Search) in the last round, and every round's trials
+    space: dict = field(default_factory=dict, repr=False)
+    rounds: tuple = ()
 
 
 def settings_prefix(kind: str) -> str:
@@ -104,14 +113,17 @@ def check_seeds(train: Sequence[int], test: Sequence[int]) -> None:
                             f"hold {', '.join(map(str, shared[:5]))}")
 
 
-def study_name(scenario, kind: str, metric: str, seeds: Sequence[int]) -> str:
+def study_name(scenario, kind: str, metric: str, seeds: Sequence[int],
+               space: dict | None = None) -> str:
     """The study's identity in a storage: the scenario's text, kind, metric, seeds and
-    search space; any change starts another study."""
+    search space (``space``: the ranges searched, default the kind's declared ones); any
+    change starts another study."""
     from tspend.controllers import search_space
     from tspend.loop.simulation import scenario_text
 
+    space = search_space(kind) if space is None else space
     ident = json.dumps([scenario_text(scenario), kind, metric, list(seeds),
-                        {k: list(v) for k, v in search_space(kind).items()}], sort_keys=True)
+                        {k: list(v) for k, v in space.items()}], sort_keys=True)
     return f"tspend-{scenario.name}-{kind}-{hashlib.sha256(ident.encode()).hexdigest()[:12]}"
 
 
@@ -141,12 +153,13 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
          jobs: int | None = None, dask: str | None = None, storage: str | None = None,
          sampler_seed: int = 0, progress: bool = False, defaults: bool = True,
          stop: Any = None, on_trial: Callable[[int, float], None] | None = None,
-         run_timeout: float | None = None) -> TuneResult:
+         run_timeout: float | None = None, space: dict | None = None) -> TuneResult:
     """Tune ``kind`` on ``scenario`` (a :class:`tspend.config.Scenario`): ``trials``
     trials in all (counting those already in ``storage``), scored on ``seeds``; the best
     is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings.
     ``run_timeout``: the sweeps' per-run time limit (None: :func:`tspend.sweep.sweep`'s
-    default); a run past it scores ``+inf``."""
+    default); a run past it scores ``+inf``.  ``space``: the ranges to search (key ->
+    :class:`tspend.controllers.settings.Search`; default the kind's declared ones)."""
     from tspend.runtime.extras import missing_extra
 
     problem = missing_extra("optuna", "tune")
@@ -172,12 +185,12 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
     if not seeds:
         raise ScenarioError("--seeds: at least one training seed")
     check_seeds(seeds, test_seeds)
-    space = search_space(kind)
+    space = search_space(kind) if space is None else dict(space)
     if not space:
         raise ScenarioError(f"--controller {kind}: the kind declares nothing to tune")
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    name = study_name(scenario, kind, metric, seeds)
+    name = study_name(scenario, kind, metric, seeds, space)
     from tspend.sweep import build_once
     from tspend.sweep.plan import make_plan
 
@@ -229,7 +242,8 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
                         values=values, drawn=drawn, trials=completed, train_seeds=seeds,
                         test_seeds=test_seeds, train_score=float(best.value),
                         test_score=test, default_train=d_train, default_test=d_test,
-                        sampler_seed=sampler_seed, study_name=name)
+                        sampler_seed=sampler_seed, study_name=name, space=space,
+                        rounds=(completed,))
     return _with_text(result, scenario, changes)
 
 
@@ -297,13 +311,65 @@ def tuned_kind(text: str) -> tuple[str, str] | None:
 
 
 # -- equal budget --------------------------------------------------------------------------------
-def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
+def position(search, x: float) -> float:
+    """Where ``x`` lies in ``search``'s range: 0 at ``low``, 1 at ``high`` (on the log scale
+    for a log range)."""
+    if search.log:
+        return math.log(x / search.low) / math.log(search.high / search.low)
+    return (x - search.low) / (search.high - search.low)
+
+
+def at_edge(space: dict, drawn: dict[str, float], share: float = EDGE_SHARE) -> dict[str, str]:
+    """The tuned numbers within ``share`` of an edge of their range: key -> "low"/"high"."""
+    out = {}
+    for key, x in drawn.items():
+        f = position(space[key], x)
+        if f < share:
+            out[key] = "low"
+        elif f > 1.0 - share:
+            out[key] = "high"
+    return out
+
+
+def widen(search, side: str):
+    """``search`` with the edge ``side`` moved out by the range's width (log width on a log
+    scale: ``high`` x ``high/low``); None where that edge is the setting's own limit (a
+    linear range's low of 0: a boundary layer, a rate cannot be negative)."""
+    if search.log:
+        ratio = search.high / search.low
+        return (search._replace(high=search.high * ratio) if side == "high"
+                else search._replace(low=search.low / ratio))
+    width = search.high - search.low
+    if side == "low":
+        return None if search.low == 0.0 else search._replace(low=search.low - width)
+    return search._replace(high=search.high + width)
+
+
+def budget_trials(kind: str, trials_per_parameter: int, space: dict | None = None) -> int:
+    """The trials ``kind`` gets: ``trials_per_parameter`` per setting it searches."""
+    from tspend.controllers import search_space
+
+    return trials_per_parameter * len(search_space(kind) if space is None else space)
+
+
+def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int | None = None,
+                 trials_per_parameter: int | None = None,
                  train_seeds: Sequence[int], test_seeds: Sequence[int],
                  metric: str = DEFAULT_METRIC, executor: Any = None, jobs: int | None = None,
                  dask: str | None = None, storage: str | None = None, sampler_seed: int = 0,
-                 progress: bool = False, stop: Any = None, run_timeout: float | None = None):
-    """Tune every kind on every scenario with the same ``trials`` on the same
-    ``train_seeds``, then run each tuned kind on ``test_seeds`` (disjoint): (rows, tuned).
+                 progress: bool = False, stop: Any = None, run_timeout: float | None = None,
+                 spaces: dict[str, dict] | None = None, widen_rounds: int = 0):
+    """Tune every kind on every scenario on the same ``train_seeds``, then run each tuned
+    kind on ``test_seeds`` (disjoint): (rows, tuned).
+
+    The budget: ``trials_per_parameter`` trials per setting a kind searches (the fair
+    budget: a kind searching five settings gets five times a one-setting kind's), or
+    ``trials`` for every kind alike.  ``spaces``: kind -> the ranges to search (key ->
+    :class:`tspend.controllers.settings.Search`; default the kind's declared ones).
+    ``widen_rounds``: up to this many times, a kind whose optimum lies in the outer
+    :data:`EDGE_SHARE` of a range (:func:`at_edge`) has that edge moved out
+    (:func:`widen`) and is tuned again from scratch with its full budget; the result's
+    ``space`` is the last round's ranges and ``rounds`` every round's trials.
 
     ``rows`` is a sweep table (one row per scenario, kind and test seed; the ``scenario``
     column the original's name, so runs pair by seed as in ``tspend compare``); ``tuned``
@@ -311,9 +377,12 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
     """
     import pandas as pd
 
+    from tspend.controllers import search_space
     from tspend.sweep import sweep
     from tspend.sweep.executors import make_executor
 
+    if (trials is None) == (trials_per_parameter is None):
+        raise ScenarioError("equal_budget: give trials or trials_per_parameter, one of them")
     check_seeds(train_seeds, test_seeds)
     owned = executor is None
     if owned:
@@ -323,10 +392,25 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
     try:
         for scn in scenarios:
             for kind in kinds:
-                r = tune(scn, kind, trials=trials, seeds=train_seeds, metric=metric,
-                         executor=executor, storage=storage, sampler_seed=sampler_seed,
-                         progress=progress, defaults=False, stop=stop,
-                         run_timeout=run_timeout)
+                space = dict((spaces or {}).get(kind) or search_space(kind))
+                rounds: list[int] = []
+                while True:
+                    n = trials if trials is not None else budget_trials(
+                        kind, trials_per_parameter, space)
+                    r = tune(scn, kind, trials=n, seeds=train_seeds, metric=metric,
+                             executor=executor, storage=storage, sampler_seed=sampler_seed,
+                             progress=progress, defaults=False, stop=stop,
+                             run_timeout=run_timeout, space=space)
+                    rounds.append(r.trials)
+                    edges = at_edge(space, r.drawn)
+                    moved = {k: widen(space[k], side) for k, side in edges.items()}
+                    moved = {k: v for k, v in moved.items() if v is not None}
+                    if not moved or len(rounds) > widen_rounds:
+                        break
+                    space.update(moved)
+                from dataclasses import replace
+
+                r = replace(r, rounds=tuple(rounds))
                 tuned[(scn.name, kind)] = r
                 timeout = {} if run_timeout is None else {"run_timeout": run_timeout}
                 rows = sweep(r.scenario, seeds=list(test_seeds), controllers=[kind],
@@ -339,4 +423,5 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int,
 
 
 __all__ = ["TuneResult", "tune", "equal_budget", "score", "tuned_changes", "settings_prefix",
+           "position", "at_edge", "widen", "budget_trials", "EDGE_SHARE",
            "dump_toml", "tuned_kind", "study_name", "DEFAULT_METRIC"]

@@ -1,0 +1,151 @@
+"""tools/check_docs.py and tools/check_claims.py (issue 42): what they extract, the exit
+statuses they expect, the figures they compare; and the fair budget's range widening."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from cli_harness import ROOT
+
+sys.path.insert(0, str(ROOT / "tools"))
+import check_claims  # noqa: E402
+import check_docs  # noqa: E402
+
+DOC = '''# A document
+
+<!-- check_docs: skip a viewer, for the test -->
+```
+rerun x.rrd
+```
+
+```
+tspend run no_such_scenario            # exit 2
+python -c "import sys; sys.exit(3)"
+tspend: error: this line is output, not a command      [exit 3]
+tspend run ex2_duffing \\
+    --seed 3
+  some output line
+```
+
+```py
+this is an excerpt and is never run(
+```
+
+```python
+print("hello")
+```
+'''
+
+
+def test_extract_finds_commands_statuses_and_skips(tmp_path: Path) -> None:
+    doc = tmp_path / "doc.md"
+    doc.write_text(DOC)
+    cmds = check_docs.extract(doc)
+    shells = [c for c in cmds if c.kind == "shell"]
+    assert [c.text.split()[0] for c in shells] == ["rerun", "tspend", "python", "tspend"]
+    assert shells[0].skip == "a viewer, for the test"
+    assert [c.expect for c in shells[1:]] == [2, 3, 0]     # comment, output line, default
+    assert shells[3].text == "tspend run ex2_duffing \\\n    --seed 3"
+    assert [c.text for c in cmds if c.kind == "python"] == ['print("hello")\n']
+    assert not any("excerpt" in c.text for c in cmds)
+
+
+def test_a_command_with_an_unexpected_status_fails(tmp_path: Path, capsys) -> None:
+    good = tmp_path / "good.md"
+    good.write_text('```\npython -c "import sys; sys.exit(3)"   # exit 3\n'
+                    'tspend run no_such_scenario   # exit 2\n```\n')
+    assert check_docs.main([str(good)]) == 0
+    assert "ran 2 commands (2 with the expected exit status, 0 failed)" in capsys.readouterr().out
+    bad = tmp_path / "bad.md"
+    bad.write_text('```\npython -c "import sys; sys.exit(3)"\n```\n')
+    assert check_docs.main([str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL" in out and "1 failed" in out
+
+
+def test_a_real_document_runs_short(capsys) -> None:
+    """The fast subset of the full check: one document of docs/ as a reader runs it."""
+    assert check_docs.main(["--short", str(ROOT / "docs" / "third-party-models.md")]) == 0
+    assert "0 failed" in capsys.readouterr().out
+
+
+def test_shortened_keeps_the_documents_words() -> None:
+    assert check_docs.shortened(["compare", "x", "--seeds", "5:20"]) == [
+        "compare", "x", "--seeds", "5:7", "--duration", "0.3", "--jobs", "1", "--resamples", "100"]
+
+
+@pytest.mark.parametrize("printed, value, ok", [
+    ("0.0123", 0.01234, True), ("0.0123", 0.01236, False), ("3.5e+05", 3.54e5, True),
+    ("3.5e+05", 3.56e5, False), ("1,234", 1234.4, True), ("−0.5", -0.5, True), ("12", 12.6, False)])
+def test_a_figure_agrees_to_its_printed_digits(printed, value, ok) -> None:
+    assert check_claims.agrees(printed, value) is ok
+
+
+def test_marked_figures_are_checked_against_their_data(tmp_path: Path) -> None:
+    (tmp_path / "d.json").write_text(json.dumps({"a": {"b": [1.0, 0.0313]}}))
+    doc = tmp_path / "doc.md"
+    doc.write_text("holds 0.0313 rad <!-- data: d.json a/b/1 --> and 3.13 % <!-- data: d.json a/b/1 x100 -->\n")
+    assert check_claims.check_markers([doc], root=tmp_path) == (2, [])
+    doc.write_text("holds 0.0314 rad <!-- data: d.json a/b/1 -->\n")
+    n, problems = check_claims.check_markers([doc], root=tmp_path)
+    assert n == 1 and "prints 0.0314" in problems[0]
+
+
+def test_committed_claims_agree_with_their_data(capsys) -> None:
+    """README's and docs/results.md's generated claims rebuilt from the kept runs."""
+    assert check_claims.main([]) == 0, capsys.readouterr().out
+
+
+# -- the fair budget ---------------------------------------------------------------------------
+def test_edges_widen_and_budget_counts_parameters() -> None:
+    from tspend.controllers.settings import Search
+    from tspend.studies.tune import at_edge, budget_trials, position, widen
+
+    log, lin = Search(0.2, 1000.0, True), Search(0.0, 1.0, False)
+    assert position(log, 0.2) == 0.0 and position(log, 1000.0) == pytest.approx(1.0)
+    assert at_edge({"p": log, "b": lin}, {"p": 990.0, "b": 0.5}) == {"p": "high"}
+    assert at_edge({"p": log, "b": lin}, {"p": 5.0, "b": 0.01}) == {"b": "low"}
+    assert widen(log, "high").high == pytest.approx(1000.0 * 5000.0)
+    assert widen(log, "low").low == pytest.approx(0.2 / 5000.0)
+    assert widen(lin, "low") is None and widen(lin, "high").high == 2.0
+    assert budget_trials("second_type", 3) == 15 and budget_trials("pd", 3) == 3
+
+
+def test_equal_budget_retunes_a_kind_whose_optimum_is_at_an_edge(monkeypatch) -> None:
+    import pandas as pd
+
+    import tspend.sweep
+    from tspend.studies import tune as tune_mod
+
+    calls = []
+
+    def fake_tune(scn, kind, *, trials, space, **_):
+        calls.append((kind, trials, dict(space)))
+        high = space["bandwidth"].high
+        x = high * 0.999 if high <= 1000.0 else 1500.0      # at the edge, then inside
+        return tune_mod.TuneResult(kind=kind, metric="rmse", scenario=scn, base_name="s",
+                                   values={"bandwidth": x}, drawn={"bandwidth": x},
+                                   trials=trials, train_seeds=[1], test_seeds=[],
+                                   train_score=1.0, test_score=None, space=dict(space),
+                                   rounds=(trials,))
+
+    class Scn:
+        name = "s"
+
+    monkeypatch.setattr(tune_mod, "tune", fake_tune)
+    monkeypatch.setattr(tspend.sweep, "sweep",
+                        lambda *a, seeds, **k: pd.DataFrame({"seed": seeds, "rmse": 1.0}))
+    rows, tuned = tune_mod.equal_budget([Scn()], ["pd"], trials_per_parameter=3,
+                                        train_seeds=[1], test_seeds=[2], executor=object(),
+                                        widen_rounds=2)
+    r = tuned[("s", "pd")]
+    assert [c[1] for c in calls] == [3, 3] and r.rounds == (3, 3)
+    assert calls[1][2]["bandwidth"].high == pytest.approx(1000.0 * 5000.0)
+    assert tune_mod.position(r.space["bandwidth"], r.drawn["bandwidth"]) < 0.95
+    with pytest.raises(Exception, match="one of them"):
+        tune_mod.equal_budget([Scn()], ["pd"], trials=3, trials_per_parameter=3,
+                              train_seeds=[1], test_seeds=[2], executor=object())

@@ -1,0 +1,339 @@
+"""Run every shell and Python block of README.md and docs/*.md, and check its exit status.
+
+    python tools/check_docs.py                       # every document, full length
+    python tools/check_docs.py --short               # runs shortened (the test suite's mode)
+    python tools/check_docs.py --short docs/identify.md README.md
+    python tools/check_docs.py --list                # what would run and what is skipped, why
+
+Which blocks: every fenced block of the documents named (default README.md and
+docs/*.md) whose language is empty, ``sh``, ``bash``, ``shell``, ``console`` (shell) or
+``python`` (a script run as a user runs it). ``py`` blocks are excerpts of tspend's own
+source, ``toml`` blocks scenario text: read, never run. In a shell block a line is a
+command when it starts with a program a reader types (``tspend``, ``python``,
+``python3``, ``nice``, ``rerun``, ``pip``, ``cd``, ...); the other lines are the output a
+reader sees, never run. A command continues on the next line after a trailing ``\\``.
+
+Each document runs in its own scratch folder, its blocks in order (a later command may use
+what an earlier one wrote), with ``models``, ``examples``, ``scenarios``, ``benchmarks``
+and ``tools`` linked from the repository. ``tspend`` is ``python -m tspend.cli`` of this
+tree, ``python``/``python3`` this interpreter. After every document the repository's
+``git status`` must be what it was: no documented command writes into the repository.
+
+The exit status a command must give: 0, unless the text says otherwise, in one of three
+ways: a comment on the command line ``# exit N``, an output line under it ending in
+``[exit N]`` (the style of docs/identify.md), or a marker comment before the block
+``<!-- check_docs: exit N -->`` (every command of that block). A block that cannot run
+here is skipped only with a stated reason: a marker ``<!-- check_docs: skip REASON -->``
+before it, or a rule of :data:`SKIP_RULES` (a viewer, an install), each printed. A block
+whose later commands need its runs whole (an identification needs its 16 s of data) is
+marked ``<!-- check_docs: full -->``: not shortened under ``--short``.
+
+``--short``: runs are shortened the way tests/test_readme.py does it (``--duration``,
+``--seeds`` of two, ``--jobs 1``, ``--resamples``, ``--trials 2``; the benchmark
+scripts are skipped, named); every other word of the command is the document's. Python
+blocks run as written. Exit 0 when every command ran with its expected status; 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHELL_LANGS = ("", "sh", "bash", "shell", "console")
+#: programs a command line starts with (anything else in a shell block is output)
+PROGRAMS = ("tspend", "python", "python3", "nice", "rerun", "pip", "cd", "source", "mkdir",
+            "cp", "mv", "cat", "ls", "export", "PYTHONPATH=", "TSPEND_", ".venv/", "sudo",
+            "git", "curl", "wget", "jupyter", "./", "for ", "echo", "timeout")
+#: (regular expression on a command, why it is not run here)
+SKIP_RULES = (
+    (r"^rerun\b|\brerun\s+\S+\.rrd", "opens Rerun's viewer (a window or a web server)"),
+    (r"(^|&&\s*)python3? -m venv|pip install|^sudo |apt-get",
+     "installs software (a fresh environment and the network; the checked tree is already "
+     "installed)"),
+    (r"--serve-web|--spawn|--connect", "needs a running viewer"),
+    (r"^(curl|wget|git clone)\b", "needs the network"),
+    (r"^source ", "activates a virtual environment (the checked tree is already on the path)"),
+    (r"--dask\b", "needs a Dask scheduler"),
+    (r"tools/screenshots\.py", "needs Chromium and a display"),
+    (r"tools/check_docs\.py", "this checker itself"),
+    (r"tools/check_claims\.py( .*)?--recompute", "re-runs benchmarks (minutes to hours)"),
+)
+#: skipped under --short only: run in the full check
+SHORT_SKIP_RULES = (
+    (r"^(nice )?python3? benchmarks/", "a benchmark script (minutes to hours; the full check "
+                                        "runs it)"),
+)
+#: per tspend subcommand, options appended under --short (the last of a repeated one wins)
+SHORT = {
+    "run": ["--duration", "0.3"],
+    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.6"],
+    "sweep": ["--duration", "0.3", "--jobs", "1"],
+    "compare": ["--duration", "0.3", "--jobs", "1", "--resamples", "100"],
+    "figures": ["--duration", "0.3"],
+    "tune": ["--duration", "0.3", "--trials", "2"],
+}
+EXIT_COMMENT = re.compile(r"#\s*exit\s+(\d+)\s*$")
+EXIT_OUTPUT = re.compile(r"\[exit\s+(\d+)\]\s*$")
+MARKER = re.compile(r"<!--\s*check_docs:\s*(skip|exit|full)\s*(.*?)\s*-->")
+
+
+@dataclass
+class Command:
+    doc: str
+    line: int                 # 1-based line of the document where it starts
+    text: str
+    kind: str                 # "shell" or "python"
+    expect: int = 0
+    skip: str = ""            # the reason, when not run
+    full: bool = False        # run at full length under --short too (marker "full")
+
+
+@dataclass
+class Outcome:
+    command: Command
+    status: int | None
+    seconds: float
+    tail: str = ""
+    ok: bool = field(default=False)
+
+
+def _is_command(line: str) -> bool:
+    s = line.strip()
+    if not s or s.startswith("#"):
+        return False
+    word = s.split()[0]
+    return any(word == p.strip() if p[-1].isalnum() else s.startswith(p) for p in PROGRAMS)
+
+
+def extract(path: Path, short: bool = False) -> list[Command]:
+    """The runnable commands of one document, with their expected status or skip reason."""
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    doc = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(path)
+    out: list[Command] = []
+    i = 0
+    while i < len(lines):
+        m = re.match(r"^(\s*)```\s*([A-Za-z0-9_+-]*)\s*$", lines[i])
+        if not m:
+            i += 1
+            continue
+        indent, lang = m.group(1), m.group(2).lower()
+        start = i + 1
+        j = start
+        while j < len(lines) and not re.match(rf"^{indent}```\s*$", lines[j]):
+            j += 1
+        body = [ln[len(indent):] if ln.startswith(indent) else ln for ln in lines[start:j]]
+        marker = _marker_before(lines, i)
+        i = j + 1
+        if lang == "python":
+            cmd = Command(doc, start + 1, "\n".join(body) + "\n", "python")
+            _apply_marker(cmd, marker)
+            out.append(cmd)
+            continue
+        if lang not in SHELL_LANGS:
+            continue
+        k = 0
+        while k < len(body):
+            if not _is_command(body[k]):
+                k += 1
+                continue
+            first = k
+            parts = [body[k].rstrip()]
+            while parts[-1].endswith("\\") and k + 1 < len(body):
+                k += 1
+                parts.append(body[k].rstrip())
+            k += 1
+            cmd = Command(doc, start + first + 1, "\n".join(parts).strip(), "shell")
+            _apply_marker(cmd, marker)
+            e = EXIT_COMMENT.search(parts[-1])
+            if e:
+                cmd.expect = int(e.group(1))
+            # the output lines under it, up to the next command, may state its status
+            n = k
+            while n < len(body) and not _is_command(body[n]):
+                e = EXIT_OUTPUT.search(body[n])
+                if e:
+                    cmd.expect = int(e.group(1))
+                n += 1
+            if not cmd.skip:
+                for rule, why in SKIP_RULES + (SHORT_SKIP_RULES if short else ()):
+                    if re.search(rule, cmd.text, flags=re.M):
+                        cmd.skip = why
+                        break
+            out.append(cmd)
+    return out
+
+
+def _marker_before(lines: list[str], fence: int) -> tuple[str, str] | None:
+    """A ``<!-- check_docs: ... -->`` on the last non-blank line before a fence."""
+    k = fence - 1
+    while k >= 0 and not lines[k].strip():
+        k -= 1
+    m = MARKER.search(lines[k]) if k >= 0 else None
+    return (m.group(1), m.group(2)) if m else None
+
+
+def _apply_marker(cmd: Command, marker: tuple[str, str] | None) -> None:
+    if marker is None:
+        return
+    what, arg = marker
+    if what == "skip":
+        cmd.skip = arg or "marked skip without a reason"
+    elif what == "full":
+        cmd.full = True
+    else:
+        cmd.expect = int(arg)
+
+
+# -- running ------------------------------------------------------------------------------------
+_SHIM = '''#!{python}
+"""tspend of the checked tree; under TSPEND_DOCS_SHORT=1 with short runs."""
+import os, sys
+sys.path.insert(0, {root!r})
+sys.path.insert(1, {tools!r})
+# a sweep's worker processes re-import the main module: only the main process runs main()
+if __name__ == "__main__":
+    argv = sys.argv[1:]
+    if os.environ.get("TSPEND_DOCS_SHORT") == "1" and argv:
+        from check_docs import shortened
+        argv = shortened(argv)
+    from tspend.cli.main import main
+    sys.exit(main(argv))
+'''
+
+
+def shortened(argv: list[str]) -> list[str]:
+    """``argv`` with short runs: ``--seeds`` at most two, the subcommand's :data:`SHORT`."""
+    out = []
+    for prev, a in zip([""] + argv, argv):
+        if prev == "--seeds" and ":" in a:
+            lo = int(a.split(":")[0] or 0)
+            a = f"{lo}:{lo + 2}"
+        out.append(a)
+    return out + SHORT.get(out[0], [])
+
+
+def _bin(folder: Path) -> None:
+    folder.mkdir()
+    shim = folder / "tspend"
+    shim.write_text(_SHIM.format(python=sys.executable, root=str(ROOT),
+                                 tools=str(ROOT / "tools")))
+    shim.chmod(0o755)
+    for name in ("python", "python3"):
+        (folder / name).symlink_to(sys.executable)
+
+
+def _repo_state() -> str:
+    r = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=ROOT,
+                       capture_output=True, text=True)
+    return r.stdout
+
+
+def run_doc(commands: list[Command], short: bool, timeout: float, verbose: bool) -> list[Outcome]:
+    """Run one document's commands in order in a scratch folder of its own."""
+    outcomes = []
+    with tempfile.TemporaryDirectory(prefix="tspend-docs-") as tmp:
+        tmp = Path(tmp)
+        work = tmp / "work"
+        work.mkdir()
+        for name in ("models", "examples", "scenarios", "benchmarks", "tools"):
+            if (ROOT / name).exists():
+                (work / name).symlink_to(ROOT / name)
+        _bin(tmp / "bin")
+        env = {**os.environ, "PATH": f"{tmp / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT),
+                                                           os.environ.get("PYTHONPATH")])),
+               "MPLBACKEND": "Agg", "TSPEND_DOCS_SHORT": "1" if short else "0"}
+        for i, cmd in enumerate(commands):
+            if cmd.skip:
+                continue
+            if cmd.kind == "python":
+                script = work / f"block_{i}.py"
+                script.write_text(cmd.text)
+                argv = [sys.executable, str(script)]
+            else:
+                argv = ["bash", "-c", cmd.text.replace("\\\n", " ")]
+            t0 = time.perf_counter()
+            try:
+                done = subprocess.run(argv, cwd=work, capture_output=True, text=True,
+                                      timeout=timeout,
+                                      env={**env, "TSPEND_DOCS_SHORT": "1" if short and
+                                           not cmd.full else "0"})
+                status, tail = done.returncode, (done.stdout + done.stderr)[-1500:]
+            except subprocess.TimeoutExpired:
+                status, tail = None, f"timed out after {timeout:.0f} s"
+            o = Outcome(cmd, status, time.perf_counter() - t0, tail, status == cmd.expect)
+            outcomes.append(o)
+            if verbose or not o.ok:
+                head = cmd.text.splitlines()[0][:110]
+                print(f"  {'ok  ' if o.ok else 'FAIL'} {cmd.doc}:{cmd.line} exit {status} "
+                      f"(expected {cmd.expect}, {o.seconds:.1f} s): {head}", flush=True)
+                if not o.ok:
+                    print("       " + tail.strip().replace("\n", "\n       ")[-1200:], flush=True)
+    return outcomes
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("docs", nargs="*", help="documents (default: README.md and docs/*.md)")
+    ap.add_argument("--short", action="store_true", help="shorten runs (see the module help)")
+    ap.add_argument("--list", action="store_true", help="list the commands and skips; run nothing")
+    ap.add_argument("--timeout", type=float, default=900.0,
+                    help="seconds one command may take (1-7200)")
+    ap.add_argument("-v", "--verbose", action="store_true", help="print every command's result")
+    args = ap.parse_args(argv)
+    if not 1 <= args.timeout <= 7200:
+        ap.error(f"--timeout: {args.timeout} is outside 1..7200")
+    paths = ([Path(p).resolve() for p in args.docs] if args.docs
+             else [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        print(f"check_docs: error: no such document: {missing[0]}", file=sys.stderr)
+        return 2
+    ran = skipped = failed = 0
+    reasons: dict[str, int] = {}
+    for path in paths:
+        commands = extract(path, args.short)
+        skips = [c for c in commands if c.skip]
+        skipped += len(skips)
+        for c in skips:
+            reasons[c.skip] = reasons.get(c.skip, 0) + 1
+            if args.list or args.verbose:
+                print(f"  skip {c.doc}:{c.line} ({c.skip}): {c.text.splitlines()[0][:100]}")
+        if args.list:
+            for c in commands:
+                if not c.skip:
+                    print(f"  run  {c.doc}:{c.line} [{c.kind}, exit {c.expect}]: "
+                          f"{c.text.splitlines()[0][:100]}")
+            ran += len(commands) - len(skips)
+            continue
+        before = _repo_state()
+        outcomes = run_doc(commands, args.short, args.timeout, args.verbose)
+        ran += len(outcomes)
+        failed += sum(not o.ok for o in outcomes)
+        after = _repo_state()
+        if after != before:
+            failed += 1
+            new = sorted(set(after.splitlines()) - set(before.splitlines()))
+            print(f"  FAIL {path.name}: its commands changed the repository: {new[:5]}")
+    verb = "would run" if args.list else "ran"
+    print(f"check_docs: {len(paths)} documents, {verb} {ran} commands"
+          + ("" if args.list else f" ({ran - failed} with the expected exit status, "
+             f"{failed} failed)")
+          + f", skipped {skipped}: "
+          + ("; ".join(f"{n} {why}" for why, n in sorted(reasons.items())) or "none"))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
