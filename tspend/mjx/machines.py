@@ -118,6 +118,9 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
     from tspend.plants import randomize
     from tspend.plants import registry as plant_registry
 
+    # the models go into MJX in float64 whatever the run's precision (a float32 run casts
+    # them later): put_model under JAX's default float32 would round them here
+    jax.config.update("jax_enable_x64", True)
     seeds = tuple(int(s) for s in seeds)
     if not seeds:
         raise ScenarioError("the mjx backend: no seeds to run")
@@ -195,7 +198,7 @@ def _batched(models: list) -> tuple[Any, Any]:
         same = all(a.shape == arrays[0].shape and np.array_equal(a, arrays[0], equal_nan=True)
                    for a in arrays[1:])
         if same:
-            out.append(leaf)
+            out.append(arrays[0] if hasattr(leaf, "shape") else leaf)
             axes.append(None)
         else:
             out.append(np.stack(arrays))
