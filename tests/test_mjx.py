@@ -133,3 +133,22 @@ def test_brax_env_is_the_gym_env_as_pure_functions():
     states = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
     states = jax.jit(jax.vmap(env.step))(states, jnp.zeros((4, 1)))
     assert states.obs.shape == (4, env.observation_size) and np.isfinite(states.reward).all()
+
+
+@pytest.mark.parametrize("policy", ["pendulum_mujoco", "double_cartpole_mujoco"])
+def test_onnx_graph_in_jax_is_onnxruntimes(policy):
+    ort = pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    import jax
+
+    from tspend.mjx.onnx_jax import onnx_function
+    from tspend.scenario import project_root
+
+    path = project_root() / "models" / "policies" / f"{policy}.onnx"
+    fn, params, dtype = onnx_function(path)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    width = session.get_inputs()[0].shape[-1]
+    obs = np.random.default_rng(0).normal(scale=0.5, size=(32, width)).astype(dtype)
+    want = session.run(None, {session.get_inputs()[0].name: obs})[0]
+    got = np.asarray(jax.jit(fn)(params, obs))
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * np.abs(want).max())
