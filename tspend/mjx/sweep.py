@@ -95,8 +95,11 @@ def initial_data(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
         return jnp.broadcast_to(x, (n,) + x.shape) if hasattr(x, "shape") else x
 
     data = jax.tree_util.tree_map(tile, data)
-    return data.replace(qpos=jnp.asarray(fleet.qpos0[index], dtype=dtype),
+    data = data.replace(qpos=jnp.asarray(fleet.qpos0[index], dtype=dtype),
                         qvel=jnp.asarray(fleet.qvel0[index], dtype=dtype))
+    # committed to the device, as a jitted step's outputs are: jit keys its cache on that,
+    # so uncommitted inputs to the first call would compile the loop a second time
+    return jax.device_put(data, jax.devices()[0])
 
 
 def _subset(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
@@ -156,7 +159,7 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
         started = time.perf_counter()
         model = _subset(fleet, index, dtype)
         data = initial_data(fleet, index, dtype)
-        u_held = jnp.zeros(index.size, dtype=dtype)
+        u_held = jax.device_put(jnp.zeros(index.size, dtype=dtype), jax.devices()[0])
         d_to_tau = jnp.asarray(fleet.d_to_tau[index], dtype=dtype)
         accs, ends = [], {}
         for e in index:
