@@ -254,6 +254,9 @@ def main(argv: list[str] | None = None) -> int:
     if not precisions or any(q not in ("float64", "float32") for q in precisions):
         raise SystemExit(f"accelerator_speed: --precision {args.precision}: float64, float32")
     if args.prepare:
+        if (Path(args.prepare) / "plan.json").exists():
+            raise SystemExit(f"accelerator_speed: {args.prepare}/plan.json exists; choose "
+                             f"another --prepare directory")
         prepare(machines, Path(args.prepare))
         print(f"plan written to {args.prepare}")
         return 0
