@@ -13,7 +13,6 @@ Building costs the CPU backend's build per seed (milliseconds for a cart-pole): 
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -205,6 +204,3 @@ def _batched(models: list) -> tuple[Any, Any]:
             axes.append(0)
     return (jax.tree_util.tree_unflatten(tree, out), jax.tree_util.tree_unflatten(tree, axes))
 
-
-def bounds_message(x: float) -> str:
-    return "inf" if math.isinf(x) else f"{x:g}"

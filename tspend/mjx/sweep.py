@@ -21,7 +21,6 @@ compiled CPU loop).  ``wall_s`` is the batch's wall time divided by its runs.  W
 
 from __future__ import annotations
 
-import math
 import time
 from types import SimpleNamespace
 from typing import Any, Iterable, Iterator
@@ -273,5 +272,3 @@ def check_batch(batch: Any) -> int:
         raise ScenarioError(f"--batch: an integer from 1 to {MAX_BATCH}, got {batch!r}")
     return batch
 
-
-_ = math
