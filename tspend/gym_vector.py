@@ -77,6 +77,9 @@ class TspendVectorEnv(VectorEnv):
         machine ``threads=1`` can be faster (docs/benchmarks.md).
     overrides : dict, optional
         Dotted scenario keys to values, as ``TspendEnv``.
+    backend : {"cpu", "mjx"}
+        ``"mjx"``: the envs' physics stepped by MuJoCo MJX in one jitted call
+        (:class:`tspend.mjx.vector_env.MjxVectorEnv`, option ``precision``).
     **options
         The rest of :class:`tspend.gym.TspendEnv`'s options (``control_period``,
         ``frame_skip``, ``reward``, ``init_noise``, ``normalize``, ``width``, ``height``).
@@ -84,11 +87,23 @@ class TspendVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
+    def __new__(cls, *args: Any, backend: str = "cpu", **kwargs: Any):
+        # backend="mjx": the same envs with MJX physics (tspend.mjx.vector_env, docs/accelerator.md)
+        if backend == "mjx":
+            from tspend.mjx import require
+            from tspend.mjx.vector_env import MjxVectorEnv
+
+            require()
+            return MjxVectorEnv(*args, **kwargs)
+        if backend != "cpu":
+            raise ScenarioError(f"backend {backend!r}: allowed: cpu, mjx")
+        return super().__new__(cls)
+
     def __init__(self, scenario: str | Path = "pendulum_mujoco", num_envs: int = 1, *,
                  seed: int | None = None, render_mode: str | None = None,
                  overrides: dict | None = None, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 **options: Any) -> None:
+                 backend: str = "cpu", **options: Any) -> None:
         from tspend.scenario import load_scenario, override
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:

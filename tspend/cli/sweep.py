@@ -51,6 +51,14 @@ def add_parser(sub) -> None:
     p.add_argument("--record", choices=("failed", "all", "none"), default="failed",
                    help="keep a Rerun recording of the runs that diverged or failed (default), "
                         "of all runs, or of none; the path is in the row")
+    p.add_argument("--backend", choices=("cpu", "mjx"), default="cpu",
+                   help="cpu: one process per run (default); mjx: every seed of a scenario "
+                        "and controller stepped at once by MuJoCo MJX on JAX's default device "
+                        "(a GPU when JAX has one; kinds pd, lqr, policy; needs pip install "
+                        "'tspend[mjx]'; docs/accelerator.md)")
+    p.add_argument("--precision", choices=("float64", "float32"), default="float64",
+                   help="the mjx backend's float width: float64 (default, as the CPU) or "
+                        "float32 (faster on a GPU; the departure is in docs/accelerator.md)")
     add_run_timeout_option(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 
@@ -154,7 +162,8 @@ def cmd(args: argparse.Namespace) -> int:
         prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=args.controller,
                                  jobs=args.jobs, dask=args.dask, out=args.out,
                                  record=args.record, stop=stop, wait=args.wait,
-                                 run_timeout=args.run_timeout)
+                                 run_timeout=args.run_timeout, backend=args.backend,
+                                 precision=args.precision)
         try:
             names = ", ".join(s.name for s in scenarios)
             print(f"tspend {__version__}: sweep of {names}" +

@@ -36,6 +36,11 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
 ``executor``
     an executor from :func:`tspend.sweep.executors.make_executor`, reused across calls
     (its workers keep their loaded kernel); it is not closed.
+``backend``
+    ``"cpu"`` (the default: one process per run, as above) or ``"mjx"``: the runs of a
+    scenario point and controller kind stepped together by MuJoCo's JAX engine
+    (:mod:`tspend.mjx.sweep`; ``pip install 'tspend[mjx]'``, kinds ``pd``, ``lqr``,
+    ``policy``); ``precision`` (``"float64"``, ``"float32"``) is its float width.
 ``run_timeout``
     seconds of wall time a run may take once a worker has started it (default
     :data:`~tspend.runtime.bounds.DEFAULT_RUN_TIMEOUT_S`, an hour, which no shipped
@@ -94,7 +99,8 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
           stop: StopRequest | None = None, wait: bool = False, build: bool = True,
-          run_timeout: float = DEFAULT_RUN_TIMEOUT_S):
+          run_timeout: float = DEFAULT_RUN_TIMEOUT_S, backend: str = "cpu",
+          precision: str = "float64"):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
     See the module docstring for the arguments and the columns.  ``stop`` (a
@@ -119,7 +125,8 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
     """
     prepared = prepare_sweep(scenarios, grid=grid, seeds=seeds, controllers=controllers,
                              jobs=jobs, dask=dask, out=out, record=record, stop=stop, wait=wait,
-                             build=build, run_timeout=run_timeout)
+                             build=build, run_timeout=run_timeout, backend=backend,
+                             precision=precision)
     return prepared.run(progress=progress, executor=executor, stop=stop)
 
 
@@ -162,9 +169,11 @@ class PreparedSweep:
     """
 
     def __init__(self, plan: list[Job], todo: list[Job], table, lock, jobs, dask,
-                 run_timeout: float = DEFAULT_RUN_TIMEOUT_S) -> None:
+                 run_timeout: float = DEFAULT_RUN_TIMEOUT_S, backend: str = "cpu",
+                 precision: str = "float64") -> None:
         self.plan, self.todo, self._table, self._lock = plan, todo, table, lock
         self._jobs, self._dask, self.run_timeout = jobs, dask, run_timeout
+        self.backend, self.precision = backend, precision
         self.order = {job.key: job.index for job in plan}
 
     def close(self) -> None:
@@ -183,7 +192,19 @@ class PreparedSweep:
         shown = SweepProgress(len(todo), skipped=len(self.plan) - len(todo), enabled=progress)
         owned = executor is None and bool(todo)
         try:
-            if todo:
+            if todo and self.backend == "mjx":
+                from tspend.mjx.sweep import run_jobs
+
+                owned = False
+                shown.start(1, "mjx")
+                for row in run_jobs(todo, self.precision):
+                    if table is not None:
+                        table.append(row)
+                    rows.append(row)
+                    shown.update(row)
+                    if stop is not None and stop.signal_name is not None:
+                        raise RunInterrupted(stop.signal_name, stop.exit_status)
+            elif todo:
                 if executor is None:
                     executor = make_executor(self._jobs, self._dask)
                 shown.start(executor.workers, executor.name)
@@ -219,7 +240,8 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
                   dask: str | None = None, out: str | Path | None = None,
                   record: str = "none", stop: StopRequest | None = None,
                   wait: bool = False, build: bool = True,
-                  run_timeout: float = DEFAULT_RUN_TIMEOUT_S) -> PreparedSweep:
+                  run_timeout: float = DEFAULT_RUN_TIMEOUT_S, backend: str = "cpu",
+                  precision: str = "float64") -> PreparedSweep:
     """Everything :func:`sweep` checks before a run starts, the plan made and ``out``
     locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
     model and each controller once now, so a broken one is one error, not a table of
@@ -240,6 +262,8 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
         record_dir = (out_path.with_name(out_path.stem + ".recordings") if out_path is not None
                       else Path("runs") / f"sweep-{time.strftime('%Y%m%d-%H%M%S')}")
     plan = make_plan(scenarios, grid, seeds, controllers, record, record_dir)
+    if backend != "cpu":
+        check_backend(backend, precision, plan)
 
     table = lock = None
     done_keys: set[str] = set()
@@ -260,7 +284,32 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
             lock.release()
         raise
     todo = [_unused_recording_path(job) for job in plan if job.key not in done_keys]
-    return PreparedSweep(plan, todo, table, lock, jobs, dask, run_timeout)
+    return PreparedSweep(plan, todo, table, lock, jobs, dask, run_timeout, backend, precision)
+
+
+#: where a sweep's runs are stepped
+BACKENDS = ("cpu", "mjx")
+
+
+def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
+    """``--backend``, ``--precision`` and what the mjx backend can run (ScenarioError)."""
+    if backend not in BACKENDS:
+        raise ScenarioError(f"--backend {backend!r}: allowed: {', '.join(BACKENDS)}")
+    from tspend.mjx import PRECISIONS, require
+    from tspend.mjx.control import KINDS
+    from tspend.mjx.machines import refusal
+
+    if precision not in PRECISIONS:
+        raise ScenarioError(f"--precision {precision!r}: allowed: {', '.join(PRECISIONS)}")
+    require()
+    for job in plan:
+        why = refusal(job.scenario)
+        if why:
+            raise ScenarioError(why)
+        if job.controller not in KINDS:
+            raise ScenarioError(f"--backend mjx: controller kind {job.controller!r} has no JAX "
+                                f"form (the mjx backend runs {', '.join(KINDS)}; give "
+                                f"--controller)")
 
 
 #: at most this many (scenario, grid point, controller) builds are tried before a sweep

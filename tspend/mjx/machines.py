@@ -1,0 +1,206 @@
+"""The machines of a scenario at N seeds, batched for MJX (tspend.mjx's docstring).
+
+Env ``i`` is the machine the CPU backend runs at seed ``seeds[i]``: the scenario with
+``run.seed = seeds[i]`` goes through :func:`tspend.loop.simulation.build_plant` (its
+``[randomize]`` drawn by :mod:`tspend.plants.randomize`, the MJCF edited and compiled by
+the CPU plant, reset to x0), and that plant's own ``mjModel`` is put into MJX.  Fields
+equal across the envs stay single (``in_axes`` None), the others are stacked on a leading
+env axis, so ``jax.vmap(f, in_axes=(fleet.in_axes, 0))`` steps each env on its own machine.
+
+Building costs the CPU backend's build per seed (milliseconds for a cart-pole): a sweep of
+10^5 seeds spends minutes here before the first step (docs/accelerator.md).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from tspend.errors import ScenarioError
+
+__all__ = ["Fleet", "build_fleet", "refusal"]
+
+
+def refusal(scenario: Any) -> str:
+    """Why the MJX backend cannot run ``scenario`` (one line), or ""."""
+    from tspend.plants.effects import needs_hook, needs_plant_wrapper
+    from tspend.plants.registry import PLANT_KINDS
+
+    where = scenario.path or scenario.name
+    kind = scenario.plant.kind
+    if not PLANT_KINDS[kind].mujoco:
+        return (f"{where}: plant kind {kind} is not a MuJoCo machine: the mjx backend runs the "
+                f"machines read from their MJCF (*_mujoco scenarios)")
+    if needs_hook(scenario.effects) or needs_plant_wrapper(scenario.effects):
+        return (f"{where}: [effects] that act per sample in Python (sensor noise, delay, outer "
+                f"loop, saturation, rate limit, a scheduled change) are not in the mjx backend; "
+                f"run it on the CPU backend")
+    if scenario.run.control_delay:
+        return (f"{where}: run.control_delay = {scenario.run.control_delay} is not in the mjx "
+                f"backend; run it on the CPU backend")
+    return ""
+
+
+@dataclass
+class Fleet:
+    """N machines of one scenario, as the MJX loops need them (module docstring)."""
+
+    #: the scenario at the first seed, controller.gain_sign resolved (what the CPU designs on)
+    scenario: Any
+    seeds: tuple[int, ...]
+    #: the batched mjx.Model and its vmap axes (0: per env, None: shared)
+    model: Any
+    in_axes: Any
+    #: each env's state after the CPU plant's reset to its x0
+    qpos0: np.ndarray
+    qvel0: np.ndarray
+    #: the actuator's index in ctrl, the dof the disturbance pushes and its gain per env
+    actuator: int
+    omega: int
+    d_to_tau: np.ndarray
+    #: MuJoCo steps per physics step of run.dt
+    nstep: int
+    dt: float
+    steps: int
+    #: the task: full-state names, the view's indices, which view entries are angles,
+    #: the bounds lo < s < hi per env (N, nfull)
+    names: tuple[str, ...]
+    view_index: np.ndarray
+    wraps: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    #: r .. r^(n) at physics steps 0 .. steps (steps + 1, n + 1) and d at steps 0 .. steps - 1
+    ref: np.ndarray
+    dist: np.ndarray
+    #: per env: the task (for its messages), what the metrics know of the machine, the
+    #: CPU plant's input range
+    tasks: list
+    machines: list
+    u_lo: np.ndarray
+    u_hi: np.ndarray
+    #: the first env's CPU plant (joints, names, render), the scenario's task on it
+    plant: Any
+
+    @property
+    def n_envs(self) -> int:
+        return len(self.seeds)
+
+    @property
+    def order(self) -> int:
+        return int(self.view_index.size)
+
+
+def _seeded(scenario: Any, seed: int) -> Any:
+    from tspend.scenario import override
+
+    return scenario if seed == scenario.run.seed else override(scenario, **{"run.seed": int(seed)})
+
+
+def _tables(scenario: Any, steps: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(steps + 1) * scenario.run.dt
+    ref = np.ascontiguousarray(scenario.reference.derivatives(t, order), dtype=float)
+    dist = np.ascontiguousarray(scenario.disturbance(t[:-1]), dtype=float)
+    return ref, dist
+
+
+def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None) -> Fleet:
+    """The machines of ``scenario`` at ``seeds`` (module docstring); ``steps`` physics
+    steps of tables (default: the run's).  ScenarioError for what the backend cannot run."""
+    from mujoco import mjx
+
+    import jax
+
+    from tspend.loop import simulation
+    from tspend.plants import randomize
+    from tspend.plants import registry as plant_registry
+
+    # the models go into MJX in float64 whatever the run's precision (a float32 run casts
+    # them later): put_model under JAX's default float32 would round them here
+    jax.config.update("jax_enable_x64", True)
+    seeds = tuple(int(s) for s in seeds)
+    if not seeds:
+        raise ScenarioError("the mjx backend: no seeds to run")
+    why = refusal(scenario)
+    if why:
+        raise ScenarioError(why)
+    steps = simulation.steps_of(scenario) if steps is None else int(steps)
+    cpu = jax.devices("cpu")[0]
+    models, qpos, qvel, d_to_tau, tasks, machines, lo, hi = [], [], [], [], [], [], [], []
+    u_lo, u_hi = [], []
+    first = None
+    ref = dist = None
+    link0 = None
+    for seed in seeds:
+        scn = _seeded(scenario, seed)
+        with warnings.catch_warnings():
+            if first is not None:   # the model's departures were warned about once
+                warnings.simplefilter("ignore")
+            plant = simulation.build_plant(scn)
+        link = plant.compiled_mujoco(scn.run.dt) if hasattr(plant, "compiled_mujoco") else None
+        if link is None:
+            raise ScenarioError(f"{scn.path or scn.name}: plant {plant.name} offers no MuJoCo "
+                                f"model to step (the mjx backend needs one)")
+        task = simulation.scenario_task(scn, plant)
+        if first is None:
+            plant_registry.domain_of(scn.plant.kind).check_task(plant, task, scn)
+            first, link0 = (scn, plant, task), link
+            ref, dist = _tables(scn, steps, len(task.view))
+        else:
+            if (link.actuator, link.omega, link.nstep) != (link0.actuator, link0.omega, link0.nstep):
+                raise ScenarioError(f"{scn.path or scn.name}: seed {seed} draws a machine of "
+                                    f"another layout (actuator, disturbed dof, substeps) than "
+                                    f"seed {seeds[0]}: one batch cannot hold both")
+            r, d = _tables(scn, steps, len(task.view))
+            if not (np.array_equal(r, ref) and np.array_equal(d, dist)):
+                raise ScenarioError(f"{scn.path or scn.name}: the reference or disturbance "
+                                    f"differs between seeds; the mjx backend shares one table")
+        drawn = randomize.draw(scn).values
+        machines.append(simulation.machine_info(plant, task, scn, drawn))
+        tasks.append(task)
+        lo.append(task.lo)
+        hi.append(task.hi)
+        lo_u, hi_u = simulation.input_range(plant, scn)
+        u_lo.append(lo_u)
+        u_hi.append(hi_u)
+        qpos.append(np.array(plant.data.qpos, dtype=float))
+        qvel.append(np.array(plant.data.qvel, dtype=float))
+        d_to_tau.append(float(link.d_to_tau))
+        models.append(mjx.put_model(plant.model, device=cpu))
+    scn0, plant0, task0 = first
+    model, in_axes = _batched(models)
+    hinges = {j.name for j in plant0.joints if j.kind == "hinge"}
+    return Fleet(
+        scenario=simulation.with_gain_sign(scn0, plant0), seeds=seeds, model=model,
+        in_axes=in_axes, qpos0=np.stack(qpos), qvel0=np.stack(qvel),
+        actuator=int(link0.actuator), omega=int(link0.omega), d_to_tau=np.array(d_to_tau),
+        nstep=int(link0.nstep), dt=float(scn0.run.dt), steps=steps, names=tuple(task0.names),
+        view_index=np.asarray(task0.view_index, dtype=np.int64),
+        wraps=np.array([v in hinges for v in task0.view], dtype=bool),
+        lo=np.stack(lo), hi=np.stack(hi), ref=ref, dist=dist, tasks=tasks, machines=machines,
+        u_lo=np.array(u_lo), u_hi=np.array(u_hi), plant=plant0)
+
+
+def _batched(models: list) -> tuple[Any, Any]:
+    """One mjx.Model whose leaves that differ between ``models`` are stacked (axis 0), and
+    the matching tree of vmap axes."""
+    import jax
+
+    leaves0, tree = jax.tree_util.tree_flatten(models[0])
+    others = [jax.tree_util.tree_flatten(m)[0] for m in models[1:]]
+    out, axes = [], []
+    for k, leaf in enumerate(leaves0):
+        column = [leaf] + [o[k] for o in others]
+        arrays = [np.asarray(v) for v in column]
+        same = all(a.shape == arrays[0].shape and np.array_equal(a, arrays[0], equal_nan=True)
+                   for a in arrays[1:])
+        if same:
+            out.append(arrays[0] if hasattr(leaf, "shape") else leaf)
+            axes.append(None)
+        else:
+            out.append(np.stack(arrays))
+            axes.append(0)
+    return (jax.tree_util.tree_unflatten(tree, out), jax.tree_util.tree_unflatten(tree, axes))
+
