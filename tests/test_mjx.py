@@ -142,7 +142,7 @@ def test_onnx_graph_in_jax_is_onnxruntimes(policy):
     import jax
 
     from tspend.mjx.onnx_jax import onnx_function
-    from tspend.scenario import project_root
+    from tspend.shipped import data_root as project_root
 
     path = project_root() / "models" / "policies" / f"{policy}.onnx"
     fn, params, dtype = onnx_function(path)
