@@ -67,15 +67,21 @@ def test_a_binary_entry_is_checked_against_its_sidecar(tmp_path, monkeypatch):
 def test_numba_files_that_changed_since_listed_are_removed(tmp_path, recwarn):
     pycache = tmp_path / "__pycache__"
     pycache.mkdir()
+    import pickle
+
     a, b = pycache / "m.f-1.py311.nbi", pycache / "m.f-1.py311.1.nbc"
-    a.write_bytes(b"index" * 10)
-    b.write_bytes(b"code" * 100)
+    # numba's layout: the index is two pickles, the code one
+    a.write_bytes(pickle.dumps("0.60") + pickle.dumps((("stamp", 1), {"sig": "m.f-1.1.nbc"})))
+    b.write_bytes(pickle.dumps({"code": b"\x00" * 4000}))
     cache._write_manifest(pycache)                 # what the process's end does
     assert cache.check_numba_files(pycache) == 0 and a.exists() and b.exists()
-    b.write_bytes(b"code" * 10)                    # truncated
+    # another process compiled a new signature: numba rewrote the index, whole
+    a.write_bytes(pickle.dumps("0.60") + pickle.dumps((("stamp", 1), {"s1": 1, "s2": 2})))
+    assert cache.check_numba_files(pycache) == 0 and a.exists()
+    b.write_bytes(b.read_bytes()[:1000])           # truncated
     assert cache.check_numba_files(pycache) == 1
     assert a.exists() and not b.exists()
-    assert any("changed since it was written" in str(w.message) for w in recwarn)
+    assert any("not whole" in str(w.message) for w in recwarn)
 
 
 def _articulated(env: dict, cwd: Path) -> subprocess.CompletedProcess:

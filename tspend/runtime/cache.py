@@ -13,8 +13,10 @@ process).  Each entry carries what it must be:
   :func:`binary_problem`);
 - the files numba writes itself (``__pycache__/*.nbi``, ``*.nbc``) are listed, with their
   sizes, times and SHA-256, in a manifest written when the process ends
-  (:func:`check_numba_files`): a listed file that changed since is removed before numba
-  reads it, and numba compiles that function again.
+  (:func:`check_numba_files`): a file that changed since (or is not listed yet) is read
+  as the pickles it must be, opcode by opcode; one that is not whole is removed before
+  numba reads it, and numba compiles that function again.  (A checksum alone cannot
+  tell damage from numba's own rewrite of an index by another process.)
 
 A failed check is said in one warning line (``tspend: warning: the cached ... rebuilt``)
 and the entry is rebuilt; it is never a crash.  Only the standard library is used.
@@ -182,12 +184,13 @@ def check_numba_files(pycache: Path, prefix: str = "", what: str = "compiled cod
     except (OSError, ValueError):
         listed = {}
     removed = 0
-    for name, entry in listed.items():
-        if not name.startswith(prefix) or not isinstance(entry, list) or len(entry) != 3:
-            continue
+    names = {p.name for p in _numba_files(pycache, prefix)} | {
+        n for n in listed if n.startswith(prefix) and os.path.lexists(pycache / n)}
+    for name in sorted(names):
+        entry = listed.get(name)
+        if not (isinstance(entry, list) and len(entry) == 3):
+            entry = None   # not listed yet (written by a process that ended abruptly)
         path = pycache / name
-        if not os.path.lexists(path):
-            continue
         problem = _file_problem(path, entry)
         if problem:
             discard(path)
@@ -199,19 +202,44 @@ def check_numba_files(pycache: Path, prefix: str = "", what: str = "compiled cod
     return removed
 
 
-def _file_problem(path: Path, entry: list) -> str | None:
+def _file_problem(path: Path, entry: list | None) -> str | None:
+    """None when ``path`` is as listed, or changed but whole (numba rewrites an index when
+    another process compiles a new signature: that is no damage); else what is wrong."""
     if path.is_symlink() or not path.is_file():
         return "is not a regular file"
     st = path.stat()
-    size, mtime_ns, digest = entry
-    if st.st_size == size and st.st_mtime_ns == mtime_ns:
-        return None   # unchanged since listed: its checksum is not read again
+    if entry is not None:
+        size, mtime_ns, digest = entry
+        if st.st_size == size and st.st_mtime_ns == mtime_ns:
+            return None   # unchanged since listed: its checksum is not read again
     try:
-        if st.st_size == size and _sha256(path.read_bytes()) == digest:
-            return None
+        data = path.read_bytes()
     except OSError:
         return "cannot be read"
-    return "changed since it was written (damaged or truncated)"
+    if entry is not None and _sha256(data) == entry[2]:
+        return None
+    return None if _whole_pickles(data) else "is not whole (damaged or truncated)"
+
+
+def _whole_pickles(data: bytes) -> bool:
+    """Whether ``data`` is one or more complete pickles (numba's index is two, its code
+    one), walked opcode by opcode without building any object (nothing is imported)."""
+    import io
+    import pickletools
+
+    stream = io.BytesIO(data)
+    if not data:
+        return False
+    try:
+        while stream.tell() < len(data):
+            last = None
+            for opcode, _, _ in pickletools.genops(stream):
+                last = opcode.name
+            if last != "STOP":
+                return False
+    except Exception:  # noqa: BLE001 - any malformed opcode is damage
+        return False
+    return True
 
 
 def _write_manifest(pycache: Path) -> None:
