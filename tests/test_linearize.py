@@ -117,7 +117,7 @@ def test_bad_input_is_one_clear_line(args, match):
 
 def test_missing_python_control_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "control", None)  # import control -> ImportError
-    with pytest.raises(ScenarioError, match=r"tspend\[control\]"):
+    with pytest.raises(ScenarioError, match=r"python-control, a dependency of tspend .*: pip install control"):
         tspend.linearize("ex3_pendulum_ode")
 
 

@@ -195,7 +195,9 @@ def test_list_prints_every_scenario_with_its_whole_description(tmp_path: Path) -
     r = tspend("list", cwd=tmp_path, env={**os.environ, "COLUMNS": "100"})
     assert r.status == 0
     paths = available_scenarios()
-    lines = r.out.splitlines()
+    listing, _, searched = r.out.partition("\n\nsearched, in order")
+    assert str(tmp_path / "scenarios") in searched  # the search path closes the listing
+    lines = listing.splitlines()
     # a scenario's first line starts with its name; its description's rest is indented
     assert [line.split()[0] for line in lines if not line.startswith(" ")] == [
         p.stem for p in paths]

@@ -22,7 +22,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "identify", help="fit a machine's parameters to a recorded run; write the calibrated MJCF",
         description="Fit the named physical parameters of MODEL.xml to a recorded run (tspend's "
                     "export, or any CSV/Parquet whose columns the options map) by multiple "
-                    "shooting of the machine's own equations; report each with its 95 %% "
+                    "shooting of the machine's own equations; report each with its 95 % "
                     "interval, the fit and the prediction error on a held-back validation "
                     "segment; write a copy of the MJCF with the fitted values. Exit 2: bad "
                     "data or an unidentifiable set of parameters; exit 3: the fit did not "
@@ -30,9 +30,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("data", metavar="DATA", help="a .csv or .parquet time series")
     p.add_argument("--model", required=True, metavar="MODEL.xml", help="the machine's MJCF")
     p.add_argument("--params", required=True, metavar="KEYS",
-                   help="comma-separated parameters to fit (cart-pole: m,l,M,gear,cart_damping,"
-                        "hinge_damping; Furuta: arm_damping,pendulum_damping,arm_armature,"
-                        "pendulum_armature,motor_gain,back_emf; articulated: the parameter "
+                   help="comma-separated parameters to fit, e.g. m,l,M (cart-pole: m, l, M, "
+                        "gear, cart_damping, hinge_damping; Furuta: arm_damping, "
+                        "pendulum_damping, arm_armature, pendulum_armature, motor_gain, "
+                        "back_emf; articulated: the parameter "
                         "vector's names, link1.mass, link1.ipos_z, link1.inertia_2, "
                         "hinge1.damping, motor.gear ...; every model: JOINT.offset, a sensor's "
                         "constant offset); the others keep the model's values")
