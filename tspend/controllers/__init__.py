@@ -409,13 +409,17 @@ def _plain(value: Any) -> Any:
 def build(scenario: "Scenario", kind: str | None = None, **options) -> Controller:
     """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller),
     behind the safety filter when the scenario's ``[safety]`` asks for one (or the kind is
-    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`).
+    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`; ``filter = "mpsc"``:
+    :mod:`tspend.controllers.mpsc`).
 
     ``kind`` is any spec :func:`resolve` accepts.
     """
     ctrl = _build(scenario, kind, **options)
-    if scenario.safety.filter == "cbf":
+    if scenario.safety.filter in ("cbf", "mpsc"):
         from tspend.controllers.safety import SafetyFilter, wrap
+
+        if scenario.safety.filter == "mpsc":
+            from tspend.controllers.mpsc import wrap  # noqa: F811 - the predictive filter's
 
         if not isinstance(ctrl, SafetyFilter):
             ctrl = wrap(scenario, ctrl)
