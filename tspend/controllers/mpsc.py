@@ -67,7 +67,7 @@ __all__ = ["PredictiveSafetyFilter", "terminal_level", "vertex_models", "wrap"]
 
 #: eps of (P4): the weight of the backup plan's own LQR cost against the first input's
 #: distance from the command (1 on the input's range)
-PROXIMAL = 1e-3
+PROXIMAL = 1e-1
 #: (P3)'s level is shrunk by this factor until the decrease holds on every sampled point
 SHRINK = 0.8
 #: boundary points of X_f sampled per model for the recurrence check
@@ -77,7 +77,7 @@ BOUNDARY_POINTS = 64
 #: the plan's first node, one sample ahead) CHECK_MARGIN of it: the room between absorbs
 #: the difference between the linearised plan and its rollout, between nodes too
 TERMINAL_AIM = 0.95
-CHECK_MARGIN = 1.0
+CHECK_MARGIN = 0.8
 #: the plan's end level costs as much as a command TERMINAL_WEIGHT x the input's range off
 TERMINAL_WEIGHT = 0.1
 #: bisection steps between the command and the certified plan's input (2^-8 of the gap)
@@ -187,7 +187,8 @@ class PredictiveSafetyFilter(SafetyFilter):
     def __init__(self, inner: Controller, model: "FullModel", cfg: "SafetyConfig",
                  sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                  u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
-                 level: float, Q: np.ndarray, R: float, compiled: bool = True) -> None:
+                 level: float, Q: np.ndarray, R: float, vertices: tuple = (),
+                 compiled: bool = True) -> None:
         import casadi as ca
 
         from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
@@ -256,28 +257,34 @@ class PredictiveSafetyFilter(SafetyFilter):
         lo_u = self.u_lo if math.isfinite(self.u_lo) else -1e19
         hi_u = self.u_hi if math.isfinite(self.u_hi) else 1e19
         # every RK4 step's state is returned, so that the certificate checks the bounds
-        # between the plan's nodes too (a cart at 3 m/s moves 0.3 m in one interval)
-        F_step = model.rk4_map(self.h / substeps, 1, name="mpsc_step")
-        x, cols, used = s0, [s0], []
-        for k in range(N):
-            u = U[k] if k == 0 else ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - Rf[:, k]), lo_u), hi_u)
-            if k == 0:
-                x = F0(x, u)
-                cols.append(x)
-            else:
-                for _ in range(substeps):
-                    x = F_step(x, u)
+        # between the plan's nodes too (a cart at 3 m/s moves 0.3 m in one interval); the
+        # same plan rolled out on every vertex model of the [randomize] box below the
+        # nominal's (P6): the certificate asks it of all of them
+        blocks = []
+        for m in (model, *vertices):
+            F0m = m.rk4_map(self.dt0, 1, name="mpsc_first")
+            F_step = m.rk4_map(self.h / substeps, 1, name="mpsc_step")
+            x, cols, used = s0, [s0], []
+            for k in range(N):
+                u = (U[k] if k == 0 else
+                     ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - Rf[:, k]), lo_u), hi_u))
+                if k == 0:
+                    x = F0m(x, u)
                     cols.append(x)
-            used.append(u)
-        self._cols = len(cols)
-        used += [0.0] * (len(cols) - N)
-        roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf],
-                           [ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used))])
+                else:
+                    for _ in range(substeps):
+                        x = F_step(x, u)
+                        cols.append(x)
+                used.append(u)
+            used += [0.0] * (len(cols) - N)
+            blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
+        self._cols, self._models = len(cols), 1 + len(vertices)
+        roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf], [ca.vertcat(*blocks)])
         self.rollout = compiled_function(roll) if compiled else roll
         # evaluated through CasADi's buffer interface on persistent arrays (a Python call
         # with its conversions costs 3-4 times the compiled rollout itself)
         self._roll_in = (np.zeros(nx), np.zeros(N), np.zeros(nx * N))
-        self._roll_out = np.zeros((nx + 1) * self._cols)
+        self._roll_out = np.zeros((nx + 1) * self._models * self._cols)
         self._roll_buffer, self._roll_eval = self.rollout.buffer()
         for i, array in enumerate(self._roll_in):
             self._roll_buffer.set_arg(i, memoryview(array))
@@ -337,10 +344,13 @@ class PredictiveSafetyFilter(SafetyFilter):
         a, b, c = self._roll_in
         a[:], b[:], c[:] = s, U, np.asarray(R, dtype=float).ravel(order="F")
         self._roll_eval()
-        out = self._roll_out.reshape(self._cols, self.nx + 1).T      # column-major
+        rows = (self.nx + 1) * self._models
+        out = self._roll_out.reshape(self._cols, rows).T             # column-major
         every = out[:self.nx].copy()
         nodes = np.hstack([every[:, :2], every[:, 1 + self.substeps::self.substeps]])
-        return nodes, out[self.nx, :self.N].copy(), every
+        # every model's states stacked: (models, nx, steps)
+        allm = out.reshape(self._models, self.nx + 1, self._cols)[:, :self.nx]
+        return nodes, out[self.nx, :self.N].copy(), allm
 
     def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool:
         """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on the nonlinear
@@ -349,11 +359,12 @@ class PredictiveSafetyFilter(SafetyFilter):
         _, _, S = self.roll(s, U, R)
         if not np.all(np.isfinite(S)):
             return False
-        inner = S[:, 1:]
-        if np.any(inner < self.lo_check[:, None]) or np.any(inner > self.hi_check[:, None]):
+        inner = S[:, :, 1:]
+        if (np.any(inner < self.lo_check[None, :, None]) or
+                np.any(inner > self.hi_check[None, :, None])):
             return False
-        end = S[:, -1]
-        if not end @ self.P @ end <= self.level:
+        end = S[:, :, -1]
+        if not np.all(np.einsum("mi,ij,mj->m", end, self.P, end) <= self.level):
             return False
         R = R.copy()
         R[:, 0] = s
@@ -423,11 +434,7 @@ class PredictiveSafetyFilter(SafetyFilter):
             self.rejected += 1
         k = self.stage_at(self.plan_age * self.dt0) if self.plan is not None else None
         if going_on is not None and k is not None:
-            U, R = self.plan
-            if self._held is None or self._held[0] != k:
-                held = min(max(float(U[k] - self.K @ (s - R[:, k])), self.u_lo), self.u_hi)
-            else:
-                held = self._held[1]
+            held = self.tracking_input(s, k, self.plan_age * self.dt0)
             kept = (self.plan, self.plan_age, self._held)
             good, bad = None, u_c if math.isfinite(u_c) else None
             candidate = going_on[0].copy()
@@ -446,18 +453,27 @@ class PredictiveSafetyFilter(SafetyFilter):
                 self.bisected += 1
                 return good, 0.0
             self.plan, self.plan_age, self._held = kept
-        # 3: the last certified plan goes on as (P5) did on the model: each interval's
-        # input corrected once at its start and held; past its end the LQR
+        # 3: the last certified plan goes on, its states tracked by the LQR at every
+        # sample (the certificate's rollout (P5) corrected once per interval: on the model
+        # the two coincide; on a machine that is not the model, a correction held for a
+        # whole interval let the state run off); past its end the LQR
         self.plan_age += 1
         if k is None:
             self.no_plan += 1
             return self.terminal_input(s), 0.0
         self.fallbacks += 1
-        if self._held is None or self._held[0] != k:
-            U, R = self.plan
-            u = min(max(float(U[k] - self.K @ (s - R[:, k])), self.u_lo), self.u_hi)
-            self._held = (k, u)
-        return self._held[1], 0.0
+        return self.tracking_input(s, k, (self.plan_age - 1) * self.dt0), 0.0
+
+    def tracking_input(self, s: np.ndarray, k: int, tau: float) -> float:
+        """The certified plan's input in interval ``k`` at ``tau`` seconds into the plan,
+        corrected by the LQR towards its state there (interpolated between the nodes)."""
+        U, R = self.plan
+        if k == 0:
+            return float(U[0])
+        start = self.dt0 + (k - 1) * self.h
+        a = min(max((tau - start) / self.h, 0.0), 1.0)
+        ref = R[:, k] if k + 1 >= self.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
+        return min(max(float(U[k] - self.K @ (s - ref)), self.u_lo), self.u_hi)
 
     def more_metrics(self) -> dict[str, Any]:
         n = self.samples
@@ -534,4 +550,4 @@ def wrap(scenario: "Scenario", inner: Controller) -> PredictiveSafetyFilter:
                             f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
     return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
-                                  level, Q, b_pole ** 2)
+                                  level, Q, b_pole ** 2, tuple(models))
