@@ -100,6 +100,28 @@ def summary(table) -> dict:
     return out
 
 
+def markdown_rows(table, machine: str) -> str:
+    """The table docs/safety.md shows: per kind, bare / cbf / mpsc endings and samples
+    outside, and mpsc's own counters."""
+    lines = []
+    for kind in dict.fromkeys(c.split("+")[0] for c in table.controller):
+        cells = []
+        for suffix in ("", "+cbf", "+mpsc"):
+            g = table[table.controller == kind + suffix]
+            ended = ", ".join(f"{n} {st}" for st, n in g.status.value_counts().items()
+                              if st != "completed")
+            cells.append(f"{int((g.status == 'completed').sum())}/{len(g)} completed"
+                         + (f" ({ended})" if ended else "")
+                         + f", outside in {int((g.violations > 0).sum())}")
+        g = table[table.controller == kind + "+mpsc"]
+        n = g["samples"].astype(float)
+        lines.append(f"| {machine} | `{kind}` | " + " | ".join(cells) +
+                     f" | {100 * g['safety.intervention_share'].median():.0f} % | "
+                     f"{100 * ((g['safety.fallbacks'] + g['safety.no_plan']) / n).median():.0f} % | "
+                     f"{g['safety.qp_ms'].median():.2f} ms |")
+    return "\n".join(lines)
+
+
 def paired(table, kinds: list[str], resamples: int) -> dict:
     """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
     scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
@@ -160,6 +182,8 @@ def main() -> None:
                     help="rerun bare and cbf here instead of reading safety_filter.py's CSV")
     ap.add_argument("--resamples", type=int, default=2999)
     ap.add_argument("--timing-only", action="store_true")
+    ap.add_argument("--summarize", action="store_true",
+                    help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--samples", type=int, default=1500)
     args = ap.parse_args()
     if not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000:
@@ -175,20 +199,34 @@ def main() -> None:
         kinds = args.kinds.split(",")
         for machine in args.machines.split(","):
             t0 = time.perf_counter()
-            mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds))
-            mine.to_csv(RESULTS / f"safety_mpsc_{machine}.csv", index=False)
-            (RESULTS / f"safety_mpsc_{machine}.partial.csv").unlink(missing_ok=True)
-            table = pd.concat([pd.DataFrame(baseline_rows(machine, kinds, args.seeds,
-                                                          args.baselines)), mine])
+            if args.summarize:
+                done = RESULTS / f"safety_mpsc_{machine}.csv"
+                partial = RESULTS / f"safety_mpsc_{machine}.partial.csv"
+                mine = pd.read_csv(done if done.is_file() else partial)
+            else:
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds))
+                mine.to_csv(RESULTS / f"safety_mpsc_{machine}.csv", index=False)
+                (RESULTS / f"safety_mpsc_{machine}.partial.csv").unlink(missing_ok=True)
+            # the baselines on the seeds the filter ran (an interrupted run: fewer)
+            seeds = int(mine.seed.max()) + 1 if len(mine) else args.seeds
+            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines))
+            ran = {(c.replace("+mpsc", ""), sd) for c, sd in zip(mine.controller, mine.seed)}
+            base = base[[(c.replace("+cbf", ""), sd) in ran
+                         for c, sd in zip(base.controller, base.seed)]]
+            table = pd.concat([base, mine])
+            print(markdown_rows(table, machine), flush=True)
             s = summary(table)
             print(f"\n## {machine} ({time.perf_counter() - t0:.0f} s)\n"
                   + json.dumps(s, indent=1), flush=True)
             comp = paired(table, [k for k in kinds if (table.controller == k).any()],
                           args.resamples)
             print(comp["text"], flush=True)
-            data[machine] = {"seeds": args.seeds, "summary": s, "paired": comp,
+            data[machine] = {"seeds": seeds, "summary": s, "paired": comp,
                              "baselines": "rerun" if args.baselines else
                              f"safety_filter_{machine}_hocbf.csv"}
+    # another process may have written its machine meanwhile: merge, then replace
+    if out_path.is_file():
+        data = {**json.loads(out_path.read_text()), **data}
     out_path.write_text(json.dumps(data, indent=1, default=float) + "\n")
 
 
