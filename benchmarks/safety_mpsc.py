@@ -125,14 +125,16 @@ def markdown_rows(table, machine: str) -> str:
 def paired(table, kinds: list[str], resamples: int) -> dict:
     """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
     scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
-    from tspend.studies.stats import compare
+    from tspend.studies.stats import compare, markdown
 
     names = [k + s for k in kinds for s in ("", "+cbf", "+mpsc")
              if (table.controller == k + s).any()]
     pairs = [(k, k + "+mpsc") for k in kinds] + [(k + "+cbf", k + "+mpsc") for k in kinds]
     pairs = [(a, b) for a, b in pairs if a in names and b in names]
-    comp = compare(table, names, ("rmse", "violations"), n_resamples=resamples, pairs=pairs)
-    return {"pairs": [list(p) for p in pairs], "text": str(comp)}
+    cols = ["scenario", "controller", "seed", "status", "rmse", "violations"]
+    comp = compare(table[cols], names, ("rmse", "violations"), n_resamples=resamples,
+                   pairs=pairs)
+    return {"pairs": [list(p) for p in pairs], "text": markdown(comp, "paired by seed")}
 
 
 def timing(samples: int) -> dict:
