@@ -17,33 +17,33 @@ plan ``u_0 .. u_{N-1}`` on the model
 the first input is held for one sample only, as the runner holds it.  ``X_f`` is the
 balancing LQR's sublevel set (``P`` its Riccati matrix, the weights ``lqr`` uses), ``c``
 the largest level whose ellipsoid lies inside every tightened position bound, the fall
-angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until the saturated
-LQR decreases ``s^T P s`` on sampled points of its boundary on the nominal model and on
-every vertex of the ``[randomize]`` parameter box (:func:`vertex_models`).
+angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until, from sampled
+points of its boundary, the saturated LQR keeps every bound and returns inside on the
+nominal model and on every vertex of the ``[randomize]`` box (:func:`recurrent_level`,
+:func:`vertex_models`).  A plan is rolled out with its own LQR correction
 
-Certification, per sample:
+    u_k = U_k - K (x_k - R_k)   (k >= 1; R_k the plan's state, x_k the rollout's)    (P5)
+
+and certified when, on the nominal model and every vertex model (P6), it keeps the hard
+bounds at every RK4 step and ends in ``X_f``.
+
+Per sample (docs/safety.md says it with the figures):
 
 0. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM; a real-time
-   iteration, warm-started from the certified plan shifted to now) of
+   iteration from its own last answer, or the certified plan shifted to now) of
 
-       min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + u_scale^2 (rho 1^T e + e^T e)   (P4)
+       min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
-   under (P1), (P2) and (P3) linearised at the warm plan (a feasible plan stays
-   feasible: the certified one, shifted, is the linearisation point);
-1. the candidate ``[u_c, that plan's u_1 ..]`` (then ``[u_c, the certified plan's
-   inputs from now on]``) is rolled out on the nonlinear model (P1); if it keeps (P2)'s
-   hard bounds and ends in ``X_f`` (P3, the ellipsoid itself),
-   ``u_c`` passes unchanged;
-2. else the QP's own plan, rolled out and checked the same way: if certified, its
-   ``u_0`` is applied (the closest certifiable input);
-3. else the last certified plan continues: its input at this time (a **fallback**), plus
-   the LQR's correction ``-K (s - s_plan)`` towards the state the plan predicted for now
-   (the tube's ancillary law: open loop, an unstable plan drifts off on a machine that
-   is not the model), clipped; the saturated LQR once the plan has run out.
+   under (P1), (P2) linearised, and (P3) as a cube inside the ellipsoid;
+1. ``[u_c, that plan's u_1 ..]`` certified: ``u_c`` passes unchanged;
+2. else the QP's plan certified: its ``u_0`` (the closest certifiable input); else a
+   bisection between ``u_c`` and the certified plan's own input now;
+3. else the last certified plan goes on, its states tracked by the LQR every sample (a
+   **fallback**); the saturated LQR once it has run out (``no_plan``).
 
-So at every sample the applied input starts a plan certified on the model: following the
-last one to its end lands in ``X_f``, where the LQR stays.  Nothing more is claimed for the
-drawn machine than what the vertex check gives (docs/safety.md).
+So at every sample the applied input starts a plan certified on the model (and the
+vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is claimed
+for a machine between the vertices or for a start with no certified plan.
 """
 
 from __future__ import annotations
