@@ -218,8 +218,10 @@ class ConstraintsConfig:
 class SafetyConfig:
     """``[safety]``: a safety filter between any controller and the plant (docs/safety.md)."""
 
-    #: "off" or "cbf" (a control barrier function QP per sample, tspend/controllers/safety.py)
-    filter: str = field(default="off", metadata={"choices": ("off", "cbf")})
+    #: "off", "cbf" (a control barrier function QP per sample, tspend/controllers/safety.py)
+    #: or "mpsc" (predictive safety certification: a backup plan over a horizon ending in
+    #: the LQR's invariant ellipsoid, tspend/controllers/mpsc.py)
+    filter: str = field(default="off", metadata={"choices": ("off", "cbf", "mpsc")})
     #: class-K gains of the (high-order) barrier conditions, 1/s: psi_1 = h' + alpha_1 h,
     #: psi_1' + alpha_2 psi_1 >= 0 (a position box), h' + alpha_1 h >= 0 (a velocity's)
     alpha_1: float = field(default=2.0, metadata=_positive())
@@ -243,6 +245,14 @@ class SafetyConfig:
     slack_weight: float = field(default=1000.0, metadata=_positive())
     #: CasADi conic solver of the QP (docs/safety.md: daqp, exact and silent, by default)
     solver: str = field(default="daqp", metadata={"choices": ("daqp", "qpoases", "osqp")})
+    #: mpsc: the backup plan's intervals after its first (one control sample), and their
+    #: length (s); the plan spans one sample + horizon x plan_period.  0: from the nominal
+    #: machine's balancing LQR (docs/safety.md: 0.5 / its fastest closed-loop pole, and
+    #: 3 time constants of its slowest, at most 40 intervals)
+    horizon: int = field(default=0, metadata={"low": 0})
+    plan_period: float = field(default=0.0, metadata=_at_least_zero())
+    #: mpsc: RK4 steps per plan interval (0: at most 0.25 / the machine's fastest pole)
+    substeps: int = field(default=0, metadata={"low": 0})
 
 
 @dataclass(frozen=True)

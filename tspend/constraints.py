@@ -40,10 +40,15 @@ from tspend.errors import ScenarioError
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
 
-__all__ = ["Constraint", "ConstraintSet", "build_constraints", "U_ALIAS"]
+__all__ = ["Constraint", "ConstraintSet", "build_constraints", "OUTSIDE_TOLERANCE", "U_ALIAS"]
 
 #: the input may always be named ``u`` besides its own name (``force``, ``motor``)
 U_ALIAS = "u"
+
+#: a sample is outside a constraint only when its margin is below ``-OUTSIDE_TOLERANCE x
+#: (1 + the constraint's largest |b|)`` (1e-9 of a 2000 N range: 2e-6 N): a solver's
+#: rounding (a force 1.6e-10 N past its range) is not a violation (docs/safety.md)
+OUTSIDE_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,6 +104,12 @@ class ConstraintSet:
     def __len__(self) -> int:
         return len(self.constraints)
 
+    @property
+    def tolerances(self) -> np.ndarray:
+        """(C,): each constraint's :data:`OUTSIDE_TOLERANCE` in its own unit."""
+        return np.array([OUTSIDE_TOLERANCE * (1.0 + float(np.abs(c.b).max(initial=0.0)))
+                         for c in self.constraints])
+
     def __iter__(self):
         return iter(self.constraints)
 
@@ -125,9 +136,10 @@ class ConstraintSet:
         return out
 
     def violated(self, state: np.ndarray, u: float) -> tuple[str, ...]:
-        """The names of the constraints outside at one sample."""
+        """The names of the constraints outside at one sample (beyond the tolerance)."""
         m = self.margins(state[None, :], np.array([u]))[0]
-        return tuple(c.name for c, v in zip(self.constraints, m) if v < 0.0)
+        return tuple(c.name for c, v, tol in zip(self.constraints, m, self.tolerances)
+                     if v < -tol)
 
 
 def build_constraints(plant: "Plant", cfg: ConstraintsConfig, effects: EffectsConfig,

@@ -384,6 +384,12 @@ def _safety(r: Table) -> SafetyConfig:
     if not values.get("margin", 0.0) < 1.0:
         raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
                                 f"half-width), got {values['margin']:g}")
+    # every size a user sets is bounded: the plan's QP grows with them
+    for key, high in (("horizon", 200), ("substeps", 50)):
+        if values.get(key, 0) > high:
+            raise r.error(key, f"must be at most {high}, got {values[key]}")
+    if not values.get("plan_period", 0.05) <= 1.0:
+        raise r.error("plan_period", f"must be at most 1 s, got {values['plan_period']:g}")
     return SafetyConfig(**values)
 
 

@@ -27,10 +27,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
-    r.add_argument("--safety", choices=("off", "cbf"),
+    r.add_argument("--safety", choices=("off", "cbf", "mpsc"),
                    help="run the controller behind a safety filter: 'cbf', a control barrier "
-                        "function QP keeping the task's constraints (same as --set "
-                        "safety.filter=cbf; docs/safety.md)")
+                        "function QP keeping the task's constraints; 'mpsc', predictive "
+                        "safety certification: the input passes only when a backup plan "
+                        "keeps every constraint and the fall angle and ends in the "
+                        "balancing LQR's safe set (same as --set safety.filter=NAME; "
+                        "docs/safety.md)")
     return r
 
 
@@ -282,7 +285,9 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         print(f"  {'safety filter':<{width}}  {safety['filter']} ({safety['solver']}): changed u "
               f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "
               f"mean |du| {_with(safety['mean_abs_du'], u)}, QP "
-              f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median", file=stream)
+              f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median"
+              + (f", fallbacks {safety['fallbacks'] + safety['no_plan']}, infeasible "
+                 f"{safety['infeasible_samples']}" if "fallbacks" in safety else ""), file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")

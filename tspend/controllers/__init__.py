@@ -211,7 +211,7 @@ def needs_machine(scenario: "Scenario", kind: str | None = None) -> bool:
 
     if kind is None:
         kind = scenario.run.controller or None
-    if scenario.safety.filter == "cbf" or (kind or "").endswith(SUFFIX):
+    if scenario.safety.filter in ("cbf", "mpsc") or (kind or "").endswith(SUFFIX):
         return True
     cls = KINDS.get(kind or "")
     if cls is excitation.ExcitedController:
@@ -385,15 +385,19 @@ def build(scenario: "Scenario", kind: str | None = None,
           machine: "Plant | None" = None) -> Controller:
     """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller),
     behind the safety filter when the scenario's ``[safety]`` asks for one (or the kind is
-    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`).
+    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`; ``filter = "mpsc"``:
+    :mod:`tspend.controllers.mpsc`).
 
     ``kind`` is any spec :func:`resolve` accepts; ``machine`` the nominal machine the
     runner built for a kind that designs on one (:func:`needs_machine`;
     :func:`tspend.loop.simulation.nominal_machine`).
     """
     ctrl = _build(scenario, kind, machine)
-    if scenario.safety.filter == "cbf":
+    if scenario.safety.filter in ("cbf", "mpsc"):
         from tspend.controllers.safety import SafetyFilter, wrap
+
+        if scenario.safety.filter == "mpsc":
+            from tspend.controllers.mpsc import wrap  # noqa: F811 - the predictive filter's
 
         if not isinstance(ctrl, SafetyFilter):
             ctrl = wrap(scenario, ctrl, machine)

@@ -79,7 +79,7 @@ if TYPE_CHECKING:
     from tspend.controllers.lqr import FullStateLQR
     from tspend.constraints import ConstraintSet
 
-__all__ = ["MPCSettings", "MPCController", "SCHEMES", "build"]
+__all__ = ["MPCSettings", "MPCController", "SCHEMES", "build", "ocp_constraints"]
 
 #: how each sample's problem is solved (:attr:`MPCSettings.scheme`)
 SCHEMES = ("ipopt", "rti", "sqp")
@@ -267,67 +267,9 @@ class MPCController(Controller):
 
     def _bounds(self, cs: "ConstraintSet | None") -> tuple[np.ndarray, np.ndarray, float, float]:
         """``(state lo, state hi, u_lo, u_hi)`` of (M2) and the input, with ``self.rows =
-        (C, D, b, S)`` of (M3) (S: each row's slack, one per constraint) and
-        ``self.soft_names`` (the constraints (M3) keeps, in slack order), from the model's
-        bounds and the constraint set ``cs`` (None: the model's bounds only)."""
-        model, margin, nx = self.model, self.s.margin, self.nx
-        lo_s, hi_s = np.full(nx, -_FREE), np.full(nx, _FREE)
-        for j in range(model.dof):
-            lo, hi = model.q_lo[j], model.q_hi[j]
-            if math.isfinite(lo):
-                lo_s[j] = lo + margin
-            if math.isfinite(hi):
-                hi_s[j] = hi - margin
-        u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
-        u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
-        C, D, b, owner, names = [], [], [], [], []
-        if cs is not None:
-            # the set's columns by name: the plant's full state (then u) is the model's,
-            # but nothing here relies on the order being the same
-            if tuple(cs.names[:-1]) != tuple(model.state_names):
-                missing = set(model.state_names) - set(cs.names[:-1])
-                if missing or len(cs.names) - 1 != nx:
-                    raise ScenarioError(f"controllers.mpc: the constraints' states "
-                                        f"({', '.join(cs.names[:-1])}) are not the model's "
-                                        f"({', '.join(model.state_names)})")
-            col = [cs.names.index(n) for n in model.state_names]
-            for c in cs:
-                for a_row, b_row in zip(c.A, c.b):
-                    a_s, a_u = a_row[col], float(a_row[-1])
-                    nonzero = np.flatnonzero(a_s)
-                    if a_u != 0.0 and nonzero.size == 0:
-                        # a box on the input: the input's bound (always feasible)
-                        if a_u > 0.0:
-                            u_hi = min(u_hi, b_row / a_u)
-                        else:
-                            u_lo = max(u_lo, b_row / a_u)
-                        continue
-                    box = a_u == 0.0 and nonzero.size == 1
-                    j = int(nonzero[0]) if box else -1
-                    # a box keeps the margin, as the rail does (in the state's unit: m or
-                    # rad, m/s or rad/s): the OCP holds it at the period's nodes on the
-                    # model, the machine moves between them and differs from the model
-                    room = b_row - (abs(a_s[j]) * margin if box else 0.0)
-                    if box and c.hard and j < model.dof:
-                        # a position's hard box: a bound, as the rail (the margin is the
-                        # room a measured state needs); a velocity's is a slack row below:
-                        # a measured speed at its bound would make the bound infeasible
-                        if a_s[j] > 0.0:
-                            hi_s[j] = min(hi_s[j], room / a_s[j])
-                        else:
-                            lo_s[j] = max(lo_s[j], room / a_s[j])
-                        continue
-                    if c.name not in names:
-                        names.append(c.name)
-                    C.append(a_s)
-                    D.append(a_u)
-                    b.append(room)
-                    owner.append(names.index(c.name))
-        sel = np.zeros((len(owner), len(names)))
-        sel[np.arange(len(owner)), owner] = 1.0
-        self.rows = (np.array(C, dtype=float).reshape(-1, nx), np.array(D, dtype=float),
-                     np.array(b, dtype=float), sel)
-        self.soft_names = tuple(names)
+        (C, D, b, S)`` of (M3) and ``self.soft_names``: :func:`ocp_constraints`."""
+        lo_s, hi_s, u_lo, u_hi, self.rows, self.soft_names = ocp_constraints(
+            self.model, cs, self.s.margin)
         return lo_s, hi_s, u_lo, u_hi
 
     def reset(self, rng: np.random.Generator | None) -> None:
@@ -493,6 +435,72 @@ class MPCController(Controller):
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}
+
+
+def ocp_constraints(model: FullModel, cs: "ConstraintSet | None", margin: float) -> tuple:
+    """``(state lo, state hi, u_lo, u_hi, (C, D, b, S), soft_names)``: the bounds of (M2)
+    and the input, the rows of (M3) (S: each row's slack, one per constraint) and the
+    constraints (M3) keeps, in slack order, from the model's bounds and the constraint
+    set ``cs`` (None: the model's bounds only); every box keeps ``margin`` (also the
+    predictive safety filter's, :mod:`.mpsc`)."""
+    nx = model.size
+    lo_s, hi_s = np.full(nx, -_FREE), np.full(nx, _FREE)
+    for j in range(model.dof):
+        lo, hi = model.q_lo[j], model.q_hi[j]
+        if math.isfinite(lo):
+            lo_s[j] = lo + margin
+        if math.isfinite(hi):
+            hi_s[j] = hi - margin
+    u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
+    u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
+    C, D, b, owner, names = [], [], [], [], []
+    if cs is not None:
+        # the set's columns by name: the plant's full state (then u) is the model's,
+        # but nothing here relies on the order being the same
+        if tuple(cs.names[:-1]) != tuple(model.state_names):
+            missing = set(model.state_names) - set(cs.names[:-1])
+            if missing or len(cs.names) - 1 != nx:
+                raise ScenarioError(f"controllers.mpc: the constraints' states "
+                                    f"({', '.join(cs.names[:-1])}) are not the model's "
+                                    f"({', '.join(model.state_names)})")
+        col = [cs.names.index(n) for n in model.state_names]
+        for c in cs:
+            for a_row, b_row in zip(c.A, c.b):
+                a_s, a_u = a_row[col], float(a_row[-1])
+                nonzero = np.flatnonzero(a_s)
+                if a_u != 0.0 and nonzero.size == 0:
+                    # a box on the input: the input's bound (always feasible)
+                    if a_u > 0.0:
+                        u_hi = min(u_hi, b_row / a_u)
+                    else:
+                        u_lo = max(u_lo, b_row / a_u)
+                    continue
+                box = a_u == 0.0 and nonzero.size == 1
+                j = int(nonzero[0]) if box else -1
+                # a box keeps the margin, as the rail does (in the state's unit: m or
+                # rad, m/s or rad/s): the OCP holds it at the period's nodes on the
+                # model, the machine moves between them and differs from the model
+                room = b_row - (abs(a_s[j]) * margin if box else 0.0)
+                if box and c.hard and j < model.dof:
+                    # a position's hard box: a bound, as the rail (the margin is the
+                    # room a measured state needs); a velocity's is a slack row below:
+                    # a measured speed at its bound would make the bound infeasible
+                    if a_s[j] > 0.0:
+                        hi_s[j] = min(hi_s[j], room / a_s[j])
+                    else:
+                        lo_s[j] = max(lo_s[j], room / a_s[j])
+                    continue
+                if c.name not in names:
+                    names.append(c.name)
+                C.append(a_s)
+                D.append(a_u)
+                b.append(room)
+                owner.append(names.index(c.name))
+    sel = np.zeros((len(owner), len(names)))
+    sel[np.arange(len(owner)), owner] = 1.0
+    rows = (np.array(C, dtype=float).reshape(-1, nx), np.array(D, dtype=float),
+            np.array(b, dtype=float), sel)
+    return lo_s, hi_s, u_lo, u_hi, rows, tuple(names)
 
 
 def build(scenario: "Scenario", machine: "Plant | None" = None) -> MPCController:

@@ -169,28 +169,48 @@ class RealTimeSQP:
         penalty).
     nz : int, optional
         A stage's size: ``nx + 1`` (state, input) plus its slacks.
+    first_map : casadi.Function, optional
+        The shooting map of stage 0 alone (another interval: the predictive safety
+        filter's first interval is one control sample, the rest :data:`F`'s); needs N >= 2.
+    terminal_constraint : casadi.Function, optional
+        ``h(x_N)`` (``(t,)``): the last state must keep ``h <= 0`` (a terminal set),
+        linearised as every other row, ``h + dh/dx dx_N <= 0``, after every other row
+        (HPIPM's last stage).
+
+    ``stage_hessian`` may also be ``(N, nz, nz)``: one per stage.
     """
 
     def __init__(self, F: Any, nx: int, N: int, stage_hessian: np.ndarray,
                  terminal_hessian: np.ndarray, z_lo: np.ndarray, z_hi: np.ndarray,
                  solver: str, compiled: bool, stage_rows: np.ndarray | None = None,
                  stage_bound: np.ndarray | None = None,
-                 stage_gradient: np.ndarray | None = None, nz: int | None = None) -> None:
+                 stage_gradient: np.ndarray | None = None, nz: int | None = None,
+                 first_map: Any = None, terminal_constraint: Any = None) -> None:
         import casadi as ca
 
         nz = nx + 1 if nz is None else nz
         G = np.zeros((0, nz)) if stage_rows is None else np.asarray(stage_rows, dtype=float)
         bG = np.zeros(0) if stage_bound is None else np.asarray(stage_bound, dtype=float)
         nr = G.shape[0]
+        nt = 0 if terminal_constraint is None else terminal_constraint.size1_out(0)
         self.nx, self.N, self.nz, self.nw, self.nr = nx, N, nz, N * nz + nx, nr
         s, u = ca.SX.sym("s", nx), ca.SX.sym("u")
-        Fs = F(s, u)
-        JF = ca.Function("JF", [s, u], [Fs, ca.jacobian(Fs, ca.vertcat(s, u))])
+
+        def jacobian_map(F: Any, name: str) -> Any:
+            Fs = F(s, u)
+            return ca.Function(name, [s, u], [Fs, ca.jacobian(Fs, ca.vertcat(s, u))])
+
+        JF = jacobian_map(F, "JF")
         z = ca.MX.sym("z", self.nw)
         s0 = ca.MX.sym("s0", nx)
         zr = ca.MX.sym("zr", self.nw)
         XU = ca.reshape(z[:N * nz], nz, N)
-        Fk, Jk = JF.map(N)(XU[:nx, :], XU[nx, :])
+        if first_map is None:
+            Fk, Jk = JF.map(N)(XU[:nx, :], XU[nx, :])
+        else:
+            F0, J0 = jacobian_map(first_map, "JF0")(XU[:nx, 0], XU[nx, 0])
+            Fr, Jr = JF.map(N - 1)(XU[:nx, 1:], XU[nx, 1:])
+            Fk, Jk = ca.horzcat(F0, Fr), ca.horzcat(J0, Jr)
         nxt = ca.reshape(ca.vertcat(z[nz:], ca.MX.zeros(nz - nx)), nz, N)[:nx, :]
         defect = ca.reshape(Fk - nxt, -1, 1)          # rows gap_0, gap_1, ..
         # each stage's Jacobian on (x_k, u_k), nothing on its slacks
@@ -200,7 +220,9 @@ class RealTimeSQP:
                                           [(k + 1) * nz + i for k in range(N) for i in range(nx)]),
                       -1.0)
         A = ca.horzcat(ca.diagcat(*blocks), ca.MX(N * nx, nx)) + ca.MX(shift)
-        H = ca.diagcat(*([ca.DM(stage_hessian)] * N), ca.DM(terminal_hessian))
+        stages = np.asarray(stage_hessian, dtype=float)
+        stages = [stages] * N if stages.ndim == 2 else list(stages)
+        H = ca.diagcat(*[ca.DM(h) for h in stages], ca.DM(terminal_hessian))
         H = ca.DM(ca.sparsify(H))
         g = ca.mtimes(H, z - zr)
         if stage_gradient is not None:
@@ -223,6 +245,15 @@ class RealTimeSQP:
             # success on answers that broke an active row by millimetres
             lba = ca.vertcat(-defect, ca.DM.ones(N * nr) * -_FAR)[order]
             uba = ca.vertcat(-defect, rhs)[order]
+        if nt:
+            # the terminal set's rows on x_N, last (HPIPM's stage N)
+            xN = ca.SX.sym("xN", nx)
+            hN = terminal_constraint(xN)
+            Jh = ca.Function("Jh", [xN], [hN, ca.jacobian(hN, xN)])
+            h_val, h_jac = Jh(z[N * nz:])
+            A = ca.vertcat(A, ca.horzcat(ca.MX(nt, N * nz), h_jac))
+            lba = ca.vertcat(lba, ca.DM.ones(nt) * -_FAR)
+            uba = ca.vertcat(uba, -h_val)
         lin = ca.Function("tspend_mpc_lin", [z, s0, zr], [g, A, lba, uba, lbx, ubx],
                           ["z", "s0", "zr"], ["g", "a", "lba", "uba", "lbx", "ubx"])
         self.compiled = False
@@ -235,11 +266,11 @@ class RealTimeSQP:
         # (CasADi prints the QP's data with it)
         opts["error_on_fail"] = False
         if solver == "hpipm":
-            opts.update(N=N, nx=[nx] * (N + 1), nu=[nz - nx] * N + [0], ng=[nr] * N + [0])
+            opts.update(N=N, nx=[nx] * (N + 1), nu=[nz - nx] * N + [0], ng=[nr] * N + [nt])
         self.qp = ca.conic("tspend_mpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()},
                            opts)
         zs, s0s, zrs = ca.MX.sym("z", self.nw), ca.MX.sym("s0", nx), ca.MX.sym("zr", self.nw)
-        lam = ca.MX.sym("lam", self.nw + N * (nx + nr))
+        lam = ca.MX.sym("lam", self.nw + N * (nx + nr) + nt)
         gq, Aq, la, ua, lq, uq = lin(zs, s0s, zrs)
         sol = self.qp(h=H, g=gq, a=Aq, lba=la, uba=ua, lbx=lq, ubx=uq,
                       lam_x0=lam[:self.nw], lam_a0=lam[self.nw:])
@@ -258,8 +289,8 @@ class RealTimeSQP:
         #: the QP's data at a point, (z, s0, z_r) -> (g, A, lba, uba, lbx, ubx), and H
         self.linearisation, self.hessian = lin, H
         self._z, self._s0, self._zr = np.zeros(self.nw), np.zeros(nx), np.zeros(self.nw)
-        self._lam = np.zeros(self.nw + N * (nx + nr))
-        self._out = np.zeros(2 * self.nw + 2 + N * (nx + nr))
+        self._lam = np.zeros(self.nw + N * (nx + nr) + nt)
+        self._out = np.zeros(2 * self.nw + 2 + N * (nx + nr) + nt)
         self._buffer, self._evaluate = self.step.buffer()
         for i, array in enumerate((self._z, self._s0, self._zr, self._lam)):
             self._buffer.set_arg(i, memoryview(array))
@@ -294,6 +325,9 @@ class RealTimeSQP:
                                    f"{infeasibility:g})")
             self._z[:] = out[:nw]
             self._lam[:] = out[nw + 2:]
+            if not np.all(np.isfinite(self._lam)):
+                # a solver's non-finite multipliers would poison the next warm start
+                self._lam[:] = 0.0
             if size < tolerance:
                 break
         return self._z.copy(), steps

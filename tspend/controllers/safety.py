@@ -123,6 +123,8 @@ class SafetyFilter(Controller):
     """``inner`` behind the CBF QP (module docstring); everything else of ``inner`` shown."""
 
     has_snapshots = False
+    #: the filter's name in the kind (``pd+cbf``) and the metrics (``safety_filter.filter``)
+    FILTER = "cbf"
 
     def __init__(self, inner: Controller, model: Any, cfg: SafetyConfig,
                  lyapunov_P: np.ndarray | None = None) -> None:
@@ -135,7 +137,7 @@ class SafetyFilter(Controller):
         self.inner = inner
         self.model = model
         self.cfg = cfg
-        self.kind = f"{inner.kind}{SUFFIX}"
+        self.kind = f"{inner.kind}+{self.FILTER}"
         self.order = inner.order
         self.sample_period = inner.sample_period
         self.has_snapshots = inner.has_snapshots
@@ -280,7 +282,8 @@ class SafetyFilter(Controller):
         x = np.asarray(r["x"], dtype=float).ravel()
         if not np.all(np.isfinite(x)):
             return min(max(u_c, self.u_lo), self.u_hi), math.nan
-        return float(x[0] * S), float(x[1])
+        # the solver's answer can lie a rounding (1e-10 N) past the input's range: clipped
+        return min(max(float(x[0] * S), self.u_lo), self.u_hi), float(x[1])
 
     def step(self, obs: Observation, dt: float) -> float:
         u_c = float(self.inner.step(obs, dt))
@@ -321,14 +324,19 @@ class SafetyFilter(Controller):
         """``safety_filter``: how often and how much the filter changed u, how often the QP needed
         its slack, and its compute per sample (the inner controller's not counted)."""
         n = self.samples
-        out = {"filter": "cbf", "solver": self.cfg.solver, "samples": n,
+        out = {"filter": self.FILTER, "solver": self.cfg.solver, "samples": n,
                "intervention_share": self.changed / n if n else None,
                "mean_abs_du": self.sum_du / n if n else None,
                "max_abs_du": self.max_du if n else None,
                "slack_share": self.infeasible / n if n else None,
                "qp_ms": {"median": self._median_ms(),
-                         "max": 1e3 * self.time_max if n else None}}
+                         "max": 1e3 * self.time_max if n else None},
+               **self.more_metrics()}
         return {**self.inner.run_metrics(), "safety_filter": out}
+
+    def more_metrics(self) -> dict[str, Any]:
+        """A subclass's own entries of ``safety_filter`` (:mod:`.mpsc`'s fallbacks)."""
+        return {}
 
 
 def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:

@@ -36,8 +36,9 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
   (MPC's ``solve_failures``, ``solve_overruns``);
 * ``constraints.<name>``: per constraint of the task (:mod:`tspend.constraints`, the
   margin ``min(b - A [s, u])`` of (C1) at every recorded sample, ``u`` the command):
-  ``samples_outside``, ``time_outside_s``, ``max_depth`` (the largest ``-margin``, 0 when
-  never outside), ``min_margin``, ``hard``; ``violations`` (samples with any constraint
+  ``samples_outside`` (margin below ``-1e-9 (1 + max |b|)``, so that round-off is not a
+  violation: :data:`tspend.constraints.OUTSIDE_TOLERANCE`), ``time_outside_s``,
+  ``max_depth`` (the largest ``-margin``, 0 when never outside), ``min_margin``, ``hard``; ``violations`` (samples with any constraint
   outside) and ``max_violation`` (the largest depth of any) are comparable metrics like
   ``rmse`` (0: every constraint held; a run the task ended scores +inf in a comparison).
 
@@ -200,8 +201,9 @@ class MetricsAccumulator:
         if m is None or m.constraints is None or not len(m.constraints) or state is None:
             return
         margin = m.constraints.margins(state, u)                     # (k, C)
-        # NaN (a diverged sample) is neither inside nor outside: not counted
-        outside = margin < 0.0
+        # NaN (a diverged sample) is neither inside nor outside: not counted; nor is a
+        # margin within the stated tolerance below 0 (round-off: tspend.constraints)
+        outside = margin < -m.constraints.tolerances
         self.c_outside += outside.sum(axis=0)
         self.any_outside += int(np.count_nonzero(outside.any(axis=1)))
         with np.errstate(invalid="ignore"):

@@ -1,0 +1,236 @@
+"""The predictive safety filter (--safety mpsc) over seeds, and its compute per sample
+against the bare controller in the same run (docs/safety.md, "Predictive safety
+certification").
+
+    python benchmarks/safety_mpsc.py [--seeds 20] [--kinds pd,second_type]
+                                     [--machines cartpole_rail,furuta_arm] [--baselines]
+    python benchmarks/safety_mpsc.py --timing-only [--samples 1500]    # run it three times
+
+The machines and drawn starts are benchmarks/safety_filter.py's (MACHINES): the
+randomised cart-pole on a 1 m rail (3 s) and the Furuta with its arm's stop (1.5 s, x0
+drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s).  Each kind runs behind mpsc on
+seeds 0..N-1.  The bare and cbf runs of the same seeds are read from safety_filter.py's
+committed data (benchmarks/results/safety_filter_<machine>_hocbf.csv) unless
+--baselines reruns them here.  Writes benchmarks/results/safety_mpsc_<machine>.csv (one
+row per run) and benchmarks/results/safety_mpsc.json (the summary docs/safety.md quotes).
+
+The timing: one filtered closed loop of pendulum_finite_rail with a 1 m rail (pd), then
+every recorded sample's observation replayed, interleaved, through the bare pd and the
+filtered controller (pd + mpsc), wall time per call; medians and their ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
+    from safety_filter import MACHINES, kinds_of
+    from tspend import load_scenario, override, run
+
+    name, changes = MACHINES[machine]
+    base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc"})
+    out = []
+    for kind in kinds_of(machine, kinds):
+        for seed in range(seeds):
+            t0 = time.perf_counter()
+            r = run(override(base, **{"run.seed": seed}), controller=kind, keep_history=False)
+            m = r.metrics
+            sf = m.get("safety_filter", {})
+            out.append({"scenario": machine, "controller": f"{kind}+mpsc", "seed": seed,
+                        "status": r.end.status, "rmse": m["rmse"],
+                        "violations": m["violations"], "max_violation": m["max_violation"],
+                        "safety.intervention_share": sf.get("intervention_share"),
+                        "safety.qp_ms": (sf.get("qp_ms") or {}).get("median"),
+                        "safety.fallbacks": sf.get("fallbacks"),
+                        "safety.no_plan": sf.get("no_plan"),
+                        "safety.bisected": sf.get("bisected_samples"),
+                        "safety.infeasible": sf.get("infeasible_samples"),
+                        "safety.max_slack": sf.get("max_slack"),
+                        "samples": sf.get("samples")})
+            print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
+                  f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
+            # written as it goes: an interrupted benchmark keeps the runs it made
+            import pandas as pd
+
+            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}.partial.csv", index=False)
+    return out
+
+
+def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool) -> list[dict]:
+    """Bare and cbf on the same seeds: safety_filter.py's rows (rerun, or its CSV)."""
+    import pandas as pd
+
+    if rerun:
+        from safety_filter import rows
+
+        return rows(machine, kinds, seeds)
+    table = pd.read_csv(RESULTS / f"safety_filter_{machine}_hocbf.csv")
+    keep = [k + s for k in kinds for s in ("", "+cbf")]
+    table = table[table.controller.isin(keep) & (table.seed < seeds)]
+    return table.to_dict("records")
+
+
+def summary(table) -> dict:
+    out = {}
+    for ctrl, g in table.groupby("controller", sort=False):
+        row = {"runs": int(len(g)), "completed": int((g.status == "completed").sum()),
+               "statuses": {s: int(n) for s, n in g.status.value_counts().items()},
+               "runs_with_samples_outside": int((g.violations > 0).sum()),
+               "samples_outside_max": int(g.violations.max())}
+        if "safety.fallbacks" in g and g["safety.fallbacks"].notna().any():
+            n = g["samples"].astype(float)
+            row.update({
+                "intervention_share_median": float(g["safety.intervention_share"].median()),
+                "time_per_sample_ms_median": float(g["safety.qp_ms"].median()),
+                "fallback_share_median": float(((g["safety.fallbacks"] + g["safety.no_plan"])
+                                                / n).median()),
+                "infeasible_share_median": float((g["safety.infeasible"] / n).median()),
+                "max_slack": float(g["safety.max_slack"].max())})
+        out[ctrl] = row
+    return out
+
+
+def markdown_rows(table, machine: str) -> str:
+    """The table docs/safety.md shows: per kind, bare / cbf / mpsc endings and samples
+    outside, and mpsc's own counters."""
+    lines = []
+    for kind in dict.fromkeys(c.split("+")[0] for c in table.controller):
+        cells = []
+        for suffix in ("", "+cbf", "+mpsc"):
+            g = table[table.controller == kind + suffix]
+            ended = ", ".join(f"{n} {st}" for st, n in g.status.value_counts().items()
+                              if st != "completed")
+            cells.append(f"{int((g.status == 'completed').sum())}/{len(g)} completed"
+                         + (f" ({ended})" if ended else "")
+                         + f", outside in {int((g.violations > 0).sum())}")
+        g = table[table.controller == kind + "+mpsc"]
+        n = g["samples"].astype(float)
+        lines.append(f"| {machine} | `{kind}` | " + " | ".join(cells) +
+                     f" | {100 * g['safety.intervention_share'].median():.0f} % | "
+                     f"{100 * ((g['safety.fallbacks'] + g['safety.no_plan']) / n).median():.0f} % | "
+                     f"{g['safety.qp_ms'].median():.2f} ms |")
+    return "\n".join(lines)
+
+
+def paired(table, kinds: list[str], resamples: int) -> dict:
+    """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
+    scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
+    from tspend.studies.stats import compare, markdown
+
+    names = [k + s for k in kinds for s in ("", "+cbf", "+mpsc")
+             if (table.controller == k + s).any()]
+    pairs = [(k, k + "+mpsc") for k in kinds] + [(k + "+cbf", k + "+mpsc") for k in kinds]
+    pairs = [(a, b) for a, b in pairs if a in names and b in names]
+    cols = ["scenario", "controller", "seed", "status", "rmse", "violations"]
+    comp = compare(table[cols], names, ("rmse", "violations"), n_resamples=resamples,
+                   pairs=pairs)
+    return {"pairs": [list(p) for p in pairs], "text": markdown(comp, "paired by seed")}
+
+
+def timing(samples: int) -> dict:
+    """The filter's wall time per sample against the bare controller, replayed on the
+    states of one filtered closed loop, interleaved in this process."""
+    from tspend import load_scenario, override, run
+    from tspend.controllers.base import Observation
+    from tspend.loop.simulation import prepare
+
+    scn = override(load_scenario("pendulum_finite_rail"),
+                   **{"effects.rail": 1.0, "run.duration": samples / 1000.0})
+    r = run(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+    states, refs, ts = r.history["state"], r.history["ref"], r.history["t"]
+    bare = prepare(scn, controller="pd")
+    filt = prepare(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+    rng = np.random.default_rng(0)
+    for parts in (bare, filt):
+        parts.controller.reset(rng)
+    task = bare.task
+    view = task.view_index
+    t_bare, t_filt = [], []
+    for t, s, ref in zip(ts, states, refs):
+        obs = Observation(float(t), s, s[view], ref, task.names, task.constraints)
+        a = time.perf_counter()
+        bare.controller.step(obs, 0.001)
+        b = time.perf_counter()
+        filt.controller.step(obs, 0.001)
+        c = time.perf_counter()
+        t_bare.append(b - a)
+        t_filt.append(c - b)
+    sf = filt.controller.run_metrics()["safety_filter"]
+    mb, mf = float(np.median(t_bare)) * 1e3, float(np.median(t_filt)) * 1e3
+    return {"samples": len(ts), "bare_pd_ms_median": mb, "pd_mpsc_ms_median": mf,
+            "filter_only_ms_median": sf["qp_ms"]["median"],
+            "ratio_filtered_over_bare": mf / mb if mb > 0 else math.inf,
+            "intervention_share": sf["intervention_share"]}
+
+
+def main() -> None:
+    import pandas as pd
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--kinds", default="pd,second_type")
+    ap.add_argument("--machines", default="cartpole_rail,furuta_arm")
+    ap.add_argument("--baselines", action="store_true",
+                    help="rerun bare and cbf here instead of reading safety_filter.py's CSV")
+    ap.add_argument("--resamples", type=int, default=2999)
+    ap.add_argument("--timing-only", action="store_true")
+    ap.add_argument("--summarize", action="store_true",
+                    help="only the summary and the paired tests from the CSVs already written")
+    ap.add_argument("--samples", type=int, default=1500)
+    args = ap.parse_args()
+    if not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000:
+        ap.error("--seeds 1..200, --samples 100..20000")
+    warnings.simplefilter("ignore")
+    out_path = RESULTS / "safety_mpsc.json"
+    data = json.loads(out_path.read_text()) if out_path.is_file() else {}
+    if args.timing_only:
+        tim = timing(args.samples)
+        print(json.dumps(tim, indent=1), flush=True)
+        data.setdefault("timing_runs", []).append(tim)
+    else:
+        kinds = args.kinds.split(",")
+        for machine in args.machines.split(","):
+            t0 = time.perf_counter()
+            if args.summarize:
+                done = RESULTS / f"safety_mpsc_{machine}.csv"
+                partial = RESULTS / f"safety_mpsc_{machine}.partial.csv"
+                mine = pd.read_csv(done if done.is_file() else partial)
+            else:
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds))
+                mine.to_csv(RESULTS / f"safety_mpsc_{machine}.csv", index=False)
+                (RESULTS / f"safety_mpsc_{machine}.partial.csv").unlink(missing_ok=True)
+            # the baselines on the seeds the filter ran (an interrupted run: fewer)
+            seeds = int(mine.seed.max()) + 1 if len(mine) else args.seeds
+            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines))
+            ran = {(c.replace("+mpsc", ""), sd) for c, sd in zip(mine.controller, mine.seed)}
+            base = base[[(c.replace("+cbf", ""), sd) in ran
+                         for c, sd in zip(base.controller, base.seed)]]
+            table = pd.concat([base, mine])
+            print(markdown_rows(table, machine), flush=True)
+            s = summary(table)
+            print(f"\n## {machine} ({time.perf_counter() - t0:.0f} s)\n"
+                  + json.dumps(s, indent=1), flush=True)
+            comp = paired(table, [k for k in kinds if (table.controller == k).any()],
+                          args.resamples)
+            print(comp["text"], flush=True)
+            data[machine] = {"seeds": seeds, "summary": s, "paired": comp,
+                             "baselines": "rerun" if args.baselines else
+                             f"safety_filter_{machine}_hocbf.csv"}
+    # another process may have written its machine meanwhile: merge, then replace
+    if out_path.is_file():
+        data = {**json.loads(out_path.read_text()), **data}
+    out_path.write_text(json.dumps(data, indent=1, default=float) + "\n")
+
+
+if __name__ == "__main__":
+    main()

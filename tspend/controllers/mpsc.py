@@ -1,0 +1,557 @@
+"""Predictive safety certification (``--safety mpsc``): a backup plan behind every input.
+
+Model predictive safety certification (Wabersich and Zeilinger, "Linear model predictive
+safety certification for learning-based control", CDC 2018; "A predictive safety filter
+for learning-based control of constrained nonlinear dynamical systems", Automatica 129,
+2021) on the domain's own model (:class:`~tspend.plants.domain.FullModel`, the nominal
+machine).  At every controller sample, with ``s`` the measured full state and ``u_c`` the
+inner controller's command clipped to the input's range, the filter looks for a backup
+plan ``u_0 .. u_{N-1}`` on the model
+
+    s_1 = F_0(s, u_0),  s_{k+1} = F(s_k, u_k)   (k >= 1)                         (P1)
+    lo <= s_k <= hi  (k = 1 .. N: the hard position boxes, the fall angle, tightened)
+    u_lo <= u_k <= u_hi,  soft rows C s_k + D u_k - e_k <= b, e_k >= 0          (P2)
+    s_N in X_f = {s : s^T P s <= c}                                             (P3)
+
+``F_0`` one control sample (RK4), ``F`` one ``plan_period`` (``substeps`` RK4 steps):
+the first input is held for one sample only, as the runner holds it.  ``X_f`` is the
+balancing LQR's sublevel set (``P`` its Riccati matrix, the weights ``lqr`` uses), ``c``
+the largest level whose ellipsoid lies inside every tightened position bound, the fall
+angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until, from sampled
+points of its boundary, the saturated LQR keeps every bound and returns inside on the
+nominal model and on every vertex of the ``[randomize]`` box (:func:`recurrent_level`,
+:func:`vertex_models`).  A plan is rolled out with its own LQR correction
+
+    u_k = U_k - K (x_k - R_k)   (k >= 1; R_k the plan's state, x_k the rollout's)    (P5)
+
+and certified when, on the nominal model and every vertex model (P6), it keeps the hard
+bounds at every RK4 step and ends in ``X_f``.
+
+Per sample (docs/safety.md says it with the figures):
+
+0. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM; a real-time
+   iteration from its own last answer, or the certified plan shifted to now) of
+
+       min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
+
+   under (P1), (P2) linearised, and (P3) as a cube inside the ellipsoid;
+1. ``[u_c, that plan's u_1 ..]`` certified: ``u_c`` passes unchanged;
+2. else the QP's plan certified: its ``u_0`` (the closest certifiable input); else a
+   bisection between ``u_c`` and the certified plan's own input now;
+3. else the last certified plan goes on, its states tracked by the LQR every sample (a
+   **fallback**); the saturated LQR once it has run out (``no_plan``).
+
+So at every sample the applied input starts a plan certified on the model (and the
+vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is claimed
+for a machine between the vertices or for a start with no certified plan.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tspend.controllers.base import Controller, Observation
+from tspend.controllers.safety import SafetyFilter
+from tspend.errors import ScenarioError
+
+if TYPE_CHECKING:
+    from tspend.config import SafetyConfig, Scenario
+    from tspend.plants.domain import FullModel
+
+__all__ = ["PredictiveSafetyFilter", "terminal_level", "vertex_models", "wrap"]
+
+#: eps of (P4): the weight of the backup plan's own LQR cost against the first input's
+#: distance from the command (1 on the input's range)
+PROXIMAL = 1e-1
+#: (P3)'s level is shrunk by this factor until the decrease holds on every sampled point
+SHRINK = 0.8
+#: boundary points of X_f sampled per model for the recurrence check
+BOUNDARY_POINTS = 64
+#: the QP aims its plan's end at this share of (P3)'s level, the certificate checks all
+#: of it; the plan keeps the whole margin from its second node on, the certificate (and
+#: the plan's first node, one sample ahead) CHECK_MARGIN of it: the room between absorbs
+#: the difference between the linearised plan and its rollout, between nodes too
+TERMINAL_AIM = 0.95
+CHECK_MARGIN = 0.8
+#: the plan's end level costs as much as a command TERMINAL_WEIGHT x the input's range off
+TERMINAL_WEIGHT = 0.1
+#: bisection steps between the command and the certified plan's input (2^-8 of the gap)
+BISECTIONS = 8
+#: the longest plan (intervals) chosen automatically
+MAX_AUTO_HORIZON = 40
+#: at most this many [randomize] parameters spanned by vertices (2^6 = 64 models)
+MAX_VERTEX_PARAMETERS = 6
+
+
+def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float:
+    """The largest ``c`` with ``{s^T P s <= c}`` inside every ``|a^T s| <= b`` of ``rows``:
+    ``min b^2 / (a^T P^-1 a)`` (the support function of the ellipsoid)."""
+    P_inv = np.linalg.inv(P)
+    return min((b * b / float(a @ P_inv @ a) for a, b in rows if b > 0.0), default=math.inf)
+
+
+def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: float,
+                    lo: np.ndarray, hi: np.ndarray, u_lo: float, u_hi: float, T: float,
+                    rng: np.random.Generator) -> float:
+    """``c`` shrunk by :data:`SHRINK` until, on every model, the saturated LQR
+    ``u = clip(-K s)`` from :data:`BOUNDARY_POINTS` sampled points of the ellipsoid's
+    boundary keeps every bound ``lo <= s <= hi`` at every 20 ms step for ``T`` seconds and
+    ends back inside the ellipsoid (a sampled check, not a proof); 0 when 15 shrinks do
+    not reach it.  A Lyapunov decrease of the nominal ``P`` would be the classic test, but
+    it fails at every level on the drawn machines (their ``A - B K`` is not the nominal's):
+    what is checked is that the set is recurrent and safe under the LQR."""
+    import casadi as ca
+
+    n, dt = P.shape[0], 0.02
+    steps = max(1, int(math.ceil(T / dt)))
+    d = rng.standard_normal((BOUNDARY_POINTS, n))
+    d /= np.sqrt(np.einsum("ij,jk,ik->i", d, P, d))[:, None]
+    x = ca.SX.sym("x", n)
+    u = ca.fmin(ca.fmax(-ca.mtimes(ca.DM(K.reshape(1, -1)), x), u_lo if math.isfinite(u_lo)
+                        else -1e19), u_hi if math.isfinite(u_hi) else 1e19)
+    sims = [ca.Function("lqr_step", [x], [m.rk4_map(dt, 1)(x, u)]).mapaccum(steps)
+            .map(BOUNDARY_POINTS) for m in models]
+    bounded = np.isfinite(lo) | np.isfinite(hi)
+    for _ in range(15):
+        ok = True
+        for sim in sims:
+            X = np.asarray(sim(math.sqrt(c) * np.repeat(d.T, 1, axis=1)), dtype=float)
+            X = X.reshape(n, BOUNDARY_POINTS, steps)
+            inside = np.all((X[bounded] >= lo[bounded, None, None]) &
+                            (X[bounded] <= hi[bounded, None, None]))
+            end = X[:, :, -1]
+            if not (inside and np.all(np.einsum("ip,ij,jp->p", end, P, end) <= c)):
+                ok = False
+                break
+        if ok:
+            return c
+        c *= SHRINK
+    return 0.0
+
+
+def vertex_models(scenario: "Scenario") -> tuple[list["FullModel"], list[str]]:
+    """The full-state model at every vertex of the ``[randomize]`` parameter box (the
+    initial state's draws left out: they are not the machine), and the parameters spanned.
+    A normal draw spans its truncation, else mean +/- 2 standard deviations."""
+    from tspend.controllers.full_model import full_model
+    from tspend.plants import registry
+    from tspend.plants.randomize import Draw, draw
+
+    params = [d for d in scenario.randomize if not d.name.startswith("x0[")]
+    if not params:
+        return [], []
+    if len(params) > MAX_VERTEX_PARAMETERS:
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\" checks its terminal set "
+                            f"on the vertices of the [randomize] box: at most "
+                            f"{MAX_VERTEX_PARAMETERS} drawn parameters, got {len(params)}")
+    ends = []
+    for d in params:
+        if d.dist == "uniform":
+            ends.append((d.a, d.b))
+        else:
+            lo = d.low if math.isfinite(d.low) else d.a - 2.0 * d.b
+            hi = d.high if math.isfinite(d.high) else d.a + 2.0 * d.b
+            ends.append((lo, hi))
+    models = []
+    for corner in itertools.product(*ends):
+        fixed = tuple(Draw(d.name, "uniform", v, v, d.relative, v, v)
+                      for d, v in zip(params, corner))
+        vertex = draw(replace(scenario, randomize=fixed)).scenario
+        # each vertex is a machine of its own (built here: the runner builds the nominal one)
+        models.append(full_model(vertex, registry.build(vertex)))
+    return models, [d.name for d in params]
+
+
+def plan_grid(K: np.ndarray, model: "FullModel", cfg: "SafetyConfig") -> tuple[float, int, int]:
+    """``(plan_period, horizon, substeps)``: the settings, or where 0, from the nominal
+    machine's balancing LQR ``A - B K`` at the upright: 0.5 / its fastest pole's modulus
+    (0.005 to 0.1 s), 3 time constants of its slowest (10 to :data:`MAX_AUTO_HORIZON`
+    intervals), and RK4 steps of at most 0.25 / the fastest pole of ``A`` or ``A - B K``."""
+    A, B = model.linearisation()
+    poles = np.linalg.eigvals(A - B @ K)
+    h = cfg.plan_period or min(0.1, max(0.005, 0.5 / float(np.abs(poles).max())))
+    slowest = float(np.abs(poles.real).min())
+    horizon = cfg.horizon or int(min(MAX_AUTO_HORIZON, max(10, math.ceil(3.0 / (slowest * h)))))
+    fastest = max(float(np.abs(poles).max()), float(np.abs(np.linalg.eigvals(A)).max()))
+    substeps = cfg.substeps or max(1, math.ceil(h * fastest / 0.25))
+    return h, horizon, substeps
+
+
+class PredictiveSafetyFilter(SafetyFilter):
+    """``inner`` behind the predictive safety certification (module docstring)."""
+
+    FILTER = "mpsc"
+
+    def __init__(self, inner: Controller, model: "FullModel", cfg: "SafetyConfig",
+                 sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                 u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
+                 level: float, Q: np.ndarray, R: float, vertices: tuple = (),
+                 compiled: bool = True) -> None:
+        import casadi as ca
+
+        from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
+
+        super().__init__(inner, model, cfg)
+        self.u_lo, self.u_hi = u_range
+        finite = [abs(v) for v in u_range if math.isfinite(v)]
+        self.bounded = len(finite) == 2
+        self.u_scale = max(finite) if finite else 1.0
+        nx = model.size
+        h, horizon, substeps = plan_grid(np.asarray(K, dtype=float).reshape(1, -1), model, cfg)
+        N = horizon + 1
+        self.nx, self.N, self.dt0, self.h = nx, N, float(sample_s), h
+        #: the plan's hard bounds (tightened by the margin) and the certification's (half)
+        self.lo, self.hi, self.lo_check, self.hi_check = bounds
+        self.K, self.P, self.level = np.asarray(K, dtype=float).ravel(), P, level
+        C, D, b, sel = rows
+        ns = sel.shape[1]
+        self.ns, self.nz = ns, nx + 1 + ns
+        nz = self.nz
+        F0 = model.rk4_map(self.dt0, 1, name="mpsc_first")
+        F = model.rk4_map(self.h, substeps, name="mpsc_plan")
+        self.substeps = substeps
+        self.iterations = 1
+        # (P4)'s Hessian stage by stage, times u_scale^2 (the QP in the input's unit: its
+        # solver's absolute tolerances then mean something): the first input against the
+        # command (weight 1), the rest of the plan a small LQR cost (eps: an input as far
+        # off as the command costs eps) that makes the backup smooth and heads it upright
+        w = PROXIMAL
+        self._slack_scale = self.u_scale ** 2
+        stages = np.zeros((N, nz, nz))
+        stages[:, :nx, :nx] = 2.0 * w * Q / R
+        stages[:, nx, nx] = 2.0 * w
+        stages[0, nx, nx] = 2.0
+        stages[:, nx + 1:, nx + 1:] = 2.0 * self._slack_scale * np.eye(ns)
+        # and a cost on the plan's end level (as much as a command a tenth of the input's
+        # range off at the level c), so that plans end deep inside (P3), where the next
+        # sample's QP (its cube) can start from them
+        terminal = 2.0 * w * P / R + 2.0 * (TERMINAL_WEIGHT * self.u_scale) ** 2 * P / level
+        ulo = self.u_lo if math.isfinite(self.u_lo) else -np.inf
+        uhi = self.u_hi if math.isfinite(self.u_hi) else np.inf
+        lo_s, hi_s = self.lo.copy(), self.hi.copy()
+        z_lo = np.concatenate([np.tile(np.concatenate([lo_s, [ulo], np.zeros(ns)]), N), lo_s])
+        z_hi = np.concatenate([np.tile(np.concatenate([hi_s, [uhi], np.full(ns, np.inf)]), N),
+                               hi_s])
+        # the first node (one sample ahead: a measured state inside the margin must not
+        # make the QP infeasible) at the certificate's bounds
+        z_lo[nz:nz + nx], z_hi[nz:nz + nx] = self.lo_check, self.hi_check
+        # (P3) in the QP: the cube |L^T s_N|_inf <= sqrt(0.95 c / n) (P = L L^T) inside the
+        # ellipsoid, linear, so the QP's plan ends inside whatever its step (the tangent
+        # of the ellipsoid, linearised, lies outside it: plans slid out along it)
+        L = np.linalg.cholesky(P)
+        xN = ca.SX.sym("xN", nx)
+        cube = ca.mtimes(ca.DM(L.T), xN) / math.sqrt(TERMINAL_AIM * level / nx)
+        inner_box = ca.Function("mpsc_terminal", [xN], [ca.vertcat(cube, -cube) - 1.0])
+        G = np.hstack([C, D[:, None], -sel]) if ns else None
+        self.sqp = RealTimeSQP(F, nx, N, stages, terminal, z_lo, z_hi,
+                               "hpipm", compiled, stage_rows=G, stage_bound=b if ns else None,
+                               stage_gradient=np.concatenate([np.zeros(nx + 1),
+                                                              np.full(ns, cfg.slack_weight * self._slack_scale)]),
+                               nz=nz, first_map=F0, terminal_constraint=inner_box)
+        # (P5): the backup plan's own rollout, each interval's input corrected by the LQR
+        # towards the plan's state at the interval's start (held over the interval)
+        s0, U, Rf = ca.SX.sym("s0", nx), ca.SX.sym("U", N), ca.SX.sym("R", nx, N)
+        Kd = ca.DM(self.K.reshape(1, -1))
+        lo_u = self.u_lo if math.isfinite(self.u_lo) else -1e19
+        hi_u = self.u_hi if math.isfinite(self.u_hi) else 1e19
+        # every RK4 step's state is returned, so that the certificate checks the bounds
+        # between the plan's nodes too (a cart at 3 m/s moves 0.3 m in one interval); the
+        # same plan rolled out on every vertex model of the [randomize] box below the
+        # nominal's (P6): the certificate asks it of all of them
+        blocks = []
+        for m in (model, *vertices):
+            F0m = m.rk4_map(self.dt0, 1, name="mpsc_first")
+            F_step = m.rk4_map(self.h / substeps, 1, name="mpsc_step")
+            x, cols, used = s0, [s0], []
+            for k in range(N):
+                u = (U[k] if k == 0 else
+                     ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - Rf[:, k]), lo_u), hi_u))
+                if k == 0:
+                    x = F0m(x, u)
+                    cols.append(x)
+                else:
+                    for _ in range(substeps):
+                        x = F_step(x, u)
+                        cols.append(x)
+                used.append(u)
+            used += [0.0] * (len(cols) - N)
+            blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
+        self._cols, self._models = len(cols), 1 + len(vertices)
+        roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf], [ca.vertcat(*blocks)])
+        self.rollout = compiled_function(roll) if compiled else roll
+        # evaluated through CasADi's buffer interface on persistent arrays (a Python call
+        # with its conversions costs 3-4 times the compiled rollout itself)
+        self._roll_in = (np.zeros(nx), np.zeros(N), np.zeros(nx * N))
+        self._roll_out = np.zeros((nx + 1) * self._models * self._cols)
+        self._roll_buffer, self._roll_eval = self.rollout.buffer()
+        for i, array in enumerate(self._roll_in):
+            self._roll_buffer.set_arg(i, memoryview(array))
+        self._roll_buffer.set_res(0, memoryview(self._roll_out))
+        self._maps = (F0, F)
+        self._angles = np.flatnonzero(model.angles)
+        self.reset_plan()
+
+    # -- state ----------------------------------------------------------------------------
+    def reset_plan(self) -> None:
+        #: the last certified plan's inputs (N,) and the samples since it was certified
+        #: the last certified plan: (U (N,), R (nx, N)) of (P5)
+        self.plan: tuple | None = None
+        self.plan_age = 0
+        #: the QP's last answer (its next warm start), certified or not
+        self.iterate_plan: tuple | None = None
+        #: the fallback's input for the interval it is in: (interval, u)
+        self._held: tuple[int, float] | None = None
+        self.fallbacks = self.infeasible_qp = self.rejected = self.no_plan = self.bisected = 0
+        self.max_slack = 0.0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.reset_plan()
+
+    def _prepare(self, obs: Observation) -> None:
+        perm = np.array([obs.names.index(n) for n in self.model.state_names], dtype=np.intp)
+        self._rows = (perm,)
+
+    # -- the certificate ------------------------------------------------------------------
+    def stage_at(self, tau: float) -> int | None:
+        """The plan's interval ``tau`` seconds after it was made (None: past its end)."""
+        if tau < self.dt0 - 1e-12:
+            return 0
+        k = 1 + int(math.floor((tau - self.dt0) / self.h + 1e-9))
+        return k if k < self.N else None
+
+    def shifted(self, plan: tuple | None, age: int, s: np.ndarray) -> tuple | None:
+        """``plan = (U, R)`` made ``age`` samples ago, on this sample's grid from state
+        ``s``: each new interval takes the input and reference state of the old interval
+        it starts in (past the plan's end: the LQR, U = 0 and R = 0)."""
+        if plan is None:
+            return None
+        U, R = plan
+        times = age * self.dt0 + np.concatenate([[0.0], self.dt0 + self.h * np.arange(self.N - 1)])
+        U2, R2 = np.zeros(self.N), np.zeros((self.nx, self.N))
+        for i, t in enumerate(times):
+            k = self.stage_at(t)
+            if k is not None:
+                U2[i], R2[:, i] = U[k], R[:, k]
+        R2[:, 0] = s
+        return U2, R2
+
+    def roll(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P5) from ``s``: the states at the plan's nodes (nx, N+1), the inputs applied
+        (N,), and the states after every RK4 step (nx, 2 + (N-1) substeps)."""
+        a, b, c = self._roll_in
+        a[:], b[:], c[:] = s, U, np.asarray(R, dtype=float).ravel(order="F")
+        self._roll_eval()
+        rows = (self.nx + 1) * self._models
+        out = self._roll_out.reshape(self._cols, rows).T             # column-major
+        every = out[:self.nx].copy()
+        nodes = np.hstack([every[:, :2], every[:, 1 + self.substeps::self.substeps]])
+        # every model's states stacked: (models, nx, steps)
+        allm = out.reshape(self._models, self.nx + 1, self._cols)[:, :self.nx]
+        return nodes, out[self.nx, :self.N].copy(), allm
+
+    def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool:
+        """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on the nonlinear
+        model, keeps the hard bounds at every node and ends in the terminal ellipsoid (P3);
+        if so it becomes the certified plan."""
+        _, _, S = self.roll(s, U, R)
+        if not np.all(np.isfinite(S)):
+            return False
+        inner = S[:, :, 1:]
+        if (np.any(inner < self.lo_check[None, :, None]) or
+                np.any(inner > self.hi_check[None, :, None])):
+            return False
+        end = S[:, :, -1]
+        if not np.all(np.einsum("mi,ij,mj->m", end, self.P, end) <= self.level):
+            return False
+        R = R.copy()
+        R[:, 0] = s
+        self.plan, self.plan_age, self._held = (U.copy(), R), 1, None
+        return True
+
+    def terminal_input(self, s: np.ndarray) -> float:
+        return min(max(float(-self.K @ s), self.u_lo), self.u_hi)
+
+    def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
+        """``(u, slack)``: steps 0-3 of the module docstring at full state ``s``."""
+        s = np.array(s, dtype=float)
+        s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
+        u_c = min(max(u_c, self.u_lo), self.u_hi) if math.isfinite(u_c) else math.nan
+        nz, nx, N = self.nz, self.nx, self.N
+        # the QP iterates from its own last answer (a real-time iteration converges over
+        # samples), certified or not; from the certified plan when it has none
+        warm = (self.shifted(self.iterate_plan, 1, s) or
+                self.shifted(self.plan, self.plan_age, s))
+        cold = warm is None
+        if cold:
+            # no plan yet: the saturated LQR (U = 0, R = 0 in (P5)), iterated
+            warm = (np.zeros(N), np.zeros((nx, N)))
+            warm[1][:, 0] = s
+        S0, U0, _ = self.roll(s, *warm)
+        if cold:
+            U0[0] = self.terminal_input(s)
+            S0, U0, _ = self.roll(s, U0, warm[1])
+        z = np.zeros(N * nz + nx)
+        body = z[:N * nz].reshape(N, nz)
+        body[:, :nx], body[:, nx] = S0[:, :N].T, U0
+        z[N * nz:] = S0[:, N]
+        # (P4)'s reference: the command for u_0, the upright at rest for the rest
+        zr = np.zeros_like(z)
+        zr[nx] = u_c if math.isfinite(u_c) else U0[0]
+        plan = None
+        slack = 0.0
+        if np.all(np.isfinite(z)):
+            try:
+                # one real-time iteration per sample (a cold start iterates)
+                z, _ = self.sqp.iterate(z, s, zr, 10 if cold else self.iterations, 1e-8)
+                body = z[:N * nz].reshape(N, nz)
+                plan = (np.clip(body[:, nx], self.u_lo, self.u_hi), body[:, :nx].T.copy())
+                slack = float(body[:, nx + 1:].max(initial=0.0))
+            except RuntimeError:
+                self.infeasible_qp += 1
+                self.sqp.reset()
+        else:
+            self.infeasible_qp += 1
+        self.iterate_plan = plan
+        # the last certified plan from now on, (P5) as it would go on (the fallback)
+        going_on = self.shifted(self.plan, self.plan_age, s) if self.plan is not None else None
+        if math.isfinite(u_c):
+            # 1: the command itself, then the QP's plan, or the certified one, on
+            for tail in (plan, going_on):
+                if tail is not None:
+                    candidate = tail[0].copy()
+                    candidate[0] = u_c
+                    if self.certifies(s, candidate, tail[1]):
+                        return u_c, slack if tail is plan else 0.0
+        # 2: the closest certifiable input: the QP's, else the closest to u_c between
+        # u_c and the certified plan's own input now, by bisection on the certificate
+        if plan is not None:
+            if self.certifies(s, *plan):
+                self.max_slack = max(self.max_slack, slack)
+                return float(plan[0][0]), slack
+            self.rejected += 1
+        k = self.stage_at(self.plan_age * self.dt0) if self.plan is not None else None
+        if going_on is not None and k is not None:
+            held = self.tracking_input(s, k, self.plan_age * self.dt0)
+            kept = (self.plan, self.plan_age, self._held)
+            good, bad = None, u_c if math.isfinite(u_c) else None
+            candidate = going_on[0].copy()
+            candidate[0] = held
+            if self.certifies(s, candidate, going_on[1]):
+                good = held
+                for _ in range(BISECTIONS if bad is not None else 0):
+                    mid = 0.5 * (good + bad)
+                    candidate[0] = mid
+                    if self.certifies(s, candidate, going_on[1]):
+                        good = mid
+                    else:
+                        bad = mid
+                candidate[0] = good
+                self.certifies(s, candidate, going_on[1])
+                self.bisected += 1
+                return good, 0.0
+            self.plan, self.plan_age, self._held = kept
+        # 3: the last certified plan goes on, its states tracked by the LQR at every
+        # sample (the certificate's rollout (P5) corrected once per interval: on the model
+        # the two coincide; on a machine that is not the model, a correction held for a
+        # whole interval let the state run off); past its end the LQR
+        self.plan_age += 1
+        if k is None:
+            self.no_plan += 1
+            return self.terminal_input(s), 0.0
+        self.fallbacks += 1
+        return self.tracking_input(s, k, (self.plan_age - 1) * self.dt0), 0.0
+
+    def tracking_input(self, s: np.ndarray, k: int, tau: float) -> float:
+        """The certified plan's input in interval ``k`` at ``tau`` seconds into the plan,
+        corrected by the LQR towards its state there (interpolated between the nodes)."""
+        U, R = self.plan
+        if k == 0:
+            return float(U[0])
+        start = self.dt0 + (k - 1) * self.h
+        a = min(max((tau - start) / self.h, 0.0), 1.0)
+        ref = R[:, k] if k + 1 >= self.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
+        return min(max(float(U[k] - self.K @ (s - ref)), self.u_lo), self.u_hi)
+
+    def more_metrics(self) -> dict[str, Any]:
+        n = self.samples
+        return {"solver": "hpipm", "horizon_s": self.dt0 + (self.N - 1) * self.h,
+                "fallbacks": self.fallbacks, "no_plan": self.no_plan,
+                "infeasible_samples": self.infeasible_qp, "rejected_samples": self.rejected,
+                "bisected_samples": self.bisected,
+                "fallback_share": (self.fallbacks + self.no_plan) / n if n else None,
+                "max_slack": self.max_slack, "terminal_level": self.level}
+
+
+def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSafetyFilter:
+    """``inner`` behind the predictive safety filter on the scenario's nominal ``machine``
+    (:func:`tspend.loop.simulation.nominal_machine`)."""
+    from tspend.controllers.full_model import full_model_and_constraints, has_full_state
+    from tspend.controllers.lqr import default_state_weights, design_model, lqr_full_gain
+    from tspend.controllers.mpc import ocp_constraints
+    from tspend.plants import registry
+    from tspend.task import build_task
+
+    if not has_full_state(scenario):
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": plant "
+                            f"'{scenario.plant.kind}' has no full-state model to plan on; "
+                            f"allowed: \"off\"")
+    from tspend.runtime.extras import missing_extra
+
+    problem = missing_extra("casadi", "safety.filter = \"mpsc\"")
+    if problem:
+        raise ScenarioError(problem)
+    cfg = scenario.safety
+    model, cs = full_model_and_constraints(scenario, machine)
+    nx = model.size
+    lo, hi, u_lo, u_hi, rows, _ = ocp_constraints(model, cs, 0.0)
+    lo = np.where(lo <= -1e19, -np.inf, lo)
+    hi = np.where(hi >= 1e19, np.inf, hi)
+    # the fall angle is a constraint of the safe set: the certified plans keep the pole up
+    task = build_task(machine, scenario.task, scenario.effects,
+                      where=str(scenario.path))
+    for j, limit in enumerate(task.lo_limits):
+        if limit is not None and limit.status == "fell":
+            i = model.state_names.index(task.names[j])
+            lo[i], hi[i] = max(lo[i], task.lo[j]), min(hi[i], task.hi[j])
+    # the margin: a share of each two-sided bound's half-width (the room a machine that
+    # is not the model needs), kept by the plan at its nodes and by the certificate at
+    # every RK4 step
+    half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
+    bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
+              lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
+    A, B = design_model(scenario)
+    b_pole = float(B[model.dof + model.pole, 0])
+    Q = np.diag(default_state_weights(model))
+    K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
+    K = np.asarray(K, dtype=float).ravel()
+    # (P3): inside every tightened bound and |K s| <= the input's reach
+    ell_rows = []
+    for i in range(nx):
+        if math.isfinite(bounds[0][i]) and math.isfinite(bounds[1][i]):
+            e = np.zeros(nx)
+            e[i] = 1.0
+            ell_rows.append((e, min(-bounds[0][i], bounds[1][i])))
+    reach = min(abs(u_lo), abs(u_hi))
+    if math.isfinite(reach):
+        ell_rows.append((K, reach))
+    level = terminal_level(P, ell_rows)
+    if not math.isfinite(level):
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": no bound limits the "
+                            f"terminal set (no position bound, fall angle or input range)")
+    models, _ = vertex_models(scenario)
+    h, horizon, _ = plan_grid(K.reshape(1, -1), model, cfg)
+    level = recurrent_level([model] + models, P, K, level, bounds[0], bounds[1], u_lo, u_hi,
+                            horizon * h, np.random.default_rng(0))
+    if level <= 0.0:
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": the LQR's ellipsoid "
+                            f"shrank to nothing without the LQR keeping it safe on the "
+                            f"machine and its [randomize] vertices")
+    sample = inner.sample_period or scenario.run.dt
+    return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
+                                  level, Q, b_pole ** 2, tuple(models))
