@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 from tspend.runtime.jit import STAMP, invalidate_stale_cache, sources_digest
@@ -23,8 +24,9 @@ def _cache_files(pkg: Path) -> list[Path]:
 def test_unchanged_sources_keep_the_cache(tmp_path: Path) -> None:
     pkg = _package(tmp_path)
     invalidate_stale_cache(pkg)            # first sight: stamps the sources
-    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(b"index")
-    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(b"code")
+    # whole pickles, as numba writes them (a damaged file is removed: tests/test_caches.py)
+    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(pickle.dumps("index") * 2)
+    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(pickle.dumps("code"))
     assert invalidate_stale_cache(pkg) is False
     assert len(_cache_files(pkg)) == 2
     assert (pkg / "__pycache__" / STAMP).read_text().strip() == sources_digest(pkg)
@@ -33,8 +35,9 @@ def test_unchanged_sources_keep_the_cache(tmp_path: Path) -> None:
 def test_a_changed_callee_drops_every_cached_function(tmp_path: Path) -> None:
     pkg = _package(tmp_path)
     invalidate_stale_cache(pkg)
-    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(b"index")
-    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(b"code")
+    # whole pickles, as numba writes them (a damaged file is removed: tests/test_caches.py)
+    (pkg / "__pycache__" / "a.f-1.py311.nbi").write_bytes(pickle.dumps("index") * 2)
+    (pkg / "sub" / "__pycache__" / "b.g-2.py311.1.nbc").write_bytes(pickle.dumps("code"))
     (pkg / "sub" / "b.py").write_text("y = 3\n")    # only the callee's file changes
     assert invalidate_stale_cache(pkg) is True
     assert _cache_files(pkg) == []

@@ -525,7 +525,7 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
     half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
     bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
               lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    A, B = design_model(scenario)
+    A, B = design_model(scenario, machine)
     b_pole = float(B[model.dof + model.pole, 0])
     Q = np.diag(default_state_weights(model))
     K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
