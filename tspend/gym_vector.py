@@ -232,22 +232,16 @@ class TspendVectorEnv(VectorEnv):
                 env._u = float(u[i])
                 status[i], message[i] = env._status(int(code[i]), int(done[i]), float(u[i])) \
                     if self.compiled else ended_as[i]
-        every = np.ones(self.num_envs, dtype=bool)
-        infos = {"t": clock * self.dt, "_t": every, "u": u, "_u": every,
-                 "status": status, "_status": every, "message": message,
-                 "_message": terminated.copy()}
-        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
-            self._autoreset = ended
-        elif ended.any():
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            final_info = np.full(self.num_envs, None, dtype=object)
-            for i in np.flatnonzero(ended):
-                final_obs[i] = self._out(self._obs[i])
-                final_info[i] = {"t": float(clock[i] * self.dt), "status": status[i],
-                                 "message": message[i], "u": float(u[i])}
+        def reset(which: np.ndarray) -> None:
+            for i in np.flatnonzero(which):
                 self._obs[i], _ = self.envs[i].reset()
-            infos.update(final_obs=final_obs, _final_obs=ended, final_info=final_info,
-                         _final_info=ended)
+
+        next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
+        if next_step:
+            self._autoreset = ended
+        infos = envstep.vector_step_infos(clock * self.dt, u, status, message, terminated,
+                                          ended, not next_step,
+                                          lambda i: self._out(self._obs[i]), reset)
         return self._out(self._obs), reward.copy(), terminated, truncated, infos
 
     def render(self):

@@ -283,3 +283,27 @@ def env_steps(ints: np.ndarray, floats: np.ndarray, u: np.ndarray, skip: np.ndar
         mine = carray(_f64(row[OBS]), (n,))
         for j in range(n):
             obs[e, j] = mine[j]
+
+
+def vector_step_infos(t: np.ndarray, u: np.ndarray, status: np.ndarray, message: np.ndarray,
+                      terminated: np.ndarray, ended: np.ndarray, reset_now: bool,
+                      final_obs_of, reset) -> dict:
+    """The infos of one step of a vector env, in gymnasium's layout (each key with its
+    ``_key`` mask), for the CPU and the MJX vector envs alike.  ``reset_now`` (every
+    autoreset mode but next-step): the ended envs' final observations
+    (``final_obs_of(i)``) and infos go into the infos, then ``reset(ended)`` resets them."""
+    every = np.ones(len(u), dtype=bool)
+    infos = {"t": t, "_t": every, "u": u, "_u": every, "status": status, "_status": every,
+             "message": message, "_message": terminated.copy()}
+    if reset_now and ended.any():
+        final_obs = np.full(len(u), None, dtype=object)
+        final_info = np.full(len(u), None, dtype=object)
+        for i in np.flatnonzero(ended):
+            final_obs[i] = final_obs_of(i)
+            final_info[i] = {"t": float(t[i]), "status": status[i], "message": message[i],
+                             "u": float(u[i])}
+        reset(ended)
+        infos.update(final_obs=final_obs, _final_obs=ended, final_info=final_info,
+                     _final_info=ended)
+    return infos
+

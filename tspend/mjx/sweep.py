@@ -220,12 +220,10 @@ def run_jobs(jobs: Iterable[Any], precision: str = "float64",
              batch: int = MAX_BATCH) -> Iterator[dict[str, Any]]:
     """The rows of a sweep's ``jobs`` (:class:`tspend.sweep.plan.Job`), each scenario
     point and controller kind one batch of its seeds; the rows as
-    :func:`tspend.sweep.worker.run_job` makes them."""
-    from tspend import __version__
-    from tspend.loop.metrics import METRIC_KEYS, flatten
+    :func:`tspend.sweep.worker.run_job` makes them (:func:`tspend.sweep.worker.table_row`)."""
     from tspend.loop.simulation import prepare
     from tspend.mjx.machines import build_fleet
-    from tspend.sweep.worker import METRIC_COLUMNS
+    from tspend.sweep.worker import table_row
 
     groups: dict[tuple[int, Any], list] = {}
     for job in jobs:
@@ -241,16 +239,8 @@ def run_jobs(jobs: Iterable[Any], precision: str = "float64",
             recording = None
             if job.record == "all" or (job.record == "failed" and status != "completed"):
                 recording = _cpu_recording(job)
-            row: dict[str, Any] = {"scenario": job.label}
-            row.update(job.grid)
-            row.update(seed=job.seed, controller=job.controller, status=status, message=message)
-            row.update({k: metrics.get(k) for k in METRIC_COLUMNS})
-            row.update({k: v for k, v in flatten(metrics).items()
-                        if k not in row and k not in METRIC_KEYS})
-            row.update(version=__version__, scenario_hash=job.scenario_hash,
-                       recording=recording, job_s=built + float(metrics.get("wall_s") or 0.0),
-                       run_key=job.key)
-            yield row
+            yield table_row(job, status, message, metrics, recording,
+                            built + float(metrics.get("wall_s") or 0.0))
 
 
 def _cpu_recording(job: Any) -> str | None:

@@ -174,22 +174,13 @@ class MjxVectorEnv(VectorEnv):
                     full[i], self._clock[i] * self.dt) or ("diverged", "")
             else:
                 status[i], message[i] = "diverged", "the state is not finite"
-        every = np.ones(self.num_envs, dtype=bool)
-        infos = {"t": self._clock * self.dt, "_t": every, "u": u, "_u": every,
-                 "status": status, "_status": every, "message": message,
-                 "_message": terminated.copy()}
-        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+        next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
+        if next_step:
             self._autoreset = ended
-        elif ended.any():
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            final_info = np.full(self.num_envs, None, dtype=object)
-            for i in np.flatnonzero(ended):
-                final_obs[i] = self._out(self._obs[i])
-                final_info[i] = {"t": float(self._clock[i] * self.dt), "status": status[i],
-                                 "message": message[i], "u": float(u[i])}
-            self._reset_some(ended)
-            infos.update(final_obs=final_obs, _final_obs=ended, final_info=final_info,
-                         _final_info=ended)
+        # t before the reset: the clock of an env reset here restarts at 0
+        infos = envstep.vector_step_infos(self._clock * self.dt, u, status, message,
+                                          terminated, ended, not next_step,
+                                          lambda i: self._out(self._obs[i]), self._reset_some)
         return self._out(self._obs), reward, terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:

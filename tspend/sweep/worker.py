@@ -89,6 +89,15 @@ def run_job(job: Job) -> dict[str, Any]:
         if job.record == "failed" and status != "completed":
             recording = Path(job.record_path)
             _attempt(job, recording)
+    return table_row(job, status, message, metrics,
+                     str(recording) if recording is not None else None,
+                     time.perf_counter() - started)
+
+
+def table_row(job: Job, status: str, message: str, metrics: dict, recording: str | None,
+              job_s: float) -> dict[str, Any]:
+    """The sweep table's row of ``job`` (whichever backend ran it): its identity, how it
+    ended, every metric, where it is recorded and how long it took."""
     row: dict[str, Any] = {"scenario": job.label}
     row.update(job.grid)
     row.update(seed=job.seed, controller=job.controller, status=status, message=message)
@@ -96,9 +105,8 @@ def run_job(job: Job) -> dict[str, Any]:
     # the whole machine's metrics, flattened: joints.slider.max_abs, plant.M, ...
     row.update({k: v for k, v in flatten(metrics).items()
                 if k not in row and k not in METRIC_KEYS})
-    row.update(version=__version__, scenario_hash=job.scenario_hash,
-               recording=str(recording) if recording is not None else None,
-               job_s=time.perf_counter() - started, run_key=job.key)
+    row.update(version=__version__, scenario_hash=job.scenario_hash, recording=recording,
+               job_s=job_s, run_key=job.key)
     return row
 
 
