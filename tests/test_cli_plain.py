@@ -138,8 +138,9 @@ def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
     whole, _ = recording_table(tmp_path / "f.rrd")
     ref = tspend.run("pendulum_mujoco", duration=2.0).to_pandas()
     assert len(table) == len(ref) == 2000
-    for column in ("hinge_rad", "hinge_dot_rad_s", "slider_m", "slider_dot_m_s", "ref_rad", "u_N"):
+    for column in ("hinge_rad", "hinge_dot_rad_s", "slider_m", "slider_dot_m_s", "ref_rad", "u_N",
+                   "d_N"):
         assert table[column].notna().all(), column
         np.testing.assert_array_equal(table[column].to_numpy(), whole[column].to_numpy())
         np.testing.assert_array_equal(table[column].to_numpy(), ref[column].to_numpy())
-    assert table["d_N"].notna().sum() == 100  # a diagnostic at 50 Hz
+    assert table["e_hinge_rad"].notna().sum() == 100  # a diagnostic at 50 Hz

@@ -250,8 +250,10 @@ def test_full_state_recorded_with_the_domains_names(default_run: Path) -> None:
     _, x1 = read_scalar_series(default_run, "series/tracking", 1)
     np.testing.assert_array_equal(hinge, x1)
     _, cart = read_scalar_series(default_run, "series/state/slider")
-    _, cart_pos = read_scalar_series(default_run, "series/plant/cart_pos")
-    np.testing.assert_array_equal(cart, cart_pos)
+    # the plant's extra that repeats a state (the cart's position is the slide joint's) is
+    # in no view, and a compact recording leaves it out
+    with pytest.raises(KeyError):
+        read_scalar_series(default_run, "series/plant/cart_pos")
 
 
 def test_rail_ends_drawn_and_a_terminated_run_marked_where_it_ended(tmp_path: Path) -> None:

@@ -191,8 +191,8 @@ def add_scenario_options(p: argparse.ArgumentParser, recording: bool = True,
                            metavar="HZ",
                            help="rate of simulated time at which the plots and the controller's "
                                 "diagnostics are recorded (default 50; its membership functions at "
-                                "2 Hz); the state, the reference and the applied input keep every "
-                                "sample whatever this is; 0 records every series and snapshot as it "
+                                "2 Hz); the state, the reference, the applied input and the "
+                                "disturbance keep every sample whatever this is; 0 records every series and snapshot as it "
                                 "comes (about three times larger)")
         p.add_argument("--spawn", action="store_true", help="also stream to a live Rerun viewer")
         p.add_argument("--connect", metavar="URL",

@@ -66,8 +66,9 @@ class SeriesSpec:
     #: each series' column in an exported table, unit at the end (``theta_rad``);
     #: "" leaves it out (a copy of a series exported from another entity)
     columns: tuple[str, ...] = ()
-    #: recorded at every recorded sample: the state, the reference and the applied input
-    #: (what a run is); every other series is a diagnostic (thinned by a compact recording)
+    #: recorded at every recorded sample: the state, the reference, the applied input and
+    #: the disturbance (what a run is); every other series is a diagnostic (thinned by a
+    #: compact recording)
     every_sample: bool = False
     #: the entity each exported column belongs with in the table's order (the samples
     #: entity of a compact recording holds columns of several); empty: this one
@@ -319,7 +320,10 @@ def series_specs(order: int, extras: Sequence[str] = (), diagnostics: Sequence[D
     # only labels the views)
     viewed = (tuple(full[list(state_names).index(v)]._replace(column=name_slug(v)) for v in view)
               if full and all(v in state_names for v in view) else labels.states)
-    exact = ("series/reference", "series/control") + (() if full else ("series/tracking",))
+    # what drives and what is the machine: the input applied and the disturbance acting
+    # (an identification fits both), the reference, the state
+    exact = ("series/reference", "series/control", "series/disturbance") + (
+        () if full else ("series/tracking",))
     return [_with_columns(replace(spec, every_sample=spec.entity in exact
                                   or spec.entity.startswith("series/state/")),
                           labels, viewed, bool(full), diagnostics) for spec in specs]
@@ -392,14 +396,14 @@ def export_columns(specs: Sequence[SeriesSpec], view: Sequence[str] = ()) -> lis
     return [(column, entity, j) for _, column, entity, j in found]
 
 
-#: a compact recording's entity of every sample of the state, the reference r and the
-#: applied input, the columns an export takes them from (no view draws it)
+#: a compact recording's entity of every sample of the state, the reference r, the applied
+#: input and the disturbance, the columns an export takes them from (no view draws it)
 SAMPLES_ENTITY = "series/samples"
 
 
 def compact_specs(specs: Sequence[SeriesSpec]) -> list[SeriesSpec]:
-    """The specs of a compact recording (docs/recordings.md): the state, r and the applied
-    input go at every sample into one entity, :data:`SAMPLES_ENTITY` (a row of Rerun costs
+    """The specs of a compact recording (docs/recordings.md): the state, r, the applied
+    input and the disturbance go at every sample into one entity, :data:`SAMPLES_ENTITY` (a row of Rerun costs
     ~28 bytes besides its values, so one row for all of them instead of one per series
     cuts a default run's recording by two thirds); every view, theirs too, becomes a
     diagnostic the sink thins, and exports its columns only where the samples do not hold
@@ -413,10 +417,12 @@ def compact_specs(specs: Sequence[SeriesSpec]) -> list[SeriesSpec]:
     out: list[SeriesSpec] = []
     for spec in specs:
         if not spec.every_sample:
-            out.append(spec)
-            continue
-        # the reference's derivatives stay diagnostics: r itself is what was tracked
-        take = 1 if spec.entity == "series/reference" else len(spec.lookup)
+            if spec.group or any(spec.columns):
+                out.append(spec)  # a view, or exported: kept (thinned)
+            continue  # in no view and exported from elsewhere (the cart's position again)
+        # r's derivatives and the controller's estimates of d (its panel's other series)
+        # stay diagnostics: r itself is what was tracked, d what acted
+        take = 1 if spec.entity in ("series/reference", "series/disturbance") else len(spec.lookup)
         getters.append(lambda d, f=spec.extract, k=take: f(d)[:, :k])
         names += spec.names[:take]
         keys += spec.lookup[:take]
@@ -427,7 +433,7 @@ def compact_specs(specs: Sequence[SeriesSpec]) -> list[SeriesSpec]:
         out.append(replace(spec, every_sample=False, columns=kept))
     if not getters:
         return list(specs)
-    out.append(SeriesSpec(SAMPLES_ENTITY, "every sample of the state, r and the applied input",
+    out.append(SeriesSpec(SAMPLES_ENTITY, "every sample of the state, r, the applied input and d",
                           tuple(names), tuple(colors), _stack(*getters), keys=tuple(keys),
                           group="", every_sample=True, columns=tuple(columns),
                           origins=tuple(origins)))

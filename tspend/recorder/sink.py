@@ -27,9 +27,9 @@ from tspend.recorder.stream import close_recording, flush
 #: rate of the 3D cart-pole frames (Hz of simulated time)
 FRAME_HZ = 50.0
 #: a compact recording's rate of the views and diagnostics (Hz of simulated time); the
-#: state, the reference and the applied input keep every sample in their own entity
-#: (series.compact_specs, docs/recordings.md). The sink's default, 0, records every series
-#: at every sample; tspend run and sweep record compactly unless told otherwise.
+#: state, the reference, the applied input and the disturbance keep every sample in their
+#: own entity (series.compact_specs, docs/recordings.md). The sink's default, 0, records
+#: every series at every sample; tspend run records compactly unless told otherwise.
 DIAGNOSTICS_HZ = 50.0
 #: a compact recording's rate of the controller's inner snapshots (membership functions,
 #: firing, consequents: they adapt over seconds), Hz of simulated time
@@ -128,7 +128,7 @@ class RerunSink:
     ``variant`` 1 lightens the colours, so overlaid runs stay distinguishable.
     ``curves_every`` decimates the per-step series (1 = every step, exact);
     ``diagnostics_hz`` > 0 makes the recording compact (:func:`~tspend.recorder.series.compact_specs`:
-    the state, r and the applied input at every recorded step in one entity, every view and
+    the state, r, the applied input and d at every recorded step in one entity, every view and
     diagnostic at this rate of simulated time); ``frame_hz`` is the rate of 3D frames; ``decimated_rows`` and ``max_latency_s``
     bound how long 3D frames and snapshots wait before they are sent.  At :meth:`start`
     the sink sends :func:`build_blueprint` for ``blueprint_prefixes``: ``"own"`` (its own
