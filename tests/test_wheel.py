@@ -81,6 +81,12 @@ def test_list_show_and_run_from_an_empty_folder(installed):
     plan = _tspend(installed, "run", "double_cartpole_swingup", "--duration", "0.05",
                    "--no-record")
     assert plan.returncode == 0, plan.stderr
+    # the README's commands that name shipped files, from a folder that has none of them
+    inspected = _tspend(installed, "inspect", "models/double_cartpole.xml")
+    assert inspected.returncode == 0 and "an articulated model" in inspected.stdout, inspected.stderr
+    custom = _tspend(installed, "run", "ex3_pendulum_ode", "--controller",
+                     "examples/custom_controller.py:SaturatedPD", "--duration", "0.05", "--no-record")
+    assert custom.returncode == 0, custom.stderr
     assert not any(p.name not in ("p.toml", "a.json", "b.json", "x.rrd") for p in work.iterdir())
 
 

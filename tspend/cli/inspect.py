@@ -12,7 +12,8 @@ from pathlib import Path
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("inspect", help="read an MJCF model as it is and list how it "
                                               "departs from its domain's ODE")
-    p.add_argument("model", help="MJCF file")
+    p.add_argument("model", help="MJCF file (a path, or a shipped model such as "
+                                 "models/double_cartpole.xml)")
     p.add_argument("--slide", default=None, metavar="JOINT",
                    help="the cart's slide joint (default: the only slide joint)")
     p.add_argument("--hinge", default=None, metavar="JOINT",
@@ -47,11 +48,15 @@ def _cmd(args: argparse.Namespace) -> int:
     json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
         check_writable(json_path, "json")
-    domain = _domain_of(args.model)
+    from tspend.shipped import locate
+
+    # as given, else the shipped model of that name (models/cartpole.xml from any folder)
+    model = str(args.model if Path(args.model).is_file() else locate(args.model) or args.model)
+    domain = _domain_of(model)
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}
-    facts, departures = domain.inspect(args.model, names=names, dt=args.dt)
-    touching = contacts_at_rest(args.model)
+    facts, departures = domain.inspect(model, names=names, dt=args.dt)
+    touching = contacts_at_rest(model)
     facts["contacts_at_q0"] = touching or "none"
     if touching:
         departures = [*departures, f"contacts active at the model's initial pose (qpos0): "

@@ -84,6 +84,12 @@ def _module(where: str, option: str) -> ModuleType:
     if where.endswith(".py") or "/" in where or "\\" in where:
         path = Path(where).expanduser()
         if not path.is_file():
+            # examples/custom_controller.py:SaturatedPD works from any folder: the working
+            # folder's file first, then the shipped one (tspend.shipped.locate)
+            from tspend.shipped import locate
+
+            path = locate(path) or path
+        if not path.is_file():
             raise ScenarioError(f"{option} {where}: no such file")
         if path.suffix != ".py":
             raise ScenarioError(f"{option} {where}: expected a .py file")

@@ -1,7 +1,7 @@
 """Where the shipped models, policies, scenarios and plans are.
 
 The repository keeps them at its top level (``models/``, ``models/policies/``,
-``scenarios/``, ``scenarios/plans/``), where users and the documents expect them. The
+``scenarios/``, ``scenarios/plans/``, ``examples/``), where users and the documents expect them. The
 wheel ships the same folders inside this package (pyproject.toml maps the data packages
 ``tspend.shipped.models`` and ``tspend.shipped.scenarios`` onto them), so an installed
 tspend finds them through :mod:`importlib.resources` from any working folder; a source
