@@ -27,15 +27,9 @@ QUICK_START = (
     "python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && "
     ".venv/bin/python -m pytest -q",
 )
-#: how each command is shortened: options appended (the last of a repeated option wins)
-SHORT = {
-    "run": ["--duration", "0.3"],
-    # the open loop at least the 0.5 s a cross-check must compare to be conclusive
-    "crosscheck": ["--duration", "0.3", "--open-loop-duration", "0.6"],
-    "sweep": ["--duration", "0.3", "--jobs", "1"],
-    "compare": ["--duration", "0.3", "--jobs", "1", "--resamples", "100"],
-    "figures": ["--duration", "0.3"],
-}
+#: how each command is shortened: tools/check_docs.py's rule, the one both checks use
+sys.path.insert(0, str(ROOT / "tools"))
+from check_docs import SHORT  # noqa: E402
 
 
 def blocks(path: Path, language: str = "") -> list[str]:

@@ -54,7 +54,8 @@ from tspend.controllers.base import Observation
 from tspend.loop import envstep
 from tspend.errors import DivergenceError, ScenarioError, TspendError
 
-__all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "env_id", "register_all"]
+__all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "autoreset_mode_of",
+           "env_id", "register_all"]
 
 #: the namespace of the registered ids: ``tspend/<scenario>-v0``
 ENV_PREFIX = "tspend"
@@ -598,3 +599,18 @@ def register_all() -> list[str]:
 
 
 register_all()
+
+
+def autoreset_mode_of(value: Any) -> "gymnasium.vector.AutoresetMode":
+    """A vector env's ``autoreset_mode`` (the CPU's and the MJX's): next step or same step
+    (ScenarioError, one line, for anything else)."""
+    from gymnasium.vector import AutoresetMode
+
+    try:
+        mode = AutoresetMode(value)
+    except ValueError:
+        raise ScenarioError(f"autoreset_mode {value!r}: allowed: NextStep, SameStep") from None
+    if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+        raise ScenarioError(f"autoreset_mode {mode.value}: allowed: NextStep, SameStep")
+    return mode
+

@@ -44,7 +44,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv  # noqa: E402
 from gymnasium.vector.utils import batch_space  # noqa: E402
 
 from tspend.errors import ScenarioError
-from tspend.gym import TspendEnv
+from tspend.gym import TspendEnv, autoreset_mode_of
 from tspend.loop import envstep
 
 __all__ = ["TspendVectorEnv"]
@@ -109,13 +109,7 @@ class TspendVectorEnv(VectorEnv):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ScenarioError(f"num_envs {num_envs!r}: must be an integer >= 1")
         options.pop("max_episode_steps", None)   # make_vec's; the scenario's duration rules
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ScenarioError(f"autoreset_mode {autoreset_mode!r}: allowed: NextStep, "
-                                f"SameStep") from None
-        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
-            raise ScenarioError(f"autoreset_mode {mode.value}: allowed: NextStep, SameStep")
+        mode = autoreset_mode_of(autoreset_mode)
         scn = load_scenario(scenario)
         overrides = dict(overrides or {})
         if overrides:

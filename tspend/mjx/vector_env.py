@@ -60,13 +60,9 @@ class MjxVectorEnv(VectorEnv):
         if np.any(np.asarray(noise, dtype=float) != 0.0):
             raise ScenarioError("backend='mjx': init_noise is not supported (every episode "
                                 "starts where a run starts)")
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ScenarioError(f"autoreset_mode {autoreset_mode!r}: allowed: NextStep, "
-                                f"SameStep") from None
-        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
-            raise ScenarioError(f"autoreset_mode {mode.value}: allowed: NextStep, SameStep")
+        from tspend.gym import autoreset_mode_of
+
+        mode = autoreset_mode_of(autoreset_mode)
         self.precision = set_precision(precision)
         self._dtype = jnp.float64 if precision == "float64" else jnp.float32
         scn = load_scenario(scenario)
