@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from tspend import load_scenario, override, run
+from short_mode import short_defaults
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 20_000
@@ -84,6 +85,7 @@ def median(fn, repeat: int) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
+    short_defaults(ap, repeat=1)
     args = ap.parse_args()
     mj_scn = override(load_scenario("pendulum_mujoco"), **{"run.duration": 20.0})
     ode_scn = override(load_scenario("ex3_pendulum_ode"), **{"run.duration": 20.0})

@@ -26,6 +26,7 @@ import time
 from tspend import load_scenario, override, run, sweep
 from tspend.loop.simulation import prepare
 from tspend.sweep.executors import LocalPool
+from short_mode import short_defaults
 
 KINDS = ("second_type", "pd", "lqr", "sliding_mode", "feedback_linearization", "wang_indirect")
 
@@ -67,6 +68,7 @@ def main() -> None:
     ap.add_argument("--throughput-kinds", default="pd,wang_indirect")
     ap.add_argument("--throughput-runs", type=int, default=2000)
     ap.add_argument("--workers", type=int, default=2)
+    short_defaults(ap, rounds=1, throughput_runs=10)
     args = ap.parse_args()
     scenario = override(load_scenario(args.scenario), **{"run.duration": 20.0})
     kinds = args.kinds.split(",")

@@ -7,7 +7,9 @@ Run from the project root::
 The baseline is one ``mujoco.mj_step`` of ``models/cartpole.xml`` (RK4, 1 ms), measured
 in this process.  Each kind is built for ``pendulum_mujoco`` (and the oracle also for
 Example 1, where it runs Newton's method) and called as the runner calls it,
-``controller.step(obs, dt)`` (an Observation whose full state is the view) with states and references near the operating region;
+``controller.step(obs, dt)`` with the Observation the runner builds (the plant's full
+state, the task's view of it, its constraints) at states and references near the
+operating region;
 each figure is the median over blocks of the mean cost of one call in the block.
 """
 
@@ -26,8 +28,9 @@ if str(ROOT) not in sys.path:
 
 from tspend import load_scenario  # noqa: E402
 from tspend.controllers import KINDS  # noqa: E402
-from tspend.loop.simulation import build_controller  # noqa: E402
-from tspend.controllers.base import chain_observation  # noqa: E402
+from tspend.controllers.base import Observation  # noqa: E402
+from tspend.loop.simulation import build_controller, build_plant, scenario_task  # noqa: E402
+from short_mode import short_defaults
 
 
 def median_cost(call, items: list, blocks: int, per_block: int) -> float:
@@ -70,8 +73,19 @@ def kind_cost(scenario_name: str, kind: str, blocks: int, per_block: int) -> flo
     scale = 0.1 if s.plant.kind.startswith("cartpole") else 0.5
     t = rng.uniform(0, 20, 256)
     refs = s.reference.derivatives(t, n)
-    items = [chain_observation(refs[i, :n] + rng.normal(scale=0.1 * scale, size=n), refs[i])
-             for i in range(256)]
+    # the observation the runner builds: the full state (the view near its reference, the
+    # other states at the start's), the task's view of it, its names and constraints (a
+    # full-state kind such as mpc reads the whole state)
+    task = scenario_task(s, build_plant(s))
+    start = np.zeros(len(task.names))
+    items = []
+    for i in range(256):
+        full = start.copy()
+        full[list(task.view_index)] = refs[i, :n] + rng.normal(scale=0.1 * scale, size=n)
+        # the sample's time held at 0: a time-varying kind (tvlqr) stays at its plan's
+        # first sample as the items cycle
+        items.append(Observation(0.0, full, full[list(task.view_index)], refs[i],
+                                 task.names, task.constraints))
     dt = s.run.dt
     step = ctrl.step
     return median_cost(lambda obs: step(obs, dt), items, blocks, per_block)
@@ -81,6 +95,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--blocks", type=int, default=31)
     ap.add_argument("--per-block", type=int, default=2000)
+    short_defaults(ap, blocks=3, per_block=100)
     a = ap.parse_args()
     base = bare_mj_step(a.blocks, a.per_block)
     print(f"bare mj_step (models/cartpole.xml, RK4): {base * 1e6:.2f} us")

@@ -30,6 +30,7 @@ if str(ROOT) not in sys.path:
 
 from tspend.config import ControllerConfig, SetSpec  # noqa: E402
 from tspend.controllers.paper.controller import make_controller  # noqa: E402
+from short_mode import judged, short_defaults  # noqa: E402
 
 #: the target of the benchmark: a controller step costs at most this many mj_steps
 TARGET_RATIO = 0.6
@@ -182,6 +183,7 @@ def main() -> int:
     ap.add_argument("--blocks", type=int, default=31, help="timed blocks per figure")
     ap.add_argument("--per-block", type=int, default=2000, help="calls per block (numba)")
     ap.add_argument("--no-startup", action="store_true", help="skip the start-up figure")
+    short_defaults(ap, blocks=3, per_block=200)
     a = ap.parse_args()
     blocks, per = a.blocks, a.per_block
 
@@ -220,7 +222,7 @@ def main() -> int:
               f"(of which in-process {inner:.3f} s)   (limit {STARTUP_LIMIT_S:g} s: "
               f"{'met' if good else 'MISSED'})")
         ok = ok and good
-    return 0 if ok else 1
+    return 0 if ok or not judged() else 1
 
 
 if __name__ == "__main__":

@@ -43,6 +43,7 @@ import numpy as np
 import numba
 
 import tspend.gym  # noqa: F401  (registers tspend/<scenario>-v0)
+from short_mode import short_defaults
 
 ENV_ID = "tspend/pendulum_mujoco-v0"
 PERIOD = 0.02
@@ -131,6 +132,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="largest N run with make_vec 'async' (one process per env)")
     ap.add_argument("--vector-seconds", type=float, default=0.6,
                     help="about this long per vector measurement")
+    short_defaults(ap, repeat=1, steps=300, sizes="1,4", async_max=4, vector_seconds=0.1)
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
 

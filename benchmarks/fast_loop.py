@@ -24,6 +24,7 @@ from numba import njit
 
 from tspend import load_scenario, override, run
 from tspend.loop.simulation import build_controller, build_plant, with_gain_sign
+from short_mode import short_defaults
 
 STEPS = 20_000
 
@@ -76,6 +77,7 @@ def median(fn, repeat: int) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
+    short_defaults(ap, repeat=1)
     args = ap.parse_args()
     ode = override(load_scenario("ex3_pendulum_ode"), **{"run.duration": 20.0})
     mj = override(load_scenario("pendulum_mujoco"), **{"run.duration": 20.0})

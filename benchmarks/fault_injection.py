@@ -37,6 +37,7 @@ import tspend
 from tspend.sweep import read_table
 from tspend.sweep.executors import LocalPool, make_executor
 from tspend.sweep.table import KEY_COLUMN
+from short_mode import short_defaults
 
 
 class Killer(threading.Thread):
@@ -142,6 +143,7 @@ def main() -> int:
     ap.add_argument("--dask-kills", type=int, default=2, help="Dask workers killed")
     ap.add_argument("--no-dask", action="store_true")
     ap.add_argument("--seed", type=int, default=0, help="seed of the killer's choices")
+    short_defaults(ap, runs=60, kills=2, dask_kills=1)
     args = ap.parse_args()
     scn = tspend.override(tspend.load_scenario("ex3_pendulum_ode"),
                           **{"run.duration": args.duration})

@@ -48,8 +48,9 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from tspend import load_scenario, override, run  # noqa: E402
-from tspend.controllers import build  # noqa: E402
+from tspend.loop.simulation import build_controller  # noqa: E402
 from tspend.controllers.full_model import wrap_angle  # noqa: E402
+from short_mode import short_defaults
 
 
 def dompc_peer(c):
@@ -112,6 +113,12 @@ def dompc_peer(c):
     return step
 
 
+def build(scenario, kind: str):
+    """``kind`` designed on the scenario's nominal machine and reset, as a run builds it
+    (mpc designs on a model of the machine)."""
+    return build_controller(scenario, kind=kind)
+
+
 def timed(fn, *args):
     w, c = time.perf_counter(), time.process_time()
     out = fn(*args)
@@ -135,6 +142,7 @@ def main() -> None:
                     help="only the cost of the task's constraints in the OCP")
     ap.add_argument("--costs", metavar="SCENARIO:SECONDS,...",
                     help="only the closed-loop costs: the fast scheme against IPOPT on each")
+    short_defaults(ap, samples=10)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     if args.costs:

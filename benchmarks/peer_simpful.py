@@ -55,6 +55,7 @@ from tspend.config import ControllerConfig  # noqa: E402
 from tspend.controllers.paper.controller import make_controller  # noqa: E402
 from tspend.controllers.paper.rules import VARPI_EPS, fire  # noqa: E402
 from tspend.controllers.paper.ts_model import model_output  # noqa: E402
+from short_mode import sized
 
 OUTPUTS = ("p1", "p2", "p3")
 
@@ -212,14 +213,16 @@ def main() -> int:
     ok = np.abs(p_sf - p_ts).max() < 1e-9
 
     # -- timing ------------------------------------------------------------------------
-    t_sf = per_call(lambda z: simpful_p(fs, names, z), zs, 10, 15)
-    t_sf1 = per_call(lambda z: simpful_p(fs, names, z, ("p1",)), zs, 20, 15)
-    t_sfn = per_call(lambda z: simpful_p(fs_np, names, z), zs, 2, 5)
+    blocks = sized(15, 2)     # timed blocks per figure (short: a smoke run)
+    t_sf = per_call(lambda z: simpful_p(fs, names, z), zs, 10, blocks)
+    t_sf1 = per_call(lambda z: simpful_p(fs, names, z, ("p1",)), zs, 20, blocks)
+    t_sfn = per_call(lambda z: simpful_p(fs_np, names, z), zs, 2, sized(5, 1))
     fs_c = build_simpful(ctrl, ConstMF)
-    t_sfc = per_call(lambda z: simpful_p(fs_c, names, z), zs, 10, 15)
+    t_sfc = per_call(lambda z: simpful_p(fs_c, names, z), zs, 10, blocks)
     C = ctrl.state.C_model
-    Z = np.array(zs * 400)
-    t_nb = per_call(lambda _: compiled_p_each(Z, grid, C, P, scratch, out), [None], 5, 21) / len(Z)
+    Z = np.array(zs * sized(400, 10))
+    t_nb = per_call(lambda _: compiled_p_each(Z, grid, C, P, scratch, out), [None], 5,
+                    sized(21, 2)) / len(Z)
     us = 1e6
     print("\nper evaluation of p at one input (median over blocks):")
     print(f"simpful 75-rule inference (p1..p3, 225 rules): {t_sf * us:10.1f} us/eval")

@@ -19,6 +19,7 @@ import argparse
 import numpy as np
 
 from tspend import sweep
+from short_mode import short_defaults
 
 #: case -> its steady-state bar on rmse_ss (the bounds of tests/test_paper_cases.py)
 BARS = {"ex1_nonaffine_case1": 0.12, "ex1_nonaffine_case2": 0.2, "ex2_duffing": 1e-2,
@@ -59,6 +60,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=None)
     ap.add_argument("--out", default="runs/seed_spread.parquet",
                     help="the sweep table (resumable; default runs/seed_spread.parquet)")
+    short_defaults(ap, seeds="0:2")
     args = ap.parse_args()
     frame = sweep(list(CASES), seeds=args.seeds, controllers=list(KINDS), jobs=args.jobs,
                   out=args.out, record="none", progress=True)

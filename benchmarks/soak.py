@@ -20,6 +20,7 @@ import numpy as np
 
 from tspend import load_scenario, override, run
 from tspend.recorder import RerunSink, close_recording, open_recording
+from short_mode import short_defaults
 
 
 def rss_mb() -> float:
@@ -65,6 +66,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--every", type=float, default=60.0)
     ap.add_argument("--scenario", default="pendulum_mujoco")
+    short_defaults(ap, duration=20.0, every=5.0)
     args = ap.parse_args()
     scn = override(load_scenario(args.scenario), **{"run.duration": args.duration})
     probe = Probe(args.every)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from tspend import load_scenario, override, run, sweep
 from tspend.sweep.executors import LocalPool, default_jobs
+from short_mode import short_defaults
 
 
 def direct_run_s(scn) -> float:
@@ -53,6 +54,7 @@ def main() -> None:
                     help="simulated seconds per run of the throughput sweeps (default 5)")
     ap.add_argument("--overhead-runs", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=3)
+    short_defaults(ap, runs=4, duration=0.5, overhead_runs=10, repeat=1)
     args = ap.parse_args()
     W = args.workers
     runs = args.runs or 4 * W

@@ -1,7 +1,7 @@
 """Run every shell and Python block of README.md and docs/*.md, and check its exit status.
 
-    python tools/check_docs.py                       # every document, full length
-    python tools/check_docs.py --short               # runs shortened (the test suite's mode)
+    python tools/check_docs.py                       # every command; benchmarks at short sizes
+    python tools/check_docs.py --short               # runs shortened, no benchmarks (tests)
     python tools/check_docs.py --short docs/identify.md README.md
     python tools/check_docs.py --list                # what would run and what is skipped, why
 
@@ -28,10 +28,24 @@ before it, or a rule of :data:`SKIP_RULES` (a viewer, an install), each printed.
 whose later commands need its runs whole (an identification needs its 16 s of data) is
 marked ``<!-- check_docs: full -->``: not shortened under ``--short``.
 
-``--short``: runs are shortened the way tests/test_readme.py does it (``--duration``,
-``--seeds`` of two, ``--jobs 1``, ``--resamples``, ``--trials 2``; the benchmark
-scripts are skipped, named); every other word of the command is the document's. Python
-blocks run as written. Exit 0 when every command ran with its expected status; 1 otherwise.
+The two modes:
+
+* full (no option): every command runs. ``tspend`` commands and Python blocks run as the
+  document writes them (its durations, seeds, trials). A benchmark script
+  (``python benchmarks/...``) runs end to end with ``TSPEND_BENCH_SHORT=1``: each script
+  takes short sizes (fewer seeds, blocks, runs; benchmarks/short_mode.py) and writes what
+  it writes into the scratch folder, so its numbers are a smoke run, not the figures the
+  documents quote. The figures are checked against their data by tools/check_claims.py;
+  ``tools/check_claims.py --recompute N`` re-derives the fair comparison's runs at full
+  size on today's code; a benchmark run by hand (no variable) gives full sizes.
+* ``--short``: runs are shortened the way tests/test_readme.py does it (``--duration``,
+  ``--seeds`` of two, ``--jobs 1``, ``--resamples``, ``--trials 2``; the benchmark
+  scripts are skipped, named); every other word of the command is the document's. Python
+  blocks run as written. This is the fast subset the test suite runs.
+
+Exit 0 when every command ran with its expected status and the repository is as it was;
+1 otherwise. The last line says how many commands ran, how many failed, how many were
+skipped and why, and the wall time.
 """
 
 from __future__ import annotations
@@ -70,8 +84,8 @@ SKIP_RULES = (
 )
 #: skipped under --short only: run in the full check
 SHORT_SKIP_RULES = (
-    (r"^(nice )?python3? benchmarks/", "a benchmark script (minutes to hours; the full check "
-                                        "runs it)"),
+    (r"^(nice )?python3? benchmarks/", "a benchmark script (the full check runs it, at "
+                                        "short sizes)"),
 )
 #: per tspend subcommand, options appended under --short (the last of a repeated one wins)
 SHORT = {
@@ -253,7 +267,9 @@ def run_doc(commands: list[Command], short: bool, timeout: float, verbose: bool)
         env = {**os.environ, "PATH": f"{tmp / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
                "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT),
                                                            os.environ.get("PYTHONPATH")])),
-               "MPLBACKEND": "Agg", "TSPEND_DOCS_SHORT": "1" if short else "0"}
+               "MPLBACKEND": "Agg", "TSPEND_DOCS_SHORT": "1" if short else "0",
+               # a benchmark script takes its short sizes (benchmarks/short_mode.py)
+               "TSPEND_BENCH_SHORT": "1"}
         for i, cmd in enumerate(commands):
             if cmd.skip:
                 continue
@@ -284,9 +300,15 @@ def run_doc(commands: list[Command], short: bool, timeout: float, verbose: bool)
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0] + " Full mode (no option): every command, "
+        "tspend commands as written, benchmark scripts end to end at short sizes "
+        "(TSPEND_BENCH_SHORT=1) in a scratch folder. tools/check_claims.py --recompute N "
+        "re-derives data at full size.")
     ap.add_argument("docs", nargs="*", help="documents (default: README.md and docs/*.md)")
-    ap.add_argument("--short", action="store_true", help="shorten runs (see the module help)")
+    ap.add_argument("--short", action="store_true",
+                    help="shorten tspend runs (duration, seeds, jobs, resamples, trials) and "
+                         "skip the benchmark scripts: the test suite's fast subset")
     ap.add_argument("--list", action="store_true", help="list the commands and skips; run nothing")
     ap.add_argument("--timeout", type=float, default=900.0,
                     help="seconds one command may take (1-7200)")
@@ -301,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"check_docs: error: no such document: {missing[0]}", file=sys.stderr)
         return 2
     ran = skipped = failed = 0
+    started = time.perf_counter()
     reasons: dict[str, int] = {}
     for path in paths:
         commands = extract(path, args.short)
@@ -308,8 +331,7 @@ def main(argv: list[str] | None = None) -> int:
         skipped += len(skips)
         for c in skips:
             reasons[c.skip] = reasons.get(c.skip, 0) + 1
-            if args.list or args.verbose:
-                print(f"  skip {c.doc}:{c.line} ({c.skip}): {c.text.splitlines()[0][:100]}")
+            print(f"  skip {c.doc}:{c.line} ({c.skip}): {c.text.splitlines()[0][:100]}")
         if args.list:
             for c in commands:
                 if not c.skip:
@@ -331,7 +353,9 @@ def main(argv: list[str] | None = None) -> int:
           + ("" if args.list else f" ({ran - failed} with the expected exit status, "
              f"{failed} failed)")
           + f", skipped {skipped}: "
-          + ("; ".join(f"{n} {why}" for why, n in sorted(reasons.items())) or "none"))
+          + ("; ".join(f"{n} {why}" for why, n in sorted(reasons.items())) or "none")
+          + ("" if args.list else f"; {'short' if args.short else 'full'} mode, wall "
+             f"{time.perf_counter() - started:.0f} s"))
     return 1 if failed else 0
 
 
