@@ -30,7 +30,8 @@ marked ``<!-- check_docs: full -->``: not shortened under ``--short``.
 
 The two modes:
 
-* full (no option): every command runs. ``tspend`` commands and Python blocks run as the
+* full (no option): every command runs (a benchmark script that does not take part in
+  benchmarks/short_mode.py is skipped, said so). ``tspend`` commands and Python blocks run as the
   document writes them (its durations, seeds, trials). A benchmark script
   (``python benchmarks/...``) runs end to end with ``TSPEND_BENCH_SHORT=1``: each script
   takes short sizes (fewer seeds, blocks, runs; benchmarks/short_mode.py) and writes what
@@ -42,6 +43,9 @@ The two modes:
   ``--seeds`` of two, ``--jobs 1``, ``--resamples``, ``--trials 2``; the benchmark
   scripts are skipped, named); every other word of the command is the document's. Python
   blocks run as written. This is the fast subset the test suite runs.
+
+The full check needs the test and bench extras (pip install -e '.[test,bench]': gymnasium's
+MuJoCo envs, simpful, do-mpc for the benchmarks' peers).
 
 Exit 0 when every command ran with its expected status and the repository is as it was;
 1 otherwise. The last line says how many commands ran, how many failed, how many were
@@ -184,8 +188,27 @@ def extract(path: Path, short: bool = False) -> list[Command]:
                     if re.search(rule, cmd.text, flags=re.M):
                         cmd.skip = why
                         break
+            if not cmd.skip:
+                cmd.skip = _unsized_benchmark(cmd.text)
             out.append(cmd)
     return out
+
+
+def _unsized_benchmark(text: str) -> str:
+    """The reason to skip a benchmark script that takes no short sizes, else "".
+
+    The full check runs a benchmark end to end only when the script takes part in
+    benchmarks/short_mode.py (it names the module): one that does not would run at its
+    full size (hours) and may write its results into benchmarks/results/ of the
+    repository."""
+    m = re.match(r"^(?:nice\s+)?python3?\s+(benchmarks/\S+\.py)", text)
+    if not m:
+        return ""
+    script = ROOT / m.group(1)
+    if script.is_file() and "short_mode" not in script.read_text(encoding="utf-8"):
+        return ("a benchmark script that takes no short sizes yet (benchmarks/short_mode.py): "
+                "at full size it runs for hours and writes into benchmarks/results/")
+    return ""
 
 
 def _marker_before(lines: list[str], fence: int) -> tuple[str, str] | None:
