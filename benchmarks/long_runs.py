@@ -119,7 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="long_runs")
     ap.add_argument("--options", help="comma-separated subset of the options")
+    ap.add_argument("--summarize", action="store_true",
+                    help="run nothing: write OUT/summary.json from the runs.csv already in OUT")
     args = ap.parse_args(argv)
+    if args.summarize:
+        import pandas as pd
+
+        out = Path(args.out)
+        if not (out / "runs.csv").is_file():
+            ap.error(f"--summarize: no {out / 'runs.csv'}")
+        write_summary(pd.read_csv(out / "runs.csv"), out)
+        print(f"{out / 'summary.json'}")
+        return 0
 
     import pandas as pd
 
@@ -188,8 +199,40 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(markdown(comp, args.seeds))
     _figure(windows, runs, out, args.duration)
+    write_summary(runs, out)
     print(f"wall: {time.perf_counter() - started:.0f} s; files in {out}/", file=sys.stderr)
     return 0
+
+
+def _spread(values) -> dict | None:
+    """median, min, max, q25, q75 of the finite values (None when there are none)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    q25, q50, q75 = np.percentile(v, [25, 50, 75])
+    return {"median": float(q50), "min": float(v.min()), "max": float(v.max()),
+            "q25": float(q25), "q75": float(q75), "n": int(v.size)}
+
+
+def write_summary(runs, out: Path) -> None:
+    """``out/summary.json``: per option the figures docs/long-runs.md quotes (runs,
+    divergences and when, when tracking was lost, ‖q‖ at 120 s, 300 s and the end, and
+    rmse_ss and tv_u_per_s over the completed runs), each as median, min, max, q25, q75."""
+    import json
+
+    summary = {}
+    for o in dict.fromkeys(runs.option):
+        part = runs[runs.option == o]
+        div, done = part[part.status == "diverged"], part[part.status == "completed"]
+        summary[o] = {"runs": int(len(part)), "diverged": int(len(div)),
+                      "seeds": sorted(int(x) for x in part.seed),
+                      "t_diverged_s": _spread(div.t_end), "t_lost_s": _spread(part.t_lost),
+                      "lost_runs": int(part.t_lost.notna().sum()),
+                      "q_120s": _spread(part.q_120s), "q_300s": _spread(part.q_300s),
+                      "q_end": _spread(part.q_end), "rmse_ss": _spread(done.rmse_ss),
+                      "tv_u_per_s": _spread(done.tv_u_per_s)}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
 
 
 def _figure(windows, runs, out: Path, duration: float) -> None:

@@ -39,7 +39,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
 FAIR = ROOT / "docs" / "results" / "fair"
 NUMBER = re.compile(r"[-−]?\d+(?:,\d{3})*(?:\.\d+)?(?:e[-+]?\d+)?", re.I)
-DATA_MARKER = re.compile(r"(" + NUMBER.pattern + r")[^\d<]{0,12}"
+#: a marked figure; a hyphen right after a digit or a marker is a range's dash, not a sign
+DATA_MARKER = re.compile(r"((?:(?<![\d>])[-−])?" + NUMBER.pattern.removeprefix("[-−]?")
+                         + r")[^\d<]{0,12}"
                          r"<!--\s*data:\s*(\S+)\s+(\S+)(?:\s+x(\S+))?\s*-->", re.I)
 
 
