@@ -18,12 +18,21 @@ the controller sees noisy angles) is run on each drawn machine; the positions ha
 ``tspend identify --jit`` carry white noise of ``--noise`` (m and rad) drawn from the
 seed.  The cart's mass and the motor's gear are known (a weighed cart, a calibrated
 force); the six drawn numbers are fitted from the nominal model.
+
+The seeds run one after another, each command in a process of its own with one BLAS
+thread (``OPENBLAS_NUM_THREADS=1`` and its kin, unless the caller set them): the fit's
+trust-region steps take an SVD of a ~18,000 x 192 Jacobian each, and OpenBLAS's default
+threads spin against each other on a shared machine (one such SVD: 6.9 s with the default
+threads, 0.68 s with one, load 4 on 2 cores; the identify of seed 5: 46 s CPU against
+14 s, the same fit to 1e-14). Under ``TSPEND_BENCH_SHORT=1`` (tools/check_docs.py) one
+seed runs and the summary goes to the working folder (benchmarks/short_mode.py).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -35,9 +44,14 @@ import pandas as pd
 
 from tspend.studies.identify_model import load_model
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from short_mode import out_path, short_defaults  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "models" / "double_cartpole.xml"
 TSPEND = [sys.executable, "-m", "tspend.cli"]
+#: one BLAS/OpenMP thread per command (see the module help); what the caller set wins
+THREADS = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
 #: what each seed draws: name -> (kind, low, high); "rel" multiplies the model's value
 DRAWS = {"link1.mass": ("rel", 0.8, 1.2), "link2.mass": ("rel", 0.8, 1.2),
          "link1.ipos_z": ("rel", 0.9, 1.1), "link2.ipos_z": ("rel", 0.9, 1.1),
@@ -45,7 +59,8 @@ DRAWS = {"link1.mass": ("rel", 0.8, 1.2), "link2.mass": ("rel", 0.8, 1.2),
 
 
 def sh(args: list[str]) -> str:
-    r = subprocess.run(args, capture_output=True, text=True, cwd=ROOT)
+    r = subprocess.run(args, capture_output=True, text=True, cwd=ROOT,
+                       env={**THREADS, **os.environ})
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(args)}: exit {r.returncode}: {r.stderr.strip()}")
     return r.stdout
@@ -77,7 +92,9 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--amplitude", type=float, default=12.0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "identify_seeds_articulated.json"))
+    short_defaults(ap, seeds="0:1")
     a = ap.parse_args()
+    a.out = str(out_path(a.out) if a.out == ap.get_default("out") else a.out)
     lo, hi = (int(x) for x in a.seeds.split(":"))
     names = list(DRAWS)
     model = load_model(str(MODEL))
@@ -144,6 +161,30 @@ def main() -> int:
               f"{c} {v[0]:.3g} / {v[1]:.3g}" for c, v in s["median_validation_rms"].items())
           + f"; wall {s['wall_s']:.0f} s (shared machine)")
     return 0
+
+
+#: docs/identify.md's seeds table lies between these (tools/check_claims.py rebuilds it)
+TABLE_BEGIN, TABLE_END = "<!-- SEEDS -->", "<!-- SEEDS: end -->"
+
+
+def seeds_table(summary: dict) -> str:
+    """docs/identify.md's table of the seeds from the summary this script writes: per seed
+    each parameter drawn -> fitted +/- its 95 % half-width, and the validation RMS
+    identified / nominal (mm, mrad)."""
+    names = list(summary["draws"])
+    head = ("| seed | " + " | ".join(f"`{n}` drawn -> fitted (+/-95 %)" for n in names)
+            + " | validation RMS identified / nominal (slider mm, hinge1, hinge2 mrad) |")
+    lines = [head, "|---|" + "---|" * (len(names) + 1)]
+    for r in summary["rows"]:
+        cells = []
+        for n in names:
+            p = r[n]
+            cells.append(f"{p['drawn']:.4g} -> {p['fitted']:.4g} +/- {1.96 * p['std']:.2g}"
+                         + ("" if p["covered"] else " **not covered**"))
+        rms = ", ".join(f"{1e3 * r['validation_rms'][c]:.2f} / "
+                        f"{1e3 * r['validation_rms_nominal'][c]:.2f}" for c in r["validation_rms"])
+        lines.append(f"| {r['seed']} | " + " | ".join(cells) + f" | {rms} |")
+    return "\n".join(lines)
 
 
 def _summary(a, rows, names, t0) -> dict:

@@ -11,6 +11,11 @@ Two kinds of claims are checked:
   the kept runs (``runs.parquet``, the statistics recomputed with the same seeded
   bootstrap) and must equal the committed text, and ``claims.json`` must equal the claims
   rebuilt from the runs. Every number in the sections is counted as a checked figure.
+* **Rendered sections.** The sections of :data:`SECTIONS` (docs/controllers.md's
+  full-state results from ``docs/results/full_state_controllers.csv``, docs/identify.md's
+  double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``) are
+  rebuilt by their benchmark's own renderer from the committed data and must equal the
+  committed text; their numbers count as checked figures.
 * **Marked figures.** Anywhere in README.md and docs/*.md, a number followed by
   ``<!-- data: FILE KEY -->`` (FILE relative to the repository, a JSON file; KEY a path
   into it with ``/`` between the steps, list entries by index; an optional ``xSCALE``
@@ -122,6 +127,54 @@ def check_fair() -> tuple[int, list[str]]:
     return figures, problems
 
 
+def _full_state_section() -> str:
+    import full_state_controllers as m
+
+    return m.section(m.rows_from_csv(ROOT / "docs" / "results" / "full_state_controllers.csv"))
+
+
+def _identify_seeds_section() -> str:
+    import identify_seeds_articulated as m
+
+    path = ROOT / "benchmarks" / "results" / "identify_seeds_articulated.json"
+    return m.seeds_table(json.loads(path.read_text()))
+
+
+#: sections a benchmark renders from its committed data: (document, begin marker, end
+#: marker, the section rebuilt from the data, the data's file)
+SECTIONS = (
+    ("docs/controllers.md", "<!-- full-state results: begin -->",
+     "<!-- full-state results: end -->", _full_state_section,
+     "docs/results/full_state_controllers.csv"),
+    ("docs/identify.md", "<!-- SEEDS -->", "<!-- SEEDS: end -->", _identify_seeds_section,
+     "benchmarks/results/identify_seeds_articulated.json"),
+)
+
+
+def check_sections(sections=SECTIONS) -> tuple[int, list[str]]:
+    """Every section of :data:`SECTIONS` against its rebuild from the data: (figures,
+    problems)."""
+    figures, problems = 0, []
+    for doc, begin, end, build, data in sections:
+        shown = _between((ROOT / doc).read_text(encoding="utf-8"), begin, end)
+        if shown is None:
+            problems.append(f"{doc}: no section {begin}")
+            continue
+        try:
+            text = build().strip()
+        except (OSError, ValueError, KeyError) as exc:
+            problems.append(f"{doc}: cannot rebuild the section from {data} ({exc})")
+            continue
+        figures += len(NUMBER.findall(shown))
+        if shown != text:
+            a, b = shown.splitlines(), text.splitlines()
+            first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+            problems.append(f"{doc}: the section {begin} differs from {data} at its line "
+                            f"{first + 1}: {(a[first] if first < len(a) else '(end)')[:160]!r} "
+                            f"vs {(b[first] if first < len(b) else '(end)')[:160]!r}")
+    return figures, problems
+
+
 def recompute(n: int) -> tuple[int, list[str]]:
     """Re-run ``n`` kept test runs from their tuned scenarios: (runs, problems)."""
     import pandas as pd
@@ -161,6 +214,9 @@ def main(argv: list[str] | None = None) -> int:
     paths = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     marked, problems = check_markers(paths)
     generated, more = check_fair()
+    problems += more
+    rendered, more = check_sections()
+    generated += rendered
     problems += more
     reran = 0
     if args.recompute:
