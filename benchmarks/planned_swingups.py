@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -65,13 +66,47 @@ def holm(pvalues: list[float]) -> list[float]:
     return out
 
 
+def summarize(rows: list[dict]) -> dict:
+    """Per machine and kind the figures docs/controllers.md quotes: runs, swung up, the
+    other endings counted, reached_at_s and control_energy as q25/median/q75 over the
+    swung-up runs, the median max |u|, planning median and max."""
+    out: dict = {}
+    for name in MACHINES:
+        for kind in KINDS:
+            rs = [r for r in rows if r["machine"] == name and r["kind"] == kind]
+            ok = [r for r in rs if r["success"]]
+            cell = {"runs": len(rs), "swung_up": len(ok),
+                    "endings": {st: sum(r["status"] == st for r in rs)
+                                for st in sorted({r["status"] for r in rs})}}
+            for key in ("reached_at_s", "control_energy"):
+                v = np.array([r[key] for r in ok], dtype=float)
+                if v.size:
+                    a, b, c = np.percentile(v, [25, 50, 75])
+                    cell[key] = {"q25": float(a), "median": float(b), "q75": float(c)}
+            if ok:
+                cell["max_abs_u_median"] = float(np.median([r["max_abs_u"] for r in ok]))
+            plan = [r["plan_s"] for r in rs if "plan_s" in r]
+            if plan:
+                cell["plan_s"] = {"median": float(np.median(plan)), "max": float(max(plan))}
+            out.setdefault(name, {})[kind] = cell
+    return out
+
+
 def main() -> None:
     from scipy.stats import wilcoxon
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--out", default="")
+    ap.add_argument("--summarize", metavar="JSON",
+                    help="run nothing: add the summary to a JSON this script wrote")
     args = ap.parse_args()
+    if args.summarize:
+        path = Path(args.summarize)
+        data = json.loads(path.read_text())
+        data["summary"] = summarize(data["rows"])
+        path.write_text(json.dumps(data, indent=1) + "\n")
+        return
     rows = []
     for name, changes in MACHINES.items():
         for seed in range(args.seeds):
@@ -112,7 +147,8 @@ def main() -> None:
         print(f"| {t[0]} | {t[1]} | {t[2]} | {t[3]:.3g} | {p:.2g} |")
     if args.out:
         with open(args.out, "w") as f:
-            json.dump({"rows": rows, "tests": tests, "holm": adjusted}, f, indent=1)
+            json.dump({"rows": rows, "tests": tests, "holm": adjusted,
+                       "summary": summarize(rows)}, f, indent=1)
 
 
 if __name__ == "__main__":
