@@ -67,6 +67,49 @@ def test_a_command_with_an_unexpected_status_fails(tmp_path: Path, capsys) -> No
     assert "FAIL" in out and "1 failed" in out
 
 
+def test_python_in_a_shell_block_is_this_environment(tmp_path: Path, capsys) -> None:
+    """``python`` of a shell block has this environment's packages (a linked venv
+    interpreter would start without them)."""
+    doc = tmp_path / "doc.md"
+    doc.write_text('```\npython -c "import numpy, mujoco"\n'
+                   'python3 -c "import sys; sys.exit(0 if sys.prefix == %r else 5)"\n```\n'
+                   % sys.prefix)
+    assert check_docs.main([str(doc)]) == 0, capsys.readouterr().out
+
+
+def test_a_benchmark_without_short_sizes_is_skipped_with_its_reason(tmp_path: Path) -> None:
+    doc = tmp_path / "doc.md"
+    doc.write_text("```\npython benchmarks/seed_spread.py\npython benchmarks/no_such.py\n"
+                   "nice python benchmarks/safety_filter.py\n```\n")
+    cmds = check_docs.extract(doc)
+    takes_part = "short_mode" in (ROOT / "benchmarks" / "safety_filter.py").read_text()
+    assert cmds[0].skip == "" and cmds[1].skip == ""     # a missing script fails when run
+    assert bool(cmds[2].skip) is not takes_part
+    assert all(c.skip for c in check_docs.extract(doc, short=True))
+
+
+def test_short_mode_sizes(monkeypatch) -> None:
+    import argparse
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import short_mode
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", default="0:20")
+    ap.add_argument("--repeat", type=int, default=3)
+    monkeypatch.setenv("TSPEND_BENCH_SHORT", "0")
+    short_mode.short_defaults(ap, seeds="0:2")
+    assert ap.parse_args([]).seeds == "0:20" and short_mode.sized(15, 2) == 15
+    assert short_mode.judged() and str(short_mode.out_path("/x/y/r.json")) == "/x/y/r.json"
+    monkeypatch.setenv("TSPEND_BENCH_SHORT", "1")
+    short_mode.short_defaults(ap, seeds="0:2")
+    assert ap.parse_args([]).seeds == "0:2" and ap.parse_args(["--seeds", "5:9"]).seeds == "5:9"
+    assert short_mode.sized(15, 2) == 2 and not short_mode.judged()
+    assert str(short_mode.out_path("/x/y/r.json")) == "r.json"
+    with pytest.raises(ValueError, match="no option"):
+        short_mode.short_defaults(ap, trials=2)
+
+
 def test_a_real_document_runs_short(capsys) -> None:
     """The fast subset of the full check: one document of docs/ as a reader runs it."""
     assert check_docs.main(["--short", str(ROOT / "docs" / "third-party-models.md")]) == 0

@@ -267,7 +267,11 @@ def _bin(folder: Path) -> None:
                                  tools=str(ROOT / "tools")))
     shim.chmod(0o755)
     for name in ("python", "python3"):
-        (folder / name).symlink_to(sys.executable)
+        # a wrapper, not a link: a linked venv interpreter finds no pyvenv.cfg beside the
+        # link and starts without the environment's packages
+        wrapper = folder / name
+        wrapper.write_text(f'#!/bin/sh\nexec {shlex.quote(sys.executable)} "$@"\n')
+        wrapper.chmod(0o755)
 
 
 def _repo_state() -> str:
