@@ -289,6 +289,12 @@ def main(argv: list[str] | None = None) -> int:
         from fair_results import splice
 
         text = splice(text, kept)
+    old = page.read_text(encoding="utf-8") if page.is_file() else ""
+    from tuning_curves import BEGIN as TC_BEGIN, END as TC_END
+
+    if TC_BEGIN in old and TC_END in old:  # benchmarks/tuning_curves.py's section, kept
+        curves = old.split(TC_BEGIN, 1)[1].split(TC_END, 1)[0]
+        text = text.rstrip("\n") + f"\n\n## Tuning curves\n\n{TC_BEGIN}{curves}{TC_END}\n"
     page.write_text(text)
     print(f"wrote {page}", file=sys.stderr)
     return 0

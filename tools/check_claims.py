@@ -13,7 +13,8 @@ Two kinds of claims are checked:
   rebuilt from the runs. Every number in the sections is counted as a checked figure.
 * **Rendered sections.** The sections of :data:`SECTIONS` (docs/controllers.md's
   full-state results from ``docs/results/full_state_controllers.csv``, docs/identify.md's
-  double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``) are
+  double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``,
+  docs/results.md's tuning curves from ``docs/results/fair/tuning_curves.json``) are
   rebuilt by their benchmark's own renderer from the committed data and must equal the
   committed text; their numbers count as checked figures.
 * **Marked figures.** Anywhere in README.md and docs/*.md, a number followed by
@@ -140,6 +141,12 @@ def _identify_seeds_section() -> str:
     return m.seeds_table(json.loads(path.read_text()))
 
 
+def _tuning_curves_section() -> str:
+    import tuning_curves as m
+
+    return m.section(json.loads(m.DATA.read_text()))
+
+
 #: sections a benchmark renders from its committed data: (document, begin marker, end
 #: marker, the section rebuilt from the data, the data's file)
 SECTIONS = (
@@ -148,6 +155,9 @@ SECTIONS = (
      "docs/results/full_state_controllers.csv"),
     ("docs/identify.md", "<!-- SEEDS -->", "<!-- SEEDS: end -->", _identify_seeds_section,
      "benchmarks/results/identify_seeds_articulated.json"),
+    ("docs/results.md", "<!-- benchmarks/tuning_curves.py: begin (generated; rerun it, do not "
+     "edit) -->", "<!-- benchmarks/tuning_curves.py: end -->", _tuning_curves_section,
+     "docs/results/fair/tuning_curves.json"),
 )
 
 
