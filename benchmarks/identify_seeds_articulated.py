@@ -187,11 +187,18 @@ def seeds_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _spread(values: list[float]) -> dict:
+    """median, min and max (empty: {})."""
+    return ({"median": float(np.median(values)), "min": float(np.min(values)),
+             "max": float(np.max(values))} if values else {})
+
+
 def _summary(a, rows, names, t0) -> dict:
     chans = list(rows[0]["validation_rms"]) if rows else []
     return {"seeds": a.seeds, "noise": a.noise, "duration": a.duration, "amplitude": a.amplitude,
             "draws": {n: list(v) for n, v in DRAWS.items()},
             "wall_s": time.perf_counter() - t0, "done": len(rows),
+            "wall_per_seed_s": _spread([r["wall_s"] for r in rows]),
             "seeds_all_covered": sum(all(r[n]["covered"] for n in names) for r in rows),
             "coverage": {n: sum(r[n]["covered"] for r in rows) for n in names},
             "median_rel_err": {n: float(np.median([r[n]["rel_err"] for r in rows])) for n in names},
