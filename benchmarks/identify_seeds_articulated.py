@@ -31,6 +31,7 @@ seed runs and the summary goes to the working folder (benchmarks/short_mode.py).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -92,6 +93,10 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--amplitude", type=float, default=12.0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "identify_seeds_articulated.json"))
+    ap.add_argument("--keep", metavar="DIR",
+                    help="work in DIR (made; must not exist) and keep its files: exp.toml, "
+                         "per seed the drawn trueSEED.xml, expSEED.toml, sSEED.rrd, sSEED.csv, "
+                         "the noisy nSEED.csv and the fit fSEED.json")
     short_defaults(ap, seeds="0:1")
     a = ap.parse_args()
     a.out = str(out_path(a.out) if a.out == ap.get_default("out") else a.out)
@@ -100,8 +105,11 @@ def main() -> int:
     model = load_model(str(MODEL))
     rows = []
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as d:
-        d = Path(d)
+    if a.keep and Path(a.keep).exists():
+        ap.error(f"--keep: {a.keep} exists (nothing of yours is overwritten)")
+    with (contextlib.nullcontext(a.keep) if a.keep else tempfile.TemporaryDirectory()) as d:
+        d = Path(d).resolve()
+        d.mkdir(parents=True, exist_ok=True)
         exp = d / "exp.toml"
         sh([*TSPEND, "excite", "double_cartpole_mujoco", "--out", str(exp), "--duration",
             str(a.duration), "--amplitude", str(a.amplitude), "--f-min", "0.3", "--f-max", "5"])

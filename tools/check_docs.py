@@ -26,7 +26,9 @@ ways: a comment on the command line ``# exit N``, an output line under it ending
 here is skipped only with a stated reason: a marker ``<!-- check_docs: skip REASON -->``
 before it, or a rule of :data:`SKIP_RULES` (a viewer, an install), each printed. A block
 whose later commands need its runs whole (an identification needs its 16 s of data) is
-marked ``<!-- check_docs: full -->``: not shortened under ``--short``.
+marked ``<!-- check_docs: full -->``: not shortened under ``--short``. A block that runs only in
+the full check (it needs what a benchmark script, skipped under ``--short``, made) is marked
+``<!-- check_docs: full-only REASON -->``: skipped under ``--short`` with REASON.
 
 The two modes:
 
@@ -102,7 +104,7 @@ SHORT = {
 }
 EXIT_COMMENT = re.compile(r"#\s*exit\s+(\d+)\s*$")
 EXIT_OUTPUT = re.compile(r"\[exit\s+(\d+)\]\s*$")
-MARKER = re.compile(r"<!--\s*check_docs:\s*(skip|exit|full)\s*(.*?)\s*-->")
+MARKER = re.compile(r"<!--\s*check_docs:\s*(skip|exit|full-only|full)\s*(.*?)\s*-->")
 
 
 @dataclass
@@ -155,7 +157,7 @@ def extract(path: Path, short: bool = False) -> list[Command]:
         i = j + 1
         if lang == "python":
             cmd = Command(doc, start + 1, "\n".join(body) + "\n", "python")
-            _apply_marker(cmd, marker)
+            _apply_marker(cmd, marker, short)
             out.append(cmd)
             continue
         if lang not in SHELL_LANGS:
@@ -172,7 +174,7 @@ def extract(path: Path, short: bool = False) -> list[Command]:
                 parts.append(body[k].rstrip())
             k += 1
             cmd = Command(doc, start + first + 1, "\n".join(parts).strip(), "shell")
-            _apply_marker(cmd, marker)
+            _apply_marker(cmd, marker, short)
             e = EXIT_COMMENT.search(parts[-1])
             if e:
                 cmd.expect = int(e.group(1))
@@ -220,12 +222,17 @@ def _marker_before(lines: list[str], fence: int) -> tuple[str, str] | None:
     return (m.group(1), m.group(2)) if m else None
 
 
-def _apply_marker(cmd: Command, marker: tuple[str, str] | None) -> None:
+def _apply_marker(cmd: Command, marker: tuple[str, str] | None, short: bool = False) -> None:
     if marker is None:
         return
     what, arg = marker
     if what == "skip":
         cmd.skip = arg or "marked skip without a reason"
+    elif what == "full-only":
+        if short:
+            cmd.skip = arg or "marked full-only without a reason"
+        else:
+            cmd.full = True
     elif what == "full":
         cmd.full = True
     else:
