@@ -88,6 +88,16 @@ def test_a_benchmark_without_short_sizes_is_skipped_with_its_reason(tmp_path: Pa
     assert all(c.skip for c in check_docs.extract(doc, short=True))
 
 
+def test_a_full_only_block_runs_in_the_full_check_only(tmp_path: Path) -> None:
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- check_docs: full-only needs what a benchmark makes -->\n"
+                   "```\ntspend run ex2_duffing --seed 3\n```\n")
+    full, = check_docs.extract(doc)
+    short, = check_docs.extract(doc, short=True)
+    assert full.skip == "" and full.full
+    assert short.skip == "needs what a benchmark makes"
+
+
 def test_short_mode_sizes(monkeypatch) -> None:
     import argparse
 
