@@ -1,25 +1,25 @@
-"""The cart-pole domain: everything the cart-pole means, for the rest of tspend.
+"""The cart-pole domain: an articulated machine (docs/articulated.md) with the paper's names.
 
-Two kinds, two sources of equations:
+A cart-pole is its MJCF (``models/cartpole.xml`` by default) read and derived like every
+other machine (:class:`~tspend.plants.articulated.machine.Machine`): one MuJoCo plant
+(:class:`~tspend.plants.mujoco_plant.MujocoCartPole`), one derived model (nominal for the
+controllers, the joints' damping and dry friction left out), one linearisation (CasADi's
+derivatives of the derived equations), one ODE twin (:class:`DerivedCartPoleODE`: the
+derived equations with the model's damping and its ``frictionloss`` as the smooth
+``F tanh(v / v_s)``), one drawing and one reader of the compiled model
+(:mod:`tspend.plants.mjcf`).  A model the derivation refuses is refused in one line naming
+what to change.
 
-* ``cartpole_mujoco`` (the MJCF stepped by MuJoCo): every model a controller assumes
-  (the view's model, the full model, the linearisation, the jacobians, the inverse
-  dynamics of the task check) and its ODE twin (the cross-check's, and
-  ``run(..., plant_kind="cartpole_ode")``'s) are the equations *derived* from the compiled
-  (overridden) model by the articulated domain
-  (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
-  the controllers (the joints' damping and dry friction left out), the twin with the
-  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``; a model
-  the derivation refuses is refused in one line naming what to change.
-* ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
-  equations (C1)-(C2) of :mod:`tspend.plants.cartpole_physics`, as the paper writes them
-  (issue 32's exception); they are also the test oracle of the derived ones
-  (tests/test_cartpole_derived.py).
+Two kinds: ``cartpole_mujoco`` steps the MJCF in MuJoCo; ``cartpole_ode`` (the paper's
+Example 3, ``ex3_pendulum_ode``) integrates the derived equations of the same MJCF with
+every ``[plant]`` number (M, m, l, J, g, gear, damping, friction) written into the model
+and checked on the compiled one.  The paper's own equation is
+:func:`tspend.plants.analytic.cartpole_accel`; the hand-written (C1)-(C2) are the grey-box
+model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpole_greybox`).
 
-This module holds the scenario's ``[plant]`` configuration of either backend, the analytic
-plants, the roles of the MJCF's joints (``slide`` = the cart, ``hinge`` = the pole) and how
-each backend is built, the model the baselines assume, labels and units, the default task
-(view ``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
+This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
+(``slide`` = the cart, ``hinge`` = the pole), labels and units, the default task (view
+``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
 """
 
 from __future__ import annotations
@@ -31,10 +31,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
-from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
 from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
     derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
@@ -42,42 +40,19 @@ from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
-    machine_accelerations, machine_rhs, pole_energy, rhs)
+from tspend.plants.mjcf import CartPoleParams, actuator_force_range
 from tspend.errors import ScenarioError
-from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, COMPILED_VIEW_ACCEL, FULL_STATE,
-    FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
+    PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
     FullModel, PlantLabels, PlantModel, Quantity, END_COLOR, bound_text)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.task import Bound, Task
 
-__all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
-           "CartPoleODE", "DerivedCartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN",
-           "DRY_FRICTION_SLIP",
-           "accelerations", "gain_sign", "rhs", "machine_rhs", "machine_accelerations",
-           "cartpole_ode_plant", "cartpole_machine", "nominal_machine"]
+__all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "DerivedCartPoleODE",
+           "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "cartpole_machine", "nominal_machine"]
 
-
-
-@register_jitable
-def _full_q_dd(machine: CartPoleMachine, s: np.ndarray, u: float) -> tuple[float, float]:
-    # s = [slider, hinge, slider_dot, hinge_dot]; (C1)-(C2) give (theta'', x''); no
-    # disturbance in a controller's model
-    thdd, xdd = machine_accelerations(machine, s[1], s[3], s[0], s[2], u, 0.0)
-    return xdd, thdd
-
-
-@register_jitable
-def _full_energy(machine: CartPoleMachine, s: np.ndarray) -> float:
-    return pole_energy(machine, s[1], s[3])
-
-
-# compiled full-state controllers (swing-up) reach the cart-pole through these
-FULL_ACCEL[CartPoleMachine] = _full_q_dd
-FULL_ENERGY[CartPoleMachine] = _full_energy
 
 # -- the scenario's [plant] table, on either backend -------------------------------------
 
@@ -97,7 +72,8 @@ def _own_if_zero() -> dict:
 
 @dataclass(frozen=True)
 class CartPoleConfig(PlantConfig):
-    """The cart-pole (C1)-(C2) of tspend/plants/cartpole.py, on either backend."""
+    """A cart-pole on either backend: the numbers written into its MJCF (the paper's
+    Example 3 machine by default)."""
 
     M: float = field(default=10.0, metadata=_positive())
     m: float = field(default=1.0, metadata=_positive())
@@ -155,85 +131,21 @@ class MujocoCartPoleConfig(CartPoleConfig):
         return {k: float(getattr(self, k)) for k in MODEL_OVERRIDES if getattr(self, k) > 0.0}
 
 
-COMPILED_RHS[CartPoleMachine] = machine_rhs
-
-
-# -- the analytic backend ---------------------------------------------------------------
-class CartPoleODE(AnalyticPlant):
-    """The paper's cart-pole ODE (C1)-(C2) (``cartpole_ode``), with the cart as hidden
-    states, so the ODE backend can draw the cart and meet a finite rail too.
-
-    Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
-    ``(slider, hinge, slider_dot, hinge_dot)``.
-    """
-
-    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
-        super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
-                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
-                         domain="cartpole", state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
-                         state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
-        self._joints = (JointInfo("slider", "slide", "m", None), JointInfo("hinge", "hinge", "rad", None))
-        self.set_params(params)
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return self._joints
-
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        """The force on the cart, N (per unit gear), within the control range the ODE
-        applies (a MuJoCo model's ``ctrlrange``; unbounded for the paper's ODE): both
-        backends of one machine declare the bound they apply, so the saturation metrics
-        mean the same on each."""
-        return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
-
-    def default_task(self) -> TaskDefaults:
-        return DOMAIN.task
-
-    @property
-    def gain_sign(self) -> int:
-        return int(gain_sign(self.params))
-
-    def set_params(self, params: CartPoleParams) -> None:
-        """Change the machine while it runs (a payload picked up); the state is kept."""
-        self.params = params
-        self._machine = params.machine()
-
-    def parameters(self) -> dict[str, float]:
-        """The machine's parameters (ranges that are not set left out)."""
-        return self.params.finite()
-
-    def _rhs_params(self) -> Any:
-        return self._machine
-
-    def compiled(self) -> CompiledPlant:
-        return CompiledPlant(self._machine, self.s, self._clock, self._work, self.full_order)
-
-
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
-    return CartPoleODE(params)
-
-
 # -- the derived equations of a MuJoCo cart-pole ----------------------------------------
-def cartpole_machine(plant: Plant) -> Machine | None:
+def cartpole_machine(plant: Plant) -> Machine:
     """The articulated machine of a MuJoCo cart-pole ``plant``: its compiled (overridden)
     model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
-    the machine of a :class:`DerivedCartPoleODE` is its own.  None for the paper's ODE
-    (``cartpole_ode``: (C1)-(C2) as written).  ScenarioError (one line naming what to
-    change) for a model the derivation refuses."""
+    the machine of a :class:`DerivedCartPoleODE` is its own.  ScenarioError (one line
+    naming what to change) for a model the derivation refuses."""
     if isinstance(plant, EffectsPlant):
         plant = plant.inner
-    if isinstance(plant, DerivedCartPoleODE):
-        return plant.machine
-    if plant.mj_model() is None:
-        return None
     return plant.machine  # type: ignore[attr-defined]
 
 
 def nominal_machine(machine: Machine) -> Machine:
     """``machine`` as the controllers assume it: its joints' damping 0 (a copy; the
     derived equations have no dry friction), as :func:`_nominal` leaves a rig's friction
-    out of the hand-written machine."""
+    out of the model's numbers."""
     nominal = copy.copy(machine)
     nominal.p = machine.p.copy()
     for i, name in enumerate(machine.parameter_names):
@@ -313,8 +225,7 @@ def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
     generalised force on the cart and its acceleration that give the pole ``q'' = q_dd``
     at ``(q, q')`` with the cart at 0 moving at ``cart_vel`` (the pole's row solved for
     x'', then the cart's for F), the actuator, the cart's spring, the disturbance's hinge
-    torque ``d_torque`` and each joint's smooth dry friction ``dry`` as
-    :func:`cartpole_physics.inverse_dynamics` has them.
+    torque ``d_torque`` and each joint's smooth dry friction ``dry`` (the ODE twin's).
     ``F`` is +/-inf where the rail cannot move the pole."""
     nv = machine.nv
     c, h = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide"), machine.view_joint
@@ -335,44 +246,17 @@ def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
     return float(M[c, c] * x_dd + M[c, h] * q_dd - r[c]), float(x_dd)
 
 
-@register_jitable
-def view_accel_of(machine: CartPoleMachine, t: float, x: np.ndarray, u: float,
-                  d: float) -> float:
-    """theta'' of (C1)-(C2) over the view ``[theta, theta']``, with the cart at rest (its
-    velocity enters only through cart damping)."""
-    return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
-
-
-class CartPoleView(NamedTuple):
-    """The controllers' model of the view (:class:`~tspend.plants.domain.PlantModel`), as
-    compiled code knows it."""
-
-    machine: CartPoleMachine
-
-    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
-        return view_accel_of(self.machine, t, x, u, d)
-
-
-@register_jitable
-def _compiled_view_accel(model: CartPoleView, t: float, x: np.ndarray, u: float,
-                         d: float) -> float:
-    return view_accel_of(model.machine, t, x, u, d)
-
-
-COMPILED_VIEW_ACCEL[CartPoleView] = _compiled_view_accel
-
-
 #: samples of r(t) the task check evaluates the need on (at most)
 NEED_SAMPLES = 4000
 
 
-def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | None = None
+def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine
                     ) -> tuple[float, float, float] | None:
     """``(t, least, largest)`` cart force the machine needs to follow the scenario's
     reference with its disturbance (``t``: when the larger need in size is); None when
-    the reference is not smooth enough to have ``r''``.  The machine's derived equations
-    when ``machine`` is given (:func:`_derived_inverse_dynamics`), else the hand-written
-    ODE ``p``'s (:func:`cartpole_physics.inverse_dynamics`)."""
+    the reference is not smooth enough to have ``r''``: the inverse dynamics of
+    ``machine``'s derived equations (:func:`_derived_inverse_dynamics`), the friction of
+    ``p``."""
     n = int(min(NEED_SAMPLES, max(2, round(scenario.run.duration / scenario.run.dt))))
     t = np.linspace(0.0, scenario.run.duration, n + 1)
     try:
@@ -380,32 +264,19 @@ def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | 
     except (ValueError, NotImplementedError):
         return None
     d = np.asarray(scenario.disturbance(t), dtype=float)
-    hand = p.machine()
-    if machine is not None:
-        dry = np.zeros(machine.nv)
-        dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
-        dry[machine.view_joint] = p.hinge_friction
+    dry = np.zeros(machine.nv)
+    dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
+    dry[machine.view_joint] = p.hinge_friction
     force = np.empty(n + 1)
     v = 0.0
     for k in range(n + 1):
-        if machine is not None:
-            force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
-                                                       p.disturbance_torque * d[k], dry)
-        else:
-            force[k], x_dd = inverse_dynamics(hand, r[k, 0], r[k, 1], r[k, 2], v, d[k])
+        force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
+                                                   p.disturbance_torque * d[k], dry)
         if k < n and math.isfinite(x_dd):
             v += x_dd * (t[k + 1] - t[k])
     k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
     k = k_hi if abs(force[k_hi]) >= abs(force[k_lo]) else k_lo
     return float(t[k]), float(force[k_lo]), float(force[k_hi])
-
-
-def params_of(cfg: CartPoleConfig) -> CartPoleParams:
-    """The machine a cart-pole configuration describes."""
-    return CartPoleParams(M=cfg.M, m=cfg.m, l=cfg.l, g=cfg.g, J=cfg.J,
-                          cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
-                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction,
-                          gear=cfg.gear or 1.0)
 
 
 def _nominal(params: CartPoleParams) -> CartPoleParams:
@@ -421,7 +292,8 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     if isinstance(cfg, MujocoCartPoleConfig):
         mj, overrides = cfg, cfg.overrides()
     else:
-        # an ODE scenario on the MJCF: its machine is explicit, every number written
+        # an ODE scenario on the MJCF (the paper's Example 3 by default): its machine is
+        # explicit, every number written
         mj = MujocoCartPoleConfig(**{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
         overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
     friction = {k: (mj.__dict__[k] or None) for k in
@@ -439,12 +311,9 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
-    assert isinstance(cfg, CartPoleConfig)
-    if isinstance(cfg, MujocoCartPoleConfig):
-        # the ODE of a MuJoCo scenario is the compiled model's (masses, inertia, damping,
-        # gear and angle sign read back), so both backends describe one machine
-        return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
-    return cartpole_ode_plant(params_of(cfg))
+    # the ODE is the compiled model's (masses, inertia, damping, gear and angle sign read
+    # back), so both backends describe one machine
+    return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
 
 
 # -- labels, drawing, task, model -------------------------------------------------------
@@ -706,20 +575,8 @@ class CartPoleDrawing(Drawing):
 CHIRP_N_PER_KG = 100.0 / 11.0
 
 
-def _symbolic_clip(v: Any, lo: float, hi: float) -> Any:
-    """:func:`~tspend.plants.cartpole_physics.clip` of a CasADi expression ``v`` (the
-    bounds are numbers; an infinite one adds no term)."""
-    import casadi  # only for a symbolic model (MPC)
-
-    if lo > -math.inf:
-        v = casadi.fmax(v, lo)
-    if hi < math.inf:
-        v = casadi.fmin(v, hi)
-    return v
-
-
 class CartPoleDomain(Domain):
-    """The cart-pole (C1)-(C2): an analytic ODE and a MuJoCo MJCF of one machine."""
+    """The cart-pole: its MJCF stepped by MuJoCo, or its derived equations integrated."""
 
     name = "cartpole"
     kinds = {"cartpole_ode": Backend(CartPoleConfig, _build_ode),
@@ -750,96 +607,62 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
-    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine | None:
-        """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
-        (:func:`nominal_machine` of :func:`cartpole_machine` of its nominal ``plant``);
-        None for ``cartpole_ode`` (the paper's own equations)."""
-        machine = cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig) else None
-        return nominal_machine(machine) if machine is not None else None
+    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine:
+        """The derived machine the controllers assume (:func:`nominal_machine` of
+        :func:`cartpole_machine` of the nominal ``plant``)."""
+        return nominal_machine(cartpole_machine(plant))
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The nominal machine over the full state ``[slider, hinge, slider_dot,
-        hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
-        derived from the compiled model (numbers through the compiled module, CasADi through
-        the derivation, both with MuJoCo's clips of ctrl and force; the energy the pole's
-        with the cart at rest, :class:`~tspend.plants.articulated.domain.DerivedFull`); for
-        ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
-        (its ranges clipped by ``casadi.fmin``/``fmax``) and
-        :func:`~tspend.plants.cartpole_physics.pole_energy`."""
+        hinge_dot]`` (the plant's own joint names): the equations derived from the compiled
+        model (numbers through the compiled module, CasADi through the derivation, both
+        with MuJoCo's clips of ctrl and force; the energy the pole's with the cart at rest,
+        :class:`~tspend.plants.articulated.domain.DerivedFull`)."""
         plant = machine
         params = _nominal(plant.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, plant)
-        if derived is not None:
-            m = derived
-            full = derived_full_of(m, m.view_joint)
+        m = self.nominal_derived(scenario, plant)
+        full = derived_full_of(m, m.view_joint)
 
-            def derived_factory(sin, cos, tanh):
-                if sin is math.sin:
-                    return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-                def q_dd(s, u):
-                    import casadi as ca  # only for a symbolic model (MPC)
-
-                    # with MuJoCo's clips of ctrl and force, as (C1)-(C2)'s model has them
-                    uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
-                                        for k in range(len(m.tree.actuators))])
-                    M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
-                    a = ca.solve(ca.reshape(M, 2, 2), r)
-                    return a[0], a[1]
-
-                return q_dd
-
-            return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                             accel_factory=derived_factory,
-                             energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                             pole=m.view_joint, actuated=m.actuated,
-                             angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
-                             parameters=params.finite(), machine=full, accel_unit="m/s^2")
-        machine = params.machine()
-
-        def factory(sin, cos, tanh):
-            if sin is math.sin:   # the compiled controllers' own function
-                return lambda s, u: _full_q_dd(machine, s, u)
-            accel = accelerations_factory(sin, cos, tanh, clip=_symbolic_clip)[0]
+        def derived_factory(sin, cos, tanh):
+            if sin is math.sin:
+                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
             def q_dd(s, u):
-                # the domain's order is (q'', x''); no disturbance in a model
-                thdd, xdd = accel(machine, s[1], s[3], s[0], s[2], u, 0.0)
-                return xdd, thdd
+                import casadi as ca  # only for a symbolic model (MPC)
+
+                # with MuJoCo's clips of ctrl and force
+                uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
+                                    for k in range(len(m.tree.actuators))])
+                M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
+                a = ca.solve(ca.reshape(M, 2, 2), r)
+                return a[0], a[1]
 
             return q_dd
 
         return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=factory,
-                         energy=lambda s: pole_energy(machine, float(s[1]), float(s[3])),
-                         pole=1, actuated=0, angles=(False, True, False, False),
-                         parameters=params.finite(), machine=machine,
-                         accel_unit="m/s^2")
+                         accel_factory=derived_factory,
+                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
+                         pole=m.view_joint, actuated=m.actuated,
+                         angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
+                         parameters=params.finite(), machine=full, accel_unit="m/s^2")
 
     def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
         params = _nominal(machine.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, machine)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
-        view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
-                     else CartPoleView(params.machine()))
+        view = derived_view(self.nominal_derived(scenario, machine), params.disturbance_torque)
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
     def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
-        """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
-        exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
-        for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
-        derived = self.nominal_derived(scenario, machine)
-        if derived is not None:
-            return derived.linearisation()
-        return self.full_model(scenario, machine).linearisation()
+        """The nominal machine's exact ``(A, B)`` at the upright at rest: CasADi's
+        derivatives of the derived equations (:meth:`Machine.linearisation`)."""
+        return self.nominal_derived(scenario, machine).linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The exact ``(A, B)`` of a derived ODE twin's equations at ``at`` (CasADi's
-        derivatives); None for the hand-written ODE (central differences then)."""
+        """The exact ``(A, B)`` of the ODE twin's equations at ``at`` (CasADi's derivatives)."""
         if isinstance(plant, DerivedCartPoleODE):
             return plant.machine.linearisation(at)
         return None
@@ -858,9 +681,9 @@ class CartPoleDomain(Domain):
         """Before a balancing run (the task ends on a fall): the force the reference and
         the disturbance need against what the actuator can give.
 
-        The need is the inverse dynamics along ``r(t)`` over the run (``cartpole_mujoco``:
-        of the equations derived from the compiled model, :func:`_derived_inverse_dynamics`;
-        ``cartpole_ode``: of (C1)-(C2), :func:`cartpole_physics.inverse_dynamics`), the cart's velocity integrated from rest: a lower
+        The need is the inverse dynamics along ``r(t)`` over the run (of the equations
+        derived from the compiled model, :func:`_derived_inverse_dynamics`), the cart's
+        velocity integrated from rest: a lower
         bound (a controller also has to bring x0 to r and hold the cart).  The actuator's
         force is at rest, over ``ctrlrange`` (and ``effects.saturation``), ``forcerange``
         and the joint's ``actuatorfrcrange``.  ScenarioError when the need exceeds it.
@@ -873,9 +696,7 @@ class CartPoleDomain(Domain):
                                       sat if sat > 0 else math.inf)
         if lo == -math.inf and hi == math.inf:
             return
-        derived = (cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig)
-                   else None)
-        need = reference_force(p, scenario, derived)
+        need = reference_force(p, scenario, cartpole_machine(plant))
         if need is None:
             return
         t, f_lo, f_hi = need

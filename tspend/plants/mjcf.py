@@ -1,7 +1,7 @@
 """Any MJCF cart-pole read as it is, and M, m, l, J written so the compiled model has them.
 
-:func:`read_facts` measures, from the *compiled* model, everything the cart-pole ODE
-(:mod:`tspend.plants.cartpole_physics`) needs to be the very machine MuJoCo steps: the
+:func:`read_facts` measures, from the *compiled* model, everything a cart-pole's
+numbers (:class:`CartPoleParams`, the ``[plant]`` keys and the metrics' ``plant``) say: the
 cart and pole masses, where the pole's centre of mass is (anywhere in its frame) and its
 inertia about the hinge axis, the directions of the slide and the hinge (any hinge not
 parallel to the slide), the actuator as MuJoCo applies it (motor, velocity, position or
@@ -23,7 +23,7 @@ then reads the compiled model back and names the body that did not take a value.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 import mujoco
@@ -32,9 +32,8 @@ import numpy as np
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
                                             read_actuator, read_joint)
-from tspend.plants.cartpole_physics import CartPoleParams
 
-__all__ = ["ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
+__all__ = ["CartPoleParams", "actuator_force_range", "ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
            "unmodelled", "apply_overrides", "verify_overrides", "collision_pairs"]
 
 # Axial inertia of the rod relative to its transverse one: never enters the planar
@@ -48,6 +47,101 @@ VERIFY_RTOL = 1e-9
 PARALLEL_TOL = 1e-9
 
 _DSBL = mujoco.mjtDisableBit
+
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class CartPoleParams:
+    """One cart-pole's numbers: the paper's M, m, l, g, and what a real rig adds (the
+    ``[plant]`` keys, the metrics' ``plant``; the grey-box model's parameters,
+    :mod:`tspend.studies.cartpole_greybox`, whose module docstring names the geometry).
+
+    ``J`` is the pole's inertia about the hinge axis (0 = the uniform rod's 4/3 m l^2);
+    ``theta_sign`` is -1 when the model's positive angle leans the pole toward +x (a
+    reversed hinge axis).  ``rail_coupling``, ``rail_phase``, ``gravity_coupling``,
+    ``gravity_phase`` and ``rail_gravity`` are ``k_r``, ``phi_r``, ``k_g``, ``phi_g``,
+    ``g_s`` (the paper's pole: 1, 0, 1, 0, 0).  The actuator: ``gear``, ``gain`` (``g0``;
+    the force per unit u of a motor is ``gear gain``), ``gain_length``, ``gain_velocity``
+    (``g1``, ``g2``), ``bias``, ``bias_length``, ``bias_velocity`` (``b0``, ``b1``,
+    ``b2``) and its ranges (``ctrl_*`` on u, ``force_*`` on the actuator's force,
+    ``joint_force_*`` on the force at the joint; +/-inf: none).
+    """
+
+    M: float = 10.0
+    m: float = 1.0
+    l: float = 3.0
+    g: float = 9.8
+    J: float = 0.0
+    cart_damping: float = 0.0
+    hinge_damping: float = 0.0
+    cart_friction: float = 0.0
+    hinge_friction: float = 0.0
+    gear: float = 1.0
+    theta_sign: float = 1.0
+    rail_coupling: float = 1.0
+    rail_phase: float = 0.0
+    gravity_coupling: float = 1.0
+    gravity_phase: float = 0.0
+    rail_gravity: float = 0.0
+    cart_stiffness: float = 0.0
+    cart_spring_ref: float = 0.0
+    hinge_stiffness: float = 0.0
+    hinge_spring_ref: float = 0.0
+    gain: float = 1.0
+    gain_length: float = 0.0
+    gain_velocity: float = 0.0
+    bias: float = 0.0
+    bias_length: float = 0.0
+    bias_velocity: float = 0.0
+    ctrl_min: float = -INF
+    ctrl_max: float = INF
+    force_min: float = -INF
+    force_max: float = INF
+    joint_force_min: float = -INF
+    joint_force_max: float = INF
+
+    @property
+    def pole_inertia_pivot(self) -> float:
+        return self.J if self.J > 0.0 else 4.0 / 3.0 * self.m * self.l ** 2
+
+    @property
+    def disturbance_torque(self) -> float:
+        """Hinge torque per unit d_d: ``tau = -d_d m l / (M + m)`` enters (C2) like d_d
+        enters the paper's numerator (exact for the rod, the paper's meaning otherwise)."""
+        return -self.m * self.l / (self.M + self.m)
+
+    @property
+    def force_per_u(self) -> float:
+        """The cart force per unit u at rest, N (``gear gain``)."""
+        return self.gear * self.gain
+
+    def finite(self) -> dict[str, float]:
+        """The parameters as plain numbers, leaving out the ranges that are not set (inf)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)
+                if math.isfinite(getattr(self, f.name))}
+
+
+def actuator_force_range(p: CartPoleParams, u_lo: float = -INF, u_hi: float = INF
+                         ) -> tuple[float, float]:
+    """The least and the largest force the actuator puts on the cart at rest (x = 0,
+    x' = 0) for u in ``[u_lo, u_hi]`` and its own ranges (+/-inf: unbounded): MuJoCo's
+    ``F = clip(gear clip(gain clip(u, ctrl) + bias, force), joint)`` at rest."""
+    huge = 1e300   # an unbounded u: the force ranges, if any, bound the force
+
+    def force(u: float) -> float:
+        x = 0.0   # the actuator's length and velocity at rest, written as MuJoCo's law has them
+        uc = min(max(u, p.ctrl_min), p.ctrl_max)
+        f = ((p.gain + p.gain_length * x + p.gain_velocity * x) * uc
+             + p.bias + p.bias_length * x + p.bias_velocity * x)
+        return min(max(p.gear * min(max(f, p.force_min), p.force_max), p.joint_force_min),
+                   p.joint_force_max)
+
+    lo, hi = max(u_lo, p.ctrl_min), min(u_hi, p.ctrl_max)
+    ends = [force(v) for v in (max(lo, -huge), min(hi, huge))]
+    ends = [math.copysign(INF, f) if abs(f) >= 1e250 else f for f in ends]
+    return min(ends), max(ends)
 
 
 def _vec(v: Any) -> tuple[float, float, float]:
@@ -93,8 +187,6 @@ class ActuatorFacts:
 
     def max_force_at_rest(self) -> float:
         """The largest |force| it can put on the cart at x = 0, x' = 0, N (inf: unbounded)."""
-        from tspend.plants.cartpole_physics import actuator_force_range
-
         lo, hi = actuator_force_range(self.params())
         return max(abs(lo), abs(hi))
 

@@ -36,7 +36,7 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.articulated.tree import INTEGRATOR_NAMES
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
-from tspend.plants.cartpole_physics import CartPoleParams
+from tspend.plants.mjcf import CartPoleParams
 
 #: the machine's numbers a scenario can write into a model (``[plant]`` keys of
 #: ``cartpole_mujoco``; docs/third-party-models.md)

@@ -28,7 +28,6 @@ from tspend.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.cartpole_physics import DRY_FRICTION_SLIP
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_ACCEL, FULL_ENERGY, FULL_STATE, SYMBOLIC,
     VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity)
 from tspend.plants.mujoco_plant import MujocoPlant
@@ -40,6 +39,9 @@ __all__ = ["ArticulatedConfig", "ArticulatedODE", "ArticulatedMujoco", "Articula
            "ModelDrawing", "DOMAIN"]
 
 #: what ``plant.integrator`` takes on every MuJoCo machine ("" keeps the model's)
+#: slip velocity of the smooth dry friction F tanh(v / v_s) of the ODE twin, m/s or rad/s
+DRY_FRICTION_SLIP = 1e-3
+
 INTEGRATOR_CHOICES = ("", "RK4", "Euler", "implicit", "implicitfast")
 
 #: the fall angle of every pole by default: a pole past the horizontal has fallen
