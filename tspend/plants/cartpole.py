@@ -289,11 +289,12 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
 
     assert isinstance(cfg, CartPoleConfig)
+    unbounded = not isinstance(cfg, MujocoCartPoleConfig)
     if isinstance(cfg, MujocoCartPoleConfig):
         mj, overrides = cfg, cfg.overrides()
     else:
         # an ODE scenario on the MJCF (the paper's Example 3 by default): its machine is
-        # explicit, every number written
+        # explicit, every number written, u unbounded as the paper has it
         mj = MujocoCartPoleConfig(**{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
         overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
     friction = {k: (mj.__dict__[k] or None) for k in
@@ -302,7 +303,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
                            actuator=mj.actuator, overrides=overrides,
                            integrator=mj.integrator or None, timestep=mj.timestep or None,
                            gear=mj.gear or None,
-                           task_defaults=DOMAIN.task, **friction)
+                           task_defaults=DOMAIN.task, ctrl_unbounded=unbounded, **friction)
     # a cart-pole is an articulated machine: its equations (the controllers' models, the
     # ODE twin, the task check) are derived from the model, so a model that cannot be
     # derived is refused here, in one line naming what to change, not midway

@@ -301,6 +301,8 @@ class MujocoCartPole(MujocoPlant):
     gear:
         if given, the actuator's gain (cart force per unit of u) written into the model
         and read back from the compiled one.
+    ctrl_unbounded:
+        True leaves u unbounded (the actuator's ``ctrlrange`` off): the paper's machine.
     task_defaults:
         the domain's default task, its states named by the roles ``slider``/``hinge``
         (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
@@ -321,7 +323,8 @@ class MujocoCartPole(MujocoPlant):
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
                  cart_friction: float | None = None, hinge_friction: float | None = None,
-                 task_defaults: TaskDefaults | None = None, gear: float | None = None) -> None:
+                 task_defaults: TaskDefaults | None = None, gear: float | None = None,
+                 ctrl_unbounded: bool = False) -> None:
         self.model_path = Path(model_path)
         self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
@@ -356,6 +359,8 @@ class MujocoCartPole(MujocoPlant):
                 joint.frictionloss = friction
         if gear is not None:
             mjcf.apply_gear(act, gear, where)
+        if ctrl_unbounded:  # the paper's machine: no bound on u
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         keys, target = self._override_keys(spec, overrides, slide_joint, hinge_joint,
                                            actuator, where)
         if keys:
