@@ -2,7 +2,6 @@
 
 The pendulum's energy about its pivot, 0 upright at rest and ``-2 m g l`` hanging, is
 the domain's (:class:`~tspend.plants.domain.FullModel`'s ``energy``:
-:func:`tspend.plants.cartpole_physics.pole_energy`,
 :class:`tspend.plants.articulated.domain.DerivedFull`), ``E = 1/2 J theta'^2 + V(theta)``.
 It changes only through the driven joint (and the pendulum's own damping):
 ``E' = J theta' (theta'' - theta''|_{a=0})``, so on the cart-pole ``E' = m l cos(theta)

@@ -168,7 +168,8 @@ class JointFacts:
 
 @dataclass(frozen=True)
 class ActuatorFacts:
-    """The actuator as MuJoCo applies it (cartpole_physics' ``F(u, x, x')``)."""
+    """The actuator as MuJoCo applies it (the grey-box model's ``F(u, x, x')``,
+    :mod:`tspend.studies.cartpole_greybox`)."""
 
     name: str
     kind: str              #: motor, velocity, position or general
@@ -394,7 +395,7 @@ def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuat
     g = float(np.linalg.norm(gravity))
     down = gravity / g if g > 0.0 else np.array([0.0, 0.0, -1.0])
     # the COM's motion about the axis: X(q) = ax cos q + bx sin q (along the rail),
-    # H(q) = az cos q + bz sin q (up); cartpole_physics' k and phi from them
+    # H(q) = az cos q + bz sin q (up); the grey-box model's k and phi from them
     c_perp = com - float(com @ hinge_axis) * hinge_axis
     turned = np.cross(hinge_axis, c_perp)
     ax, bx = float(slide_axis @ c_perp), float(slide_axis @ turned)
