@@ -18,8 +18,9 @@ and checked on the compiled one.  The paper's own equation is
 model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpole_greybox`).
 
 This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
-(``slide`` = the cart, ``hinge`` = the pole), labels and units, the default task (view
-``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
+(``slide`` = the cart, ``hinge`` = the pole), labels and units and the default task (view
+``hinge``, ``hinge_dot``; fall angle pi/2); it is drawn as every machine is, from its own
+geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`, with its rail).
 """
 
 from __future__ import annotations
@@ -28,12 +29,12 @@ import copy
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
+from tspend.plants.articulated.domain import (ArticulatedODE, ModelDrawing, applied_forces, derived_full_accel,
     derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
@@ -44,14 +45,14 @@ from tspend.plants.mjcf import CartPoleParams, actuator_force_range
 from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
     PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity, END_COLOR, bound_text)
+    FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Bound, Task
+    from tspend.task import Task
 
 __all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "DerivedCartPoleODE",
-           "CartPoleDomain", "CartPoleDrawing", "DOMAIN", "cartpole_machine", "nominal_machine"]
+           "CartPoleDomain", "DOMAIN", "cartpole_machine", "nominal_machine"]
 
 
 # -- the scenario's [plant] table, on either backend -------------------------------------
@@ -333,245 +334,6 @@ LABELS = PlantLabels(
     disturbance=Quantity("d", "N", "disturbance force"),
 )
 
-#: default cart box (x, y, z) in metres
-CART_SIZE = (1.0, 0.6, 0.4)
-POLE_RADIUS = 0.05
-#: pole half-length used when the plant metadata does not give one
-DEFAULT_POLE_HALF_LENGTH = 3.0
-#: the drawn rail runs over [-RAIL_M, RAIL_M]: cart-poles drift tens of metres in a long run
-RAIL_M = 100.0
-#: a short tick every metre, a labelled mark every LABEL_EVERY_M (Rerun hides labels
-#: of entities with more than ~30 instances, so the labels stay fewer than that)
-LABEL_EVERY_M = 10.0
-RAIL_COLOR = (90, 90, 90)
-
-Color = tuple[int, int, int]
-
-
-class CartPolePoses(NamedTuple):
-    """World poses (z up) of the cart box centre and of the pole's centre of mass."""
-
-    cart_translation: np.ndarray   # (N, 3)
-    pole_translation: np.ndarray   # (N, 3), the pole's COM
-    pole_quaternion: np.ndarray    # (N, 4), xyzw; rotates local +z onto the pole axis
-
-
-def cartpole_poses(cart_pos: np.ndarray | float, theta: np.ndarray | float, l: float,
-                   cart_height: float = CART_SIZE[2]) -> CartPolePoses:
-    """Poses of cart and pole for cart positions ``cart_pos`` and pole angles ``theta``.
-
-    x points right (the cart's rail), z up.  The cart box sits on z = 0; the pole's
-    pivot is the centre of the box's top face; the pole (length ``2 l``) points along
-    ``(-sin theta, 0, cos theta)``, so ``theta > 0`` leans it toward -x, and its centre
-    of mass is ``l`` from the pivot.  Draw the pole as a capsule from local
-    ``(0, 0, -l)`` to ``(0, 0, l)``.
-    """
-    xc = np.atleast_1d(np.asarray(cart_pos, dtype=np.float64))
-    th = np.atleast_1d(np.asarray(theta, dtype=np.float64))
-    xc, th = np.broadcast_arrays(xc, th)
-    zeros = np.zeros_like(th)
-    cart = np.column_stack([xc, zeros, np.full_like(th, 0.5 * cart_height)])
-    pole = np.column_stack([xc - l * np.sin(th), zeros, cart_height + l * np.cos(th)])
-    # rotation by -theta about +y maps +z onto (-sin theta, 0, cos theta)
-    half = -0.5 * th
-    quat = np.column_stack([zeros, np.sin(half), zeros, np.cos(half)])
-    return CartPolePoses(cart, pole, quat)
-
-
-@dataclass(frozen=True)
-class CartPoleGeometry:
-    """Sizes and colours of the drawn cart-pole."""
-
-    l: float = DEFAULT_POLE_HALF_LENGTH
-    cart_half_sizes: tuple[float, float, float] = (0.5 * CART_SIZE[0], 0.5 * CART_SIZE[1],
-                                                   0.5 * CART_SIZE[2])
-    cart_color: Color = (70, 110, 170)
-    pole_radius: float = POLE_RADIUS
-    pole_color: Color = (220, 140, 40)
-
-
-def geometry_from_mjcf(path: str, base: CartPoleGeometry) -> CartPoleGeometry:
-    """Cart = the box on the slider's body; pole = the longest capsule/cylinder on the
-    hinge's body; colours as MuJoCo renders them.  Best effort: any failure keeps ``base``."""
-    try:
-        import mujoco
-
-        from tspend.plants.mjcf import read_spec
-
-        model = read_spec(path).compile()
-    except Exception:  # noqa: BLE001 - drawing must never stop a run
-        return base
-
-    def body_of(joint_type: int) -> int | None:
-        found = [int(model.jnt_bodyid[j]) for j in range(model.njnt)
-                 if int(model.jnt_type[j]) == joint_type]
-        return found[0] if found else None
-
-    def color(g: int) -> Color:
-        rgba = model.geom_rgba[g]
-        if int(model.geom_matid[g]) >= 0 and np.allclose(rgba, (0.5, 0.5, 0.5, 1.0)):
-            rgba = model.mat_rgba[int(model.geom_matid[g])]
-        return tuple(int(round(255 * c)) for c in rgba[:3])  # type: ignore[return-value]
-
-    cart_body = body_of(mujoco.mjtJoint.mjJNT_SLIDE)
-    pole_body = body_of(mujoco.mjtJoint.mjJNT_HINGE)
-    geoms = range(model.ngeom)
-    boxes = [g for g in geoms if int(model.geom_bodyid[g]) == cart_body
-             and int(model.geom_type[g]) == mujoco.mjtGeom.mjGEOM_BOX]
-    rods = [g for g in geoms if int(model.geom_bodyid[g]) == pole_body
-            and int(model.geom_type[g]) in (mujoco.mjtGeom.mjGEOM_CAPSULE,
-                                            mujoco.mjtGeom.mjGEOM_CYLINDER)]
-    geom = base
-    if boxes:
-        size = model.geom_size[boxes[0]]
-        geom = replace(geom, cart_half_sizes=(float(size[0]), float(size[1]), float(size[2])),
-                       cart_color=color(boxes[0]))
-    if rods:
-        rod = max(rods, key=lambda g: float(model.geom_size[g][1]))
-        geom = replace(geom, pole_radius=float(model.geom_size[rod][0]), pole_color=color(rod))
-    return geom
-
-
-def readout_labels(cart_pos: np.ndarray) -> list[str]:
-    """The text shown on the cart at each frame."""
-    return [f"x_c = {x:+.2f} m" for x in np.asarray(cart_pos, dtype=np.float64)]
-
-
-@dataclass(frozen=True)
-class CartPoleDrawing(Drawing):
-    """The cart-pole in 3D: the machine's parameters and, for MuJoCo, the MJCF whose geoms
-    give sizes and colours.  ``theta_sign`` is -1 when the model's positive angle leans
-    the pole toward +x (drawn as it moves)."""
-
-    M: float
-    m: float
-    l: float
-    g: float
-    mjcf: str = ""
-    theta_sign: float = 1.0
-    title = "cart-pole"
-    end_entity = "cart/end"
-
-    def geometry(self) -> CartPoleGeometry:
-        geom = CartPoleGeometry(l=self.l)
-        return geometry_from_mjcf(self.mjcf, geom) if self.mjcf else geom
-
-    def document(self) -> dict[str, Any]:
-        return {"M": self.M, "m": self.m, "l": self.l, "g": self.g, "mjcf": self.mjcf,
-                "theta_sign": self.theta_sign}
-
-    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
-        """Ground frame, cart and pole shapes, the rail with distance marks, the readout."""
-        import rerun as rr
-
-        geom = self.geometry()
-        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log(f"{world}/cart", rr.Boxes3D(half_sizes=[geom.cart_half_sizes],
-                                            colors=[shade(geom.cart_color)],
-                                            fill_mode=rr.components.FillMode.Solid), static=True)
-        rec.log(f"{world}/cart/readout", rr.Points3D(
-            [[0.0, -geom.cart_half_sizes[1] - 1.0, 0.0]], radii=[0.01], colors=[(40, 40, 40)],
-            show_labels=True), static=True)
-        rec.log(f"{world}/pole", rr.Capsules3D(
-            lengths=[2.0 * geom.l], radii=[geom.pole_radius], translations=[[0.0, 0.0, -geom.l]],
-            colors=[shade(geom.pole_color)]), static=True)
-        self._log_rail(rec, world, geom.cart_half_sizes[1], -RAIL_M, RAIL_M)
-        object.__setattr__(self, "_cart_height", 2.0 * geom.cart_half_sizes[2])
-        object.__setattr__(self, "_half_width", geom.cart_half_sizes[1])
-
-    @staticmethod
-    def _log_rail(rec: Any, world: str, half_width: float, lo: float, hi: float) -> None:
-        """The rail over ``[lo, hi]`` m: two lines, a tick every metre, a labelled mark every
-        10 m (every 5, 2 or 1 m on a shorter rail: about eight labels, which stay apart
-        when the whole rail is in view)."""
-        import rerun as rr
-
-        rails = [[[lo, y, 0.0], [hi, y, 0.0]] for y in (-half_width, half_width)]
-        every = next((e for e in (1.0, 2.0, 5.0) if (hi - lo) / e <= 8.0), LABEL_EVERY_M)
-        metres = np.arange(math.ceil(lo), math.floor(hi) + 0.5, 1.0)
-        ticks = [[[x, -half_width - (0.4 if x % every == 0 else 0.2), 0.0],
-                  [x, -half_width, 0.0]] for x in metres]
-        rec.log(f"{world}/rail", rr.LineStrips3D(rails + ticks, colors=[RAIL_COLOR], radii=[0.02]),
-                static=True)
-        marks = np.arange(math.ceil(lo / every) * every, math.floor(hi / every) * every + 0.5 * every,
-                          every)
-        rec.log(f"{world}/rail/marks", rr.Points3D(
-            np.column_stack([marks, np.full(marks.size, -half_width - 0.7), np.zeros(marks.size)]),
-            radii=[0.04], colors=[RAIL_COLOR],
-            labels=[f"{x:+.0f} m" if x else "0 m" for x in marks], show_labels=True), static=True)
-
-    def log_bounds(self, rec: Any, world: str, bounds: Sequence[Bound],
-                   shade: Callable[[tuple], tuple]) -> None:
-        """The rail's ends (the slide joint's bound; the rail is drawn up to them) as red
-        posts labelled with their position, and the pole's bound (fall angle or hinge
-        range) as two red rays from the pivot along the angles that end the run."""
-        import rerun as rr
-
-        half_width = self.__dict__.get("_half_width", 0.5 * CART_SIZE[1])
-        height = self.__dict__.get("_cart_height", CART_SIZE[2])
-        red = shade(END_COLOR)
-        for bound in bounds:
-            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
-            if bound.index == 0 and ends:  # the slide joint: the rail
-                lo = bound.lo if math.isfinite(bound.lo) else -RAIL_M
-                hi = bound.hi if math.isfinite(bound.hi) else RAIL_M
-                self._log_rail(rec, world, half_width, lo - 1.0, hi + 1.0)
-                posts = [[[x, y, 0.0], [x, y, 1.5]] for x in ends for y in (-half_width, half_width)]
-                rec.log(f"{world}/rail/ends", rr.LineStrips3D(posts, colors=[red], radii=[0.06]),
-                        static=True)
-                rec.log(f"{world}/rail/ends/labels", rr.Points3D(
-                    [[x, -half_width, 1.8] for x in ends], radii=[0.05], colors=[red],
-                    labels=[f"{bound.status} {x:+g} {bound.unit}".rstrip() for x in ends],
-                    show_labels=True), static=True)
-            elif bound.index == 1 and ends:  # the hinge: the pole's angle
-                pivot = [0.0, 0.0, 0.5 * height]   # in the cart's frame (its centre)
-                tips = [[pivot[0] - 2.0 * self.l * math.sin(self.theta_sign * a), 0.0,
-                         pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
-                rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
-                    [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
-                # one label, in the rays' red, under the cart's readout: clear of the cart,
-                # the pole and the rail's marks, inside a view half as wide (the cross-check's)
-                rec.log(f"{world}/cart/bounds/label", rr.Points3D(
-                    [[0.0, -half_width - 1.0, -1.6]], colors=[red], radii=[0.01], show_labels=True,
-                    labels=[bound_text(bound)]), static=True)
-
-    @property
-    def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]
-        """Above the pole's pivot, clear of the pole (the label follows the cart)."""
-        return (0.0, 0.0, 2.0 * self.l + 1.5)
-
-    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
-                   extras: dict[str, np.ndarray]) -> None:
-        import rerun as rr
-
-        theta = np.asarray(x[:, 0], dtype=np.float64) * self.theta_sign
-        cart_pos = np.asarray(extras.get("cart_pos", np.zeros_like(theta)), dtype=np.float64)
-        height = self.__dict__.get("_cart_height", CART_SIZE[2])
-        poses = cartpole_poses(cart_pos, theta, self.l, height)
-        rec.send_columns(f"{world}/cart", indexes=[times],
-                         columns=rr.Transform3D.columns(translation=poses.cart_translation))
-        rec.send_columns(f"{world}/cart/readout", indexes=[times],
-                         columns=rr.Points3D.columns(labels=readout_labels(cart_pos)))
-        rec.send_columns(f"{world}/pole", indexes=[times],
-                         columns=rr.Transform3D.columns(translation=poses.pole_translation,
-                                                        quaternion=poses.pole_quaternion))
-
-    def view(self, origin: str, suffix: str = "") -> Any:
-        """The cart-pole seen from the side, the camera following the cart (the drift
-        shows as the rail's metre marks passing by and in the readout)."""
-        import rerun.blueprint as rrb
-
-        l = self.l
-        return rrb.Spatial3DView(
-            origin=origin,
-            # side by side (the cross-check) a view is half as wide: the short title
-            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marked in metres, readout: cart position)",
-            line_grid=rrb.LineGrid3D(visible=False),
-            eye_controls=rrb.EyeControls3D(
-                position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],
-                eye_up=[0.0, 0.0, 1.0], tracking_entity=f"{origin}/cart"))
-
-
 #: the cross-check's open-loop chirp: amplitude per kg of total mass
 CHIRP_N_PER_KG = 100.0 / 11.0
 
@@ -669,10 +431,11 @@ class CartPoleDomain(Domain):
         return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
-        params: CartPoleParams = plant.params  # type: ignore[attr-defined]
-        mjcf = str(self.model_path(scenario)) if self.kinds[scenario.plant.kind].mujoco else ""
-        return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,
-                               theta_sign=params.theta_sign)
+        """The machine's own geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`),
+        on its rail, the cart posed by the extra ``cart_pos``."""
+        machine = cartpole_machine(plant)
+        slide = machine.joint_names[[j.kind for j in machine.tree.joints].index("slide")]
+        return ModelDrawing(machine, self.view_names(plant), "cart-pole", {slide: "cart_pos"})
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         # one slide and one hinge: a chain of more is the articulated domain's
