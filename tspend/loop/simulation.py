@@ -60,7 +60,7 @@ def machine_kind_hint(scenario: Scenario) -> str:
     scenario's own domain, or cannot be read: the error says enough then)."""
     import tomllib
 
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     def joint_types(path) -> tuple[tuple[str, ...], object] | None:
         """``(joint types in the model's order, compiled model)``; None: unreadable."""

@@ -34,16 +34,13 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
-from tspend.plants.articulated.tree import INTEGRATOR_NAMES
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.mjcf import CartPoleParams
+from tspend.runtime.model_file import read_spec
 
 #: the machine's numbers a scenario can write into a model (``[plant]`` keys of
 #: ``cartpole_mujoco``; docs/third-party-models.md)
 OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
-
-#: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
-INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {v: k for k, v in INTEGRATOR_NAMES.items()}
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
@@ -330,7 +327,7 @@ class MujocoCartPole(MujocoPlant):
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
-        spec = mjcf.read_spec(self.model_path)  # within the size bounds
+        spec = read_spec(self.model_path)  # within the size bounds
 
         slide = self._spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
         hinge = self._spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
@@ -342,11 +339,9 @@ class MujocoCartPole(MujocoPlant):
             raise ScenarioError(f"{where}: actuator {actuator!r} drives {act.target!r}, "
                                 f"not the slide joint {slide_joint!r}")
 
-        if integrator is not None:
-            if integrator not in INTEGRATORS:
-                raise ScenarioError(f"{where}: unknown integrator {integrator!r} "
-                                    f"(allowed: {', '.join(INTEGRATORS)})")
-            spec.option.integrator = INTEGRATORS[integrator]
+        from tspend.plants.articulated.machine import set_integrator
+
+        set_integrator(spec, integrator or "", where)
         if timestep is not None:
             if not (timestep > 0.0 and math.isfinite(timestep)):
                 raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
@@ -595,7 +590,7 @@ def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
     where = str(model_path)
     if not Path(model_path).is_file():
         raise ScenarioError(f"{where}: model file not found")
-    spec = mjcf.read_spec(model_path)
+    spec = read_spec(model_path)
 
     def only(found: list[str], what: str, flag: str) -> str:
         if len(found) != 1:

@@ -296,7 +296,7 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
     ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into it first:
     :mod:`.model_numbers`) and read."""
     from tspend.plants.articulated.model_numbers import compile_with_values
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     where = str(path)
     if not Path(path).is_file():
