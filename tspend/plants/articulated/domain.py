@@ -28,7 +28,7 @@ from tspend.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.domain import (COMPILED_VIEW_ACCEL, END_COLOR, FULL_ACCEL, FULL_ENERGY, FULL_STATE,
+from tspend.plants.domain import (COMPILED_VIEW_ACCEL, END_COLOR, FULL_STATE,
     SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity,
     bound_text)
 from tspend.plants.mujoco_plant import MujocoPlant
@@ -538,8 +538,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
 
 class DerivedFull(NamedTuple):
     """A derived machine as compiled full-state controllers (the swing-up) ask for it
-    (:data:`~tspend.plants.domain.FULL_ACCEL`, :data:`~tspend.plants.domain.FULL_ENERGY`):
-    ``q''(s, u)`` and the energy of the pole ``pole`` with every other joint at rest at 0
+    (:func:`derived_full_accel`, :func:`derived_pole_energy`): ``q''(s, u)`` and the energy of the pole ``pole`` with every other joint at rest at 0
     (the machine's ``T + V`` there, less its value upright at rest ``V0``), through the
     generated ``rhs_c`` and ``energy_c`` by their C addresses."""
 
@@ -575,10 +574,6 @@ def derived_pole_energy(m: DerivedFull, s: np.ndarray) -> float:
     m.energy_fn(m.s.ctypes.data, m.s[nv:].ctypes.data, m.rhs.p.ctypes.data,
                 m.T.ctypes.data, m.V.ctypes.data)
     return m.T[0] + m.V[0] - m.V0
-
-
-FULL_ACCEL[DerivedFull] = derived_full_accel
-FULL_ENERGY[DerivedFull] = derived_pole_energy
 
 
 def derived_full_of(machine: Machine, pole: int) -> DerivedFull:
