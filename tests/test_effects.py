@@ -22,7 +22,7 @@ from tspend.config import EffectsConfig, ParameterChange
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from tspend.plants.effects import EffectsPlant, Measurement
 from cartpole_oracle import CartPoleParams, cartpole_ode_plant
-from tspend.plants.mjcf_warning import ModelWarning
+from tspend.errors import ModelWarning
 from tspend.scenario import available_scenarios
 from tspend.loop.simulation import build_plant
 

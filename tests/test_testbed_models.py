@@ -22,7 +22,7 @@ from tspend.cli.main import main
 from tspend.studies.crosscheck import failure_reason, open_loop
 from tspend.errors import ScenarioError
 from tspend.plants.mjcf import CartPoleParams
-from tspend.plants.mjcf_warning import ModelWarning
+from tspend.errors import ModelWarning
 from tspend.plants.mujoco_plant import MujocoCartPole
 from tspend.loop.simulation import build_plant
 

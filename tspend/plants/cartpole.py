@@ -41,7 +41,7 @@ from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.mjcf import CartPoleParams, actuator_force_range
+from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams, actuator_force_range
 from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
     PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
@@ -92,10 +92,6 @@ class CartPoleConfig(PlantConfig):
     gear: float = field(default=0.0, metadata=_own_if_zero())
 
 
-#: the [plant] keys of cartpole_mujoco that write a number into the model (0: the model's own)
-MODEL_OVERRIDES = ("M", "m", "l", "J", "g")
-
-
 @dataclass(frozen=True)
 class MujocoCartPoleConfig(CartPoleConfig):
     """A cart-pole MJCF stepped by MuJoCo, as it is: its masses, geometry, actuator and
@@ -129,7 +125,7 @@ class MujocoCartPoleConfig(CartPoleConfig):
         """The override keys set (name -> value): what the model is changed by."""
         if not self.override_inertials:
             return {}
-        return {k: float(getattr(self, k)) for k in MODEL_OVERRIDES if getattr(self, k) > 0.0}
+        return {k: float(getattr(self, k)) for k in OVERRIDABLE if getattr(self, k) > 0.0}
 
 
 # -- the derived equations of a MuJoCo cart-pole ----------------------------------------
@@ -297,7 +293,7 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
         # an ODE scenario on the MJCF (the paper's Example 3 by default): its machine is
         # explicit, every number written, u unbounded as the paper has it
         mj = MujocoCartPoleConfig(**{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
-        overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
+        overrides = {k: float(getattr(cfg, k)) for k in OVERRIDABLE}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
     plant = MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,

@@ -40,6 +40,10 @@ __all__ = ["CartPoleParams", "actuator_force_range", "ActuatorFacts", "JointFact
 # dynamics but must be positive; reproduces models/cartpole.xml's 1e-4 kg m^2.
 AXIAL_INERTIA_RATIO = 1.0 / 3e4
 
+#: the machine's numbers a scenario can write into a model (``[plant]`` keys of
+#: ``cartpole_mujoco``, 0: the model's own; docs/third-party-models.md)
+OVERRIDABLE = ("M", "m", "l", "J", "g")
+
 #: relative mismatch tolerated between a requested and a compiled parameter
 VERIFY_RTOL = 1e-9
 

@@ -35,12 +35,8 @@ import numpy as np
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
-from tspend.plants.mjcf import CartPoleParams
+from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
 from tspend.runtime.model_file import read_spec
-
-#: the machine's numbers a scenario can write into a model (``[plant]`` keys of
-#: ``cartpole_mujoco``; docs/third-party-models.md)
-OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
