@@ -387,13 +387,7 @@ class CartPoleDomain(Domain):
                 return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
             def q_dd(s, u):
-                import casadi as ca  # only for a symbolic model (MPC)
-
-                # with MuJoCo's clips of ctrl and force
-                uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
-                                    for k in range(len(m.tree.actuators))])
-                M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
-                a = ca.solve(ca.reshape(M, 2, 2), r)
+                a = m.symbolic_accel(s, u, clips=True)  # with MuJoCo's clips of ctrl and force
                 return a[0], a[1]
 
             return q_dd

@@ -113,7 +113,9 @@ class CartPoleParams:
     @property
     def disturbance_torque(self) -> float:
         """Hinge torque per unit d_d: ``tau = -d_d m l / (M + m)`` enters (C2) like d_d
-        enters the paper's numerator (exact for the rod, the paper's meaning otherwise)."""
+        enters the paper's numerator (exact for the rod, the paper's meaning otherwise):
+        with a hinge torque the Lagrangian gives ``theta'' = (... - tau (M+m)/(m l)) /
+        (m l cos^2 - 4/3 l (M+m))``; positive ``tau`` pushes ``theta`` up."""
         return -self.m * self.l / (self.M + self.m)
 
     @property

@@ -1,24 +1,12 @@
 """MuJoCo plants: :class:`MujocoPlant` steps any compiled hinge/slide MJCF (the
 articulated domain's and the Furuta's plants are it with their machine's roles), and
-:class:`MujocoCartPole` is the physical cart-pole of the paper's Example 3 on it.
-
-``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
-MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
-(docs/paper-notes.md section 7): the state is ``x = [theta, theta']`` (hinge qpos, qvel), ``u`` is
-the motor force on the cart, and the disturbance ``d_d`` of the ODE's numerator is
-applied as the hinge torque that has the same effect,
-
-    tau = -d_d m l / (M + m),
-
-because with a hinge torque the Lagrangian gives ``theta'' = (... - tau (M+m)/(m l))
-/ (m l cos^2 - 4/3 l (M+m))``, i.e. the torque enters exactly like ``-tau (M+m)/(m l)``
-in place of ``d_d``.  The torque goes in generalized coordinates (``qfrc_applied`` at the
-hinge DOF), so it is independent of the hinge axis convention: positive ``tau`` pushes
-``theta`` up, as positive ``theta`` is defined by the model.
-
-Physical parameters (M, m, l, g) can be overridden in code through ``mujoco.MjSpec``,
-and :attr:`MujocoCartPole.params` reads them back from the compiled model, so the ODE
-backend can be built from the same machine.
+:class:`MujocoCartPole` is the cart-pole on it (``models/cartpole.xml`` reproduces the
+paper's Example 3, docs/paper-notes.md section 7): the state ``x = [theta, theta']`` of
+its hinge, ``u`` the actuator's control, the disturbance ``d_d`` the hinge torque
+:attr:`~tspend.plants.mjcf.CartPoleParams.disturbance_torque` ``d_d`` (in generalised
+coordinates, ``qfrc_applied``, so independent of the hinge axis' convention), and its
+``[plant]`` numbers written into the model through ``MjSpec`` and read back from the
+compiled one (:attr:`MujocoCartPole.params`), so the ODE twin is the same machine.
 """
 
 from __future__ import annotations
