@@ -11,7 +11,10 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from tspend.plants.cartpole import CartPoleParams
+from tspend.plants.analytic import AnalyticPlant
+from tspend.plants.base import InputInfo, JointInfo, TaskDefaults
+from tspend.plants.mjcf import CartPoleParams
+from tspend.studies.cartpole_greybox import accelerations, gain_sign, machine_of
 
 
 class ReferenceCartPole:
@@ -67,3 +70,47 @@ class ReferenceCartPole:
         return {"cart_pos": float(self.s[2]), "cart_vel": float(self.s[3])}
 
 
+
+
+class HandWrittenCartPole(AnalyticPlant):
+    """The hand-written (C1)-(C2) (:mod:`tspend.studies.cartpole_greybox`) as a plant: the
+    oracle the derived and the MuJoCo cart-poles are compared with (no run uses it).
+
+    Integrated by tspend's RK4 as ``s = [theta, theta', x_c, x_c']``; its full state is the
+    MJCF's order, ``(slider, hinge, slider_dot, hinge_dot)``."""
+
+    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
+        super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
+                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
+                         domain="cartpole", state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
+                         state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
+        self.set_params(params)
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        return (JointInfo("slider", "slide", "m", None), JointInfo("hinge", "hinge", "rad", None))
+
+    @property
+    def inputs(self) -> tuple[InputInfo, ...]:
+        return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
+
+    def default_task(self) -> TaskDefaults:
+        return TaskDefaults(view=("hinge", "hinge_dot"), fall_angle=math.pi / 2, pole="hinge")
+
+    @property
+    def gain_sign(self) -> int:
+        return int(gain_sign(self.params))
+
+    def set_params(self, params: CartPoleParams) -> None:
+        self.params = params
+        self._machine = machine_of(params)
+
+    def parameters(self) -> dict[str, float]:
+        return self.params.finite()
+
+    def _rhs_params(self):
+        return self._machine
+
+
+def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> HandWrittenCartPole:
+    return HandWrittenCartPole(params)

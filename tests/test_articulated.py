@@ -105,14 +105,14 @@ def test_each_machine_matches_mj_forward(name: str) -> None:
 
 
 def test_the_hand_written_cartpole_and_furuta_equations_agree() -> None:
-    """The hand-written equations (tspend/plants/cartpole_physics.py; the Furuta's in
+    """The hand-written equations (tspend/studies/cartpole_greybox.py; the Furuta's in
     tests/oracles/furuta_equations.py) are the derivation's oracles: the same
     accelerations at random states."""
-    from tspend.plants.cartpole_physics import machine_accelerations
+    from tspend.studies.cartpole_greybox import machine_accelerations, machine_of
 
     rng = np.random.default_rng(7)
     scn = load_scenario("pendulum_mujoco")
-    hand = DOMAINS["cartpole"].build(scn).params.machine()
+    hand = machine_of(DOMAINS["cartpole"].build(scn).params)
     machine = load_machine(ROOT / "models" / "cartpole.xml")
     assert machine.state_names == DOMAINS["cartpole"].build(scn).state_names
     lo, hi = machine.actuator.ctrlrange or (-50.0, 50.0)

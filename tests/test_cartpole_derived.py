@@ -1,7 +1,7 @@
 """The MuJoCo cart-pole's controller-side equations come from the derivation (issue 32).
 
-The hand-written (C1)-(C2) of tspend/plants/cartpole_physics.py (kept for the paper's
-``cartpole_ode``) are the oracle: the equations derived from the compiled
+The hand-written (C1)-(C2) of tspend/studies/cartpole_greybox.py (the grey-box model
+identification fits) are the oracle: the equations derived from the compiled
 models/cartpole.xml, with the same numbers written into it, give the same accelerations
 at random states; the derived linearisation is the hand-written one's central
 difference; the ODE twin applies d as the MuJoCo plant does, and steps the same on the
@@ -19,7 +19,8 @@ from tspend import load_scenario, override
 from tspend.loop.simulation import run
 from tspend.plants.cartpole import (DOMAIN, _nominal, DerivedCartPoleODE, cartpole_machine,
                                     nominal_machine)
-from tspend.plants.cartpole_physics import machine_accelerations, pole_energy
+from tspend.studies.cartpole_greybox import (inverse_dynamics, machine_accelerations, machine_of,
+                                             pole_energy)
 from tspend.plants.mujoco_plant import MujocoCartPole
 
 from cli_harness import ROOT
@@ -47,7 +48,7 @@ def test_the_hand_written_equations_are_the_oracle_of_the_derived_ones(
     machine = cartpole_machine(plant)
     assert machine is not None
     ode = DerivedCartPoleODE(plant, machine)
-    oracle = plant.params.machine()
+    oracle = machine_of(plant.params)
     lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     rng = np.random.default_rng(32)
     sdot, worst = np.empty(4), 0.0
@@ -71,7 +72,7 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
     plant = DOMAIN.build(scn)
     assert plant.params.cart_damping > 0 or plant.params.cart_friction > 0
     machine_ = DOMAIN.build(scn)   # the nominal machine the runner hands a controller
-    nominal = _nominal(machine_.params).machine()
+    nominal = machine_of(_nominal(machine_.params))
     view = DOMAIN.plant_model(scn, machine_)
     full = DOMAIN.full_model(scn, machine_)
     rng = np.random.default_rng(3)
@@ -108,24 +109,43 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
         assert b == (0.0 if name.endswith(".damping") else a), name
 
 
-def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_keeps_c1_c2() -> None:
+def _hand_reference_force(p, scn) -> tuple[float, float, float]:
+    """The task check's need from the hand-written inverse dynamics (the oracle)."""
+    from tspend.plants.cartpole import NEED_SAMPLES
+
+    n = int(min(NEED_SAMPLES, max(2, round(scn.run.duration / scn.run.dt))))
+    t = np.linspace(0.0, scn.run.duration, n + 1)
+    r = scn.reference.derivatives(t, 2)
+    d = np.asarray(scn.disturbance(t), dtype=float)
+    force, v, hand = np.empty(n + 1), 0.0, machine_of(p)
+    for k in range(n + 1):
+        force[k], x_dd = inverse_dynamics(hand, r[k, 0], r[k, 1], r[k, 2], v, d[k])
+        if k < n and math.isfinite(x_dd):
+            v += x_dd * (t[k + 1] - t[k])
+    k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
+    k = k_hi if abs(force[k_hi]) >= abs(force[k_lo]) else k_lo
+    return float(t[k]), float(force[k_lo]), float(force[k_hi])
+
+
+def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_too() -> None:
     scn = load_scenario("pendulum_mujoco")
     twin = DOMAIN.build(scn, "cartpole_ode")
     assert isinstance(twin, DerivedCartPoleODE)
     assert twin.parameters() == DOMAIN.build(scn).parameters()
+    # the paper's Example 3 on cartpole_ode: models/cartpole.xml's derived equations with
+    # the scenario's numbers written into the model
     ex3 = load_scenario("ex3_pendulum_ode")
-    assert not isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
-    assert DOMAIN.nominal_derived(ex3, DOMAIN.build(ex3)) is None
-    # the task check's need, from both inverse dynamics, on the same machine (with its
-    # damping and dry friction on pendulum_friction)
+    assert isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
+    # the task check's need, from the derived and the hand-written inverse dynamics, on
+    # the same machine (with its damping and dry friction on pendulum_friction)
     from tspend.plants.cartpole import reference_force
 
-    for name in ("pendulum_mujoco", "pendulum_friction"):
+    for name in ("pendulum_mujoco", "pendulum_friction", "ex3_pendulum_ode"):
         scn = load_scenario(name)
         p = DOMAIN.build(scn).params
         derived = reference_force(p, scn, cartpole_machine(DOMAIN.build(scn)))
-        hand = reference_force(p, scn)
-        assert derived is not None and hand is not None
+        hand = _hand_reference_force(p, scn)
+        assert derived is not None
         np.testing.assert_allclose(derived, hand, rtol=1e-10, atol=1e-10)
 
 
@@ -167,7 +187,7 @@ def test_every_cartpole_derives_and_agrees_with_c1_c2(model) -> None:
     machine = cartpole_machine(plant)   # every one derives (actuatorfrcrange included)
     assert machine is not None, model
     ode = DerivedCartPoleODE(plant, machine)
-    oracle = plant.params.machine()
+    oracle = machine_of(plant.params)
     lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     if not math.isfinite(lo):
         lo, hi = -50.0, 50.0
@@ -190,8 +210,8 @@ def test_every_cartpole_derives_and_agrees_with_c1_c2(model) -> None:
 def test_the_papers_example_3_equation_is_the_views_model_on_the_papers_machine(name) -> None:
     """The paper's own Example 3 ODE (tspend.plants.analytic.cartpole_accel, as printed)
     against the pole's equation the model-based kinds get on the paper's machine: the
-    hand-written (C1)-(C2) (ex3_pendulum_ode) and the equations derived from
-    models/cartpole.xml (pendulum_mujoco)."""
+    equations derived from models/cartpole.xml, the paper's numbers written into it
+    (ex3_pendulum_ode) or its own (pendulum_mujoco)."""
     from tspend.plants.analytic import cartpole_accel
 
     scn = load_scenario(name)

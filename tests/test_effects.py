@@ -21,9 +21,8 @@ from tspend.cli.main import main
 from tspend.config import EffectsConfig, ParameterChange
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from tspend.plants.effects import EffectsPlant, Measurement
-from tspend.plants.cartpole import cartpole_ode_plant
-from tspend.plants.cartpole import CartPoleParams
-from tspend.plants.mjcf_warning import ModelWarning
+from cartpole_oracle import CartPoleParams, cartpole_ode_plant
+from tspend.errors import ModelWarning
 from tspend.scenario import available_scenarios
 from tspend.loop.simulation import build_plant
 

@@ -20,7 +20,7 @@ from tspend import load_scenario, override, run
 from tspend.cli.main import main
 from tspend.errors import ScenarioError
 from tspend.loop.simulation import prepare
-from tspend.plants.cartpole_physics import accelerations
+from tspend.studies.cartpole_greybox import accelerations, machine_of
 from tspend.plants.mujoco_plant import MujocoCartPole
 from tspend.studies.crosscheck import closed_loop, open_loop, parting, verdict
 
@@ -58,7 +58,7 @@ def test_ode_accelerations_are_mujocos_at_random_states(model: Path) -> None:
     slide, hinge, act = ALL[model]
     plant = MujocoCartPole(model, slide, hinge, act, timestep=0.001)
     m, d = plant.model, plant.data
-    p = plant.params.machine()
+    p = machine_of(plant.params)
     rng = np.random.default_rng(7)
     qs, qh = m.jnt_qposadr[m.joint(slide).id], m.jnt_qposadr[m.joint(hinge).id]
     vs, vh = m.jnt_dofadr[m.joint(slide).id], m.jnt_dofadr[m.joint(hinge).id]

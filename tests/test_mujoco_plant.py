@@ -27,7 +27,7 @@ def square_disturbance(t: float) -> float:
     """The paper's +/-0.05 square wave of period 2 pi, at one time."""
     return float(_SQUARE(np.array([t]))[0])
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.cartpole import CartPoleParams, cartpole_ode_plant
+from cartpole_oracle import CartPoleParams, cartpole_ode_plant
 from tspend.plants.base import Plant
 from tspend.plants.mujoco_plant import MujocoCartPole
 

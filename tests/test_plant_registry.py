@@ -3,13 +3,13 @@ reader; the recorder gets a typed drawing object."""
 
 from __future__ import annotations
 
-import dataclasses
 
 import pytest
 
 from tspend import load_scenario, override
 from tspend.config import AnalyticPlantConfig
-from tspend.plants.cartpole import CartPoleConfig, CartPoleDrawing, MujocoCartPoleConfig
+from tspend.plants.articulated.domain import ModelDrawing
+from tspend.plants.cartpole import CartPoleConfig, MujocoCartPoleConfig
 from tspend.errors import ScenarioError
 from tspend.plants.registry import PLANT_KINDS
 from tspend.loop.simulation import build_plant, run_info
@@ -46,11 +46,10 @@ def test_plant_and_effect_keys_are_validated(scenario, key, value, words) -> Non
 def test_the_recorder_gets_a_typed_drawing() -> None:
     scn = load_scenario("pendulum_mujoco")
     info = run_info(scn, build_plant(scn), 10)
-    assert isinstance(info.drawing, CartPoleDrawing)
-    assert (info.drawing.M, info.drawing.m, info.drawing.l) == pytest.approx((10.0, 1.0, 3.0))
-    assert info.drawing.mjcf.endswith("models/cartpole.xml")
-    ode = load_scenario("ex3_pendulum_ode")
-    assert run_info(ode, build_plant(ode), 10).drawing.mjcf == ""
+    assert isinstance(info.drawing, ModelDrawing) and info.drawing.title == "cart-pole"
+    assert info.drawing.machine.where.endswith("models/cartpole.xml")
+    assert info.drawing.positions == {"slider": "cart_pos"}   # the cart posed by its extra
+    ode = load_scenario("ex3_pendulum_ode")   # the paper's machine, drawn from its MJCF too
+    assert isinstance(run_info(ode, build_plant(ode), 10).drawing, ModelDrawing)
     duffing = load_scenario("ex2_duffing")
     assert run_info(duffing, build_plant(duffing), 10).drawing is None
-    assert dataclasses.is_dataclass(info.drawing)

@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 
 from tspend.task import build_task
 from tspend.plants.analytic import duffing_plant, nonaffine_plant, third_order_plant
-from tspend.plants.cartpole import CartPoleParams, cartpole_ode_plant
+from cartpole_oracle import CartPoleParams, cartpole_ode_plant
 
 DT = 1e-3
 

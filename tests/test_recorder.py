@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from tspend.plants.cartpole import CartPoleDrawing, cartpole_poses
 import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
@@ -28,6 +27,16 @@ TERMS = ("NB", "NS", "Z", "PS", "PB")
 DT = 0.001
 
 
+def cartpole_drawing():
+    """The drawing of models/cartpole.xml (pendulum_mujoco's)."""
+    from tspend import load_scenario
+    from tspend.loop.simulation import build_plant
+    from tspend.plants.registry import drawing
+
+    scn = load_scenario("pendulum_mujoco")
+    return drawing(build_plant(scn), scn)
+
+
 def make_info(order: int = 2, plant_kind: str = "cartpole_ode", steps: int = 3000) -> RunInfo:
     extras = ("cart_pos", "cart_vel") if "cartpole" in plant_kind else ()
     model = tuple(FuzzyInputInfo(f"x_o{i + 1}", -1.0, 1.0, TERMS) for i in range(order)) + (
@@ -37,7 +46,7 @@ def make_info(order: int = 2, plant_kind: str = "cartpole_ode", steps: int = 300
                    seed=1234, version="0.1.0", plant_kind=plant_kind, order=order, dt=DT, duration=steps * DT,
                    steps=steps, model_inputs=model, compensator_inputs=comp, extras=extras,
                    controller_kind="second_type", diagnostics=paper_diagnostics(order),
-                   drawing=CartPoleDrawing(M=10.0, m=1.0, l=3.0, g=9.8) if extras else None)
+                   drawing=cartpole_drawing() if extras else None)
 
 
 def make_run(order: int, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -314,32 +323,40 @@ def test_curves_every_decimates(tmp_path: Path) -> None:
     assert np.array_equal(x1, data["x"][::7, 0])
 
 
-def test_cartpole_poses() -> None:
-    l = 2.0
-    up = cartpole_poses(1.0, 0.0, l, cart_height=0.4)
-    assert np.allclose(up.cart_translation, [[1.0, 0.0, 0.2]])
-    assert np.allclose(up.pole_translation, [[1.0, 0.0, 0.4 + l]])
-    flat = cartpole_poses(0.0, math.pi / 2, l, cart_height=0.4)
-    assert np.allclose(flat.pole_translation, [[-l, 0.0, 0.4]])  # theta > 0 leans toward -x
-    # the quaternion rotates local +z onto the pole axis
-    x, y, z, w = flat.pole_quaternion[0]
-    axis = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
-    assert np.allclose(axis, [-1.0, 0.0, 0.0])
+def test_a_cart_machine_is_drawn_on_its_rail_in_the_models_colours(tmp_path: Path) -> None:
+    """The model's own geoms, a material's colour as MuJoCo renders it; the cart (a slide
+    along x on a body of the world) found whatever comes first in the file, its box giving
+    the rail's width and height; a machine without one has no rail."""
+    from tspend.plants.articulated.domain import ModelDrawing
+    from tspend.plants.articulated.machine import load_machine
 
-
-def test_cartpole_detection_and_mjcf_geometry(tmp_path: Path) -> None:
-    assert CartPoleDrawing(10.0, 1.0, 2.0, 9.8).geometry().l == 2.0
     mjcf = tmp_path / "cp.xml"
     mjcf.write_text(  # a rail box and a pivot cylinder come first: they must not be taken for cart and pole
         '<mujoco><asset><material name="pole" rgba="0 1 0 1"/></asset><worldbody><geom type="plane" size="5 5 .1"/>'
         '<geom name="rail" type="box" size="30 .04 .04"/>'
-        '<body name="cart"><joint type="slide" axis="1 0 0"/><geom type="box" size=".4 .25 .15" rgba="1 0 0 1"/>'
-        '<body name="pole"><joint type="hinge" axis="0 1 0"/><geom type="cylinder" size=".09 .2"/>'
-        '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" material="pole"/></body></body></worldbody></mujoco>')
-    geom = CartPoleDrawing(10.0, 1.0, 0.5, 9.8, mjcf=str(mjcf)).geometry()
-    assert geom.cart_half_sizes == pytest.approx((0.4, 0.25, 0.15)) and geom.cart_color == (255, 0, 0)
-    assert geom.pole_radius == pytest.approx(0.03) and geom.pole_color == (0, 255, 0) and geom.l == 0.5
-    assert CartPoleDrawing(10.0, 1.0, 3.0, 9.8, mjcf=str(tmp_path / "missing.xml")).geometry().pole_radius > 0  # falls back
+        '<body name="cart" pos="0 0 1"><joint name="x" type="slide" axis="1 0 0"/><geom type="box" size=".4 .25 .15" rgba="1 0 0 1" mass="1"/>'
+        '<body name="pole"><joint name="th" type="hinge" axis="0 1 0"/><geom type="cylinder" size=".09 .2" mass="0.1"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 1" size=".03" material="pole" mass="1"/></body></body></worldbody>'
+        '<actuator><motor joint="x"/></actuator></mujoco>')
+    machine = load_machine(mjcf)
+    d = ModelDrawing(machine, ("th", "th_dot"), "cp")
+    assert d.cart == machine.model.body("cart").id and d.rail_joint == 0
+    assert d.half_width == pytest.approx(0.25) and d.rail_z == pytest.approx(0.85)
+    assert d.end_entity == "cart/end"
+    path = tmp_path / "d.rrd"
+    rec = rr.RecordingStream("tspend_test")
+    rec.save(str(path))
+    d.log_static(rec, "world", lambda c: c)
+    rec.flush()
+    del rec
+    styles = {chunk.entity_path: chunk.to_record_batch().to_pydict()
+              for chunk in RrdReader(path).stream().filter(is_static=True).to_chunks()}
+    capsule = next(e for e in styles if e.startswith("/world/pole/") and "Capsules3D:colors" in styles[e])
+    rgba = int(styles[capsule]["Capsules3D:colors"][0][0])
+    assert (rgba >> 24, (rgba >> 16) & 255, (rgba >> 8) & 255) == (0, 255, 0)
+    assert "/world/rail" in styles and "/world/cart/readout" in styles
+    acrobot = load_machine(Path(__file__).resolve().parents[1] / "models" / "acrobot.xml")
+    assert ModelDrawing(acrobot, ("shoulder", "shoulder_dot"), "acrobot").cart == -1
 
 
 def test_open_recording_fallbacks(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch) -> None:

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHORT_RAIL = str(ROOT / "tests" / "models" / "cartpole_short_rail.xml")
 DT = 1e-3
 # the short-rail model's limits and ctrlrange are departures from the paper's ODE, warned about
-pytestmark = pytest.mark.filterwarnings("ignore::tspend.plants.mjcf_warning.ModelWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::tspend.errors.ModelWarning")
 
 
 class Constant(Controller):

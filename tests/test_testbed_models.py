@@ -21,8 +21,8 @@ from tspend import load_scenario, override, run
 from tspend.cli.main import main
 from tspend.studies.crosscheck import failure_reason, open_loop
 from tspend.errors import ScenarioError
-from tspend.plants.cartpole import CartPoleParams
-from tspend.plants.mjcf_warning import ModelWarning
+from tspend.plants.mjcf import CartPoleParams
+from tspend.errors import ModelWarning
 from tspend.plants.mujoco_plant import MujocoCartPole
 from tspend.loop.simulation import build_plant
 

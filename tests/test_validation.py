@@ -111,14 +111,29 @@ def test_unwritable_recording_reported_before_run(tmp_path, capsys):
     assert "--out" in err and "is not a directory" in err
 
 
-def test_every_controller_field_has_a_scenario_key():
+def test_every_controller_field_is_a_declared_setting(tmp_path):
+    """The paper's [controller] table is read like every kind's [controllers.KIND] table:
+    each ControllerConfig field is declared with setting() (its key, kind and bounds), the
+    sets in [controller.sets]; an unknown key is one line naming file, key and the keys
+    allowed."""
     import dataclasses
 
     from tspend.config import ControllerConfig
-    from tspend.scenario import CONTROLLER_KEYS, SETS_KEYS
+    from tspend.controllers.settings import key_of
+    from tspend.errors import ScenarioError
+    from tspend.scenario import load_scenario
 
-    renamed = {"lam": "lambda", "state_sets": "sets", "u_sets": "sets", "e_delta_sets": "sets",
-               "x_norm_sets": "sets"}
-    fields = {f.name for f in dataclasses.fields(ControllerConfig)}
-    assert {renamed.get(f, f) for f in fields} == set(CONTROLLER_KEYS)
-    assert set(SETS_KEYS) == {"states", "u", "e_delta", "x_norm"}
+    fields = dataclasses.fields(ControllerConfig)
+    assert all("kind" in f.metadata for f in fields)
+    assert {key_of(f) for f in fields if f.metadata["table"] == "sets"} == {
+        "states", "u", "e_delta", "x_norm"}
+    text = (ROOT / "scenarios" / "ex2_duffing.toml").read_text()
+    for table, bad in (("[controller]", "etta = 0.1"), ("[controller.sets]", "stats = 1")):
+        path = tmp_path / f"{bad[:4]}.toml"
+        path.write_text(text.replace(table, f"{table}\n{bad}", 1) if table in text
+                        else text + f"\n{table}\n{bad}\n")
+        with pytest.raises(ScenarioError) as err:
+            load_scenario(str(path))
+        key = "controller.etta" if bad.startswith("etta") else "controller.sets.stats"
+        assert f"{path}: {key}: unknown key" in str(err.value), err.value
+        assert ("eta" if bad.startswith("etta") else "states") in str(err.value).split("allowed")[1]

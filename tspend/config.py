@@ -7,7 +7,9 @@ Every field here has a key of the same name in the scenario TOML (see
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
+from tspend.runtime.bounds import MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS
 from tspend.signals import Disturbance, Reference
 
 
@@ -17,6 +19,35 @@ from tspend.signals import Disturbance, Reference
 #: ceiling than another (issue 42); 1000 rad/s is the 1 ms sample rate's own limit
 #: (pole x dt = 1). tspend.controllers.settings re-exports it.
 POLE_CAP = 1000.0
+
+
+def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
+            strict: bool = False, length: str | None = None,
+            choices: tuple[str, ...] = (), name: str | None = None,
+            high: float | None = None, table: str | None = None, min_terms: int = 2,
+            per_order: Callable[[int], Any] | None = None) -> Any:
+    """A settings field of a controller kind (read by
+    :func:`tspend.controllers.settings.read_settings`): ``kind`` is ``number``,
+    ``integer``, ``bool``, ``choice``, ``string``, ``vector`` (``length`` ``"n"`` or
+    ``"n-1"``), ``list`` (numbers, any length), ``interval`` (``[lo, hi]``), ``matrix``
+    (n x n, symmetric positive definite), ``set`` (one table ``{terms, lo, hi}``) or
+    ``sets`` (n such tables, each of at least ``min_terms`` terms); ``name`` is the key
+    in the file when the field's name cannot be it (``lambda``); ``high``: the largest
+    number or integer accepted (a setting that sizes work is bounded); ``table``: the
+    sub-table the key lives in (``sets``); ``per_order``: the default for a plant of
+    order n, where it depends on n."""
+    meta = {"doc": doc, "kind": kind, "low": low, "strict": strict, "length": length,
+            "choices": choices, "name": name, "high": high, "table": table,
+            "min_terms": min_terms, "per_order": per_order}
+    return field(default=default, metadata=meta)
+
+
+def _identity_times_10(n: int) -> tuple[tuple[float, ...], ...]:
+    return tuple(tuple(10.0 * (i == j) for j in range(n)) for i in range(n))
+
+
+def _zeros(n: int) -> tuple[float, ...]:
+    return (0.0,) * n
 
 
 @dataclass(frozen=True)
@@ -40,50 +71,96 @@ class ControllerConfig:
               "Q": (0.1, 1000.0, "log", "diagonal"), "lambda": (0.2, POLE_CAP, "log", "poles"),
               "boundary_layer": (0.0, 1.0, "linear")}
 
-    #: lambda_1 .. lambda_n of (18): s^n + lambda_n s^(n-1) + .. + lambda_1 must be Hurwitz
-    lam: tuple[float, ...] = (1.0, 2.0)
-    #: Q of Lemma 1, symmetric positive definite (n x n)
-    Q: tuple[tuple[float, ...], ...] = ((10.0, 0.0), (0.0, 10.0))
-    #: consequent adaptation rate eta of (25)-(26)
-    eta: float = 0.006
-    #: antecedent (BMF control point) rate; None means eta.  Ignored by first type.
-    eta_mu: float | None = None
-    #: compensator rate gamma of (27)
-    gamma: float = 1.6
-    #: "second" adapts consequents and BMFs; "first" adapts consequents only
-    adaptation: str = "second"
-    #: B-spline order d (3 = quadratic) and control points per set
-    bspline_order: int = 3
-    control_points: int = 9
+    lam: tuple[float, ...] = setting(
+        (1.0, 2.0), "lambda_1 .. lambda_n of (18): s^n + lambda_n s^(n-1) + .. + lambda_1 "
+        "must be Hurwitz", kind="vector", length="n", name="lambda")
+    Q: tuple[tuple[float, ...], ...] = setting(
+        ((10.0, 0.0), (0.0, 10.0)), "Q of Lemma 1, symmetric positive definite (n x n)",
+        kind="matrix", per_order=_identity_times_10)
+    eta: float = setting(0.006, "consequent adaptation rate eta of (25)-(26)", low=0.0,
+                         strict=True)
+    eta_mu: float | None = setting(None, "antecedent (BMF control point) rate; none means "
+                                         "eta.  Ignored by first type", low=0.0)
+    gamma: float = setting(1.6, "compensator rate gamma of (27)", low=0.0, strict=True)
+    adaptation: str = setting("second", '"second" adapts consequents and BMFs; "first" '
+                                        'consequents only', kind="choice",
+                              choices=("second", "first"))
+    bspline_order: int = setting(3, "B-spline order d (3 = quadratic)", kind="integer", low=2,
+                                 high=MAX_BSPLINE_ORDER)
+    control_points: int = setting(9, "control points per set", kind="integer", low=1,
+                                  high=MAX_CONTROL_POINTS)
     #: sets of x_o1 .. x_on (one entry per state), of u_o, of e_Delta and of ||x||
-    state_sets: tuple[SetSpec, ...] = (SetSpec(5, -0.7853981633974483, 0.7853981633974483),) * 2
-    u_sets: SetSpec = SetSpec(3, -1000.0, 1000.0)
-    e_delta_sets: SetSpec = SetSpec(5, -12.0, 12.0)
-    x_norm_sets: SetSpec = SetSpec(5, 0.0, 1.0471975511965976)
-    #: initial consequents p_k^i and compensator consequents q^i drawn from these intervals
-    init_consequents: tuple[float, float] = (-0.01, 0.01)
-    init_compensator: tuple[float, float] = (-0.01, 0.01)
-    #: Assumption 5: projection p_{n+1}^i >= b_min > 0 (or <= -b_min, see gain_sign)
-    b_min: float = 0.001
-    #: the known sign of df/du: "plant" (measured on the plant at run start), "positive"
-    #: or "negative"; the projection keeps sign * p_{n+1}^i >= b_min
-    gain_sign: str = "plant"
-    #: Assumption 4: projection of each consequent column onto ||p_k|| <= radius (0 = off)
-    norm_radius: float = 0.0
-    #: boundary layer eps: sat(e_Delta/eps) instead of sign(e_Delta) in (21) (0 = sign)
-    boundary_layer: float = 0.0
-    #: leakage sigma in the compensator law (0 = the paper's (27))
-    leakage: float = 0.0
-    #: "sigma": leakage sigma q in (27); "e": Narendra's e-modification, sigma |e_Delta| q
-    leakage_mode: str = "sigma"
-    #: "fixed" (x_o, u_o constant) or "state" (x_o = x, u_o = fraction * previous u)
-    operating_point: str = "state"
-    x_o: tuple[float, ...] = ()
-    u_o: float = 0.0
-    u_o_fraction: float = 0.5
-    #: "unimodal": project the control points after each update so that every set stays
-    #: unimodal and each input's sets stay ordered; "off": the paper's free sets
-    shape_projection: str = "off"
+    state_sets: tuple[SetSpec, ...] = setting(
+        (SetSpec(5, -0.7853981633974483, 0.7853981633974483),) * 2,
+        "sets of x_o1 .. x_on, one table per state", kind="sets", name="states",
+        table="sets", min_terms=1)
+    u_sets: SetSpec = setting(SetSpec(3, -1000.0, 1000.0), "sets of u_o", kind="set",
+                              name="u", table="sets")
+    e_delta_sets: SetSpec = setting(SetSpec(5, -12.0, 12.0), "sets of e_Delta", kind="set",
+                                    name="e_delta", table="sets")
+    x_norm_sets: SetSpec = setting(SetSpec(5, 0.0, 1.0471975511965976), "sets of ||x||",
+                                   kind="set", name="x_norm", table="sets")
+    init_consequents: tuple[float, float] = setting(
+        (-0.01, 0.01), "the interval the initial consequents p_k^i are drawn from",
+        kind="interval")
+    init_compensator: tuple[float, float] = setting(
+        (-0.01, 0.01), "the interval the initial compensator consequents q^i are drawn from",
+        kind="interval")
+    b_min: float = setting(0.001, "Assumption 5: projection p_{n+1}^i >= b_min > 0 (or <= "
+                                  "-b_min, see gain_sign)", low=0.0, strict=True)
+    gain_sign: str = setting("plant", 'the known sign of df/du: "plant" (measured on the '
+                                      'plant at run start), "positive" or "negative"; the '
+                                      "projection keeps sign * p_{n+1}^i >= b_min",
+                             kind="choice", choices=("plant", "positive", "negative"))
+    norm_radius: float = setting(0.0, "Assumption 4: projection of each consequent column "
+                                      "onto ||p_k|| <= radius (0 = off)", low=0.0)
+    boundary_layer: float = setting(0.0, "boundary layer eps: sat(e_Delta/eps) instead of "
+                                         "sign(e_Delta) in (21) (0 = sign)", low=0.0)
+    leakage: float = setting(0.0, "leakage sigma in the compensator law (0 = the paper's "
+                                  "(27))", low=0.0)
+    leakage_mode: str = setting("sigma", '"sigma": leakage sigma q in (27); "e": Narendra\'s '
+                                         "e-modification, sigma |e_Delta| q", kind="choice",
+                                choices=("sigma", "e"))
+    operating_point: str = setting("state", '"fixed" (x_o, u_o constant) or "state" (x_o = x, '
+                                            "u_o = fraction * previous u)", kind="choice",
+                                   choices=("fixed", "state"))
+    x_o: tuple[float, ...] = setting((), "the fixed operating point x_o (zeros by default)",
+                                     kind="vector", length="n", per_order=_zeros)
+    u_o: float = setting(0.0, "the fixed operating point u_o")
+    u_o_fraction: float = setting(0.5, "u_o = fraction * previous u (operating_point "
+                                       '"state")')
+    shape_projection: str = setting("off", '"unimodal": project the control points after each '
+                                           "update so that every set stays unimodal and each "
+                                           'input\'s sets stay ordered; "off": the paper\'s '
+                                           "free sets", kind="choice",
+                                    choices=("off", "unimodal"))
+
+    def check(self, n: int) -> tuple[str, str] | None:
+        """``(key, problem)`` when the settings do not fit a plant of order ``n``: lambda
+        Hurwitz of length n, n state sets, enough control points, rule counts bounded."""
+        import math
+
+        from tspend.controllers.paper.control_law import is_hurwitz
+        from tspend.runtime.bounds import MAX_RULES
+
+        if len(self.lam) != n:
+            return "lambda", "missing (a list of numbers is required)"
+        if not is_hurwitz(self.lam):
+            return "lambda", (f"s^{n} + lambda_n s^{n - 1} + .. + lambda_1 must be Hurwitz "
+                              f"(all roots in Re s < 0); {list(self.lam)} is not")
+        if self.control_points < self.bspline_order:
+            return "control_points", (f"must be >= bspline_order ({self.bspline_order}), got "
+                                      f"{self.control_points}")
+        if len(self.state_sets) != n:
+            return "sets.states", f"missing: give {n} set tables, one per state"
+        for key, specs, what in (("states", (*self.state_sets, self.u_sets), "T-S model (states x u)"),
+                                 ("e_delta", (self.e_delta_sets, self.x_norm_sets),
+                                  "compensator (e_delta x x_norm)")):
+            rules = math.prod(s.terms for s in specs)
+            if rules > MAX_RULES:
+                return f"sets.{key}", (f"the {what} would have {rules} rules, more than "
+                                       f"{MAX_RULES}; use fewer terms per set")
+        return None
 
     @property
     def order(self) -> int:

@@ -1,4 +1,5 @@
-"""Errors a user can cause, each mapped to an exit status by the CLI."""
+"""Errors a user can cause, each mapped to an exit status by the CLI, and the warning of a
+model that departs from its equations (:class:`ModelWarning`)."""
 
 from __future__ import annotations
 
@@ -32,3 +33,8 @@ class OutputError(TspendError):
 
     exit_status = 5
 
+
+
+class ModelWarning(UserWarning):
+    """A MuJoCo model departs from the equations its run is compared with (a run warns
+    once per departure, before its first step; the CLI prints each as one line)."""

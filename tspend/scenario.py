@@ -16,18 +16,16 @@ import tomllib
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 from tspend import signals
 from tspend.shipped import scenario_search_path
-from tspend.runtime.bounds import (MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS, MAX_FILE_BYTES, MAX_LIST,
-    MAX_NAME, MAX_NESTING, MAX_RULES, MAX_SEED, MAX_STEPS, MAX_TERMS)
+from tspend.runtime.bounds import (MAX_FILE_BYTES, MAX_LIST, MAX_NAME, MAX_NESTING, MAX_SEED,
+    MAX_STEPS, MAX_TERMS)
 from tspend.config import (BoxConstraint, ConstraintsConfig, ControllerConfig, EffectsConfig,
     LinearConstraint, OuterLoopConfig, ParameterChange, PlantConfig, RunConfig, SafetyConfig,
-    Scenario, SetSpec, TaskConfig)
-from tspend.controllers.paper.control_law import is_hurwitz
+    Scenario, TaskConfig)
 from tspend.controllers import settings_classes
-from tspend.controllers.settings import parse_kind_tables
+from tspend.controllers.settings import PAPER_KINDS, parse_kind_tables, read_settings
 from tspend.errors import ScenarioError
 from tspend.tables import Table, read_fields
 from tspend.plants.randomize import read_randomize
@@ -47,13 +45,6 @@ DISTURBANCE_KINDS: dict[str, type] = {
 
 TOP_KEYS = ("name", "description", "run", "plant", "reference", "disturbance", "controller",
             "controllers", "effects", "task", "randomize", "safety")
-#: [controller] keys: ControllerConfig's fields, with ``lam`` spelled ``lambda`` and the
-#: four ``*_sets`` fields in the [controller.sets] table
-CONTROLLER_KEYS = ("lambda", "Q", "eta", "eta_mu", "gamma", "adaptation", "bspline_order",
-                   "control_points", "init_consequents", "init_compensator", "b_min",
-                   "norm_radius", "boundary_layer", "leakage", "leakage_mode", "operating_point", "x_o",
-                   "u_o", "u_o_fraction", "shape_projection", "gain_sign", "sets")
-SETS_KEYS = ("states", "u", "e_delta", "x_norm")
 
 
 def scenario_dirs() -> list[Path]:
@@ -211,66 +202,11 @@ def _signal(r: Table, kinds: dict[str, type], default_kind: str) -> Any:
 
 
 def _controller(r: Table, n: int) -> ControllerConfig:
-    r.check_keys(CONTROLLER_KEYS)
-    d = ControllerConfig()
-    lam = r.numbers("lambda", n, (1.0, 2.0) if n == 2 else None)
-    if not is_hurwitz(np.asarray(lam)):
-        raise r.error("lambda", f"s^{n} + lambda_n s^{n - 1} + .. + lambda_1 must be Hurwitz "
-                                f"(all roots in Re s < 0); {list(lam)} is not")
-    Q = r.matrix("Q", n, d.Q if n == 2 else tuple(tuple(10.0 * (i == j) for j in range(n))
-                                                      for i in range(n)))
-    order = r.integer("bspline_order", d.bspline_order, low=2, high=MAX_BSPLINE_ORDER)
-    cps = r.integer("control_points", d.control_points, low=1, high=MAX_CONTROL_POINTS)
-    if cps < order:
-        raise r.error("control_points", f"must be >= bspline_order ({order}), got {cps}")
-    sets = r.table_of("sets")
-    sets.check_keys(SETS_KEYS)
-    state_sets = _state_sets(sets, n, d.state_sets)
-    eta = r.number("eta", d.eta, low=0.0, strict=True)
-    op = r.string("operating_point", d.operating_point, ("fixed", "state"))
-    u_sets = sets.set_spec("u") if sets.has("u") else d.u_sets
-    e_delta_sets = sets.set_spec("e_delta") if sets.has("e_delta") else d.e_delta_sets
-    x_norm_sets = sets.set_spec("x_norm") if sets.has("x_norm") else d.x_norm_sets
-    _check_rules(sets, "states", (*state_sets, u_sets), "T-S model (states x u)")
-    _check_rules(sets, "e_delta", (e_delta_sets, x_norm_sets), "compensator (e_delta x x_norm)")
-    init_c = r.interval("init_consequents", d.init_consequents)
-    init_q = r.interval("init_compensator", d.init_compensator)
-    return ControllerConfig(
-        lam=lam, Q=Q, eta=eta,
-        eta_mu=r.number("eta_mu", low=0.0) if r.has("eta_mu") else None,
-        gamma=r.number("gamma", d.gamma, low=0.0, strict=True),
-        adaptation=r.string("adaptation", d.adaptation, ("second", "first")),
-        bspline_order=order, control_points=cps,
-        state_sets=state_sets,
-        u_sets=u_sets, e_delta_sets=e_delta_sets, x_norm_sets=x_norm_sets,
-        init_consequents=init_c, init_compensator=init_q,
-        b_min=r.number("b_min", d.b_min, low=0.0, strict=True),
-        norm_radius=r.number("norm_radius", d.norm_radius, low=0.0),
-        boundary_layer=r.number("boundary_layer", d.boundary_layer, low=0.0),
-        leakage=r.number("leakage", d.leakage, low=0.0),
-        leakage_mode=r.string("leakage_mode", d.leakage_mode, ("sigma", "e")),
-        operating_point=op,
-        x_o=r.numbers("x_o", n, (0.0,) * n),
-        u_o=r.number("u_o", d.u_o),
-        u_o_fraction=r.number("u_o_fraction", d.u_o_fraction),
-        gain_sign=r.string("gain_sign", d.gain_sign, ("plant", "positive", "negative")),
-        shape_projection=r.string("shape_projection", d.shape_projection, ("off", "unimodal")),
-    )
+    """``[controller]``: the paper's kinds' settings, read like every kind's
+    ``[controllers.KIND]`` table (their settings class in the one registry of kinds)."""
+    from tspend.controllers import KINDS
 
-
-def _check_rules(sets: Table, key: str, specs: tuple[SetSpec, ...], what: str) -> None:
-    rules = math.prod(s.terms for s in specs)
-    if rules > MAX_RULES:
-        raise sets.error(key, f"the {what} would have {rules} rules, more than {MAX_RULES}; "
-                              f"use fewer terms per set")
-
-
-def _state_sets(sets: Table, n: int, default: tuple[SetSpec, ...]) -> tuple[SetSpec, ...]:
-    if not sets.has("states"):
-        if len(default) != n:
-            raise sets.error("states", f"missing: give {n} set tables, one per state")
-        return default
-    return sets.set_specs("states", n)
+    return read_settings(r, KINDS[PAPER_KINDS[0]].Settings, n)
 
 
 # -- entry points ----------------------------------------------------------------------

@@ -259,7 +259,7 @@ def accelerations_factory(sin, cos, tanh, clip=clip):
     ``(sin, cos, tanh)`` and the clip ``clip(v, lo, hi)``.
 
     The equations are written once, here (as
-    :func:`tspend.plants.cartpole_physics.accelerations_factory` for the cart-pole): ``math``'s functions and :func:`clip` give :func:`motor_torque`,
+    :func:`tspend.studies.cartpole_greybox.accelerations_factory` for the cart-pole): ``math``'s functions and :func:`clip` give :func:`motor_torque`,
     :func:`mass_terms` and :func:`machine_accelerations` (plain Python, inlined by numba in
     compiled code); CasADi's ``(casadi.sin, casadi.cos, casadi.tanh)`` give the same
     expressions symbolically for nonlinear MPC (:mod:`tspend.controllers.mpc`), with an

@@ -90,7 +90,7 @@ def contacts_at_rest(model: str) -> list[str]:
     ``"geom1/geom2"`` (MuJoCo's own collision detection after ``mj_forward``)."""
     import mujoco
 
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     m = read_spec(model).compile()
     d = mujoco.MjData(m)
@@ -107,7 +107,7 @@ def _domain_of(model: str):
     """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
     past the size bounds of docs/reliability.md)."""
     from tspend.errors import ScenarioError
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
     from tspend.plants.registry import DOMAINS
 
     spec = read_spec(model)

@@ -14,7 +14,8 @@ A kind without a table runs on its documented defaults.  ``None`` in a field mea
 "derived from the plant when the controller is built" (each module says how).
 
 The paper controller (``second_type``, ``first_type``) keeps its settings in
-``[controller]``, as before.
+``[controller]``, as before, read the same way (:func:`read_settings` of its settings
+class, :class:`tspend.config.ControllerConfig`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
-from tspend.config import POLE_CAP, ControllerConfig  # noqa: F401 (POLE_CAP: re-exported)
+from tspend.config import POLE_CAP, ControllerConfig, setting  # noqa: F401 (re-exported)
 from tspend.tables import Table
 
 if TYPE_CHECKING:
@@ -42,20 +43,6 @@ class KindSettings:
     def check(self, n: int) -> tuple[str, str] | None:
         """``(key, problem)`` when the settings do not fit a plant of order ``n``."""
         return None
-
-
-def setting(default: Any, doc: str, *, kind: str = "number", low: float | None = None,
-            strict: bool = False, length: str | None = None,
-            choices: tuple[str, ...] = (), name: str | None = None,
-            high: float | None = None) -> Any:
-    """A settings field: ``kind`` is ``number``, ``integer``, ``bool``, ``choice``, ``string``,
-    ``vector`` (``length`` ``"n"`` or ``"n-1"``), ``list`` (numbers, any length), ``matrix`` (n x n, symmetric positive
-    definite) or ``sets`` (n tables ``{terms, lo, hi}``); ``name`` is the key in the
-    file when the field's name cannot be it (``lambda``); ``high``: the largest number or
-    integer accepted (a setting that sizes work is bounded)."""
-    meta = {"doc": doc, "kind": kind, "low": low, "strict": strict, "length": length,
-            "choices": choices, "name": name, "high": high}
-    return dataclasses.field(default=default, metadata=meta)
 
 
 def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
@@ -93,7 +80,11 @@ def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
             raise r.error(key, f"every entry must be >= {meta['low']:g}, got {list(values)}")
         return values
     if kind == "sets":
-        return r.set_specs(key, n, min_terms=2)
+        return r.set_specs(key, n, min_terms=meta.get("min_terms", 2))
+    if kind == "set":
+        return r.set_spec(key)
+    if kind == "interval":
+        return r.interval(key, f.default)
     if kind == "string":
         return r.string(key)
     raise AssertionError(f"unknown setting kind {kind!r}")
@@ -102,6 +93,35 @@ def _value(r: Table, f: dataclasses.Field, n: int) -> Any:
 def key_of(f: dataclasses.Field) -> str:
     """The key of a settings field in the scenario file."""
     return f.metadata.get("name") or f.name
+
+
+def read_settings(r: Table, cls: type, n: int, context: str = "") -> Any:
+    """The settings of class ``cls`` in table ``r`` for a plant of order ``n``: every field
+    declared with :func:`setting` read by its metadata (keys in a sub-table ``table`` read
+    there), the rest at their defaults (``per_order``: the default for order ``n``), then
+    ``check(n)``; unknown keys and bad values are one-line errors naming file, key and what
+    is allowed."""
+    fields = dataclasses.fields(cls)
+    tables = {f.metadata.get("table") for f in fields} - {None}
+    r.check_keys(tuple(key_of(f) for f in fields if not f.metadata.get("table"))
+                 + tuple(sorted(tables)), context)
+    values = {}
+    for name in (None, *sorted(tables)):
+        t = r if name is None else r.table_of(name)
+        own = [f for f in fields if f.metadata.get("table") == name]
+        if name is not None:
+            t.check_keys(tuple(key_of(f) for f in own))
+        for f in own:
+            if t.has(key_of(f)):
+                values[f.name] = _value(t, f, n)
+            elif f.metadata.get("per_order") is not None:
+                values[f.name] = f.metadata["per_order"](n)
+    settings = cls(**values)
+    problem = settings.check(n)
+    if problem:
+        key, message = problem
+        raise r.error(key, message)
+    return settings
 
 
 def parse_kind_tables(r: Table, n: int, kinds: dict[str, type[KindSettings]]
@@ -115,17 +135,7 @@ def parse_kind_tables(r: Table, n: int, kinds: dict[str, type[KindSettings]]
                                 f"[controllers.KIND] tables are for: {', '.join(kinds)}")
         if kind not in kinds:
             raise r.error(kind, f"unknown controller kind; allowed: {', '.join(kinds)}")
-        cls = kinds[kind]
-        sub = r.table_of(kind)
-        fields = dataclasses.fields(cls)
-        sub.check_keys(tuple(key_of(f) for f in fields), f"for kind '{kind}'")
-        values = {f.name: _value(sub, f, n) for f in fields if sub.has(key_of(f))}
-        settings = cls(**values)
-        problem = settings.check(n)
-        if problem:
-            key, message = problem
-            raise sub.error(key, message)
-        out.append((kind, settings))
+        out.append((kind, read_settings(r.table_of(kind), kinds[kind], n, f"for kind '{kind}'")))
     return tuple(out)
 
 

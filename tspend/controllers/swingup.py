@@ -2,7 +2,6 @@
 
 The pendulum's energy about its pivot, 0 upright at rest and ``-2 m g l`` hanging, is
 the domain's (:class:`~tspend.plants.domain.FullModel`'s ``energy``:
-:func:`tspend.plants.cartpole_physics.pole_energy`,
 :class:`tspend.plants.articulated.domain.DerivedFull`), ``E = 1/2 J theta'^2 + V(theta)``.
 It changes only through the driven joint (and the pendulum's own damping):
 ``E' = J theta' (theta'' - theta''|_{a=0})``, so on the cart-pole ``E' = m l cos(theta)
@@ -45,8 +44,8 @@ from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
-from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, FullModel, full_accelerations, full_energy,
-                                  wrap_angle)
+from tspend.plants.articulated.domain import derived_full_accel, derived_pole_energy
+from tspend.plants.domain import FULL_STATE, PUMPED_ENERGY, FullModel, wrap_angle
 from tspend.controllers.lqr import FullLQRLaw, full_lqr_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.settings import KindSettings, setting, settings_for
@@ -98,7 +97,7 @@ class SwingUpSettings(KindSettings):
 class SwingLaw(NamedTuple):
     """The swing-up's numbers and its catching LQR, as compiled code reads them."""
 
-    machine: Any            # the domain's machine (FullModel.machine)
+    machine: Any            # the derived machine (FullModel.machine: DerivedFull)
     pole: int
     actuated: int
     dof: int
@@ -121,14 +120,14 @@ def swing(law: SwingLaw, state: np.ndarray) -> tuple[float, float]:
     """``(u, a)``: the energy law's force and the acceleration it asks for (module
     docstring)."""
     dof, act, pole = law.dof, law.actuated, law.pole
-    a0 = full_accelerations(law.machine, state, 0.0)
-    a1 = full_accelerations(law.machine, state, 1.0)
+    a0 = derived_full_accel(law.machine, state, 0.0)
+    a1 = derived_full_accel(law.machine, state, 1.0)
     du_act, du_pole = a1[act] - a0[act], a1[pole] - a0[pole]
     # dE'/du = J theta' dtheta''/du (J > 0), times the sign of da/du: the sign of
     # dE'/da, i.e. A-F's sign(theta' cos theta)
     slope = state[dof + pole] * du_pole * math.copysign(1.0, du_act)
     sign = 1.0 if slope >= 0.0 else -1.0
-    energy = full_energy(law.machine, state)
+    energy = derived_pole_energy(law.machine, state)
     a = min(law.accel_max, max(-law.accel_max, law.energy_gain * (0.0 - energy) * sign))
     x, v = state[act], state[dof + act]
     a_c = -law.k_x * x - law.k_v * v
@@ -160,7 +159,7 @@ def swingup_law(law: SwingLaw, mode: np.ndarray, state: np.ndarray, ref: np.ndar
         a = 0.0
     else:
         u, a = swing(law, state)
-    diag[0] = full_energy(law.machine, state)
+    diag[0] = derived_pole_energy(law.machine, state)
     diag[1] = mode[0]
     diag[2] = theta
     diag[3] = a

@@ -27,7 +27,7 @@ from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
-from tspend.plants.mjcf_warning import ModelWarning
+from tspend.errors import ModelWarning
 from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 from tspend.task import Task, build_task
@@ -39,7 +39,7 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     ``[randomize]`` draws at its seed (:mod:`tspend.plants.randomize`).
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
-    :class:`tspend.plants.mjcf.ModelWarning` (one line each), before the first step.
+    :class:`tspend.errors.ModelWarning` (one line each), before the first step.
 
     Raises
     ------
@@ -60,7 +60,7 @@ def machine_kind_hint(scenario: Scenario) -> str:
     scenario's own domain, or cannot be read: the error says enough then)."""
     import tomllib
 
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     def joint_types(path) -> tuple[tuple[str, ...], object] | None:
         """``(joint types in the model's order, compiled model)``; None: unreadable."""

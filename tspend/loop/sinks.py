@@ -32,13 +32,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from tspend.controllers.base import Diagnostic
 from tspend.plants.domain import Drawing
 from tspend.task import Bound
+
+if TYPE_CHECKING:
+    # an annotation only: importing tspend.controllers here runs its registry, whose paper
+    # kind imports this module back (``import tspend.recorder`` failed on a fresh interpreter)
+    from tspend.controllers.base import Diagnostic
 
 
 @dataclass(frozen=True)

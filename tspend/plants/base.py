@@ -195,11 +195,3 @@ class Plant(ABC):
     def instability(self, t0: float) -> Exception | None:
         """The error a compiled MuJoCo step ended on (None: none)."""
         return None
-
-    def state_index(self, name: str) -> int:
-        """Where the state ``name`` sits in :meth:`full_state` (ValueError if nowhere)."""
-        try:
-            return self.state_names.index(name)
-        except ValueError:
-            raise ValueError(f"{self.name}: no state named {name!r} (states: "
-                             f"{', '.join(self.state_names)})") from None

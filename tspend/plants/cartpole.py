@@ -1,25 +1,26 @@
-"""The cart-pole domain: everything the cart-pole means, for the rest of tspend.
+"""The cart-pole domain: an articulated machine (docs/articulated.md) with the paper's names.
 
-Two kinds, two sources of equations:
+A cart-pole is its MJCF (``models/cartpole.xml`` by default) read and derived like every
+other machine (:class:`~tspend.plants.articulated.machine.Machine`): one MuJoCo plant
+(:class:`~tspend.plants.mujoco_plant.MujocoCartPole`), one derived model (nominal for the
+controllers, the joints' damping and dry friction left out), one linearisation (CasADi's
+derivatives of the derived equations), one ODE twin (:class:`DerivedCartPoleODE`: the
+derived equations with the model's damping and its ``frictionloss`` as the smooth
+``F tanh(v / v_s)``), one drawing and one reader of the compiled model
+(:mod:`tspend.plants.mjcf`).  A model the derivation refuses is refused in one line naming
+what to change.
 
-* ``cartpole_mujoco`` (the MJCF stepped by MuJoCo): every model a controller assumes
-  (the view's model, the full model, the linearisation, the jacobians, the inverse
-  dynamics of the task check) and its ODE twin (the cross-check's, and
-  ``run(..., plant_kind="cartpole_ode")``'s) are the equations *derived* from the compiled
-  (overridden) model by the articulated domain
-  (:class:`~tspend.plants.articulated.machine.Machine`, docs/articulated.md): nominal for
-  the controllers (the joints' damping and dry friction left out), the twin with the
-  model's damping and its ``frictionloss`` as the smooth ``F tanh(v / v_s)``; a model
-  the derivation refuses is refused in one line naming what to change.
-* ``cartpole_ode`` (the paper's Example 3, ``ex3_pendulum_ode``): the hand-written
-  equations (C1)-(C2) of :mod:`tspend.plants.cartpole_physics`, as the paper writes them
-  (issue 32's exception); they are also the test oracle of the derived ones
-  (tests/test_cartpole_derived.py).
+Two kinds: ``cartpole_mujoco`` steps the MJCF in MuJoCo; ``cartpole_ode`` (the paper's
+Example 3, ``ex3_pendulum_ode``) integrates the derived equations of the same MJCF with
+every ``[plant]`` number (M, m, l, J, g, gear, damping, friction) written into the model
+and checked on the compiled one.  The paper's own equation is
+:func:`tspend.plants.analytic.cartpole_accel`; the hand-written (C1)-(C2) are the grey-box
+model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpole_greybox`).
 
-This module holds the scenario's ``[plant]`` configuration of either backend, the analytic
-plants, the roles of the MJCF's joints (``slide`` = the cart, ``hinge`` = the pole) and how
-each backend is built, the model the baselines assume, labels and units, the default task
-(view ``hinge``, ``hinge_dot``; fall angle pi/2) and the 3D drawing.
+This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
+(``slide`` = the cart, ``hinge`` = the pole), labels and units and the default task (view
+``hinge``, ``hinge_dot``; fall angle pi/2); it is drawn as every machine is, from its own
+geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`, with its rail).
 """
 
 from __future__ import annotations
@@ -28,56 +29,31 @@ import copy
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant
-from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
+from tspend.plants.articulated.domain import (ArticulatedODE, ModelDrawing, applied_forces, derived_full_accel,
     derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.cartpole_physics import (DRY_FRICTION_SLIP, CartPoleMachine, CartPoleParams,
-    accelerations, accelerations_factory, actuator_force_range, gain_sign, inverse_dynamics,
-    machine_accelerations, machine_rhs, pole_energy, rhs)
+from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams, actuator_force_range
 from tspend.errors import ScenarioError
-from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, COMPILED_VIEW_ACCEL, FULL_STATE,
-    FULL_ACCEL, FULL_ENERGY, PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
-    FullModel, PlantLabels, PlantModel, Quantity, END_COLOR, bound_text)
+from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
+    PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Bound, Task
+    from tspend.task import Task
 
-__all__ = ["CartPoleParams", "CartPoleMachine", "CartPoleConfig", "MujocoCartPoleConfig",
-           "CartPoleODE", "DerivedCartPoleODE", "CartPoleDomain", "CartPoleDrawing", "DOMAIN",
-           "DRY_FRICTION_SLIP",
-           "accelerations", "gain_sign", "rhs", "machine_rhs", "machine_accelerations",
-           "cartpole_ode_plant", "cartpole_machine", "nominal_machine"]
+__all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "DerivedCartPoleODE",
+           "CartPoleDomain", "DOMAIN", "cartpole_machine", "nominal_machine"]
 
-
-
-@register_jitable
-def _full_q_dd(machine: CartPoleMachine, s: np.ndarray, u: float) -> tuple[float, float]:
-    # s = [slider, hinge, slider_dot, hinge_dot]; (C1)-(C2) give (theta'', x''); no
-    # disturbance in a controller's model
-    thdd, xdd = machine_accelerations(machine, s[1], s[3], s[0], s[2], u, 0.0)
-    return xdd, thdd
-
-
-@register_jitable
-def _full_energy(machine: CartPoleMachine, s: np.ndarray) -> float:
-    return pole_energy(machine, s[1], s[3])
-
-
-# compiled full-state controllers (swing-up) reach the cart-pole through these
-FULL_ACCEL[CartPoleMachine] = _full_q_dd
-FULL_ENERGY[CartPoleMachine] = _full_energy
 
 # -- the scenario's [plant] table, on either backend -------------------------------------
 
@@ -97,7 +73,8 @@ def _own_if_zero() -> dict:
 
 @dataclass(frozen=True)
 class CartPoleConfig(PlantConfig):
-    """The cart-pole (C1)-(C2) of tspend/plants/cartpole.py, on either backend."""
+    """A cart-pole on either backend: the numbers written into its MJCF (the paper's
+    Example 3 machine by default)."""
 
     M: float = field(default=10.0, metadata=_positive())
     m: float = field(default=1.0, metadata=_positive())
@@ -113,10 +90,6 @@ class CartPoleConfig(PlantConfig):
     #: actuator gain, N of cart force per unit of u at rest (0 = the model's own gear x
     #: gain; the ODE's 1)
     gear: float = field(default=0.0, metadata=_own_if_zero())
-
-
-#: the [plant] keys of cartpole_mujoco that write a number into the model (0: the model's own)
-MODEL_OVERRIDES = ("M", "m", "l", "J", "g")
 
 
 @dataclass(frozen=True)
@@ -152,88 +125,24 @@ class MujocoCartPoleConfig(CartPoleConfig):
         """The override keys set (name -> value): what the model is changed by."""
         if not self.override_inertials:
             return {}
-        return {k: float(getattr(self, k)) for k in MODEL_OVERRIDES if getattr(self, k) > 0.0}
-
-
-COMPILED_RHS[CartPoleMachine] = machine_rhs
-
-
-# -- the analytic backend ---------------------------------------------------------------
-class CartPoleODE(AnalyticPlant):
-    """The paper's cart-pole ODE (C1)-(C2) (``cartpole_ode``), with the cart as hidden
-    states, so the ODE backend can draw the cart and meet a finite rail too.
-
-    Integrated as ``s = [theta, theta', x_c, x_c']``; its full state is the MJCF's order,
-    ``(slider, hinge, slider_dot, hinge_dot)``.
-    """
-
-    def __init__(self, params: CartPoleParams = CartPoleParams()) -> None:
-        super().__init__(lambda t, s, u, d: accelerations(self._machine, s[0], s[1], s[3], u, d, s[2])[0],
-                         2, "cartpole_ode", hidden_names=("cart_pos", "cart_vel"),
-                         domain="cartpole", state_names=("slider", "hinge", "slider_dot", "hinge_dot"),
-                         state_units=("m", "rad", "m/s", "rad/s"), full_order=(2, 0, 3, 1))
-        self._joints = (JointInfo("slider", "slide", "m", None), JointInfo("hinge", "hinge", "rad", None))
-        self.set_params(params)
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return self._joints
-
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        """The force on the cart, N (per unit gear), within the control range the ODE
-        applies (a MuJoCo model's ``ctrlrange``; unbounded for the paper's ODE): both
-        backends of one machine declare the bound they apply, so the saturation metrics
-        mean the same on each."""
-        return (InputInfo("force", "N", float(self.params.ctrl_min), float(self.params.ctrl_max)),)
-
-    def default_task(self) -> TaskDefaults:
-        return DOMAIN.task
-
-    @property
-    def gain_sign(self) -> int:
-        return int(gain_sign(self.params))
-
-    def set_params(self, params: CartPoleParams) -> None:
-        """Change the machine while it runs (a payload picked up); the state is kept."""
-        self.params = params
-        self._machine = params.machine()
-
-    def parameters(self) -> dict[str, float]:
-        """The machine's parameters (ranges that are not set left out)."""
-        return self.params.finite()
-
-    def _rhs_params(self) -> Any:
-        return self._machine
-
-    def compiled(self) -> CompiledPlant:
-        return CompiledPlant(self._machine, self.s, self._clock, self._work, self.full_order)
-
-
-def cartpole_ode_plant(params: CartPoleParams = CartPoleParams()) -> CartPoleODE:
-    return CartPoleODE(params)
+        return {k: float(getattr(self, k)) for k in OVERRIDABLE if getattr(self, k) > 0.0}
 
 
 # -- the derived equations of a MuJoCo cart-pole ----------------------------------------
-def cartpole_machine(plant: Plant) -> Machine | None:
+def cartpole_machine(plant: Plant) -> Machine:
     """The articulated machine of a MuJoCo cart-pole ``plant``: its compiled (overridden)
     model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
-    the machine of a :class:`DerivedCartPoleODE` is its own.  None for the paper's ODE
-    (``cartpole_ode``: (C1)-(C2) as written).  ScenarioError (one line naming what to
-    change) for a model the derivation refuses."""
+    the machine of a :class:`DerivedCartPoleODE` is its own.  ScenarioError (one line
+    naming what to change) for a model the derivation refuses."""
     if isinstance(plant, EffectsPlant):
         plant = plant.inner
-    if isinstance(plant, DerivedCartPoleODE):
-        return plant.machine
-    if plant.mj_model() is None:
-        return None
     return plant.machine  # type: ignore[attr-defined]
 
 
 def nominal_machine(machine: Machine) -> Machine:
     """``machine`` as the controllers assume it: its joints' damping 0 (a copy; the
     derived equations have no dry friction), as :func:`_nominal` leaves a rig's friction
-    out of the hand-written machine."""
+    out of the model's numbers."""
     nominal = copy.copy(machine)
     nominal.p = machine.p.copy()
     for i, name in enumerate(machine.parameter_names):
@@ -313,8 +222,7 @@ def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
     generalised force on the cart and its acceleration that give the pole ``q'' = q_dd``
     at ``(q, q')`` with the cart at 0 moving at ``cart_vel`` (the pole's row solved for
     x'', then the cart's for F), the actuator, the cart's spring, the disturbance's hinge
-    torque ``d_torque`` and each joint's smooth dry friction ``dry`` as
-    :func:`cartpole_physics.inverse_dynamics` has them.
+    torque ``d_torque`` and each joint's smooth dry friction ``dry`` (the ODE twin's).
     ``F`` is +/-inf where the rail cannot move the pole."""
     nv = machine.nv
     c, h = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide"), machine.view_joint
@@ -335,44 +243,17 @@ def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
     return float(M[c, c] * x_dd + M[c, h] * q_dd - r[c]), float(x_dd)
 
 
-@register_jitable
-def view_accel_of(machine: CartPoleMachine, t: float, x: np.ndarray, u: float,
-                  d: float) -> float:
-    """theta'' of (C1)-(C2) over the view ``[theta, theta']``, with the cart at rest (its
-    velocity enters only through cart damping)."""
-    return machine_accelerations(machine, x[0], x[1], 0.0, 0.0, u, d)[0]
-
-
-class CartPoleView(NamedTuple):
-    """The controllers' model of the view (:class:`~tspend.plants.domain.PlantModel`), as
-    compiled code knows it."""
-
-    machine: CartPoleMachine
-
-    def accel(self, t: float, x: np.ndarray, u: float, d: float) -> float:
-        return view_accel_of(self.machine, t, x, u, d)
-
-
-@register_jitable
-def _compiled_view_accel(model: CartPoleView, t: float, x: np.ndarray, u: float,
-                         d: float) -> float:
-    return view_accel_of(model.machine, t, x, u, d)
-
-
-COMPILED_VIEW_ACCEL[CartPoleView] = _compiled_view_accel
-
-
 #: samples of r(t) the task check evaluates the need on (at most)
 NEED_SAMPLES = 4000
 
 
-def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | None = None
+def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine
                     ) -> tuple[float, float, float] | None:
     """``(t, least, largest)`` cart force the machine needs to follow the scenario's
     reference with its disturbance (``t``: when the larger need in size is); None when
-    the reference is not smooth enough to have ``r''``.  The machine's derived equations
-    when ``machine`` is given (:func:`_derived_inverse_dynamics`), else the hand-written
-    ODE ``p``'s (:func:`cartpole_physics.inverse_dynamics`)."""
+    the reference is not smooth enough to have ``r''``: the inverse dynamics of
+    ``machine``'s derived equations (:func:`_derived_inverse_dynamics`), the friction of
+    ``p``."""
     n = int(min(NEED_SAMPLES, max(2, round(scenario.run.duration / scenario.run.dt))))
     t = np.linspace(0.0, scenario.run.duration, n + 1)
     try:
@@ -380,32 +261,19 @@ def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine | 
     except (ValueError, NotImplementedError):
         return None
     d = np.asarray(scenario.disturbance(t), dtype=float)
-    hand = p.machine()
-    if machine is not None:
-        dry = np.zeros(machine.nv)
-        dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
-        dry[machine.view_joint] = p.hinge_friction
+    dry = np.zeros(machine.nv)
+    dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
+    dry[machine.view_joint] = p.hinge_friction
     force = np.empty(n + 1)
     v = 0.0
     for k in range(n + 1):
-        if machine is not None:
-            force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
-                                                       p.disturbance_torque * d[k], dry)
-        else:
-            force[k], x_dd = inverse_dynamics(hand, r[k, 0], r[k, 1], r[k, 2], v, d[k])
+        force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
+                                                   p.disturbance_torque * d[k], dry)
         if k < n and math.isfinite(x_dd):
             v += x_dd * (t[k + 1] - t[k])
     k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
     k = k_hi if abs(force[k_hi]) >= abs(force[k_lo]) else k_lo
     return float(t[k]), float(force[k_lo]), float(force[k_hi])
-
-
-def params_of(cfg: CartPoleConfig) -> CartPoleParams:
-    """The machine a cart-pole configuration describes."""
-    return CartPoleParams(M=cfg.M, m=cfg.m, l=cfg.l, g=cfg.g, J=cfg.J,
-                          cart_damping=cfg.cart_damping, hinge_damping=cfg.hinge_damping,
-                          cart_friction=cfg.cart_friction, hinge_friction=cfg.hinge_friction,
-                          gear=cfg.gear or 1.0)
 
 
 def _nominal(params: CartPoleParams) -> CartPoleParams:
@@ -418,19 +286,21 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
     from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
 
     assert isinstance(cfg, CartPoleConfig)
+    unbounded = not isinstance(cfg, MujocoCartPoleConfig)
     if isinstance(cfg, MujocoCartPoleConfig):
         mj, overrides = cfg, cfg.overrides()
     else:
-        # an ODE scenario on the MJCF: its machine is explicit, every number written
+        # an ODE scenario on the MJCF (the paper's Example 3 by default): its machine is
+        # explicit, every number written, u unbounded as the paper has it
         mj = MujocoCartPoleConfig(**{k: cfg.__dict__[k] for k in CartPoleConfig.__dataclass_fields__})
-        overrides = {k: float(getattr(cfg, k)) for k in MODEL_OVERRIDES}
+        overrides = {k: float(getattr(cfg, k)) for k in OVERRIDABLE}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
     plant = MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
                            actuator=mj.actuator, overrides=overrides,
                            integrator=mj.integrator or None, timestep=mj.timestep or None,
                            gear=mj.gear or None,
-                           task_defaults=DOMAIN.task, **friction)
+                           task_defaults=DOMAIN.task, ctrl_unbounded=unbounded, **friction)
     # a cart-pole is an articulated machine: its equations (the controllers' models, the
     # ODE twin, the task check) are derived from the model, so a model that cannot be
     # derived is refused here, in one line naming what to change, not midway
@@ -439,12 +309,9 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
-    assert isinstance(cfg, CartPoleConfig)
-    if isinstance(cfg, MujocoCartPoleConfig):
-        # the ODE of a MuJoCo scenario is the compiled model's (masses, inertia, damping,
-        # gear and angle sign read back), so both backends describe one machine
-        return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
-    return cartpole_ode_plant(params_of(cfg))
+    # the ODE is the compiled model's (masses, inertia, damping, gear and angle sign read
+    # back), so both backends describe one machine
+    return DOMAIN.ode_of(_build_mujoco(cfg, model_path))
 
 
 # -- labels, drawing, task, model -------------------------------------------------------
@@ -463,263 +330,12 @@ LABELS = PlantLabels(
     disturbance=Quantity("d", "N", "disturbance force"),
 )
 
-#: default cart box (x, y, z) in metres
-CART_SIZE = (1.0, 0.6, 0.4)
-POLE_RADIUS = 0.05
-#: pole half-length used when the plant metadata does not give one
-DEFAULT_POLE_HALF_LENGTH = 3.0
-#: the drawn rail runs over [-RAIL_M, RAIL_M]: cart-poles drift tens of metres in a long run
-RAIL_M = 100.0
-#: a short tick every metre, a labelled mark every LABEL_EVERY_M (Rerun hides labels
-#: of entities with more than ~30 instances, so the labels stay fewer than that)
-LABEL_EVERY_M = 10.0
-RAIL_COLOR = (90, 90, 90)
-
-Color = tuple[int, int, int]
-
-
-class CartPolePoses(NamedTuple):
-    """World poses (z up) of the cart box centre and of the pole's centre of mass."""
-
-    cart_translation: np.ndarray   # (N, 3)
-    pole_translation: np.ndarray   # (N, 3), the pole's COM
-    pole_quaternion: np.ndarray    # (N, 4), xyzw; rotates local +z onto the pole axis
-
-
-def cartpole_poses(cart_pos: np.ndarray | float, theta: np.ndarray | float, l: float,
-                   cart_height: float = CART_SIZE[2]) -> CartPolePoses:
-    """Poses of cart and pole for cart positions ``cart_pos`` and pole angles ``theta``.
-
-    x points right (the cart's rail), z up.  The cart box sits on z = 0; the pole's
-    pivot is the centre of the box's top face; the pole (length ``2 l``) points along
-    ``(-sin theta, 0, cos theta)``, so ``theta > 0`` leans it toward -x, and its centre
-    of mass is ``l`` from the pivot.  Draw the pole as a capsule from local
-    ``(0, 0, -l)`` to ``(0, 0, l)``.
-    """
-    xc = np.atleast_1d(np.asarray(cart_pos, dtype=np.float64))
-    th = np.atleast_1d(np.asarray(theta, dtype=np.float64))
-    xc, th = np.broadcast_arrays(xc, th)
-    zeros = np.zeros_like(th)
-    cart = np.column_stack([xc, zeros, np.full_like(th, 0.5 * cart_height)])
-    pole = np.column_stack([xc - l * np.sin(th), zeros, cart_height + l * np.cos(th)])
-    # rotation by -theta about +y maps +z onto (-sin theta, 0, cos theta)
-    half = -0.5 * th
-    quat = np.column_stack([zeros, np.sin(half), zeros, np.cos(half)])
-    return CartPolePoses(cart, pole, quat)
-
-
-@dataclass(frozen=True)
-class CartPoleGeometry:
-    """Sizes and colours of the drawn cart-pole."""
-
-    l: float = DEFAULT_POLE_HALF_LENGTH
-    cart_half_sizes: tuple[float, float, float] = (0.5 * CART_SIZE[0], 0.5 * CART_SIZE[1],
-                                                   0.5 * CART_SIZE[2])
-    cart_color: Color = (70, 110, 170)
-    pole_radius: float = POLE_RADIUS
-    pole_color: Color = (220, 140, 40)
-
-
-def geometry_from_mjcf(path: str, base: CartPoleGeometry) -> CartPoleGeometry:
-    """Cart = the box on the slider's body; pole = the longest capsule/cylinder on the
-    hinge's body; colours as MuJoCo renders them.  Best effort: any failure keeps ``base``."""
-    try:
-        import mujoco
-
-        from tspend.plants.mjcf import read_spec
-
-        model = read_spec(path).compile()
-    except Exception:  # noqa: BLE001 - drawing must never stop a run
-        return base
-
-    def body_of(joint_type: int) -> int | None:
-        found = [int(model.jnt_bodyid[j]) for j in range(model.njnt)
-                 if int(model.jnt_type[j]) == joint_type]
-        return found[0] if found else None
-
-    def color(g: int) -> Color:
-        rgba = model.geom_rgba[g]
-        if int(model.geom_matid[g]) >= 0 and np.allclose(rgba, (0.5, 0.5, 0.5, 1.0)):
-            rgba = model.mat_rgba[int(model.geom_matid[g])]
-        return tuple(int(round(255 * c)) for c in rgba[:3])  # type: ignore[return-value]
-
-    cart_body = body_of(mujoco.mjtJoint.mjJNT_SLIDE)
-    pole_body = body_of(mujoco.mjtJoint.mjJNT_HINGE)
-    geoms = range(model.ngeom)
-    boxes = [g for g in geoms if int(model.geom_bodyid[g]) == cart_body
-             and int(model.geom_type[g]) == mujoco.mjtGeom.mjGEOM_BOX]
-    rods = [g for g in geoms if int(model.geom_bodyid[g]) == pole_body
-            and int(model.geom_type[g]) in (mujoco.mjtGeom.mjGEOM_CAPSULE,
-                                            mujoco.mjtGeom.mjGEOM_CYLINDER)]
-    geom = base
-    if boxes:
-        size = model.geom_size[boxes[0]]
-        geom = replace(geom, cart_half_sizes=(float(size[0]), float(size[1]), float(size[2])),
-                       cart_color=color(boxes[0]))
-    if rods:
-        rod = max(rods, key=lambda g: float(model.geom_size[g][1]))
-        geom = replace(geom, pole_radius=float(model.geom_size[rod][0]), pole_color=color(rod))
-    return geom
-
-
-def readout_labels(cart_pos: np.ndarray) -> list[str]:
-    """The text shown on the cart at each frame."""
-    return [f"x_c = {x:+.2f} m" for x in np.asarray(cart_pos, dtype=np.float64)]
-
-
-@dataclass(frozen=True)
-class CartPoleDrawing(Drawing):
-    """The cart-pole in 3D: the machine's parameters and, for MuJoCo, the MJCF whose geoms
-    give sizes and colours.  ``theta_sign`` is -1 when the model's positive angle leans
-    the pole toward +x (drawn as it moves)."""
-
-    M: float
-    m: float
-    l: float
-    g: float
-    mjcf: str = ""
-    theta_sign: float = 1.0
-    title = "cart-pole"
-    end_entity = "cart/end"
-
-    def geometry(self) -> CartPoleGeometry:
-        geom = CartPoleGeometry(l=self.l)
-        return geometry_from_mjcf(self.mjcf, geom) if self.mjcf else geom
-
-    def document(self) -> dict[str, Any]:
-        return {"M": self.M, "m": self.m, "l": self.l, "g": self.g, "mjcf": self.mjcf,
-                "theta_sign": self.theta_sign}
-
-    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
-        """Ground frame, cart and pole shapes, the rail with distance marks, the readout."""
-        import rerun as rr
-
-        geom = self.geometry()
-        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log(f"{world}/cart", rr.Boxes3D(half_sizes=[geom.cart_half_sizes],
-                                            colors=[shade(geom.cart_color)],
-                                            fill_mode=rr.components.FillMode.Solid), static=True)
-        rec.log(f"{world}/cart/readout", rr.Points3D(
-            [[0.0, -geom.cart_half_sizes[1] - 1.0, 0.0]], radii=[0.01], colors=[(40, 40, 40)],
-            show_labels=True), static=True)
-        rec.log(f"{world}/pole", rr.Capsules3D(
-            lengths=[2.0 * geom.l], radii=[geom.pole_radius], translations=[[0.0, 0.0, -geom.l]],
-            colors=[shade(geom.pole_color)]), static=True)
-        self._log_rail(rec, world, geom.cart_half_sizes[1], -RAIL_M, RAIL_M)
-        object.__setattr__(self, "_cart_height", 2.0 * geom.cart_half_sizes[2])
-        object.__setattr__(self, "_half_width", geom.cart_half_sizes[1])
-
-    @staticmethod
-    def _log_rail(rec: Any, world: str, half_width: float, lo: float, hi: float) -> None:
-        """The rail over ``[lo, hi]`` m: two lines, a tick every metre, a labelled mark every
-        10 m (every 5, 2 or 1 m on a shorter rail: about eight labels, which stay apart
-        when the whole rail is in view)."""
-        import rerun as rr
-
-        rails = [[[lo, y, 0.0], [hi, y, 0.0]] for y in (-half_width, half_width)]
-        every = next((e for e in (1.0, 2.0, 5.0) if (hi - lo) / e <= 8.0), LABEL_EVERY_M)
-        metres = np.arange(math.ceil(lo), math.floor(hi) + 0.5, 1.0)
-        ticks = [[[x, -half_width - (0.4 if x % every == 0 else 0.2), 0.0],
-                  [x, -half_width, 0.0]] for x in metres]
-        rec.log(f"{world}/rail", rr.LineStrips3D(rails + ticks, colors=[RAIL_COLOR], radii=[0.02]),
-                static=True)
-        marks = np.arange(math.ceil(lo / every) * every, math.floor(hi / every) * every + 0.5 * every,
-                          every)
-        rec.log(f"{world}/rail/marks", rr.Points3D(
-            np.column_stack([marks, np.full(marks.size, -half_width - 0.7), np.zeros(marks.size)]),
-            radii=[0.04], colors=[RAIL_COLOR],
-            labels=[f"{x:+.0f} m" if x else "0 m" for x in marks], show_labels=True), static=True)
-
-    def log_bounds(self, rec: Any, world: str, bounds: Sequence[Bound],
-                   shade: Callable[[tuple], tuple]) -> None:
-        """The rail's ends (the slide joint's bound; the rail is drawn up to them) as red
-        posts labelled with their position, and the pole's bound (fall angle or hinge
-        range) as two red rays from the pivot along the angles that end the run."""
-        import rerun as rr
-
-        half_width = self.__dict__.get("_half_width", 0.5 * CART_SIZE[1])
-        height = self.__dict__.get("_cart_height", CART_SIZE[2])
-        red = shade(END_COLOR)
-        for bound in bounds:
-            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
-            if bound.index == 0 and ends:  # the slide joint: the rail
-                lo = bound.lo if math.isfinite(bound.lo) else -RAIL_M
-                hi = bound.hi if math.isfinite(bound.hi) else RAIL_M
-                self._log_rail(rec, world, half_width, lo - 1.0, hi + 1.0)
-                posts = [[[x, y, 0.0], [x, y, 1.5]] for x in ends for y in (-half_width, half_width)]
-                rec.log(f"{world}/rail/ends", rr.LineStrips3D(posts, colors=[red], radii=[0.06]),
-                        static=True)
-                rec.log(f"{world}/rail/ends/labels", rr.Points3D(
-                    [[x, -half_width, 1.8] for x in ends], radii=[0.05], colors=[red],
-                    labels=[f"{bound.status} {x:+g} {bound.unit}".rstrip() for x in ends],
-                    show_labels=True), static=True)
-            elif bound.index == 1 and ends:  # the hinge: the pole's angle
-                pivot = [0.0, 0.0, 0.5 * height]   # in the cart's frame (its centre)
-                tips = [[pivot[0] - 2.0 * self.l * math.sin(self.theta_sign * a), 0.0,
-                         pivot[2] + 2.0 * self.l * math.cos(self.theta_sign * a)] for a in ends]
-                rec.log(f"{world}/cart/bounds", rr.LineStrips3D(
-                    [[pivot, tip] for tip in tips], colors=[red], radii=[0.02]), static=True)
-                # one label, in the rays' red, under the cart's readout: clear of the cart,
-                # the pole and the rail's marks, inside a view half as wide (the cross-check's)
-                rec.log(f"{world}/cart/bounds/label", rr.Points3D(
-                    [[0.0, -half_width - 1.0, -1.6]], colors=[red], radii=[0.01], show_labels=True,
-                    labels=[bound_text(bound)]), static=True)
-
-    @property
-    def end_position(self) -> tuple[float, float, float]:  # type: ignore[override]
-        """Above the pole's pivot, clear of the pole (the label follows the cart)."""
-        return (0.0, 0.0, 2.0 * self.l + 1.5)
-
-    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
-                   extras: dict[str, np.ndarray]) -> None:
-        import rerun as rr
-
-        theta = np.asarray(x[:, 0], dtype=np.float64) * self.theta_sign
-        cart_pos = np.asarray(extras.get("cart_pos", np.zeros_like(theta)), dtype=np.float64)
-        height = self.__dict__.get("_cart_height", CART_SIZE[2])
-        poses = cartpole_poses(cart_pos, theta, self.l, height)
-        rec.send_columns(f"{world}/cart", indexes=[times],
-                         columns=rr.Transform3D.columns(translation=poses.cart_translation))
-        rec.send_columns(f"{world}/cart/readout", indexes=[times],
-                         columns=rr.Points3D.columns(labels=readout_labels(cart_pos)))
-        rec.send_columns(f"{world}/pole", indexes=[times],
-                         columns=rr.Transform3D.columns(translation=poses.pole_translation,
-                                                        quaternion=poses.pole_quaternion))
-
-    def view(self, origin: str, suffix: str = "") -> Any:
-        """The cart-pole seen from the side, the camera following the cart (the drift
-        shows as the rail's metre marks passing by and in the readout)."""
-        import rerun.blueprint as rrb
-
-        l = self.l
-        return rrb.Spatial3DView(
-            origin=origin,
-            # side by side (the cross-check) a view is half as wide: the short title
-            name=f"cart-pole{suffix}" if suffix else "cart-pole (rail marked in metres, readout: cart position)",
-            line_grid=rrb.LineGrid3D(visible=False),
-            eye_controls=rrb.EyeControls3D(
-                position=[0.0, -(3.0 * l + 8.0), l + 0.5], look_target=[0.0, 0.0, l - 0.5],
-                eye_up=[0.0, 0.0, 1.0], tracking_entity=f"{origin}/cart"))
-
-
 #: the cross-check's open-loop chirp: amplitude per kg of total mass
 CHIRP_N_PER_KG = 100.0 / 11.0
 
 
-def _symbolic_clip(v: Any, lo: float, hi: float) -> Any:
-    """:func:`~tspend.plants.cartpole_physics.clip` of a CasADi expression ``v`` (the
-    bounds are numbers; an infinite one adds no term)."""
-    import casadi  # only for a symbolic model (MPC)
-
-    if lo > -math.inf:
-        v = casadi.fmax(v, lo)
-    if hi < math.inf:
-        v = casadi.fmin(v, hi)
-    return v
-
-
 class CartPoleDomain(Domain):
-    """The cart-pole (C1)-(C2): an analytic ODE and a MuJoCo MJCF of one machine."""
+    """The cart-pole: its MJCF stepped by MuJoCo, or its derived equations integrated."""
 
     name = "cartpole"
     kinds = {"cartpole_ode": Backend(CartPoleConfig, _build_ode),
@@ -750,105 +366,66 @@ class CartPoleDomain(Domain):
         p = plant.params  # type: ignore[attr-defined]
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
-    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine | None:
-        """The derived machine the controllers of a ``cartpole_mujoco`` scenario assume
-        (:func:`nominal_machine` of :func:`cartpole_machine` of its nominal ``plant``);
-        None for ``cartpole_ode`` (the paper's own equations)."""
-        machine = cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig) else None
-        return nominal_machine(machine) if machine is not None else None
+    def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine:
+        """The derived machine the controllers assume (:func:`nominal_machine` of
+        :func:`cartpole_machine` of the nominal ``plant``)."""
+        return nominal_machine(cartpole_machine(plant))
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The nominal machine over the full state ``[slider, hinge, slider_dot,
-        hinge_dot]`` (the plant's own joint names).  For ``cartpole_mujoco`` the equations
-        derived from the compiled model (numbers through the compiled module, CasADi through
-        the derivation, both with MuJoCo's clips of ctrl and force; the energy the pole's
-        with the cart at rest, :class:`~tspend.plants.articulated.domain.DerivedFull`); for
-        ``cartpole_ode`` (C1)-(C2) of :func:`~tspend.plants.cartpole_physics.accelerations_factory`
-        (its ranges clipped by ``casadi.fmin``/``fmax``) and
-        :func:`~tspend.plants.cartpole_physics.pole_energy`."""
+        hinge_dot]`` (the plant's own joint names): the equations derived from the compiled
+        model (numbers through the compiled module, CasADi through the derivation, both
+        with MuJoCo's clips of ctrl and force; the energy the pole's with the cart at rest,
+        :class:`~tspend.plants.articulated.domain.DerivedFull`)."""
         plant = machine
         params = _nominal(plant.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, plant)
-        if derived is not None:
-            m = derived
-            full = derived_full_of(m, m.view_joint)
+        m = self.nominal_derived(scenario, plant)
+        full = derived_full_of(m, m.view_joint)
 
-            def derived_factory(sin, cos, tanh):
-                if sin is math.sin:
-                    return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-                def q_dd(s, u):
-                    import casadi as ca  # only for a symbolic model (MPC)
-
-                    # with MuJoCo's clips of ctrl and force, as (C1)-(C2)'s model has them
-                    uvec = ca.vertcat(*[u if k == m.actuator_index else 0.0
-                                        for k in range(len(m.tree.actuators))])
-                    M, r = m.derivation.dynamics(s[:2], s[2:], uvec, ca.DM.zeros(2), m.p)
-                    a = ca.solve(ca.reshape(M, 2, 2), r)
-                    return a[0], a[1]
-
-                return q_dd
-
-            return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                             accel_factory=derived_factory,
-                             energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                             pole=m.view_joint, actuated=m.actuated,
-                             angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
-                             parameters=params.finite(), machine=full, accel_unit="m/s^2")
-        machine = params.machine()
-
-        def factory(sin, cos, tanh):
-            if sin is math.sin:   # the compiled controllers' own function
-                return lambda s, u: _full_q_dd(machine, s, u)
-            accel = accelerations_factory(sin, cos, tanh, clip=_symbolic_clip)[0]
+        def derived_factory(sin, cos, tanh):
+            if sin is math.sin:
+                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
 
             def q_dd(s, u):
-                # the domain's order is (q'', x''); no disturbance in a model
-                thdd, xdd = accel(machine, s[1], s[3], s[0], s[2], u, 0.0)
-                return xdd, thdd
+                a = m.symbolic_accel(s, u, clips=True)  # with MuJoCo's clips of ctrl and force
+                return a[0], a[1]
 
             return q_dd
 
         return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=factory,
-                         energy=lambda s: pole_energy(machine, float(s[1]), float(s[3])),
-                         pole=1, actuated=0, angles=(False, True, False, False),
-                         parameters=params.finite(), machine=machine,
-                         accel_unit="m/s^2")
+                         accel_factory=derived_factory,
+                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
+                         pole=m.view_joint, actuated=m.actuated,
+                         angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
+                         parameters=params.finite(), machine=full, accel_unit="m/s^2")
 
     def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
         params = _nominal(machine.params)  # type: ignore[attr-defined]
-        derived = self.nominal_derived(scenario, machine)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
-        view: Any = (derived_view(derived, params.disturbance_torque) if derived is not None
-                     else CartPoleView(params.machine()))
+        view = derived_view(self.nominal_derived(scenario, machine), params.disturbance_torque)
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=0.5, compiled=view)
 
     def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
-        """The nominal machine's ``(A, B)`` at the upright at rest: for ``cartpole_mujoco``
-        exact, CasADi's derivatives of the derived equations (:meth:`Machine.linearisation`);
-        for ``cartpole_ode`` central differences of (C1)-(C2) (:meth:`FullModel.linearisation`)."""
-        derived = self.nominal_derived(scenario, machine)
-        if derived is not None:
-            return derived.linearisation()
-        return self.full_model(scenario, machine).linearisation()
+        """The nominal machine's exact ``(A, B)`` at the upright at rest: CasADi's
+        derivatives of the derived equations (:meth:`Machine.linearisation`)."""
+        return self.nominal_derived(scenario, machine).linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The exact ``(A, B)`` of a derived ODE twin's equations at ``at`` (CasADi's
-        derivatives); None for the hand-written ODE (central differences then)."""
+        """The exact ``(A, B)`` of the ODE twin's equations at ``at`` (CasADi's derivatives)."""
         if isinstance(plant, DerivedCartPoleODE):
             return plant.machine.linearisation(at)
         return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
-        params: CartPoleParams = plant.params  # type: ignore[attr-defined]
-        mjcf = str(self.model_path(scenario)) if self.kinds[scenario.plant.kind].mujoco else ""
-        return CartPoleDrawing(M=params.M, m=params.m, l=params.l, g=params.g, mjcf=mjcf,
-                               theta_sign=params.theta_sign)
+        """The machine's own geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`),
+        on its rail, the cart posed by the extra ``cart_pos``."""
+        machine = cartpole_machine(plant)
+        slide = machine.joint_names[[j.kind for j in machine.tree.joints].index("slide")]
+        return ModelDrawing(machine, self.view_names(plant), "cart-pole", {slide: "cart_pos"})
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         # one slide and one hinge: a chain of more is the articulated domain's
@@ -858,9 +435,9 @@ class CartPoleDomain(Domain):
         """Before a balancing run (the task ends on a fall): the force the reference and
         the disturbance need against what the actuator can give.
 
-        The need is the inverse dynamics along ``r(t)`` over the run (``cartpole_mujoco``:
-        of the equations derived from the compiled model, :func:`_derived_inverse_dynamics`;
-        ``cartpole_ode``: of (C1)-(C2), :func:`cartpole_physics.inverse_dynamics`), the cart's velocity integrated from rest: a lower
+        The need is the inverse dynamics along ``r(t)`` over the run (of the equations
+        derived from the compiled model, :func:`_derived_inverse_dynamics`), the cart's
+        velocity integrated from rest: a lower
         bound (a controller also has to bring x0 to r and hold the cart).  The actuator's
         force is at rest, over ``ctrlrange`` (and ``effects.saturation``), ``forcerange``
         and the joint's ``actuatorfrcrange``.  ScenarioError when the need exceeds it.
@@ -873,9 +450,7 @@ class CartPoleDomain(Domain):
                                       sat if sat > 0 else math.inf)
         if lo == -math.inf and hi == math.inf:
             return
-        derived = (cartpole_machine(plant) if isinstance(scenario.plant, MujocoCartPoleConfig)
-                   else None)
-        need = reference_force(p, scenario, derived)
+        need = reference_force(p, scenario, cartpole_machine(plant))
         if need is None:
             return
         t, f_lo, f_hi = need

@@ -37,8 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
            "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ",
-           "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "FULL_ACCEL",
-           "FULL_ENERGY", "full_accelerations", "full_energy", "END_COLOR",
+           "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "END_COLOR",
            "bound_text", "name_slug", "unit_slug"]
 
 #: what a domain may provide (:attr:`Domain.provides`), and what a controller kind or an
@@ -53,7 +52,7 @@ SYMBOLIC = "symbolic_model"
 PARAMETER_CHANGE = "parameter_change"
 #: the cart-centring outer loop on the pole's reference (``effects.outer_loop``)
 CART_CENTRING = "cart_centring"
-#: one pendulum whose energy a compiled swing-up pumps (:data:`FULL_ENERGY`, ``swingup``)
+#: one pendulum whose energy a compiled swing-up pumps (:attr:`FullModel.machine`, ``swingup``)
 PUMPED_ENERGY = "pumped_energy"
 #: each capability, in words (docs/controllers.md's table)
 CAPABILITIES = {
@@ -238,54 +237,6 @@ class PlantModel:
         return A, B
 
 
-#: a domain's machine type (:attr:`FullModel.machine`) -> ``q''(machine, s, u)`` (no
-#: disturbance) and -> ``E(machine, s)`` (the pendulum's energy about its pivot, 0 upright
-#: at rest), registered by the domain module from the one source of its equations, so that
-#: compiled controllers (swing-up) reach them without naming a domain
-FULL_ACCEL: dict[type, Callable] = {}
-FULL_ENERGY: dict[type, Callable] = {}
-
-
-def full_accelerations(machine: Any, s: np.ndarray, u: float) -> tuple:
-    """``q''(s, u)`` of a full-state machine: from Python by the machine's type; in
-    compiled code the registered function inlined."""
-    return FULL_ACCEL[type(machine)](machine, s, u)
-
-
-def full_energy(machine: Any, s: np.ndarray) -> float:
-    """The pendulum's energy of a full-state machine (as :func:`full_accelerations`)."""
-    return FULL_ENERGY[type(machine)](machine, s)
-
-
-def _registered(table: dict[type, Callable], machine: Any) -> Callable | None:
-    cls = machine.instance_class if isinstance(machine, types.BaseNamedTuple) else None
-    return table.get(cls)
-
-
-@overload(full_accelerations, jit_options=JIT)
-def _full_accelerations(machine, s, u):
-    q_dd = _registered(FULL_ACCEL, machine)
-    if q_dd is None:
-        return None
-
-    def impl(machine, s, u):
-        return q_dd(machine, s, u)
-
-    return impl
-
-
-@overload(full_energy, jit_options=JIT)
-def _full_energy(machine, s):
-    energy = _registered(FULL_ENERGY, machine)
-    if energy is None:
-        return None
-
-    def impl(machine, s):
-        return energy(machine, s)
-
-    return impl
-
-
 @register_jitable
 def wrap_angle(a: float) -> float:
     """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""
@@ -327,8 +278,9 @@ class FullModel:
     q_lo: tuple[float, ...] = ()
     q_hi: tuple[float, ...] = ()
     parameters: dict = field(default_factory=dict)
-    #: the domain's machine structure (a NamedTuple compiled code can take) behind
-    #: ``accel_factory`` and ``energy``
+    #: the derived machine as compiled code takes it
+    #: (:class:`~tspend.plants.articulated.domain.DerivedFull`) behind ``accel_factory`` and
+    #: ``energy``; None where the swing-up does not pump the machine
     machine: Any = None
     #: the unit of the actuated coordinate's acceleration ("m/s^2", "rad/s^2")
     accel_unit: str = ""

@@ -84,7 +84,7 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
     :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
     as an articulated machine whose pole is ``pendulum`` and whose ``u`` drives ``actuator``."""
     from tspend.plants.articulated.model_numbers import compile_with_values
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     where = str(model_path)
     if not Path(model_path).is_file():

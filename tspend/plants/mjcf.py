@@ -1,7 +1,7 @@
 """Any MJCF cart-pole read as it is, and M, m, l, J written so the compiled model has them.
 
-:func:`read_facts` measures, from the *compiled* model, everything the cart-pole ODE
-(:mod:`tspend.plants.cartpole_physics`) needs to be the very machine MuJoCo steps: the
+:func:`read_facts` measures, from the *compiled* model, everything a cart-pole's
+numbers (:class:`CartPoleParams`, the ``[plant]`` keys and the metrics' ``plant``) say: the
 cart and pole masses, where the pole's centre of mass is (anywhere in its frame) and its
 inertia about the hinge axis, the directions of the slide and the hinge (any hinge not
 parallel to the slide), the actuator as MuJoCo applies it (motor, velocity, position or
@@ -23,7 +23,7 @@ then reads the compiled model back and names the body that did not take a value.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 import mujoco
@@ -32,14 +32,17 @@ import numpy as np
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
                                             read_actuator, read_joint)
-from tspend.plants.cartpole_physics import CartPoleParams
 
-__all__ = ["ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
+__all__ = ["CartPoleParams", "actuator_force_range", "ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
            "unmodelled", "apply_overrides", "verify_overrides", "collision_pairs"]
 
 # Axial inertia of the rod relative to its transverse one: never enters the planar
 # dynamics but must be positive; reproduces models/cartpole.xml's 1e-4 kg m^2.
 AXIAL_INERTIA_RATIO = 1.0 / 3e4
+
+#: the machine's numbers a scenario can write into a model (``[plant]`` keys of
+#: ``cartpole_mujoco``, 0: the model's own; docs/third-party-models.md)
+OVERRIDABLE = ("M", "m", "l", "J", "g")
 
 #: relative mismatch tolerated between a requested and a compiled parameter
 VERIFY_RTOL = 1e-9
@@ -48,6 +51,103 @@ VERIFY_RTOL = 1e-9
 PARALLEL_TOL = 1e-9
 
 _DSBL = mujoco.mjtDisableBit
+
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class CartPoleParams:
+    """One cart-pole's numbers: the paper's M, m, l, g, and what a real rig adds (the
+    ``[plant]`` keys, the metrics' ``plant``; the grey-box model's parameters,
+    :mod:`tspend.studies.cartpole_greybox`, whose module docstring names the geometry).
+
+    ``J`` is the pole's inertia about the hinge axis (0 = the uniform rod's 4/3 m l^2);
+    ``theta_sign`` is -1 when the model's positive angle leans the pole toward +x (a
+    reversed hinge axis).  ``rail_coupling``, ``rail_phase``, ``gravity_coupling``,
+    ``gravity_phase`` and ``rail_gravity`` are ``k_r``, ``phi_r``, ``k_g``, ``phi_g``,
+    ``g_s`` (the paper's pole: 1, 0, 1, 0, 0).  The actuator: ``gear``, ``gain`` (``g0``;
+    the force per unit u of a motor is ``gear gain``), ``gain_length``, ``gain_velocity``
+    (``g1``, ``g2``), ``bias``, ``bias_length``, ``bias_velocity`` (``b0``, ``b1``,
+    ``b2``) and its ranges (``ctrl_*`` on u, ``force_*`` on the actuator's force,
+    ``joint_force_*`` on the force at the joint; +/-inf: none).
+    """
+
+    M: float = 10.0
+    m: float = 1.0
+    l: float = 3.0
+    g: float = 9.8
+    J: float = 0.0
+    cart_damping: float = 0.0
+    hinge_damping: float = 0.0
+    cart_friction: float = 0.0
+    hinge_friction: float = 0.0
+    gear: float = 1.0
+    theta_sign: float = 1.0
+    rail_coupling: float = 1.0
+    rail_phase: float = 0.0
+    gravity_coupling: float = 1.0
+    gravity_phase: float = 0.0
+    rail_gravity: float = 0.0
+    cart_stiffness: float = 0.0
+    cart_spring_ref: float = 0.0
+    hinge_stiffness: float = 0.0
+    hinge_spring_ref: float = 0.0
+    gain: float = 1.0
+    gain_length: float = 0.0
+    gain_velocity: float = 0.0
+    bias: float = 0.0
+    bias_length: float = 0.0
+    bias_velocity: float = 0.0
+    ctrl_min: float = -INF
+    ctrl_max: float = INF
+    force_min: float = -INF
+    force_max: float = INF
+    joint_force_min: float = -INF
+    joint_force_max: float = INF
+
+    @property
+    def pole_inertia_pivot(self) -> float:
+        return self.J if self.J > 0.0 else 4.0 / 3.0 * self.m * self.l ** 2
+
+    @property
+    def disturbance_torque(self) -> float:
+        """Hinge torque per unit d_d: ``tau = -d_d m l / (M + m)`` enters (C2) like d_d
+        enters the paper's numerator (exact for the rod, the paper's meaning otherwise):
+        with a hinge torque the Lagrangian gives ``theta'' = (... - tau (M+m)/(m l)) /
+        (m l cos^2 - 4/3 l (M+m))``; positive ``tau`` pushes ``theta`` up."""
+        return -self.m * self.l / (self.M + self.m)
+
+    @property
+    def force_per_u(self) -> float:
+        """The cart force per unit u at rest, N (``gear gain``)."""
+        return self.gear * self.gain
+
+    def finite(self) -> dict[str, float]:
+        """The parameters as plain numbers, leaving out the ranges that are not set (inf)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)
+                if math.isfinite(getattr(self, f.name))}
+
+
+def actuator_force_range(p: CartPoleParams, u_lo: float = -INF, u_hi: float = INF
+                         ) -> tuple[float, float]:
+    """The least and the largest force the actuator puts on the cart at rest (x = 0,
+    x' = 0) for u in ``[u_lo, u_hi]`` and its own ranges (+/-inf: unbounded): MuJoCo's
+    ``F = clip(gear clip(gain clip(u, ctrl) + bias, force), joint)`` at rest."""
+    huge = 1e300   # an unbounded u: the force ranges, if any, bound the force
+
+    def force(u: float) -> float:
+        x = 0.0   # the actuator's length and velocity at rest, written as MuJoCo's law has them
+        uc = min(max(u, p.ctrl_min), p.ctrl_max)
+        f = ((p.gain + p.gain_length * x + p.gain_velocity * x) * uc
+             + p.bias + p.bias_length * x + p.bias_velocity * x)
+        return min(max(p.gear * min(max(f, p.force_min), p.force_max), p.joint_force_min),
+                   p.joint_force_max)
+
+    lo, hi = max(u_lo, p.ctrl_min), min(u_hi, p.ctrl_max)
+    ends = [force(v) for v in (max(lo, -huge), min(hi, huge))]
+    ends = [math.copysign(INF, f) if abs(f) >= 1e250 else f for f in ends]
+    return min(ends), max(ends)
 
 
 def _vec(v: Any) -> tuple[float, float, float]:
@@ -74,7 +174,8 @@ class JointFacts:
 
 @dataclass(frozen=True)
 class ActuatorFacts:
-    """The actuator as MuJoCo applies it (cartpole_physics' ``F(u, x, x')``)."""
+    """The actuator as MuJoCo applies it (the grey-box model's ``F(u, x, x')``,
+    :mod:`tspend.studies.cartpole_greybox`)."""
 
     name: str
     kind: str              #: motor, velocity, position or general
@@ -93,8 +194,6 @@ class ActuatorFacts:
 
     def max_force_at_rest(self) -> float:
         """The largest |force| it can put on the cart at x = 0, x' = 0, N (inf: unbounded)."""
-        from tspend.plants.cartpole_physics import actuator_force_range
-
         lo, hi = actuator_force_range(self.params())
         return max(abs(lo), abs(hi))
 
@@ -302,7 +401,7 @@ def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuat
     g = float(np.linalg.norm(gravity))
     down = gravity / g if g > 0.0 else np.array([0.0, 0.0, -1.0])
     # the COM's motion about the axis: X(q) = ax cos q + bx sin q (along the rail),
-    # H(q) = az cos q + bz sin q (up); cartpole_physics' k and phi from them
+    # H(q) = az cos q + bz sin q (up); the grey-box model's k and phi from them
     c_perp = com - float(com @ hinge_axis) * hinge_axis
     turned = np.cross(hinge_axis, c_perp)
     ax, bx = float(slide_axis @ c_perp), float(slide_axis @ turned)
@@ -594,119 +693,3 @@ def verify_gear(facts: ModelFacts, gear: float, actuator: str, where: str) -> No
     if abs(got - gear) > VERIFY_RTOL * max(abs(gear), 1.0):
         raise ScenarioError(f"{where}: gear = {gear:g} did not take effect on actuator "
                             f"'{actuator}': the compiled model pushes {got:.9g} N per unit u")
-
-
-def read_spec(path: "str | os.PathLike[str]") -> "mujoco.MjSpec":
-    """Parse an MJCF file within the size bounds (docs/reliability.md): the file size is
-    checked before MuJoCo reads it, the heightfields and bodies before it compiles.
-
-    Raises
-    ------
-    ScenarioError
-        no such file, larger than :data:`~tspend.runtime.bounds.MAX_MODEL_BYTES`, not
-        parseable, a heightfield of more than ``MAX_HFIELD_CELLS`` cells, or more than
-        ``MAX_BODIES`` bodies.
-    """
-    import os
-
-    from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
-
-    import stat
-
-    where = str(path)
-    try:
-        st = os.stat(path)
-    except (OSError, ValueError):
-        raise ScenarioError(f"{where}: model file not found") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise ScenarioError(f"{where}: not a regular file (an MJCF model file is expected)")
-    size = st.st_size
-    if size > MAX_MODEL_BYTES:
-        raise ScenarioError(f"{where}: the model file is {size} bytes, more than "
-                            f"{MAX_MODEL_BYTES}")
-    _check_xml_sizes(path, where)  # MuJoCo allocates a heightfield as it parses
-    try:
-        spec = mujoco.MjSpec.from_file(where)
-    except (ValueError, OSError) as exc:
-        raise ScenarioError(f"{where}: cannot parse MJCF: {' '.join(str(exc).split())}") \
-            from None
-    for hfield in spec.hfields:
-        cells = int(hfield.nrow) * int(hfield.ncol)
-        if cells > MAX_HFIELD_CELLS:
-            raise ScenarioError(f"{where}: heightfield {hfield.name!r} has {hfield.nrow} x "
-                                f"{hfield.ncol} = {cells} cells, more than {MAX_HFIELD_CELLS}")
-    bodies = len(spec.bodies)
-    if bodies > MAX_BODIES:
-        raise ScenarioError(f"{where}: {bodies} bodies, more than {MAX_BODIES}")
-    _check_physical_values(spec, where)
-    return spec
-
-
-#: the physical values of an MJCF that must be finite (an unset one is NaN in MjSpec), and
-#: those of them that must not be negative
-_PHYSICAL = (("bodies", "body", ("mass", "inertia", "fullinertia", "ipos"), ("mass",)),
-             ("geoms", "geom", ("mass", "density", "size"), ("mass", "density")),
-             ("joints", "joint", ("damping", "armature", "stiffness", "frictionloss", "range"),
-              ("damping", "armature", "frictionloss")),
-             ("actuators", "actuator", ("gear", "gainprm", "biasprm", "ctrlrange"), ()))
-
-
-def _check_physical_values(spec: "mujoco.MjSpec", where: str) -> None:
-    """An infinite mass, inertia, damping, gear, ... (or a negative mass) is refused here,
-    in one line naming it, before the equations built from it fail inside a solver."""
-    for collection, label, names, nonnegative in _PHYSICAL:
-        for element in getattr(spec, collection):
-            for name in names:
-                try:
-                    values = np.asarray(getattr(element, name), dtype=float).ravel()
-                except (AttributeError, TypeError, ValueError):
-                    continue
-                if np.isinf(values).any() or (name in nonnegative and (values < 0).any()):
-                    shown = " ".join(f"{v:g}" for v in values[:6])
-                    need = "finite and >= 0" if name in nonnegative else "finite"
-                    raise ScenarioError(f"{where}: {label} {element.name or '(unnamed)'!r}: "
-                                        f"{name} = {shown}: must be {need}")
-
-
-def _check_xml_sizes(path: "str | os.PathLike[str]", where: str, depth: int = 0) -> None:
-    """The sizes MuJoCo would allocate as it parses, read from the XML text first: each
-    heightfield's ``nrow`` x ``ncol``, the bodies, and the same in included files."""
-    import os
-    import xml.etree.ElementTree as ET
-
-    from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
-
-    if depth > 8:
-        raise ScenarioError(f"{where}: includes nested more than 8 deep")
-    bodies = 0
-    try:
-        for _, element in ET.iterparse(os.fspath(path), events=("start",)):
-            tag = element.tag
-            if tag == "body":
-                bodies += 1
-                if bodies > MAX_BODIES:
-                    raise ScenarioError(f"{where}: more than {MAX_BODIES} bodies")
-            elif tag == "hfield":
-                try:
-                    nrow = int(element.get("nrow", "0"))
-                    ncol = int(element.get("ncol", "0"))
-                except ValueError:
-                    continue  # MuJoCo reports it
-                if nrow * ncol > MAX_HFIELD_CELLS:
-                    raise ScenarioError(f"{where}: heightfield {element.get('name', '')!r} has "
-                                        f"{nrow} x {ncol} = {nrow * ncol} cells, more than "
-                                        f"{MAX_HFIELD_CELLS}")
-            elif tag == "include" and element.get("file"):
-                included = os.path.join(os.path.dirname(os.fspath(path)), element.get("file"))
-                try:
-                    size = os.stat(included).st_size
-                except OSError:
-                    continue  # MuJoCo reports it
-                if size > MAX_MODEL_BYTES:
-                    raise ScenarioError(f"{where}: included file {element.get('file')} is "
-                                        f"{size} bytes, more than {MAX_MODEL_BYTES}")
-                _check_xml_sizes(included, where, depth + 1)
-    except ET.ParseError:
-        return  # not XML: MuJoCo's parser says why
-    except RecursionError:
-        raise ScenarioError(f"{where}: XML nested too deeply") from None

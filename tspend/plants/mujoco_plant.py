@@ -1,24 +1,12 @@
 """MuJoCo plants: :class:`MujocoPlant` steps any compiled hinge/slide MJCF (the
 articulated domain's and the Furuta's plants are it with their machine's roles), and
-:class:`MujocoCartPole` is the physical cart-pole of the paper's Example 3 on it.
-
-``MujocoCartPole`` implements the :class:`~tspend.plants.base.Plant` protocol on an
-MJCF cart-pole (``models/cartpole.xml``) built to reproduce the analytic ODE exactly
-(docs/paper-notes.md section 7): the state is ``x = [theta, theta']`` (hinge qpos, qvel), ``u`` is
-the motor force on the cart, and the disturbance ``d_d`` of the ODE's numerator is
-applied as the hinge torque that has the same effect,
-
-    tau = -d_d m l / (M + m),
-
-because with a hinge torque the Lagrangian gives ``theta'' = (... - tau (M+m)/(m l))
-/ (m l cos^2 - 4/3 l (M+m))``, i.e. the torque enters exactly like ``-tau (M+m)/(m l)``
-in place of ``d_d``.  The torque goes in generalized coordinates (``qfrc_applied`` at the
-hinge DOF), so it is independent of the hinge axis convention: positive ``tau`` pushes
-``theta`` up, as positive ``theta`` is defined by the model.
-
-Physical parameters (M, m, l, g) can be overridden in code through ``mujoco.MjSpec``,
-and :attr:`MujocoCartPole.params` reads them back from the compiled model, so the ODE
-backend can be built from the same machine.
+:class:`MujocoCartPole` is the cart-pole on it (``models/cartpole.xml`` reproduces the
+paper's Example 3, docs/paper-notes.md section 7): the state ``x = [theta, theta']`` of
+its hinge, ``u`` the actuator's control, the disturbance ``d_d`` the hinge torque
+:attr:`~tspend.plants.mjcf.CartPoleParams.disturbance_torque` ``d_d`` (in generalised
+coordinates, ``qfrc_applied``, so independent of the hinge axis' convention), and its
+``[plant]`` numbers written into the model through ``MjSpec`` and read back from the
+compiled one (:attr:`MujocoCartPole.params`), so the ODE twin is the same machine.
 """
 
 from __future__ import annotations
@@ -34,16 +22,9 @@ import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
-from tspend.plants.articulated.tree import INTEGRATOR_NAMES
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
-from tspend.plants.cartpole_physics import CartPoleParams
-
-#: the machine's numbers a scenario can write into a model (``[plant]`` keys of
-#: ``cartpole_mujoco``; docs/third-party-models.md)
-OVERRIDABLE: Final[tuple[str, ...]] = ("M", "m", "l", "J", "g")
-
-#: integrator names accepted by ``integrator=``, mapped to MuJoCo's enum
-INTEGRATORS: Final[dict[str, mujoco.mjtIntegrator]] = {v: k for k, v in INTEGRATOR_NAMES.items()}
+from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
+from tspend.runtime.model_file import read_spec
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
@@ -301,6 +282,8 @@ class MujocoCartPole(MujocoPlant):
     gear:
         if given, the actuator's gain (cart force per unit of u) written into the model
         and read back from the compiled one.
+    ctrl_unbounded:
+        True leaves u unbounded (the actuator's ``ctrlrange`` off): the paper's machine.
     task_defaults:
         the domain's default task, its states named by the roles ``slider``/``hinge``
         (the cart-pole domain's: fall at pi/2); default: the hinge's view, no fall.
@@ -321,13 +304,14 @@ class MujocoCartPole(MujocoPlant):
                  integrator: str | None = None, timestep: float | None = None,
                  cart_damping: float | None = None, hinge_damping: float | None = None,
                  cart_friction: float | None = None, hinge_friction: float | None = None,
-                 task_defaults: TaskDefaults | None = None, gear: float | None = None) -> None:
+                 task_defaults: TaskDefaults | None = None, gear: float | None = None,
+                 ctrl_unbounded: bool = False) -> None:
         self.model_path = Path(model_path)
         self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
         if not self.model_path.is_file():
             raise ScenarioError(f"{where}: model file not found")
-        spec = mjcf.read_spec(self.model_path)  # within the size bounds
+        spec = read_spec(self.model_path)  # within the size bounds
 
         slide = self._spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
         hinge = self._spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
@@ -339,11 +323,9 @@ class MujocoCartPole(MujocoPlant):
             raise ScenarioError(f"{where}: actuator {actuator!r} drives {act.target!r}, "
                                 f"not the slide joint {slide_joint!r}")
 
-        if integrator is not None:
-            if integrator not in INTEGRATORS:
-                raise ScenarioError(f"{where}: unknown integrator {integrator!r} "
-                                    f"(allowed: {', '.join(INTEGRATORS)})")
-            spec.option.integrator = INTEGRATORS[integrator]
+        from tspend.plants.articulated.machine import set_integrator
+
+        set_integrator(spec, integrator or "", where)
         if timestep is not None:
             if not (timestep > 0.0 and math.isfinite(timestep)):
                 raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
@@ -356,6 +338,8 @@ class MujocoCartPole(MujocoPlant):
                 joint.frictionloss = friction
         if gear is not None:
             mjcf.apply_gear(act, gear, where)
+        if ctrl_unbounded:  # the paper's machine: no bound on u
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         keys, target = self._override_keys(spec, overrides, slide_joint, hinge_joint,
                                            actuator, where)
         if keys:
@@ -590,7 +574,7 @@ def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
     where = str(model_path)
     if not Path(model_path).is_file():
         raise ScenarioError(f"{where}: model file not found")
-    spec = mjcf.read_spec(model_path)
+    spec = read_spec(model_path)
 
     def only(found: list[str], what: str, flag: str) -> str:
         if len(found) != 1:

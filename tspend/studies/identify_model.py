@@ -6,7 +6,7 @@ A :class:`ParametricModel` is what :mod:`tspend.studies.identify` fits:
 
 * ``names`` / ``nominal``: every parameter it can fit, with the MJCF's own value;
 * ``rhs(s, u, d, p)``: ``s' = f(s, u, d; p)`` as CasADi expressions, built from the
-  domain's one source of equations (:func:`tspend.plants.cartpole_physics.accelerations_factory`
+  domain's one source of equations (:func:`tspend.studies.cartpole_greybox.accelerations_factory`
   handed a machine structure whose fields are expressions of ``p``; for the Furuta the
   derived equations of :mod:`tspend.plants.articulated`, ``p`` in their parameter vector);
 * ``write(spec, values)``: the fitted values edited into an ``mujoco.MjSpec``, returning one
@@ -137,7 +137,7 @@ def cartpole_model(path: str, slide: str = "slider", hinge: str = "hinge",
     import casadi
     import mujoco
 
-    from tspend.plants import cartpole_physics as cp
+    from tspend.studies import cartpole_greybox as cp
     from tspend.plants import mjcf
 
     model = mujoco.MjModel.from_xml_path(path)
@@ -151,7 +151,7 @@ def cartpole_model(path: str, slide: str = "slider", hinge: str = "hinge",
                "gear": "actuator gear (force per unit u), N/u",
                "cart_damping": "slide joint damping, N s/m",
                "hinge_damping": "hinge joint damping, N m s/rad"}
-    machine0 = base.machine()
+    machine0 = cp.machine_of(base)
     accel, _ = cp.accelerations_factory(casadi.sin, casadi.cos, casadi.tanh, clip=_casadi_clip)
 
     def rhs(s, u, d, p):

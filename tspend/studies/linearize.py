@@ -15,9 +15,8 @@ Where ``A, B`` come from:
   model MuJoCo compiled, whatever its integrator: ``mujoco.mjd_transitionFD`` would give
   the discrete map of one step of it instead, and refuses RK4 models.
 * **an analytic plant**: the domain's exact Jacobian
-  (:meth:`~tspend.plants.domain.Domain.jacobians`: ``cartpole_physics.linearize``,
-  CasADi's derivatives of the derived equations for the Furuta and the articulated
-  machines, the same functions ``lqr``'s full design takes its model
+  (:meth:`~tspend.plants.domain.Domain.jacobians`: CasADi's derivatives of the derived equations of
+  every MJCF machine, the same functions ``lqr``'s full design takes its model
   from); where the domain has no closed form (a moving state, the paper's chain plants)
   central differences of the plant's own right-hand side.
 

@@ -244,13 +244,15 @@ class Machine:
         _, V0 = self.derivation.energy(np.zeros(nv), np.zeros(nv), self.p)
         return float(T) + float(V) - float(V0)
 
-    def symbolic_accel(self, s: Any, u: Any) -> Any:
-        """``q''`` over CasADi (no clips: an optimiser bounds u itself)."""
+    def symbolic_accel(self, s: Any, u: Any, clips: bool = False) -> Any:
+        """``q''`` over CasADi (``clips``: MuJoCo's ctrl and force clips applied; by default
+        none, an optimiser bounds u itself)."""
         import casadi as ca
 
         nv, nu = self.nv, len(self.tree.actuators)
         uvec = ca.vertcat(*[u if k == self.actuator_index else 0.0 for k in range(nu)])
-        M, r = self.derivation.dynamics_free(s[:nv], s[nv:], uvec, ca.DM.zeros(nv), self.p)
+        fn = self.derivation.dynamics if clips else self.derivation.dynamics_free
+        M, r = fn(s[:nv], s[nv:], uvec, ca.DM.zeros(nv), self.p)
         return ca.solve(ca.reshape(M, nv, nv), r)
 
     def casadi_f(self, clips: bool = False) -> Any:
@@ -296,7 +298,7 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
     ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into it first:
     :mod:`.model_numbers`) and read."""
     from tspend.plants.articulated.model_numbers import compile_with_values
-    from tspend.plants.mjcf import read_spec
+    from tspend.runtime.model_file import read_spec
 
     where = str(path)
     if not Path(path).is_file():

@@ -1,5 +1,8 @@
-"""The cart-pole's equations of motion, written once (docs/paper-notes.md section 7,
-docs/third-party-models.md for the general geometry).
+"""The grey-box cart-pole: the hand-written equations (C1)-(C2) of a cart-pole
+(docs/paper-notes.md section 7, docs/third-party-models.md for the general geometry),
+the model ``tspend identify`` fits to a cart-pole's record, and the test oracle of the
+equations derived from every MuJoCo cart-pole (tests/test_cartpole_derived.py).  No plant
+runs on them: a cart-pole is an articulated machine (:mod:`tspend.plants.articulated`).
 
 Coordinates: cart position ``x`` along the rail (the slide joint's axis ``s``), pole
 angle ``q`` (the hinge's own coordinate, axis ``a``).  The paper's angle is
@@ -43,116 +46,41 @@ Dry friction is smooth here, ``F tanh(v / v_s)``, so an RK4 step stays well defi
 ``frictionloss`` is a soft constraint instead, so on dry friction the two backends agree
 in kind, not to rounding (the cross-check names it as a departure).
 
-Where these hand-written equations are used, and nowhere else (every MuJoCo cart-pole's
-equations are derived from its model, :mod:`tspend.plants.articulated`):
-
-* the ``cartpole_ode`` plant, the paper's machine built from ``[plant]`` numbers with no
-  MJCF (``ex3_pendulum_ode``; the paper's own Example 3 equation is
-  :func:`tspend.plants.analytic.cartpole_accel`, their oracle);
-* the test oracle of the derived equations (tests/test_cartpole_derived.py);
-* the grey-box model ``tspend identify`` fits to a cart-pole's record
-  (:func:`tspend.studies.identify_model.cartpole_model`).
+Its numbers are :class:`tspend.plants.mjcf.CartPoleParams`, read from a compiled model
+(:meth:`tspend.plants.mjcf.ModelFacts.params`); :func:`machine_of` resolves them for
+compiled code.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from typing import NamedTuple
 
 import numpy as np
 from numba.extending import register_jitable
 
-__all__ = ["CartPoleParams", "CartPoleMachine", "DRY_FRICTION_SLIP", "accelerations",
+from tspend.plants.articulated.domain import DRY_FRICTION_SLIP
+from tspend.plants.mjcf import CartPoleParams
+
+__all__ = ["CartPoleMachine", "accelerations",
            "accelerations_factory", "actuator_force", "actuator_force_range", "clip",
-           "gain_sign", "inverse_dynamics", "machine_accelerations", "machine_rhs",
+           "gain_sign", "inverse_dynamics", "machine_accelerations", "machine_of", "machine_rhs",
            "pole_energy", "rhs"]
-
-
-#: slip velocity of the smooth dry friction F tanh(v / v_s), m/s or rad/s
-DRY_FRICTION_SLIP = 1e-3
 
 INF = math.inf
 
 
-@dataclass(frozen=True)
-class CartPoleParams:
-    """One cart-pole machine: the paper's M, m, l, g, and what a real rig adds.
-
-    ``J`` is the pole's inertia about the hinge axis (0 = the uniform rod's 4/3 m l^2);
-    ``theta_sign`` is -1 when the model's positive angle leans the pole toward +x (a
-    reversed hinge axis).  ``rail_coupling``, ``rail_phase``, ``gravity_coupling``,
-    ``gravity_phase`` and ``rail_gravity`` are the geometry of the module docstring
-    (``k_r``, ``phi_r``, ``k_g``, ``phi_g``, ``g_s``; the paper's pole: 1, 0, 1, 0, 0).
-    The actuator: ``gear`` (transmission), ``gain`` (``g0``; the force per unit u of a
-    motor is ``gear gain``), ``gain_length``, ``gain_velocity`` (``g1``, ``g2``),
-    ``bias``, ``bias_length``, ``bias_velocity`` (``b0``, ``b1``, ``b2``) and its ranges
-    (``ctrl_*`` on u, ``force_*`` on the actuator's force, ``joint_force_*`` on the
-    force at the joint; +/-inf: none).
-    """
-
-    M: float = 10.0
-    m: float = 1.0
-    l: float = 3.0
-    g: float = 9.8
-    J: float = 0.0
-    cart_damping: float = 0.0
-    hinge_damping: float = 0.0
-    cart_friction: float = 0.0
-    hinge_friction: float = 0.0
-    gear: float = 1.0
-    theta_sign: float = 1.0
-    rail_coupling: float = 1.0
-    rail_phase: float = 0.0
-    gravity_coupling: float = 1.0
-    gravity_phase: float = 0.0
-    rail_gravity: float = 0.0
-    cart_stiffness: float = 0.0
-    cart_spring_ref: float = 0.0
-    hinge_stiffness: float = 0.0
-    hinge_spring_ref: float = 0.0
-    gain: float = 1.0
-    gain_length: float = 0.0
-    gain_velocity: float = 0.0
-    bias: float = 0.0
-    bias_length: float = 0.0
-    bias_velocity: float = 0.0
-    ctrl_min: float = -INF
-    ctrl_max: float = INF
-    force_min: float = -INF
-    force_max: float = INF
-    joint_force_min: float = -INF
-    joint_force_max: float = INF
-
-    @property
-    def pole_inertia_pivot(self) -> float:
-        return self.J if self.J > 0.0 else 4.0 / 3.0 * self.m * self.l ** 2
-
-    @property
-    def disturbance_torque(self) -> float:
-        """Hinge torque per unit d_d: ``tau = -d_d m l / (M + m)`` enters (C2) like d_d
-        enters the paper's numerator (exact for the rod, the paper's meaning otherwise)."""
-        return -self.m * self.l / (self.M + self.m)
-
-    @property
-    def force_per_u(self) -> float:
-        """The cart force per unit u at rest, N (``gear gain``)."""
-        return self.gear * self.gain
-
-    def finite(self) -> dict[str, float]:
-        """The parameters as plain numbers, leaving out the ranges that are not set (inf)."""
-        return {f.name: float(getattr(self, f.name)) for f in fields(self)
-                if math.isfinite(getattr(self, f.name))}
-
-    def machine(self) -> "CartPoleMachine":
-        """These parameters as compiled code reads them (the properties resolved)."""
-        values = {f.name: float(getattr(self, f.name)) for f in fields(self)}
-        values["J"] = self.pole_inertia_pivot
-        return CartPoleMachine(disturbance_torque=self.disturbance_torque, **values)
+def machine_of(p: CartPoleParams) -> "CartPoleMachine":
+    """``p`` as compiled code reads it (``J`` the inertia about the pivot, the hinge torque
+    per unit d_d resolved)."""
+    values = {f.name: float(getattr(p, f.name)) for f in fields(p)}
+    values["J"] = p.pole_inertia_pivot
+    return CartPoleMachine(disturbance_torque=p.disturbance_torque, **values)
 
 
 class CartPoleMachine(NamedTuple):
-    """:class:`CartPoleParams` with ``J`` the inertia about the pivot and the hinge torque
+    """:class:`~tspend.plants.mjcf.CartPoleParams` with ``J`` the inertia about the pivot and the hinge torque
     per unit d_d resolved: a structure numba can pass by value."""
 
     M: float
@@ -266,7 +194,7 @@ machine_force = register_jitable(_force)
 
 
 def _as_machine(p: CartPoleParams | CartPoleMachine) -> CartPoleMachine:
-    return p if isinstance(p, CartPoleMachine) else p.machine()
+    return p if isinstance(p, CartPoleMachine) else machine_of(p)
 
 
 def accelerations(p: CartPoleParams | CartPoleMachine, theta: float, w: float,
