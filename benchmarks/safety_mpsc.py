@@ -33,7 +33,7 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
+def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> list[dict]:
     from safety_filter import MACHINES, kinds_of
     from tspend import load_scenario, override, run
 
@@ -41,7 +41,7 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
     base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc"})
     out = []
     for kind in kinds_of(machine, kinds):
-        for seed in range(seeds):
+        for seed in range(first, first + seeds):
             t0 = time.perf_counter()
             r = run(override(base, **{"run.seed": seed}), controller=kind, keep_history=False)
             m = r.metrics
@@ -56,20 +56,39 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
                         "safety.bisected": sf.get("bisected_samples"),
                         "safety.infeasible": sf.get("infeasible_samples"),
                         "safety.max_slack": sf.get("max_slack"),
+                        "safety.fast_path": sf.get("fast_path_samples"),
+                        "safety.uncertified": sf.get("uncertified_samples"),
                         "samples": sf.get("samples")})
             print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
                   f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
             # written as it goes: an interrupted benchmark keeps the runs it made
             import pandas as pd
 
-            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}.partial.csv", index=False)
+            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
+                                     index=False)
     return out
 
 
-def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool) -> list[dict]:
-    """Bare and cbf on the same seeds: safety_filter.py's rows (rerun, or its CSV)."""
+def tag(first: int) -> str:
+    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200."""
+    return f"_seeds{first}" if first else ""
+
+
+def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
+                  first: int = 0) -> list[dict]:
+    """Bare and cbf on the same seeds: safety_filter.py's rows (rerun, or its CSV; another
+    seed set than 0.. is always rerun, and kept in safety_mpsc_<machine>_seeds<F>_baselines.csv)."""
     import pandas as pd
 
+    if first:
+        path = RESULTS / f"safety_mpsc_{machine}{tag(first)}_baselines.csv"
+        if path.is_file() and not rerun:
+            return pd.read_csv(path).to_dict("records")
+        from safety_filter import rows
+
+        out = rows(machine, kinds, seeds, first=first)
+        pd.DataFrame(out).to_csv(path, index=False)
+        return out
     if rerun:
         from safety_filter import rows
 
@@ -178,6 +197,8 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="the seed set's first seed (200: the confirmation set 200..219)")
     ap.add_argument("--kinds", default="pd,second_type")
     ap.add_argument("--machines", default="cartpole_rail,furuta_arm")
     ap.add_argument("--baselines", action="store_true",
@@ -188,8 +209,10 @@ def main() -> None:
                     help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--samples", type=int, default=1500)
     args = ap.parse_args()
-    if not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000:
-        ap.error("--seeds 1..200, --samples 100..20000")
+    if (not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000
+            or not 0 <= args.first_seed <= 10 ** 6):
+        ap.error("--seeds 1..200, --first-seed 0..1000000, --samples 100..20000")
+    first, suffix = args.first_seed, tag(args.first_seed)
     warnings.simplefilter("ignore")
     out_path = RESULTS / "safety_mpsc.json"
     data = json.loads(out_path.read_text()) if out_path.is_file() else {}
@@ -202,16 +225,16 @@ def main() -> None:
         for machine in args.machines.split(","):
             t0 = time.perf_counter()
             if args.summarize:
-                done = RESULTS / f"safety_mpsc_{machine}.csv"
-                partial = RESULTS / f"safety_mpsc_{machine}.partial.csv"
+                done = RESULTS / f"safety_mpsc_{machine}{suffix}.csv"
+                partial = RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv"
                 mine = pd.read_csv(done if done.is_file() else partial)
             else:
-                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds))
-                mine.to_csv(RESULTS / f"safety_mpsc_{machine}.csv", index=False)
-                (RESULTS / f"safety_mpsc_{machine}.partial.csv").unlink(missing_ok=True)
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
+                mine.to_csv(RESULTS / f"safety_mpsc_{machine}{suffix}.csv", index=False)
+                (RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
             # the baselines on the seeds the filter ran (an interrupted run: fewer)
-            seeds = int(mine.seed.max()) + 1 if len(mine) else args.seeds
-            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines))
+            seeds = int(mine.seed.max()) + 1 - first if len(mine) else args.seeds
+            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines, first))
             ran = {(c.replace("+mpsc", ""), sd) for c, sd in zip(mine.controller, mine.seed)}
             base = base[[(c.replace("+cbf", ""), sd) in ran
                          for c, sd in zip(base.controller, base.seed)]]
@@ -223,9 +246,10 @@ def main() -> None:
             comp = paired(table, [k for k in kinds if (table.controller == k).any()],
                           args.resamples)
             print(comp["text"], flush=True)
-            data[machine] = {"seeds": seeds, "summary": s, "paired": comp,
-                             "baselines": "rerun" if args.baselines else
-                             f"safety_filter_{machine}_hocbf.csv"}
+            data[machine + suffix] = {
+                "seeds": seeds, "first_seed": first, "summary": s, "paired": comp,
+                "baselines": (f"safety_mpsc_{machine}{suffix}_baselines.csv" if first else
+                              "rerun" if args.baselines else f"safety_filter_{machine}_hocbf.csv")}
     # another process may have written its machine meanwhile: merge, then replace
     if out_path.is_file():
         data = {**json.loads(out_path.read_text()), **data}
