@@ -2,21 +2,25 @@
 against the bare controller in the same run (docs/safety.md, "Predictive safety
 certification").
 
-    python benchmarks/safety_mpsc.py [--seeds 20] [--kinds pd,second_type]
+    python benchmarks/safety_mpsc.py [--seeds 20] [--first-seed 0] [--kinds pd,second_type]
                                      [--machines cartpole_rail,furuta_arm] [--baselines]
-    python benchmarks/safety_mpsc.py --timing-only [--samples 1500]    # run it three times
+    python benchmarks/safety_mpsc.py --timing-only [--samples 5000]    # run it three times
 
 The machines and drawn starts are benchmarks/safety_filter.py's (MACHINES): the
 randomised cart-pole on a 1 m rail (3 s) and the Furuta with its arm's stop (1.5 s, x0
 drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s).  Each kind runs behind mpsc on
-seeds 0..N-1.  The bare and cbf runs of the same seeds are read from safety_filter.py's
-committed data (benchmarks/results/safety_filter_<machine>_hocbf.csv) unless
---baselines reruns them here.  Writes benchmarks/results/safety_mpsc_<machine>.csv (one
-row per run) and benchmarks/results/safety_mpsc.json (the summary docs/safety.md quotes).
+seeds F..F+N-1 (F = --first-seed; 200: the confirmation set).  The bare and cbf runs of
+seeds 0.. are read from safety_filter.py's committed data
+(benchmarks/results/safety_filter_<machine>_hocbf.csv) unless --baselines reruns them;
+another seed set's are run here (safety_mpsc_<machine>_seeds<F>_baselines.csv).  Writes
+benchmarks/results/safety_mpsc_<machine>[_seeds<F>].csv (one row per run) and its entry
+of benchmarks/results/safety_mpsc.json (the summary docs/safety.md quotes).
 
 The timing: one filtered closed loop of pendulum_finite_rail with a 1 m rail (pd), then
 every recorded sample's observation replayed, interleaved, through the bare pd and the
-filtered controller (pd + mpsc), wall time per call; medians and their ratio.
+filtered controller (pd + mpsc), wall time per call; medians and their ratio, and which
+step answered (the fast path, the bisection, the QP); appended to
+benchmarks/results/safety_mpsc_timing.json.
 """
 
 from __future__ import annotations
@@ -186,10 +190,19 @@ def timing(samples: int) -> dict:
         t_filt.append(c - b)
     sf = filt.controller.run_metrics()["safety_filter"]
     mb, mf = float(np.median(t_bare)) * 1e3, float(np.median(t_filt)) * 1e3
+    n = sf["samples"]
+    import os
+
     return {"samples": len(ts), "bare_pd_ms_median": mb, "pd_mpsc_ms_median": mf,
             "filter_only_ms_median": sf["qp_ms"]["median"],
             "ratio_filtered_over_bare": mf / mb if mb > 0 else math.inf,
-            "intervention_share": sf["intervention_share"]}
+            "intervention_share": sf["intervention_share"],
+            # which step answered: the fast path (no QP), the bisection on a certified
+            # tail (no QP), else the QP ran
+            "fast_path_share": sf["fast_path_samples"] / n,
+            "bisected_share": sf["bisected_samples"] / n,
+            "qp_share": 1.0 - (sf["fast_path_samples"] + sf["bisected_samples"]) / n,
+            "load_average_1min": os.getloadavg()[0]}
 
 
 def main() -> None:
@@ -207,7 +220,7 @@ def main() -> None:
     ap.add_argument("--timing-only", action="store_true")
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
-    ap.add_argument("--samples", type=int, default=1500)
+    ap.add_argument("--samples", type=int, default=5000)
     args = ap.parse_args()
     if (not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000
             or not 0 <= args.first_seed <= 10 ** 6):
@@ -215,11 +228,15 @@ def main() -> None:
     first, suffix = args.first_seed, tag(args.first_seed)
     warnings.simplefilter("ignore")
     out_path = RESULTS / "safety_mpsc.json"
-    data = json.loads(out_path.read_text()) if out_path.is_file() else {}
+    data: dict = {}
     if args.timing_only:
+        # its own file: one entry per run, appended (docs/safety.md quotes three)
         tim = timing(args.samples)
         print(json.dumps(tim, indent=1), flush=True)
-        data.setdefault("timing_runs", []).append(tim)
+        path = RESULTS / "safety_mpsc_timing.json"
+        runs = json.loads(path.read_text())["runs"] if path.is_file() else []
+        path.write_text(json.dumps({"runs": runs + [tim]}, indent=1, default=float) + "\n")
+        return
     else:
         kinds = args.kinds.split(",")
         for machine in args.machines.split(","):
@@ -250,7 +267,8 @@ def main() -> None:
                 "seeds": seeds, "first_seed": first, "summary": s, "paired": comp,
                 "baselines": (f"safety_mpsc_{machine}{suffix}_baselines.csv" if first else
                               "rerun" if args.baselines else f"safety_filter_{machine}_hocbf.csv")}
-    # another process may have written its machine meanwhile: merge, then replace
+    # another process may have written its machine meanwhile: merge only this run's
+    # machines into what is there now, then replace
     if out_path.is_file():
         data = {**json.loads(out_path.read_text()), **data}
     out_path.write_text(json.dumps(data, indent=1, default=float) + "\n")

@@ -20,30 +20,38 @@ the largest level whose ellipsoid lies inside every tightened position bound, th
 angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until, from sampled
 points of its boundary, the saturated LQR keeps every bound and returns inside on the
 nominal model and on every vertex of the ``[randomize]`` box (:func:`recurrent_level`,
-:func:`vertex_models`).  A plan is rolled out with its own LQR correction
+:func:`vertex_models`).  A plan is rolled out with its own LQR correction at every RK4
+step, towards the plan's states interpolated between its nodes (as the fallback tracks
+it at every sample)
 
-    u_k = U_k - K (x_k - R_k)   (k >= 1; R_k the plan's state, x_k the rollout's)    (P5)
+    u(t) = U_k - K (x(t) - R(t))   (k >= 1; R the plan's states, x the rollout's)   (P5)
 
 and certified when, on the nominal model and every vertex model (P6), it keeps the hard
-bounds at every RK4 step and ends in ``X_f``.
+bounds at every RK4 step and ends in ``X_f``.  The task's declared disturbance ``|d| <=
+d_max`` moves every hard bound in by (P7) :func:`disturbance_tube`, the most it can move
+the tracked state off its plan on the linearisation.
 
-Per sample (docs/safety.md says it with the figures):
+Per sample (docs/safety.md says it with the figures), each step only when the one before
+found nothing:
 
-0. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM; a real-time
-   iteration from its own last answer, or the certified plan shifted to now) of
+0. the fast path: ``[u_c, the certified plan's rest]``, then ``[u_c, the saturated
+   LQR]`` certified by the rollout: ``u_c`` passes unchanged, no QP;
+1. the closest certifiable input between ``u_c`` and a certified tail's own input (the
+   certified plan's, the LQR's), by bisection on the certificate, no QP;
+2. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM) of
 
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
-   under (P1), (P2) linearised, and (P3) as a cube inside the ellipsoid;
-1. ``[u_c, that plan's u_1 ..]`` certified: ``u_c`` passes unchanged;
-2. else the QP's plan certified: its ``u_0`` (the closest certifiable input); else a
-   bisection between ``u_c`` and the certified plan's own input now;
+   under (P1), (P2) as exact-penalty rows, linearised, and (P3) as a cube inside the
+   ellipsoid; ``[u_c, its plan's rest]``, else its own plan, certified;
 3. else the last certified plan goes on, its states tracked by the LQR every sample (a
-   **fallback**); the saturated LQR once it has run out (``no_plan``).
+   **fallback**);
+4. without any certified plan (``no_plan``): the QP's own plan, uncertified and counted;
+   the saturated LQR when the QP failed too.
 
-So at every sample the applied input starts a plan certified on the model (and the
-vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is claimed
-for a machine between the vertices or for a start with no certified plan.
+So at every sample of steps 0-3 the applied input starts a plan certified on the model
+(and the vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is
+claimed for a machine between the vertices or for a start with no certified plan.
 """
 
 from __future__ import annotations
@@ -257,12 +265,14 @@ class PredictiveSafetyFilter(SafetyFilter):
                  sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                  u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
                  level: float, Q: np.ndarray, R: float, vertices: tuple = (),
-                 compiled: bool = True) -> None:
+                 compiled: bool = True, tube: np.ndarray | None = None) -> None:
         import casadi as ca
 
         from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
 
         super().__init__(inner, model, cfg)
+        #: (P7)'s tightening per state (zeros: no disturbance declared)
+        self.tube = np.zeros(model.size) if tube is None else np.asarray(tube, dtype=float)
         self.u_lo, self.u_hi = u_range
         finite = [abs(v) for v in u_range if math.isfinite(v)]
         self.bounded = len(finite) == 2
@@ -616,7 +626,11 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "bisected_samples": self.bisected, "fast_path_samples": self.fast,
                 "uncertified_samples": self.uncertified,
                 "fallback_share": (self.fallbacks + self.no_plan) / n if n else None,
-                "max_slack": self.max_slack, "terminal_level": self.level}
+                "max_slack": self.max_slack, "terminal_level": self.level,
+                # (P7): how far each bounded state's bound was moved in for the disturbance
+                "disturbance_tube": {name: float(self.tube[i])
+                                     for i, name in enumerate(self.model.state_names)
+                                     if self.tube[i] > 0.0}}
 
 
 def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSafetyFilter:
@@ -689,4 +703,4 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
                             f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
     return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
-                                  level, Q, b_pole ** 2, tuple(models))
+                                  level, Q, b_pole ** 2, tuple(models), tube=tube)
