@@ -109,7 +109,11 @@ def summary(table) -> dict:
         row = {"runs": int(len(g)), "completed": int((g.status == "completed").sum()),
                "statuses": {s: int(n) for s, n in g.status.value_counts().items()},
                "runs_with_samples_outside": int((g.violations > 0).sum()),
-               "samples_outside_max": int(g.violations.max())}
+               "samples_outside_max": int(g.violations.max()),
+               # tracking cost: rmse over the runs that completed (an ended run's rmse
+               # covers a shorter run)
+               "rmse_completed_median": (float(g.rmse[g.status == "completed"].median())
+                                         if (g.status == "completed").any() else None)}
         if "safety.fallbacks" in g and g["safety.fallbacks"].notna().any():
             n = g["samples"].astype(float)
             row.update({
@@ -148,6 +152,7 @@ def markdown_rows(table, machine: str) -> str:
 def paired(table, kinds: list[str], resamples: int) -> dict:
     """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
     scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
+    import tspend.controllers  # noqa: F401  (first: tspend.studies.stats alone meets an import cycle)
     from tspend.studies.stats import compare, markdown
 
     names = [k + s for k in kinds for s in ("", "+cbf", "+mpsc")
@@ -157,7 +162,17 @@ def paired(table, kinds: list[str], resamples: int) -> dict:
     cols = ["scenario", "controller", "seed", "status", "rmse", "violations"]
     comp = compare(table[cols], names, ("rmse", "violations"), n_resamples=resamples,
                    pairs=pairs)
-    return {"pairs": [list(p) for p in pairs], "text": markdown(comp, "paired by seed")}
+    # the same as numbers (docs/safety.md marks its figures against them)
+    outcomes = {f"{r.a} vs {r.b}": {"pairs": int(r.pairs), "a_bad": int(r.a_bad),
+                                    "b_bad": int(r.b_bad), "p_value": float(r.p_value),
+                                    "p_holm": float(r.p_holm)}
+                for r in comp.outcomes.itertuples(index=False)} if len(comp.outcomes) else {}
+    metrics = {f"{r.a} vs {r.b} {r.metric}": {
+        "pairs": int(r.pairs), "median_difference": float(r.median_difference),
+        "p_value": float(r.p_value), "p_holm": float(r.p_holm), "verdict": r.verdict}
+        for r in comp.pairs.itertuples(index=False)} if len(comp.pairs) else {}
+    return {"pairs": [list(p) for p in pairs], "outcomes": outcomes, "metrics": metrics,
+            "text": markdown(comp, "paired by seed")}
 
 
 def timing(samples: int) -> dict:

@@ -37,16 +37,18 @@ def least_peak(model, s0: np.ndarray, horizon_s: float = 3.0) -> float:
     F0, F = model.rk4_map(0.001, 1), model.rk4_map(0.01, 1)
     N = int(round((horizon_s - 0.001) / 0.01)) + 1
     opti = ca.Opti()
-    X, U, t = opti.variable(model.size, N + 1), opti.variable(1, N), opti.variable()
+    # the input scaled to [-1, 1] (the range is +/-2000 N: IPOPT stalled unscaled)
+    X, V, t = opti.variable(model.size, N + 1), opti.variable(1, N), opti.variable()
+    scale = max(abs(model.u_lo), abs(model.u_hi))
     opti.subject_to(X[:, 0] == s0)
     for k in range(N):
-        opti.subject_to(X[:, k + 1] == (F0 if k == 0 else F)(X[:, k], U[0, k]))
-    opti.subject_to(opti.bounded(model.u_lo, U, model.u_hi))
+        opti.subject_to(X[:, k + 1] == (F0 if k == 0 else F)(X[:, k], scale * V[0, k]))
+    opti.subject_to(opti.bounded(model.u_lo / scale, V, model.u_hi / scale))
     opti.subject_to(opti.bounded(-t, X[0, :], t))
     opti.subject_to(X[:, N] == 0)
     opti.minimize(t)
     opti.set_initial(t, 1.0)
-    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "max_iter": 1000, "sb": "yes"})
+    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "max_iter": 3000, "sb": "yes"})
     return float(opti.solve().value(t))
 
 
