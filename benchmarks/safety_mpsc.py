@@ -162,12 +162,13 @@ def paired(table, kinds: list[str], resamples: int) -> dict:
     cols = ["scenario", "controller", "seed", "status", "rmse", "violations"]
     comp = compare(table[cols], names, ("rmse", "violations"), n_resamples=resamples,
                    pairs=pairs)
-    # the same as numbers (docs/safety.md marks its figures against them)
-    outcomes = {f"{r.a} vs {r.b}": {"pairs": int(r.pairs), "a_bad": int(r.a_bad),
+    # the same as numbers, keyed "A|B" and "A|B|metric" (docs/safety.md marks its
+    # figures against them: a key has no spaces)
+    outcomes = {f"{r.a}|{r.b}": {"pairs": int(r.pairs), "a_bad": int(r.a_bad),
                                     "b_bad": int(r.b_bad), "p_value": float(r.p_value),
                                     "p_holm": float(r.p_holm)}
                 for r in comp.outcomes.itertuples(index=False)} if len(comp.outcomes) else {}
-    metrics = {f"{r.a} vs {r.b} {r.metric}": {
+    metrics = {f"{r.a}|{r.b}|{r.metric}": {
         "pairs": int(r.pairs), "median_difference": float(r.median_difference),
         "p_value": float(r.p_value), "p_holm": float(r.p_holm), "verdict": r.verdict}
         for r in comp.pairs.itertuples(index=False)} if len(comp.pairs) else {}

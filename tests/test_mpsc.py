@@ -180,6 +180,8 @@ def test_disturbance_tube_is_reached_by_the_worst_bang_bang_disturbance():
     A_cl = A - np.outer(B[:, 0], np.ravel(K))
     w = disturbance_tube(scn, model, A_cl)
     E = disturbance_input(scn, model)
+    # what docs/safety.md quotes: 15 mm on the cart, 0.8 mrad on the pole
+    assert w[0] == pytest.approx(0.0150, abs=5e-4) and w[1] == pytest.approx(8e-4, abs=5e-5)
     d_max = 0.05                                     # the scenario's square wave
     T, dt = 60.0, 2e-3
     t = np.arange(0.0, T + dt / 2, dt)
