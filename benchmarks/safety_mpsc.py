@@ -269,6 +269,8 @@ def main() -> None:
                 done = RESULTS / f"safety_mpsc_{machine}{suffix}.csv"
                 partial = RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv"
                 mine = pd.read_csv(done if done.is_file() else partial)
+                # only the kinds asked (an interrupted run may hold a few of another)
+                mine = mine[mine.controller.isin([k + "+mpsc" for k in kinds])]
             else:
                 mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
                 mine.to_csv(RESULTS / f"safety_mpsc_{machine}{suffix}.csv", index=False)
