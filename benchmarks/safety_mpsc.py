@@ -177,8 +177,9 @@ def paired(table, kinds: list[str], resamples: int) -> dict:
 
 
 def timing(samples: int) -> dict:
-    """The filter's wall time per sample against the bare controller, replayed on the
-    states of one filtered closed loop, interleaved in this process."""
+    """The filter's wall time per sample against the bare controller: in the closed loops
+    themselves (the runner's controller_ms, filtered and bare), and replayed on the states
+    of the filtered closed loop, interleaved in this process."""
     from tspend import load_scenario, override, run
     from tspend.controllers.base import Observation
     from tspend.loop.simulation import prepare
@@ -186,6 +187,11 @@ def timing(samples: int) -> dict:
     scn = override(load_scenario("pendulum_finite_rail"),
                    **{"effects.rail": 1.0, "run.duration": samples / 1000.0})
     r = run(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+    # the closed loops themselves: the runner's own time per controller call (the inner
+    # pd and the filter), filtered and bare, in this process
+    loop_filt = r.metrics["controller_ms"]["median"]
+    loop_bare = run(scn, controller="pd", keep_history=False).metrics["controller_ms"]["median"]
+    loop_sf = r.metrics["safety_filter"]
     states, refs, ts = r.history["state"], r.history["ref"], r.history["t"]
     bare = prepare(scn, controller="pd")
     filt = prepare(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
@@ -226,7 +232,11 @@ def timing(samples: int) -> dict:
             "fast_path_share": sf["fast_path_samples"] / n,
             "bisected_share": sf["bisected_samples"] / n,
             "qp_share": 1.0 - (sf["fast_path_samples"] + sf["bisected_samples"]) / n,
-            "load_average_1min": os.getloadavg()[0]}
+            "load_average_1min": os.getloadavg()[0],
+            "closed_loop_pd_mpsc_ms_median": loop_filt, "closed_loop_bare_pd_ms_median": loop_bare,
+            "closed_loop_ratio": loop_filt / loop_bare if loop_bare > 0 else math.inf,
+            "closed_loop_fast_path_share": loop_sf["fast_path_samples"] / loop_sf["samples"],
+            "closed_loop_bisected_share": loop_sf["bisected_samples"] / loop_sf["samples"]}
 
 
 def main() -> None:
