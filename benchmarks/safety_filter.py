@@ -36,7 +36,8 @@ def kinds_of(machine: str, kinds: list[str]) -> list[str]:
     return [k for k in kinds if k != "policy" or "controllers.policy.path" in MACHINES[machine][1]]
 
 
-def rows(machine: str, kinds: list[str], seeds: int, barrier: str = "hocbf") -> list[dict]:
+def rows(machine: str, kinds: list[str], seeds: int, barrier: str = "hocbf",
+         first: int = 0) -> list[dict]:
     from tspend import load_scenario, override, run
 
     name, changes = MACHINES[machine]
@@ -45,7 +46,7 @@ def rows(machine: str, kinds: list[str], seeds: int, barrier: str = "hocbf") -> 
     for kind in kinds_of(machine, kinds):
         for filtered in (False, True):
             k = kind + ("+cbf" if filtered else "")
-            for seed in range(seeds):
+            for seed in range(first, first + seeds):
                 r = run(override(base, **{"run.seed": seed}), controller=k, keep_history=False)
                 m = r.metrics
                 safety = m.get("safety_filter", {})

@@ -2,21 +2,25 @@
 against the bare controller in the same run (docs/safety.md, "Predictive safety
 certification").
 
-    python benchmarks/safety_mpsc.py [--seeds 20] [--kinds pd,second_type]
+    python benchmarks/safety_mpsc.py [--seeds 20] [--first-seed 0] [--kinds pd,second_type]
                                      [--machines cartpole_rail,furuta_arm] [--baselines]
-    python benchmarks/safety_mpsc.py --timing-only [--samples 1500]    # run it three times
+    python benchmarks/safety_mpsc.py --timing-only [--samples 5000]    # run it three times
 
 The machines and drawn starts are benchmarks/safety_filter.py's (MACHINES): the
 randomised cart-pole on a 1 m rail (3 s) and the Furuta with its arm's stop (1.5 s, x0
 drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s).  Each kind runs behind mpsc on
-seeds 0..N-1.  The bare and cbf runs of the same seeds are read from safety_filter.py's
-committed data (benchmarks/results/safety_filter_<machine>_hocbf.csv) unless
---baselines reruns them here.  Writes benchmarks/results/safety_mpsc_<machine>.csv (one
-row per run) and benchmarks/results/safety_mpsc.json (the summary docs/safety.md quotes).
+seeds F..F+N-1 (F = --first-seed; 200: the confirmation set).  The bare and cbf runs of
+seeds 0.. are read from safety_filter.py's committed data
+(benchmarks/results/safety_filter_<machine>_hocbf.csv) unless --baselines reruns them;
+another seed set's are run here (safety_mpsc_<machine>_seeds<F>_baselines.csv).  Writes
+benchmarks/results/safety_mpsc_<machine>[_seeds<F>].csv (one row per run) and its entry
+of benchmarks/results/safety_mpsc.json (the summary docs/safety.md quotes).
 
 The timing: one filtered closed loop of pendulum_finite_rail with a 1 m rail (pd), then
 every recorded sample's observation replayed, interleaved, through the bare pd and the
-filtered controller (pd + mpsc), wall time per call; medians and their ratio.
+filtered controller (pd + mpsc), wall time per call; medians and their ratio, and which
+step answered (the fast path, the bisection, the QP); appended to
+benchmarks/results/safety_mpsc_timing.json.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
+def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> list[dict]:
     from safety_filter import MACHINES, kinds_of
     from tspend import load_scenario, override, run
 
@@ -41,7 +45,7 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
     base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc"})
     out = []
     for kind in kinds_of(machine, kinds):
-        for seed in range(seeds):
+        for seed in range(first, first + seeds):
             t0 = time.perf_counter()
             r = run(override(base, **{"run.seed": seed}), controller=kind, keep_history=False)
             m = r.metrics
@@ -56,20 +60,39 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int) -> list[dict]:
                         "safety.bisected": sf.get("bisected_samples"),
                         "safety.infeasible": sf.get("infeasible_samples"),
                         "safety.max_slack": sf.get("max_slack"),
+                        "safety.fast_path": sf.get("fast_path_samples"),
+                        "safety.uncertified": sf.get("uncertified_samples"),
                         "samples": sf.get("samples")})
             print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
                   f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
             # written as it goes: an interrupted benchmark keeps the runs it made
             import pandas as pd
 
-            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}.partial.csv", index=False)
+            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
+                                     index=False)
     return out
 
 
-def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool) -> list[dict]:
-    """Bare and cbf on the same seeds: safety_filter.py's rows (rerun, or its CSV)."""
+def tag(first: int) -> str:
+    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200."""
+    return f"_seeds{first}" if first else ""
+
+
+def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
+                  first: int = 0) -> list[dict]:
+    """Bare and cbf on the same seeds: safety_filter.py's rows (rerun, or its CSV; another
+    seed set than 0.. is always rerun, and kept in safety_mpsc_<machine>_seeds<F>_baselines.csv)."""
     import pandas as pd
 
+    if first:
+        path = RESULTS / f"safety_mpsc_{machine}{tag(first)}_baselines.csv"
+        if path.is_file() and not rerun:
+            return pd.read_csv(path).to_dict("records")
+        from safety_filter import rows
+
+        out = rows(machine, kinds, seeds, first=first)
+        pd.DataFrame(out).to_csv(path, index=False)
+        return out
     if rerun:
         from safety_filter import rows
 
@@ -86,7 +109,11 @@ def summary(table) -> dict:
         row = {"runs": int(len(g)), "completed": int((g.status == "completed").sum()),
                "statuses": {s: int(n) for s, n in g.status.value_counts().items()},
                "runs_with_samples_outside": int((g.violations > 0).sum()),
-               "samples_outside_max": int(g.violations.max())}
+               "samples_outside_max": int(g.violations.max()),
+               # tracking cost: rmse over the runs that completed (an ended run's rmse
+               # covers a shorter run)
+               "rmse_completed_median": (float(g.rmse[g.status == "completed"].median())
+                                         if (g.status == "completed").any() else None)}
         if "safety.fallbacks" in g and g["safety.fallbacks"].notna().any():
             n = g["samples"].astype(float)
             row.update({
@@ -125,6 +152,7 @@ def markdown_rows(table, machine: str) -> str:
 def paired(table, kinds: list[str], resamples: int) -> dict:
     """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
     scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
+    import tspend.controllers  # noqa: F401  (first: tspend.studies.stats alone meets an import cycle)
     from tspend.studies.stats import compare, markdown
 
     names = [k + s for k in kinds for s in ("", "+cbf", "+mpsc")
@@ -134,12 +162,24 @@ def paired(table, kinds: list[str], resamples: int) -> dict:
     cols = ["scenario", "controller", "seed", "status", "rmse", "violations"]
     comp = compare(table[cols], names, ("rmse", "violations"), n_resamples=resamples,
                    pairs=pairs)
-    return {"pairs": [list(p) for p in pairs], "text": markdown(comp, "paired by seed")}
+    # the same as numbers, keyed "A|B" and "A|B|metric" (docs/safety.md marks its
+    # figures against them: a key has no spaces)
+    outcomes = {f"{r.a}|{r.b}": {"pairs": int(r.pairs), "a_bad": int(r.a_bad),
+                                    "b_bad": int(r.b_bad), "p_value": float(r.p_value),
+                                    "p_holm": float(r.p_holm)}
+                for r in comp.outcomes.itertuples(index=False)} if len(comp.outcomes) else {}
+    metrics = {f"{r.a}|{r.b}|{r.metric}": {
+        "pairs": int(r.pairs), "median_difference": float(r.median_difference),
+        "p_value": float(r.p_value), "p_holm": float(r.p_holm), "verdict": r.verdict}
+        for r in comp.pairs.itertuples(index=False)} if len(comp.pairs) else {}
+    return {"pairs": [list(p) for p in pairs], "outcomes": outcomes, "metrics": metrics,
+            "text": markdown(comp, "paired by seed")}
 
 
 def timing(samples: int) -> dict:
-    """The filter's wall time per sample against the bare controller, replayed on the
-    states of one filtered closed loop, interleaved in this process."""
+    """The filter's wall time per sample against the bare controller: in the closed loops
+    themselves (the runner's controller_ms, filtered and bare), and replayed on the states
+    of the filtered closed loop, interleaved in this process."""
     from tspend import load_scenario, override, run
     from tspend.controllers.base import Observation
     from tspend.loop.simulation import prepare
@@ -147,6 +187,11 @@ def timing(samples: int) -> dict:
     scn = override(load_scenario("pendulum_finite_rail"),
                    **{"effects.rail": 1.0, "run.duration": samples / 1000.0})
     r = run(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+    # the closed loops themselves: the runner's own time per controller call (the inner
+    # pd and the filter), filtered and bare, in this process
+    loop_filt = r.metrics["controller_ms"]["median"]
+    loop_bare = run(scn, controller="pd", keep_history=False).metrics["controller_ms"]["median"]
+    loop_sf = r.metrics["safety_filter"]
     states, refs, ts = r.history["state"], r.history["ref"], r.history["t"]
     bare = prepare(scn, controller="pd")
     filt = prepare(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
@@ -155,22 +200,43 @@ def timing(samples: int) -> dict:
         parts.controller.reset(rng)
     task = bare.task
     view = task.view_index
-    t_bare, t_filt = [], []
+    t_bare, t_filt, cpu_bare, cpu_filt = [], [], [], []
+    clock, cpu = time.perf_counter, time.thread_time
     for t, s, ref in zip(ts, states, refs):
         obs = Observation(float(t), s, s[view], ref, task.names, task.constraints)
-        a = time.perf_counter()
+        a, a_cpu = clock(), cpu()
         bare.controller.step(obs, 0.001)
-        b = time.perf_counter()
+        b, b_cpu = clock(), cpu()
         filt.controller.step(obs, 0.001)
-        c = time.perf_counter()
+        c, c_cpu = clock(), cpu()
         t_bare.append(b - a)
         t_filt.append(c - b)
+        cpu_bare.append(b_cpu - a_cpu)
+        cpu_filt.append(c_cpu - b_cpu)
     sf = filt.controller.run_metrics()["safety_filter"]
     mb, mf = float(np.median(t_bare)) * 1e3, float(np.median(t_filt)) * 1e3
+    # this thread's CPU time too: on the shared machine the wall clock also counts the
+    # waits for a core, which no filter can shorten
+    cb, cf = float(np.median(cpu_bare)) * 1e3, float(np.median(cpu_filt)) * 1e3
+    n = sf["samples"]
+    import os
+
     return {"samples": len(ts), "bare_pd_ms_median": mb, "pd_mpsc_ms_median": mf,
             "filter_only_ms_median": sf["qp_ms"]["median"],
             "ratio_filtered_over_bare": mf / mb if mb > 0 else math.inf,
-            "intervention_share": sf["intervention_share"]}
+            "bare_pd_cpu_ms_median": cb, "pd_mpsc_cpu_ms_median": cf,
+            "cpu_ratio_filtered_over_bare": cf / cb if cb > 0 else math.inf,
+            "intervention_share": sf["intervention_share"],
+            # which step answered: the fast path (no QP), the bisection on a certified
+            # tail (no QP), else the QP ran
+            "fast_path_share": sf["fast_path_samples"] / n,
+            "bisected_share": sf["bisected_samples"] / n,
+            "qp_share": 1.0 - (sf["fast_path_samples"] + sf["bisected_samples"]) / n,
+            "load_average_1min": os.getloadavg()[0],
+            "closed_loop_pd_mpsc_ms_median": loop_filt, "closed_loop_bare_pd_ms_median": loop_bare,
+            "closed_loop_ratio": loop_filt / loop_bare if loop_bare > 0 else math.inf,
+            "closed_loop_fast_path_share": loop_sf["fast_path_samples"] / loop_sf["samples"],
+            "closed_loop_bisected_share": loop_sf["bisected_samples"] / loop_sf["samples"]}
 
 
 def main() -> None:
@@ -178,6 +244,8 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="the seed set's first seed (200: the confirmation set 200..219)")
     ap.add_argument("--kinds", default="pd,second_type")
     ap.add_argument("--machines", default="cartpole_rail,furuta_arm")
     ap.add_argument("--baselines", action="store_true",
@@ -186,32 +254,40 @@ def main() -> None:
     ap.add_argument("--timing-only", action="store_true")
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
-    ap.add_argument("--samples", type=int, default=1500)
+    ap.add_argument("--samples", type=int, default=5000)
     args = ap.parse_args()
-    if not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000:
-        ap.error("--seeds 1..200, --samples 100..20000")
+    if (not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000
+            or not 0 <= args.first_seed <= 10 ** 6):
+        ap.error("--seeds 1..200, --first-seed 0..1000000, --samples 100..20000")
+    first, suffix = args.first_seed, tag(args.first_seed)
     warnings.simplefilter("ignore")
     out_path = RESULTS / "safety_mpsc.json"
-    data = json.loads(out_path.read_text()) if out_path.is_file() else {}
+    data: dict = {}
     if args.timing_only:
+        # its own file: one entry per run, appended (docs/safety.md quotes three)
         tim = timing(args.samples)
         print(json.dumps(tim, indent=1), flush=True)
-        data.setdefault("timing_runs", []).append(tim)
+        path = RESULTS / "safety_mpsc_timing.json"
+        runs = json.loads(path.read_text())["runs"] if path.is_file() else []
+        path.write_text(json.dumps({"runs": runs + [tim]}, indent=1, default=float) + "\n")
+        return
     else:
         kinds = args.kinds.split(",")
         for machine in args.machines.split(","):
             t0 = time.perf_counter()
             if args.summarize:
-                done = RESULTS / f"safety_mpsc_{machine}.csv"
-                partial = RESULTS / f"safety_mpsc_{machine}.partial.csv"
+                done = RESULTS / f"safety_mpsc_{machine}{suffix}.csv"
+                partial = RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv"
                 mine = pd.read_csv(done if done.is_file() else partial)
+                # only the kinds asked (an interrupted run may hold a few of another)
+                mine = mine[mine.controller.isin([k + "+mpsc" for k in kinds])]
             else:
-                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds))
-                mine.to_csv(RESULTS / f"safety_mpsc_{machine}.csv", index=False)
-                (RESULTS / f"safety_mpsc_{machine}.partial.csv").unlink(missing_ok=True)
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
+                mine.to_csv(RESULTS / f"safety_mpsc_{machine}{suffix}.csv", index=False)
+                (RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
             # the baselines on the seeds the filter ran (an interrupted run: fewer)
-            seeds = int(mine.seed.max()) + 1 if len(mine) else args.seeds
-            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines))
+            seeds = int(mine.seed.max()) + 1 - first if len(mine) else args.seeds
+            base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines, first))
             ran = {(c.replace("+mpsc", ""), sd) for c, sd in zip(mine.controller, mine.seed)}
             base = base[[(c.replace("+cbf", ""), sd) in ran
                          for c, sd in zip(base.controller, base.seed)]]
@@ -223,10 +299,12 @@ def main() -> None:
             comp = paired(table, [k for k in kinds if (table.controller == k).any()],
                           args.resamples)
             print(comp["text"], flush=True)
-            data[machine] = {"seeds": seeds, "summary": s, "paired": comp,
-                             "baselines": "rerun" if args.baselines else
-                             f"safety_filter_{machine}_hocbf.csv"}
-    # another process may have written its machine meanwhile: merge, then replace
+            data[machine + suffix] = {
+                "seeds": seeds, "first_seed": first, "summary": s, "paired": comp,
+                "baselines": (f"safety_mpsc_{machine}{suffix}_baselines.csv" if first else
+                              "rerun" if args.baselines else f"safety_filter_{machine}_hocbf.csv")}
+    # another process may have written its machine meanwhile: merge only this run's
+    # machines into what is there now, then replace
     if out_path.is_file():
         data = {**json.loads(out_path.read_text()), **data}
     out_path.write_text(json.dumps(data, indent=1, default=float) + "\n")

@@ -176,6 +176,10 @@ class RealTimeSQP:
         ``h(x_N)`` (``(t,)``): the last state must keep ``h <= 0`` (a terminal set),
         linearised as every other row, ``h + dh/dx dx_N <= 0``, after every other row
         (HPIPM's last stage).
+    qp_options : dict, optional
+        The QP solver's own options over :data:`_QP_OPTIONS` (``{"iter_max": 15}``).
+    acceptance : float
+        The largest constraint residual of a QP's answer taken as a step (else the QP failed).
 
     ``stage_hessian`` may also be ``(N, nz, nz)``: one per stage.
     """
@@ -185,7 +189,8 @@ class RealTimeSQP:
                  solver: str, compiled: bool, stage_rows: np.ndarray | None = None,
                  stage_bound: np.ndarray | None = None,
                  stage_gradient: np.ndarray | None = None, nz: int | None = None,
-                 first_map: Any = None, terminal_constraint: Any = None) -> None:
+                 first_map: Any = None, terminal_constraint: Any = None,
+                 qp_options: dict | None = None, acceptance: float = 1e-6) -> None:
         import casadi as ca
 
         nz = nx + 1 if nz is None else nz
@@ -262,6 +267,9 @@ class RealTimeSQP:
             self.compiled = fast is not lin
             lin = fast
         opts = dict(_QP_OPTIONS[solver])
+        if qp_options:
+            # the solver's own options, over the defaults (mpsc: a proposal it certifies)
+            opts[solver] = {**opts.get(solver, {}), **qp_options}
         # a failed QP is found by its result's infeasibility (below), not by an exception
         # (CasADi prints the QP's data with it)
         opts["error_on_fail"] = False
@@ -286,6 +294,7 @@ class RealTimeSQP:
                                 [ca.vertcat(zs + dz, ca.norm_inf(dz), infeasibility,
                                             sol["lam_x"], sol["lam_a"])])
         self.solver = solver
+        self.acceptance = acceptance
         #: the QP's data at a point, (z, s0, z_r) -> (g, A, lba, uba, lbx, ubx), and H
         self.linearisation, self.hessian = lin, H
         self._z, self._s0, self._zr = np.zeros(self.nw), np.zeros(nx), np.zeros(self.nw)
@@ -303,7 +312,7 @@ class RealTimeSQP:
                 tolerance: float) -> tuple[np.ndarray, int]:
         """``(z, steps)`` after up to ``iterations`` steps from ``z`` (fewer when a step's
         largest entry is below ``tolerance``); raises RuntimeError when a QP's answer is
-        not finite or violates its constraints by more than 1e-6 (a failed QP)."""
+        not finite or violates its constraints by more than ``acceptance`` (a failed QP)."""
         nw, out = self.nw, self._out
         self._z[:] = z
         self._s0[:] = s0
@@ -313,14 +322,14 @@ class RealTimeSQP:
             self._evaluate()
             steps += 1
             size, infeasibility = out[nw], out[nw + 1]
-            if not (np.isfinite(size) and infeasibility <= 1e-6) and np.any(self._lam):
+            if not (np.isfinite(size) and infeasibility <= self.acceptance) and np.any(self._lam):
                 # the last solve's multipliers (not shifted with z) can start an active-set
                 # solver on a wrong active set that it leaves slightly infeasible (seen
                 # with qrqp and daqp once (R3)'s rows are active): once more from none
                 self._lam[:] = 0.0
                 self._evaluate()
                 size, infeasibility = out[nw], out[nw + 1]
-            if not (np.isfinite(size) and infeasibility <= 1e-6):
+            if not (np.isfinite(size) and infeasibility <= self.acceptance):
                 raise RuntimeError(f"the QP failed (step {size:g}, infeasibility "
                                    f"{infeasibility:g})")
             self._z[:] = out[:nw]

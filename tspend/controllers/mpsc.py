@@ -20,30 +20,38 @@ the largest level whose ellipsoid lies inside every tightened position bound, th
 angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until, from sampled
 points of its boundary, the saturated LQR keeps every bound and returns inside on the
 nominal model and on every vertex of the ``[randomize]`` box (:func:`recurrent_level`,
-:func:`vertex_models`).  A plan is rolled out with its own LQR correction
+:func:`vertex_models`).  A plan is rolled out with its own LQR correction at every RK4
+step, towards the plan's states interpolated between its nodes (as the fallback tracks
+it at every sample)
 
-    u_k = U_k - K (x_k - R_k)   (k >= 1; R_k the plan's state, x_k the rollout's)    (P5)
+    u(t) = U_k - K (x(t) - R(t))   (k >= 1; R the plan's states, x the rollout's)   (P5)
 
 and certified when, on the nominal model and every vertex model (P6), it keeps the hard
-bounds at every RK4 step and ends in ``X_f``.
+bounds at every RK4 step and ends in ``X_f``.  The task's declared disturbance ``|d| <=
+d_max`` moves every hard bound in by (P7) :func:`disturbance_tube`, the most it can move
+the tracked state off its plan on the linearisation.
 
-Per sample (docs/safety.md says it with the figures):
+Per sample (docs/safety.md says it with the figures), each step only when the one before
+found nothing:
 
-0. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM; a real-time
-   iteration from its own last answer, or the certified plan shifted to now) of
+0. the fast path: ``[u_c, the certified plan's rest]``, then ``[u_c, the saturated
+   LQR]`` certified by the rollout: ``u_c`` passes unchanged, no QP;
+1. the closest certifiable input between ``u_c`` and a certified tail's own input (the
+   certified plan's, the LQR's), by bisection on the certificate, no QP;
+2. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM) of
 
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
-   under (P1), (P2) linearised, and (P3) as a cube inside the ellipsoid;
-1. ``[u_c, that plan's u_1 ..]`` certified: ``u_c`` passes unchanged;
-2. else the QP's plan certified: its ``u_0`` (the closest certifiable input); else a
-   bisection between ``u_c`` and the certified plan's own input now;
+   under (P1), (P2) as exact-penalty rows, linearised, and (P3) as a cube inside the
+   ellipsoid; ``[u_c, its plan's rest]``, else its own plan, certified;
 3. else the last certified plan goes on, its states tracked by the LQR every sample (a
-   **fallback**); the saturated LQR once it has run out (``no_plan``).
+   **fallback**);
+4. without any certified plan (``no_plan``): the QP's own plan, uncertified and counted;
+   the saturated LQR when the QP failed too.
 
-So at every sample the applied input starts a plan certified on the model (and the
-vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is claimed
-for a machine between the vertices or for a start with no certified plan.
+So at every sample of steps 0-3 the applied input starts a plan certified on the model
+(and the vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is
+claimed for a machine between the vertices or for a start with no certified plan.
 """
 
 from __future__ import annotations
@@ -84,6 +92,18 @@ TERMINAL_WEIGHT = 0.1
 BISECTIONS = 8
 #: the longest plan (intervals) chosen automatically
 MAX_AUTO_HORIZON = 40
+#: HPIPM's options for the QP: "speed" mode's relative stopping test iterated 40-60
+#: times here (6 ms per sample), "speed_abs" stops at the absolute residuals (1e-7) in
+#: about 10 (1.2 ms)
+QP_OPTIONS = {"mode": "speed_abs"}
+#: the largest constraint residual of a QP's answer taken as a step: the QP proposes a
+#: plan that the certificate (a rollout on every model) accepts or refuses, so a
+#: millimetre of residual in the linearised rows costs no safety
+QP_ACCEPTANCE = 1e-3
+#: SQP steps per sample while no certified plan exists (its plan is then applied)
+RECOVERY_ITERATIONS = 3
+#: the disturbance's samples read for its bound (P7)
+MAX_DISTURBANCE_SAMPLES = 10 ** 6
 #: at most this many [randomize] parameters spanned by vertices (2^6 = 64 models)
 MAX_VERTEX_PARAMETERS = 6
 
@@ -132,6 +152,60 @@ def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: 
             return c
         c *= SHRINK
     return 0.0
+
+
+def disturbance_input(scenario: "Scenario", model: "FullModel") -> np.ndarray:
+    """``E`` (nx,): the full state's rate per unit of the task's disturbance ``d`` at the
+    upright at rest, in the model's order, read off the nominal machine itself (one
+    sample from rest with ``d = 1`` against one with ``d = 0``: ``d`` enters the plant as
+    the plant applies it, a hinge torque on the MuJoCo cart-pole)."""
+    from tspend.plants import registry
+
+    dt = scenario.run.dt
+    rates = []
+    for d in (0.0, 1.0):
+        plant = registry.build(scenario)
+        plant.reset(np.zeros(len(scenario.plant.x0)))
+        start = np.asarray(plant.full_state(), dtype=float).copy()
+        plant.step(0.0, d, dt)
+        rates.append((np.asarray(plant.full_state(), dtype=float) - start) / dt)
+    names = list(plant.state_names)
+    order = [names.index(n) for n in model.state_names]
+    E = (rates[1] - rates[0])[order]
+    # the positions' share is the velocities' first step (dt/2 of them): not a rate of d
+    E[:model.dof] = 0.0
+    return E
+
+
+def disturbance_tube(scenario: "Scenario", model: "FullModel", A_cl: np.ndarray) -> np.ndarray:
+    """(P7) ``w`` (nx,): for the task's disturbance, ``d_max = max |d(t)|`` over the run
+    (sampled at run.dt), the largest ``|e_i(t)|`` any ``|d| <= d_max`` can cause in
+    ``e' = A_cl e + E d`` (the error between the machine and its plan while the LQR
+    tracks it, linearised at the upright): ``d_max`` x the L1 norm of ``e_i``'s impulse
+    response, ``int_0^inf |c_i exp(A_cl t) E| dt`` (a peak-to-peak bound that holds at
+    every time, on the plan and in the terminal set after it).  Zeros without a
+    disturbance."""
+    from scipy.linalg import expm
+
+    run = scenario.run
+    n = int(min(round(run.duration / run.dt), MAX_DISTURBANCE_SAMPLES))
+    d = np.asarray(scenario.disturbance(np.arange(max(n, 1)) * run.dt), dtype=float)
+    d_max = float(np.max(np.abs(d))) if d.size else 0.0
+    if not (math.isfinite(d_max) and d_max > 0.0):
+        return np.zeros(model.size)
+    E = disturbance_input(scenario, model)
+    slowest = float(np.abs(np.linalg.eigvals(A_cl).real).min())
+    step = min(1e-3, 0.05 / max(float(np.abs(np.linalg.eigvals(A_cl)).max()), 1e-9))
+    # to 20 time constants of the slowest closed-loop pole (the response is e^-20 of its
+    # start there), at most 1e5 steps
+    steps = int(min(1e5, math.ceil(20.0 / (max(slowest, 1e-9) * step))))
+    Phi = expm(A_cl * step)
+    x, total = E.copy(), np.zeros(model.size)
+    for _ in range(steps):
+        nxt = Phi @ x
+        total += 0.5 * (np.abs(x) + np.abs(nxt)) * step
+        x = nxt
+    return d_max * total
 
 
 def vertex_models(scenario: "Scenario") -> tuple[list["FullModel"], list[str]]:
@@ -191,12 +265,14 @@ class PredictiveSafetyFilter(SafetyFilter):
                  sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                  u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
                  level: float, Q: np.ndarray, R: float, vertices: tuple = (),
-                 compiled: bool = True) -> None:
+                 compiled: bool = True, tube: np.ndarray | None = None) -> None:
         import casadi as ca
 
         from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
 
         super().__init__(inner, model, cfg)
+        #: (P7)'s tightening per state (zeros: no disturbance declared)
+        self.tube = np.zeros(model.size) if tube is None else np.asarray(tube, dtype=float)
         self.u_lo, self.u_hi = u_range
         finite = [abs(v) for v in u_range if math.isfinite(v)]
         self.bounded = len(finite) == 2
@@ -209,6 +285,20 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.lo, self.hi, self.lo_check, self.hi_check = bounds
         self.K, self.P, self.level = np.asarray(K, dtype=float).ravel(), P, level
         C, D, b, sel = rows
+        # the hard bounds (P2) in the QP as exact-penalty rows, not as bounds: the QP
+        # proposes, the certificate decides, so a softened proposal costs no safety; where
+        # the linearised plan can keep them its slack is 0 (an exact penalty), where it
+        # cannot (a state the certificate no longer covers) the QP still answers with the
+        # plan that leaves them least, which step 4 applies, where a bound would fail it
+        hard = [i for i in range(nx) if math.isfinite(self.lo[i]) and math.isfinite(self.hi[i])]
+        if hard:
+            eye = np.eye(nx)[hard]
+            C = np.vstack([C, eye, -eye])
+            D = np.concatenate([D, np.zeros(2 * len(hard))])
+            b = np.concatenate([b, self.hi[hard], -self.lo[hard]])
+            extra = np.vstack([np.eye(len(hard))] * 2)
+            sel = np.block([[sel, np.zeros((sel.shape[0], len(hard)))],
+                            [np.zeros((2 * len(hard), sel.shape[1])), extra]])
         ns = sel.shape[1]
         self.ns, self.nz = ns, nx + 1 + ns
         nz = self.nz
@@ -233,13 +323,10 @@ class PredictiveSafetyFilter(SafetyFilter):
         terminal = 2.0 * w * P / R + 2.0 * (TERMINAL_WEIGHT * self.u_scale) ** 2 * P / level
         ulo = self.u_lo if math.isfinite(self.u_lo) else -np.inf
         uhi = self.u_hi if math.isfinite(self.u_hi) else np.inf
-        lo_s, hi_s = self.lo.copy(), self.hi.copy()
+        lo_s, hi_s = np.full(nx, -np.inf), np.full(nx, np.inf)
         z_lo = np.concatenate([np.tile(np.concatenate([lo_s, [ulo], np.zeros(ns)]), N), lo_s])
         z_hi = np.concatenate([np.tile(np.concatenate([hi_s, [uhi], np.full(ns, np.inf)]), N),
                                hi_s])
-        # the first node (one sample ahead: a measured state inside the margin must not
-        # make the QP infeasible) at the certificate's bounds
-        z_lo[nz:nz + nx], z_hi[nz:nz + nx] = self.lo_check, self.hi_check
         # (P3) in the QP: the cube |L^T s_N|_inf <= sqrt(0.95 c / n) (P = L L^T) inside the
         # ellipsoid, linear, so the QP's plan ends inside whatever its step (the tangent
         # of the ellipsoid, linearised, lies outside it: plans slid out along it)
@@ -252,7 +339,8 @@ class PredictiveSafetyFilter(SafetyFilter):
                                "hpipm", compiled, stage_rows=G, stage_bound=b if ns else None,
                                stage_gradient=np.concatenate([np.zeros(nx + 1),
                                                               np.full(ns, cfg.slack_weight * self._slack_scale)]),
-                               nz=nz, first_map=F0, terminal_constraint=inner_box)
+                               nz=nz, first_map=F0, terminal_constraint=inner_box,
+                               qp_options=QP_OPTIONS, acceptance=QP_ACCEPTANCE)
         # (P5): the backup plan's own rollout, each interval's input corrected by the LQR
         # towards the plan's state at the interval's start (held over the interval)
         s0, U, Rf = ca.SX.sym("s0", nx), ca.SX.sym("U", N), ca.SX.sym("R", nx, N)
@@ -269,16 +357,21 @@ class PredictiveSafetyFilter(SafetyFilter):
             F_step = m.rk4_map(self.h / substeps, 1, name="mpsc_step")
             x, cols, used = s0, [s0], []
             for k in range(N):
-                u = (U[k] if k == 0 else
-                     ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - Rf[:, k]), lo_u), hi_u))
                 if k == 0:
-                    x = F0m(x, u)
+                    x = F0m(x, U[0])
                     cols.append(x)
-                else:
-                    for _ in range(substeps):
-                        x = F_step(x, u)
-                        cols.append(x)
-                used.append(u)
+                    used.append(U[0])
+                    continue
+                for j in range(substeps):
+                    # the reference between the nodes as the fallback interpolates it
+                    # (tracking_input), the correction at every RK4 step
+                    a = j / substeps
+                    ref = Rf[:, k] if k + 1 >= N else (1.0 - a) * Rf[:, k] + a * Rf[:, k + 1]
+                    u = ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - ref), lo_u), hi_u)
+                    x = F_step(x, u)
+                    cols.append(x)
+                    if j == 0:
+                        used.append(u)
             used += [0.0] * (len(cols) - N)
             blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
         self._cols, self._models = len(cols), 1 + len(vertices)
@@ -293,6 +386,10 @@ class PredictiveSafetyFilter(SafetyFilter):
             self._roll_buffer.set_arg(i, memoryview(array))
         self._roll_buffer.set_res(0, memoryview(self._roll_out))
         self._maps = (F0, F)
+        #: the states with a bound the certificate checks, and those bounds
+        self._checked = np.flatnonzero(np.isfinite(self.lo_check) | np.isfinite(self.hi_check))
+        self._check_lo = self.lo_check[self._checked]
+        self._check_hi = self.hi_check[self._checked]
         self._angles = np.flatnonzero(model.angles)
         self.reset_plan()
 
@@ -307,6 +404,11 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: the fallback's input for the interval it is in: (interval, u)
         self._held: tuple[int, float] | None = None
         self.fallbacks = self.infeasible_qp = self.rejected = self.no_plan = self.bisected = 0
+        #: samples passed by the fast path (no QP), and samples on an uncertified QP plan
+        self.fast = self.uncertified = 0
+        #: the last uncertified QP plan applied without a certified one, and its age
+        self.effort: tuple | None = None
+        self.effort_age = 0
         self.max_slack = 0.0
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -327,19 +429,30 @@ class PredictiveSafetyFilter(SafetyFilter):
 
     def shifted(self, plan: tuple | None, age: int, s: np.ndarray) -> tuple | None:
         """``plan = (U, R)`` made ``age`` samples ago, on this sample's grid from state
-        ``s``: each new interval takes the input and reference state of the old interval
-        it starts in (past the plan's end: the LQR, U = 0 and R = 0)."""
+        ``s``: each new interval takes the input of the old interval it starts in and the
+        old reference state at its start, interpolated between the old nodes as the
+        fallback does (past the plan's end: the LQR, U = 0 and R = 0)."""
         if plan is None:
             return None
         U, R = plan
-        times = age * self.dt0 + np.concatenate([[0.0], self.dt0 + self.h * np.arange(self.N - 1)])
-        U2, R2 = np.zeros(self.N), np.zeros((self.nx, self.N))
-        for i, t in enumerate(times):
-            k = self.stage_at(t)
-            if k is not None:
-                U2[i], R2[:, i] = U[k], R[:, k]
+        N, h, dt0 = self.N, self.h, self.dt0
+        t = age * dt0 + np.concatenate([[0.0], dt0 + h * np.arange(N - 1)])
+        k = np.where(t < dt0 - 1e-12, 0, 1 + np.floor((t - dt0) / h + 1e-9).astype(np.intp))
+        live = k < N
+        U2, R2 = np.zeros(N), np.zeros((self.nx, N))
+        kl = k[live]
+        a = np.where(kl == 0, 0.0, np.clip((t[live] - (dt0 + (kl - 1) * h)) / h, 0.0, 1.0))
+        nxt = np.minimum(kl + 1, N - 1)
+        U2[live] = U[kl]
+        R2[:, live] = (1.0 - a) * R[:, kl] + a * R[:, nxt]
         R2[:, 0] = s
         return U2, R2
+
+    def lqr_tail(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The saturated LQR as a backup plan from ``s`` (U = 0, R = 0 in (P5))."""
+        R = np.zeros((self.nx, self.N))
+        R[:, 0] = s
+        return np.zeros(self.N), R
 
     def roll(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P5) from ``s``: the states at the plan's nodes (nx, N+1), the inputs applied
@@ -357,19 +470,24 @@ class PredictiveSafetyFilter(SafetyFilter):
 
     def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool:
         """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on the nonlinear
-        model, keeps the hard bounds at every node and ends in the terminal ellipsoid (P3);
-        if so it becomes the certified plan."""
-        _, _, S = self.roll(s, U, R)
-        if not np.all(np.isfinite(S)):
-            return False
-        inner = S[:, :, 1:]
-        if (np.any(inner < self.lo_check[None, :, None]) or
-                np.any(inner > self.hi_check[None, :, None])):
-            return False
-        end = S[:, :, -1]
+        model, keeps the hard bounds at every RK4 step and ends in the terminal ellipsoid
+        (P3), on every model (P6); if so it becomes the certified plan.  Read in place
+        from the compiled rollout's output (no copies: this runs up to a dozen times a
+        sample)."""
+        a, b, c = self._roll_in
+        a[:], b[:] = s, U
+        c.reshape(self.N, self.nx)[:] = np.asarray(R, dtype=float).T
+        self._roll_eval()
+        # column-major (rows, steps) with rows = models x (nx + 1): [step, model, row]
+        V = self._roll_out.reshape(self._cols, self._models, self.nx + 1)
+        end = V[-1, :, :self.nx]
+        # a non-finite state anywhere reaches the end (RK4 carries it): the level test fails
         if not np.all(np.einsum("mi,ij,mj->m", end, self.P, end) <= self.level):
             return False
-        R = R.copy()
+        inner = V[1:, :, self._checked]
+        if np.any(inner < self._check_lo) or np.any(inner > self._check_hi):
+            return False
+        R = np.array(R, dtype=float)
         R[:, 0] = s
         self.plan, self.plan_age, self._held = (U.copy(), R), 1, None
         return True
@@ -378,20 +496,60 @@ class PredictiveSafetyFilter(SafetyFilter):
         return min(max(float(-self.K @ s), self.u_lo), self.u_hi)
 
     def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
-        """``(u, slack)``: steps 0-3 of the module docstring at full state ``s``."""
+        """``(u, slack)``: steps 0-4 of the module docstring at full state ``s``."""
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = min(max(u_c, self.u_lo), self.u_hi) if math.isfinite(u_c) else math.nan
+        # the last certified plan from now on, (P5) as it would go on (the fallback)
+        going_on = self.shifted(self.plan, self.plan_age, s) if self.plan is not None else None
+        if math.isfinite(u_c):
+            # 0: the fast path: the command followed by the certified plan's rest, or by
+            # the saturated LQR: a rollout certified on every model IS a backup plan, so
+            # u_c passes without the QP (the certificate is the same as after it)
+            for tail in (going_on, self.lqr_tail(s)):
+                if tail is not None:
+                    candidate = tail[0].copy()
+                    candidate[0] = u_c
+                    if self.certifies(s, candidate, tail[1]):
+                        self.fast += 1
+                        # the QP's next warm start: this plan, not its older answer
+                        self.iterate_plan = None
+                        return u_c, 0.0
+        # 1: the closest certifiable input on a certified tail: between u_c and the
+        # tail's own input now (the fallback's, or the LQR's), by bisection on the
+        # certificate (a few rollouts, no QP)
+        k = self.stage_at(self.plan_age * self.dt0) if self.plan is not None else None
+        tails = []
+        if going_on is not None and k is not None:
+            tails.append((going_on, self.tracking_input(s, k, self.plan_age * self.dt0)))
+        tails.append((self.lqr_tail(s), self.terminal_input(s)))
+        kept = (self.plan, self.plan_age, self._held)
+        for tail, own in tails:
+            candidate = tail[0].copy()
+            candidate[0] = own
+            if not self.certifies(s, candidate, tail[1]):
+                continue
+            good, bad = own, u_c if math.isfinite(u_c) else None
+            for _ in range(BISECTIONS if bad is not None else 0):
+                mid = 0.5 * (good + bad)
+                candidate[0] = mid
+                # a certified candidate becomes the plan: the last one is the answer's
+                if self.certifies(s, candidate, tail[1]):
+                    good = mid
+                else:
+                    bad = mid
+            self.bisected += 1
+            self.iterate_plan = None
+            return good, 0.0
+        self.plan, self.plan_age, self._held = kept
         nz, nx, N = self.nz, self.nx, self.N
-        # the QP iterates from its own last answer (a real-time iteration converges over
-        # samples), certified or not; from the certified plan when it has none
-        warm = (self.shifted(self.iterate_plan, 1, s) or
-                self.shifted(self.plan, self.plan_age, s))
+        # 2: no certified tail takes any input: one real-time iteration of the QP (P4),
+        # from its own last answer (a real-time iteration converges over samples),
+        # certified or not, else from the certified plan, else from the LQR's rollout
+        warm = (self.shifted(self.iterate_plan, 1, s) or going_on)
         cold = warm is None
         if cold:
-            # no plan yet: the saturated LQR (U = 0, R = 0 in (P5)), iterated
-            warm = (np.zeros(N), np.zeros((nx, N)))
-            warm[1][:, 0] = s
+            warm = self.lqr_tail(s)
         S0, U0, _ = self.roll(s, *warm)
         if cold:
             U0[0] = self.terminal_input(s)
@@ -400,15 +558,19 @@ class PredictiveSafetyFilter(SafetyFilter):
         body = z[:N * nz].reshape(N, nz)
         body[:, :nx], body[:, nx] = S0[:, :N].T, U0
         z[N * nz:] = S0[:, N]
-        # (P4)'s reference: the command for u_0, the upright at rest for the rest
+        # (P4)'s reference: the command for u_0, the upright at rest for the rest; without
+        # a certified plan (recovery: step 4 applies the QP's u_0) the plan's own u_0, so
+        # that the command does not pull the plan it applies towards itself
         zr = np.zeros_like(z)
-        zr[nx] = u_c if math.isfinite(u_c) else U0[0]
+        zr[nx] = u_c if math.isfinite(u_c) and going_on is not None else U0[0]
         plan = None
         slack = 0.0
+        # without a certified plan to fall back on, the QP iterates further: its plan is
+        # then what the filter applies
+        steps = 10 if cold else (RECOVERY_ITERATIONS if going_on is None else self.iterations)
         if np.all(np.isfinite(z)):
             try:
-                # one real-time iteration per sample (a cold start iterates)
-                z, _ = self.sqp.iterate(z, s, zr, 10 if cold else self.iterations, 1e-8)
+                z, _ = self.sqp.iterate(z, s, zr, steps, 1e-8)
                 body = z[:N * nz].reshape(N, nz)
                 plan = (np.clip(body[:, nx], self.u_lo, self.u_hi), body[:, :nx].T.copy())
                 slack = float(body[:, nx + 1:].max(initial=0.0))
@@ -418,59 +580,46 @@ class PredictiveSafetyFilter(SafetyFilter):
         else:
             self.infeasible_qp += 1
         self.iterate_plan = plan
-        # the last certified plan from now on, (P5) as it would go on (the fallback)
-        going_on = self.shifted(self.plan, self.plan_age, s) if self.plan is not None else None
-        if math.isfinite(u_c):
-            # 1: the command itself, then the QP's plan, or the certified one, on
-            for tail in (plan, going_on):
-                if tail is not None:
-                    candidate = tail[0].copy()
-                    candidate[0] = u_c
-                    if self.certifies(s, candidate, tail[1]):
-                        return u_c, slack if tail is plan else 0.0
-        # 2: the closest certifiable input: the QP's, else the closest to u_c between
-        # u_c and the certified plan's own input now, by bisection on the certificate
         if plan is not None:
+            # the command followed by the QP's plan, else the QP's own input
+            if math.isfinite(u_c):
+                candidate = plan[0].copy()
+                candidate[0] = u_c
+                if self.certifies(s, candidate, plan[1]):
+                    return u_c, slack
             if self.certifies(s, *plan):
                 self.max_slack = max(self.max_slack, slack)
                 return float(plan[0][0]), slack
             self.rejected += 1
-        k = self.stage_at(self.plan_age * self.dt0) if self.plan is not None else None
-        if going_on is not None and k is not None:
-            held = self.tracking_input(s, k, self.plan_age * self.dt0)
-            kept = (self.plan, self.plan_age, self._held)
-            good, bad = None, u_c if math.isfinite(u_c) else None
-            candidate = going_on[0].copy()
-            candidate[0] = held
-            if self.certifies(s, candidate, going_on[1]):
-                good = held
-                for _ in range(BISECTIONS if bad is not None else 0):
-                    mid = 0.5 * (good + bad)
-                    candidate[0] = mid
-                    if self.certifies(s, candidate, going_on[1]):
-                        good = mid
-                    else:
-                        bad = mid
-                candidate[0] = good
-                self.certifies(s, candidate, going_on[1])
-                self.bisected += 1
-                return good, 0.0
-            self.plan, self.plan_age, self._held = kept
         # 3: the last certified plan goes on, its states tracked by the LQR at every
-        # sample (the certificate's rollout (P5) corrected once per interval: on the model
-        # the two coincide; on a machine that is not the model, a correction held for a
-        # whole interval let the state run off); past its end the LQR
+        # sample (the certificate's rollout (P5) corrects at every RK4 step towards the
+        # same interpolated states); past its end: 4
         self.plan_age += 1
         if k is None:
+            # 4: no certified plan (a start outside the certified set, or a plan run out):
+            # the QP's own plan, which keeps every bound on the nominal model's
+            # linearisation, uncertified (counted); the saturated LQR when the QP failed
             self.no_plan += 1
+            if plan is not None:
+                self.uncertified += 1
+                self.effort, self.effort_age = plan, 1
+                return float(plan[0][0]), slack
+            # the QP failed too: the last such plan tracked as the fallback tracks its own
+            k_e = self.stage_at(self.effort_age * self.dt0) if self.effort is not None else None
+            if k_e is not None:
+                self.effort_age += 1
+                self.uncertified += 1
+                return self.tracking_input(s, k_e, (self.effort_age - 1) * self.dt0,
+                                           self.effort), 0.0
             return self.terminal_input(s), 0.0
         self.fallbacks += 1
         return self.tracking_input(s, k, (self.plan_age - 1) * self.dt0), 0.0
 
-    def tracking_input(self, s: np.ndarray, k: int, tau: float) -> float:
-        """The certified plan's input in interval ``k`` at ``tau`` seconds into the plan,
-        corrected by the LQR towards its state there (interpolated between the nodes)."""
-        U, R = self.plan
+    def tracking_input(self, s: np.ndarray, k: int, tau: float, plan: tuple | None = None) -> float:
+        """The certified plan's (or ``plan``'s) input in interval ``k`` at ``tau`` seconds
+        into the plan, corrected by the LQR towards its state there (interpolated between
+        the nodes)."""
+        U, R = self.plan if plan is None else plan
         if k == 0:
             return float(U[0])
         start = self.dt0 + (k - 1) * self.h
@@ -483,9 +632,14 @@ class PredictiveSafetyFilter(SafetyFilter):
         return {"solver": "hpipm", "horizon_s": self.dt0 + (self.N - 1) * self.h,
                 "fallbacks": self.fallbacks, "no_plan": self.no_plan,
                 "infeasible_samples": self.infeasible_qp, "rejected_samples": self.rejected,
-                "bisected_samples": self.bisected,
+                "bisected_samples": self.bisected, "fast_path_samples": self.fast,
+                "uncertified_samples": self.uncertified,
                 "fallback_share": (self.fallbacks + self.no_plan) / n if n else None,
-                "max_slack": self.max_slack, "terminal_level": self.level}
+                "max_slack": self.max_slack, "terminal_level": self.level,
+                # (P7): how far each bounded state's bound was moved in for the disturbance
+                "disturbance_tube": {name: float(self.tube[i])
+                                     for i, name in enumerate(self.model.state_names)
+                                     if self.tube[i] > 0.0}}
 
 
 def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSafetyFilter:
@@ -519,17 +673,21 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
         if limit is not None and limit.status == "fell":
             i = model.state_names.index(task.names[j])
             lo[i], hi[i] = max(lo[i], task.lo[j]), min(hi[i], task.hi[j])
+    A, B = design_model(scenario, machine)
+    b_pole = float(B[model.dof + model.pole, 0])
+    Q = np.diag(default_state_weights(model))
+    K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
+    K = np.asarray(K, dtype=float).ravel()
+    # the task's declared disturbance (P7): every bound tightened by the most it can move
+    # the state off the plan while the LQR tracks it
+    tube = disturbance_tube(scenario, model, A - np.outer(B[:, 0], K))
+    lo, hi = lo + tube, hi - tube
     # the margin: a share of each two-sided bound's half-width (the room a machine that
     # is not the model needs), kept by the plan at its nodes and by the certificate at
     # every RK4 step
     half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
     bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
               lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    A, B = design_model(scenario, machine)
-    b_pole = float(B[model.dof + model.pole, 0])
-    Q = np.diag(default_state_weights(model))
-    K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
-    K = np.asarray(K, dtype=float).ravel()
     # (P3): inside every tightened bound and |K s| <= the input's reach
     ell_rows = []
     for i in range(nx):
@@ -554,4 +712,4 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
                             f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
     return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
-                                  level, Q, b_pole ** 2, tuple(models))
+                                  level, Q, b_pole ** 2, tuple(models), tube=tube)
