@@ -19,6 +19,7 @@ import time
 import warnings
 
 import numpy as np
+from short_mode import out_path, short_defaults
 
 MACHINES = {
     "cartpole_rail": ("pendulum_mujoco_randomized", {
@@ -134,6 +135,7 @@ def main() -> None:
                     help="the filter's barrier for position rows ([safety] barrier)")
     ap.add_argument("--ratio-only", action="store_true",
                     help="only the filter's compute per sample against mj_step")
+    short_defaults(ap, seeds=2, resamples=200)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     kinds = args.kinds.split(",")
@@ -158,7 +160,8 @@ def main() -> None:
                        pairs=[(k, k + "+cbf") for k in here])
         print(markdown(comp, f"0-{args.seeds - 1}"), flush=True)
         print(tracking_cost(table, here, args.resamples), flush=True)
-        table.to_csv(f"benchmarks/results/safety_filter_{machine}_{args.barrier}.csv", index=False)
+        table.to_csv(out_path(f"benchmarks/results/safety_filter_{machine}_{args.barrier}.csv"),
+                     index=False)
 
 
 if __name__ == "__main__":

@@ -33,8 +33,12 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from short_mode import short, short_defaults
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: where this script writes: the committed results, or under short mode (tools/check_docs.py)
+#: the working folder, so a smoke run never replaces them (it still reads safety_filter's CSV)
+OUT = Path(".") if short() else RESULTS
 
 
 def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> list[dict]:
@@ -68,7 +72,7 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
             # written as it goes: an interrupted benchmark keeps the runs it made
             import pandas as pd
 
-            pd.DataFrame(out).to_csv(RESULTS / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
+            pd.DataFrame(out).to_csv(OUT / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
                                      index=False)
     return out
 
@@ -85,7 +89,7 @@ def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
     import pandas as pd
 
     if first:
-        path = RESULTS / f"safety_mpsc_{machine}{tag(first)}_baselines.csv"
+        path = OUT / f"safety_mpsc_{machine}{tag(first)}_baselines.csv"
         if path.is_file() and not rerun:
             return pd.read_csv(path).to_dict("records")
         from safety_filter import rows
@@ -255,19 +259,20 @@ def main() -> None:
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--samples", type=int, default=5000)
+    short_defaults(ap, seeds=2, resamples=200, samples=100)
     args = ap.parse_args()
     if (not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000
             or not 0 <= args.first_seed <= 10 ** 6):
         ap.error("--seeds 1..200, --first-seed 0..1000000, --samples 100..20000")
     first, suffix = args.first_seed, tag(args.first_seed)
     warnings.simplefilter("ignore")
-    out_path = RESULTS / "safety_mpsc.json"
+    out_path = OUT / "safety_mpsc.json"
     data: dict = {}
     if args.timing_only:
         # its own file: one entry per run, appended (docs/safety.md quotes three)
         tim = timing(args.samples)
         print(json.dumps(tim, indent=1), flush=True)
-        path = RESULTS / "safety_mpsc_timing.json"
+        path = OUT / "safety_mpsc_timing.json"
         runs = json.loads(path.read_text())["runs"] if path.is_file() else []
         path.write_text(json.dumps({"runs": runs + [tim]}, indent=1, default=float) + "\n")
         return
@@ -276,15 +281,15 @@ def main() -> None:
         for machine in args.machines.split(","):
             t0 = time.perf_counter()
             if args.summarize:
-                done = RESULTS / f"safety_mpsc_{machine}{suffix}.csv"
-                partial = RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv"
+                done = OUT / f"safety_mpsc_{machine}{suffix}.csv"
+                partial = OUT / f"safety_mpsc_{machine}{suffix}.partial.csv"
                 mine = pd.read_csv(done if done.is_file() else partial)
                 # only the kinds asked (an interrupted run may hold a few of another)
                 mine = mine[mine.controller.isin([k + "+mpsc" for k in kinds])]
             else:
                 mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
-                mine.to_csv(RESULTS / f"safety_mpsc_{machine}{suffix}.csv", index=False)
-                (RESULTS / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
+                mine.to_csv(OUT / f"safety_mpsc_{machine}{suffix}.csv", index=False)
+                (OUT / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
             # the baselines on the seeds the filter ran (an interrupted run: fewer)
             seeds = int(mine.seed.max()) + 1 - first if len(mine) else args.seeds
             base = pd.DataFrame(baseline_rows(machine, kinds, args.seeds, args.baselines, first))
