@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cli_harness import ROOT
@@ -216,3 +217,18 @@ def test_equal_budget_retunes_a_kind_whose_optimum_is_at_an_edge(monkeypatch) ->
     with pytest.raises(Exception, match="one of them"):
         tune_mod.equal_budget([Scn()], ["pd"], trials=3, trials_per_parameter=3,
                               train_seeds=[1], test_seeds=[2], executor=object())
+
+
+def test_the_furuta_linearisation_data_is_what_todays_code_computes() -> None:
+    """docs/furuta.md's A, B, eigenvalues and LQR gain are marked against this JSON; it
+    must still be what benchmarks/furuta_linearization.py computes (control.lqr is the
+    independent Riccati solve)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import furuta_linearization as fl
+
+    kept = json.loads(fl.OUT.read_text())
+    now = json.loads(json.dumps(fl.measure()))
+    assert kept.keys() == now.keys()
+    for key in ("A", "B", "eig_upright", "eig_hanging", "K"):
+        np.testing.assert_allclose(np.array(now[key]), np.array(kept[key]), rtol=1e-9, atol=1e-12,
+                                   err_msg=key)
