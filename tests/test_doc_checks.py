@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cli_harness import ROOT
@@ -148,6 +149,20 @@ def test_marked_figures_are_checked_against_their_data(tmp_path: Path) -> None:
     assert n == 1 and "prints 0.0314" in problems[0]
 
 
+def test_marked_figures_are_checked_against_raw_text_output(tmp_path: Path) -> None:
+    (tmp_path / "r.txt").write_text("rk4  median 12.34 ms\neuler median 3.21 ms\ntotal 1,234 runs\n")
+    doc = tmp_path / "doc.md"
+    doc.write_text("RK4 takes 12.3 ms <!-- data: r.txt rk4\s+median\s+([\d.]+) --> over "
+                   "1,234 runs <!-- data: r.txt total\s+([\d,]+) -->\n")
+    assert check_claims.check_markers([doc], root=tmp_path) == (2, [])
+    doc.write_text("RK4 takes 12.4 ms <!-- data: r.txt rk4\s+median\s+([\d.]+) -->\n")
+    n, problems = check_claims.check_markers([doc], root=tmp_path)
+    assert n == 1 and "prints 12.4" in problems[0]
+    doc.write_text("3.2 ms <!-- data: r.txt median\s+([\d.]+) -->\n")  # two matches: ambiguous
+    n, problems = check_claims.check_markers([doc], root=tmp_path)
+    assert n == 0 and "matches 2 times" in problems[0]
+
+
 def test_committed_claims_agree_with_their_data(capsys) -> None:
     """README's and docs/results.md's generated claims rebuilt from the kept runs."""
     assert check_claims.main([]) == 0, capsys.readouterr().out
@@ -202,3 +217,18 @@ def test_equal_budget_retunes_a_kind_whose_optimum_is_at_an_edge(monkeypatch) ->
     with pytest.raises(Exception, match="one of them"):
         tune_mod.equal_budget([Scn()], ["pd"], trials=3, trials_per_parameter=3,
                               train_seeds=[1], test_seeds=[2], executor=object())
+
+
+def test_the_furuta_linearisation_data_is_what_todays_code_computes() -> None:
+    """docs/furuta.md's A, B, eigenvalues and LQR gain are marked against this JSON; it
+    must still be what benchmarks/furuta_linearization.py computes (control.lqr is the
+    independent Riccati solve)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import furuta_linearization as fl
+
+    kept = json.loads(fl.OUT.read_text())
+    now = json.loads(json.dumps(fl.measure()))
+    assert kept.keys() == now.keys()
+    for key in ("A", "B", "eig_upright", "eig_hanging", "K"):
+        np.testing.assert_allclose(np.array(now[key]), np.array(kept[key]), rtol=1e-9, atol=1e-12,
+                                   err_msg=key)

@@ -1,4 +1,4 @@
-"""Check every figure the documents quote as a result against its committed data file.
+r"""Check every figure the documents quote as a result against its committed data file.
 
     python tools/check_claims.py                 # the documents against the committed data
     python tools/check_claims.py --recompute 6   # also re-run 6 of the kept runs on today's code
@@ -23,6 +23,10 @@ Two kinds of claims are checked:
   after it multiplies the value: ``x100`` for a fraction printed in %) must equal the
   file's value to the digits printed (a figure printed as 0.0123 holds for any value that
   rounds to it).
+  A ``.txt`` FILE is a benchmark's committed raw output: KEY is then a regular expression
+  (no spaces: write ``\s`` or ``\s+``) that must match the file exactly once; its first
+  group (the whole match without one) is the number the figure must equal at its printed
+  digits, e.g. ``<!-- data: benchmarks/results/x.txt median\s+([\d.]+)\s+ms -->``.
 
 ``--recompute N``: re-runs N of the kept test runs (``runs.parquet``) from the committed
 tuned scenarios (``tuned/SCENARIO-KIND.toml``) with today's code and fails when a metric
@@ -68,6 +72,18 @@ def _lookup(doc, key: str):
     return doc
 
 
+def _read_value(file: Path, key: str) -> float:
+    """The value KEY names in FILE: a JSON path, or for raw ``.txt`` output a regular
+    expression that matches exactly once (its first group, else the whole match)."""
+    if file.suffix != ".txt":
+        return float(_lookup(json.loads(file.read_text()), key))
+    found = list(re.finditer(key, file.read_text(encoding="utf-8"), re.M))
+    if len(found) != 1:
+        raise ValueError(f"the pattern matches {len(found)} times, not once")
+    raw = found[0].group(1) if found[0].re.groups else found[0].group(0)
+    return float(raw.replace(",", "").replace("−", "-"))
+
+
 def check_markers(paths: list[Path], root: Path = ROOT) -> tuple[int, list[str]]:
     """Every ``<!-- data: FILE KEY -->`` figure (FILE relative to ``root``): (checked,
     problems)."""
@@ -80,8 +96,8 @@ def check_markers(paths: list[Path], root: Path = ROOT) -> tuple[int, list[str]]
             line = text.count("\n", 0, m.start()) + 1
             where = f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{line}"
             try:
-                value = scale * float(_lookup(json.loads((root / file).read_text()), key))
-            except (OSError, KeyError, IndexError, ValueError, TypeError) as exc:
+                value = scale * _read_value(root / file, key)
+            except (OSError, KeyError, IndexError, ValueError, TypeError, re.error) as exc:
                 problems.append(f"{where}: {file} {key}: cannot read ({exc})")
                 continue
             checked += 1
