@@ -18,17 +18,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cli_metrics import metrics_of as tspend  # noqa: E402
 from short_mode import out_path, short, short_defaults  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-TSPEND = [sys.executable, "-m", "tspend.cli"]
 #: machine -> (scenario, extra options), in the page's order
 MACHINES = {
     "double_cartpole": ("double_cartpole_mujoco", []),
@@ -54,17 +53,6 @@ def gymnasium_model() -> str:
     if not path.is_file():
         raise SystemExit(f"no {path}: gymnasium's MuJoCo assets are missing")
     return str(path)
-
-
-def tspend(args: list[str], folder: Path) -> dict:
-    metrics = folder / "m.json"
-    metrics.unlink(missing_ok=True)
-    r = subprocess.run([*TSPEND, *args, "--metrics", str(metrics)], capture_output=True,
-                       text=True, cwd=ROOT)
-    if r.returncode != 0:
-        raise SystemExit(f"tspend {' '.join(args)}: exit {r.returncode}: "
-                         f"{r.stderr.strip()[-400:]}")
-    return json.loads(metrics.read_text())
 
 
 def main() -> int:

@@ -24,30 +24,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cli_metrics import metrics_of as tspend  # noqa: E402
 from short_mode import out_path, short, sized  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-TSPEND = [sys.executable, "-m", "tspend.cli"]
 POLICY = "models/policies/pendulum_mujoco.onnx"
 STARTS = (-0.2, -0.1, 0.0, 0.1, 0.2)
-
-
-def tspend(args: list[str], folder: Path) -> dict:
-    metrics = folder / "m.json"
-    metrics.unlink(missing_ok=True)
-    r = subprocess.run([*TSPEND, *args, "--metrics", str(metrics)], capture_output=True,
-                       text=True, cwd=ROOT)
-    if r.returncode != 0:
-        raise SystemExit(f"tspend {' '.join(args)}: exit {r.returncode}: "
-                         f"{r.stderr.strip()[-400:]}")
-    return json.loads(metrics.read_text())
 
 
 def run_entry(m: dict) -> dict:
