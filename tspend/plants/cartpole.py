@@ -41,7 +41,7 @@ from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
 from tspend.plants.effects import EffectsPlant
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.base import Plant, TaskDefaults
 from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
 from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
@@ -166,38 +166,23 @@ class DerivedCartPoleODE(ArticulatedODE):
         ArticulatedODE.__init__(self, machine)
         self.name, self.domain = "cartpole_ode", "cartpole"
         self._source = source
-        self._inputs, self._joints = source.inputs, source.joints
-        self._task = source.default_task()
-        self._gain_sign = source.gain_sign
-        self._params: CartPoleParams = source.params  # type: ignore[attr-defined]
-        self._d_scale = self._params.disturbance_torque
+        self._d_scale = self.params.disturbance_torque
         self._cart = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide")
         # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
-        self._dry[self._cart] = self._params.cart_friction
-        self._dry[machine.view_joint] = self._params.hinge_friction
+        self._dry[self._cart] = self.params.cart_friction
+        self._dry[machine.view_joint] = self.params.hinge_friction
 
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        return self._inputs
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return self._joints
+    # the MuJoCo plant's: its CartPoleParams are the names the metrics show
+    inputs = property(lambda self: self._source.inputs)
+    joints = property(lambda self: self._source.joints)
+    gain_sign = property(lambda self: self._source.gain_sign)
+    params = property(lambda self: self._source.params)
 
     def default_task(self) -> TaskDefaults:
-        return self._task
-
-    @property
-    def gain_sign(self) -> int:
-        return self._gain_sign
-
-    @property
-    def params(self) -> CartPoleParams:
-        """The MuJoCo plant's :class:`CartPoleParams` (the names the metrics show)."""
-        return self._params
+        return self._source.default_task()
 
     def parameters(self) -> dict[str, float]:
-        return self._params.finite()
+        return self.params.finite()
 
     def set_params(self, params: CartPoleParams) -> None:
         """Change M, m, l (J) while it runs (a payload picked up): written into the
@@ -205,8 +190,7 @@ class DerivedCartPoleODE(ArticulatedODE):
         again from it; the state is kept."""
         self._source.set_params(params)  # type: ignore[attr-defined]
         self.machine.p[:] = parameter_table(read_tree(self._source.mj_model()))[1]
-        self._params = self._source.params  # type: ignore[attr-defined]
-        self._d_scale = self._params.disturbance_torque
+        self._d_scale = self.params.disturbance_torque
 
     def extras(self) -> dict[str, float]:
         nv = self.machine.nv

@@ -28,12 +28,12 @@ import numpy as np
 from tspend.config import PlantConfig
 from tspend.drawing.furuta import FurutaDrawing
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedMujoco, ArticulatedODE,
-    derived_full_accel, derived_full_of, derived_pole_energy, derived_view)
-from tspend.plants.articulated.machine import Machine, set_integrator
+from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedDomain,
+    ArticulatedMujoco, ArticulatedODE, derived_full_accel, derived_full_of, derived_pole_energy)
+from tspend.plants.articulated.machine import Machine, open_spec
 from tspend.plants.base import InputInfo, Plant, velocity_name
 from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
-    FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults)
+    FullModel, PlantLabels, Quantity, TaskDefaults)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -83,15 +83,9 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
     :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
     as an articulated machine whose pole is ``pendulum`` and whose ``u`` drives ``actuator``."""
     from tspend.plants.articulated.model_numbers import compile_with_values
-    from tspend.runtime.model_file import read_spec
 
     where = str(model_path)
-    if not Path(model_path).is_file():
-        raise ScenarioError(f"{where}: model file not found")
-    spec = read_spec(where)  # within the size bounds
-    if timestep:
-        spec.option.timestep = float(timestep)
-    set_integrator(spec, integrator, where)
+    spec = open_spec(model_path, timestep, integrator)
     if pendulum_damping is not None:
         joint = spec.joint(pendulum)
         if joint is None:
@@ -233,8 +227,10 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
 
 
 # -- the domain ---------------------------------------------------------------------------
-class FurutaDomain(Domain):
-    """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm."""
+class FurutaDomain(ArticulatedDomain):
+    """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm (an
+    articulated machine: its machine, nominal values, view model and linearisation are
+    :class:`~tspend.plants.articulated.domain.ArticulatedDomain`'s)."""
 
     name = "furuta"
     kinds = {"furuta_ode": Backend(FurutaConfig, _build_ode),
@@ -256,32 +252,10 @@ class FurutaDomain(Domain):
                         pole="pendulum", limits=(("arm", ARM_STOP_RAD),))
     default_model = FurutaMujocoConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PUMPED_ENERGY})
-    derives_equations = True
+    view_names = Domain.view_names  # the task's view, not the plant's
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
-
-    def machine(self, scenario: "Scenario") -> Machine:
-        """The scenario's machine: the compiled MJCF and its derived equations."""
-        return self.build(scenario).machine  # type: ignore[attr-defined]
-
-    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
-        """The compiled model's ``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``
-        (:mod:`~tspend.plants.articulated.model_numbers`): what a ``[randomize]`` entry
-        may name, and its nominal (``plant.pendulum_damping`` applied)."""
-        from tspend.plants.articulated.model_numbers import model_values
-
-        return model_values(self.machine(scenario).model)
-
-    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
-        """pendulum'' over the view with the arm at rest (the arm's motion enters only
-        through back-EMF and coupling, which a model of the view leaves out); affine in u
-        inside the amplifier's range."""
-        view = derived_view(machine.machine)  # type: ignore[attr-defined]
-        # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
-        # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
-        return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
-                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
@@ -337,13 +311,6 @@ class FurutaDomain(Domain):
         A, _ = plant.machine.linearisation()
         facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
         return facts, plant.departures(dt)
-
-    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
-        return machine.machine.linearisation()  # type: ignore[attr-defined]
-
-    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The exact ``(A, B)`` of the derived equations at ``at`` (CasADi's derivatives)."""
-        return plant.machine.linearisation(at)  # type: ignore[attr-defined]
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> FurutaDrawing:
         """The QUBE's drawing, its arm (motor axis to the pendulum's hinge) and pendulum
