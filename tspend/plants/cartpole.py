@@ -35,15 +35,14 @@ import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.drawing.model import ModelDrawing
-from tspend.plants.articulated.domain import (ArticulatedODE, applied_forces, derived_full_accel,
+from tspend.effects import EffectsPlant
+from tspend.plants.articulated.domain import (ArticulatedODE, derived_full_accel,
     derived_full_of, derived_pole_energy, derived_view)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
-from tspend.plants.effects import EffectsPlant
 from tspend.plants.base import Plant, TaskDefaults
 from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
-from tspend.errors import ScenarioError
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
     PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
     FullModel, PlantLabels, PlantModel, Quantity)
