@@ -36,8 +36,7 @@ import numpy as np
 from tspend.config import PlantConfig
 from tspend.drawing.model import ModelDrawing
 from tspend.effects import EffectsPlant
-from tspend.plants.articulated.domain import (ArticulatedODE, derived_full_accel,
-    derived_full_of, derived_pole_energy, derived_view)
+from tspend.plants.articulated.domain import ArticulatedODE, derived_view, pumped_full_model
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
@@ -295,32 +294,11 @@ class CartPoleDomain(Domain):
         return nominal_machine(cartpole_machine(plant))
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
-        """The nominal machine over the full state ``[slider, hinge, slider_dot,
-        hinge_dot]`` (the plant's own joint names): the equations derived from the compiled
-        model (numbers through the compiled module, CasADi through the derivation, both
-        with MuJoCo's clips of ctrl and force; the energy the pole's with the cart at rest,
-        :class:`~tspend.plants.articulated.domain.DerivedFull`)."""
-        plant = machine
-        params = _nominal(plant.params)  # type: ignore[attr-defined]
-        m = self.nominal_derived(scenario, plant)
-        full = derived_full_of(m, m.view_joint)
-
-        def derived_factory(sin, cos, tanh):
-            if sin is math.sin:
-                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-            def q_dd(s, u):
-                a = m.symbolic_accel(s, u, clips=True)  # with MuJoCo's clips of ctrl and force
-                return a[0], a[1]
-
-            return q_dd
-
-        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=derived_factory,
-                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                         pole=m.view_joint, actuated=m.actuated,
-                         angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
-                         parameters=params.finite(), machine=full, accel_unit="m/s^2")
+        """The nominal machine over ``[slider, hinge, slider_dot, hinge_dot]`` (the plant's
+        own joint names), with MuJoCo's clips of ctrl and force (:func:`pumped_full_model`)."""
+        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        return pumped_full_model(self.name, machine, self.nominal_derived(scenario, machine),
+                                 params.finite(), clips=True)
 
     def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the

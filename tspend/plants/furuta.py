@@ -29,7 +29,7 @@ from tspend.config import PlantConfig
 from tspend.drawing.furuta import FurutaDrawing
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedDomain,
-    ArticulatedMujoco, ArticulatedODE, derived_full_accel, derived_full_of, derived_pole_energy)
+    ArticulatedMujoco, ArticulatedODE, pumped_full_model)
 from tspend.plants.articulated.machine import Machine, open_spec
 from tspend.plants.base import InputInfo, Plant, velocity_name
 from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
@@ -258,30 +258,11 @@ class FurutaDomain(ArticulatedDomain):
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
-        """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
-        plant's joint names): numbers through the compiled module, CasADi through the
-        derivation (no clips: the MPC bounds u itself); the energy is the pendulum's with
-        the arm at rest at 0 (the arm turns about the vertical: its own energy is left
-        out), :class:`~tspend.plants.articulated.domain.DerivedFull`."""
-        plant = machine
-        m: Machine = plant.machine  # type: ignore[attr-defined]
-        full = derived_full_of(m, 1)
-
-        def factory(sin, cos, tanh):
-            if sin is math.sin:
-                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-            def q_dd(s, u):
-                a = m.symbolic_accel(s, u)
-                return a[0], a[1]
-
-            return q_dd
-
-        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=factory,
-                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                         pole=1, actuated=0, angles=(True, True, False, False),
-                         parameters=coefficients(m), machine=full, accel_unit="rad/s^2")
+        """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
+        joint names; no clips: the MPC bounds u itself; the arm turns about the vertical,
+        its own energy left out: :func:`pumped_full_model`)."""
+        m: Machine = machine.machine  # type: ignore[attr-defined]
+        return pumped_full_model(self.name, machine, m, coefficients(m))
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types

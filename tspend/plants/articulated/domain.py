@@ -36,7 +36,7 @@ from tspend.plants.mujoco_plant import MujocoPlant
 if TYPE_CHECKING:
     from tspend.config import Scenario
 
-__all__ = ["ArticulatedConfig", "ArticulatedODE", "ArticulatedMujoco", "ArticulatedDomain",
+__all__ = ["ArticulatedConfig", "ArticulatedODE", "ArticulatedMujoco", "ArticulatedDomain", "pumped_full_model",
            "DOMAIN"]
 
 #: what ``plant.integrator`` takes on every MuJoCo machine ("" keeps the model's)
@@ -350,6 +350,32 @@ def derived_full_of(machine: Machine, pole: int) -> DerivedFull:
     full = DerivedFull(derived_rhs_of(machine, machine.view_joint), fn, pole, np.zeros(2 * nv),
                        np.zeros(2 * nv), np.zeros(1), np.zeros(1), np.zeros(6), 0.0)
     return full._replace(V0=derived_pole_energy(full, np.zeros(2 * nv)))
+
+
+def pumped_full_model(domain: str, plant: Plant, m: Machine, parameters: dict[str, float],
+                      clips: bool = False) -> FullModel:
+    """The :class:`FullModel` of a two-joint machine whose one pole's energy a swing-up
+    pumps (the cart-pole's, the Furuta's): numbers through the compiled module
+    (:func:`derived_full_accel`), CasADi through the derivation (``clips``: with MuJoCo's
+    clips of ctrl and force), the energy the pole's with the other joint at rest at 0."""
+    full = derived_full_of(m, m.view_joint)
+
+    def factory(sin, cos, tanh):
+        if sin is math.sin:
+            return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
+
+        def q_dd(s, u):
+            a = m.symbolic_accel(s, u, clips=clips)
+            return a[0], a[1]
+
+        return q_dd
+
+    slide = m.tree.joints[m.actuated].kind == "slide"
+    return FullModel(domain=domain, state_names=tuple(plant.state_names), accel_factory=factory,
+                     energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
+                     pole=m.view_joint, actuated=m.actuated,
+                     angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
+                     parameters=parameters, machine=full, accel_unit="m/s^2" if slide else "rad/s^2")
 
 
 class DerivedView(NamedTuple):
