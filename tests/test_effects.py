@@ -20,8 +20,8 @@ from tspend import load_scenario, override, run
 from tspend.cli.main import main
 from tspend.config import EffectsConfig, ParameterChange
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
-from tspend.plants.effects import EffectsPlant, Measurement
 from cartpole_oracle import CartPoleParams, cartpole_ode_plant
+from tspend.effects import EffectsPlant, Measurement
 from tspend.errors import ModelWarning
 from tspend.scenario import available_scenarios
 from tspend.loop.simulation import build_plant

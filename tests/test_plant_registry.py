@@ -8,7 +8,7 @@ import pytest
 
 from tspend import load_scenario, override
 from tspend.config import AnalyticPlantConfig
-from tspend.plants.articulated.domain import ModelDrawing
+from tspend.drawing.model import ModelDrawing
 from tspend.plants.cartpole import CartPoleConfig, MujocoCartPoleConfig
 from tspend.errors import ScenarioError
 from tspend.plants.registry import PLANT_KINDS

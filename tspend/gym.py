@@ -9,7 +9,7 @@
 :class:`TspendEnv` is a thin layer on the machinery a run uses
 (:mod:`tspend.loop.simulation`): the scenario's plant with its real-world effects
 (``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
-its disturbance and its measurement effects (:class:`tspend.plants.effects.Measurement`).
+its disturbance and its measurement effects (:class:`tspend.effects.Measurement`).
 Nothing here integrates anything: each env step holds the action (zero-order hold) over
 ``frame_skip`` physics steps of ``run.dt``, exactly as the runner's sampled loop does; on
 a MuJoCo plant without per-sample effects in one compiled call
@@ -264,8 +264,8 @@ class TspendEnv(gymnasium.Env):
     def _compiled_frame(self) -> envstep.Frame | None:
         """The env for :func:`tspend.loop.envstep.env_step`, when its plant offers MuJoCo's
         compiled step and nothing runs per sample in Python (no effects wrapper, no
-        measurement hook: :mod:`tspend.plants.effects`)."""
-        from tspend.plants.effects import needs_hook, needs_plant_wrapper
+        measurement hook: :mod:`tspend.effects`)."""
+        from tspend.effects import needs_hook, needs_plant_wrapper
         from tspend.plants.mujoco_plant import mj_step_pointer
 
         effects = self.scenario.effects
@@ -343,7 +343,7 @@ class TspendEnv(gymnasium.Env):
         ones a seed drawn from ``np_random``.
         """
         from tspend.loop import simulation
-        from tspend.plants.effects import Measurement, needs_hook, needs_plant_wrapper
+        from tspend.effects import Measurement, needs_hook, needs_plant_wrapper
 
         if seed is None and not self._seeded:
             seed = self._first_seed

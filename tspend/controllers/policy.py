@@ -56,7 +56,7 @@ class PolicySettings(KindSettings):
 
 def find_policy(path: str, scenario: "Scenario") -> Path:
     """The file ``path`` names, looked for like a scenario's MJCF (ScenarioError if none)."""
-    from tspend.plants.domain import find_named_file
+    from tspend.shipped import find_named_file
 
     return find_named_file(path, scenario, "controllers.policy.path")
 

@@ -78,7 +78,7 @@ class TVLQRSettings(KindSettings):
 
 def find_plan(path: str, scenario: "Scenario") -> Path:
     """The plan file ``path`` names, looked for like a scenario's MJCF."""
-    from tspend.plants.domain import find_named_file
+    from tspend.shipped import find_named_file
 
     return find_named_file(path, scenario, "controllers.tvlqr.plan")
 

@@ -212,7 +212,7 @@ class ClosedLoop:
         self.s = settings
         self.stop = stop if stop is not None else StopRequest()
         #: per-sample hook (t, x, ref row) -> the state the controller sees; it may shape
-        #: the reference row in place (tspend.plants.effects: sensor noise, delay, outer loop)
+        #: the reference row in place (tspend.effects: sensor noise, delay, outer loop)
         self.hook = hook
         self._done = 0
         self.end: RunEnd | None = None

@@ -21,9 +21,9 @@ from tspend.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers import needs_machine as controller_needs_machine
 from tspend.controllers.base import Controller
-from tspend.loop.metrics import MachineInfo, MetricsAccumulator
-from tspend.plants.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+from tspend.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
     unsupported as effects_unsupported)
+from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant

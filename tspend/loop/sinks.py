@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from tspend.plants.domain import Drawing
+from tspend.drawing.base import Drawing
 from tspend.task import Bound
 
 if TYPE_CHECKING:

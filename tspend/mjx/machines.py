@@ -26,7 +26,7 @@ __all__ = ["Fleet", "build_fleet", "refusal"]
 
 def refusal(scenario: Any) -> str:
     """Why the MJX backend cannot run ``scenario`` (one line), or ""."""
-    from tspend.plants.effects import needs_hook, needs_plant_wrapper
+    from tspend.effects import needs_hook, needs_plant_wrapper
     from tspend.plants.registry import PLANT_KINDS
 
     where = scenario.path or scenario.name

@@ -166,8 +166,7 @@ class ThirdOrderChain(NamedTuple):
 
 
 #: parameter structure type -> its compiled right-hand side ``rhs(params, t, s, u, d, sdot)``;
-#: a domain with its own compiled machine registers it here (the cart-pole's
-#: ``CartPoleMachine``, the derived machines' ``DerivedRHS``)
+#: a domain with its own compiled machine registers it here (the derived machines' ``DerivedRHS``)
 COMPILED_RHS: dict[type, Callable] = {}
 
 
@@ -217,15 +216,15 @@ class CompiledPlant(NamedTuple):
 class AnalyticPlant(Plant):
     """A plant of the form (6), stepped by classical RK4 with u and d held constant.
 
-    ``hidden`` extra states may ride along (the cart of the cart-pole ODE); the
-    default view is the first ``order`` entries, ``extras`` reports the rest.  The full
+    ``hidden_names`` extra states may ride along (the test oracle's cart, whose
+    ``_rhs_params`` integrates them); the default view is the first ``order`` entries,
+    ``extras`` reports the rest.  The full
     state is named ``x1 .. xn`` (then the hidden names) unless ``state_names`` says
     otherwise; ``full_order`` gives, for each entry of the full state, its place in the
     integrated vector ``s`` (identity unless a domain orders its state differently).
     """
 
     def __init__(self, accel: Accel, order: int, name: str = "analytic",
-                 hidden_rhs: Callable[[float, np.ndarray, float, float, float], np.ndarray] | None = None,
                  hidden_names: tuple[str, ...] = (), domain: str = "",
                  state_names: tuple[str, ...] = (), state_units: tuple[str, ...] = (),
                  full_order: tuple[int, ...] = ()) -> None:
@@ -233,7 +232,6 @@ class AnalyticPlant(Plant):
         self.order = int(order)
         self.name = name
         self.domain = domain or name
-        self.hidden_rhs = hidden_rhs
         self.hidden_names = hidden_names
         self._clock = np.zeros(1)
         self.s = np.zeros(self.order + len(hidden_names))
@@ -285,10 +283,7 @@ class AnalyticPlant(Plant):
         return self
 
     def rhs_into(self, t: float, s: np.ndarray, u: float, d: float, sdot: np.ndarray) -> None:
-        n = self.order
-        chain_rhs(self.accel, t, s[:n], u, d, sdot[:n])
-        if self.hidden_rhs is not None:
-            sdot[n:] = self.hidden_rhs(t, s, u, d, sdot[n - 1])
+        chain_rhs(self.accel, t, s[:self.order], u, d, sdot[:self.order])
 
     def step(self, u: float, d: float, dt: float) -> None:
         rk4_step(self._rhs_params(), self._clock[0], self.s, u, d, dt, self._work)
@@ -296,9 +291,9 @@ class AnalyticPlant(Plant):
 
     def compiled(self) -> CompiledPlant | None:
         """The plant for a compiled closed loop (None for an ``accel`` compiled code does
-        not know, or hidden states given in Python)."""
+        not know)."""
         chain = _CHAIN_OF.get(self.accel)
-        if chain is None or self.hidden_rhs is not None:
+        if chain is None:
             return None
         return CompiledPlant(chain(), self.s, self._clock, self._work, self._full_order)
 

@@ -20,7 +20,7 @@ model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpol
 This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
 (``slide`` = the cart, ``hinge`` = the pole), labels and units and the default task (view
 ``hinge``, ``hinge_dot``; fall angle pi/2); it is drawn as every machine is, from its own
-geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`, with its rail).
+geoms (:class:`~tspend.drawing.model.ModelDrawing`, with its rail).
 """
 
 from __future__ import annotations
@@ -34,17 +34,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.plants.articulated.domain import (ArticulatedODE, ModelDrawing, applied_forces, derived_full_accel,
-    derived_full_of, derived_pole_energy, derived_view)
+from tspend.drawing.model import ModelDrawing
+from tspend.effects import EffectsPlant
+from tspend.plants.articulated.domain import ArticulatedODE, derived_view, pumped_full_model
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
-from tspend.plants.effects import EffectsPlant
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
-from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams, actuator_force_range
-from tspend.errors import ScenarioError
+from tspend.plants.base import Plant, TaskDefaults
+from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
-    PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain, Drawing,
+    PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
     FullModel, PlantLabels, PlantModel, Quantity)
 
 if TYPE_CHECKING:
@@ -165,38 +164,23 @@ class DerivedCartPoleODE(ArticulatedODE):
         ArticulatedODE.__init__(self, machine)
         self.name, self.domain = "cartpole_ode", "cartpole"
         self._source = source
-        self._inputs, self._joints = source.inputs, source.joints
-        self._task = source.default_task()
-        self._gain_sign = source.gain_sign
-        self._params: CartPoleParams = source.params  # type: ignore[attr-defined]
-        self._d_scale = self._params.disturbance_torque
+        self._d_scale = self.params.disturbance_torque
         self._cart = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide")
         # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
-        self._dry[self._cart] = self._params.cart_friction
-        self._dry[machine.view_joint] = self._params.hinge_friction
+        self._dry[self._cart] = self.params.cart_friction
+        self._dry[machine.view_joint] = self.params.hinge_friction
 
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        return self._inputs
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return self._joints
+    # the MuJoCo plant's: its CartPoleParams are the names the metrics show
+    inputs = property(lambda self: self._source.inputs)
+    joints = property(lambda self: self._source.joints)
+    gain_sign = property(lambda self: self._source.gain_sign)
+    params = property(lambda self: self._source.params)
 
     def default_task(self) -> TaskDefaults:
-        return self._task
-
-    @property
-    def gain_sign(self) -> int:
-        return self._gain_sign
-
-    @property
-    def params(self) -> CartPoleParams:
-        """The MuJoCo plant's :class:`CartPoleParams` (the names the metrics show)."""
-        return self._params
+        return self._source.default_task()
 
     def parameters(self) -> dict[str, float]:
-        return self._params.finite()
+        return self.params.finite()
 
     def set_params(self, params: CartPoleParams) -> None:
         """Change M, m, l (J) while it runs (a payload picked up): written into the
@@ -204,8 +188,7 @@ class DerivedCartPoleODE(ArticulatedODE):
         again from it; the state is kept."""
         self._source.set_params(params)  # type: ignore[attr-defined]
         self.machine.p[:] = parameter_table(read_tree(self._source.mj_model()))[1]
-        self._params = self._source.params  # type: ignore[attr-defined]
-        self._d_scale = self._params.disturbance_torque
+        self._d_scale = self.params.disturbance_torque
 
     def extras(self) -> dict[str, float]:
         nv = self.machine.nv
@@ -213,67 +196,6 @@ class DerivedCartPoleODE(ArticulatedODE):
 
     def extras_index(self) -> np.ndarray:
         return np.array([self._cart, self.machine.nv + self._cart], dtype=np.intp)
-
-
-def _derived_inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float,
-                              cart_vel: float, d_torque: float, dry: np.ndarray
-                              ) -> tuple[float, float]:
-    """``(F, x'')`` of the derived equations ``M(q) q'' = r(q, q', u) + qfrc``: the
-    generalised force on the cart and its acceleration that give the pole ``q'' = q_dd``
-    at ``(q, q')`` with the cart at 0 moving at ``cart_vel`` (the pole's row solved for
-    x'', then the cart's for F), the actuator, the cart's spring, the disturbance's hinge
-    torque ``d_torque`` and each joint's smooth dry friction ``dry`` (the ODE twin's).
-    ``F`` is +/-inf where the rail cannot move the pole."""
-    nv = machine.nv
-    c, h = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide"), machine.view_joint
-    p = machine.p.copy()
-    for i, name in enumerate(machine.parameter_names):
-        if name.endswith(".gear") or name == f"{machine.joint_names[c]}.stiffness":
-            p[i] = 0.0  # no actuator (F is its force), the cart's position free
-    s = np.zeros(2 * nv)
-    s[h], s[nv + h], s[nv + c] = q, w, cart_vel
-    qfrc = np.zeros(nv)
-    applied_forces(qfrc, s, h, 1.0, d_torque, dry)
-    M, r = np.zeros(nv * nv), np.zeros(nv)
-    machine.module.dynamics(s[:nv], s[nv:], np.zeros(len(machine.tree.actuators)), qfrc, p, M, r)
-    M = M.reshape(nv, nv)
-    if M[h, c] == 0.0:
-        return math.copysign(math.inf, r[h] - M[h, h] * q_dd), math.nan
-    x_dd = (r[h] - M[h, h] * q_dd) / M[h, c]
-    return float(M[c, c] * x_dd + M[c, h] * q_dd - r[c]), float(x_dd)
-
-
-#: samples of r(t) the task check evaluates the need on (at most)
-NEED_SAMPLES = 4000
-
-
-def reference_force(p: CartPoleParams, scenario: "Scenario", machine: Machine
-                    ) -> tuple[float, float, float] | None:
-    """``(t, least, largest)`` cart force the machine needs to follow the scenario's
-    reference with its disturbance (``t``: when the larger need in size is); None when
-    the reference is not smooth enough to have ``r''``: the inverse dynamics of
-    ``machine``'s derived equations (:func:`_derived_inverse_dynamics`), the friction of
-    ``p``."""
-    n = int(min(NEED_SAMPLES, max(2, round(scenario.run.duration / scenario.run.dt))))
-    t = np.linspace(0.0, scenario.run.duration, n + 1)
-    try:
-        r = scenario.reference.derivatives(t, 2)
-    except (ValueError, NotImplementedError):
-        return None
-    d = np.asarray(scenario.disturbance(t), dtype=float)
-    dry = np.zeros(machine.nv)
-    dry[[j.kind for j in machine.tree.joints].index("slide")] = p.cart_friction
-    dry[machine.view_joint] = p.hinge_friction
-    force = np.empty(n + 1)
-    v = 0.0
-    for k in range(n + 1):
-        force[k], x_dd = _derived_inverse_dynamics(machine, r[k, 0], r[k, 1], r[k, 2], v,
-                                                   p.disturbance_torque * d[k], dry)
-        if k < n and math.isfinite(x_dd):
-            v += x_dd * (t[k + 1] - t[k])
-    k_lo, k_hi = int(np.argmin(force)), int(np.argmax(force))
-    k = k_hi if abs(force[k_hi]) >= abs(force[k_lo]) else k_lo
-    return float(t[k]), float(force[k_lo]), float(force[k_hi])
 
 
 def _nominal(params: CartPoleParams) -> CartPoleParams:
@@ -372,32 +294,11 @@ class CartPoleDomain(Domain):
         return nominal_machine(cartpole_machine(plant))
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
-        """The nominal machine over the full state ``[slider, hinge, slider_dot,
-        hinge_dot]`` (the plant's own joint names): the equations derived from the compiled
-        model (numbers through the compiled module, CasADi through the derivation, both
-        with MuJoCo's clips of ctrl and force; the energy the pole's with the cart at rest,
-        :class:`~tspend.plants.articulated.domain.DerivedFull`)."""
-        plant = machine
-        params = _nominal(plant.params)  # type: ignore[attr-defined]
-        m = self.nominal_derived(scenario, plant)
-        full = derived_full_of(m, m.view_joint)
-
-        def derived_factory(sin, cos, tanh):
-            if sin is math.sin:
-                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-            def q_dd(s, u):
-                a = m.symbolic_accel(s, u, clips=True)  # with MuJoCo's clips of ctrl and force
-                return a[0], a[1]
-
-            return q_dd
-
-        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=derived_factory,
-                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                         pole=m.view_joint, actuated=m.actuated,
-                         angles=tuple(j.kind == "hinge" for j in m.tree.joints) + (False,) * 2,
-                         parameters=params.finite(), machine=full, accel_unit="m/s^2")
+        """The nominal machine over ``[slider, hinge, slider_dot, hinge_dot]`` (the plant's
+        own joint names), with MuJoCo's clips of ctrl and force (:func:`pumped_full_model`)."""
+        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        return pumped_full_model(self.name, machine, self.nominal_derived(scenario, machine),
+                                 params.finite(), clips=True)
 
     def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
@@ -420,8 +321,8 @@ class CartPoleDomain(Domain):
             return plant.machine.linearisation(at)
         return None
 
-    def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
-        """The machine's own geoms (:class:`~tspend.plants.articulated.domain.ModelDrawing`),
+    def drawing(self, plant: Plant, scenario: "Scenario") -> ModelDrawing:
+        """The machine's own geoms (:class:`~tspend.drawing.model.ModelDrawing`),
         on its rail, the cart posed by the extra ``cart_pos``."""
         machine = cartpole_machine(plant)
         slide = machine.joint_names[[j.kind for j in machine.tree.joints].index("slide")]
@@ -432,39 +333,11 @@ class CartPoleDomain(Domain):
         return joint_types.count("slide") == 1 and len(joint_types) == 2
 
     def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
-        """Before a balancing run (the task ends on a fall): the force the reference and
-        the disturbance need against what the actuator can give.
+        """The force the reference and the disturbance need against what the actuator can
+        give (:func:`tspend.task_feasibility.check_cart_force`)."""
+        from tspend.task_feasibility import check_cart_force
 
-        The need is the inverse dynamics along ``r(t)`` over the run (of the equations
-        derived from the compiled model, :func:`_derived_inverse_dynamics`), the cart's
-        velocity integrated from rest: a lower
-        bound (a controller also has to bring x0 to r and hold the cart).  The actuator's
-        force is at rest, over ``ctrlrange`` (and ``effects.saturation``), ``forcerange``
-        and the joint's ``actuatorfrcrange``.  ScenarioError when the need exceeds it.
-        """
-        if not any(limit is not None and limit.status == "fell" for limit in task.lo_limits):
-            return
-        p: CartPoleParams = plant.params  # type: ignore[attr-defined]
-        sat = scenario.effects.saturation
-        lo, hi = actuator_force_range(p, -sat if sat > 0 else -math.inf,
-                                      sat if sat > 0 else math.inf)
-        if lo == -math.inf and hi == math.inf:
-            return
-        need = reference_force(p, scenario, cartpole_machine(plant))
-        if need is None:
-            return
-        t, f_lo, f_hi = need
-        if f_hi <= hi and f_lo >= lo:
-            return
-        worst = f_hi if f_hi > hi else f_lo
-        name = plant.inputs[0].name if plant.inputs else "u"
-        raise ScenarioError(
-            f"{scenario.path or scenario.name}: the task cannot be done: following the "
-            f"reference (with the disturbance) needs a cart force of {worst:.4g} N (at "
-            f"t = {t:.4g} s) and actuator '{name}' gives {lo:.4g} .. {hi:.4g} N at rest "
-            f"(gear {p.gear:g} x gain {p.gain:g} x u in [{max(p.ctrl_min, -sat if sat > 0 else -math.inf):g}, "
-            f"{min(p.ctrl_max, sat if sat > 0 else math.inf):g}]); lower reference.amplitude "
-            f"or widen the actuator's range")
+        check_cart_force(plant, cartpole_machine(plant), task, scenario)
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:

@@ -4,7 +4,7 @@ A *domain* (the cart-pole, the Furuta pendulum, the paper's chain plants) holds 
 its machine means, in its own module under ``tspend/plants/``: the equations, the roles of
 its MJCF joints and how each backend is built, its linearisation and the model the
 model-based controllers assume (:class:`PlantModel`), the drawing for Rerun
-(:class:`Drawing`), labels and units (:class:`PlantLabels`), the default task
+(:class:`~tspend.drawing.base.Drawing`), labels and units (:class:`PlantLabels`), the default task
 (:class:`TaskDefaults`) and the scenario configuration class of each plant kind.
 :mod:`tspend.plants.registry` maps plant kinds and domain names to domains; the runner,
 recorder, cross-check, effects and controllers ask the domain and name no concrete plant.
@@ -19,7 +19,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
 from numba.core import types
@@ -32,13 +32,14 @@ from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Bound, Task
+    from tspend.drawing.base import Drawing
+    from tspend.task import Task
 
-__all__ = ["Domain", "Backend", "Drawing", "FullModel", "PlantLabels", "PlantModel", "Quantity",
+__all__ = ["Domain", "Backend", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
            "CART_CENTRING", "PUMPED_ENERGY", "CAPABILITIES", "CHIRP_F0_HZ", "CHIRP_F1_HZ",
-           "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "END_COLOR",
-           "bound_text", "name_slug", "unit_slug"]
+           "wrap_angle", "COMPILED_VIEW_ACCEL", "central_df_du", "view_accel", "name_slug",
+           "unit_slug"]
 
 #: what a domain may provide (:attr:`Domain.provides`), and what a controller kind or an
 #: effect may need (:attr:`tspend.controllers.base.Controller.needs`):
@@ -64,9 +65,6 @@ CAPABILITIES = {
     PUMPED_ENERGY: "a single pendulum whose energy can be pumped (compiled energy): energy "
                    "pumping does not extend to two or more poles",
 }
-
-#: the colour of what marks the end of a run and the bounds that end one
-END_COLOR = (214, 39, 40)
 
 #: relative step of the central differences of :class:`PlantModel`
 FD_STEP = 1e-6
@@ -370,65 +368,6 @@ class FullModel:
         return e
 
 
-def bound_text(bound: "Bound") -> str:
-    """What crossing ``bound`` means, short enough for a label in a 3D view:
-    ``"fell if |hinge| > 1.57 rad"`` for a symmetric bound, else both ends (a condition,
-    drawn on every run: a completed run's view must not read as if it ended there)."""
-    unit = f" {bound.unit}" if bound.unit else ""
-    if math.isfinite(bound.hi) and bound.lo == -bound.hi:
-        return f"{bound.status} if |{bound.name}| > {bound.hi:.3g}{unit}"
-    return f"{bound.status} if {bound.name} is outside [{bound.lo:.3g}, {bound.hi:.3g}]{unit}"
-
-
-class Drawing(ABC):
-    """What a recorder draws of a plant in 3D: a static scene, then poses per frame.
-
-    The recorder (:mod:`tspend.recorder.sink`) calls :meth:`log_static` once and
-    :meth:`log_frames` with batches of frames; it knows nothing of the machine.
-    """
-
-    #: the 3D view's title
-    title: str = "plant"
-
-    @abstractmethod
-    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
-        """Log the scene under entity ``world``; ``shade`` maps colours (overlaid runs)."""
-
-    @abstractmethod
-    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
-                   extras: dict[str, np.ndarray]) -> None:
-        """Log the poses for the samples ``times`` (a Rerun time column) given the view
-        ``x`` (N, n) and the plant's extras (N,) by name."""
-
-    @abstractmethod
-    def view(self, origin: str, suffix: str = "") -> Any:
-        """The Rerun 3D view of ``origin``."""
-
-    #: where :meth:`log_end` writes the reason a run ended (relative to ``world``; a child
-    #: of a moving body follows it) and at which point of that entity's frame
-    end_entity: str = "end"
-    end_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def log_bounds(self, rec: Any, world: str, bounds: Sequence["Bound"],
-                   shade: Callable[[tuple], tuple]) -> None:
-        """Draw the task's bounds on the full state (rail ends, joint limits, the fall
-        angle: :meth:`tspend.task.Task.bounds`) under ``world``; default: nothing."""
-
-    def log_end(self, rec: Any, world: str, times: Any, text: str) -> None:
-        """Write ``text`` (why the run ended) in the scene from ``times`` (one time) on."""
-        import rerun as rr
-
-        path = f"{world}/{self.end_entity}"
-        rec.log(path, rr.Points3D.from_fields(colors=[END_COLOR], radii=[-4.0], show_labels=True),
-                static=True)
-        rec.send_columns(path, indexes=[times], columns=rr.Points3D.columns(
-            positions=[list(self.end_position)], labels=[text]))
-
-    def document(self) -> dict[str, Any]:
-        """Facts shown in the run's info document."""
-        return {}
-
-
 @dataclass(frozen=True)
 class Backend:
     """One plant kind of a domain: its configuration class and its builder."""
@@ -526,7 +465,7 @@ class Domain(ABC):
         differences of the plant's own right-hand side)."""
         return None
 
-    def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
+    def drawing(self, plant: Plant, scenario: "Scenario") -> "Drawing | None":
         """What the recorder draws of ``plant`` in 3D (None: nothing)."""
         return None
 
@@ -573,14 +512,3 @@ class Domain(ABC):
         """The analytic plant of the very machine the MuJoCo ``plant`` compiled."""
         raise NotImplementedError(f"domain {self.name!r} has no analytic twin of its MuJoCo plant")
 
-
-def find_named_file(path: str, scenario: "Scenario", key: str) -> Path:
-    """The file a scenario's setting ``key`` names (a policy, a plan), looked for like a
-    scenario's MJCF (:func:`tspend.shipped.locate`; ScenarioError naming ``key`` if none)."""
-    from tspend.errors import ScenarioError
-    from tspend.shipped import locate
-
-    found = locate(path, scenario.path)
-    if found is not None:
-        return found
-    raise ScenarioError(f"{scenario.path or scenario.name}: {key} = {path!r}: no such file")

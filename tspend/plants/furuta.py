@@ -26,21 +26,20 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from tspend.config import PlantConfig
+from tspend.drawing.furuta import FurutaDrawing
 from tspend.errors import ScenarioError
-from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedMujoco, ArticulatedODE,
-    derived_full_accel, derived_full_of, derived_pole_energy, derived_view)
-from tspend.plants.articulated.machine import Machine, set_integrator
+from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedDomain,
+    ArticulatedMujoco, ArticulatedODE, pumped_full_model)
+from tspend.plants.articulated.machine import Machine, open_spec
 from tspend.plants.base import InputInfo, Plant, velocity_name
-from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC,
-    VIEW_MODEL, Backend, Domain, Drawing, FullModel, PlantLabels, PlantModel, Quantity, TaskDefaults,
-    END_COLOR, bound_text)
+from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
+    FullModel, PlantLabels, Quantity, TaskDefaults)
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Bound
 
 __all__ = ["FurutaConfig", "FurutaMujocoConfig", "FurutaODE", "MujocoFuruta", "FurutaDomain",
-           "FurutaDrawing", "coefficients", "load_furuta", "DOMAIN"]
+           "coefficients", "load_furuta", "DOMAIN"]
 
 #: where the real arm's cable stops it, rad (+/-135 deg): the default task's joint limit
 ARM_STOP_RAD = 2.356
@@ -84,15 +83,9 @@ def load_furuta(model_path: str | Path, arm: str = "arm", pendulum: str = "pendu
     :mod:`~tspend.plants.articulated.model_numbers`, written into it when given) and read
     as an articulated machine whose pole is ``pendulum`` and whose ``u`` drives ``actuator``."""
     from tspend.plants.articulated.model_numbers import compile_with_values
-    from tspend.runtime.model_file import read_spec
 
     where = str(model_path)
-    if not Path(model_path).is_file():
-        raise ScenarioError(f"{where}: model file not found")
-    spec = read_spec(where)  # within the size bounds
-    if timestep:
-        spec.option.timestep = float(timestep)
-    set_integrator(spec, integrator, where)
+    spec = open_spec(model_path, timestep, integrator)
     if pendulum_damping is not None:
         joint = spec.joint(pendulum)
         if joint is None:
@@ -233,110 +226,11 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
                                     tuple(cfg.model_values), mj.integrator))
 
 
-# -- drawing ------------------------------------------------------------------------------
-def _quat_z(angle: np.ndarray) -> np.ndarray:
-    z = np.zeros_like(angle)
-    return np.column_stack([z, z, np.sin(0.5 * angle), np.cos(0.5 * angle)])
-
-
-def _quat_x(angle: np.ndarray) -> np.ndarray:
-    z = np.zeros_like(angle)
-    return np.column_stack([np.sin(0.5 * angle), z, z, np.cos(0.5 * angle)])
-
-
-@dataclass(frozen=True)
-class FurutaDrawing(Drawing):
-    """The QUBE seen from its front: base, the arm turning about z, the pendulum about
-    the arm (entity ``world/arm/pendulum``, so Rerun composes the two rotations)."""
-
-    arm_length: float
-    pendulum_length: float
-    arm_height: float = 0.16
-    title = "Furuta pendulum"
-
-    def document(self) -> dict[str, Any]:
-        return {"arm_length": self.arm_length, "pendulum_length": self.pendulum_length}
-
-    def log_static(self, rec: Any, world: str, shade: Callable[[tuple], tuple]) -> None:
-        import rerun as rr
-
-        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log(f"{world}/base", rr.Boxes3D(half_sizes=[[0.051, 0.051, 0.051]],
-                                            centers=[[0.0, 0.0, 0.051]],
-                                            colors=[shade((30, 30, 36))],
-                                            fill_mode=rr.components.FillMode.Solid), static=True)
-        # the riser up to the arm's hinge, the arm along its +x, the pendulum along its +z
-        # (thicker than the rig's rods, so they read at the view's distance)
-        rec.log(f"{world}/riser", rr.Capsules3D(
-            lengths=[self.arm_height - 0.102], radii=[0.02], translations=[[0.0, 0.0, 0.102]],
-            colors=[shade((30, 30, 36))]), static=True)
-        rec.log(f"{world}/arm", rr.Capsules3D(
-            lengths=[self.arm_length], radii=[0.006], colors=[shade((178, 184, 191))],
-            rotation_axis_angles=[rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], degrees=90.0)]),
-            static=True)
-        rec.log(f"{world}/arm/pendulum", rr.Capsules3D(
-            lengths=[self.pendulum_length], radii=[0.005], colors=[shade((245, 158, 46))]),
-            static=True)
-
-    def log_frames(self, rec: Any, world: str, times: Any, x: np.ndarray,
-                   extras: dict[str, np.ndarray]) -> None:
-        import rerun as rr
-
-        pendulum = np.asarray(x[:, 0], dtype=np.float64)
-        arm = np.asarray(extras.get("arm", np.zeros_like(pendulum)), dtype=np.float64)
-        n = pendulum.size
-        rec.send_columns(f"{world}/arm", indexes=[times], columns=rr.Transform3D.columns(
-            translation=np.tile([0.0, 0.0, self.arm_height], (n, 1)), quaternion=_quat_z(arm)))
-        rec.send_columns(f"{world}/arm/pendulum", indexes=[times], columns=rr.Transform3D.columns(
-            translation=np.tile([self.arm_length, 0.0, 0.0], (n, 1)),
-            quaternion=_quat_x(pendulum)))
-
-    def log_bounds(self, rec: Any, world: str, bounds: Sequence["Bound"],
-                   shade: Callable[[tuple], tuple]) -> None:
-        """The pendulum's bound (the fall angle) as two red rays from its pivot, in the
-        plane it swings in (they turn with the arm); a limited arm's range as two red rays
-        from the base."""
-        import rerun as rr
-
-        red = shade(END_COLOR)
-        for bound in bounds:
-            ends = [v for v in (bound.lo, bound.hi) if math.isfinite(v)]
-            if bound.index == 1 and ends:  # the pendulum about the arm's tip (+x of the arm)
-                r = self.pendulum_length
-                tips = [[0.0, -r * math.sin(a), r * math.cos(a)] for a in ends]
-                rec.log(f"{world}/arm/bounds", rr.Transform3D(translation=[self.arm_length, 0.0, 0.0]),
-                        static=True)
-                rec.log(f"{world}/arm/bounds", rr.LineStrips3D(
-                    [[[0.0, 0.0, 0.0], tip] for tip in tips], colors=[red], radii=[0.0015]), static=True)
-                high = max(tips, key=lambda tip: tip[2])
-                rec.log(f"{world}/arm/bounds/label", rr.Points3D(
-                    [[high[0], high[1], high[2] + 0.02]], colors=[red], radii=[0.002],
-                    labels=[bound_text(bound)], show_labels=True), static=True)
-            elif bound.index == 0 and ends:  # the arm about z
-                r = 1.2 * self.arm_length
-                tips = [[r * math.cos(a), r * math.sin(a), self.arm_height] for a in ends]
-                rec.log(f"{world}/arm_bounds", rr.LineStrips3D(
-                    [[[0.0, 0.0, self.arm_height], tip] for tip in tips], colors=[red], radii=[0.0015]),
-                    static=True)
-                rec.log(f"{world}/arm_bounds/label", rr.Points3D(
-                    tips[-1:], colors=[red], radii=[0.002], labels=[bound_text(bound)],
-                    show_labels=True), static=True)
-
-    end_position = (0.0, 0.0, 0.32)
-
-    def view(self, origin: str, suffix: str = "") -> Any:
-        import rerun.blueprint as rrb
-
-        return rrb.Spatial3DView(
-            origin=origin, name=f"Furuta pendulum{suffix}",
-            # close enough that the 8.5 cm arm and the 13 cm pendulum fill the view
-            eye_controls=rrb.EyeControls3D(position=[0.24, -0.30, 0.27],
-                                           look_target=[0.03, 0.0, 0.17], eye_up=[0.0, 0.0, 1.0]))
-
-
 # -- the domain ---------------------------------------------------------------------------
-class FurutaDomain(Domain):
-    """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm."""
+class FurutaDomain(ArticulatedDomain):
+    """The rotary inverted pendulum: the arm's motor balances the pendulum on the arm (an
+    articulated machine: its machine, nominal values, view model and linearisation are
+    :class:`~tspend.plants.articulated.domain.ArticulatedDomain`'s)."""
 
     name = "furuta"
     kinds = {"furuta_ode": Backend(FurutaConfig, _build_ode),
@@ -358,58 +252,17 @@ class FurutaDomain(Domain):
                         pole="pendulum", limits=(("arm", ARM_STOP_RAD),))
     default_model = FurutaMujocoConfig.model
     provides = frozenset({VIEW_MODEL, FULL_STATE, SYMBOLIC, PUMPED_ENERGY})
-    derives_equations = True
+    view_names = Domain.view_names  # the task's view, not the plant's
 
     def model_file(self, cfg: PlantConfig) -> str:
         return cfg.model if isinstance(cfg, FurutaMujocoConfig) else self.default_model
 
-    def machine(self, scenario: "Scenario") -> Machine:
-        """The scenario's machine: the compiled MJCF and its derived equations."""
-        return self.build(scenario).machine  # type: ignore[attr-defined]
-
-    def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
-        """The compiled model's ``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``
-        (:mod:`~tspend.plants.articulated.model_numbers`): what a ``[randomize]`` entry
-        may name, and its nominal (``plant.pendulum_damping`` applied)."""
-        from tspend.plants.articulated.model_numbers import model_values
-
-        return model_values(self.machine(scenario).model)
-
-    def plant_model(self, scenario: "Scenario", machine: Plant) -> PlantModel:
-        """pendulum'' over the view with the arm at rest (the arm's motion enters only
-        through back-EMF and coupling, which a model of the view leaves out); affine in u
-        inside the amplifier's range."""
-        view = derived_view(machine.machine)  # type: ignore[attr-defined]
-        # sliding mode's k: the arm's reaction and back-EMF left out of the view's model
-        # are of the order of the upright's instability, ~100 rad/s^2 at 0.1 rad
-        return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
-                          x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
-
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
-        """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the
-        plant's joint names): numbers through the compiled module, CasADi through the
-        derivation (no clips: the MPC bounds u itself); the energy is the pendulum's with
-        the arm at rest at 0 (the arm turns about the vertical: its own energy is left
-        out), :class:`~tspend.plants.articulated.domain.DerivedFull`."""
-        plant = machine
-        m: Machine = plant.machine  # type: ignore[attr-defined]
-        full = derived_full_of(m, 1)
-
-        def factory(sin, cos, tanh):
-            if sin is math.sin:
-                return lambda s, u: derived_full_accel(full, np.asarray(s, dtype=float), u)[:2]
-
-            def q_dd(s, u):
-                a = m.symbolic_accel(s, u)
-                return a[0], a[1]
-
-            return q_dd
-
-        return FullModel(domain=self.name, state_names=tuple(plant.state_names),
-                         accel_factory=factory,
-                         energy=lambda s: derived_pole_energy(full, np.asarray(s, dtype=float)),
-                         pole=1, actuated=0, angles=(True, True, False, False),
-                         parameters=coefficients(m), machine=full, accel_unit="rad/s^2")
+        """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
+        joint names; no clips: the MPC bounds u itself; the arm turns about the vertical,
+        its own energy left out: :func:`pumped_full_model`)."""
+        m: Machine = machine.machine  # type: ignore[attr-defined]
+        return pumped_full_model(self.name, machine, m, coefficients(m))
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return joint_types.count("hinge") == 2 and "slide" not in joint_types
@@ -440,14 +293,7 @@ class FurutaDomain(Domain):
         facts["upright_poles"] = sorted(float(e.real) for e in np.linalg.eigvals(A))
         return facts, plant.departures(dt)
 
-    def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
-        return machine.machine.linearisation()  # type: ignore[attr-defined]
-
-    def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The exact ``(A, B)`` of the derived equations at ``at`` (CasADi's derivatives)."""
-        return plant.machine.linearisation(at)  # type: ignore[attr-defined]
-
-    def drawing(self, plant: Plant, scenario: "Scenario") -> Drawing | None:
+    def drawing(self, plant: Plant, scenario: "Scenario") -> FurutaDrawing:
         """The QUBE's drawing, its arm (motor axis to the pendulum's hinge) and pendulum
         (twice its hinge to its centre of mass) measured on the compiled model."""
         import mujoco

@@ -194,12 +194,8 @@ class ActuatorFacts:
 
     def max_force_at_rest(self) -> float:
         """The largest |force| it can put on the cart at x = 0, x' = 0, N (inf: unbounded)."""
-        lo, hi = actuator_force_range(self.params())
+        lo, hi = actuator_force_range(CartPoleParams(**self.param_fields()))
         return max(abs(lo), abs(hi))
-
-    def params(self) -> CartPoleParams:
-        """Just the actuator's part of a :class:`CartPoleParams`."""
-        return CartPoleParams(**self.param_fields())
 
     def param_fields(self) -> dict[str, float]:
         c = self.ctrl_range or (-math.inf, math.inf)

@@ -24,7 +24,6 @@ from tspend.errors import DivergenceError, ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults, velocity_name
 from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
-from tspend.runtime.model_file import read_spec
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
@@ -306,12 +305,11 @@ class MujocoCartPole(MujocoPlant):
                  cart_friction: float | None = None, hinge_friction: float | None = None,
                  task_defaults: TaskDefaults | None = None, gear: float | None = None,
                  ctrl_unbounded: bool = False) -> None:
-        self.model_path = Path(model_path)
         self._task_defaults = task_defaults or TaskDefaults(view=("hinge", "hinge_dot"))
         where = str(model_path)
-        if not self.model_path.is_file():
-            raise ScenarioError(f"{where}: model file not found")
-        spec = read_spec(self.model_path)  # within the size bounds
+        from tspend.plants.articulated.machine import open_spec
+
+        spec = open_spec(model_path, timestep, integrator or "")
 
         slide = self._spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
         hinge = self._spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
@@ -323,13 +321,6 @@ class MujocoCartPole(MujocoPlant):
             raise ScenarioError(f"{where}: actuator {actuator!r} drives {act.target!r}, "
                                 f"not the slide joint {slide_joint!r}")
 
-        from tspend.plants.articulated.machine import set_integrator
-
-        set_integrator(spec, integrator or "", where)
-        if timestep is not None:
-            if not (timestep > 0.0 and math.isfinite(timestep)):
-                raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
-            spec.option.timestep = float(timestep)
         for joint, damping, friction in ((slide, cart_damping, cart_friction),
                                          (hinge, hinge_damping, hinge_friction)):
             if damping is not None:  # MuJoCo 4 keeps [linear, 0, 0] damping coefficients
@@ -381,7 +372,7 @@ class MujocoCartPole(MujocoPlant):
             self.overridden["gear"] = float(gear)
         self._params = self.facts.params()
         # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (module docstring).
-        self._attach(m, self.model_path, m.actuator(actuator).id, m.jnt_dofadr[self._hinge_id],
+        self._attach(m, model_path, m.actuator(actuator).id, m.jnt_dofadr[self._hinge_id],
                      self._params.disturbance_torque)
         a = self._act
         lo, hi = (float(v) for v in m.actuator_ctrlrange[a]) if m.actuator_ctrllimited[a] \
@@ -571,10 +562,9 @@ def guess_names(model_path: str | Path, slide: str | None, hinge: str | None,
                 actuator: str | None) -> tuple[str, str, str]:
     """Joint and actuator names: the given ones, else the model's only slide joint, only
     hinge joint and only actuator on that slide (ScenarioError when ambiguous)."""
-    where = str(model_path)
-    if not Path(model_path).is_file():
-        raise ScenarioError(f"{where}: model file not found")
-    spec = read_spec(model_path)
+    from tspend.plants.articulated.machine import open_spec
+
+    where, spec = str(model_path), open_spec(model_path)
 
     def only(found: list[str], what: str, flag: str) -> str:
         if len(found) != 1:

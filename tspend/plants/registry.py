@@ -18,10 +18,11 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from tspend.config import PlantConfig
+from tspend.drawing.base import Drawing
 from tspend.plants import analytic, cartpole, furuta
 from tspend.plants.articulated import domain as articulated
 from tspend.plants.base import Plant
-from tspend.plants.domain import Domain, Drawing
+from tspend.plants.domain import Domain
 
 if TYPE_CHECKING:
     from tspend.config import Scenario

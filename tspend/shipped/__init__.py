@@ -13,8 +13,10 @@ from __future__ import annotations
 import os
 from importlib.resources import files
 from pathlib import Path
+from typing import Any
 
-__all__ = ["data_root", "scenario_search_path", "locate", "SCENARIO_PATH_VARIABLE"]
+__all__ = ["data_root", "scenario_search_path", "locate", "find_named_file",
+           "SCENARIO_PATH_VARIABLE"]
 
 #: the environment variable that names a user's own folders of scenarios (os.pathsep
 #: separated), searched before ./scenarios and the shipped ones; ``tspend --scenario-path``
@@ -51,3 +53,14 @@ def locate(path: str | os.PathLike, scenario_path: str = "") -> Path | None:
         bases.append(Path(scenario_path).resolve().parent)
     bases += [Path.cwd(), data_root()]
     return next((b / p for b in bases if (b / p).is_file()), None)
+
+
+def find_named_file(path: str, scenario: Any, key: str) -> Path:
+    """The file a scenario's setting ``key`` names (a policy, a plan), looked for like a
+    scenario's MJCF (:func:`locate`; ScenarioError naming ``key`` if none)."""
+    from tspend.errors import ScenarioError
+
+    found = locate(path, scenario.path)
+    if found is not None:
+        return found
+    raise ScenarioError(f"{scenario.path or scenario.name}: {key} = {path!r}: no such file")

@@ -16,12 +16,12 @@ from typing import Sequence
 import numpy as np
 
 from tspend.config import Scenario
+from tspend.effects import EffectsPlant
 from tspend.errors import ScenarioError
 from tspend.loop.runner import StopRequest
 from tspend.loop.simulation import build_plant, run
 from tspend.loop.sinks import Sink
 from tspend.plants.domain import CHIRP_F0_HZ, CHIRP_F1_HZ, Domain
-from tspend.plants.effects import EffectsPlant
 from tspend.plants.registry import DOMAINS, domain_of
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from tspend.task import TERMINATIONS

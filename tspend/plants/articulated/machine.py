@@ -25,9 +25,9 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.derive import Derivation, compiled_module, derive, parameter_table
-from tspend.plants.articulated.tree import Tree, read_tree
+from tspend.plants.articulated.tree import INTEGRATOR_NAMES, Tree, read_tree
 
-__all__ = ["Machine", "load_machine", "set_integrator"]
+__all__ = ["Machine", "load_machine", "open_spec"]
 
 _DERIVED: dict[str, Derivation] = {}
 
@@ -293,11 +293,20 @@ class Machine:
 def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
                  poles: tuple[str, ...] = (), values: tuple[tuple[str, float], ...] = (),
                  integrator: str = "") -> Machine:
-    """The MJCF at ``path`` compiled (``timestep`` > 0 replaces the model's, ``integrator``
-    ("" keeps the model's) its MuJoCo integrator; ``values``,
-    ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into it first:
-    :mod:`.model_numbers`) and read."""
+    """The MJCF at ``path`` compiled (:func:`open_spec` with ``timestep`` and ``integrator``;
+    ``values``, ``(BODY.mass | JOINT.damping | JOINT.armature, value)`` pairs, written into
+    it first: :mod:`.model_numbers`) and read."""
     from tspend.plants.articulated.model_numbers import compile_with_values
+
+    spec = open_spec(path, timestep, integrator)
+    return Machine(compile_with_values(spec, values, str(path)), str(path), actuator, poles)
+
+
+def open_spec(path: str | Path, timestep: float | None = 0.0, integrator: str = "") -> Any:
+    """The MJCF at ``path`` read within the size bounds (:func:`tspend.runtime.model_file.read_spec`)
+    with ``timestep`` (> 0; 0 or None keeps the model's) and MuJoCo's ``integrator`` ("RK4",
+    "Euler", "implicit", "implicitfast"; "" keeps the model's) written in: how every MuJoCo
+    machine's file comes in (``plant.timestep``, ``plant.integrator``)."""
     from tspend.runtime.model_file import read_spec
 
     where = str(path)
@@ -305,20 +314,13 @@ def load_machine(path: str | Path, timestep: float = 0.0, actuator: str = "",
         raise ScenarioError(f"{where}: model file not found")
     spec = read_spec(where)
     if timestep:
+        if not (timestep > 0.0 and math.isfinite(timestep)):
+            raise ScenarioError(f"{where}: timestep must be positive, got {timestep}")
         spec.option.timestep = float(timestep)
-    set_integrator(spec, integrator, where)
-    return Machine(compile_with_values(spec, values, where), where, actuator, poles)
-
-
-def set_integrator(spec: Any, integrator: str, where: str) -> None:
-    """Write MuJoCo's ``integrator`` ("RK4", "Euler", "implicit", "implicitfast"; "" keeps
-    the model's) into ``spec`` (``plant.integrator`` of every MuJoCo machine)."""
-    if not integrator:
-        return
-    from tspend.plants.articulated.tree import INTEGRATOR_NAMES
-
-    by_name = {v: k for k, v in INTEGRATOR_NAMES.items()}
-    if integrator not in by_name:
-        raise ScenarioError(f"{where}: unknown integrator {integrator!r} (allowed: "
-                            f"{', '.join(by_name)})")
-    spec.option.integrator = by_name[integrator]
+    if integrator:
+        by_name = {v: k for k, v in INTEGRATOR_NAMES.items()}
+        if integrator not in by_name:
+            raise ScenarioError(f"{where}: unknown integrator {integrator!r} (allowed: "
+                                f"{', '.join(by_name)})")
+        spec.option.integrator = by_name[integrator]
+    return spec

@@ -17,7 +17,6 @@ is returned as *departures*, named on every run as the cart-pole's are.
 from __future__ import annotations
 
 import hashlib
-import math
 from dataclasses import dataclass, field
 from typing import Any
 

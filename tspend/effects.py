@@ -12,7 +12,9 @@ backend because they sit outside it:
   and the cart-centring outer loop that shapes the pole reference.
 
 Viscous and dry friction are plant parameters (``[plant] cart_damping`` ...), because
-they are physics inside the integration step.
+they are physics inside the integration step; these are not (neither the plant's state,
+inputs nor parameters, but what stands between it and the controller), so they live
+beside :mod:`tspend.task`, not under ``tspend/plants/``.
 """
 
 from __future__ import annotations
