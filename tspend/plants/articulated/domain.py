@@ -263,10 +263,11 @@ class ArticulatedMujoco(_Named, MujocoPlant):
 
     name = "articulated_mujoco"
 
-    def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
+    def __init__(self, machine: Machine, q0: tuple[float, ...] = (), d_scale: float = 1.0) -> None:
         self.machine, self.q0 = machine, tuple(q0)
         # the tree's actuators and joints are MuJoCo's, in its order (:func:`.tree.read_tree`)
-        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint)
+        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint,
+                     d_scale)
         self.reset(np.zeros(2))
 
     def departures(self, dt: float | None = None) -> list[str]:
