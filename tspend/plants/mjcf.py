@@ -31,7 +31,7 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
-                                            read_actuator, read_joint)
+                                            read_actuator, read_gravity, read_joint)
 
 __all__ = ["CartPoleParams", "actuator_force_range", "ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
            "unmodelled", "apply_overrides", "verify_overrides", "collision_pairs"]
@@ -349,14 +349,12 @@ def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> Actuator
         kind = "position"
     else:
         kind = "general"
-    joint = (tuple(float(v) for v in model.jnt_actfrcrange[slide])
-             if model.jnt_actfrclimited[slide] else None)
     damping = float(model.actuator_damping[a]) if hasattr(model, "actuator_damping") else 0.0
     armature = float(model.actuator_armature[a]) if hasattr(model, "actuator_armature") else 0.0
     return ActuatorFacts(name=name, kind=kind, gear=law.gear, gain=g0,
                          gain_length=g1, gain_velocity=g2, bias=b0, bias_length=b1,
                          bias_velocity=b2, ctrl_range=law.ctrlrange, force_range=law.forcerange,
-                         joint_force_range=joint, damping=damping, armature=armature)  # type: ignore[arg-type]
+                         joint_force_range=read_joint(model, slide).actfrcrange, damping=damping, armature=armature)  # type: ignore[arg-type]
 
 
 def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuator: str,
@@ -389,8 +387,7 @@ def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuat
     if l < 1e-12 * max(1.0, float(np.linalg.norm(com))):
         raise ScenarioError(f"{where}: the pole's centre of mass is on hinge "
                             f"'{hinge_joint}''s axis: the cart cannot swing it (no cart-pole)")
-    off = model.opt.disableflags
-    gravity = np.zeros(3) if off & _DSBL.mjDSBL_GRAVITY else np.asarray(model.opt.gravity, float)
+    gravity = np.asarray(read_gravity(model), dtype=float)
     if not np.isfinite(gravity).all():
         raise ScenarioError(f"{where}: gravity {_fmt(gravity)} is not finite (set it in the "
                             f"model's <option gravity=...> or with plant.g)")
