@@ -2,7 +2,7 @@
 
 A cart-pole is its MJCF (``models/cartpole.xml`` by default) read and derived like every
 other machine (:class:`~tspend.plants.articulated.machine.Machine`): one MuJoCo plant
-(:class:`~tspend.plants.mujoco_plant.MujocoCartPole`), one derived model (nominal for the
+(:class:`MujocoCartPole`, the articulated one), one derived model (nominal for the
 controllers, the joints' damping and dry friction left out), one linearisation (CasADi's
 derivatives of the derived equations), one ODE twin (:class:`DerivedCartPoleODE`: the
 derived equations with the model's damping and its ``frictionloss`` as the smooth

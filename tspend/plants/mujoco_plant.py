@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from tspend.errors import DivergenceError, ScenarioError
-from tspend.plants.base import JointInfo, Plant, velocity_name
+from tspend.plants.base import Plant
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.
 _MJ_MAXVAL: Final[float] = 1e10
@@ -121,8 +121,8 @@ class MujocoPlant(Plant):
 
     A subclass compiles its model and calls :meth:`_attach` with the actuator ``u`` drives
     and the degree of freedom ``d`` pushes (a generalised force ``d_to_tau d``); it says how
-    :meth:`reset` places the joints (:meth:`_place`).  The state is ``[qpos; qvel]``, each
-    joint's position named after it and its velocity ``<joint>_dot``.
+    :meth:`reset` places the joints (:meth:`_place`) and names the state ``[qpos; qvel]``
+    (:class:`~tspend.plants.articulated.domain.ArticulatedMujoco`: from its machine).
     """
 
     order: int = 2
@@ -145,34 +145,9 @@ class MujocoPlant(Plant):
         w = mujoco.mjtWarning
         self._warnings = [d.warning[int(k)] for k in
                           (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC)]
-        names = [model.joint(j).name or f"joint{j}" for j in range(model.njnt)]
-        slide = [int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE)
-                 for j in range(model.njnt)]
-        units = tuple("m" if s else "rad" for s in slide)
-        self._state_names = tuple(names) + tuple(velocity_name(n) for n in names)
-        self._state_units = units + tuple(f"{u}/s" for u in units)
-        self._joints = tuple(
-            JointInfo(n, "slide" if s else "hinge", u,
-                      (float(model.jnt_range[j, 0]), float(model.jnt_range[j, 1]))
-                      if model.jnt_limited[j] else None)
-            for j, (n, s, u) in enumerate(zip(names, slide, units)))
 
     def mj_model(self) -> mujoco.MjModel:
         return self.model
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
-        return self._state_names
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return self._state_units
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        """Every joint of the compiled model, its range when ``limited``."""
-        return self._joints
 
     def full_state(self) -> np.ndarray:
         return np.concatenate((self._qpos, self._qvel))
