@@ -156,13 +156,21 @@ def nominal_machine(machine: Machine) -> Machine:
 
 
 class _CartPole:
-    """What both cart-pole plants say alike, over the articulated machine's: the metrics'
-    numbers (:class:`CartPoleParams`) and the cart as the extras ``cart_pos``,
-    ``cart_vel`` (the machine's two joints: the pole its view, the slide the other)."""
+    """What both cart-pole plants say alike, over the articulated machine's: what the MuJoCo
+    plant ``_mujoco`` read off the compiled model (itself; the ODE twin's source) and the
+    cart as the extras ``cart_pos``, ``cart_vel`` (the machine's two joints: the pole its
+    view, the slide the other)."""
 
     machine: Machine
-    params: CartPoleParams
+    _mujoco: "MujocoCartPole"
     domain = "cartpole"
+
+    #: the motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``
+    inputs = property(lambda self: self._mujoco._inputs)
+    #: the ODE of the compiled model (:meth:`ModelFacts.params`): the metrics' numbers
+    params = property(lambda self: self._mujoco._params)
+    #: sign of d(theta'')/du at the upright, measured by MuJoCo on the compiled model
+    gain_sign = property(lambda self: self._mujoco.facts.gain_sign)
 
     def parameters(self) -> dict[str, float]:
         return self.params.finite()
@@ -216,6 +224,7 @@ class MujocoCartPole(_CartPole, ArticulatedMujoco):
     """
 
     name: str = "cartpole_mujoco"
+    _mujoco = property(lambda self: self)
 
     def __init__(self, model_path: str | Path, slide_joint: str = "slider",
                  hinge_joint: str = "hinge", actuator: str = "force",
@@ -250,22 +259,6 @@ class MujocoCartPole(_CartPole, ArticulatedMujoco):
             self._inputs = (InputInfo(actuator, "ctrl", lo, hi, "N", per_unit),)
         else:
             self._inputs = (InputInfo(actuator, unit, lo, hi),)
-
-    @property
-    def inputs(self) -> tuple[InputInfo, ...]:
-        """The motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``."""
-        return self._inputs
-
-    @property
-    def params(self) -> CartPoleParams:
-        """The ODE of the compiled model (:meth:`ModelFacts.params`): masses, COM distance,
-        inertia about the pivot, joint damping and friction, gear and angle sign."""
-        return self._params
-
-    @property
-    def gain_sign(self) -> int:
-        """Sign of d(theta'')/du at the upright, measured by MuJoCo on the compiled model."""
-        return self.facts.gain_sign
 
     def unmodelled(self, dt: float | None = None) -> list[str]:
         """What the ODE of this model (:attr:`params`) does not reproduce."""
@@ -328,22 +321,17 @@ class DerivedCartPoleODE(_CartPole, ArticulatedODE):
     def __init__(self, source: MujocoCartPole) -> None:
         ArticulatedODE.__init__(self, source.machine)
         self.name, self.domain = "cartpole_ode", "cartpole"
-        self._source = source
+        self._mujoco = source
         self._d_scale = self.params.disturbance_torque
         # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
         self._dry[1 - self.machine.view_joint] = self.params.cart_friction
         self._dry[self.machine.view_joint] = self.params.hinge_friction
 
-    # the MuJoCo plant's: its CartPoleParams are the names the metrics show
-    inputs = property(lambda self: self._source.inputs)
-    gain_sign = property(lambda self: self._source.gain_sign)
-    params = property(lambda self: self._source.params)
-
     def set_params(self, params: CartPoleParams) -> None:
         """Change M, m, l (J) while it runs (a payload picked up): written into the
         compiled model, and so into the machine both share, by the MuJoCo plant; the
         state is kept."""
-        self._source.set_params(params)
+        self._mujoco.set_params(params)
         self._d_scale = self.params.disturbance_torque
 
 
