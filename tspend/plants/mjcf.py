@@ -354,7 +354,8 @@ def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> Actuator
     return ActuatorFacts(name=name, kind=kind, gear=law.gear, gain=g0,
                          gain_length=g1, gain_velocity=g2, bias=b0, bias_length=b1,
                          bias_velocity=b2, ctrl_range=law.ctrlrange, force_range=law.forcerange,
-                         joint_force_range=read_joint(model, slide).actfrcrange, damping=damping, armature=armature)  # type: ignore[arg-type]
+                         joint_force_range=read_joint(model, slide).actfrcrange,
+                         damping=damping, armature=armature)  # type: ignore[arg-type]
 
 
 def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuator: str,
@@ -823,9 +824,8 @@ def compile_cartpole(model_path: Any, slide_joint: str = "slider", hinge_joint: 
     facts = read_facts(model, slide_joint, hinge_joint, actuator, where)
     if keys:
         checked = keys | ({"J"} if keys & {"m", "l", "J"} else set())
-        verify_overrides(facts, target, model.body(int(model.jnt_bodyid[model.joint(slide_joint).id])).name,
-                         model.body(int(model.jnt_bodyid[model.joint(hinge_joint).id])).name,
-                         where, frozenset(checked))
+        verify_overrides(facts, target, slide.parent.name, hinge.parent.name, where,
+                         frozenset(checked))
     if gear is not None:
         verify_gear(facts, gear, actuator, where)
     written = {k: float(getattr(target, k)) for k in sorted(keys)}
