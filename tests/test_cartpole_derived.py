@@ -21,7 +21,7 @@ from tspend.plants.cartpole import (DOMAIN, _nominal, DerivedCartPoleODE, cartpo
                                     nominal_machine)
 from tspend.studies.cartpole_greybox import (inverse_dynamics, machine_accelerations, machine_of,
                                              pole_energy)
-from tspend.plants.mujoco_plant import MujocoCartPole
+from tspend.plants.cartpole import MujocoCartPole
 
 from cli_harness import ROOT
 
@@ -47,7 +47,7 @@ def test_the_hand_written_equations_are_the_oracle_of_the_derived_ones(
     plant = MujocoCartPole(MODEL, overrides=overrides, gear=gear, **friction)
     machine = cartpole_machine(plant)
     assert machine is not None
-    ode = DerivedCartPoleODE(plant, machine)
+    ode = DerivedCartPoleODE(plant)
     oracle = machine_of(plant.params)
     lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     rng = np.random.default_rng(32)
@@ -186,7 +186,7 @@ def test_every_cartpole_derives_and_agrees_with_c1_c2(model) -> None:
         plant = MujocoCartPole(model, slide, hinge, act)
     machine = cartpole_machine(plant)   # every one derives (actuatorfrcrange included)
     assert machine is not None, model
-    ode = DerivedCartPoleODE(plant, machine)
+    ode = DerivedCartPoleODE(plant)
     oracle = machine_of(plant.params)
     lo, hi = plant.inputs[0].lo, plant.inputs[0].hi
     if not math.isfinite(lo):

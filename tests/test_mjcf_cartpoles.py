@@ -21,7 +21,7 @@ from tspend.cli.main import main
 from tspend.errors import ScenarioError
 from tspend.loop.simulation import prepare
 from tspend.studies.cartpole_greybox import accelerations, machine_of
-from tspend.plants.mujoco_plant import MujocoCartPole
+from tspend.plants.cartpole import MujocoCartPole
 from tspend.studies.crosscheck import closed_loop, open_loop, parting, verdict
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -29,7 +29,7 @@ def square_disturbance(t: float) -> float:
 from tspend.errors import DivergenceError, ScenarioError
 from cartpole_oracle import CartPoleParams, cartpole_ode_plant
 from tspend.plants.base import Plant
-from tspend.plants.mujoco_plant import MujocoCartPole
+from tspend.plants.cartpole import MujocoCartPole
 
 MODEL = Path(__file__).resolve().parents[1] / "models" / "cartpole.xml"
 DURATION, DT = 10.0, 1e-3

@@ -23,7 +23,7 @@ from tspend.studies.crosscheck import failure_reason, open_loop
 from tspend.errors import ScenarioError
 from tspend.plants.mjcf import CartPoleParams
 from tspend.errors import ModelWarning
-from tspend.plants.mujoco_plant import MujocoCartPole
+from tspend.plants.cartpole import MujocoCartPole
 from tspend.loop.simulation import build_plant
 
 MODELS = Path(__file__).with_name("models")

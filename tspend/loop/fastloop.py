@@ -267,7 +267,7 @@ class SampleFailed(Exception):
 def _mujoco_samples(settings, state, scratch, mj_step, link, full, x, diag, buf: Buffers,
                     reading: Reading, a: int, b: int, t: np.ndarray, ref: np.ndarray,
                     dist: np.ndarray, dt: float, bounds: Bounds, hold: Hold) -> tuple[int, int]:
-    """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoCartPole.step`
+    """Samples ``a .. b-1`` on MuJoCo: :meth:`tspend.plants.mujoco_plant.MujocoPlant.step`
     with MuJoCo's C ``mj_step`` called from here; the full state is [qpos; qvel]."""
     qpos, qvel, numbers = link.qpos, link.qvel, link.warning_number
     nq = qpos.size

@@ -2,7 +2,7 @@
 
 A cart-pole is its MJCF (``models/cartpole.xml`` by default) read and derived like every
 other machine (:class:`~tspend.plants.articulated.machine.Machine`): one MuJoCo plant
-(:class:`~tspend.plants.mujoco_plant.MujocoCartPole`), one derived model (nominal for the
+(:class:`MujocoCartPole`, the articulated one), one derived model (nominal for the
 controllers, the joints' damping and dry friction left out), one linearisation (CasADi's
 derivatives of the derived equations), one ODE twin (:class:`DerivedCartPoleODE`: the
 derived equations with the model's damping and its ``frictionloss`` as the smooth
@@ -31,17 +31,21 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import mujoco
 import numpy as np
 
 from tspend.config import PlantConfig
 from tspend.drawing.model import ModelDrawing
 from tspend.effects import EffectsPlant
-from tspend.plants.articulated.domain import ArticulatedODE, derived_view, pumped_full_model
+from tspend.errors import ScenarioError
+from tspend.plants import mjcf
+from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_view,
+    pumped_full_model)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
-from tspend.plants.base import Plant, TaskDefaults
-from tspend.plants.mjcf import OVERRIDABLE, CartPoleParams
+from tspend.plants.base import InputInfo, Plant, TaskDefaults
+from tspend.plants.mjcf import AXIAL_INERTIA_RATIO, OVERRIDABLE, CartPoleParams, compile_cartpole
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
     PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
     FullModel, PlantLabels, PlantModel, Quantity)
@@ -50,7 +54,8 @@ if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.task import Task
 
-__all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "DerivedCartPoleODE",
+__all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "MujocoCartPole",
+           "DerivedCartPoleODE",
            "CartPoleDomain", "DOMAIN", "cartpole_machine", "nominal_machine"]
 
 
@@ -150,52 +155,184 @@ def nominal_machine(machine: Machine) -> Machine:
     return nominal
 
 
-class DerivedCartPoleODE(ArticulatedODE):
-    """The ODE twin of a MuJoCo cart-pole: the equations derived from its compiled model
-    (:class:`~tspend.plants.articulated.domain.ArticulatedODE`), ``d`` applied as MuJoCo's
-    cart-pole applies it, the hinge torque ``-d m l / (M + m)``, and MuJoCo's soft dry
-    friction (``frictionloss``) as the smooth ``F tanh(v / v_s)`` the hand-written ODE has
-    (:func:`~tspend.plants.articulated.domain.applied_forces`; they agree in kind, a
-    departure the cross-check names).  What it says of itself (inputs, joints, task,
-    ``params``, the extras ``cart_pos``, ``cart_vel``) is the MuJoCo plant's, so both
-    backends describe one machine."""
+class _CartPole:
+    """What both cart-pole plants say alike, over the articulated machine's: what the MuJoCo
+    plant ``_mujoco`` read off the compiled model (itself; the ODE twin's source) and the
+    cart as the extras ``cart_pos``, ``cart_vel`` (the machine's two joints: the pole its
+    view, the slide the other)."""
 
-    def __init__(self, source: Plant, machine: Machine) -> None:
-        ArticulatedODE.__init__(self, machine)
-        self.name, self.domain = "cartpole_ode", "cartpole"
-        self._source = source
-        self._d_scale = self.params.disturbance_torque
-        self._cart = next(i for i, j in enumerate(machine.tree.joints) if j.kind == "slide")
-        # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
-        self._dry[self._cart] = self.params.cart_friction
-        self._dry[machine.view_joint] = self.params.hinge_friction
+    machine: Machine
+    _mujoco: "MujocoCartPole"
+    domain = "cartpole"
 
-    # the MuJoCo plant's: its CartPoleParams are the names the metrics show
-    inputs = property(lambda self: self._source.inputs)
-    joints = property(lambda self: self._source.joints)
-    gain_sign = property(lambda self: self._source.gain_sign)
-    params = property(lambda self: self._source.params)
-
-    def default_task(self) -> TaskDefaults:
-        return self._source.default_task()
+    #: the motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``
+    inputs = property(lambda self: self._mujoco._inputs)
+    #: the ODE of the compiled model (:meth:`ModelFacts.params`): the metrics' numbers
+    params = property(lambda self: self._mujoco._params)
+    #: sign of d(theta'')/du at the upright, measured by MuJoCo on the compiled model
+    gain_sign = property(lambda self: self._mujoco.facts.gain_sign)
 
     def parameters(self) -> dict[str, float]:
         return self.params.finite()
 
-    def set_params(self, params: CartPoleParams) -> None:
-        """Change M, m, l (J) while it runs (a payload picked up): written into the
-        compiled model as the MuJoCo plant writes them, the derived parameter vector read
-        again from it; the state is kept."""
-        self._source.set_params(params)  # type: ignore[attr-defined]
-        self.machine.p[:] = parameter_table(read_tree(self._source.mj_model()))[1]
-        self._d_scale = self.params.disturbance_torque
-
     def extras(self) -> dict[str, float]:
-        nv = self.machine.nv
-        return {"cart_pos": float(self.s[self._cart]), "cart_vel": float(self.s[nv + self._cart])}
+        s, cart = self.full_state(), 1 - self.machine.view_joint  # type: ignore[attr-defined]
+        return {"cart_pos": float(s[cart]), "cart_vel": float(s[2 + cart])}
 
     def extras_index(self) -> np.ndarray:
-        return np.array([self._cart, self.machine.nv + self._cart], dtype=np.intp)
+        """The cart's position and velocity in the full state [qpos; qvel]."""
+        cart = 1 - self.machine.view_joint
+        return np.array([cart, 2 + cart], dtype=np.intp)
+
+
+class MujocoCartPole(_CartPole, ArticulatedMujoco):
+    """Example 3's cart-pole as a MuJoCo model (``models/cartpole.xml`` reproduces the
+    paper's Example 3, docs/paper-notes.md section 7): the articulated MuJoCo plant of its
+    compiled model, the hinge its pole, with the ``[plant]`` numbers written into the
+    model (:func:`~tspend.plants.mjcf.compile_cartpole`) and read back from the compiled
+    one (:attr:`params`), ``d`` the hinge torque ``-d m l / (M + m)``.
+
+    Parameters
+    ----------
+    model_path:
+        MJCF file, e.g. ``models/cartpole.xml``.
+    slide_joint, hinge_joint, actuator:
+        names of the cart's slide joint, the pole's hinge and the motor on the slider.
+    overrides:
+        what to write into the model before compiling (verified on the compiled model):
+        a dict of some of M, m, l, J, g (the rest stay the model's own), or a
+        :class:`CartPoleParams` for all of them.  The pole's COM moves to ``l`` from the
+        pivot along the pole, its inertia becomes J (the uniform rod's 4/3 m l^2 unless
+        given) and the pole's visual geoms stretch with it.  None: the model as it is.
+    integrator:
+        ``"RK4"`` (the model's default, matches the ODE), ``"Euler"``, ``"implicit"`` or
+        ``"implicitfast"``; only for the cross-check's contrast figures.
+    timestep:
+        overrides the model's physics timestep.
+    gear:
+        if given, the actuator's gain (cart force per unit of u) written into the model
+        and read back from the compiled one.
+    ctrl_unbounded:
+        True leaves u unbounded (the actuator's ``ctrlrange`` off): the paper's machine.
+
+    Raises
+    ------
+    ScenarioError
+        missing or unparsable model file, missing or mistyped joint or actuator, an
+        actuator that does not drive the slide joint, an unknown integrator, or a model
+        whose equations cannot be derived (one line naming what to change).
+    """
+
+    name: str = "cartpole_mujoco"
+    _mujoco = property(lambda self: self)
+
+    def __init__(self, model_path: str | Path, slide_joint: str = "slider",
+                 hinge_joint: str = "hinge", actuator: str = "force",
+                 overrides: CartPoleParams | dict[str, float] | None = None,
+                 integrator: str | None = None, timestep: float | None = None,
+                 cart_damping: float | None = None, hinge_damping: float | None = None,
+                 cart_friction: float | None = None, hinge_friction: float | None = None,
+                 gear: float | None = None, ctrl_unbounded: bool = False) -> None:
+        model, self.facts, written = compile_cartpole(
+            model_path, slide_joint, hinge_joint, actuator, overrides, integrator, timestep,
+            cart_damping, hinge_damping, cart_friction, hinge_friction, gear, ctrl_unbounded)
+        #: what the scenario wrote into the model (name -> value); empty: the model's own
+        self.overridden: dict[str, float] = written
+        self.slide_joint, self.hinge_joint, self.actuator = slide_joint, hinge_joint, actuator
+        self._params = self.facts.params()
+        # a cart-pole is an articulated machine: its equations (the controllers' models, the
+        # ODE twin, the task check) are derived from the model, so a model that cannot be
+        # derived is refused here, in one line naming what to change, not midway
+        machine = Machine(model, str(Path(model_path)), actuator, (hinge_joint,))
+        # d_d enters theta'' like a hinge torque tau = -d_d m l / (M + m) (CartPoleParams)
+        ArticulatedMujoco.__init__(self, machine, d_scale=self._params.disturbance_torque)
+        a = self._act
+        lo, hi = (float(v) for v in model.actuator_ctrlrange[a]) \
+            if model.actuator_ctrllimited[a] else (-math.inf, math.inf)
+        # u is what the actuator takes: a force for a motor, a speed or a position for a
+        # velocity or position servo
+        unit = {"velocity": "m/s", "position": "m"}.get(self.facts.actuator_type, "N")
+        per_unit = self.facts.gear * self.facts.gain
+        if unit == "N" and per_unit != 1.0 and "gear" not in self.overridden:
+            # the model's own gear or gain other than 1: u is its control, the force beside
+            # it (a gear the scenario sets or draws is plant.gear: u stays the ODE's force)
+            self._inputs = (InputInfo(actuator, "ctrl", lo, hi, "N", per_unit),)
+        else:
+            self._inputs = (InputInfo(actuator, unit, lo, hi),)
+
+    def unmodelled(self, dt: float | None = None) -> list[str]:
+        """What the ODE of this model (:attr:`params`) does not reproduce."""
+        return mjcf.unmodelled(self.facts, dt)
+
+    def departures(self, dt: float | None = None) -> list[str]:
+        """How this model departs from the paper's ODE (with ``dt``: and the sample time)."""
+        # a gear the scenario set (or [randomize] drew) is recorded as plant.gear
+        return mjcf.departures(self.facts, dt, gear_chosen="gear" in self.overridden)
+
+    def set_params(self, p: CartPoleParams) -> None:
+        """Change M, m, l (J) of the running machine, as a payload picked up would.
+
+        Writes the compiled model's inertials in place, exactly as an override would
+        have compiled them, and the derived machine's parameters (its ODE twin's too)
+        read from it again; the state is kept.
+        """
+        m = self.model
+        hinge = m.joint(self.hinge_joint).id
+        pole, cart = int(m.jnt_bodyid[hinge]), int(m.jnt_bodyid[m.joint(self.slide_joint).id])
+        pivot = m.jnt_pos[hinge]
+        arm = m.body_ipos[pole] - pivot
+        axis = arm / np.linalg.norm(arm)
+        i_perp = p.pole_inertia_pivot - p.m * p.l ** 2
+        if i_perp <= 0.0 or p.M <= 0.0 or p.m <= 0.0 or p.l <= 0.0:
+            raise ScenarioError(f"{self.model_path}: cannot change to M={p.M:g}, m={p.m:g}, "
+                                f"l={p.l:g}, J={p.pole_inertia_pivot:g}")
+        m.body_mass[pole] = p.m
+        m.body_ipos[pole] = pivot + p.l * axis
+        quat = m.body_iquat[pole].copy()
+        mujoco.mju_quatZ2Vec(quat, axis)
+        m.body_iquat[pole] = quat
+        m.body_inertia[pole] = (i_perp, i_perp, i_perp * AXIAL_INERTIA_RATIO)
+        carried = float(m.body_subtreemass[cart]) - float(m.body_mass[cart]) - self._params.m
+        m.body_mass[cart] = p.M - carried
+        m.body_subtreemass[cart] = p.M + p.m
+        m.body_subtreemass[pole] = p.m
+        self._params = replace(self._params, M=p.M, m=p.m, l=p.l, J=p.J)
+        self._d_to_tau = self._params.disturbance_torque
+        self.machine.p[:] = parameter_table(read_tree(m))[1]
+
+    def _place(self, x0: np.ndarray) -> None:
+        """Pole at ``x0 = [theta, theta']``, cart at rest where the model puts it."""
+        if x0.shape != (self.order,):
+            raise ValueError(f"{self.name}: initial state must have {self.order} entries, "
+                             f"got {x0.shape}")
+        self._qpos[self._d_dof] = x0[0]
+        self._qvel[self._d_dof] = x0[1]
+
+
+class DerivedCartPoleODE(_CartPole, ArticulatedODE):
+    """The ODE twin of a MuJoCo cart-pole: the equations derived from its compiled model
+    (its machine, :class:`~tspend.plants.articulated.domain.ArticulatedODE`), ``d``
+    applied as MuJoCo's cart-pole applies it, the hinge torque ``-d m l / (M + m)``, and
+    MuJoCo's soft dry friction (``frictionloss``) as the smooth ``F tanh(v / v_s)`` the
+    hand-written ODE has (:func:`~tspend.plants.articulated.domain.applied_forces`; they
+    agree in kind, a departure the cross-check names).  Its inputs, gain sign and
+    ``params`` are the MuJoCo plant's, so both backends describe one machine."""
+
+    def __init__(self, source: MujocoCartPole) -> None:
+        ArticulatedODE.__init__(self, source.machine)
+        self.name, self.domain = "cartpole_ode", "cartpole"
+        self._mujoco = source
+        self._d_scale = self.params.disturbance_torque
+        # MuJoCo's frictionloss as the hand-written ODE has it, F tanh(v / v_s)
+        self._dry[1 - self.machine.view_joint] = self.params.cart_friction
+        self._dry[self.machine.view_joint] = self.params.hinge_friction
+
+    def set_params(self, params: CartPoleParams) -> None:
+        """Change M, m, l (J) while it runs (a payload picked up): written into the
+        compiled model, and so into the machine both share, by the MuJoCo plant; the
+        state is kept."""
+        self._mujoco.set_params(params)
+        self._d_scale = self.params.disturbance_torque
 
 
 def _nominal(params: CartPoleParams) -> CartPoleParams:
@@ -205,8 +342,6 @@ def _nominal(params: CartPoleParams) -> CartPoleParams:
 
 
 def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
-    from tspend.plants.mujoco_plant import MujocoCartPole  # MuJoCo only when asked for
-
     assert isinstance(cfg, CartPoleConfig)
     unbounded = not isinstance(cfg, MujocoCartPoleConfig)
     if isinstance(cfg, MujocoCartPoleConfig):
@@ -218,16 +353,10 @@ def _build_mujoco(cfg: PlantConfig, model_path: Path) -> Plant:
         overrides = {k: float(getattr(cfg, k)) for k in OVERRIDABLE}
     friction = {k: (mj.__dict__[k] or None) for k in
                 ("cart_damping", "hinge_damping", "cart_friction", "hinge_friction")}
-    plant = MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
-                           actuator=mj.actuator, overrides=overrides,
-                           integrator=mj.integrator or None, timestep=mj.timestep or None,
-                           gear=mj.gear or None,
-                           task_defaults=DOMAIN.task, ctrl_unbounded=unbounded, **friction)
-    # a cart-pole is an articulated machine: its equations (the controllers' models, the
-    # ODE twin, the task check) are derived from the model, so a model that cannot be
-    # derived is refused here, in one line naming what to change, not midway
-    cartpole_machine(plant)
-    return plant
+    return MujocoCartPole(model_path, slide_joint=mj.slide_joint, hinge_joint=mj.hinge_joint,
+                          actuator=mj.actuator, overrides=overrides,
+                          integrator=mj.integrator or None, timestep=mj.timestep or None,
+                          gear=mj.gear or None, ctrl_unbounded=unbounded, **friction)
 
 
 def _build_ode(cfg: PlantConfig, model_path: Path) -> Plant:
@@ -345,22 +474,22 @@ class CartPoleDomain(Domain):
         out (``unmodelled``) and the largest force its actuator can apply at rest (None:
         unbounded); the departures from the paper's ideal cart-pole.  ``names``: ``slide``, ``hinge``,
         ``actuator`` (default: the model's only one of each)."""
-        from tspend.plants.mujoco_plant import MujocoCartPole, guess_names
+        from tspend.plants.mujoco_plant import guess_names
 
         names = names or {}
         slide, hinge, actuator = guess_names(model_path, names.get("slide"), names.get("hinge"),
                                              names.get("actuator"))
-        plant = MujocoCartPole(model_path, slide_joint=slide, hinge_joint=hinge,
-                               actuator=actuator)
+        # the compiled model read, not derived: inspect shows what a model the derivation
+        # refuses holds, and why
+        f = compile_cartpole(model_path, slide, hinge, actuator)[1]
         facts = {"slide_joint": slide, "hinge_joint": hinge, "actuator_name": actuator,
-                 **plant.facts.to_json()}
+                 **f.to_json()}
         facts.pop("departures")
-        facts["unmodelled"] = plant.unmodelled(dt)
-        act = plant.facts.actuator
-        force = act.max_force_at_rest() if act is not None else math.inf
+        facts["unmodelled"] = mjcf.unmodelled(f, dt)
+        force = f.actuator.max_force_at_rest() if f.actuator is not None else math.inf
         # JSON has no infinity: null is an actuator without any range
         facts["max_force_at_rest"] = force if math.isfinite(force) else None
-        return facts, plant.departures(dt)
+        return facts, mjcf.departures(f, dt)
 
     def view_names(self, plant: Plant) -> tuple[str, ...]:
         hinge = plant.state_names[1]  # the MJCF's own name of the pole's hinge
@@ -383,7 +512,7 @@ class CartPoleDomain(Domain):
     def ode_of(self, plant: Plant) -> Plant:
         """The ODE of the MuJoCo ``plant``'s machine: the equations derived from its
         compiled model (:class:`DerivedCartPoleODE`)."""
-        return DerivedCartPoleODE(plant, cartpole_machine(plant))  # type: ignore[arg-type]
+        return DerivedCartPoleODE(plant)  # type: ignore[arg-type]
 
 
 #: the cart-pole domain

@@ -31,7 +31,7 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
-                                            read_actuator, read_joint)
+                                            read_actuator, read_gravity, read_joint)
 
 __all__ = ["CartPoleParams", "actuator_force_range", "ActuatorFacts", "JointFacts", "ModelFacts", "read_facts", "departures",
            "unmodelled", "apply_overrides", "verify_overrides", "collision_pairs"]
@@ -349,14 +349,13 @@ def _actuator(model: mujoco.MjModel, a: int, slide: int, where: str) -> Actuator
         kind = "position"
     else:
         kind = "general"
-    joint = (tuple(float(v) for v in model.jnt_actfrcrange[slide])
-             if model.jnt_actfrclimited[slide] else None)
     damping = float(model.actuator_damping[a]) if hasattr(model, "actuator_damping") else 0.0
     armature = float(model.actuator_armature[a]) if hasattr(model, "actuator_armature") else 0.0
     return ActuatorFacts(name=name, kind=kind, gear=law.gear, gain=g0,
                          gain_length=g1, gain_velocity=g2, bias=b0, bias_length=b1,
                          bias_velocity=b2, ctrl_range=law.ctrlrange, force_range=law.forcerange,
-                         joint_force_range=joint, damping=damping, armature=armature)  # type: ignore[arg-type]
+                         joint_force_range=read_joint(model, slide).actfrcrange,
+                         damping=damping, armature=armature)  # type: ignore[arg-type]
 
 
 def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuator: str,
@@ -389,8 +388,7 @@ def read_facts(model: mujoco.MjModel, slide_joint: str, hinge_joint: str, actuat
     if l < 1e-12 * max(1.0, float(np.linalg.norm(com))):
         raise ScenarioError(f"{where}: the pole's centre of mass is on hinge "
                             f"'{hinge_joint}''s axis: the cart cannot swing it (no cart-pole)")
-    off = model.opt.disableflags
-    gravity = np.zeros(3) if off & _DSBL.mjDSBL_GRAVITY else np.asarray(model.opt.gravity, float)
+    gravity = np.asarray(read_gravity(model), dtype=float)
     if not np.isfinite(gravity).all():
         raise ScenarioError(f"{where}: gravity {_fmt(gravity)} is not finite (set it in the "
                             f"model's <option gravity=...> or with plant.g)")
@@ -689,3 +687,148 @@ def verify_gear(facts: ModelFacts, gear: float, actuator: str, where: str) -> No
     if abs(got - gear) > VERIFY_RTOL * max(abs(gear), 1.0):
         raise ScenarioError(f"{where}: gear = {gear:g} did not take effect on actuator "
                             f"'{actuator}': the compiled model pushes {got:.9g} N per unit u")
+
+
+# -- a cart-pole's model compiled with its [plant] numbers -------------------------------
+def _names(elements: Any) -> str:
+    return ", ".join(e.name or "<unnamed>" for e in elements) or "none"
+
+
+def _spec_joint(spec: mujoco.MjSpec, name: str, jtype: mujoco.mjtJoint, kind: str,
+                where: str) -> Any:
+    joint = spec.joint(name)
+    if joint is None:
+        raise ScenarioError(f"{where}: no {kind} joint named {name!r} "
+                            f"(joints in the model: {_names(spec.joints)})")
+    if joint.type != jtype:
+        actual = joint.type.name.removeprefix("mjJNT_").lower()
+        raise ScenarioError(f"{where}: joint {name!r} is a {actual} joint, "
+                            f"expected a {kind} joint")
+    return joint
+
+
+def _override_keys(spec: mujoco.MjSpec, overrides: "CartPoleParams | dict[str, float] | None",
+                   slide: str, hinge: str, actuator: str, where: str
+                   ) -> tuple[frozenset[str], CartPoleParams]:
+    """Which of M, m, l, J, g to write, and the machine they make: all of them for a
+    :class:`CartPoleParams`; for a dict the keys given, the model's own values for the
+    rest (J: the uniform rod's when m or l changes and J is not given)."""
+    if overrides is None or (isinstance(overrides, dict) and not overrides):
+        return frozenset(), CartPoleParams()
+    if isinstance(overrides, CartPoleParams):
+        return frozenset("MmlJg"), overrides
+    unknown = sorted(set(overrides) - set(OVERRIDABLE))
+    if unknown:
+        raise ScenarioError(f"{where}: cannot override {', '.join(unknown)} (overridable: "
+                            f"{', '.join(OVERRIDABLE)})")
+    try:
+        # a copy: compiling the spec itself keeps its geoms' masses over the explicit
+        # inertial written later (an M override on gymnasium's model did not take)
+        own = read_facts(spec.copy().compile(), slide, hinge, actuator, where)
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+    base = CartPoleParams(M=own.cart_mass, m=own.pole_mass, l=own.pole_com, g=own.gravity,
+                          J=own.pole_inertia_pivot)
+    values = dict(overrides)
+    if ("m" in values or "l" in values) and "J" not in values:
+        values["J"] = 0.0
+    return frozenset(overrides), replace(base, **values)
+
+
+def _stretch_pole_geoms(pole: Any, pivot: np.ndarray, axis: np.ndarray, scale: float) -> None:
+    """Stretch the pole's visual geoms along the pole so the drawing matches l.
+
+    Positions move along the pole (the pivot stays put); capsules, cylinders and
+    boxes whose own z runs along the pole get longer.  Anything across the pole
+    (the pivot pin, the tip ball) keeps its size.
+    """
+    def along(v: np.ndarray) -> np.ndarray:
+        r = v - pivot
+        return pivot + r + (scale - 1.0) * float(r @ axis) * axis
+
+    for geom in pole.geoms:
+        fromto = np.asarray(geom.fromto, dtype=float)
+        if not math.isnan(fromto[0]):
+            geom.fromto = np.concatenate([along(fromto[:3]), along(fromto[3:])])
+            continue
+        geom.pos = along(np.asarray(geom.pos, dtype=float))
+        gz = np.zeros(3)
+        mujoco.mju_rotVecQuat(gz, np.array([0.0, 0.0, 1.0]), np.asarray(geom.quat, dtype=float))
+        if abs(float(gz @ axis)) < 1.0 - 1e-9:
+            continue
+        size = np.asarray(geom.size, dtype=float).copy()
+        if geom.type in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER):
+            size[1] *= scale
+        elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+            size[2] *= scale
+        else:
+            continue
+        geom.size = size
+
+
+def compile_cartpole(model_path: Any, slide_joint: str = "slider", hinge_joint: str = "hinge",
+                     actuator: str = "force",
+                     overrides: "CartPoleParams | dict[str, float] | None" = None,
+                     integrator: str | None = None, timestep: float | None = None,
+                     cart_damping: float | None = None, hinge_damping: float | None = None,
+                     cart_friction: float | None = None, hinge_friction: float | None = None,
+                     gear: float | None = None, ctrl_unbounded: bool = False
+                     ) -> tuple[mujoco.MjModel, ModelFacts, dict[str, float]]:
+    """A cart-pole MJCF compiled with what a scenario writes into it (the arguments of
+    :class:`~tspend.plants.cartpole.MujocoCartPole`), checked on the compiled model: the
+    model, its facts (:func:`read_facts`) and what was written (name -> value; empty: the
+    model's own).  ScenarioError for a missing or unparsable file, a missing or mistyped
+    joint or actuator, an actuator that does not drive the slide, an unknown integrator
+    or a number that did not take."""
+    from tspend.plants.articulated.machine import open_spec
+
+    where = str(model_path)
+    spec = open_spec(model_path, timestep, integrator or "")
+
+    slide = _spec_joint(spec, slide_joint, mujoco.mjtJoint.mjJNT_SLIDE, "slide", where)
+    hinge = _spec_joint(spec, hinge_joint, mujoco.mjtJoint.mjJNT_HINGE, "hinge", where)
+    act = spec.actuator(actuator)
+    if act is None:
+        raise ScenarioError(f"{where}: no actuator named {actuator!r} "
+                            f"(actuators in the model: {_names(spec.actuators)})")
+    if act.trntype != mujoco.mjtTrn.mjTRN_JOINT or act.target != slide_joint:
+        raise ScenarioError(f"{where}: actuator {actuator!r} drives {act.target!r}, "
+                            f"not the slide joint {slide_joint!r}")
+
+    for joint, damping, friction in ((slide, cart_damping, cart_friction),
+                                     (hinge, hinge_damping, hinge_friction)):
+        if damping is not None:  # MuJoCo 4 keeps [linear, 0, 0] damping coefficients
+            joint.damping = [damping, 0.0, 0.0]
+        if friction is not None:
+            joint.frictionloss = friction
+    if gear is not None:
+        apply_gear(act, gear, where)
+    if ctrl_unbounded:  # the paper's machine: no bound on u
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    keys, target = _override_keys(spec, overrides, slide_joint, hinge_joint, actuator, where)
+    if keys:
+        pivot = np.asarray(hinge.pos, dtype=float)
+        axis = _pole_direction(hinge.parent, pivot)
+        old_l = float(np.linalg.norm(np.asarray(hinge.parent.ipos, dtype=float) - pivot))
+        apply_overrides(spec, slide.parent, hinge, target, where, keys)
+        if "l" in keys and old_l > 0.0 and target.l != old_l:
+            _stretch_pole_geoms(hinge.parent, pivot, axis, target.l / old_l)
+
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: cannot compile MJCF: {exc}") from exc
+    if not (model.opt.timestep > 0.0 and math.isfinite(model.opt.timestep)):
+        raise ScenarioError(f"{where}: option timestep must be a positive number, got "
+                            f"{model.opt.timestep!r}")
+    facts = read_facts(model, slide_joint, hinge_joint, actuator, where)
+    if keys:
+        checked = keys | ({"J"} if keys & {"m", "l", "J"} else set())
+        verify_overrides(facts, target, slide.parent.name, hinge.parent.name, where,
+                         frozenset(checked))
+    if gear is not None:
+        verify_gear(facts, gear, actuator, where)
+    written = {k: float(getattr(target, k)) for k in sorted(keys)}
+    if gear is not None:
+        written["gear"] = float(gear)
+    return model, facts, written

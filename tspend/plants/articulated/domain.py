@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -92,12 +93,27 @@ def _initial(machine: Machine, q0: tuple[float, ...], x0: np.ndarray, where: str
 
 
 class _Named:
-    """What both backends say alike of their machine (the state's names: each its own,
-    from the one compiled model)."""
+    """What both backends say alike of their machine (the state's names, units and joints:
+    the one compiled model's, as :func:`.tree.read_tree` reads it)."""
 
     machine: Machine
     domain = "articulated"
     order = 2
+
+    @cached_property
+    def state_names(self) -> tuple[str, ...]:
+        """Every joint's position (qpos), then every velocity (qvel), named after the joints."""
+        return self.machine.state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.machine.state_units
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """Every joint of the compiled model, its range when ``limited``."""
+        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
+                     for j in self.machine.tree.joints)
 
     @property
     def inputs(self) -> tuple[InputInfo, ...]:
@@ -219,20 +235,6 @@ class ArticulatedODE(_Named, AnalyticPlant):
         self._dry = np.zeros(machine.nv)
         self._qfrc = np.zeros(machine.nv)
 
-    # the MuJoCo plant names its state from the same compiled model (MujocoPlant)
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.machine.state_names
-
-    @property
-    def state_units(self) -> tuple[str, ...]:
-        return self.machine.state_units
-
-    @property
-    def joints(self) -> tuple[JointInfo, ...]:
-        return tuple(JointInfo(j.name, j.kind, "m" if j.kind == "slide" else "rad", j.range)
-                     for j in self.machine.tree.joints)
-
     def reset(self, x0: np.ndarray) -> None:
         self.s[:] = _initial(self.machine, self.q0, x0, self.machine.where)
         self._clock[0] = 0.0
@@ -263,10 +265,11 @@ class ArticulatedMujoco(_Named, MujocoPlant):
 
     name = "articulated_mujoco"
 
-    def __init__(self, machine: Machine, q0: tuple[float, ...] = ()) -> None:
+    def __init__(self, machine: Machine, q0: tuple[float, ...] = (), d_scale: float = 1.0) -> None:
         self.machine, self.q0 = machine, tuple(q0)
         # the tree's actuators and joints are MuJoCo's, in its order (:func:`.tree.read_tree`)
-        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint)
+        self._attach(machine.model, machine.where, machine.actuator_index, machine.view_joint,
+                     d_scale)
         self.reset(np.zeros(2))
 
     def departures(self, dt: float | None = None) -> list[str]:

@@ -24,7 +24,8 @@ import mujoco
 import numpy as np
 
 __all__ = ["BodyFacts", "JointFacts", "ActuatorFacts", "Tree", "read_tree", "read_joint",
-           "read_actuator", "law_refusals", "collision_pairs", "INTEGRATOR_NAMES", "ROLES"]
+           "read_actuator", "read_gravity", "law_refusals", "collision_pairs",
+           "INTEGRATOR_NAMES", "ROLES"]
 
 #: the roles a joint can play (docs/machines.md): a cart on a rail, a pole that must stay
 #: up, an arm turning about a vertical axis, a balanced rotor (reaction wheel)
@@ -228,6 +229,12 @@ def collision_pairs(model: mujoco.MjModel) -> list[str]:
     return out
 
 
+def read_gravity(m: mujoco.MjModel) -> tuple[float, float, float]:
+    """Gravity as MuJoCo applies it (0 when disabled)."""
+    off = int(m.opt.disableflags) & _DSBL.mjDSBL_GRAVITY
+    return (0.0, 0.0, 0.0) if off else _t(m.opt.gravity)  # type: ignore[return-value]
+
+
 def read_joint(m: mujoco.MjModel, j: int, body: int = -1) -> JointFacts:
     """Joint ``j`` of the compiled model as MuJoCo applies it (a disabled damper or spring
     reads 0); ``body``: its body's index in :attr:`Tree.bodies`."""
@@ -304,11 +311,7 @@ def read_tree(m: mujoco.MjModel) -> Tree:
         departures.append(f"contacts are enabled: {len(pairs)} geom pair(s) can touch "
                           f"({', '.join(pairs[:4])}{', ...' if len(pairs) > 4 else ''}); the derived "
                           f"equations hold while none touches")
-    if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY):
-        gravity = (0.0, 0.0, 0.0)
-    else:
-        gravity = _t(m.opt.gravity)
     return Tree(bodies=tuple(bodies), joints=tuple(joints), actuators=tuple(actuators),
-                gravity=gravity, timestep=float(m.opt.timestep),
+                gravity=read_gravity(m), timestep=float(m.opt.timestep),
                 integrator=INTEGRATOR_NAMES.get(m.opt.integrator, str(m.opt.integrator)),
                 refusals=tuple(refusals), departures=tuple(departures), geom_pairs=tuple(pairs))
