@@ -273,8 +273,10 @@ def main() -> None:
         tim = timing(args.samples)
         print(json.dumps(tim, indent=1), flush=True)
         path = OUT / "safety_mpsc_timing.json"
-        runs = json.loads(path.read_text())["runs"] if path.is_file() else []
-        path.write_text(json.dumps({"runs": runs + [tim]}, indent=1, default=float) + "\n")
+        kept = json.loads(path.read_text()) if path.is_file() else {}
+        # the other keys (older runs kept for the record, their notes) stay
+        kept["runs"] = kept.get("runs", []) + [tim]
+        path.write_text(json.dumps(kept, indent=1, default=float) + "\n")
         return
     else:
         kinds = args.kinds.split(",")
