@@ -97,11 +97,16 @@ def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
         out = rows(machine, kinds, seeds, first=first)
         pd.DataFrame(out).to_csv(path, index=False)
         return out
+    kept = OUT / f"safety_mpsc_{machine}_baselines.csv"
     if rerun:
         from safety_filter import rows
 
-        return rows(machine, kinds, seeds)
-    table = pd.read_csv(RESULTS / f"safety_filter_{machine}_hocbf.csv")
+        out = rows(machine, kinds, seeds)
+        # kept, so that --summarize reads the rows the filter was compared with
+        pd.DataFrame(out).to_csv(kept, index=False)
+        return out
+    table = pd.read_csv(kept if kept.is_file() else
+                        RESULTS / f"safety_filter_{machine}_hocbf.csv")
     keep = [k + s for k in kinds for s in ("", "+cbf")]
     table = table[table.controller.isin(keep) & (table.seed < seeds)]
     return table.to_dict("records")
