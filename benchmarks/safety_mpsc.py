@@ -7,8 +7,10 @@ certification").
     python benchmarks/safety_mpsc.py --timing-only [--samples 5000]    # run it three times
 
 The machines and drawn starts are benchmarks/safety_filter.py's (MACHINES): the
-randomised cart-pole on a 1 m rail (3 s) and the Furuta with its arm's stop (1.5 s, x0
-drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s).  Each kind runs behind mpsc on
+randomised cart-pole on a 1 m rail (3 s), the Furuta with its arm's stop (1.5 s, x0
+drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s), and (--machines double_rail
+--kinds lqr,policy --baselines) the double cart-pole with a hard +/-0.5 m box on its cart
+(3 s, x0 drawn: lower link +/-0.1 rad, its rate +/-0.3 rad/s; lqr with R = 1e-4).  Each kind runs behind mpsc on
 seeds F..F+N-1 (F = --first-seed; 200: the confirmation set).  The bare and cbf runs of
 seeds 0.. are read from safety_filter.py's committed data
 (benchmarks/results/safety_filter_<machine>_hocbf.csv) unless --baselines reruns them;
