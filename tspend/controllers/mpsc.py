@@ -414,7 +414,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.M_rec = 1 + int(round((N - 1) * h / self.h_rec))
         raw_lo, raw_hi = (self.lo, self.hi) if limits is None else limits
         half_raw = 0.5 * (np.asarray(raw_hi, dtype=float) - np.asarray(raw_lo, dtype=float))
-        unit = np.where(np.isfinite(half_raw), half_raw, np.maximum(np.abs(self.lo), np.abs(self.hi)))
+        unit = np.where(np.isfinite(half_raw), half_raw,
+                        np.maximum(np.abs(self.lo), np.abs(self.hi)))
         unit = unit[self._checked]
         self._room_hi = self._room_lo = np.where(np.isfinite(unit) & (unit > 0), unit, 1.0)
         self._recovery = None
@@ -680,7 +681,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         if self._recovery is not None:
             return self._recovery
         nx, M, scale = self.nx, self.M_rec, self.u_scale
-        X, V, t, s0 = ca.SX.sym("X", nx, M + 1), ca.SX.sym("V", M), ca.SX.sym("t"), ca.SX.sym("s0", nx)
+        X, V = ca.SX.sym("X", nx, M + 1), ca.SX.sym("V", M)
+        t, s0 = ca.SX.sym("t"), ca.SX.sym("s0", nx)
         F0 = self.model.rk4_map(self.dt0, 1, name="mpsc_rec_first")
         F = self.model.rk4_map(self.h_rec, 1, name="mpsc_rec")
         g, lbg, ubg = [], [], []
