@@ -230,7 +230,7 @@ def test_the_recovery_plan_is_what_scipy_integrates_and_travels_less_than_the_lq
         node_peak = max(node_peak, abs(float(x[0])))
         assert np.allclose(x, X[:, k + 1], atol=2e-3 * (1 + np.abs(X[:, k + 1]))), k
     # t is in shares of the constraint's half-width (the rail's 1 m), kept at the nodes;
-    # between them (20 ms) the cart turns round past its node by millimetres
+    # between them (20 ms) the cart may turn round past its node (10 mm here)
     assert f._room_hi[0] == pytest.approx(1.0)
     assert t < 0.0
     assert node_peak <= f.hi[0] + t * 1.0 + 2e-3
