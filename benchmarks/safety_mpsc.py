@@ -7,8 +7,10 @@ certification").
     python benchmarks/safety_mpsc.py --timing-only [--samples 5000]    # run it three times
 
 The machines and drawn starts are benchmarks/safety_filter.py's (MACHINES): the
-randomised cart-pole on a 1 m rail (3 s) and the Furuta with its arm's stop (1.5 s, x0
-drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s).  Each kind runs behind mpsc on
+randomised cart-pole on a 1 m rail (3 s), the Furuta with its arm's stop (1.5 s, x0
+drawn: pendulum +/-0.15 rad, its rate +/-0.5 rad/s), and (--machines double_rail
+--kinds lqr,policy --baselines) the double cart-pole with a hard +/-0.5 m box on its cart
+(3 s, x0 drawn: lower link +/-0.1 rad, its rate +/-0.3 rad/s; lqr with R = 1e-4).  Each kind runs behind mpsc on
 seeds F..F+N-1 (F = --first-seed; 200: the confirmation set).  The bare and cbf runs of
 seeds 0.. are read from safety_filter.py's committed data
 (benchmarks/results/safety_filter_<machine>_hocbf.csv) unless --baselines reruns them;
@@ -97,11 +99,16 @@ def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
         out = rows(machine, kinds, seeds, first=first)
         pd.DataFrame(out).to_csv(path, index=False)
         return out
+    kept = OUT / f"safety_mpsc_{machine}_baselines.csv"
     if rerun:
         from safety_filter import rows
 
-        return rows(machine, kinds, seeds)
-    table = pd.read_csv(RESULTS / f"safety_filter_{machine}_hocbf.csv")
+        out = rows(machine, kinds, seeds)
+        # kept, so that --summarize reads the rows the filter was compared with
+        pd.DataFrame(out).to_csv(kept, index=False)
+        return out
+    table = pd.read_csv(kept if kept.is_file() else
+                        RESULTS / f"safety_filter_{machine}_hocbf.csv")
     keep = [k + s for k in kinds for s in ("", "+cbf")]
     table = table[table.controller.isin(keep) & (table.seed < seeds)]
     return table.to_dict("records")
@@ -273,8 +280,10 @@ def main() -> None:
         tim = timing(args.samples)
         print(json.dumps(tim, indent=1), flush=True)
         path = OUT / "safety_mpsc_timing.json"
-        runs = json.loads(path.read_text())["runs"] if path.is_file() else []
-        path.write_text(json.dumps({"runs": runs + [tim]}, indent=1, default=float) + "\n")
+        kept = json.loads(path.read_text()) if path.is_file() else {}
+        # the other keys (older runs kept for the record, their notes) stay
+        kept["runs"] = kept.get("runs", []) + [tim]
+        path.write_text(json.dumps(kept, indent=1, default=float) + "\n")
         return
     else:
         kinds = args.kinds.split(",")

@@ -194,3 +194,63 @@ def test_disturbance_tube_is_reached_by_the_worst_bang_bang_disturbance():
         _, y2, _ = lsim((A_cl, E[:, None], c[None, :], np.zeros((1, 1))),
                         np.asarray(scn.disturbance(t)), t)
         assert np.abs(y2).max() <= w[i] * (1 + 1e-6)
+
+
+def _randomized_start(seed):
+    """benchmarks/safety_filter.py's randomised cart-pole (1 m rail, 3 s) behind mpsc, and
+    the start its seed draws (the cart at rest at the centre)."""
+    from tspend.plants.randomize import draw
+
+    scn = override(load_scenario("pendulum_mujoco_randomized"),
+                   **{"effects.rail": 1.0, "run.duration": 3.0, "safety.filter": "mpsc",
+                      "run.seed": seed})
+    theta, rate = draw(scn).scenario.plant.x0
+    return scn, np.array([0.0, theta, 0.0, rate])
+
+
+def test_the_recovery_plan_is_what_scipy_integrates_and_travels_less_than_the_lqr():
+    """(P8) from a start no plan is certified from (seed 15, docs/safety.md): its inputs
+    held over its intervals and integrated by scipy reproduce its states; it keeps every
+    bound relaxed by its own t, ends in the ellipsoid, and its cart travels less than the
+    saturated LQR's from the same start (the model's own rollout)."""
+    from scipy.integrate import solve_ivp
+
+    from tspend.loop.simulation import prepare
+
+    scn, s = _randomized_start(15)
+    f = prepare(scn, controller="pd").controller
+    U, X, t = f.recovery_plan(s)
+    grid = np.concatenate([[0.0], f.dt0 + f.h_rec * np.arange(f.M_rec)])
+    x, peak, node_peak = s.copy(), 0.0, 0.0
+    for k in range(f.M_rec):
+        sol = solve_ivp(lambda _, y: f.model.rhs(y, U[k]), (grid[k], grid[k + 1]), x,
+                        rtol=1e-10, atol=1e-12, max_step=2e-3)
+        x = sol.y[:, -1]
+        peak = max(peak, float(np.abs(sol.y[0]).max()))
+        node_peak = max(node_peak, abs(float(x[0])))
+        assert np.allclose(x, X[:, k + 1], atol=2e-3 * (1 + np.abs(X[:, k + 1]))), k
+    # t is in shares of the constraint's half-width (the rail's 1 m), kept at the nodes;
+    # between them (20 ms) the cart may turn round past its node (10 mm here)
+    assert f._room_hi[0] == pytest.approx(1.0)
+    assert t < 0.0
+    assert node_peak <= f.hi[0] + t * 1.0 + 2e-3
+    assert peak <= f.hi[0] + t * 1.0 + 0.02
+    assert x @ f.P @ x <= f.level
+    assert np.all((U >= f.u_lo - 1e-6) & (U <= f.u_hi + 1e-6))
+    # the saturated LQR alone from the same start, on the same model, goes farther
+    y, lqr_peak = s.copy(), 0.0
+    for _ in range(3000):
+        y = np.asarray(f._rec_maps[0](y, f.terminal_input(y))).ravel()
+        lqr_peak = max(lqr_peak, abs(float(y[0])))
+    assert lqr_peak > peak + 0.05
+
+
+def test_a_start_with_no_certified_plan_completes_on_mujoco_through_the_recovery_plan():
+    """The run docs/safety.md quotes for seed 15: MuJoCo's machine (not the model) stays
+    on the rail and up, the recovery plan acted and its samples are counted uncertified."""
+    scn, _ = _randomized_start(15)
+    r = run(scn, controller="pd", keep_history=False)
+    sf = r.metrics["safety_filter"]
+    assert sf["recovery_plans"] >= 1 and sf["uncertified_samples"] >= 1
+    assert r.status == "completed" and r.metrics["violations"] == 0
+    assert r.metrics["joints"]["slider"]["max_abs"] < 1.0

@@ -46,8 +46,15 @@ found nothing:
    ellipsoid; ``[u_c, its plan's rest]``, else its own plan, certified;
 3. else the last certified plan goes on, its states tracked by the LQR every sample (a
    **fallback**);
-4. without any certified plan (``no_plan``): the QP's own plan, uncertified and counted;
-   the saturated LQR when the QP failed too.
+4. without any certified plan (``no_plan``): the recovery plan, made once by IPOPT on the
+   nominal model (multiple shooting, intervals of the plan's interval / RECOVERY_REFINE)
+
+       min t + effort,  lo_i - t w_i <= s_k,i <= hi_i + t w_i,  s_M in X_f (0.95 c)     (P8)
+
+   (``w_i`` the half-width of constraint ``i``: t < 0 keeps -t of every half-width to
+   spare, so the plan least uses the rail and the fall angle), tracked by the LQR towards
+   its states until a certified plan exists again or it runs out; uncertified and
+   counted.  When IPOPT fails: the QP's own plan, else the saturated LQR.
 
 So at every sample of steps 0-3 the applied input starts a plan certified on the model
 (and the vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is
@@ -102,6 +109,13 @@ QP_OPTIONS = {"mode": "speed_abs"}
 QP_ACCEPTANCE = 1e-3
 #: SQP steps per sample while no certified plan exists (its plan is then applied)
 RECOVERY_ITERATIONS = 3
+#: the recovery plan (step 4, (P8)): intervals of the plan's interval / RECOVERY_REFINE
+#: (a manoeuvre that must catch the pole within a plan interval needs switches inside it)
+RECOVERY_REFINE = 5
+#: IPOPT's iterations for one recovery plan
+RECOVERY_MAX_ITER = 200
+#: (P8)'s weight on the input's energy (in shares of its range, per interval) beside t
+RECOVERY_EFFORT = 1e-3
 #: the disturbance's samples read for its bound (P7)
 MAX_DISTURBANCE_SAMPLES = 10 ** 6
 #: at most this many [randomize] parameters spanned by vertices (2^6 = 64 models)
@@ -265,7 +279,8 @@ class PredictiveSafetyFilter(SafetyFilter):
                  sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                  u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
                  level: float, Q: np.ndarray, R: float, vertices: tuple = (),
-                 compiled: bool = True, tube: np.ndarray | None = None) -> None:
+                 compiled: bool = True, tube: np.ndarray | None = None,
+                 limits: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         import casadi as ca
 
         from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
@@ -376,6 +391,7 @@ class PredictiveSafetyFilter(SafetyFilter):
             blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
         self._cols, self._models = len(cols), 1 + len(vertices)
         roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf], [ca.vertcat(*blocks)])
+        self._roll_sym = roll
         self.rollout = compiled_function(roll) if compiled else roll
         # evaluated through CasADi's buffer interface on persistent arrays (a Python call
         # with its conversions costs 3-4 times the compiled rollout itself)
@@ -391,6 +407,19 @@ class PredictiveSafetyFilter(SafetyFilter):
         self._check_lo = self.lo_check[self._checked]
         self._check_hi = self.hi_check[self._checked]
         self._angles = np.flatnonzero(model.angles)
+        # (P8)'s grid, and its relaxation's unit per checked bound: the half-width of the
+        # constraint itself (a share of the rail, of the fall angle), so that minimising
+        # the relaxation minimises the largest share of any bound the plan uses
+        self.h_rec = h / RECOVERY_REFINE
+        self.M_rec = 1 + int(round((N - 1) * h / self.h_rec))
+        raw_lo, raw_hi = (self.lo, self.hi) if limits is None else limits
+        half_raw = 0.5 * (np.asarray(raw_hi, dtype=float) - np.asarray(raw_lo, dtype=float))
+        unit = np.where(np.isfinite(half_raw), half_raw,
+                        np.maximum(np.abs(self.lo), np.abs(self.hi)))
+        unit = unit[self._checked]
+        self._room_hi = self._room_lo = np.where(np.isfinite(unit) & (unit > 0), unit, 1.0)
+        self._recovery = None
+        self._rec_maps = (model.rk4_map(self.dt0, 1), model.rk4_map(self.h_rec, 1))
         self.reset_plan()
 
     # -- state ----------------------------------------------------------------------------
@@ -409,6 +438,11 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: the last uncertified QP plan applied without a certified one, and its age
         self.effort: tuple | None = None
         self.effort_age = 0
+        #: the recovery plan (P8) being tracked, its age in samples, and how many were made
+        self.rescue: tuple | None = None
+        self.rescue_age = 0
+        self.recoveries = 0
+        self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -490,6 +524,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         R = np.array(R, dtype=float)
         R[:, 0] = s
         self.plan, self.plan_age, self._held = (U.copy(), R), 1, None
+        # a later start outside the certified set plans its recovery afresh
+        self.rescue = None
         return True
 
     def terminal_input(self, s: np.ndarray) -> float:
@@ -542,6 +578,25 @@ class PredictiveSafetyFilter(SafetyFilter):
             self.iterate_plan = None
             return good, 0.0
         self.plan, self.plan_age, self._held = kept
+        if k is None:
+            # 4: no certified plan: the recovery plan (P8), made once from this state and
+            # tracked by the LQR until a certified plan exists again or it runs out
+            # (made afresh every interval from the measured state, it did worse: from a
+            # state off the nominal's path the nominal model needs more of the rail)
+            u = self.recovery_input(s, self.rescue_age * self.dt0) if self.rescue else None
+            if u is None:
+                found = self.recovery_plan(s)
+                if found is not None:
+                    self.rescue, self.rescue_age = found, 0
+                    self.recoveries += 1
+                    self.rescue_relaxation = max(self.rescue_relaxation, found[2])
+                    u = self.recovery_input(s, 0.0)
+            if u is not None:
+                self.rescue_age += 1
+                self.no_plan += 1
+                self.uncertified += 1
+                self.iterate_plan = None
+                return u, 0.0
         nz, nx, N = self.nz, self.nx, self.N
         # 2: no certified tail takes any input: one real-time iteration of the QP (P4),
         # from its own last answer (a real-time iteration converges over samples),
@@ -615,6 +670,107 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.fallbacks += 1
         return self.tracking_input(s, k, (self.plan_age - 1) * self.dt0), 0.0
 
+    # -- recovery (P8) -----------------------------------------------------------------
+    def _recovery_nlp(self) -> Any:
+        """(P8) as a CasADi nlpsol on the nominal model, multiple shooting (built on first
+        use: most runs never need it).  The same over the 17 models of (P6) (a state copy
+        per model, each corrected by the LQR towards the nominal's path) took minutes per
+        plan: it is not done."""
+        import casadi as ca
+
+        if self._recovery is not None:
+            return self._recovery
+        nx, M, scale = self.nx, self.M_rec, self.u_scale
+        X, V = ca.SX.sym("X", nx, M + 1), ca.SX.sym("V", M)
+        t, s0 = ca.SX.sym("t"), ca.SX.sym("s0", nx)
+        F0 = self.model.rk4_map(self.dt0, 1, name="mpsc_rec_first")
+        F = self.model.rk4_map(self.h_rec, 1, name="mpsc_rec")
+        g, lbg, ubg = [], [], []
+
+        def rows(expr, lo, hi):
+            g.append(expr)
+            lbg.extend(np.broadcast_to(lo, (expr.numel(),)))
+            ubg.extend(np.broadcast_to(hi, (expr.numel(),)))
+
+        rows(X[:, 0] - s0, 0.0, 0.0)
+        for k in range(M):
+            rows(X[:, k + 1] - (F0 if k == 0 else F)(X[:, k], scale * V[k]), 0.0, 0.0)
+        # every hard bound relaxed by t of its constraint's half-width
+        for a, i in enumerate(self._checked):
+            row = X[i, 1:].T
+            if math.isfinite(self.hi[i]):
+                rows(row - t * self._room_hi[a], -np.inf, float(self.hi[i]))
+            if math.isfinite(self.lo[i]):
+                rows(row + t * self._room_lo[a], float(self.lo[i]), np.inf)
+        end = X[:, M]
+        rows(ca.bilin(ca.DM(self.P), end, end), -np.inf, TERMINAL_AIM * self.level)
+        # min t, and a little of the input's energy (in shares of its range) so that the
+        # plan is unique where t does not bind
+        obj = t + RECOVERY_EFFORT * ca.sumsqr(V) / M
+        solver = ca.nlpsol("mpsc_recovery", "ipopt",
+                           {"x": ca.vertcat(ca.vec(X), V, t), "p": s0, "f": obj,
+                            "g": ca.vertcat(*g)},
+                           {"print_time": False, "ipopt": {
+                               "print_level": 0, "sb": "yes", "max_iter": RECOVERY_MAX_ITER}})
+        lo_u = self.u_lo / scale if math.isfinite(self.u_lo) else -np.inf
+        hi_u = self.u_hi / scale if math.isfinite(self.u_hi) else np.inf
+        # t down to -1: below 0 the plan keeps that share of every bound's half-width to
+        # spare (the least peak travel), not just the bounds
+        lbx = np.concatenate([np.full(nx * (M + 1), -np.inf), np.full(M, lo_u), [-1.0]])
+        ubx = np.concatenate([np.full(nx * (M + 1), np.inf), np.full(M, hi_u), [np.inf]])
+        self._recovery = (solver, lbx, ubx, np.array(lbg, dtype=float),
+                          np.array(ubg, dtype=float))
+        return self._recovery
+
+    def recovery_plan(self, s: np.ndarray) -> tuple | None:
+        """(P8) from ``s``: ``(U (M,), X (nx, M+1), t)`` or None when IPOPT fails; warm
+        started from the tracked recovery plan where there is one, else from the saturated
+        LQR's rollout on the model."""
+        solver, lbx, ubx, lbg, ubg = self._recovery_nlp()
+        nx, M = self.nx, self.M_rec
+        grid = np.concatenate([[0.0], self.dt0 + self.h_rec * np.arange(M)])
+        if self.rescue is not None:
+            # the tracked plan from now on, on the new grid (its last state held)
+            U_old, X_old, t_old = self.rescue
+            at = grid + self.rescue_age * self.dt0
+            X = np.array([np.interp(at, grid, row) for row in X_old])
+            X[:, 0] = s
+            k = np.minimum(np.searchsorted(grid, at[:-1], side="right") - 1, M - 1)
+            V = U_old[k] / self.u_scale
+            t0 = t_old
+        else:
+            X = np.zeros((nx, M + 1))
+            V = np.zeros(M)
+            X[:, 0] = s
+            F0, F = self._rec_maps
+            for k in range(M):
+                V[k] = self.terminal_input(X[:, k]) / self.u_scale
+                X[:, k + 1] = np.asarray((F0 if k == 0 else F)(X[:, k],
+                                                               self.u_scale * V[k])).ravel()
+            t0 = 1.0
+        if not np.all(np.isfinite(X)):
+            X[:] = s[:, None]
+        x0 = np.concatenate([X.ravel(order="F"), V, [t0]])
+        sol = solver(x0=x0, p=s, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        if not solver.stats()["success"]:
+            return None
+        z = np.asarray(sol["x"], dtype=float).ravel()
+        X = z[:nx * (M + 1)].reshape(nx, M + 1, order="F")
+        return self.u_scale * z[nx * (M + 1):nx * (M + 1) + M], X, float(z[-1])
+
+    def recovery_input(self, s: np.ndarray, tau: float) -> float | None:
+        """The recovery plan's input ``tau`` seconds into it, corrected by the LQR towards
+        its state there (interpolated between its nodes); None past its end."""
+        U, X, _ = self.rescue
+        if tau < self.dt0 - 1e-12:
+            return float(U[0])
+        k = 1 + int(math.floor((tau - self.dt0) / self.h_rec + 1e-9))
+        if k >= self.M_rec:
+            return None
+        a = min(max((tau - (self.dt0 + (k - 1) * self.h_rec)) / self.h_rec, 0.0), 1.0)
+        ref = (1.0 - a) * X[:, k] + a * X[:, k + 1]
+        return min(max(float(U[k] - self.K @ (s - ref)), self.u_lo), self.u_hi)
+
     def tracking_input(self, s: np.ndarray, k: int, tau: float, plan: tuple | None = None) -> float:
         """The certified plan's (or ``plan``'s) input in interval ``k`` at ``tau`` seconds
         into the plan, corrected by the LQR towards its state there (interpolated between
@@ -636,6 +792,9 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "uncertified_samples": self.uncertified,
                 "fallback_share": (self.fallbacks + self.no_plan) / n if n else None,
                 "max_slack": self.max_slack, "terminal_level": self.level,
+                "recovery_plans": self.recoveries,
+                "recovery_relaxation_max": (self.rescue_relaxation if self.recoveries
+                                            else None),
                 # (P7): how far each bounded state's bound was moved in for the disturbance
                 "disturbance_tube": {name: float(self.tube[i])
                                      for i, name in enumerate(self.model.state_names)
@@ -681,6 +840,7 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
     # the task's declared disturbance (P7): every bound tightened by the most it can move
     # the state off the plan while the LQR tracks it
     tube = disturbance_tube(scenario, model, A - np.outer(B[:, 0], K))
+    limits = (lo.copy(), hi.copy())
     lo, hi = lo + tube, hi - tube
     # the margin: a share of each two-sided bound's half-width (the room a machine that
     # is not the model needs), kept by the plan at its nodes and by the certificate at
@@ -712,4 +872,4 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
                             f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
     return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
-                                  level, Q, b_pole ** 2, tuple(models), tube=tube)
+                                  level, Q, b_pole ** 2, tuple(models), tube=tube, limits=limits)
