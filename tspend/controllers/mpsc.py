@@ -391,7 +391,6 @@ class PredictiveSafetyFilter(SafetyFilter):
             blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
         self._cols, self._models = len(cols), 1 + len(vertices)
         roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf], [ca.vertcat(*blocks)])
-        self._roll_sym = roll
         self.rollout = compiled_function(roll) if compiled else roll
         # evaluated through CasADi's buffer interface on persistent arrays (a Python call
         # with its conversions costs 3-4 times the compiled rollout itself)
