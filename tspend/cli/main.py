@@ -10,14 +10,15 @@ renamed into place only when whole.  Signal handlers are installed before any of
 before numpy, MuJoCo or Rerun are imported (:mod:`tspend.runtime.interrupts`).
 
 Adding a subcommand: write ``tspend/cli/<name>.py`` with ``add_parser(subparsers)`` (adds
-its subparser) and ``cmd(args) -> int``, and add the module to :data:`COMMANDS`. Keep the
-module's top-level imports light (stdlib, ``tspend.cli.common``); import the heavy parts
-inside ``cmd``. What the commands share is in :mod:`tspend.cli.common`.
+its subparser) and ``cmd(args) -> int``, and add its name to :data:`COMMANDS` (imported in
+:func:`build_parser`, after the guard). Keep the module's top-level imports light (stdlib,
+``tspend.cli.common``); import the heavy parts inside ``cmd``. What the commands share is in :mod:`tspend.cli.common`.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 import textwrap
@@ -25,18 +26,17 @@ import traceback
 import warnings
 
 from tspend import __version__
-from tspend.cli import (common, compare, crosscheck, excite, export, figures, identify,
-                        inspect, plan, run, show, sweep, tune)
-from tspend.cli import list as list_command
 from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,
                                ReaderGoneTolerant, release_warnings, say)
 from tspend.errors import TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard
 from tspend.shipped import SCENARIO_PATH_VARIABLE
 
-#: the subcommands' modules, in --help order
-COMMANDS = (run, show, crosscheck, list_command, inspect, sweep, export, compare, tune,
-            figures, excite, identify, plan)
+#: the subcommands' modules under ``tspend.cli``, in --help order.  Named, not imported
+#: here: a command module may pull in the runner, the controllers or numba, and this module
+#: is imported before :func:`main` installs the signal guard (which must come first)
+COMMANDS = ("run", "show", "crosscheck", "list", "inspect", "sweep", "export", "compare",
+            "tune", "figures", "excite", "identify", "plan")
 
 DESCRIPTION = ("Control experiments on pendulums: run a scenario headless or live, show and "
                "list scenarios, cross-check MuJoCo against the derived equations, compare, "
@@ -73,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
                         f"./scenarios and the shipped ones; 'tspend list' shows the search path")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
                            help="one of the commands below ('tspend COMMAND --help')")
-    for module in COMMANDS:
+    for name in COMMANDS:
+        module = importlib.import_module(f"tspend.cli.{name}")
         known = set(sub.choices)
         module.add_parser(sub)
         for added in set(sub.choices) - known:  # whatever names the module registered

@@ -14,7 +14,6 @@ import sys
 from pathlib import Path
 
 from tspend.errors import ScenarioError
-from tspend.loop.runner import RunInterrupted
 
 
 def add_parser(sub) -> None:
@@ -143,9 +142,26 @@ def _stop_requests(args: argparse.Namespace):
     return stop_on_signals()
 
 
+def _kept(out: str | None, read_table) -> str:
+    """What an interrupted sweep left: the rows its table (file and journal) holds, said as
+    such; a sweep stopped before its first row finished has written no table at all."""
+    if not out:
+        return "nothing kept (no --out)"
+    from tspend.sweep.table import journal_path
+
+    kept = len(read_table(out))
+    if not Path(out).exists():
+        if not kept:
+            return f"no run finished, {out} not written"
+        return (f"{kept} rows kept in {journal_path(Path(out))} ({out} not written yet); the "
+                f"same command finishes the rest")
+    return f"{kept} rows kept in {out}; the same command finishes the rest"
+
+
 def cmd(args: argparse.Namespace) -> int:
     from tspend import __version__
     from tspend.cli.common import controller_help
+    from tspend.loop.runner import RunInterrupted
     from tspend.sweep import plan as sweep_plan, read_table
 
     if controller_help(args):
@@ -170,10 +186,8 @@ def cmd(args: argparse.Namespace) -> int:
                   (f", table {args.out}" if args.out else ""), flush=True)
             frame = prepared.run(progress=True, stop=stop)
         except RunInterrupted as exc:
-            kept = len(read_table(args.out)) if args.out else 0
-            where = (f"{kept} rows kept in {args.out}; the same command finishes the rest"
-                     if args.out else "nothing kept (no --out)")
-            print(f"tspend: sweep interrupted by {exc.signal_name}; {where}", file=sys.stderr)
+            print(f"tspend: sweep interrupted by {exc.signal_name}; {_kept(args.out, read_table)}",
+                  file=sys.stderr)
             return exc.exit_status
         finally:
             prepared.close()
