@@ -47,3 +47,32 @@ def test_the_signal_guard_is_installed_before_any_heavy_import():
                           cwd=ROOT, timeout=300)
     line = next(l for l in proc.stderr.splitlines() if l.startswith("LOADED"))
     assert line == "LOADED []", line
+
+
+def test_show_reads_back_a_scenario_that_names_its_model_by_a_relative_path(tmp_path):
+    """Item 12: ``tspend show`` of a user's file naming ``model = "M.xml"`` (beside it) wrote
+    the model's absolute path, and the read-back check compared the two spellings: exit
+    70.  Now the printed scenario runs the same model, from another folder too."""
+    user_files(tmp_path)
+    shown = tspend("show", "P.toml", cwd=tmp_path)
+    assert shown.status == 0, shown.err
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "again.toml").write_text(shown.out)
+    model = (tmp_path / "M.xml").resolve()
+    assert f'model = "{model}"' in shown.out
+    again = tspend("show", "again.toml", cwd=elsewhere)
+    assert again.status == 0, again.err
+    assert f'model = "{model}"' in again.out
+
+
+def test_show_into_a_full_stdout_is_an_output_failure(tmp_path):
+    """Item 12: ``tspend show NAME > /dev/full`` was an internal error (OSError, exit 70);
+    the printed scenario is the command's output, so it is status 5 and one line."""
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "tspend.cli", "show", "ex3_pendulum_ode"],
+                              cwd=tmp_path, stdout=full, stderr=subprocess.PIPE, text=True,
+                              timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 5, proc.stderr
+    assert len(lines) == 1 and "stdout could not be written (No space left" in lines[0]

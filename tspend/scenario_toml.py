@@ -14,6 +14,7 @@ import dataclasses
 import json
 import math
 import re
+from pathlib import Path
 from typing import Any
 
 __all__ = ["dump_toml", "resolved_document", "resolved_toml"]
@@ -171,16 +172,23 @@ def _comparable(scenario):
 
     from tspend.shipped import locate
 
-    def found(settings):  # a file setting is the file it finds, however it is written
-        files = {f.name: str(locate(getattr(settings, f.name), scenario.path))
-                 for f in dataclasses.fields(settings)
-                 if f.name in ("path", "plan") and getattr(settings, f.name)}
-        return dataclasses.replace(settings, **files)
+    def found(config, names=("path", "plan")):
+        """``config`` with each file setting the file it finds, however it is written (a
+        path relative to the scenario's folder reads back as the shipped or absolute path
+        :func:`_portable_file` writes)."""
+        if not dataclasses.is_dataclass(config):
+            return config
+        files = {f.name: str(Path(hit).resolve()) for f in dataclasses.fields(config)
+                 if f.name in names and isinstance(getattr(config, f.name), str)
+                 and (hit := locate(getattr(config, f.name), scenario.path)) is not None}
+        return dataclasses.replace(config, **files)
 
     kinds = tuple((kind, found(settings_for(scenario, cls)))
                   for kind, cls in settings_classes().items())
     return dataclasses.replace(scenario, name="", description="", path="", text="",
-                               overrides=(), controllers=kinds)
+                               overrides=(), controllers=kinds,
+                               plant=found(scenario.plant, ("model",)),
+                               reference=found(scenario.reference, ("path",)))
 
 
 def resolved_toml(scenario) -> str:

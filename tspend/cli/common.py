@@ -459,13 +459,19 @@ def say(message: str) -> None:
 
 class ReaderGoneTolerant:
     """stdout that goes quiet once its reader has gone (``tspend list | head -1``, a
-    closed terminal): the command carries on and its files are completed."""
+    closed terminal): the command carries on and its files are completed.  stdout that
+    cannot be written (``> /dev/full``, a full disk) goes quiet the same way, and the
+    failure is kept in :attr:`write_error`: the command's output was not completed
+    (:meth:`failure`, exit 5)."""
 
     def __init__(self, stream) -> None:
         self._stream = stream
         self.reader_gone = False
+        self.write_error: OSError | None = None
 
-    def _gone(self) -> None:
+    def _gone(self, exc: OSError) -> None:
+        if exc.errno not in (errno.EPIPE, errno.EIO, errno.EINVAL):
+            self.write_error = exc  # not a reader that left: output lost, said at the end
         self.reader_gone = True
         try:  # so the interpreter's final flush cannot fail either
             devnull = os.open(os.devnull, os.O_WRONLY)
@@ -479,9 +485,7 @@ class ReaderGoneTolerant:
             try:
                 return self._stream.write(text)
             except OSError as exc:
-                if exc.errno not in (errno.EPIPE, errno.EIO, errno.EINVAL):
-                    raise
-                self._gone()
+                self._gone(exc)
         return len(text)
 
     def flush(self) -> None:
@@ -489,11 +493,19 @@ class ReaderGoneTolerant:
             try:
                 self._stream.flush()
             except OSError as exc:
-                if exc.errno not in (errno.EPIPE, errno.EIO, errno.EINVAL):
-                    raise
-                self._gone()
+                self._gone(exc)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._stream, name)
+
+    def failure(self) -> OutputError | None:
+        """After the command: stdout flushed, and the error of a write that failed (not a
+        reader that left), or None."""
+        self.flush()
+        if self.write_error is None:
+            return None
+        reason = self.write_error.strerror or type(self.write_error).__name__
+        return OutputError(f"stdout could not be written ({reason}): what the command "
+                           f"printed there is incomplete")
 
 

@@ -10,15 +10,14 @@ renamed into place only when whole.  Signal handlers are installed before any of
 before numpy, MuJoCo or Rerun are imported (:mod:`tspend.runtime.interrupts`).
 
 Adding a subcommand: write ``tspend/cli/<name>.py`` with ``add_parser(subparsers)`` (adds
-its subparser) and ``cmd(args) -> int``, and add its name to :data:`COMMANDS` (imported in
-:func:`build_parser`, after the guard). Keep the module's top-level imports light (stdlib,
+its subparser) and ``cmd(args) -> int``, and add it to :func:`command_modules` (imported
+there, after the guard). Keep the module's top-level imports light (stdlib,
 ``tspend.cli.common``); import the heavy parts inside ``cmd``. What the commands share is in :mod:`tspend.cli.common`.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 import textwrap
@@ -32,11 +31,19 @@ from tspend.errors import TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard
 from tspend.shipped import SCENARIO_PATH_VARIABLE
 
-#: the subcommands' modules under ``tspend.cli``, in --help order.  Named, not imported
-#: here: a command module may pull in the runner, the controllers or numba, and this module
-#: is imported before :func:`main` installs the signal guard (which must come first)
-COMMANDS = ("run", "show", "crosscheck", "list", "inspect", "sweep", "export", "compare",
-            "tune", "figures", "excite", "identify", "plan")
+
+def command_modules() -> tuple:
+    """The subcommands' modules, in --help order.  Imported here, when the parser is built,
+    not with this module: a command module may pull in the runner, the controllers or
+    numba, and this module is imported before :func:`main` installs the signal guard,
+    which must come first."""
+    from tspend.cli import (compare, crosscheck, excite, export, figures, identify, inspect,
+                            plan, run, show, sweep, tune)
+    from tspend.cli import list as list_command
+
+    return (run, show, crosscheck, list_command, inspect, sweep, export, compare, tune,
+            figures, excite, identify, plan)
+
 
 DESCRIPTION = ("Control experiments on pendulums: run a scenario headless or live, show and "
                "list scenarios, cross-check MuJoCo against the derived equations, compare, "
@@ -73,8 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"./scenarios and the shipped ones; 'tspend list' shows the search path")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
                            help="one of the commands below ('tspend COMMAND --help')")
-    for name in COMMANDS:
-        module = importlib.import_module(f"tspend.cli.{name}")
+    for module in command_modules():
         known = set(sub.choices)
         module.add_parser(sub)
         for added in set(sub.choices) - known:  # whatever names the module registered
@@ -126,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
             args.warnings = caught
             status = args.handler(args)
         release_warnings(args)
+        failure = sys.stdout.failure()
+        if failure is not None:  # the command's printed output is lost: 5 wins (reliability.md)
+            raise failure
         return status
     except Interrupted as exc:
         guard.hold()
