@@ -76,3 +76,108 @@ def test_show_into_a_full_stdout_is_an_output_failure(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 5, proc.stderr
     assert len(lines) == 1 and "stdout could not be written (No space left" in lines[0]
+
+
+#: a user's plug-ins failing in each way item 14 found (Plug.py), and modules that fail as
+#: they are imported
+PLUGINS = '''
+import sys
+from tspend.controllers.base import Controller
+
+
+class Zero(Controller):
+    kind = "zero_force"
+
+    def __init__(self, scenario):
+        self.order = len(scenario.plant.x0)
+        self.diagnostics = ()
+
+    def reset(self, rng):
+        pass
+
+    def step(self, obs, dt):
+        return 0.0
+
+
+class Mine(BaseException):
+    pass
+
+
+class InitOwnBase(Zero):
+    def __init__(self, scenario):
+        raise Mine("built wrong")
+
+
+class InitExits(Zero):
+    def __init__(self, scenario):
+        sys.exit(0)
+
+
+class ResetRaises(Zero):
+    def reset(self, rng):
+        raise RuntimeError("reset broke")
+
+
+class ResetOwnBase(Zero):
+    def reset(self, rng):
+        raise Mine("reset broke")
+
+
+class StepKeyboardInterrupt(Zero):
+    def step(self, obs, dt):
+        raise KeyboardInterrupt
+'''
+
+
+def _in_process(capsys, *args: str) -> tuple[int, list[str]]:
+    from tspend.cli.main import main
+
+    status = main(list(args))
+    return status, [l for l in capsys.readouterr().err.splitlines() if l.strip()]
+
+
+@pytest.fixture()
+def plugins(tmp_path, monkeypatch):
+    (tmp_path / "Plug.py").write_text(PLUGINS)
+    (tmp_path / "ExitsAtImport.py").write_text("import sys\nsys.exit(0)\n")
+    (tmp_path / "OwnBaseAtImport.py").write_text("class Mine(BaseException):\n    pass\n\n\n"
+                                                 "raise Mine('imported wrong')\n")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+RUN_PLUGIN = ("run", "ex3_pendulum_ode", "--duration", "0.05", "--out", "o.rrd", "--metrics",
+              "o.json", "--controller")
+
+
+@pytest.mark.parametrize("spec, status, phrase", [
+    ("Plug.py:InitOwnBase", 2, "building it failed: Mine: built wrong"),
+    ("Plug.py:InitExits", 2, "building it failed: SystemExit: 0"),
+    ("ExitsAtImport.py:X", 2, "importing it failed: SystemExit: 0"),
+    ("OwnBaseAtImport.py:X", 2, "importing it failed: Mine: imported wrong"),
+    ("Plug.py:ResetRaises", 6, "RuntimeError: reset broke"),
+    ("Plug.py:ResetOwnBase", 6, "Mine: reset broke"),
+])
+def test_a_plugin_failing_before_its_first_sample_is_one_line_and_writes_nothing(
+        plugins, capsys, spec, status, phrase):
+    """Item 14: a BaseException of the plug-in's own in ``__init__``, ``reset`` or at import
+    was a traceback and exit 1, ``reset`` raising RuntimeError exit 70, and ``sys.exit(0)``
+    exit 0 with nothing written (a failure looking like success).  Now building or
+    importing is bad input (2), ``reset`` the controller's failure (6, docs/reliability.md),
+    each one line, and no output file exists."""
+    got, lines = _in_process(capsys, *RUN_PLUGIN, spec)
+    assert (got, len(lines)) == (status, 1), lines
+    assert phrase in lines[0]
+    assert not (plugins / "o.rrd").exists() and not (plugins / "o.json").exists()
+
+
+def test_a_keyboard_interrupt_a_plugin_raises_is_its_error_not_a_signal(plugins, capsys):
+    """Item 14: with the CLI's handlers a real SIGINT raises their own exception, so a
+    KeyboardInterrupt out of ``step`` is the plug-in's ``raise``: controller_error (6), not
+    "interrupted by SIGINT" (130) with no signal sent."""
+    import json
+
+    got, lines = _in_process(capsys, *RUN_PLUGIN, "Plug.py:StepKeyboardInterrupt")
+    assert got == 6, lines
+    assert json.loads((plugins / "o.json").read_text())["status"] == "controller_error"
+    assert not any("interrupted" in l for l in lines), lines

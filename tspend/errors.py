@@ -25,6 +25,13 @@ class DivergenceError(TspendError):
     exit_status = 3
 
 
+class ControllerError(TspendError):
+    """The controller failed before the run's first sample (a plug-in whose ``reset``
+    raised): nothing was run or written; the message names the exception and its line."""
+
+    exit_status = 6
+
+
 class OutputError(TspendError):
     """An output file could not be completed (disk full, I/O error, size limit).
 

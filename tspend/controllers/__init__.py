@@ -421,9 +421,13 @@ def _build(scenario: "Scenario", kind: str | None, machine: "Plant | None") -> C
         ctrl = found.build(scenario, machine)
     except ScenarioError:
         raise
-    except Exception as exc:  # the user's code: one line, exit 2, nothing written yet
-        raise ScenarioError(f"--controller {kind}: building it failed: {type(exc).__name__}: "
-                            f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    except BaseException as exc:  # the user's code (sys.exit too): one line, exit 2, nothing written
+        from tspend.runtime.plugins import failure_text, own_failure
+
+        if not own_failure(exc):
+            raise
+        raise ScenarioError(f"--controller {kind}: building it failed: {failure_text(exc)}") \
+            from None
     if not isinstance(ctrl, Controller):
         raise ScenarioError(f"--controller {kind}: built a {type(ctrl).__name__}, not a "
                             f"Controller (see docs/writing-a-controller.md)")

@@ -34,6 +34,7 @@ from tspend.controllers.base import Controller, Diagnostic, Observation, check_d
 from tspend.errors import DivergenceError
 from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
 from tspend.runtime.interrupts import Interrupted, StopRequest
+from tspend.runtime.plugins import own_failure
 from tspend.plants.base import Plant
 from tspend.signals import Disturbance, Reference
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
@@ -324,9 +325,9 @@ class ClosedLoop:
                             # a signal while the controller's code ran (a plug-in sleeping
                             # in its step): the stop at this sample, what came before kept
                             raise RunInterrupted(exc.signal_name, exc.exit_status) from None
-                        except KeyboardInterrupt:
-                            raise  # Ctrl-C without the CLI's handlers: the run's stop
                         except BaseException as exc:
+                            if not own_failure(exc):
+                                raise  # Ctrl-C without the CLI's handlers: the run's stop
                             if stop.signal_name is not None:
                                 # the signal's exception, turned into another by the code it
                                 # interrupted (IPOPT's "no plan" for a solve cut short)

@@ -17,7 +17,7 @@ import numpy as np
 
 from tspend import __version__
 from tspend.config import RunConfig, Scenario
-from tspend.errors import ScenarioError
+from tspend.errors import ControllerError, ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers import needs_machine as controller_needs_machine
 from tspend.controllers.base import Controller
@@ -27,8 +27,9 @@ from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
+from tspend.runtime.plugins import own_failure
 from tspend.errors import ModelWarning
-from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
+from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest, controller_failure
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 from tspend.task import Task, build_task
 
@@ -202,12 +203,19 @@ def build_controller(scenario: Scenario, rng: np.random.Generator | None = None,
     ------
     ScenarioError
         ``scenario`` is not a Scenario, ``kind`` is unknown, or its settings are invalid.
+    ControllerError
+        the controller's ``reset`` raised (a plug-in's failure; exit 6 on the CLI).
     """
     _check_scenario(scenario)
     if machine is None and controller_needs_machine(scenario, kind):
         machine = nominal_machine(scenario)  # nominal, not drawn: see nominal_machine
     ctrl = build_controller_kind(scenario, kind, machine)
-    ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
+    try:
+        ctrl.reset(rng if rng is not None else np.random.default_rng(scenario.run.seed))
+    except BaseException as exc:  # a plug-in's reset: its failure, before any sample
+        if not own_failure(exc):
+            raise
+        raise ControllerError(controller_failure(exc, 0.0, ctrl.kind)) from None
     return ctrl
 
 

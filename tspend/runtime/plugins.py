@@ -28,11 +28,37 @@ from types import ModuleType
 
 from tspend.errors import ScenarioError
 
-__all__ = ["ENTRY_POINT_GROUPS", "is_spec", "load_object", "entry_point_names", "load_entry_point"]
+__all__ = ["ENTRY_POINT_GROUPS", "is_spec", "load_object", "entry_point_names", "load_entry_point",
+           "own_failure", "failure_text"]
 
 #: the entry-point groups an installed package registers its plug-ins under
 ENTRY_POINT_GROUPS = ("tspend.controllers", "tspend.plants")
 _MODULE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+
+
+def own_failure(exc: BaseException) -> bool:
+    """Whether ``exc``, raised out of a user's code, is that code's own failure (reported as
+    such, one line) rather than a stop the command must honour.  Every ``BaseException`` is
+    the code's own (``sys.exit``, ``GeneratorExit``, a class of its own), but the CLI's
+    :class:`~tspend.runtime.interrupts.Interrupted` (a signal) and a ``KeyboardInterrupt``
+    where Python's own SIGINT handler is installed (then it may be a real Ctrl-C; under the
+    CLI's handlers a real SIGINT raises ``Interrupted``, so a ``KeyboardInterrupt`` is the
+    code's own ``raise``)."""
+    import signal
+
+    from tspend.runtime.interrupts import Interrupted
+
+    if isinstance(exc, Interrupted):
+        return False
+    if isinstance(exc, KeyboardInterrupt):
+        return signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    return True
+
+
+def failure_text(exc: BaseException) -> str:
+    """``Type: first line`` of a user code's exception (``SystemExit: 0`` for sys.exit(0))."""
+    first = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {first}"
 
 
 def is_spec(text: str) -> bool:
@@ -52,10 +78,11 @@ def _module_from_file(path: str, mtime_ns: int) -> ModuleType:
         spec.loader.exec_module(module)
     except ScenarioError:
         raise
-    except Exception as exc:  # the user's code: one line, whatever it raised
+    except BaseException as exc:  # the user's code: one line, whatever it raised
         sys.modules.pop(name, None)
-        raise ScenarioError(f"{path}: importing it failed: {type(exc).__name__}: "
-                            f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+        if not own_failure(exc):
+            raise
+        raise ScenarioError(f"{path}: importing it failed: {failure_text(exc)}") from None
     # a sweep's worker unpickles a scenario holding the file's settings dataclass; the
     # module's name means nothing there, so such objects travel as (path, class, fields)
     for obj in vars(module).values():
@@ -101,9 +128,11 @@ def _module(where: str, option: str) -> ModuleType:
         return importlib.import_module(where)
     except ModuleNotFoundError as exc:
         raise ScenarioError(f"{option} {where}: no module named {exc.name!r}") from None
-    except Exception as exc:
-        raise ScenarioError(f"{option} {where}: importing it failed: {type(exc).__name__}: "
-                            f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    except BaseException as exc:
+        if not own_failure(exc):
+            raise
+        raise ScenarioError(f"{option} {where}: importing it failed: {failure_text(exc)}") \
+            from None
 
 
 def load_object(spec: str, option: str = "--controller") -> object:
@@ -147,6 +176,8 @@ def load_entry_point(group: str, name: str, option: str = "--controller") -> obj
         return None
     try:
         return ep.load()
-    except Exception as exc:
+    except BaseException as exc:
+        if not own_failure(exc):
+            raise
         raise ScenarioError(f"{option} {name}: the entry point {ep.value} ({group}) failed to "
                             f"load: {type(exc).__name__}: {exc}") from None
