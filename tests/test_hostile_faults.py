@@ -181,3 +181,35 @@ def test_a_keyboard_interrupt_a_plugin_raises_is_its_error_not_a_signal(plugins,
     assert got == 6, lines
     assert json.loads((plugins / "o.json").read_text())["status"] == "controller_error"
     assert not any("interrupted" in l for l in lines), lines
+
+
+@pytest.mark.parametrize("scenario, model, joint, pole_joint", [
+    ("double_cartpole_mujoco", "double_cartpole.xml", "hinge2", "hinge1"),
+    ("double_cartpole_ode", "double_cartpole.xml", "hinge2", "hinge1"),
+    ("triple_cartpole_mujoco", "triple_cartpole.xml", "hinge3", "hinge2"),
+    ("rotary_double_mujoco", "rotary_double.xml", "link2", "link1"),
+    ("furuta_mujoco", "furuta.xml", "pendulum", None),
+    ("pendulum_mujoco", "cartpole.xml", "hinge", None),
+])
+def test_a_pole_made_a_slide_is_refused_when_the_model_is_read_naming_it(
+        tmp_path, scenario, model, joint, pole_joint):
+    """Item 20: a copy of a machine's model with a pole's hinge made a slide.  The double
+    cart-pole's ran (hinge2 read as a second cart, sliding 4.95 m unwatched) and lqr refused
+    it only as an uncontrollable mode naming other joints.  Every machine now refuses it
+    when its model is read (building the plant, before any design), naming the joint."""
+    import re
+
+    import tspend
+    from tspend.errors import ScenarioError
+
+    text = (ROOT / "models" / model).read_text()
+    changed, count = re.subn(rf'(<joint name="{joint}" type=)"hinge"', r'\1"slide"', text)
+    assert count == 1
+    (tmp_path / "slide.xml").write_text(changed)
+    scn = tspend.override(tspend.load_scenario(scenario),
+                          **{"plant.model": str(tmp_path / "slide.xml")})
+    with pytest.raises(ScenarioError) as refused:
+        tspend.build_plant(scn)
+    assert repr(joint) in str(refused.value)
+    if pole_joint is not None:  # the articulated domain says which pole carries it
+        assert f"carried by the pole {pole_joint!r}" in str(refused.value)

@@ -190,7 +190,39 @@ class Machine:
                     works = True
                     break
             roles.append("pole" if works else self._free_role(j, g))
+        self._refuse_slides_on_poles(roles)
         return tuple(roles)
+
+    def _refuse_slides_on_poles(self, roles: list[str]) -> None:
+        """A slide carried by a pole (on its link or one beyond) is a link of the pendulum,
+        read as a pole by the task and the documented machine, and a pole must be a hinge:
+        refused here, naming it (read as a ``cart`` it would slide unwatched, and the
+        design would fail later naming other joints)."""
+        names = self.joint_names
+        for j, joint in enumerate(self.tree.joints):
+            if joint.kind != "slide":
+                continue
+            carrier = self._carrying_pole(j, roles)
+            if carrier is not None:
+                raise ScenarioError(f"{self.where}: joint {names[j]!r} is a slide carried by "
+                                    f"the pole {names[carrier]!r}: a joint on a pole's link "
+                                    f"is a pole, and a pole must be a hinge (a slide cannot "
+                                    f"fall); make {names[j]!r} a hinge")
+
+    def _carrying_pole(self, j: int, roles: list[str]) -> int | None:
+        """The nearest pole that moves joint ``j``: an earlier joint of its body (MuJoCo
+        applies a body's joints in order), else one of an ancestor body; None if none."""
+        bodies = self.tree.bodies
+        b = self.tree.joints[j].body
+        earlier = [k for k in bodies[b].joints if k < j]
+        while True:
+            for k in reversed(earlier):
+                if roles[k] == "pole":
+                    return k
+            b = bodies[b].parent
+            if b < 0:
+                return None
+            earlier = list(bodies[b].joints)
 
     def _free_role(self, j: int, g: np.ndarray) -> str:
         import mujoco
