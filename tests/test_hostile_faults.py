@@ -213,3 +213,28 @@ def test_a_pole_made_a_slide_is_refused_when_the_model_is_read_naming_it(
     assert repr(joint) in str(refused.value)
     if pole_joint is not None:  # the articulated domain says which pole carries it
         assert f"carried by the pole {pole_joint!r}" in str(refused.value)
+
+
+@pytest.mark.parametrize("changes, refused", [
+    ({"safety.plan_period": 1e-9}, "from the control period (0.001 s) to 1 s, got 1e-09"),
+    ({"safety.plan_period": 0.0009}, "got 0.0009"),
+    ({"run.control_period": 0.01, "safety.plan_period": 0.005}, "(0.01 s) to 1 s, got 0.005"),
+    ({"safety.plan_period": 1.5}, "to 1 s, got 1.5"),
+    ({"safety.plan_period": 0.001}, None),
+    ({"run.control_period": 0.01, "safety.plan_period": 0.01}, None),
+])
+def test_the_mpsc_plan_period_is_bounded_by_the_control_period(changes, refused):
+    """Item 15: ``--set safety.plan_period=1e-9`` was accepted and the run went on past
+    150 s.  A plan interval shorter than a control sample is refused when the scenario
+    is read (exit 2 on the CLI), 0 (from the machine) and one sample upwards are not."""
+    import tspend
+    from tspend.errors import ScenarioError
+
+    base = tspend.load_scenario("pendulum_mujoco")
+    changes = {"safety.filter": "mpsc", **changes}
+    if refused is None:
+        assert tspend.override(base, **changes).safety.plan_period == changes["safety.plan_period"]
+        return
+    with pytest.raises(ScenarioError, match=r"safety\.plan_period: must be 0") as error:
+        tspend.override(base, **changes)
+    assert refused in str(error.value)

@@ -311,11 +311,12 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
         effects=effects, task=task,
         path=str(path), text=text, overrides=tuple(overrides), controllers=kind_settings,
         randomize=randomize,
-        safety=_safety(top.table_of("safety")))
+        safety=_safety(top.table_of("safety"), run.control_period or run.dt))
 
 
-def _safety(r: Table) -> SafetyConfig:
-    """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md)."""
+def _safety(r: Table, control_period_s: float) -> SafetyConfig:
+    """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md); ``control_period_s``: how
+    often the controller runs (``run.control_period``, else ``run.dt``)."""
     values = read_fields(r, SafetyConfig, "in [safety]")
     if not values.get("margin", 0.0) < 1.0:
         raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
@@ -324,8 +325,12 @@ def _safety(r: Table) -> SafetyConfig:
     for key, high in (("horizon", 200), ("substeps", 50)):
         if values.get(key, 0) > high:
             raise r.error(key, f"must be at most {high}, got {values[key]}")
-    if not values.get("plan_period", 0.05) <= 1.0:
-        raise r.error("plan_period", f"must be at most 1 s, got {values['plan_period']:g}")
+    period = values.get("plan_period", 0.0)
+    # the plan's first interval is one control sample and the rest are plan periods: one
+    # shorter than a sample plans a horizon of nanoseconds, at any cost (1e-9: 150 s, issue 51)
+    if period and not control_period_s <= period <= 1.0:
+        raise r.error("plan_period", f"must be 0 (from the machine) or from the control period "
+                                     f"({control_period_s:g} s) to 1 s, got {period:g}")
     return SafetyConfig(**values)
 
 

@@ -870,5 +870,8 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
                             f"shrank to nothing without the LQR keeping it safe on the "
                             f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
+    if cfg.plan_period and cfg.plan_period < sample:  # the scenario checked run's period only
+        raise ScenarioError(f"{scenario.path}: safety.plan_period = {cfg.plan_period:g} s is "
+                            f"shorter than the controller's sample ({sample:g} s)")
     return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
                                   level, Q, b_pole ** 2, tuple(models), tube=tube, limits=limits)
