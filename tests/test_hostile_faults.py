@@ -238,3 +238,57 @@ def test_the_mpsc_plan_period_is_bounded_by_the_control_period(changes, refused)
     with pytest.raises(ScenarioError, match=r"safety\.plan_period: must be 0") as error:
         tspend.override(base, **changes)
     assert refused in str(error.value)
+
+
+def test_a_numba_code_file_swapped_for_another_functions_is_removed(tmp_path, recwarn):
+    """Item 17: ``...rhs_c-1238.py311.1.nbc`` copied over ``...dynamics-9.py311.1.nbc``
+    (whole pickles, another function's machine code) was loaded and the run segfaulted.
+    numba writes a code file only with its index, so a listed code file that changed
+    while its index did not is removed (numba compiles that function again), said in one
+    warning line; a code file rewritten with its index is numba's own and stays."""
+    import pickle
+
+    from tspend.runtime import cache
+
+    pycache = tmp_path / "__pycache__"
+    pycache.mkdir()
+    files = {}
+    for function, line in (("dynamics", 9), ("rhs_c", 1238)):
+        stem = f"tspend_articulated_abc.{function}-{line}.py311"
+        files[function] = (pycache / f"{stem}.nbi", pycache / f"{stem}.1.nbc")
+        files[function][0].write_bytes(pickle.dumps("0.60") + pickle.dumps(
+            (("stamp", 1), {"sig": f"{stem}.1.nbc"})))
+        files[function][1].write_bytes(pickle.dumps({"code": function.encode() * 500}))
+    cache._write_manifest(pycache)
+    assert cache.check_numba_files(pycache) == 0
+    index, code = files["dynamics"]
+    code.write_bytes(files["rhs_c"][1].read_bytes())            # the swap
+    assert cache.check_numba_files(pycache) == 1
+    assert not code.exists() and index.exists() and files["rhs_c"][1].exists()
+    assert any("replaced without its index" in str(w.message) for w in recwarn)
+    # numba's own save: the code and its index rewritten together, both whole: kept
+    code.write_bytes(pickle.dumps({"code": b"new" * 500}))
+    cache._write_manifest(pycache)
+    code.write_bytes(pickle.dumps({"code": b"newer" * 500}))
+    index.write_bytes(pickle.dumps("0.60") + pickle.dumps((("stamp", 2), {"s": 1})))
+    assert cache.check_numba_files(pycache) == 0 and code.exists()
+
+
+def test_a_cache_on_a_full_file_system_is_not_used(tmp_path, monkeypatch):
+    """Item 17: ``TSPEND_CACHE_DIR`` on a full file system passed the writable check
+    (creating an empty file needs no space) and the first entry written was an OSError,
+    exit 70, where docs/reliability.md says the process falls back to a private folder.
+    With less than MIN_CACHE_FREE_BYTES free the cache is not used."""
+    import os
+
+    from tspend.runtime import jit
+
+    monkeypatch.setenv("TSPEND_CACHE_DIR", str(tmp_path / "cache"))
+    assert jit.writable_cache("articulated") == tmp_path / "cache" / "articulated"
+    real = os.statvfs(tmp_path)
+
+    class Full:
+        f_frsize, f_bavail = real.f_frsize, (jit.MIN_CACHE_FREE_BYTES // real.f_frsize) - 1
+
+    monkeypatch.setattr(os, "statvfs", lambda path: Full)
+    assert jit.writable_cache("articulated") is None

@@ -191,7 +191,7 @@ def check_numba_files(pycache: Path, prefix: str = "", what: str = "compiled cod
         if not (isinstance(entry, list) and len(entry) == 3):
             entry = None   # not listed yet (written by a process that ended abruptly)
         path = pycache / name
-        problem = _file_problem(path, entry)
+        problem = _file_problem(path, entry) or _replaced_alone(pycache, name, entry, listed)
         if problem:
             discard(path)
             removed += 1
@@ -219,6 +219,32 @@ def _file_problem(path: Path, entry: list | None) -> str | None:
     if entry is not None and _sha256(data) == entry[2]:
         return None
     return None if _whole_pickles(data) else "is not whole (damaged or truncated)"
+
+
+def _replaced_alone(pycache: Path, name: str, entry: list | None, listed: dict) -> str | None:
+    """A listed code file (``.nbc``) whose bytes changed while its index (``.nbi``) did not:
+    numba writes a function's code only with its index, so this is another file copied
+    over it (whole pickles, another function's code: loading it crashes the process)."""
+    if not name.endswith(".nbc") or entry is None:
+        return None
+    index_name = name.rsplit(".", 2)[0] + ".nbi"      # m.f-9.py311.1.nbc -> m.f-9.py311.nbi
+    index_entry = listed.get(index_name)
+    if not (isinstance(index_entry, list) and len(index_entry) == 3):
+        return None
+    try:
+        st, index_st = (pycache / name).stat(), (pycache / index_name).stat()
+    except OSError:
+        return None
+    if [index_st.st_size, index_st.st_mtime_ns] != index_entry[:2]:
+        return None   # the index was rewritten too: numba's own save
+    if [st.st_size, st.st_mtime_ns] == entry[:2]:
+        return None
+    try:
+        if _sha256((pycache / name).read_bytes()) == entry[2]:
+            return None   # touched, not changed
+    except OSError:
+        return "cannot be read"
+    return "was replaced without its index (another function's code?)"
 
 
 def _whole_pickles(data: bytes) -> bool:

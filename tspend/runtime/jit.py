@@ -64,9 +64,16 @@ def invalidate_stale_cache(package_dir: Path) -> bool:
         return False
 
 
+#: free space a cache folder must have to be used (bytes): an articulated machine's numba
+#: code and an MPC's shared objects take a few MB each, and a write that fails half-way
+#: through a run would end it; with less, the process builds in a private folder
+MIN_CACHE_FREE_BYTES = 64 * 2**20
+
+
 def writable_cache(folder: str) -> "Path | None":
     """``$TSPEND_CACHE_DIR/<folder>``, else ``$XDG_CACHE_HOME/tspend/<folder>`` (``~/.cache``),
-    created; None when it cannot be written (then callers build anew in each process)."""
+    created; None when it cannot be written or its file system has less than
+    :data:`MIN_CACHE_FREE_BYTES` free (then callers build anew in each process)."""
     import os
     import tempfile
 
@@ -79,6 +86,9 @@ def writable_cache(folder: str) -> "Path | None":
         path.mkdir(parents=True, exist_ok=True)
         probe = tempfile.NamedTemporaryFile(dir=path, delete=True)
         probe.close()
+        free = os.statvfs(path)
     except OSError:
+        return None
+    if free.f_bavail * free.f_frsize < MIN_CACHE_FREE_BYTES:  # creating a file needs none
         return None
     return path

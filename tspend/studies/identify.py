@@ -275,6 +275,7 @@ def _compiled(fn):
     import casadi
 
     from tspend.plants.articulated.derive import cache_dir
+    from tspend.runtime import cache
 
     cc = shutil.which("cc")
     root = cache_dir()
@@ -289,13 +290,19 @@ def _compiled(fn):
         src = Path(tmp, "seg.c").read_bytes()
         key = hashlib.sha256(src).hexdigest()[:20]
         lib = folder / f"seg_{key}.so"
-        if not lib.is_file():
+        # checked before it is loaded (garbage or another build could crash the process):
+        # its sidecar's key, machine and checksum (tspend.runtime.cache), rebuilt if wrong
+        problem = cache.binary_problem(lib, key)
+        if problem is not None:
+            if problem != "missing":
+                cache.rebuilt("compiled identification segment", lib, problem)
+                cache.discard_binary(lib)
             out = Path(tmp, "seg.so")
             r = subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp, "seg.c")), "-o",
                                 str(out), "-lm"], capture_output=True, text=True)
             if r.returncode != 0:
                 return fn                   # CasADi's virtual machine, as without a compiler
-            os.replace(out, lib)            # atomic: a concurrent process sees all or nothing
+            cache.write_binary(lib, out, key)   # atomic: a concurrent process sees all or none
     return casadi.external(fn.name(), str(lib))
 
 
