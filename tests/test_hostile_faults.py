@@ -292,3 +292,63 @@ def test_a_cache_on_a_full_file_system_is_not_used(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "statvfs", lambda path: Full)
     assert jit.writable_cache("articulated") is None
+
+
+SWEEP = ("sweep", "pendulum_mujoco", "--duration", "0.05", "--seeds", "0:2")
+
+
+@pytest.mark.parametrize("extra, phrase", [
+    (("--precision", "float32"), "--precision float32: the cpu backend computes in float64"),
+    (("--backend", "mjx", "--controller", "lqr", "--dask", "local"), "--dask: the mjx backend"),
+    (("--backend", "mjx", "--controller", "lqr", "--run-timeout", "5"),
+     "--run-timeout: the mjx backend"),
+])
+def test_a_sweep_option_its_backend_would_ignore_is_refused(tmp_path, monkeypatch, capsys,
+                                                             extra, phrase):
+    """Item 19: each of these ran with exit 0, the option silently ignored.  Refused now,
+    before the banner, one line."""
+    monkeypatch.chdir(tmp_path)
+    status, lines = _in_process(capsys, *SWEEP, *extra)
+    assert (status, len(lines)) == (2, 1), lines
+    assert phrase in lines[0]
+
+
+@pytest.mark.parametrize("safety", ["cbf", "mpsc"])
+def test_mjx_refuses_a_safety_filter_before_its_banner(tmp_path, monkeypatch, capsys, safety):
+    """Item 19: ``--backend mjx`` with ``safety.filter`` printed the sweep's banner, then
+    refused; the refusal now comes with everything else checked before it."""
+    pytest.importorskip("mujoco.mjx")
+    monkeypatch.chdir(tmp_path)
+    from tspend.cli.main import main
+
+    status = main([*SWEEP, "--backend", "mjx", "--controller", "lqr", "--set",
+                   f"safety.filter={safety}"])
+    out, err = capsys.readouterr()
+    assert status == 2 and "tspend 0.1" not in out and "sweep of" not in out, out
+    assert f"safety.filter = '{safety}' is not in the mjx backend" in err
+
+
+@pytest.mark.parametrize("action", ["0.5", b"1", True])
+def test_the_gym_env_refuses_an_action_that_is_not_a_number(action):
+    """Item 19: ``env.step("0.5")`` and ``env.step(b"1")`` were read as numbers (numpy
+    parses strings), where the runner refuses a controller's string."""
+    pytest.importorskip("gymnasium")
+    from tspend.errors import ScenarioError
+    from tspend.gym import TspendEnv
+
+    env = TspendEnv("pendulum_mujoco")
+    env.reset(seed=0)
+    with pytest.raises(ScenarioError, match="not a number"):
+        env.step(action)
+
+
+def test_check_claims_reports_a_missing_page_as_a_fail_line(tmp_path):
+    """Item 19: ``python tools/check_claims.py`` without docs/results.md was a traceback
+    (FileNotFoundError); a page that is missing is a problem line like any other."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import check_claims
+
+    figures, problems = check_claims.check_sections(
+        [("docs/no-such-page.md", "<!-- begin -->", "<!-- end -->", lambda: "", "data")])
+    assert figures == 0 and problems == [
+        "docs/no-such-page.md: no section <!-- begin -->: the file is missing"]

@@ -112,6 +112,12 @@ def _between(text: str, begin: str, end: str) -> str | None:
     return text.split(begin, 1)[1].split(end, 1)[0].strip()
 
 
+def _page(path: Path) -> str:
+    """A page's text; '' when it is missing (then its sections are reported missing as a
+    FAIL line, not a traceback)."""
+    return path.read_text(encoding="utf-8") if path.is_file() else ""
+
+
 def check_fair() -> tuple[int, list[str]]:
     """The generated sections against a rebuild from docs/results/fair: (figures, problems)."""
     import fair_results as fr
@@ -129,9 +135,10 @@ def check_fair() -> tuple[int, list[str]]:
                         "runs.parquet (rerun benchmarks/fair_results.py --render)")
     for path, text, begin, end in ((page, section, fr.BEGIN, fr.END),
                                    (readme, readme_section, fr.README_BEGIN, fr.README_END)):
-        shown = _between(path.read_text(encoding="utf-8"), begin, end)
+        shown = _between(_page(path), begin, end)
         if shown is None:
-            problems.append(f"{path.relative_to(ROOT)}: no generated section ({begin})")
+            problems.append(f"{path.relative_to(ROOT)}: no generated section ({begin})"
+                            + ("" if path.is_file() else ": the file is missing"))
             continue
         figures += len(NUMBER.findall(shown))
         if shown != text.strip():
@@ -182,9 +189,10 @@ def check_sections(sections=SECTIONS) -> tuple[int, list[str]]:
     problems)."""
     figures, problems = 0, []
     for doc, begin, end, build, data in sections:
-        shown = _between((ROOT / doc).read_text(encoding="utf-8"), begin, end)
+        shown = _between(_page(ROOT / doc), begin, end)
         if shown is None:
-            problems.append(f"{doc}: no section {begin}")
+            problems.append(f"{doc}: no section {begin}"
+                            + ("" if (ROOT / doc).is_file() else ": the file is missing"))
             continue
         try:
             text = build().strip()

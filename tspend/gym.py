@@ -395,7 +395,10 @@ class TspendEnv(gymnasium.Env):
             bad = not math.isfinite(a)
         else:
             try:
-                arr = np.asarray(action, dtype=float)
+                arr = np.asarray(action)
+                if arr.dtype.kind not in "iuf":  # numpy would read "0.5" and b"1" as numbers
+                    raise TypeError
+                arr = arr.astype(float)
             except (TypeError, ValueError):
                 raise ScenarioError(f"action {action!r:.80}: not a number") from None
             bad = arr.size != 1 or not np.isfinite(arr).all()

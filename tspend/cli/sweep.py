@@ -66,10 +66,10 @@ def add_run_timeout_option(p) -> None:
     """``--run-timeout S`` (sweep, compare, tune): a run past it is killed, a ``timeout`` row."""
     from tspend.runtime.bounds import DEFAULT_RUN_TIMEOUT_S
 
-    p.add_argument("--run-timeout", type=float, default=DEFAULT_RUN_TIMEOUT_S, metavar="S",
+    p.add_argument("--run-timeout", type=float, metavar="S",
                    help=f"kill a run still going after S seconds of wall time; its row has "
                         f"status 'timeout' and the others go on (default "
-                        f"{DEFAULT_RUN_TIMEOUT_S:g})")
+                        f"{DEFAULT_RUN_TIMEOUT_S:g}; the cpu backend's only)")
 
 
 #: statuses of runs that did not complete: no verdict on the controller, no metrics (a

@@ -4,7 +4,7 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
 
     sweep(scenarios, *, grid=None, seeds=None, controllers=None, jobs=None, dask=None,
           out=None, record="none", progress=False, executor=None,
-          run_timeout=DEFAULT_RUN_TIMEOUT_S) -> pandas.DataFrame
+          run_timeout=None) -> pandas.DataFrame
 
 ``scenarios``
     one scenario (a name such as ``"ex2_duffing"``, a path to a ``.toml``, or a
@@ -40,9 +40,11 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
     ``"cpu"`` (the default: one process per run, as above) or ``"mjx"``: the runs of a
     scenario point and controller kind stepped together by MuJoCo's JAX engine
     (:mod:`tspend.mjx.sweep`; ``pip install 'tspend[mjx]'``, kinds ``pd``, ``lqr``,
-    ``policy``); ``precision`` (``"float64"``, ``"float32"``) is its float width.
+    ``policy``); ``precision`` (``"float64"``, ``"float32"``) is its float width.  An
+    option the backend would not use is refused: ``precision`` other than float64 on the
+    cpu backend, ``dask`` or ``run_timeout`` on the mjx one.
 ``run_timeout``
-    seconds of wall time a run may take once a worker has started it (default
+    seconds of wall time a run may take once a worker has started it (None: the default,
     :data:`~tspend.runtime.bounds.DEFAULT_RUN_TIMEOUT_S`, an hour, which no shipped
     scenario comes near).  A run past it is killed with its worker process and is a row of
     status ``timeout``; the others go on (those that shared the local pool with it are run
@@ -99,7 +101,7 @@ def sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = None,
           dask: str | None = None, out: str | Path | None = None, record: str = "none",
           progress: bool = False, executor: Any = None,
           stop: StopRequest | None = None, wait: bool = False, build: bool = True,
-          run_timeout: float = DEFAULT_RUN_TIMEOUT_S, backend: str = "cpu",
+          run_timeout: float | None = None, backend: str = "cpu",
           precision: str = "float64"):
     """Run every combination of scenario, grid point, seed and controller; one row each.
 
@@ -151,9 +153,12 @@ TIMEOUT = "timeout"
 
 def check_run_timeout(seconds: Any) -> float:
     """``--run-timeout``: a number of seconds, > 0 and at most
-    :data:`~tspend.runtime.bounds.MAX_RUN_TIMEOUT_S` (ScenarioError); as a float."""
+    :data:`~tspend.runtime.bounds.MAX_RUN_TIMEOUT_S` (ScenarioError); as a float.  None:
+    not given, :data:`~tspend.runtime.bounds.DEFAULT_RUN_TIMEOUT_S`."""
     import math
 
+    if seconds is None:
+        return DEFAULT_RUN_TIMEOUT_S
     if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or \
             not math.isfinite(seconds) or not 0 < seconds <= MAX_RUN_TIMEOUT_S:
         raise ScenarioError(f"--run-timeout: must be a number of seconds > 0 and at most "
@@ -240,7 +245,7 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
                   dask: str | None = None, out: str | Path | None = None,
                   record: str = "none", stop: StopRequest | None = None,
                   wait: bool = False, build: bool = True,
-                  run_timeout: float = DEFAULT_RUN_TIMEOUT_S, backend: str = "cpu",
+                  run_timeout: float | None = None, backend: str = "cpu",
                   precision: str = "float64") -> PreparedSweep:
     """Everything :func:`sweep` checks before a run starts, the plan made and ``out``
     locked; raises ScenarioError (see :func:`sweep`).  ``build``: build each scenario's
@@ -252,6 +257,7 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
     if out_path is not None and (not str(out).strip() or out_path.name in ("", ".", "..")):
         raise ScenarioError(f"--out {str(out)!r:.80}: not a file name")
     check_jobs(jobs)
+    check_unused_options(backend, precision, dask, run_timeout)
     run_timeout = check_run_timeout(run_timeout)
     if dask is not None:
         check_dask_address(dask)
@@ -291,6 +297,23 @@ def prepare_sweep(scenarios: Any, *, grid: dict[str, Iterable[Any]] | None = Non
 BACKENDS = ("cpu", "mjx")
 
 
+def check_unused_options(backend: Any, precision: Any, dask: Any, run_timeout: Any) -> None:
+    """An option the chosen backend would not use is refused (ScenarioError), never
+    silently ignored: the width and the device are the mjx backend's, the workers and a
+    run's time limit the cpu backend's."""
+    if backend == "cpu" and precision != "float64":
+        raise ScenarioError(f"--precision {str(precision)[:20]}: the cpu backend computes in "
+                            f"float64 only; the float width is the mjx backend's "
+                            f"(--backend mjx)")
+    if backend == "mjx" and dask is not None:
+        raise ScenarioError("--dask: the mjx backend steps every run in this process on JAX's "
+                            "device, not on Dask workers; drop --dask or use --backend cpu")
+    if backend == "mjx" and run_timeout is not None:
+        raise ScenarioError("--run-timeout: the mjx backend steps every seed of a scenario at "
+                            "once in this process and cannot end one run; drop it or use "
+                            "--backend cpu")
+
+
 def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
     """``--backend``, ``--precision`` and what the mjx backend can run (ScenarioError)."""
     if backend not in BACKENDS:
@@ -306,6 +329,10 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
         why = refusal(job.scenario)
         if why:
             raise ScenarioError(why)
+        if job.scenario.safety.filter != "off":  # checked here: before the banner
+            raise ScenarioError(f"{job.scenario.path or job.scenario.name}: safety.filter = "
+                                f"{job.scenario.safety.filter!r} is not in the mjx backend; "
+                                f"run it on the CPU backend")
         if job.controller not in KINDS:
             raise ScenarioError(f"--backend mjx: controller kind {job.controller!r} has no JAX "
                                 f"form (the mjx backend runs {', '.join(KINDS)}; give "
