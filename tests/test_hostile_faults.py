@@ -352,3 +352,49 @@ def test_check_claims_reports_a_missing_page_as_a_fail_line(tmp_path):
         [("docs/no-such-page.md", "<!-- begin -->", "<!-- end -->", lambda: "", "data")])
     assert figures == 0 and problems == [
         "docs/no-such-page.md: no section <!-- begin -->: the file is missing"]
+
+
+def test_mjx_says_out_of_memory_before_the_work(monkeypatch):
+    """Item 16: ``--seeds 0:1000000`` under an 8 GB address limit built machines for 227 s
+    and then blamed the model ("cannot parse MJCF"); ``--duration 100000`` was a
+    MemoryError (exit 70).  The memory a fleet needs is estimated first (machines, the
+    reference tables, a batch's samples) and a shortfall is one line saying so."""
+    pytest.importorskip("mujoco.mjx")
+    import tspend
+    from tspend.errors import ScenarioError
+    from tspend.mjx import sweep as mjx_sweep
+
+    scn = tspend.load_scenario("pendulum_mujoco")
+    monkeypatch.setattr(mjx_sweep, "available_bytes", lambda: 8.0 * 2**30)
+    mjx_sweep.check_memory(scn, 2)   # two machines fit
+    with pytest.raises(ScenarioError, match=r"1000000 runs need about \d+\.\d GiB of memory"):
+        mjx_sweep.check_memory(scn, 1_000_000)
+    long = tspend.override(scn, **{"run.duration": 100000.0})
+    with pytest.raises(ScenarioError, match=r"of tables for 100000000 steps"):
+        mjx_sweep.check_memory(long, 2)
+
+
+def test_an_mjx_batch_keeps_its_samples_within_a_budget():
+    """Item 16: a batch of 131,072 envs returned 1000 steps of samples per block at once
+    (16 GB for the cart-pole); the batch is made smaller to fit the budget."""
+    from tspend.mjx import sweep as mjx_sweep
+
+    batch = mjx_sweep.samples_batch(4)
+    assert 1 <= batch < mjx_sweep.MAX_BATCH
+    assert batch * mjx_sweep.BLOCK * 5 * 8 * 3 <= mjx_sweep.SAMPLES_BUDGET_BYTES
+    assert mjx_sweep.samples_batch(4, 64) == 64
+
+
+def test_mjx_without_the_device_asked_for_is_one_line():
+    """Item 16: ``JAX_PLATFORMS=cuda`` on a machine without a GPU was an internal error
+    with an empty AssertionError; now one line naming the missing device."""
+    pytest.importorskip("mujoco.mjx")
+    import os
+
+    probe = ("from tspend.errors import ScenarioError\nfrom tspend.mjx import require\n"
+             "try:\n    require()\nexcept ScenarioError as exc:\n    print('REFUSED', exc)\n")
+    env = dict(os.environ, JAX_PLATFORMS="no_such_platform")
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          env=env, timeout=300)
+    line = next((l for l in proc.stdout.splitlines() if l.startswith("REFUSED")), proc.stderr)
+    assert "JAX has no device to run on with JAX_PLATFORMS='no_such_platform'" in line, line

@@ -45,6 +45,27 @@ def require() -> None:
     except ImportError as exc:
         raise ScenarioError(f"the mjx backend needs JAX and MuJoCo MJX ({exc.name or exc} is "
                             f"missing): pip install 'tspend[mjx]'") from None
+    _require_device()
+
+
+def _require_device() -> None:
+    """ScenarioError in one line when JAX has no device to run on (``JAX_PLATFORMS=cuda``
+    on a machine without a GPU: JAX's own error is an empty AssertionError)."""
+    import os
+
+    import jax
+
+    try:
+        jax.devices()
+        jax.devices("cpu")   # the machines are built there (tspend.mjx.machines)
+    except Exception as exc:  # noqa: BLE001 - whatever JAX raises for a platform it lacks
+        asked = os.environ.get("JAX_PLATFORMS", "")
+        reason = " ".join(str(exc).split())[:200] or "its platform could not be started"
+        raise ScenarioError(f"the mjx backend: JAX has no device to run on"
+                            + (f" with JAX_PLATFORMS={asked!r}" if asked else "")
+                            + f" ({reason}); the mjx backend needs JAX's CPU device, and a GPU "
+                              f"only where one and its jax build are installed: unset "
+                              f"JAX_PLATFORMS or set it to 'cpu' or 'cuda,cpu'") from None
 
 
 def set_precision(precision: str = "float64") -> str:

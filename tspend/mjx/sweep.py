@@ -29,12 +29,74 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 
-__all__ = ["BLOCK", "MAX_BATCH", "closed_loop_rows", "run_jobs"]
+__all__ = ["BLOCK", "MAX_BATCH", "closed_loop_rows", "run_jobs", "check_memory", "samples_batch"]
 
 #: physics steps per scan call (the CPU runner's block size: the metrics fold the same blocks)
 BLOCK = 1000
 #: envs stepped in one batch at most (more seeds run as several batches)
 MAX_BATCH = 1 << 17
+#: bytes one block's samples of a batch may take (the device's output, its float64 copy
+#: on the host, their slices): the batch is made smaller to fit (131,072 cart-poles would
+#: take 16 GB a block)
+SAMPLES_BUDGET_BYTES = 1 << 30
+
+
+def samples_batch(n_full: int, batch: int = MAX_BATCH) -> int:
+    """Envs per batch so one block's samples (full state and u, float64, three copies)
+    stay within :data:`SAMPLES_BUDGET_BYTES`."""
+    return max(1, min(batch, SAMPLES_BUDGET_BYTES // (BLOCK * (n_full + 1) * 8 * 3)))
+
+
+def check_memory(scenario: Any, n_envs: int) -> None:
+    """ScenarioError, before any work, when ``n_envs`` machines of ``scenario`` would not
+    fit in the memory this process can have (:func:`available_bytes`): each env holds an
+    MJX model (measured: about 2.2 x MuJoCo's model buffer on the cart-pole), the run's
+    reference and disturbance tables are held whole, a batch's samples take at most
+    :data:`SAMPLES_BUDGET_BYTES`."""
+    from tspend.loop import simulation
+
+    plant = simulation.build_plant(scenario)
+    model = getattr(plant, "model", None)
+    if model is None:
+        return   # no MuJoCo model: the backend refuses it with its own line
+    steps = simulation.steps_of(scenario)
+    per_env = 3 * model.nbuffer + getattr(plant, "data").nbuffer + (64 << 10)
+    tables = (steps + 1) * (plant.order + 2) * 8 * 4   # r .. r^(n), d, t; four copies
+    need = n_envs * per_env + tables + SAMPLES_BUDGET_BYTES
+    have = available_bytes()
+    if need > have:
+        gib = 2.0**30
+        raise ScenarioError(
+            f"{scenario.path or scenario.name}: --backend mjx: {n_envs} runs need about "
+            f"{need / gib:.1f} GiB of memory ({per_env / 2**20:.1f} MiB per machine, "
+            f"{tables / gib:.2f} GiB of tables for {steps} steps), more than the "
+            f"{have / gib:.1f} GiB this process can have (free memory, ulimit -v); run "
+            f"fewer seeds per sweep (several --seeds ranges into one --out) or a shorter "
+            f"run.duration")
+
+
+def available_bytes() -> float:
+    """Memory this process can still take: the system's available memory, and what its
+    address-space and data limits (``ulimit -v``, ``-d``) leave; inf where unknown."""
+    import resource
+
+    def field(path: str, name: str) -> float:
+        try:
+            with open(path) as f:
+                for line in f:
+                    if line.startswith(name + ":"):
+                        return float(line.split()[1]) * 1024.0   # kB
+        except OSError:
+            pass
+        return float("inf")
+
+    have = field("/proc/meminfo", "MemAvailable")
+    for limit, used in ((resource.RLIMIT_AS, "VmSize"), (resource.RLIMIT_DATA, "VmData")):
+        soft = resource.getrlimit(limit)[0]
+        if soft != resource.RLIM_INFINITY:
+            taken = field("/proc/self/status", used)
+            have = min(have, soft - (0.0 if taken == float("inf") else taken))
+    return have
 
 
 class _NoContacts:
@@ -140,6 +202,7 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
         lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) and
         x.dtype in (jnp.float32, jnp.float64) and controller.kind != "policy" else x, params)
     every = control_every(scn.run, controller)
+    batch = samples_batch(len(fleet.names), batch)   # a block's samples within a budget
     steps, dt, n = fleet.steps, fleet.dt, fleet.order
     settings = LoopSettings(dt=dt, steps=steps, block_size=BLOCK,
                             state_bound=scn.plant.state_bound,

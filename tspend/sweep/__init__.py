@@ -321,6 +321,7 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
     from tspend.mjx import PRECISIONS, require
     from tspend.mjx.control import KINDS
     from tspend.mjx.machines import refusal
+    from tspend.mjx.sweep import check_memory
 
     if precision not in PRECISIONS:
         raise ScenarioError(f"--precision {precision!r}: allowed: {', '.join(PRECISIONS)}")
@@ -337,6 +338,12 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
             raise ScenarioError(f"--backend mjx: controller kind {job.controller!r} has no JAX "
                                 f"form (the mjx backend runs {', '.join(KINDS)}; give "
                                 f"--controller)")
+    # each scenario point's seeds are one fleet, built whole: out of memory is said now
+    fleets: dict[int, list] = {}
+    for job in plan:
+        fleets.setdefault(id(job.scenario), [job.scenario, set()])[1].add(job.seed)
+    for scenario, seeds in fleets.values():
+        check_memory(scenario, len(seeds))
 
 
 #: at most this many (scenario, grid point, controller) builds are tried before a sweep
