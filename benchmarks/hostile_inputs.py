@@ -288,6 +288,32 @@ class StepOsExit(Zero):
         os._exit(0)
 
 
+# failing before the first sample, each in its own way (issue 51, item 14)
+class InitOwnBase(Zero):
+    def __init__(self, scenario):
+        raise MyBase("built wrong")
+
+
+class InitExits(Zero):
+    def __init__(self, scenario):
+        sys.exit(0)
+
+
+class ResetRaises(Zero):
+    def reset(self, rng):
+        raise RuntimeError("reset broke")
+
+
+class ResetOwnBase(Zero):
+    def reset(self, rng):
+        raise MyBase("reset broke")
+
+
+class StepKeyboardInterrupt(Zero):
+    def step(self, obs, dt):
+        raise KeyboardInterrupt
+
+
 class StepPrints(Zero):
     kind = "step_prints"
 
@@ -871,6 +897,7 @@ def more_cases(add, sets: dict, mj_models: dict) -> None:
     misbehaving_cases(add)
     issue44_cases(add)
     issue44a_cases(add)  # issue 44, part A
+    issue51_cases(add)
     # -- guarded: modules other work is adding (skipped with a note when absent)
     gym = {
         "gym unknown scenario": 'import tspend.gym, gymnasium; gymnasium.make("tspend/nope-v0")',
@@ -1147,6 +1174,13 @@ def _damage_cache(d: Path, base: Path, damage: str) -> None:
             body = text.rsplit("# tspend-cache", 1)[0]
             digest = hashlib.sha256(body.encode()).hexdigest()
             module.write_text(f"{body}# tspend-cache key={'f' * 24} sha256={digest}\n")
+    if damage == "numba code swapped":
+        # another function's code over the dynamics' (issue 51: a segfault before)
+        code = sorted(pycache.glob("*.nbc"), key=lambda p: p.stat().st_size)
+        target = [p for p in code if ".dynamics-" in p.name]
+        other = [p for p in code if ".dynamics-" not in p.name]
+        if target and other:
+            shutil.copyfile(other[-1], target[0])
     if damage == "numba code truncated":
         for f in sorted(pycache.glob("*.nbc")):
             f.write_bytes(f.read_bytes()[:100])
@@ -1270,6 +1304,141 @@ def issue44_cases(add) -> None:
             "fail(list(frame.columns))\n"))
 
 
+# -- issue 51: hostile input and faults (items 12-17, 19, 20) -------------------------------
+def _slide_pole_model() -> str:
+    """models/double_cartpole.xml with hinge2 made a slide (issue 51, item 20)."""
+    text = (ROOT / "models" / "double_cartpole.xml").read_text()
+    return text.replace('name="hinge2" type="hinge"', 'name="hinge2" type="slide"')
+
+
+def _under_8gb(argv: list[str], phrase: str) -> str:
+    """An API case: ``tspend ARGV`` under an 8 GB address limit ends 2 with one line
+    holding ``phrase`` (the warp lines of mujoco-mjx aside, issue 51 item 5)."""
+    return FAIL + (
+        "import resource, subprocess\n"
+        "limit = lambda: resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))\n"
+        f"r = subprocess.run([sys.executable, '-m', 'tspend.cli', *{argv!r}],\n"
+        "                   capture_output=True, text=True, preexec_fn=limit)\n"
+        "lines = [l for l in r.stderr.splitlines() if l.strip() and 'warp' not in l]\n"
+        f"if r.returncode != 2 or len(lines) != 1 or {phrase!r} not in lines[0]:\n"
+        "    fail(f'exit {r.returncode}: {lines[-3:]}')\n")
+
+
+def issue51_cases(add) -> None:
+    """Issue 51's hostile inputs and faults, each as the issue ran it: show of a file
+    naming another by a relative path and into a full stdout (12); signals in the first
+    second of every command (13: a race a test cannot pin, so here); plug-ins failing before
+    their first sample (14); the mpsc plan period (15); mjx sizes and devices (16); caches
+    swapped, on a full file system, garbage in identify's .so (17); options a backend
+    would ignore, a sweep interrupted before its first row, gym actions that are strings,
+    check_claims without its page (19); a pole made a slide (20)."""
+    # 12
+    add("issue51 show of an excite experiment", [], 0, may_write=("exp.toml",), api=FAIL + (
+        "import subprocess\n"
+        "cli = [sys.executable, '-m', 'tspend.cli']\n"
+        "r = subprocess.run([*cli, 'excite', 'pendulum_mujoco', '--out', 'exp.toml'],\n"
+        "                   capture_output=True, text=True)\n"
+        "if r.returncode: fail(f'excite exit {r.returncode}')\n"
+        "r = subprocess.run([*cli, 'show', 'exp.toml'], capture_output=True, text=True)\n"
+        "if r.returncode: fail(f'show exit {r.returncode}: {r.stderr.strip()[-200:]}')\n"))
+    add("issue51 show into /dev/full", [], 0, api=FAIL + (
+        "import subprocess\n"
+        "with open('/dev/full', 'w') as full:\n"
+        "    r = subprocess.run([sys.executable, '-m', 'tspend.cli', 'show', 'pendulum_mujoco'],\n"
+        "                       stdout=full, stderr=subprocess.PIPE, text=True)\n"
+        "lines = r.stderr.strip().splitlines()\n"
+        "if r.returncode != 5 or len(lines) != 1 or 'stdout could not be written' not in lines[0]:\n"
+        "    fail(f'exit {r.returncode}: {lines[-2:]}')\n"))
+    # 13: the issue's times, and later ones (under load the interpreter alone may take 0.5 s)
+    plan = ["plan", "double_cartpole_swingup", "--nominal", "--out", "p.parquet"]
+    mine = {"p.parquet": b"PAR1 the user's own plan"}
+    for sig, status, at in ((signal.SIGINT, 130, 0.5), (signal.SIGTERM, 143, 0.6),
+                            (signal.SIGHUP, 129, 0.6), (signal.SIGINT, 130, 1.0),
+                            (signal.SIGTERM, 143, 1.5)):
+        add(f"issue51 plan {signal.Signals(sig).name} at {at} s", plan, status, files=mine,
+            send=(sig, at))
+    for argv, sig, status in ((["run", "double_cartpole_mujoco"] + OUT, signal.SIGINT, 130),
+                              (["crosscheck", "double_cartpole_mujoco"], signal.SIGTERM, 143),
+                              (["sweep", "pendulum_mujoco", "--seeds", "0:2", "--out",
+                                "s.parquet"], signal.SIGHUP, 129),
+                              (["identify", "R.csv", "--model", "M.xml", "--params", "m"],
+                               signal.SIGINT, 130)):
+        add(f"issue51 {argv[0]} {signal.Signals(sig).name} at 0.6 s", argv, status,
+            send=(sig, 0.6), files={"R.csv": _record_csv(model_text(), ("hinge", "slider"), 1.0)})
+    # 14
+    for cls, status in (("InitOwnBase", 2), ("InitExits", 2), ("ResetRaises", 6),
+                        ("ResetOwnBase", 6)):
+        add(f"issue51 plug-in {cls}", ["run", "ex3_pendulum_ode", "--duration", "0.05",
+                                       "--controller", f"Plug.py:{cls}"] + OUT, status)
+    for label, text in (("sys.exit(0)", "import sys\nsys.exit(0)\n"),
+                        ("its own BaseException", "class Mine(BaseException):\n    pass\n\n\n"
+                                                  "raise Mine('imported wrong')\n")):
+        add(f"issue51 plug-in {label} at import", ["run", "ex3_pendulum_ode", "--duration",
+                                                   "0.05", "--controller", "Bad.py:X"] + OUT,
+            files={"Bad.py": text})
+    add("issue51 plug-in raises KeyboardInterrupt itself",
+        ["run", "ex3_pendulum_ode", "--duration", "0.05", "--controller",
+         "Plug.py:StepKeyboardInterrupt"] + OUT, 6, may_write=("K.rrd", "K.json"),
+        check="metrics:controller_error")
+    # 15
+    add("issue51 mpsc plan_period 1e-9", ["run", "pendulum_mujoco", "--safety", "mpsc", "--set",
+                                          "safety.plan_period=1e-9"] + OUT)
+    # 16 (the warp lines of mujoco-mjx are item 5's: the checks read the error line)
+    mjx = ["sweep", "pendulum_mujoco", "--backend", "mjx", "--controller", "lqr"]
+    add("issue51 mjx 1e6 seeds under 8 GB", [], 0, needs="mujoco.mjx",
+        api=_under_8gb(mjx + ["--seeds", "0:1000000"], "GiB of memory"))
+    add("issue51 mjx duration 1e5 under 8 GB", [], 0, needs="mujoco.mjx",
+        api=_under_8gb(mjx + ["--seeds", "0:2", "--duration", "100000"], "GiB of memory"))
+    add("issue51 mjx JAX_PLATFORMS=cuda without a GPU", mjx + ["--seeds", "0:2"], 2,
+        needs="mujoco.mjx", env={"JAX_PLATFORMS": "cuda"}, check="said:JAX has no device")
+    # 17
+    add("issue51 cache numba code swapped", ARTICULATED_RUN, 0,
+        setup="cache:numba code swapped", env={"TSPEND_CACHE_DIR": "{d}/cache"},
+        may_write=("cache/",), check="said:replaced without its index")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:  # a full file system: a tmpfs, as root
+        add("issue51 cache on a full file system", ARTICULATED_RUN, 0, setup="full_fs",
+            env={"TSPEND_CACHE_DIR": "{d}/full/cache"}, may_write=("full/",))
+    add("issue51 identify --jit garbage in its .so", IDENTIFY_JIT, 0,
+        setup="identify_jit_garbage", env={"TSPEND_CACHE_DIR": "{d}/cache"},
+        files={"R.csv": _record_csv(model_text(), ("hinge", "slider"), 1.0)},
+        may_write=("cache/",), check="said:rebuilt")
+    # 19
+    add("issue51 sweep --precision float32 on cpu", SW + ["--precision", "float32"])
+    add("issue51 sweep mjx --dask local", mjx + ["--seeds", "0:2", "--dask", "local"],
+        needs="mujoco.mjx", check="said:--dask: the mjx backend")
+    add("issue51 sweep mjx --run-timeout", mjx + ["--seeds", "0:2", "--run-timeout", "5"],
+        needs="mujoco.mjx", check="said:--run-timeout: the mjx backend")
+    for safety in ("cbf", "mpsc"):
+        add(f"issue51 sweep mjx safety {safety} refused before the banner",
+            mjx + ["--seeds", "0:2", "--set", f"safety.filter={safety}"], needs="mujoco.mjx",
+            check="notsaid:sweep of")
+    add("issue51 sweep interrupted before its first row", ["sweep", "double_cartpole_mujoco",
+                                                           "--seeds", "0:2", "--out", "s.parquet"],
+        130, send=(signal.SIGINT, 12.0), may_write=("s.parquet",), check="notsaid:0 rows kept")
+    for label, action in (("string", '"0.5"'), ("bytes", 'b"1"')):
+        add(f"issue51 API gym env.step({label})", [], needs="tspend.gym", api=(
+            "from tspend.gym import TspendEnv\nenv = TspendEnv('pendulum_mujoco')\n"
+            f"env.reset(seed=0)\nenv.step({action})\n"))
+    add("issue51 check_claims without docs/results.md", [], 0, api=FAIL + (
+        f"sys.path.insert(0, {str(ROOT / 'tools')!r})\nimport check_claims\n"
+        "n, problems = check_claims.check_sections([('docs/none.md', '<!-- a -->', "
+        "'<!-- b -->', lambda: '', 'x')])\n"
+        "if not problems or 'missing' not in problems[0]: fail(problems)\n"))
+    # 20
+    slide = {"pole2_slide.xml": _slide_pole_model()}
+    for controller in ("pd", "lqr"):
+        add(f"issue51 pole made a slide, {controller}", [
+            "run", "double_cartpole_mujoco", "--controller", controller, "--set",
+            'plant.model="pole2_slide.xml"', "--duration", "1"] + OUT, files=slide)
+    add("issue51 pole made a slide, crosscheck", ["crosscheck", "double_cartpole_mujoco", "--set",
+                                                  'plant.model="pole2_slide.xml"'], files=slide)
+    add("issue51 pole made a slide, inspect", ["inspect", "pole2_slide.xml"], files=slide)
+
+
+IDENTIFY_JIT = ["identify", "R.csv", "--model", "M.xml", "--params", "m", "--jit",
+                "--segment", "0.5"]
+
+
 def _json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
@@ -1363,6 +1532,24 @@ def prepare(d: Path, case: Case) -> None:
         os.link(d / "notes.txt", d / "H.parquet.journal")
     if case.setup.startswith("cache:"):
         _damage_cache(d, d.parent, case.setup.partition(":")[2])
+    elif case.setup == "full_fs":
+        (d / "full").mkdir()
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(d / "full")],
+                       check=True)
+        with open(d / "full" / "fill", "wb") as f:   # until the file system is full
+            try:
+                while True:
+                    f.write(b"\0" * 65536)
+                    f.flush()
+            except OSError:
+                pass
+        (d / "full" / "cache").mkdir(exist_ok=True)
+    elif case.setup == "identify_jit_garbage":
+        env = dict(os.environ, TSPEND_CACHE_DIR=str(d / "cache"))
+        subprocess.run([sys.executable, "-m", "tspend.cli", *IDENTIFY_JIT], cwd=d, env=env,
+                       capture_output=True, timeout=900)
+        for so in (d / "cache" / "articulated" / "identify").glob("*.so"):
+            so.write_bytes(b"\x7fELF" + os.urandom(4000))
     elif case.setup == "tmp":
         (d / "tmp").mkdir()
     if case.setup == "locked_partial":
@@ -1598,6 +1785,8 @@ def _has_attribute(dotted: str) -> bool:
 
 
 def _cleanup(d: Path) -> None:
+    if os.path.ismount(d / "full"):   # the full_fs case's tmpfs
+        subprocess.run(["umount", str(d / "full")], check=False)
     for p in d.rglob("*"):
         try:
             if p.is_dir() and not p.is_symlink():
