@@ -78,57 +78,6 @@ def test_show_into_a_full_stdout_is_an_output_failure(tmp_path):
     assert len(lines) == 1 and "stdout could not be written (No space left" in lines[0]
 
 
-#: a user's plug-ins failing in each way item 14 found (Plug.py), and modules that fail as
-#: they are imported
-PLUGINS = '''
-import sys
-from tspend.controllers.base import Controller
-
-
-class Zero(Controller):
-    kind = "zero_force"
-
-    def __init__(self, scenario):
-        self.order = len(scenario.plant.x0)
-        self.diagnostics = ()
-
-    def reset(self, rng):
-        pass
-
-    def step(self, obs, dt):
-        return 0.0
-
-
-class Mine(BaseException):
-    pass
-
-
-class InitOwnBase(Zero):
-    def __init__(self, scenario):
-        raise Mine("built wrong")
-
-
-class InitExits(Zero):
-    def __init__(self, scenario):
-        sys.exit(0)
-
-
-class ResetRaises(Zero):
-    def reset(self, rng):
-        raise RuntimeError("reset broke")
-
-
-class ResetOwnBase(Zero):
-    def reset(self, rng):
-        raise Mine("reset broke")
-
-
-class StepKeyboardInterrupt(Zero):
-    def step(self, obs, dt):
-        raise KeyboardInterrupt
-'''
-
-
 def _in_process(capsys, *args: str) -> tuple[int, list[str]]:
     from tspend.cli.main import main
 
@@ -138,7 +87,13 @@ def _in_process(capsys, *args: str) -> tuple[int, list[str]]:
 
 @pytest.fixture()
 def plugins(tmp_path, monkeypatch):
-    (tmp_path / "Plug.py").write_text(PLUGINS)
+    """A user's folder holding benchmarks/hostile_inputs.py's plug-in file (Plug.py: a
+    good controller and one broken in each way, item 14's among them) and two modules
+    that fail as they are imported."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from hostile_inputs import PLUGIN
+
+    (tmp_path / "Plug.py").write_text(PLUGIN)
     (tmp_path / "ExitsAtImport.py").write_text("import sys\nsys.exit(0)\n")
     (tmp_path / "OwnBaseAtImport.py").write_text("class Mine(BaseException):\n    pass\n\n\n"
                                                  "raise Mine('imported wrong')\n")
@@ -151,12 +106,12 @@ RUN_PLUGIN = ("run", "ex3_pendulum_ode", "--duration", "0.05", "--out", "o.rrd",
 
 
 @pytest.mark.parametrize("spec, status, phrase", [
-    ("Plug.py:InitOwnBase", 2, "building it failed: Mine: built wrong"),
+    ("Plug.py:InitOwnBase", 2, "building it failed: MyBase: built wrong"),
     ("Plug.py:InitExits", 2, "building it failed: SystemExit: 0"),
     ("ExitsAtImport.py:X", 2, "importing it failed: SystemExit: 0"),
     ("OwnBaseAtImport.py:X", 2, "importing it failed: Mine: imported wrong"),
     ("Plug.py:ResetRaises", 6, "RuntimeError: reset broke"),
-    ("Plug.py:ResetOwnBase", 6, "Mine: reset broke"),
+    ("Plug.py:ResetOwnBase", 6, "MyBase: reset broke"),
 ])
 def test_a_plugin_failing_before_its_first_sample_is_one_line_and_writes_nothing(
         plugins, capsys, spec, status, phrase):
