@@ -1176,11 +1176,10 @@ def _damage_cache(d: Path, base: Path, damage: str) -> None:
             module.write_text(f"{body}# tspend-cache key={'f' * 24} sha256={digest}\n")
     if damage == "numba code swapped":
         # another function's code over the dynamics' (issue 51: a segfault before)
-        code = sorted(pycache.glob("*.nbc"), key=lambda p: p.stat().st_size)
-        target = [p for p in code if ".dynamics-" in p.name]
-        other = [p for p in code if ".dynamics-" not in p.name]
-        if target and other:
-            shutil.copyfile(other[-1], target[0])
+        for target in pycache.glob("*.dynamics-*.nbc"):   # each module's, from its rhs
+            module = target.name.split(".dynamics-")[0]
+            for other in pycache.glob(f"{module}.rhs-*.nbc"):
+                shutil.copyfile(other, target)
     if damage == "numba code truncated":
         for f in sorted(pycache.glob("*.nbc")):
             f.write_bytes(f.read_bytes()[:100])

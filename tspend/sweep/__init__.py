@@ -326,23 +326,26 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
     if precision not in PRECISIONS:
         raise ScenarioError(f"--precision {precision!r}: allowed: {', '.join(PRECISIONS)}")
     require()
+    # each scenario point's seeds are one fleet, built whole: checked once per point (a
+    # million seeds are a million jobs), out of memory said before anything is built
+    points: dict[int, tuple[Any, set, set]] = {}
     for job in plan:
-        why = refusal(job.scenario)
+        point = points.setdefault(id(job.scenario), (job.scenario, set(), set()))
+        point[1].add(job.seed)
+        point[2].add(job.controller)
+    for scenario, seeds, kinds in points.values():
+        why = refusal(scenario)
         if why:
             raise ScenarioError(why)
-        if job.scenario.safety.filter != "off":  # checked here: before the banner
-            raise ScenarioError(f"{job.scenario.path or job.scenario.name}: safety.filter = "
-                                f"{job.scenario.safety.filter!r} is not in the mjx backend; "
+        if scenario.safety.filter != "off":  # checked here: before the banner
+            raise ScenarioError(f"{scenario.path or scenario.name}: safety.filter = "
+                                f"{scenario.safety.filter!r} is not in the mjx backend; "
                                 f"run it on the CPU backend")
-        if job.controller not in KINDS:
-            raise ScenarioError(f"--backend mjx: controller kind {job.controller!r} has no JAX "
-                                f"form (the mjx backend runs {', '.join(KINDS)}; give "
-                                f"--controller)")
-    # each scenario point's seeds are one fleet, built whole: out of memory is said now
-    fleets: dict[int, list] = {}
-    for job in plan:
-        fleets.setdefault(id(job.scenario), [job.scenario, set()])[1].add(job.seed)
-    for scenario, seeds in fleets.values():
+        for kind in sorted(kinds, key=str):
+            if kind not in KINDS:
+                raise ScenarioError(f"--backend mjx: controller kind {kind!r} has no JAX "
+                                    f"form (the mjx backend runs {', '.join(KINDS)}; give "
+                                    f"--controller)")
         check_memory(scenario, len(seeds))
 
 
