@@ -69,7 +69,7 @@ def add_run_timeout_option(p) -> None:
     p.add_argument("--run-timeout", type=float, metavar="S",
                    help=f"kill a run still going after S seconds of wall time; its row has "
                         f"status 'timeout' and the others go on (default "
-                        f"{DEFAULT_RUN_TIMEOUT_S:g}; the cpu backend's only)")
+                        f"{DEFAULT_RUN_TIMEOUT_S:g})")
 
 
 #: statuses of runs that did not complete: no verdict on the controller, no metrics (a
