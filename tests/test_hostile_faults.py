@@ -353,3 +353,28 @@ def test_mjx_without_the_device_asked_for_is_one_line():
                           env=env, timeout=300)
     line = next((l for l in proc.stdout.splitlines() if l.startswith("REFUSED")), proc.stderr)
     assert "JAX has no device to run on with JAX_PLATFORMS='no_such_platform'" in line, line
+
+
+def test_the_program_installs_its_guard_before_the_cli_loads():
+    """Item 13, under load: the interpreter and ``import tspend`` alone took 0.48 s on the
+    shared machine, and a SIGINT at 0.5 s still found no handler.  Run as the program
+    (``python -m tspend.cli``), the guard is installed as soon as the interrupts module is
+    loaded, before the CLI's own modules, and a signal then is its status."""
+    probe = textwrap.dedent("""
+        import runpy, sys
+        from tspend.runtime import interrupts
+        real_install = interrupts.SignalGuard.install
+        def install(self):
+            if not getattr(interrupts, "FIRST", None):
+                interrupts.FIRST = sorted(m for m in sys.modules if m.startswith("tspend.cli"))
+                print("FIRST", interrupts.FIRST, file=sys.stderr, flush=True)
+            return real_install(self)
+        interrupts.SignalGuard.install = install
+        sys.argv = ["tspend", "show", "ex3_pendulum_ode"]
+        runpy.run_module("tspend.cli", run_name="__main__", alter_sys=True)
+        """)
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          cwd=ROOT, timeout=300)
+    line = next(l for l in proc.stderr.splitlines() if l.startswith("FIRST"))
+    assert line == "FIRST ['tspend.cli', 'tspend.cli.main']", line  # no common, no command
+    assert proc.returncode == 0, proc.stderr

@@ -24,12 +24,30 @@ import textwrap
 import traceback
 import warnings
 
-from tspend import __version__
-from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,
-                               ReaderGoneTolerant, release_warnings, say)
-from tspend.errors import TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard
-from tspend.shipped import SCENARIO_PATH_VARIABLE
+
+
+def _run_as_the_program() -> bool:
+    """Whether this module is being imported by the ``tspend`` program itself (its console
+    script, or ``python -m tspend.cli``), not by tests or a notebook."""
+    program = sys.modules.get("__main__")
+    spec = getattr(program, "__spec__", None)
+    return (getattr(spec, "name", "") == "tspend.cli.__main__"
+            or os.path.basename(getattr(program, "__file__", "") or "") == "tspend")
+
+
+#: the program's guard, installed as soon as the interrupts module is loaded (before the
+#: rest of this module's imports: a signal in the first half second of a loaded machine
+#: has its status too) and held, recording a signal until :func:`main` takes it over
+_EARLY_GUARD = SignalGuard().install() if _run_as_the_program() else None
+if _EARLY_GUARD is not None:
+    _EARLY_GUARD.hold()
+
+from tspend import __version__  # noqa: E402 - after the guard, on purpose
+from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,  # noqa: E402
+                               ReaderGoneTolerant, release_warnings, say)
+from tspend.errors import TspendError  # noqa: E402
+from tspend.shipped import SCENARIO_PATH_VARIABLE  # noqa: E402
 
 
 def command_modules() -> tuple:
@@ -111,12 +129,16 @@ def _prepend_scenario_path(folders: list[str]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    guard = SignalGuard().install()  # first: a signal from here on has its exit status
+    global _EARLY_GUARD
+    # first: a signal from here on has its exit status (the program's guard is in place
+    # since this module was imported)
+    guard, _EARLY_GUARD = _EARLY_GUARD or SignalGuard().install(), None
     real_stdout = sys.stdout
     sys.stdout = ReaderGoneTolerant(real_stdout)
     args: argparse.Namespace | None = None
     saved_path = os.environ.get(SCENARIO_PATH_VARIABLE)
     try:
+        guard.arm()  # a signal recorded while the modules loaded ends the command here
         from tspend.runtime.native_logs import quiet_rerun
 
         quiet_rerun()

@@ -120,6 +120,12 @@ class SignalGuard:
         """Signals stop raising (they are still recorded): for error handling and cleanup."""
         self._immediate = False
 
+    def arm(self) -> None:
+        """Signals raise again, and one already recorded raises now: for a guard installed
+        held (the program's, while its modules load) once the command can unwind."""
+        self._immediate = True
+        self.raise_if_stopped()
+
     @contextmanager
     def deferred(self) -> Iterator[StopRequest]:
         """From here on a signal only requests a stop; it never raises again.
