@@ -378,3 +378,16 @@ def test_the_program_installs_its_guard_before_the_cli_loads():
     line = next(l for l in proc.stderr.splitlines() if l.startswith("FIRST"))
     assert line == "FIRST ['tspend.cli', 'tspend.cli.main']", line  # no common, no command
     assert proc.returncode == 0, proc.stderr
+
+
+def test_an_interrupted_sweep_says_no_table_was_written_when_none_was(tmp_path, monkeypatch):
+    """Item 19: a sweep interrupted before its first row said "0 rows kept in s.parquet",
+    a file that did not exist.  What the interrupted sweep reports is what is on disk
+    (``benchmarks/hostile_inputs.py -k "issue51 sweep interrupted"`` sends the signal)."""
+    from tspend.cli.sweep import _kept
+    from tspend.sweep import read_table
+
+    monkeypatch.chdir(tmp_path)
+    assert _kept("s.parquet", read_table) == "no run finished, s.parquet not written"
+    assert _kept(None, read_table) == "nothing kept (no --out)"
+    assert not (tmp_path / "s.parquet").exists()
