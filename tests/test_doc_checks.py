@@ -4,6 +4,7 @@ statuses they expect, the figures they compare; and the fair budget's range wide
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -232,3 +233,78 @@ def test_the_furuta_linearisation_data_is_what_todays_code_computes() -> None:
     for key in ("A", "B", "eig_upright", "eig_hanging", "K"):
         np.testing.assert_allclose(np.array(now[key]), np.array(kept[key]), rtol=1e-9, atol=1e-12,
                                    err_msg=key)
+
+
+# -- every figure is checked or listed (issue 56) ----------------------------------------------
+#: what a reader sees of a line: code spans, HTML comments and link targets are not figures
+_HIDDEN = re.compile(r"`[^`]*`|<!--.*?-->|\]\([^)]*\)|https?://\S+")
+
+
+def _reader_figures(text: str) -> list[tuple[int, int, int]]:
+    """(line, start, end) of every run of digits a reader sees in a table row or a sentence:
+    outside fenced blocks, headings, code spans, comments, link targets and names."""
+    found, fenced, offset = [], False, 0
+    for number, line in enumerate(text.splitlines(keepends=True), 1):
+        stripped = line.strip()
+        if stripped.startswith("```"):
+            fenced = not fenced
+        elif not fenced and not stripped.startswith("#") and "<!--" not in line[:4]:
+            hidden = [m.span() for m in _HIDDEN.finditer(line)]
+            for m in re.finditer(r"(?<![A-Za-z_\d])\d+", line):   # not in a name (RK4)
+                if not any(a <= m.start() < b for a, b in hidden) and \
+                        not re.match(r"\s*\d+\.\s", line[:m.end() + 2]):
+                    found.append((number, offset + m.start(), offset + m.end()))
+        offset += len(line)
+    return found
+
+
+def _scratch_copy(tmp: Path) -> Path:
+    """README.md and docs/*.md copied under ``tmp``, everything else linked."""
+    (tmp / "docs").mkdir()
+    for entry in ROOT.iterdir():
+        if entry.name not in ("docs", "README.md", ".git", ".venv"):
+            (tmp / entry.name).symlink_to(entry)
+    for entry in (ROOT / "docs").iterdir():
+        if entry.suffix != ".md":
+            (tmp / "docs" / entry.name).symlink_to(entry)
+    for doc in [ROOT / "README.md", *(ROOT / "docs").glob("*.md")]:
+        (tmp / doc.relative_to(ROOT)).write_text(doc.read_text(encoding="utf-8"))
+    return tmp
+
+
+def test_changing_any_figure_fails_a_check_or_shows_on_the_unchecked_list(tmp_path: Path) -> None:
+    """In a scratch copy, one digit of a figure a reader sees is changed at a time (60 drawn
+    over every document): the marked-figure check or a generated section's rebuild fails,
+    or the changed figure is listed as unchecked at its line."""
+    root = _scratch_copy(tmp_path)
+    docs = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    where = [(doc, *f) for doc in docs for f in _reader_figures(doc.read_text(encoding="utf-8"))]
+    rng = np.random.default_rng(56)
+    for k in rng.choice(len(where), size=60, replace=False):
+        doc, line, start, end = where[k]
+        text = doc.read_text(encoding="utf-8")
+        digits = text[start:end]
+        changed = digits[:-1] + str((int(digits[-1]) + 1) % 10)
+        doc.write_text(text[:start] + changed + text[end:])
+        try:
+            problems = check_claims.check_markers([doc], root=root)[1]
+            problems += check_claims.check_sections(root=root)[1]
+            listed = [figure for n, figure in check_claims.unchecked_figures(doc, doc.read_text(),
+                                                                              root=root)
+                      if n == line]
+            assert problems or any(changed in figure.lstrip("-−") for figure in listed), \
+                f"{doc.relative_to(root)}:{line}: {digits} -> {changed} went unnoticed"
+        finally:
+            doc.write_text(text)
+
+
+def test_the_unchecked_figures_are_counted_against_a_ceiling(tmp_path: Path) -> None:
+    doc = tmp_path / "d.md"
+    doc.write_text("| kind | rmse |\n|---|---|\n| pd | 0.0123 |\n\nA 7x speed-up over 0-19 "
+                   "seeds, `tspend run x --seed 4` and 12.4 <!-- data: r.json a -->.\n\n"
+                   "```\nout 3.5\n```\n")
+    (tmp_path / "r.json").write_text('{"a": 12.4}')
+    listing, problems, count = check_claims.check_unchecked([doc], root=tmp_path, at_most=4)
+    assert count == 4 and problems == []
+    assert listing == ["d.md:3: 0.0123", "d.md:5: 7, 0, 19"]
+    assert check_claims.check_unchecked([doc], root=tmp_path, at_most=3)[1]
