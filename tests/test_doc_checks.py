@@ -69,6 +69,72 @@ def test_a_command_with_an_unexpected_status_fails(tmp_path: Path, capsys) -> No
     assert "FAIL" in out and "1 failed" in out
 
 
+def test_a_misspelt_program_fails_where_output_would_have_hidden_it(tmp_path: Path,
+                                                                     capsys) -> None:
+    """A line of a command block is a known program, a comment, or output directly under
+    a command; anything else, a misspelt program above all, fails without being run."""
+    doc = tmp_path / "doc.md"
+    doc.write_text('```\npython -c "print(1)"\n1\ntspnd run ex2_duffing --seed 3\n```\n\n'
+                   '```\ntspnd run ex2_duffing\n```\n\n'
+                   '```\npython -c "print(1)"\n\nstray text\n```\n\n'
+                   '```\n$ tspend run ex2_duffing\ntspend: error: ...\n$ tspned list\n```\n\n'
+                   '```\nscenario.toml ──► tspend/tables.py\n  hinge   0.001 / 0.0366\n```\n')
+    problems = [(c.line, c.problem) for c in check_docs.extract(doc) if c.problem]
+    assert [line for line, _ in problems] == [4, 8, 14, 20]
+    assert "'tspnd' is not a program" in problems[0][1] and "'tspnd'" in problems[1][1]
+    assert "neither a command nor output" in problems[2][1]
+    assert "'tspned' after the prompt" in problems[3][1]
+    assert check_docs.main([str(doc)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL" in out and "4 failed" in out and "ran 6 commands" in out
+
+
+def test_inline_commands_are_read_and_reproduce_lines_run(tmp_path: Path, capsys) -> None:
+    """Inline commands: a "Reproduce:" one runs; the others are read by tspend's own parser
+    (or the script's source); a template is listed, not read."""
+    doc = tmp_path / "doc.md"
+    doc.write_text("Run `tspend run ex2_duffing --seed 3 --duration 1` or `tspend inspect`, "
+                   "`tspend sweep --grid`, `tspend run SCENARIO --controller KIND`.\n\n"
+                   "Reproduce: `python -c \"import sys; sys.exit(0)\"`.\n")
+    cmds = check_docs.extract(doc)
+    assert [c.kind for c in cmds] == ["inline"] * 4 + ["shell"]
+    assert cmds[3].skip.startswith("a template")
+    assert check_docs.main([str(doc)]) == 0, capsys.readouterr().out
+    assert "ran 4 commands (4 with" in capsys.readouterr().out
+    for broken, why in (("`tspend run ex2_duffing --sed 3`", "tspend does not accept it"),
+                        ("`tspend sweep --gird`", "has no option --gird"),
+                        ("`python benchmarks/no_such.py`", "no such script"),
+                        ("`python benchmarks/seed_spread.py --no-such 2`", "has no option"),
+                        ("`python -c \"print(1\"`", "does not compile")):
+        doc.write_text(f"See {broken}.\n")
+        cmd, = check_docs.extract(doc)
+        assert why in check_docs.inline_problem(cmd.text)
+        assert check_docs.main([str(doc)]) == 1
+    doc.write_text('Reproduce: `python -c "import sys; sys.exit(4)"`.\n')
+    assert check_docs.main([str(doc)]) == 1
+    assert "exit 4 (expected 0" in capsys.readouterr().out
+
+
+def test_a_command_needing_an_extra_runs_with_it_or_is_skipped_naming_it(
+        tmp_path: Path, monkeypatch) -> None:
+    from importlib import metadata
+
+    doc = tmp_path / "doc.md"
+    doc.write_text("```\npython benchmarks/mpc_speed.py\n```\n\n<!-- check_docs: needs "
+                   "test -->\n```\npython -c 1\n```\n")
+    real = metadata.version
+    installed = {"do-mpc": True, "pytest": True}
+    monkeypatch.setattr(metadata, "version", lambda name: real(name) if installed.get(
+        name, True) else (_ for _ in ()).throw(metadata.PackageNotFoundError(name)))
+    bench, test = check_docs.extract(doc)
+    assert (bench.needs, test.needs) == ("bench", "test")
+    assert not test.skip and "needs the [bench]" not in bench.skip
+    installed.update({"do-mpc": False, "pytest": False})
+    bench, test = check_docs.extract(doc)
+    assert bench.skip.startswith("needs the [bench] extra") and "do-mpc" in bench.skip
+    assert test.skip.startswith("needs the [test] extra") and "pytest" in test.skip
+
+
 def test_python_in_a_shell_block_is_this_environment(tmp_path: Path, capsys) -> None:
     """``python`` of a shell block has this environment's packages (a linked venv
     interpreter would start without them)."""
