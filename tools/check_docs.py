@@ -12,6 +12,23 @@ source, ``toml`` blocks scenario text: read, never run. In a shell block a line 
 command when it starts with a program a reader types (``tspend``, ``python``,
 ``python3``, ``nice``, ``rerun``, ``pip``, ``cd``, ...); the other lines are the output a
 reader sees, never run. A command continues on the next line after a trailing ``\\``.
+Output sits directly under its command (no blank line between); in a block with commands
+any other line is an error, and so is, in any shell block, a line shaped like a command
+(a word then options or paths, a word close to a known program, a program on PATH) whose
+program is not known: a misspelt ``tspnd run ...`` fails rather than pass as output. A
+``$ `` prompt marks a transcript: shown, not run, its program checked.
+
+Inline commands (in backticks in the prose, starting with ``tspend``, ``python`` or
+``nice python``): on a line that says "Reproduce" they run as a fenced command does (a
+benchmark's ``--seeds`` dropped: it takes its short seeds); the
+others are read, not run: tspend's own parser must accept the words, a script must exist
+and name each option given, ``python -c`` code must compile. One with placeholders
+(``SCENARIO``, ``KIND``, ``...``, ``<machine>``) is a template: listed as skipped.
+
+A command that needs an optional extra of pyproject.toml (:data:`EXTRA_RULES`, or a
+marker ``<!-- check_docs: needs EXTRA -->`` before its block) runs when the extra's
+distributions are installed and is otherwise skipped with the extra named, so the check
+passes from the README's test environment (``pip install -e '.[test]'``).
 
 Each document runs in its own scratch folder, its blocks in order (a later command may use
 what an earlier one wrote), with ``models``, ``examples``, ``scenarios``, ``benchmarks``
@@ -46,8 +63,9 @@ The two modes:
   scripts are skipped, named); every other word of the command is the document's. Python
   blocks run as written. This is the fast subset the test suite runs.
 
-The full check needs the test and bench extras (pip install -e '.[test,bench]': gymnasium's
-MuJoCo envs, simpful, do-mpc for the benchmarks' peers).
+The full check runs everything with the test and bench extras (pip install -e
+'.[test,bench]': gymnasium's MuJoCo envs, simpful, do-mpc for the benchmarks' peers);
+with the test extra alone the bench commands are skipped, named.
 
 Exit 0 when every command ran with its expected status and the repository is as it was;
 1 otherwise. The last line says how many commands ran, how many failed, how many were
@@ -269,7 +287,10 @@ def _inline_commands(doc: str, prose: list[tuple[int, str]], short: bool) -> lis
         for m in INLINE.finditer(text):
             command = m.group(1).strip()
             if "reproduce" in text[:m.start()].lower():
-                cmd = Command(doc, line, command, "shell")
+                # a benchmark takes its short seeds (benchmarks/short_mode.py), not the
+                # full set the sentence reproduces
+                cmd = Command(doc, line, re.sub(r"\s--seeds[ =]\S+", "", command)
+                              if "benchmarks/" in command else command, "shell")
                 _skip_rules(cmd, short)
             else:
                 cmd = Command(doc, line, command, "inline")
