@@ -271,6 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         (out / "comparison_confirm.json").write_text(json.dumps(doc2, indent=1,
                                                                 allow_nan=False) + "\n")
     (out / "claims.json").write_text(json.dumps(claims, indent=1, allow_nan=False) + "\n")
+    claims_figure(claims, CLAIMS_FIGURE)
     old = page.read_text() if page.is_file() else "# Results\n"
     page.write_text(splice(old, section))
     if readme.is_file() and README_BEGIN in readme.read_text():
@@ -321,6 +322,7 @@ def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path
     claims["at_edge"] = [f"{scn}/{kind}/{key}" for (scn, kind), t in tuned.items()
                          for key, sp in t.get("space", {}).items()
                          if not 0.05 <= sp["position"] <= 0.95]
+    claims.update(run_facts(rows, test, confirm))
     claims["trials_per_parameter"] = budget.get("trials_per_parameter")
     claims["train_seeds"] = seeds_text(train)
     section = render(comp, scenarios, tuned, train, test, budget, out, page, claims)
@@ -395,26 +397,148 @@ def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
     return f"{head}; " + "; ".join(parts) + f" <!-- claim: {c['key']} -->"
 
 
+#: how the README's table names a scenario
+SHORT_NAMES = {"pendulum_mujoco_randomized": "MuJoCo", "ex3_pendulum_ode_randomized": "ODE"}
+#: the figure of the claims' paired differences (PNG, its data beside it as CSV)
+CLAIMS_FIGURE = ROOT / "docs" / "results" / "figures" / "fair_claims.png"
+
+
+def run_facts(rows, test, confirm) -> dict:
+    """What the claims rest on beyond the statistics, per scenario and kind, on the test
+    and the confirmation seeds: the runs that fell or diverged (``falls``) and the median
+    share of samples at the actuator's limit in % (``saturated_percent``)."""
+    facts: dict = {"falls": {}, "saturated_percent": {},
+                   "seeds_per_set": [len(test), len(confirm)]}
+    for (scn, kind), part in rows.groupby(["scenario", "controller"], sort=False):
+        sets = [part[part.seed.isin(seeds)] for seeds in (test, confirm)]
+        falls = [int(s.status.isin(["fell", "diverged"]).sum()) for s in sets]
+        facts["falls"].setdefault(scn, {})[kind] = falls
+        facts["saturated_percent"].setdefault(scn, {})[kind] = [
+            round(100.0 * float(s.saturated_fraction.median()), 6) for s in sets]
+    return facts
+
+
+def context_notes(claims: dict) -> list[str]:
+    """The facts a reader needs beside the claims: which tuned kinds fell (a fall scores
+    worst, so a claim against them is not shown), and which sit at the actuator's limit."""
+    from tspend.studies.stats import fmt
+
+    notes = []
+    for scn, kinds in claims.get("falls", {}).items():
+        fell: dict[tuple, list[str]] = {}     # the same counts, named once
+        for k, n in kinds.items():
+            if any(n):
+                fell.setdefault(tuple(n), []).append(k)
+        if fell:
+            rest = ("no other kind fell" if sum(map(len, fell.values())) < len(kinds)
+                    else "every kind fell")
+            notes.append(
+                f"On {scn}, tuned " + "; ".join(
+                    f"{' and '.join(ks)} fell on {n[0]} of {claims['seeds_per_set'][0]} "
+                    f"machines (seeds {claims['test_seeds']}) and {n[1]} of "
+                    f"{claims['seeds_per_set'][1]} ({claims['confirm_seeds']})"
+                    for n, ks in fell.items())
+                + f", {rest}: a fall scores worst, so a claim against a kind that fell is "
+                "not shown there.")
+    for scn, kinds in claims.get("saturated_percent", {}).items():
+        at = {k: v for k, v in kinds.items() if max(v) > 0}
+        if at:
+            notes.append(
+                f"On {scn}, the share of samples at the actuator's limit (median, the two "
+                f"sets): " + ", ".join(f"{k} {fmt(v[0])} % and {fmt(v[1])} %"
+                                      for k, v in at.items())
+                + ". A kind at the limit for its first samples removes the initial error "
+                "at the limit, whatever its law: where those kinds' `rmse` agree to three "
+                "digits, `rmse` measures the actuator's limit, and `rmse_ss` compares the "
+                "laws.")
+    return notes
+
+
+def _cell(s: dict | None) -> str:
+    from tspend.studies.stats import _fmt_p, fmt_ratio
+
+    if not s:
+        return "—"
+    return f"{fmt_ratio(float(s['median_ratio']))} (p {_fmt_p(float(s['p_holm']))})"
+
+
 def readme_claims(claims: dict, page: Path, readme: Path) -> str:
-    """The README's claims, generated from the claims file."""
+    """The README's claims, generated from the claims file: a table of the verdicts on both
+    seed sets, the figure of the paired differences, the facts the claims rest on."""
     rel = Path(os.path.relpath(page.resolve(), readme.parent.resolve())).as_posix()
-    edge = claims.get("at_edge", [])
-    ranges = ("on ranges where no optimum lies in the outer 5 %" if not edge else
-              f"on ranges widened where an optimum lay in the outer 5 % ({len(edge)} still "
-              f"there: {', '.join(edge)})")
+    fig = Path(os.path.relpath(CLAIMS_FIGURE.resolve(), readme.parent.resolve())).as_posix()
     per = claims.get("trials_per_parameter")
-    lines = [f"Every kind tuned on the same training seeds ({claims.get('train_seeds', '')}) "
-             f"with the same budget per setting it searches"
-             + (f" ({per} Optuna trials each: a coarse search)" if per else "")
-             + f", {ranges} ([{rel}]({rel}): the budget, the ranges and the optima), then run "
-             f"on two sets of seeds that "
-             f"draw the machine and the initial state: the test seeds {claims['test_seeds']} "
-             f"and a confirmation set {claims['confirm_seeds']} fixed before this wording. "
-             f"Medians of paired differences with 95 % bootstrap intervals, Holm-adjusted p "
-             f"({claims['family_test']}). A claim is shown only when both sets give it:", ""]
-    lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
-              for c in claims["claims"]]
+    lines = [f"Every kind tuned on training seeds {claims.get('train_seeds', '')}"
+             + (f" with {per} Optuna trials per setting it searches" if per else "")
+             + f" ([{rel}]({rel}): budget, ranges, optima), then run on the test seeds "
+             f"{claims['test_seeds']} and on {claims['confirm_seeds']}, fixed before this "
+             f"wording; a seed draws the machine and its initial state. Cell: median ratio "
+             f"of the first kind to the second over the paired seeds (Holm-adjusted p, "
+             f"{claims['family_test'].split(' (')[0]}); shown only when both sets give the "
+             f"same verdict (p < 0.05, 95 % bootstrap interval excluding 0).", "",
+             f"| claim | seeds {claims['test_seeds']} | seeds {claims['confirm_seeds']} | "
+             f"shown? |", "|---|---|---|---|"]
+    for c in claims["claims"]:
+        verdict = f"**shown**: {c['better']} lower" if c["shown"] else "not shown"
+        lines.append(f"| `{c['metric']}` ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
+                     f"{c['a']} / {c['b']} <!-- claim: {c['key']} --> | {_cell(c['test'])} | "
+                     f"{_cell(c['confirm'])} | {verdict} |")
+    lines += ["", f"![Each claim's median paired difference with its 95 % interval on both "
+                  f"seed sets]({fig})", ""]
+    lines += [" ".join(context_notes(claims))]
     return "\n".join(lines)
+
+
+def claims_figure(claims: dict, png: Path) -> Path:
+    """Each claim's median paired difference (first kind − second) with its 95 % bootstrap
+    interval on both seed sets, one panel a claim (an infinite end drawn to the panel's
+    edge); the figures beside it as CSV."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 4, figsize=(13, 5.2), constrained_layout=True)
+    for ax, c in zip(axes.flat, claims["claims"]):
+        for y, (name, seeds) in enumerate((("test", claims["test_seeds"]),
+                                           ("confirm", claims["confirm_seeds"]))):
+            s = c[name]
+            if not s:
+                continue
+            mid, lo, hi = (float(s[k]) for k in ("median_difference", "ci_low", "ci_high"))
+            finite = [v for v in (mid, lo, hi) if math.isfinite(v)]
+            span = max(map(abs, finite)) * 1.2 or 1.0
+            lo, hi = max(lo, -span), min(hi, span)
+            ax.errorbar([mid], [y], xerr=[[mid - lo], [hi - mid]], fmt="o", capsize=4,
+                        color="C0" if c["shown"] else "0.5")
+        ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_yticks([0, 1], [claims["test_seeds"], claims["confirm_seeds"]])
+        ax.set_ylim(-0.6, 1.6)
+        ax.set_title(f"{c['metric']} ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
+                     f"{c['a']} − {c['b']}\n{'shown' if c['shown'] else 'not shown'}",
+                     fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
+    for ax in list(axes.flat)[len(claims["claims"]):]:
+        ax.axis("off")
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    png.with_suffix(".csv").write_text(claims_figure_data(claims))
+    return png
+
+
+def claims_figure_data(claims: dict) -> str:
+    """The figure's data as CSV: per claim and seed set, the median paired difference, its
+    interval and Holm p (tools/check_claims.py rebuilds it from claims.json)."""
+    rows = ["claim,seeds,median_difference,ci_low,ci_high,p_holm,shown"]
+    for c in claims["claims"]:
+        for name, seeds in (("test", claims["test_seeds"]), ("confirm", claims["confirm_seeds"])):
+            s = c[name]
+            if s:
+                rows.append(",".join([c["key"], seeds, *(repr(float(s[k])) for k in (
+                    "median_difference", "ci_low", "ci_high", "p_holm")), str(c["shown"])]))
+    return "\n".join(rows) + "\n"
 
 
 def pair_table(comp, scenario: str) -> list[str]:
@@ -528,6 +652,7 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
                   f"verdict.", ""]
         lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
                   for c in claims["claims"]]
+        lines += [""] + context_notes(claims)
     lines += ["", "### Verdicts that survive Holm's correction", "",
               "Per pair and metric, the better kind, the median ratio worse/better over the "
               "test seeds and the Holm-adjusted p (— : no difference shown).", ""]
