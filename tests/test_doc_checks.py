@@ -374,3 +374,59 @@ def test_the_unchecked_figures_are_counted_against_a_ceiling(tmp_path: Path) -> 
     assert count == 4 and problems == []
     assert listing == ["d.md:3: 0.0123", "d.md:5: 7, 0, 19"]
     assert check_claims.check_unchecked([doc], root=tmp_path, at_most=3)[1]
+
+
+# -- an equal search: a space-filling start, then the same guided search (issue 56) ------------
+def test_the_space_filling_start_covers_every_range_in_each_setting() -> None:
+    from tspend.controllers.settings import Search
+    from tspend.studies.tune import space_filling_start
+
+    space = {"bandwidth": Search(0.2, 1000.0, True), "eta": Search(0.0, 2.0, False),
+             "gamma": Search(1e-3, 10.0, True), "q": Search(0.1, 100.0, True),
+             "phi": Search(0.0, 0.5, False)}
+    points = space_filling_start(space, 8, seed=0)
+    assert len(points) == 8
+    for key, s in space.items():
+        # the position in the range, computed here on its own (log scale for a log range)
+        at = np.array([(np.log(p[key] / s.low) / np.log(s.high / s.low)) if s.log
+                       else (p[key] - s.low) / (s.high - s.low) for p in points])
+        assert np.all((at >= 0) & (at <= 1))
+        assert sorted(np.floor(at * 8).astype(int)) == list(range(8)), key   # one per eighth
+    assert space_filling_start(space, 8, seed=1) != points        # scrambled by the seed
+
+
+def test_tune_starts_from_the_space_filling_points_then_tpe_guides(monkeypatch) -> None:
+    """The first trials are the Sobol points, in order; the trials after them are TPE's,
+    drawn near the best start point (a score with one minimum at 3 rad/s)."""
+    pytest.importorskip("optuna")
+    import tspend.scenario
+    import tspend.sweep
+    from tspend.controllers.settings import Search
+    from tspend.scenario import load_scenario
+    from tspend.studies import tune as tune_mod
+
+    tried: list[float] = []
+
+    def remember(scenario, **changes):
+        tried.append(next(v for k, v in changes.items() if k.endswith("bandwidth")))
+        return scenario
+
+    monkeypatch.setattr(tspend.scenario, "override", remember)
+    monkeypatch.setattr(tspend.sweep, "build_once", lambda plan: None)
+    monkeypatch.setattr(tune_mod, "_sweep_score",
+                        lambda scn, *a: abs(np.log(tried[-1] / 3.0)))
+    space = {"bandwidth": Search(0.2, 1000.0, True)}
+    r = tune_mod.tune(load_scenario("ex3_pendulum_ode"), "pd", trials=16, seeds=[1],
+                      executor=object(), defaults=False, space=space, start_trials=8)
+    start = [p["bandwidth"] for p in tune_mod.space_filling_start(space, 8, 0)]
+    np.testing.assert_allclose(tried[:8], start, rtol=1e-12)
+    assert min(tune_mod.position(space["bandwidth"], x) for x in tried[:8]) < 0.125
+    guided = tried[8:16]
+    best_start = min(start, key=lambda x: abs(np.log(x / 3.0)))
+    assert np.median(np.abs(np.log(np.array(guided) / 3.0))) < abs(np.log(start[0] / 3.0))
+    assert abs(np.log(r.drawn["bandwidth"] / 3.0)) <= abs(np.log(best_start / 3.0))
+    assert tune_mod.budget_trials("pd", 8, start_trials=8) == 16
+    assert tune_mod.budget_trials("second_type", 8, start_trials=8) == 48
+    with pytest.raises(Exception, match="start_trials"):
+        tune_mod.tune(load_scenario("ex3_pendulum_ode"), "pd", trials=4, seeds=[1],
+                      executor=object(), space=space, start_trials=5)
