@@ -175,6 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controller", default=",".join(KINDS), help="kinds K1,K2,...")
     ap.add_argument("--trials-per-parameter", type=int, default=8,
                     help="Optuna trials per setting a kind searches (the fair budget)")
+    ap.add_argument("--start-trials", type=int, default=8,
+                    help="space-filling (scrambled Sobol) trials every kind starts with "
+                         "before TPE guides it, on top of the per-setting budget; 8 puts a "
+                         "point in each eighth of every range (0: TPE's own random start)")
     ap.add_argument("--trials", type=int, default=None,
                     help="the same trials for every kind instead (the old, unfair budget)")
     ap.add_argument("--widen-rounds", type=int, default=2,
@@ -193,9 +197,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="run nothing: rewrite the page from the runs and tuned settings "
                          "kept in --out")
     args = ap.parse_args(argv)
-    for name in ("trials_per_parameter", "trials", "widen_rounds", "jobs"):
+    for name in ("trials_per_parameter", "trials", "widen_rounds", "jobs", "start_trials"):
         v = getattr(args, name)
-        if v is not None and not (0 <= v <= 1000) or (name != "widen_rounds" and v == 0):
+        if v is not None and not (0 <= v <= 1000) or (name not in ("widen_rounds",
+                                                                    "start_trials") and v == 0):
             ap.error(f"--{name.replace('_', '-')}: {v} is outside 1..1000")
 
     import pandas as pd
@@ -224,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("--confirm-seeds: must be disjoint from the test and training seeds")
         started = time.perf_counter()
         trials_of = {k: args.trials if args.trials is not None
-                     else budget_trials(k, args.trials_per_parameter) for k in kinds}
+                     else budget_trials(k, args.trials_per_parameter,
+                                        start_trials=args.start_trials) for k in kinds}
         runs = len(scenarios) * sum(trials_of[k] * len(train) + len(test) + len(confirm)
                                     for k in kinds)
         print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds, trials "
@@ -239,14 +245,16 @@ def main(argv: list[str] | None = None) -> int:
                                          train_seeds=train, test_seeds=[*test, *confirm],
                                          metric=args.metric, executor=executor,
                                          storage=str(journal), progress=True,
-                                         widen_rounds=args.widen_rounds)
+                                         widen_rounds=args.widen_rounds,
+                                         start_trials=args.start_trials)
         finally:
             executor.close()
         runs = sum(sum(r.rounds) * len(train) + len(test) + len(confirm)
                    for r in results.values())
         budget = dict(trials=args.trials, trials_per_parameter=args.trials_per_parameter
                       if args.trials is None else None, metric=args.metric,
-                      wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs)
+                      wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs,
+                      start_trials=args.start_trials)
         rows.to_parquet(out / "runs.parquet")
         (out / "tuned").mkdir(exist_ok=True)
         for (scn, kind), r in results.items():
@@ -272,6 +280,10 @@ def main(argv: list[str] | None = None) -> int:
                                                                 allow_nan=False) + "\n")
     (out / "claims.json").write_text(json.dumps(claims, indent=1, allow_nan=False) + "\n")
     claims_figure(claims, CLAIMS_FIGURE)
+    found = tried_positions(out, scenarios, tuned, train, budget["metric"],
+                            budget.get("start_trials") or 0)
+    if found:
+        trials_figure(found, tuned, TRIALS_FIGURE)
     old = page.read_text() if page.is_file() else "# Results\n"
     page.write_text(splice(old, section))
     if readme.is_file() and README_BEGIN in readme.read_text():
@@ -292,10 +304,78 @@ def load_saved(out: Path):
     scenarios = [load_scenario(s) for s in doc["scenarios"]]
     budget = dict(trials=doc["trials"], trials_per_parameter=doc.get("trials_per_parameter"),
                   metric=doc["metric"], wall_s=doc["wall_s"], jobs=doc.get("jobs", 2),
-                  runs=doc["runs"])
+                  runs=doc["runs"], start_trials=doc.get("start_trials", 0))
     tuned = {tuple(k.split("/")): v for k, v in doc["tuned"].items()}
     return (rows, scenarios, doc["controllers"], tuned, doc["train_seeds"], doc["test_seeds"],
             doc.get("confirm_seeds", []), budget)
+
+
+def tried_positions(out: Path, scenarios, tuned: dict, train, metric: str,
+                    start_trials: int = 0) -> dict:
+    """Per (scenario, kind): per searched setting, the positions (0 the low end, 1 the high
+    end of its last round's range) of every trial that round tried, read from the kept
+    journal (``tune.journal``, opened from a copy: reading leaves the kept one untouched).
+    Empty when there is no journal or no optuna."""
+    import shutil
+    import tempfile
+
+    try:
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+    except ImportError:
+        return {}
+    from tspend.controllers import search_space
+    from tspend.studies.tune import position, study_name
+
+    if not (out / "tune.journal").is_file():
+        return {}
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    found = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "tune.journal"
+        shutil.copyfile(out / "tune.journal", copy)
+        storage = JournalStorage(JournalFileBackend(str(copy)))
+        names = {s.study_name for s in storage.get_all_studies()}
+        for scn in scenarios:
+            for kind in {k for (sc, k) in tuned if sc == scn.name}:
+                kept = tuned[(scn.name, kind)].get("space", {})
+                space = {k: v._replace(low=kept[k]["low"], high=kept[k]["high"])
+                         for k, v in search_space(kind).items() if k in kept}
+                name = study_name(scn, kind, metric, train, space, start_trials)
+                if name not in names:
+                    continue
+                trials = optuna.load_study(study_name=name, storage=storage).trials
+                found[(scn.name, kind)] = {
+                    k: [position(sp, t.params[k]) for t in trials if k in t.params]
+                    for k, sp in space.items()}
+    return found
+
+
+def trials_figure(found: dict, tuned: dict, png: Path) -> Path:
+    """Each study's tried points against its range, one row per searched setting (0 the
+    low end, 1 the high end; the tuned optimum a cross)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [(scn, kind, key, at) for (scn, kind), keys in found.items()
+            for key, at in keys.items()]
+    fig, ax = plt.subplots(figsize=(9, 0.28 * len(rows) + 1.2), constrained_layout=True)
+    for y, (scn, kind, key, at) in enumerate(rows):
+        ax.plot(at, [y] * len(at), "|", color="C0", ms=9)
+        opt = tuned[(scn, kind)]["space"][key]["position"]
+        ax.plot([opt], [y], "x", color="C3", ms=8)
+    ax.set_yticks(range(len(rows)), [f"{SHORT_NAMES.get(s, s)} {k}: {key}"
+                                     for s, k, key, _ in rows], fontsize=7)
+    ax.set_xlim(-0.02, 1.02)
+    ax.invert_yaxis()
+    ax.set_xlabel("position in the range searched (log scale for a log range); x: the optimum")
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return png
 
 
 def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path, page: Path,
@@ -325,7 +405,9 @@ def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path
     claims.update(run_facts(rows, test, confirm))
     claims["trials_per_parameter"] = budget.get("trials_per_parameter")
     claims["train_seeds"] = seeds_text(train)
-    section = render(comp, scenarios, tuned, train, test, budget, out, page, claims)
+    found = tried_positions(out, scenarios, tuned, train, budget["metric"],
+                            budget.get("start_trials") or 0)
+    section = render(comp, scenarios, tuned, train, test, budget, out, page, claims, found)
     return doc, doc2, claims, section, readme_claims(claims, page, readme)
 
 
@@ -401,6 +483,8 @@ def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
 SHORT_NAMES = {"pendulum_mujoco_randomized": "MuJoCo", "ex3_pendulum_ode_randomized": "ODE"}
 #: the figure of the claims' paired differences (PNG, its data beside it as CSV)
 CLAIMS_FIGURE = ROOT / "docs" / "results" / "figures" / "fair_claims.png"
+#: the figure of each study's tried points against its range
+TRIALS_FIGURE = ROOT / "docs" / "results" / "figures" / "fair_trials.png"
 
 
 def run_facts(rows, test, confirm) -> dict:
@@ -564,7 +648,7 @@ def pair_table(comp, scenario: str) -> list[str]:
 
 
 def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
-           claims: dict | None = None) -> str:
+           claims: dict | None = None, found: dict | None = None) -> str:
     """The page's section, every sentence from the statistics."""
     import tspend
     from tspend.cli.compare import seeds_text
@@ -575,7 +659,19 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
 
     trials, metric = budget["trials"], budget["metric"]
     per = budget.get("trials_per_parameter")
-    if per:
+    start = budget.get("start_trials") or 0
+    if per and start:
+        budget_text = (f"**Budget, the same search for every kind:** {start} space-filling "
+                       f"trials (a scrambled Sobol sequence, sampler seed 0: one point in each "
+                       f"1/{start} of every range searched, whatever the number of settings), "
+                       f"then {per} Optuna TPE trials per setting the kind searches, guided by "
+                       f"every earlier score, × {len(train)} training seeds "
+                       f"({seeds_text(train)}): a kind searching five settings gets "
+                       f"{start} + {5 * per} trials, a kind searching one {start} + {per}. "
+                       f"Where an optimum lay in the outer 5 % of its range, that edge was "
+                       f"moved out and the kind tuned again with its full budget (the rounds "
+                       f"column).")
+    elif per:
         budget_text = (f"**Budget, the same per setting searched:** {per} Optuna TPE trials "
                        f"(sampler seed 0) per setting a kind searches, × {len(train)} training "
                        f"seeds ({seeds_text(train)}): a kind searching five settings (the "
@@ -603,8 +699,11 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
         f"its budget and scores: `{rel(out / 'tuned')}/`.",
         "",
         budget_text + f" Each trial minimises the median `{metric}` over the training seeds (a "
-        f"run that fell or diverged scores worst); TPE's first 10 trials are random, so a "
-        f"small budget is a coarse search. The tuned kinds are then compared on the "
+        f"run that fell or diverged scores worst)"
+        + ("" if start else "; TPE's first 10 trials are random, so a kind searching one "
+           "setting with fewer trials had a random search, over the part of its range the "
+           "tried column shows")
+        + f". The tuned kinds are then compared on the "
         f"{len(test)} test seeds "
         f"{seeds_text(test)}, disjoint from the training ones, paired by seed, over every "
         f"pair of kinds, with Holm's correction ({comp.settings['correction']}). A verdict "
@@ -635,15 +734,25 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
                   "optimum lies in it (0 % the low end, 100 % the high end; on the log scale "
                   "for a log range). An optimum in the outer 5 % is marked: where it is at a "
                   "setting's own limit (a boundary layer of 0) the range cannot be widened.", "",
-                  "| scenario | kind | setting | range | optimum | position | rounds (trials) |",
-                  "|---|---|---|---|---:|---:|---|"]
+                  "| scenario | kind | setting | range | optimum | position | tried (lowest-"
+                  "highest position) | rounds (trials) |",
+                  "|---|---|---|---|---:|---:|---|---|"]
+        found = found or {}
         for (scn, kind), t in tuned.items():
             for key, sp in t.get("space", {}).items():
                 edge = sp["position"] < 0.05 or sp["position"] > 0.95
+                at = found.get((scn, kind), {}).get(key)
+                tried = (f"{100 * min(at):.1f}-{100 * max(at):.1f} % ({len(at)})" if at
+                         else "—")
                 lines.append(f"| {scn} | {kind} | {key} | {fmt(sp['low'])}-{fmt(sp['high'])} "
                              f"{'log' if sp['log'] else 'linear'} | {fmt(sp['optimum'])} | "
                              f"{100 * sp['position']:.1f} %{' (at the edge)' if edge else ''} | "
-                             f"{', '.join(map(str, t.get('rounds', [])))} |")
+                             f"{tried} | {', '.join(map(str, t.get('rounds', [])))} |")
+        if found:
+            lines += ["", f"![Each study's tried points against its range]"
+                          f"({rel(TRIALS_FIGURE)})", "",
+                      "*Each study's tried points (the last round's) against its range; x: "
+                      "the tuned optimum.*"]
     if claims and claims.get("claims"):
         lines += ["", "### Headline claims on both seed sets", "",
                   f"Test seeds {claims['test_seeds']} ({claims['family_test']}); confirmation "
