@@ -404,6 +404,7 @@ def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path
                          if not 0.05 <= sp["position"] <= 0.95]
     claims.update(run_facts(rows, test, confirm))
     claims["trials_per_parameter"] = budget.get("trials_per_parameter")
+    claims["start_trials"] = budget.get("start_trials") or 0
     claims["train_seeds"] = seeds_text(train)
     found = tried_positions(out, scenarios, tuned, train, budget["metric"],
                             budget.get("start_trials") or 0)
@@ -554,6 +555,9 @@ def readme_claims(claims: dict, page: Path, readme: Path) -> str:
     per = claims.get("trials_per_parameter")
     lines = [f"Every kind tuned on training seeds {claims.get('train_seeds', '')}"
              + (f" with {per} Optuna trials per setting it searches" if per else "")
+             + (f" after {claims['start_trials']} space-filling ones" if claims.get(
+                 "start_trials") else " (before the space-filling start: TPE's random start "
+                "only, so a one-setting kind saw part of its range)")
              + f" ([{rel}]({rel}): budget, ranges, optima), then run on the test seeds "
              f"{claims['test_seeds']} and on {claims['confirm_seeds']}, fixed before this "
              f"wording; a seed draws the machine and its initial state. Cell: median ratio "
