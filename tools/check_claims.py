@@ -11,7 +11,9 @@ Two kinds of claims are checked:
   the kept runs (``runs.parquet``, the statistics recomputed with the same seeded
   bootstrap) and must equal the committed text, and ``claims.json`` must equal the claims
   rebuilt from the runs. Every number in the sections is counted as a checked figure.
-* **Rendered sections.** The sections of :data:`SECTIONS` (docs/controllers.md's
+* **Rendered sections.** The sections of :data:`SECTIONS` (docs/results.md's verdicts
+  and tables from ``docs/results/runs.parquet`` through benchmarks/results.py's
+  ``statistics_section``, docs/controllers.md's
   full-state results from ``docs/results/full_state_controllers.csv``, docs/identify.md's
   double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``,
   docs/results.md's tuning curves from ``docs/results/fair/tuning_curves.json``) are
