@@ -338,7 +338,7 @@ def tried_positions(out: Path, scenarios, tuned: dict, train, metric: str,
         storage = JournalStorage(JournalFileBackend(str(copy)))
         names = {s.study_name for s in storage.get_all_studies()}
         for scn in scenarios:
-            for kind in {k for (sc, k) in tuned if sc == scn.name}:
+            for kind in [k for (sc, k) in tuned if sc == scn.name]:     # tuned's order
                 kept = tuned[(scn.name, kind)].get("space", {})
                 space = {k: v._replace(low=kept[k]["low"], high=kept[k]["high"])
                          for k, v in search_space(kind).items() if k in kept}
@@ -571,9 +571,9 @@ def readme_claims(claims: dict, page: Path, readme: Path) -> str:
         lines.append(f"| `{c['metric']}` ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
                      f"{c['a']} / {c['b']} <!-- claim: {c['key']} --> | {_cell(c['test'])} | "
                      f"{_cell(c['confirm'])} | {verdict} |")
-    lines += ["", f"![Each claim's median paired difference with its 95 % interval on both "
-                  f"seed sets]({fig})", ""]
-    lines += [" ".join(context_notes(claims))]
+    lines += ["", " ".join(context_notes(claims) + [
+        f"![Each claim's median paired difference with its 95 % interval on both seed "
+        f"sets]({fig})"])]
     return "\n".join(lines)
 
 
