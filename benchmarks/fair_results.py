@@ -175,6 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controller", default=",".join(KINDS), help="kinds K1,K2,...")
     ap.add_argument("--trials-per-parameter", type=int, default=8,
                     help="Optuna trials per setting a kind searches (the fair budget)")
+    ap.add_argument("--start-trials", type=int, default=8,
+                    help="space-filling (scrambled Sobol) trials every kind starts with "
+                         "before TPE guides it, on top of the per-setting budget; 8 puts a "
+                         "point in each eighth of every range (0: TPE's own random start)")
     ap.add_argument("--trials", type=int, default=None,
                     help="the same trials for every kind instead (the old, unfair budget)")
     ap.add_argument("--widen-rounds", type=int, default=2,
@@ -193,9 +197,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="run nothing: rewrite the page from the runs and tuned settings "
                          "kept in --out")
     args = ap.parse_args(argv)
-    for name in ("trials_per_parameter", "trials", "widen_rounds", "jobs"):
+    for name in ("trials_per_parameter", "trials", "widen_rounds", "jobs", "start_trials"):
         v = getattr(args, name)
-        if v is not None and not (0 <= v <= 1000) or (name != "widen_rounds" and v == 0):
+        if v is not None and not (0 <= v <= 1000) or (name not in ("widen_rounds",
+                                                                    "start_trials") and v == 0):
             ap.error(f"--{name.replace('_', '-')}: {v} is outside 1..1000")
 
     import pandas as pd
@@ -224,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("--confirm-seeds: must be disjoint from the test and training seeds")
         started = time.perf_counter()
         trials_of = {k: args.trials if args.trials is not None
-                     else budget_trials(k, args.trials_per_parameter) for k in kinds}
+                     else budget_trials(k, args.trials_per_parameter,
+                                        start_trials=args.start_trials) for k in kinds}
         runs = len(scenarios) * sum(trials_of[k] * len(train) + len(test) + len(confirm)
                                     for k in kinds)
         print(f"fair results: {len(scenarios)} scenarios x {len(kinds)} kinds, trials "
@@ -239,14 +245,16 @@ def main(argv: list[str] | None = None) -> int:
                                          train_seeds=train, test_seeds=[*test, *confirm],
                                          metric=args.metric, executor=executor,
                                          storage=str(journal), progress=True,
-                                         widen_rounds=args.widen_rounds)
+                                         widen_rounds=args.widen_rounds,
+                                         start_trials=args.start_trials)
         finally:
             executor.close()
         runs = sum(sum(r.rounds) * len(train) + len(test) + len(confirm)
                    for r in results.values())
         budget = dict(trials=args.trials, trials_per_parameter=args.trials_per_parameter
                       if args.trials is None else None, metric=args.metric,
-                      wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs)
+                      wall_s=time.perf_counter() - started, jobs=args.jobs, runs=runs,
+                      start_trials=args.start_trials)
         rows.to_parquet(out / "runs.parquet")
         (out / "tuned").mkdir(exist_ok=True)
         for (scn, kind), r in results.items():
@@ -271,6 +279,11 @@ def main(argv: list[str] | None = None) -> int:
         (out / "comparison_confirm.json").write_text(json.dumps(doc2, indent=1,
                                                                 allow_nan=False) + "\n")
     (out / "claims.json").write_text(json.dumps(claims, indent=1, allow_nan=False) + "\n")
+    claims_figure(claims, CLAIMS_FIGURE)
+    found = tried_positions(out, scenarios, tuned, train, budget["metric"],
+                            budget.get("start_trials") or 0)
+    if found:
+        trials_figure(found, tuned, TRIALS_FIGURE)
     old = page.read_text() if page.is_file() else "# Results\n"
     page.write_text(splice(old, section))
     if readme.is_file() and README_BEGIN in readme.read_text():
@@ -291,10 +304,78 @@ def load_saved(out: Path):
     scenarios = [load_scenario(s) for s in doc["scenarios"]]
     budget = dict(trials=doc["trials"], trials_per_parameter=doc.get("trials_per_parameter"),
                   metric=doc["metric"], wall_s=doc["wall_s"], jobs=doc.get("jobs", 2),
-                  runs=doc["runs"])
+                  runs=doc["runs"], start_trials=doc.get("start_trials", 0))
     tuned = {tuple(k.split("/")): v for k, v in doc["tuned"].items()}
     return (rows, scenarios, doc["controllers"], tuned, doc["train_seeds"], doc["test_seeds"],
             doc.get("confirm_seeds", []), budget)
+
+
+def tried_positions(out: Path, scenarios, tuned: dict, train, metric: str,
+                    start_trials: int = 0) -> dict:
+    """Per (scenario, kind): per searched setting, the positions (0 the low end, 1 the high
+    end of its last round's range) of every trial that round tried, read from the kept
+    journal (``tune.journal``, opened from a copy: reading leaves the kept one untouched).
+    Empty when there is no journal or no optuna."""
+    import shutil
+    import tempfile
+
+    try:
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+    except ImportError:
+        return {}
+    from tspend.controllers import search_space
+    from tspend.studies.tune import position, study_name
+
+    if not (out / "tune.journal").is_file():
+        return {}
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    found = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "tune.journal"
+        shutil.copyfile(out / "tune.journal", copy)
+        storage = JournalStorage(JournalFileBackend(str(copy)))
+        names = {s.study_name for s in storage.get_all_studies()}
+        for scn in scenarios:
+            for kind in [k for (sc, k) in tuned if sc == scn.name]:     # tuned's order
+                kept = tuned[(scn.name, kind)].get("space", {})
+                space = {k: v._replace(low=kept[k]["low"], high=kept[k]["high"])
+                         for k, v in search_space(kind).items() if k in kept}
+                name = study_name(scn, kind, metric, train, space, start_trials)
+                if name not in names:
+                    continue
+                trials = optuna.load_study(study_name=name, storage=storage).trials
+                found[(scn.name, kind)] = {
+                    k: [position(sp, t.params[k]) for t in trials if k in t.params]
+                    for k, sp in space.items()}
+    return found
+
+
+def trials_figure(found: dict, tuned: dict, png: Path) -> Path:
+    """Each study's tried points against its range, one row per searched setting (0 the
+    low end, 1 the high end; the tuned optimum a cross)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [(scn, kind, key, at) for (scn, kind), keys in found.items()
+            for key, at in keys.items()]
+    fig, ax = plt.subplots(figsize=(9, 0.28 * len(rows) + 1.2), constrained_layout=True)
+    for y, (scn, kind, key, at) in enumerate(rows):
+        ax.plot(at, [y] * len(at), "|", color="C0", ms=9)
+        opt = tuned[(scn, kind)]["space"][key]["position"]
+        ax.plot([opt], [y], "x", color="C3", ms=8)
+    ax.set_yticks(range(len(rows)), [f"{SHORT_NAMES.get(s, s)} {k}: {key}"
+                                     for s, k, key, _ in rows], fontsize=7)
+    ax.set_xlim(-0.02, 1.02)
+    ax.invert_yaxis()
+    ax.set_xlabel("position in the range searched (log scale for a log range); x: the optimum")
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return png
 
 
 def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path, page: Path,
@@ -321,9 +402,13 @@ def build(rows, scenarios, kinds, tuned, train, test, confirm, budget, out: Path
     claims["at_edge"] = [f"{scn}/{kind}/{key}" for (scn, kind), t in tuned.items()
                          for key, sp in t.get("space", {}).items()
                          if not 0.05 <= sp["position"] <= 0.95]
+    claims.update(run_facts(rows, test, confirm))
     claims["trials_per_parameter"] = budget.get("trials_per_parameter")
+    claims["start_trials"] = budget.get("start_trials") or 0
     claims["train_seeds"] = seeds_text(train)
-    section = render(comp, scenarios, tuned, train, test, budget, out, page, claims)
+    found = tried_positions(out, scenarios, tuned, train, budget["metric"],
+                            budget.get("start_trials") or 0)
+    section = render(comp, scenarios, tuned, train, test, budget, out, page, claims, found)
     return doc, doc2, claims, section, readme_claims(claims, page, readme)
 
 
@@ -395,26 +480,153 @@ def claim_sentence(c: dict, test_text: str, confirm_text: str) -> str:
     return f"{head}; " + "; ".join(parts) + f" <!-- claim: {c['key']} -->"
 
 
+#: how the README's table names a scenario
+SHORT_NAMES = {"pendulum_mujoco_randomized": "MuJoCo", "ex3_pendulum_ode_randomized": "ODE"}
+#: the figure of the claims' paired differences (PNG, its data beside it as CSV)
+CLAIMS_FIGURE = ROOT / "docs" / "results" / "figures" / "fair_claims.png"
+#: the figure of each study's tried points against its range
+TRIALS_FIGURE = ROOT / "docs" / "results" / "figures" / "fair_trials.png"
+
+
+def run_facts(rows, test, confirm) -> dict:
+    """What the claims rest on beyond the statistics, per scenario and kind, on the test
+    and the confirmation seeds: the runs that fell or diverged (``falls``) and the median
+    share of samples at the actuator's limit in % (``saturated_percent``)."""
+    facts: dict = {"falls": {}, "saturated_percent": {},
+                   "seeds_per_set": [len(test), len(confirm)]}
+    for (scn, kind), part in rows.groupby(["scenario", "controller"], sort=False):
+        sets = [part[part.seed.isin(seeds)] for seeds in (test, confirm)]
+        falls = [int(s.status.isin(["fell", "diverged"]).sum()) for s in sets]
+        facts["falls"].setdefault(scn, {})[kind] = falls
+        facts["saturated_percent"].setdefault(scn, {})[kind] = [
+            round(100.0 * float(s.saturated_fraction.median()), 6) for s in sets]
+    return facts
+
+
+def context_notes(claims: dict) -> list[str]:
+    """The facts a reader needs beside the claims: which tuned kinds fell (a fall scores
+    worst, so a claim against them is not shown), and which sit at the actuator's limit."""
+    from tspend.studies.stats import fmt
+
+    notes = []
+    for scn, kinds in claims.get("falls", {}).items():
+        fell: dict[tuple, list[str]] = {}     # the same counts, named once
+        for k, n in kinds.items():
+            if any(n):
+                fell.setdefault(tuple(n), []).append(k)
+        if fell:
+            rest = ("no other kind fell" if sum(map(len, fell.values())) < len(kinds)
+                    else "every kind fell")
+            notes.append(
+                f"On {scn}, tuned " + "; ".join(
+                    f"{' and '.join(ks)} fell on {n[0]} of {claims['seeds_per_set'][0]} "
+                    f"machines (seeds {claims['test_seeds']}) and {n[1]} of "
+                    f"{claims['seeds_per_set'][1]} ({claims['confirm_seeds']})"
+                    for n, ks in fell.items())
+                + f", {rest}: a fall scores worst, so a claim against a kind that fell is "
+                "not shown there.")
+    for scn, kinds in claims.get("saturated_percent", {}).items():
+        at = {k: v for k, v in kinds.items() if max(v) > 0}
+        if at:
+            notes.append(
+                f"On {scn}, the share of samples at the actuator's limit (median, the two "
+                f"sets): " + ", ".join(f"{k} {fmt(v[0])} % and {fmt(v[1])} %"
+                                      for k, v in at.items())
+                + ". A kind at the limit for its first samples removes the initial error "
+                "at the limit, whatever its law: where those kinds' `rmse` agree to three "
+                "digits, `rmse` measures the actuator's limit, and `rmse_ss` compares the "
+                "laws.")
+    return notes
+
+
+def _cell(s: dict | None) -> str:
+    from tspend.studies.stats import _fmt_p, fmt_ratio
+
+    if not s:
+        return "—"
+    return f"{fmt_ratio(float(s['median_ratio']))} (p {_fmt_p(float(s['p_holm']))})"
+
+
 def readme_claims(claims: dict, page: Path, readme: Path) -> str:
-    """The README's claims, generated from the claims file."""
+    """The README's claims, generated from the claims file: a table of the verdicts on both
+    seed sets, the figure of the paired differences, the facts the claims rest on."""
     rel = Path(os.path.relpath(page.resolve(), readme.parent.resolve())).as_posix()
-    edge = claims.get("at_edge", [])
-    ranges = ("on ranges where no optimum lies in the outer 5 %" if not edge else
-              f"on ranges widened where an optimum lay in the outer 5 % ({len(edge)} still "
-              f"there: {', '.join(edge)})")
+    fig = Path(os.path.relpath(CLAIMS_FIGURE.resolve(), readme.parent.resolve())).as_posix()
     per = claims.get("trials_per_parameter")
-    lines = [f"Every kind tuned on the same training seeds ({claims.get('train_seeds', '')}) "
-             f"with the same budget per setting it searches"
-             + (f" ({per} Optuna trials each: a coarse search)" if per else "")
-             + f", {ranges} ([{rel}]({rel}): the budget, the ranges and the optima), then run "
-             f"on two sets of seeds that "
-             f"draw the machine and the initial state: the test seeds {claims['test_seeds']} "
-             f"and a confirmation set {claims['confirm_seeds']} fixed before this wording. "
-             f"Medians of paired differences with 95 % bootstrap intervals, Holm-adjusted p "
-             f"({claims['family_test']}). A claim is shown only when both sets give it:", ""]
-    lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
-              for c in claims["claims"]]
+    lines = [f"Every kind tuned on training seeds {claims.get('train_seeds', '')}"
+             + (f" with {per} Optuna trials per setting it searches" if per else "")
+             + (f" after {claims['start_trials']} space-filling ones" if claims.get(
+                 "start_trials") else " (before the space-filling start: TPE's random start "
+                "only, so a one-setting kind saw part of its range)")
+             + f" ([{rel}]({rel}): budget, ranges, optima), then run on the test seeds "
+             f"{claims['test_seeds']} and on {claims['confirm_seeds']}, fixed before this "
+             f"wording; a seed draws the machine and its initial state. Cell: median ratio "
+             f"of the first kind to the second over the paired seeds (Holm-adjusted p, "
+             f"{claims['family_test'].split(' (')[0]}); shown only when both sets give the "
+             f"same verdict (p < 0.05, 95 % bootstrap interval excluding 0).", "",
+             f"| claim | seeds {claims['test_seeds']} | seeds {claims['confirm_seeds']} | "
+             f"shown? |", "|---|---|---|---|"]
+    for c in claims["claims"]:
+        verdict = f"**shown**: {c['better']} lower" if c["shown"] else "not shown"
+        lines.append(f"| `{c['metric']}` ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
+                     f"{c['a']} / {c['b']} <!-- claim: {c['key']} --> | {_cell(c['test'])} | "
+                     f"{_cell(c['confirm'])} | {verdict} |")
+    lines += ["", " ".join(context_notes(claims) + [
+        f"![Each claim's median paired difference with its 95 % interval on both seed "
+        f"sets]({fig})"])]
     return "\n".join(lines)
+
+
+def claims_figure(claims: dict, png: Path) -> Path:
+    """Each claim's median paired difference (first kind − second) with its 95 % bootstrap
+    interval on both seed sets, one panel a claim (an infinite end drawn to the panel's
+    edge); the figures beside it as CSV."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 4, figsize=(13, 5.2), constrained_layout=True)
+    for ax, c in zip(axes.flat, claims["claims"]):
+        for y, (name, seeds) in enumerate((("test", claims["test_seeds"]),
+                                           ("confirm", claims["confirm_seeds"]))):
+            s = c[name]
+            if not s:
+                continue
+            mid, lo, hi = (float(s[k]) for k in ("median_difference", "ci_low", "ci_high"))
+            finite = [v for v in (mid, lo, hi) if math.isfinite(v)]
+            span = max(map(abs, finite)) * 1.2 or 1.0
+            lo, hi = max(lo, -span), min(hi, span)
+            ax.errorbar([mid], [y], xerr=[[mid - lo], [hi - mid]], fmt="o", capsize=4,
+                        color="C0" if c["shown"] else "0.5")
+        ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_yticks([0, 1], [claims["test_seeds"], claims["confirm_seeds"]])
+        ax.set_ylim(-0.6, 1.6)
+        ax.set_title(f"{c['metric']} ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
+                     f"{c['a']} − {c['b']}\n{'shown' if c['shown'] else 'not shown'}",
+                     fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
+    for ax in list(axes.flat)[len(claims["claims"]):]:
+        ax.axis("off")
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    png.with_suffix(".csv").write_text(claims_figure_data(claims))
+    return png
+
+
+def claims_figure_data(claims: dict) -> str:
+    """The figure's data as CSV: per claim and seed set, the median paired difference, its
+    interval and Holm p (tools/check_claims.py rebuilds it from claims.json)."""
+    rows = ["claim,seeds,median_difference,ci_low,ci_high,p_holm,shown"]
+    for c in claims["claims"]:
+        for name, seeds in (("test", claims["test_seeds"]), ("confirm", claims["confirm_seeds"])):
+            s = c[name]
+            if s:
+                rows.append(",".join([c["key"], seeds, *(repr(float(s[k])) for k in (
+                    "median_difference", "ci_low", "ci_high", "p_holm")), str(c["shown"])]))
+    return "\n".join(rows) + "\n"
 
 
 def pair_table(comp, scenario: str) -> list[str]:
@@ -440,7 +652,7 @@ def pair_table(comp, scenario: str) -> list[str]:
 
 
 def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
-           claims: dict | None = None) -> str:
+           claims: dict | None = None, found: dict | None = None) -> str:
     """The page's section, every sentence from the statistics."""
     import tspend
     from tspend.cli.compare import seeds_text
@@ -451,7 +663,19 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
 
     trials, metric = budget["trials"], budget["metric"]
     per = budget.get("trials_per_parameter")
-    if per:
+    start = budget.get("start_trials") or 0
+    if per and start:
+        budget_text = (f"**Budget, the same search for every kind:** {start} space-filling "
+                       f"trials (a scrambled Sobol sequence, sampler seed 0: one point in each "
+                       f"1/{start} of every range searched, whatever the number of settings), "
+                       f"then {per} Optuna TPE trials per setting the kind searches, guided by "
+                       f"every earlier score, × {len(train)} training seeds "
+                       f"({seeds_text(train)}): a kind searching five settings gets "
+                       f"{start} + {5 * per} trials, a kind searching one {start} + {per}. "
+                       f"Where an optimum lay in the outer 5 % of its range, that edge was "
+                       f"moved out and the kind tuned again with its full budget (the rounds "
+                       f"column).")
+    elif per:
         budget_text = (f"**Budget, the same per setting searched:** {per} Optuna TPE trials "
                        f"(sampler seed 0) per setting a kind searches, × {len(train)} training "
                        f"seeds ({seeds_text(train)}): a kind searching five settings (the "
@@ -479,8 +703,11 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
         f"its budget and scores: `{rel(out / 'tuned')}/`.",
         "",
         budget_text + f" Each trial minimises the median `{metric}` over the training seeds (a "
-        f"run that fell or diverged scores worst); TPE's first 10 trials are random, so a "
-        f"small budget is a coarse search. The tuned kinds are then compared on the "
+        f"run that fell or diverged scores worst)"
+        + ("" if start else "; TPE's first 10 trials are random, so a kind searching one "
+           "setting with fewer trials had a random search, over the part of its range the "
+           "tried column shows")
+        + f". The tuned kinds are then compared on the "
         f"{len(test)} test seeds "
         f"{seeds_text(test)}, disjoint from the training ones, paired by seed, over every "
         f"pair of kinds, with Holm's correction ({comp.settings['correction']}). A verdict "
@@ -511,15 +738,25 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
                   "optimum lies in it (0 % the low end, 100 % the high end; on the log scale "
                   "for a log range). An optimum in the outer 5 % is marked: where it is at a "
                   "setting's own limit (a boundary layer of 0) the range cannot be widened.", "",
-                  "| scenario | kind | setting | range | optimum | position | rounds (trials) |",
-                  "|---|---|---|---|---:|---:|---|"]
+                  "| scenario | kind | setting | range | optimum | position | tried (lowest-"
+                  "highest position) | rounds (trials) |",
+                  "|---|---|---|---|---:|---:|---|---|"]
+        found = found or {}
         for (scn, kind), t in tuned.items():
             for key, sp in t.get("space", {}).items():
                 edge = sp["position"] < 0.05 or sp["position"] > 0.95
+                at = found.get((scn, kind), {}).get(key)
+                tried = (f"{100 * min(at):.1f}-{100 * max(at):.1f} % ({len(at)})" if at
+                         else "—")
                 lines.append(f"| {scn} | {kind} | {key} | {fmt(sp['low'])}-{fmt(sp['high'])} "
                              f"{'log' if sp['log'] else 'linear'} | {fmt(sp['optimum'])} | "
                              f"{100 * sp['position']:.1f} %{' (at the edge)' if edge else ''} | "
-                             f"{', '.join(map(str, t.get('rounds', [])))} |")
+                             f"{tried} | {', '.join(map(str, t.get('rounds', [])))} |")
+        if found:
+            lines += ["", f"![Each study's tried points against its range]"
+                          f"({rel(TRIALS_FIGURE)})", "",
+                      "*Each study's tried points (the last round's) against its range; x: "
+                      "the tuned optimum.*"]
     if claims and claims.get("claims"):
         lines += ["", "### Headline claims on both seed sets", "",
                   f"Test seeds {claims['test_seeds']} ({claims['family_test']}); confirmation "
@@ -528,6 +765,7 @@ def render(comp, scenarios, tuned, train, test, budget, out: Path, page: Path,
                   f"verdict.", ""]
         lines += [f"- {claim_sentence(c, claims['test_seeds'], claims['confirm_seeds'])}."
                   for c in claims["claims"]]
+        lines += [""] + context_notes(claims)
     lines += ["", "### Verdicts that survive Holm's correction", "",
               "Per pair and metric, the better kind, the median ratio worse/better over the "
               "test seeds and the Holm-adjusted p (— : no difference shown).", ""]

@@ -76,6 +76,36 @@ def verdict_sentences(comp, scenario: str, a: str, b: str) -> list[str]:
     return out
 
 
+STATISTICS_HEADING = "## What the statistics say: second type against first type"
+
+
+def statistics_section(table, scenarios, kinds, seeds):
+    """(the comparison, the page's lines under :data:`STATISTICS_HEADING` up to its figures):
+    the verdict sentences and the tables, all from ``table`` (tools/check_claims.py rebuilds
+    them from the committed runs.parquet)."""
+    from tspend.cli.compare import seeds_text
+    from tspend.studies.stats import compare, markdown
+
+    reference = "second_type"
+    comp = compare(table, kinds, METRICS, pairs=[(reference, k) for k in kinds if k != reference])
+    lines = [
+        "",
+        "The paper's claim is that adapting the membership functions (second type) "
+        "beats adapting the consequents alone (first type). Per scenario, paired over "
+        "the seeds (a verdict needs a Holm-adjusted Wilcoxon p < 0.05, the family being "
+        "every pair, metric and scenario of the comparison, and a 95% bootstrap interval "
+        "of the median difference that excludes 0):",
+        "",
+    ]
+    for scn in scenarios:
+        if "first_type" in kinds and reference in kinds:
+            lines += [f"**{scn}**", ""]
+            lines += [f"- {s}" for s in verdict_sentences(comp, scn, reference, "first_type")]
+            lines.append("")
+    lines += ["## Tables", "", markdown(comp, seeds_text(seeds)), ""]
+    return comp, lines
+
+
 def shape_available() -> bool:
     """The kernel's membership-shape measure and projection option are present."""
     import importlib.util
@@ -176,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import tspend
     from tspend.studies.figures import Figures, box_figure, heatmap_figure, paper_figures
-    from tspend.studies.stats import compare, markdown, to_json
+    from tspend.studies.stats import to_json
     from tspend.sweep import sweep
     from tspend.sweep.plan import parse_seeds
     from tspend.cli.compare import seeds_text
@@ -197,9 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     table = sweep(scenarios, seeds=seeds, controllers=kinds, jobs=args.jobs,
                   out=out / "runs.parquet", progress=True)
     table = table[table.controller.isin(kinds) & table.seed.isin(seeds)]
-    reference = "second_type"
-    pairs = [(reference, k) for k in kinds if k != reference]
-    comp = compare(table, kinds, METRICS, pairs=pairs)
+    comp, statistics = statistics_section(table, scenarios, kinds, seeds)
     doc = to_json(comp)
     doc.update(seeds=seeds, scenarios=scenarios, version=tspend.__version__)
     (out / "comparison.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
@@ -240,22 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         "outcome (∞); failed runs (the kind cannot run on that plant) are counted and "
         "left out of the pairs.",
         "",
-        "## What the statistics say: second type against first type",
-        "",
-        "The paper's claim is that adapting the membership functions (second type) "
-        "beats adapting the consequents alone (first type). Per scenario, paired over "
-        "the seeds (a verdict needs a Holm-adjusted Wilcoxon p < 0.05, the family being "
-        "every pair, metric and scenario of the comparison, and a 95% bootstrap interval "
-        "of the median difference that excludes 0):",
-        "",
-    ]
-    for scn in scenarios:
-        if "first_type" in kinds and reference in kinds:
-            lines.append(f"**{scn}**")
-            lines.append("")
-            lines += [f"- {s}" for s in verdict_sentences(comp, scn, reference, "first_type")]
-            lines.append("")
-    lines += ["## Tables", "", markdown(comp, seeds_text(seeds)), "",
+        STATISTICS_HEADING,
+        *statistics,
               "## Figures", "",
               "Each figure has its data beside it as CSV (same name). The paper's figures "
               "are single runs (the scenario's own seed) and illustrate; the claims above "

@@ -11,7 +11,9 @@ Two kinds of claims are checked:
   the kept runs (``runs.parquet``, the statistics recomputed with the same seeded
   bootstrap) and must equal the committed text, and ``claims.json`` must equal the claims
   rebuilt from the runs. Every number in the sections is counted as a checked figure.
-* **Rendered sections.** The sections of :data:`SECTIONS` (docs/controllers.md's
+* **Rendered sections.** The sections of :data:`SECTIONS` (docs/results.md's verdicts
+  and tables from ``docs/results/runs.parquet`` through benchmarks/results.py's
+  ``statistics_section``, docs/controllers.md's
   full-state results from ``docs/results/full_state_controllers.csv``, docs/identify.md's
   double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``,
   docs/results.md's tuning curves from ``docs/results/fair/tuning_curves.json``) are
@@ -28,6 +30,15 @@ Two kinds of claims are checked:
   group (the whole match without one) is the number the figure must equal at its printed
   digits, e.g. ``<!-- data: benchmarks/results/x.txt median\s+([\d.]+)\s+ms -->``.
 
+**Unchecked figures.** Every other number of README.md and docs/*.md that a reader may
+take for a result is listed, ``FILE:LINE: figures``, and counted: a number in prose or in a
+table, outside fenced blocks (commands and their output, source excerpts), code spans,
+HTML comments, link targets and headings. The count may not exceed
+:data:`UNCHECKED_AT_MOST`: a new unmarked figure fails the check until it is marked (or
+the ceiling is raised on purpose), and the ceiling goes down as figures are tied to data.
+So changing any one number of a results table or a verdict sentence either fails a check
+above or shows on that list.
+
 ``--recompute N``: re-runs N of the kept test runs (``runs.parquet``) from the committed
 tuned scenarios (``tuned/SCENARIO-KIND.toml``) with today's code and fails when a metric
 differs by more than 1e-9 relative: data that today's code no longer reproduces.
@@ -38,6 +49,7 @@ Exit 0 when every figure agrees; 1 otherwise, each difference named.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import re
@@ -72,11 +84,18 @@ def _lookup(doc, key: str):
     return doc
 
 
+@functools.lru_cache(maxsize=64)
+def _read_json(file: Path, _mtime_ns: int):
+    """A data file read once while it is unchanged (documents mark hundreds of figures in
+    the same file)."""
+    return json.loads(file.read_text())
+
+
 def _read_value(file: Path, key: str) -> float:
     """The value KEY names in FILE: a JSON path, or for raw ``.txt`` output a regular
     expression that matches exactly once (its first group, else the whole match)."""
     if file.suffix != ".txt":
-        return float(_lookup(json.loads(file.read_text()), key))
+        return float(_lookup(_read_json(file, file.stat().st_mtime_ns), key))
     found = list(re.finditer(key, file.read_text(encoding="utf-8"), re.M))
     if len(found) != 1:
         raise ValueError(f"the pattern matches {len(found)} times, not once")
@@ -118,45 +137,56 @@ def _page(path: Path) -> str:
     return path.read_text(encoding="utf-8") if path.is_file() else ""
 
 
-def check_fair() -> tuple[int, list[str]]:
-    """The generated sections against a rebuild from docs/results/fair: (figures, problems)."""
+@functools.cache
+def _fair_rebuild() -> tuple[dict, str, str]:
+    """The claims, docs/results.md's section and the README's section rebuilt from the kept
+    runs of docs/results/fair (once per process: the statistics' bootstrap takes seconds)."""
     import fair_results as fr
 
-    problems: list[str] = []
+    saved = fr.load_saved(FAIR)
+    _doc, _doc2, claims, section, readme_section = fr.build(*saved, FAIR, ROOT / "docs" /
+                                                           "results.md", ROOT / "README.md")
+    return claims, section, readme_section
+
+
+def _fair_section(which: int):
+    return lambda: _fair_rebuild()[which]
+
+
+def _first_difference(shown: str, text: str) -> str:
+    a, b = shown.splitlines(), text.splitlines()
+    first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+    return (f"at its line {first + 1}: {(a[first] if first < len(a) else '(end)')[:160]!r} vs "
+            f"{(b[first] if first < len(b) else '(end)')[:160]!r}")
+
+
+def check_fair() -> tuple[int, list[str]]:
+    """claims.json, and the data of the README's claims figure, against the claims rebuilt
+    from docs/results/fair: (0, problems); the generated sections are in :data:`SECTIONS`."""
     if not (FAIR / "comparison.json").is_file():
         return 0, ["docs/results/fair/comparison.json: missing"]
-    page, readme = ROOT / "docs" / "results.md", ROOT / "README.md"
-    saved = fr.load_saved(FAIR)
-    _doc, _doc2, claims, section, readme_section = fr.build(*saved, FAIR, page, readme)
-    figures = 0
+    claims = _fair_rebuild()[0]
     committed = json.loads((FAIR / "claims.json").read_text()) if (FAIR / "claims.json").is_file() else None
     if committed != json.loads(json.dumps(claims)):
-        problems.append("docs/results/fair/claims.json: differs from the claims rebuilt from "
-                        "runs.parquet (rerun benchmarks/fair_results.py --render)")
-    for path, text, begin, end in ((page, section, fr.BEGIN, fr.END),
-                                   (readme, readme_section, fr.README_BEGIN, fr.README_END)):
-        shown = _between(_page(path), begin, end)
-        if shown is None:
-            problems.append(f"{path.relative_to(ROOT)}: no generated section ({begin})"
-                            + ("" if path.is_file() else ": the file is missing"))
-            continue
-        figures += len(NUMBER.findall(shown))
-        if shown != text.strip():
-            a, b = shown.splitlines(), text.strip().splitlines()
-            first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
-            problems.append(f"{path.relative_to(ROOT)}: the generated section differs from its "
-                            f"data at its line {first + 1}: "
-                            f"{(a[first] if first < len(a) else '(end)')[:160]!r} vs "
-                            f"{(b[first] if first < len(b) else '(end)')[:160]!r}")
-    return figures, problems
+        return 0, ["docs/results/fair/claims.json: differs from the claims rebuilt from "
+                   "runs.parquet (rerun benchmarks/fair_results.py --render)"]
+    import fair_results as fr
+
+    csv = fr.CLAIMS_FIGURE.with_suffix(".csv")
+    if not csv.is_file() or csv.read_text() != fr.claims_figure_data(claims):
+        return 0, [f"{csv.relative_to(ROOT)}: the README's claims figure's data differs from "
+                   "claims.json (rerun benchmarks/fair_results.py --render)"]
+    return 0, []
 
 
+@functools.cache
 def _full_state_section() -> str:
     import full_state_controllers as m
 
     return m.section(m.rows_from_csv(ROOT / "docs" / "results" / "full_state_controllers.csv"))
 
 
+@functools.cache
 def _identify_seeds_section() -> str:
     import identify_seeds_articulated as m
 
@@ -164,15 +194,35 @@ def _identify_seeds_section() -> str:
     return m.seeds_table(json.loads(path.read_text()))
 
 
+@functools.cache
 def _tuning_curves_section() -> str:
     import tuning_curves as m
 
     return m.section(json.loads(m.DATA.read_text()))
 
 
+@functools.cache
+def _results_statistics_section() -> str:
+    import pandas as pd
+    import results as m
+
+    doc = json.loads((ROOT / "docs" / "results" / "comparison.json").read_text())
+    table = pd.read_parquet(ROOT / "docs" / "results" / "runs.parquet")
+    kinds, seeds = doc["controllers"], doc["seeds"]
+    table = table[table.controller.isin(kinds) & table.seed.isin(seeds)]
+    return "\n".join(m.statistics_section(table, doc["scenarios"], kinds, seeds)[1])
+
+
 #: sections a benchmark renders from its committed data: (document, begin marker, end
 #: marker, the section rebuilt from the data, the data's file)
 SECTIONS = (
+    ("docs/results.md", "<!-- benchmarks/fair_results.py: begin (generated; rerun it, do not edit) -->",
+     "<!-- benchmarks/fair_results.py: end -->", _fair_section(1), "docs/results/fair/runs.parquet"),
+    ("README.md", "<!-- benchmarks/fair_results.py claims: begin (generated from "
+     "docs/results/fair/claims.json) -->", "<!-- benchmarks/fair_results.py claims: end -->",
+     _fair_section(2), "docs/results/fair/runs.parquet"),
+    ("docs/results.md", "## What the statistics say: second type against first type",
+     "## Figures", _results_statistics_section, "docs/results/runs.parquet"),
     ("docs/controllers.md", "<!-- full-state results: begin -->",
      "<!-- full-state results: end -->", _full_state_section,
      "docs/results/full_state_controllers.csv"),
@@ -184,15 +234,15 @@ SECTIONS = (
 )
 
 
-def check_sections(sections=SECTIONS) -> tuple[int, list[str]]:
-    """Every section of :data:`SECTIONS` against its rebuild from the data: (figures,
-    problems)."""
+def check_sections(sections=SECTIONS, root: Path = ROOT) -> tuple[int, list[str]]:
+    """Every section of :data:`SECTIONS` (in the documents under ``root``) against its
+    rebuild from the data: (figures, problems)."""
     figures, problems = 0, []
     for doc, begin, end, build, data in sections:
-        shown = _between(_page(ROOT / doc), begin, end)
+        shown = _between(_page(root / doc), begin, end)
         if shown is None:
             problems.append(f"{doc}: no section {begin}"
-                            + ("" if (ROOT / doc).is_file() else ": the file is missing"))
+                            + ("" if (root / doc).is_file() else ": the file is missing"))
             continue
         try:
             text = build().strip()
@@ -201,12 +251,66 @@ def check_sections(sections=SECTIONS) -> tuple[int, list[str]]:
             continue
         figures += len(NUMBER.findall(shown))
         if shown != text:
-            a, b = shown.splitlines(), text.splitlines()
-            first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
-            problems.append(f"{doc}: the section {begin} differs from {data} at its line "
-                            f"{first + 1}: {(a[first] if first < len(a) else '(end)')[:160]!r} "
-                            f"vs {(b[first] if first < len(b) else '(end)')[:160]!r}")
+            problems.append(f"{doc}: the section {begin} differs from {data} "
+                            + _first_difference(shown, text))
     return figures, problems
+
+
+# -- the figures no check ties to data -----------------------------------------------------
+#: a figure a reader may take for a result: a number not inside a word or a name (float64,
+#: H200, mj_step2 are names), with its unit or "x" (7x, 0.49x, 12 ms, 42.4 %) allowed after;
+#: both ends of a range (0-19) and of a count (4/20)
+FIGURE = re.compile(r"(?<![A-Za-z_.\d])(?:(?<![-−])[-−])?\d+(?:,\d{3})*(?:\.\d+)?(?:e[-+]?\d+)?")
+#: what is not prose: fenced blocks, HTML comments, code spans, link targets, bare links,
+#: headings, an ordered list's numbers (each blanked, keeping the lines)
+NOT_PROSE = (re.compile(r"^([ \t]*)(```|~~~).*?^\1\2[ \t]*$", re.S | re.M),
+             re.compile(r"<!--.*?-->", re.S), re.compile(r"(`+).+?\1", re.S),
+             re.compile(r"\]\([^)\s]*\)"), re.compile(r"<?https?://[^\s)>]+>?"),
+             re.compile(r"^#{1,6} .*$", re.M), re.compile(r"^\s*\d+\.(?= )", re.M))
+
+
+def unchecked_figures(path: Path, text: str, sections=SECTIONS,
+                      root: Path = ROOT) -> list[tuple[int, str]]:
+    """The figures of one document that no check ties to data: (line, figure) for every
+    number in its prose and tables outside a marked figure and a generated section."""
+    rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
+    hidden: list[tuple[int, int]] = []
+    for doc, begin, end, *_ in sections:
+        if doc == rel and begin in text and end in text:
+            start = text.index(begin)
+            hidden.append((start, text.index(end, start)))
+    hidden += [(m.start(1), m.end()) for m in DATA_MARKER.finditer(text)]
+    hidden += [m.span() for pattern in NOT_PROSE for m in pattern.finditer(text)]
+    shown = list(text)
+    for start, end in hidden:
+        shown[start:end] = [c if c == "\n" else " " for c in text[start:end]]
+    shown = "".join(shown)
+    return [(shown.count("\n", 0, m.start()) + 1, m.group(0)) for m in FIGURE.finditer(shown)]
+
+
+#: the most unchecked figures the documents may hold: lower it as figures get marked; a
+#: document that adds an unmarked figure marks it or names it in its change
+UNCHECKED_AT_MOST = 4155
+
+
+def check_unchecked(paths: list[Path], root: Path = ROOT,
+                    at_most: int | None = None) -> tuple[list[str], list[str], int]:
+    """(one listing line per document line with unchecked figures, problems, how many
+    figures)."""
+    listing, count = [], 0
+    for path in paths:
+        rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+        by_line: dict[int, list[str]] = {}
+        for line, figure in unchecked_figures(path, path.read_text(encoding="utf-8"),
+                                              root=root):
+            by_line.setdefault(line, []).append(figure)
+        count += sum(map(len, by_line.values()))
+        listing += [f"{rel}:{line}: {', '.join(f)}" for line, f in sorted(by_line.items())]
+    limit = UNCHECKED_AT_MOST if at_most is None else at_most
+    problems = [f"{count} unchecked figures, more than the {limit} allowed "
+                f"(UNCHECKED_AT_MOST): mark the new ones with <!-- data: FILE KEY -->"] \
+        if count > limit else []
+    return listing, problems, count
 
 
 def recompute(n: int) -> tuple[int, list[str]]:
@@ -242,26 +346,32 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--recompute", type=int, default=0, metavar="N",
                     help="re-run N kept runs on today's code (0-10000; 0: none)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="print the unchecked figures' count, not their list")
     args = ap.parse_args(argv)
     if not 0 <= args.recompute <= 10000:
         ap.error(f"--recompute: {args.recompute} is outside 0..10000")
     paths = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     marked, problems = check_markers(paths)
-    generated, more = check_fair()
+    problems += check_fair()[1]
+    generated, more = check_sections()
     problems += more
-    rendered, more = check_sections()
-    generated += rendered
+    listing, more, unchecked = check_unchecked(paths)
     problems += more
     reran = 0
     if args.recompute:
         reran, more = recompute(args.recompute)
         problems += more
+    if not args.quiet:
+        print("unchecked figures (no data file ties them; FILE:LINE: figures):")
+        print("\n".join(f"  {line}" for line in listing))
     for p in problems:
         print(f"  FAIL {p}")
     print(f"check_claims: {marked} marked figures and {generated} figures in generated "
           f"sections checked against their data"
           + (f", {reran} kept runs re-run on today's code" if args.recompute else "")
-          + f": {len(problems)} problem(s)")
+          + f"; {unchecked} unchecked figures listed (at most {UNCHECKED_AT_MOST}) on "
+          f"{len(listing)} lines: {len(problems)} problem(s)")
     return 1 if problems else 0
 
 

@@ -12,6 +12,23 @@ source, ``toml`` blocks scenario text: read, never run. In a shell block a line 
 command when it starts with a program a reader types (``tspend``, ``python``,
 ``python3``, ``nice``, ``rerun``, ``pip``, ``cd``, ...); the other lines are the output a
 reader sees, never run. A command continues on the next line after a trailing ``\\``.
+Output sits directly under its command (no blank line between); in a block with commands
+any other line is an error, and so is, in any shell block, a line shaped like a command
+(a word then options or paths, a word close to a known program, a program on PATH) whose
+program is not known: a misspelt ``tspnd run ...`` fails rather than pass as output. A
+``$ `` prompt marks a transcript: shown, not run, its program checked.
+
+Inline commands (in backticks in the prose, starting with ``tspend``, ``python`` or
+``nice python``): on a line that says "Reproduce" they run as a fenced command does (a
+benchmark's ``--seeds`` dropped: it takes its short seeds); the
+others are read, not run: tspend's own parser must accept the words, a script must exist
+and name each option given, ``python -c`` code must compile. One with placeholders
+(``SCENARIO``, ``KIND``, ``...``, ``<machine>``) is a template: listed as skipped.
+
+A command that needs an optional extra of pyproject.toml (:data:`EXTRA_RULES`, or a
+marker ``<!-- check_docs: needs EXTRA -->`` before its block) runs when the extra's
+distributions are installed and is otherwise skipped with the extra named, so the check
+passes from the README's test environment (``pip install -e '.[test]'``).
 
 Each document runs in its own scratch folder, its blocks in order (a later command may use
 what an earlier one wrote), with ``models``, ``examples``, ``scenarios``, ``benchmarks``
@@ -46,8 +63,9 @@ The two modes:
   scripts are skipped, named); every other word of the command is the document's. Python
   blocks run as written. This is the fast subset the test suite runs.
 
-The full check needs the test and bench extras (pip install -e '.[test,bench]': gymnasium's
-MuJoCo envs, simpful, do-mpc for the benchmarks' peers).
+The full check runs everything with the test and bench extras (pip install -e
+'.[test,bench]': gymnasium's MuJoCo envs, simpful, do-mpc for the benchmarks' peers);
+with the test extra alone the bench commands are skipped, named.
 
 Exit 0 when every command ran with its expected status and the repository is as it was;
 1 otherwise. The last line says how many commands ran, how many failed, how many were
@@ -57,6 +75,10 @@ skipped and why, and the wall time.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import difflib
+import functools
+import io
 import os
 import re
 import shlex
@@ -73,7 +95,8 @@ SHELL_LANGS = ("", "sh", "bash", "shell", "console")
 #: programs a command line starts with (anything else in a shell block is output)
 PROGRAMS = ("tspend", "python", "python3", "nice", "rerun", "pip", "cd", "source", "mkdir",
             "cp", "mv", "cat", "ls", "export", "PYTHONPATH=", "TSPEND_", ".venv/", "sudo",
-            "git", "curl", "wget", "jupyter", "./", "for ", "echo", "timeout")
+            "git", "curl", "wget", "jupyter", "./", "for ", "echo", "timeout", "time",
+            "apt-get")
 #: (regular expression on a command, why it is not run here)
 SKIP_RULES = (
     (r"^rerun\b|\brerun\s+\S+\.rrd", "opens Rerun's viewer (a window or a web server)"),
@@ -87,6 +110,11 @@ SKIP_RULES = (
     (r"tools/screenshots\.py", "needs Chromium and a display"),
     (r"tools/check_docs\.py", "this checker itself"),
     (r"tools/check_claims\.py( .*)?--recompute", "re-runs benchmarks (minutes to hours)"),
+)
+#: (regular expression on a command, the extra of pyproject.toml it needs): run when the
+#: extra's packages are installed, else skipped with the extra named
+EXTRA_RULES = (
+    (r"benchmarks/(mpc_speed|env_speed)\.py", "bench"),
 )
 #: skipped under --short only: run in the full check
 SHORT_SKIP_RULES = (
@@ -104,7 +132,13 @@ SHORT = {
 }
 EXIT_COMMENT = re.compile(r"#\s*exit\s+(\d+)\s*$")
 EXIT_OUTPUT = re.compile(r"\[exit\s+(\d+)\]\s*$")
-MARKER = re.compile(r"<!--\s*check_docs:\s*(skip|exit|full-only|full)\s*(.*?)\s*-->")
+MARKER = re.compile(r"<!--\s*check_docs:\s*(skip|exit|full-only|full|needs)\s*(.*?)\s*-->")
+#: a command in backticks in the prose: ``tspend ...``, ``python ...``, ``nice python ...``
+INLINE = re.compile(r"`((?:nice\s+)?(?:tspend|python3?)\s[^`]*)`")
+#: a placeholder the reader fills in (SCENARIO, KIND, FILE.csv, <machine>, [--opt], A:B, ...)
+PLACEHOLDER = re.compile(r"\.\.\.|[<>\[\]]|(?<![\w.=/-])[A-Z][A-Z0-9_]+\b")
+#: an argument that names a file: a path with a folder, or a name with a file's suffix
+PATHLIKE = re.compile(r"^[\w.-]+/[\w./-]+$|^[\w.-]+\.(py|toml|csv|rrd|xml|json|parquet|onnx|txt)$")
 
 
 @dataclass
@@ -116,6 +150,8 @@ class Command:
     expect: int = 0
     skip: str = ""            # the reason, when not run
     full: bool = False        # run at full length under --short too (marker "full")
+    problem: str = ""         # why the line is wrong as written (never run)
+    needs: str = ""           # the extra of pyproject.toml it needs (marker "needs")
 
 
 @dataclass
@@ -136,15 +172,17 @@ def _is_command(line: str) -> bool:
 
 
 def extract(path: Path, short: bool = False) -> list[Command]:
-    """The runnable commands of one document, with their expected status or skip reason."""
-    text = path.read_text(encoding="utf-8")
-    lines = text.splitlines()
+    """The commands of one document, fenced and inline, in the document's order, with their
+    expected status, skip reason or problem."""
+    lines = path.read_text(encoding="utf-8").splitlines()
     doc = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(path)
     out: list[Command] = []
+    prose: list[tuple[int, str]] = []
     i = 0
     while i < len(lines):
         m = re.match(r"^(\s*)```\s*([A-Za-z0-9_+-]*)\s*$", lines[i])
         if not m:
+            prose.append((i + 1, lines[i]))
             i += 1
             continue
         indent, lang = m.group(1), m.group(2).lower()
@@ -159,41 +197,179 @@ def extract(path: Path, short: bool = False) -> list[Command]:
             cmd = Command(doc, start + 1, "\n".join(body) + "\n", "python")
             _apply_marker(cmd, marker, short)
             out.append(cmd)
-            continue
-        if lang not in SHELL_LANGS:
-            continue
-        k = 0
-        while k < len(body):
-            if not _is_command(body[k]):
-                k += 1
-                continue
-            first = k
-            parts = [body[k].rstrip()]
-            while parts[-1].endswith("\\") and k + 1 < len(body):
-                k += 1
-                parts.append(body[k].rstrip())
+        elif lang in SHELL_LANGS:
+            out += _shell_block(doc, start, body, marker, short)
+    out += _inline_commands(doc, prose, short)
+    return sorted(out, key=lambda c: c.line)
+
+
+def _shell_block(doc: str, start: int, body: list[str], marker, short: bool) -> list[Command]:
+    """The commands of one shell block; a line that is neither a command, a comment, nor
+    output directly under a command (no blank line between) is a problem."""
+    out: list[Command] = []
+    has_commands = any(map(_is_command, body))
+    k, under = 0, False
+    while k < len(body):
+        if not _is_command(body[k]):
+            text = body[k].strip()
+            under = under and bool(text)
+            problem = _not_a_command(text, under, has_commands) if text and \
+                not text.startswith("#") else ""
+            if problem:
+                out.append(Command(doc, start + k + 1, text, "shell", problem=problem))
             k += 1
-            cmd = Command(doc, start + first + 1, "\n".join(parts).strip(), "shell")
-            _apply_marker(cmd, marker, short)
-            e = EXIT_COMMENT.search(parts[-1])
+            continue
+        first = k
+        parts = [body[k].rstrip()]
+        while parts[-1].endswith("\\") and k + 1 < len(body):
+            k += 1
+            parts.append(body[k].rstrip())
+        k += 1
+        under = True
+        cmd = Command(doc, start + first + 1, "\n".join(parts).strip(), "shell")
+        _apply_marker(cmd, marker, short)
+        e = EXIT_COMMENT.search(parts[-1])
+        if e:
+            cmd.expect = int(e.group(1))
+        # the output lines under it, up to the next command, may state its status
+        n = k
+        while n < len(body) and not _is_command(body[n]):
+            e = EXIT_OUTPUT.search(body[n])
             if e:
                 cmd.expect = int(e.group(1))
-            # the output lines under it, up to the next command, may state its status
-            n = k
-            while n < len(body) and not _is_command(body[n]):
-                e = EXIT_OUTPUT.search(body[n])
-                if e:
-                    cmd.expect = int(e.group(1))
-                n += 1
-            if not cmd.skip:
-                for rule, why in SKIP_RULES + (SHORT_SKIP_RULES if short else ()):
-                    if re.search(rule, cmd.text, flags=re.M):
-                        cmd.skip = why
-                        break
-            if not cmd.skip:
-                cmd.skip = _unsized_benchmark(cmd.text)
+            n += 1
+        _skip_rules(cmd, short)
+        out.append(cmd)
+    return out
+
+
+def _skip_rules(cmd: Command, short: bool) -> None:
+    """The reason not to run ``cmd`` here, from :data:`SKIP_RULES`, its extra, its size."""
+    for rule, why in SKIP_RULES + (SHORT_SKIP_RULES if short else ()):
+        if not cmd.skip and re.search(rule, cmd.text, flags=re.M):
+            cmd.skip = why
+    for rule, extra in EXTRA_RULES:
+        if re.search(rule, cmd.text):
+            cmd.needs = cmd.needs or extra
+    if not cmd.skip and cmd.needs:
+        missing = missing_from_extra(cmd.needs)
+        if missing:
+            cmd.skip = (f"needs the [{cmd.needs}] extra (pip install -e '.[{cmd.needs}]'), "
+                        f"not installed: {', '.join(missing)}")
+    if not cmd.skip:
+        cmd.skip = _unsized_benchmark(cmd.text)
+
+
+def _not_a_command(text: str, under: bool, has_commands: bool) -> str:
+    """Why a line of a shell block that is not a command is wrong, or "" (it is output)."""
+    names = [p.strip() for p in PROGRAMS if p.strip().replace("-", "").isalnum()]
+    m = re.match(r"([a-z][\w+-]*)(?:\s+(.*))?$", text)
+    if text.startswith("$ "):    # a transcript's command: its program must be known
+        shown = text[2:].strip()
+        return "" if _is_command(shown) else \
+            f"'{shown.split()[0] if shown else ''}' after the prompt is not a known program"
+    if m:
+        word, rest = m.group(1), (m.group(2) or "").split()
+        if difflib.get_close_matches(word, names, n=1, cutoff=0.75) or shutil.which(word) \
+                or any(a.startswith("--") or PATHLIKE.match(a) for a in rest):
+            return (f"'{word}' is not a program this checker knows ({', '.join(names[:6])}, "
+                    f"...): a misspelling, or a program to add to PROGRAMS")
+    if has_commands and not under:
+        return "neither a command nor output directly under one (no blank line between)"
+    return ""
+
+
+def _inline_commands(doc: str, prose: list[tuple[int, str]], short: bool) -> list[Command]:
+    """The commands in backticks of the prose: those on a "Reproduce:" line run as a fenced
+    command does; the others are read by their program (see :func:`inline_problem`)."""
+    out = []
+    for line, text in prose:
+        for m in INLINE.finditer(text):
+            command = m.group(1).strip()
+            if "reproduce" in text[:m.start()].lower():
+                # a benchmark takes its short seeds (benchmarks/short_mode.py), not the
+                # full set the sentence reproduces
+                cmd = Command(doc, line, re.sub(r"\s--seeds[ =]\S+", "", command)
+                              if "benchmarks/" in command else command, "shell")
+                _skip_rules(cmd, short)
+            else:
+                cmd = Command(doc, line, command, "inline")
+                if PLACEHOLDER.search(command):
+                    cmd.skip = "a template (placeholders the reader fills in): listed, not read"
             out.append(cmd)
     return out
+
+
+@functools.cache
+def _tspend_parser():
+    sys.path.insert(0, str(ROOT))
+    from tspend.cli.main import build_parser
+
+    return build_parser()
+
+
+def inline_problem(text: str) -> str:
+    """What is wrong with an inline command, read without running it: tspend's own parser
+    must accept its words; a script must exist and name each of its options; ``python -c``
+    code must compile. "" when nothing is."""
+    try:
+        argv = shlex.split(text.split(" | ")[0])
+    except ValueError as exc:
+        return f"cannot be split into words ({exc})"
+    argv = argv[1:] if argv[0] == "nice" else argv
+    if argv[0] == "tspend":
+        subs = _subcommands()
+        if len(argv) == 2 and argv[1] in subs:
+            return ""          # the name of a command, not a call
+        if len(argv) == 3 and argv[1] in subs and argv[2].startswith("--"):
+            # the name of an option
+            known = argv[2] in subs[argv[1]]._option_string_actions
+            return "" if known else f"tspend {argv[1]} has no option {argv[2]}"
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                _tspend_parser().parse_args(argv[1:])
+        except SystemExit as exc:
+            if exc.code:
+                return f"tspend does not accept it: {err.getvalue().strip()[-200:]}"
+        except Exception as exc:   # tspend's parser raises its own usage error
+            return f"tspend does not accept it: {exc}"
+        return ""
+    if len(argv) > 2 and argv[1] == "-c":
+        try:
+            compile(argv[2], "<inline>", "exec")
+        except SyntaxError as exc:
+            return f"its code does not compile ({exc.msg})"
+        return ""
+    script = ROOT / argv[1] if len(argv) > 1 else None
+    if script is None or script.suffix != ".py" or not script.is_file():
+        return f"no such script: {argv[1] if len(argv) > 1 else '(none)'}"
+    source = script.read_text(encoding="utf-8")
+    unknown = [a.split("=")[0] for a in argv[2:] if a.startswith("--")
+               and f'"{a.split("=")[0]}"' not in source]
+    return f"{argv[1]} has no option {', '.join(unknown)}" if unknown else ""
+
+
+def _subcommands() -> dict:
+    """tspend's subcommands: name -> its parser."""
+    return next(a for a in _tspend_parser()._actions if a.dest == "command").choices
+
+
+def missing_from_extra(extra: str) -> list[str]:
+    """The distributions of pyproject.toml's optional ``extra`` that are not installed."""
+    import tomllib
+    from importlib.metadata import PackageNotFoundError, version
+
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]
+    missing = []
+    for requirement in extras.get(extra, []):
+        name = re.match(r"[A-Za-z0-9_.-]+", requirement).group(0)
+        try:
+            version(name)
+        except PackageNotFoundError:
+            missing.append(name)
+    return missing
 
 
 def _unsized_benchmark(text: str) -> str:
@@ -235,6 +411,8 @@ def _apply_marker(cmd: Command, marker: tuple[str, str] | None, short: bool = Fa
             cmd.full = True
     elif what == "full":
         cmd.full = True
+    elif what == "needs":
+        cmd.needs = arg
     else:
         cmd.expect = int(arg)
 
@@ -306,6 +484,16 @@ def run_doc(commands: list[Command], short: bool, timeout: float, verbose: bool)
                "TSPEND_BENCH_SHORT": "1"}
         for i, cmd in enumerate(commands):
             if cmd.skip:
+                continue
+            if cmd.problem or cmd.kind == "inline":   # read, never run
+                problem = cmd.problem or inline_problem(cmd.text)
+                outcomes.append(Outcome(cmd, None, 0.0, problem, not problem))
+                if verbose or problem:
+                    print(f"  {'FAIL' if problem else 'ok  '} {cmd.doc}:{cmd.line} "
+                          f"{'read' if cmd.kind == 'inline' else 'line'}: "
+                          f"{cmd.text.splitlines()[0][:110]}" + (f"\n       {problem}"
+                                                                  if problem else ""),
+                          flush=True)
                 continue
             if cmd.kind == "python":
                 script = work / f"block_{i}.py"

@@ -114,16 +114,18 @@ def check_seeds(train: Sequence[int], test: Sequence[int]) -> None:
 
 
 def study_name(scenario, kind: str, metric: str, seeds: Sequence[int],
-               space: dict | None = None) -> str:
-    """The study's identity in a storage: the scenario's text, kind, metric, seeds and
-    search space (``space``: the ranges searched, default the kind's declared ones); any
-    change starts another study."""
+               space: dict | None = None, start_trials: int = 0) -> str:
+    """The study's identity in a storage: the scenario's text, kind, metric, seeds,
+    search space (``space``: the ranges searched, default the kind's declared ones) and
+    space-filling start; any change starts another study."""
     from tspend.controllers import search_space
     from tspend.loop.simulation import scenario_text
 
     space = search_space(kind) if space is None else space
     ident = json.dumps([scenario_text(scenario), kind, metric, list(seeds),
-                        {k: list(v) for k, v in space.items()}], sort_keys=True)
+                        {k: list(v) for k, v in space.items()}]
+                       + ([{"start_trials": start_trials}] if start_trials else []),
+                       sort_keys=True)
     return f"tspend-{scenario.name}-{kind}-{hashlib.sha256(ident.encode()).hexdigest()[:12]}"
 
 
@@ -153,13 +155,18 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
          jobs: int | None = None, dask: str | None = None, storage: str | None = None,
          sampler_seed: int = 0, progress: bool = False, defaults: bool = True,
          stop: Any = None, on_trial: Callable[[int, float], None] | None = None,
-         run_timeout: float | None = None, space: dict | None = None) -> TuneResult:
+         run_timeout: float | None = None, space: dict | None = None,
+         start_trials: int = 0) -> TuneResult:
     """Tune ``kind`` on ``scenario`` (a :class:`tspend.config.Scenario`): ``trials``
     trials in all (counting those already in ``storage``), scored on ``seeds``; the best
     is then scored on ``test_seeds``.  ``defaults``: also score the untuned settings.
     ``run_timeout``: the sweeps' per-run time limit (None: :func:`tspend.sweep.sweep`'s
     default); a run past it scores ``+inf``.  ``space``: the ranges to search (key ->
-    :class:`tspend.controllers.settings.Search`; default the kind's declared ones)."""
+    :class:`tspend.controllers.settings.Search`; default the kind's declared ones).
+    ``start_trials``: the first trials are that many points of a scrambled Sobol sequence
+    (:func:`space_filling_start`: every range covered, one point in each ``1/start_trials``
+    of it when a power of 2), and TPE guides the rest from them; 0: TPE's own random
+    start (its first 10 trials)."""
     from tspend.runtime.extras import missing_extra
 
     problem = missing_extra("optuna", "tune")
@@ -181,6 +188,10 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
                             f"{', '.join(COMPARED_METRICS)}")
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ScenarioError(f"--trials: must be an integer >= 1, got {trials!r}")
+    if isinstance(start_trials, bool) or not isinstance(start_trials, int) or \
+            not 0 <= start_trials <= trials:
+        raise ScenarioError(f"start_trials: must be an integer in 0..trials ({trials}), "
+                            f"got {start_trials!r}")
     seeds, test_seeds = list(seeds), list(test_seeds)
     if not seeds:
         raise ScenarioError("--seeds: at least one training seed")
@@ -190,7 +201,7 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
         raise ScenarioError(f"--controller {kind}: the kind declares nothing to tune")
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    name = study_name(scenario, kind, metric, seeds, space)
+    name = study_name(scenario, kind, metric, seeds, space, start_trials)
     from tspend.sweep import build_once
     from tspend.sweep.plan import make_plan
 
@@ -199,12 +210,18 @@ def tune(scenario, kind: str, *, trials: int, seeds: Sequence[int],
     try:
         study = optuna.create_study(study_name=name, storage=_storage(storage),
                                     load_if_exists=storage is not None, direction="minimize",
-                                    sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+                                    sampler=optuna.samplers.TPESampler(
+                                        seed=sampler_seed,
+                                        **({"n_startup_trials": start_trials}
+                                           if start_trials else {})))
     except Exception as exc:  # noqa: BLE001 - every way a storage URL or file can be wrong
         raise ScenarioError(f"--storage {str(storage)[:200]}: cannot open the study "
                             f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") \
             from None
     done = sum(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+    if start_trials and not study.trials:    # a resumed study has its start already
+        for point in space_filling_start(space, start_trials, sampler_seed):
+            study.enqueue_trial(point)
     owned = executor is None
     if owned:
         executor = make_executor(jobs, dask)
@@ -319,6 +336,26 @@ def position(search, x: float) -> float:
     return (x - search.low) / (search.high - search.low)
 
 
+def space_filling_start(space: dict, n: int, seed: int = 0) -> list[dict[str, float]]:
+    """``n`` points of a scrambled Sobol sequence over ``space`` (key ->
+    :class:`tspend.controllers.settings.Search`), each coordinate mapped onto its range
+    (on the log scale for a log range): for ``n`` a power of 2 every range is covered, one
+    point in each ``1/n`` of it, whatever the number of settings."""
+    from scipy.stats import qmc
+
+    keys = list(space)
+    unit = qmc.Sobol(d=len(keys), scramble=True, seed=seed).random(n)
+    points = []
+    for row in unit:
+        point = {}
+        for k, u in zip(keys, row):
+            s = space[k]
+            point[k] = (math.exp(math.log(s.low) + u * (math.log(s.high) - math.log(s.low)))
+                        if s.log else s.low + u * (s.high - s.low))
+        points.append(point)
+    return points
+
+
 def at_edge(space: dict, drawn: dict[str, float], share: float = EDGE_SHARE) -> dict[str, str]:
     """The tuned numbers within ``share`` of an edge of their range: key -> "low"/"high"."""
     out = {}
@@ -345,11 +382,14 @@ def widen(search, side: str):
     return search._replace(high=search.high + width)
 
 
-def budget_trials(kind: str, trials_per_parameter: int, space: dict | None = None) -> int:
-    """The trials ``kind`` gets: ``trials_per_parameter`` per setting it searches."""
+def budget_trials(kind: str, trials_per_parameter: int, space: dict | None = None,
+                  start_trials: int = 0) -> int:
+    """The trials ``kind`` gets: the space-filling start (the same for every kind), then
+    ``trials_per_parameter`` guided trials per setting it searches."""
     from tspend.controllers import search_space
 
-    return trials_per_parameter * len(search_space(kind) if space is None else space)
+    return start_trials + trials_per_parameter * len(search_space(kind) if space is None
+                                                     else space)
 
 
 def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int | None = None,
@@ -358,7 +398,8 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int 
                  metric: str = DEFAULT_METRIC, executor: Any = None, jobs: int | None = None,
                  dask: str | None = None, storage: str | None = None, sampler_seed: int = 0,
                  progress: bool = False, stop: Any = None, run_timeout: float | None = None,
-                 spaces: dict[str, dict] | None = None, widen_rounds: int = 0):
+                 spaces: dict[str, dict] | None = None, widen_rounds: int = 0,
+                 start_trials: int = 0):
     """Tune every kind on every scenario on the same ``train_seeds``, then run each tuned
     kind on ``test_seeds`` (disjoint): (rows, tuned).
 
@@ -370,6 +411,9 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int 
     :data:`EDGE_SHARE` of a range (:func:`at_edge`) has that edge moved out
     (:func:`widen`) and is tuned again from scratch with its full budget; the result's
     ``space`` is the last round's ranges and ``rounds`` every round's trials.
+    ``start_trials``: every kind's search starts with that many space-filling points
+    (:func:`space_filling_start`) before TPE guides it, so even a one-setting kind has
+    seen its whole range; they come on top of the per-setting budget.
 
     ``rows`` is a sweep table (one row per scenario, kind and test seed; the ``scenario``
     column the original's name, so runs pair by seed as in ``tspend compare``); ``tuned``
@@ -395,12 +439,12 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int 
                 space = dict((spaces or {}).get(kind) or search_space(kind))
                 rounds: list[int] = []
                 while True:
-                    n = trials if trials is not None else budget_trials(
-                        kind, trials_per_parameter, space)
+                    n = trials + start_trials if trials is not None else budget_trials(
+                        kind, trials_per_parameter, space, start_trials)
                     r = tune(scn, kind, trials=n, seeds=train_seeds, metric=metric,
                              executor=executor, storage=storage, sampler_seed=sampler_seed,
                              progress=progress, defaults=False, stop=stop,
-                             run_timeout=run_timeout, space=space)
+                             run_timeout=run_timeout, space=space, start_trials=start_trials)
                     rounds.append(r.trials)
                     edges = at_edge(space, r.drawn)
                     moved = {k: widen(space[k], side) for k, side in edges.items()}
@@ -424,4 +468,5 @@ def equal_budget(scenarios: Iterable[Any], kinds: Sequence[str], *, trials: int 
 
 __all__ = ["TuneResult", "tune", "equal_budget", "score", "tuned_changes", "settings_prefix",
            "position", "at_edge", "widen", "budget_trials", "EDGE_SHARE",
+           "space_filling_start",
            "dump_toml", "tuned_kind", "study_name", "DEFAULT_METRIC"]
