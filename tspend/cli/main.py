@@ -26,7 +26,7 @@ import warnings
 
 from tspend import __version__
 from tspend.cli import (common, compare, crosscheck, excite, export, figures, identify,
-                        inspect, plan, run, show, sweep, tune)
+                        inspect, plan, replay, rig, run, show, sweep, tune)
 from tspend.cli import list as list_command
 from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,
                                ReaderGoneTolerant, release_warnings, say)
@@ -36,7 +36,7 @@ from tspend.shipped import SCENARIO_PATH_VARIABLE
 
 #: the subcommands' modules, in --help order
 COMMANDS = (run, show, crosscheck, list_command, inspect, sweep, export, compare, tune,
-            figures, excite, identify, plan)
+            figures, excite, identify, plan, rig, replay)
 
 DESCRIPTION = ("Control experiments on pendulums: run a scenario headless or live, show and "
                "list scenarios, cross-check MuJoCo against the derived equations, compare, "

@@ -1,0 +1,270 @@
+"""The real-time runner: the scenario's controller closing the loop on a rig.
+
+The rig is a :class:`~tspend.plants.base.Plant` to the closed loop (:class:`RigPlant`):
+reading its full state waits for the cycle's deadline on an absolute schedule (sleep, then
+spin) and takes the newest sensor frame; stepping it sends the command.  So the loop, its
+task checks, recordings and metrics are those of a simulated run; what a rig adds (the
+stamps of every cycle, the frames' counts, the miss policy) lives here.
+
+Every exit sends a zero command and a stop frame (:meth:`RigSession.close`), whatever
+ended the run: completed, the task (rail, fall angle), a signal, an error.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from tspend.errors import DivergenceError
+from tspend.plants.base import Plant, velocity_name
+from tspend.rig import protocol
+from tspend.rig.estimator import SensorState, VelocityEstimator
+from tspend.rig.links import ANSWER_TIMEOUT_S, RigLink, RigRefused
+from tspend.rig.protocol import Command, Hello
+from tspend.rig.realtime import wait_until
+from tspend.rig.timing import CycleLog
+
+MISS_POLICIES = ("hold", "zero", "stop")
+#: the first deadline comes this share of a period after the first sensor frame arrived,
+#: so a frame's arrival jitter up to it still lands before its deadline
+ALIGN_SHARE = 0.25
+
+
+class DeadlineMissed(DivergenceError):
+    """Miss policy ``stop``: a command was ready after its period had ended."""
+
+
+def machine_id(plant: Plant) -> str:
+    """What a rig's hello must state: ``<domain>:<joint>,<joint>`` in the model's order."""
+    return f"{plant.domain}:{','.join(j.name for j in plant.joints)}"
+
+
+def check_hello(hello: Hello, plant: Plant, where: str) -> None:
+    """Refuse (one line) a rig that is not this scenario's machine."""
+    expected = machine_id(plant)
+    if hello.machine != expected:
+        raise RigRefused(f"{where}: the rig is '{hello.machine}', the scenario's machine is "
+                         f"'{expected}'")
+    if len(hello.counts_per_unit) != len(plant.joints) or \
+            not all(np.isfinite(c) and c > 0 for c in hello.counts_per_unit):
+        raise RigRefused(f"{where}: the hello states counts per unit {hello.counts_per_unit}, "
+                         f"not one positive number per joint ({len(plant.joints)})")
+
+
+def choose_period(requested_s: float, hello: Hello, where: str) -> float:
+    """The scenario's period, raised to the shortest the rig accepts (the caller says so)."""
+    period = max(requested_s, hello.min_period_s)
+    if period > hello.max_period_s:
+        raise RigRefused(f"{where}: the rig accepts periods of {hello.min_period_s * 1e3:g} to "
+                         f"{hello.max_period_s * 1e3:g} ms, not {requested_s * 1e3:g} ms")
+    return period
+
+
+def check_line(link: RigLink, period_s: float) -> None:
+    """Refuse a period the link cannot carry, before any frame is sent."""
+    shortest = link.shortest_period_s()
+    if shortest > period_s:
+        raise RigRefused(f"{link.describe()}: one cycle's frames take {shortest * 1e3:.3g} ms "
+                         f"of line time, longer than the period {period_s * 1e3:g} ms: raise "
+                         f"the baud rate or the period (run.control_period)")
+
+
+@dataclass(frozen=True)
+class RigSettings:
+    period_s: float
+    cycles: int
+    miss_policy: str = "hold"
+    estimator: VelocityEstimator = VelocityEstimator()
+
+
+class RigPlant(Plant):
+    """The rig as the closed loop's plant; the model plant answers what the rig does not
+    (names, units, joints, inputs, the task's defaults)."""
+
+    def __init__(self, machine: Plant, link: RigLink, hello: Hello, settings: RigSettings) -> None:
+        self.machine, self.link, self.hello, self.settings = machine, link, hello, settings
+        self.order, self.domain, self.name = machine.order, machine.domain, f"rig:{machine.name}"
+        self.log = CycleLog(settings.cycles, len(machine.joints))
+        names = machine.state_names
+        self.sensors = SensorState(
+            np.asarray(hello.counts_per_unit, dtype=float),
+            np.array([names.index(j.name) for j in machine.joints]),
+            np.array([names.index(velocity_name(j.name)) for j in machine.joints]),
+            len(names), settings.estimator)
+        self._period_ns = round(settings.period_s * 1e9)
+        self._t0_ns = 0
+        self._cycle = 0
+        self._read_cycle = -1
+        self._highest_seq = -1
+        self._first_seq = 0
+        self._used_seq = -1
+        self._lost = self._late = 0
+        self._last_sent = 0.0
+        self._pending = None  # the first frame, taken by begin() to align the schedule
+
+    # what the model plant knows
+    @property
+    def state_names(self):
+        return self.machine.state_names
+
+    @property
+    def state_units(self):
+        return self.machine.state_units
+
+    @property
+    def joints(self):
+        return self.machine.joints
+
+    @property
+    def inputs(self):
+        return self.machine.inputs
+
+    def parameters(self) -> dict[str, float]:
+        return self.machine.parameters()
+
+    def default_task(self):
+        return self.machine.default_task()
+
+    @property
+    def gain_sign(self) -> int:
+        return self.machine.gain_sign
+
+    def reset(self, x0: np.ndarray) -> None:
+        """The rig is where it is: its first frame, not x0, is the initial state."""
+
+    # the cycle
+    def begin(self) -> None:
+        """Start sampling and align the schedule on the first sensor frame."""
+        self.link.start(self.settings.period_s)
+        until = time.monotonic() + ANSWER_TIMEOUT_S
+        while time.monotonic() < until:
+            frames = self.link.poll()
+            if frames:
+                first = frames[-1]
+                self._first_seq = self._highest_seq = first.seq
+                self._pending = first
+                self._t0_ns = time.perf_counter_ns() + round(ALIGN_SHARE * self._period_ns)
+                return
+            time.sleep(0.0002)
+        raise RigRefused(f"{self.link.describe()}: no sensor frame within "
+                         f"{ANSWER_TIMEOUT_S:g} s of the start")
+
+    def full_state(self) -> np.ndarray:
+        k = self._cycle
+        if self._read_cycle == k:
+            return self.sensors.state.copy()
+        if not self._t0_ns:  # the first read: here, so nothing before it delays cycle 0
+            self.begin()
+        log = self.log
+        log.deadline[k] = deadline = self._t0_ns + k * self._period_ns
+        log.wake[k] = wait_until(deadline)
+        newest = self._take_frames(k)
+        if newest is not None and newest.seq > self._used_seq:
+            self._used_seq = newest.seq
+            counts = np.asarray(newest.counts, dtype=np.int64)
+            self.sensors.fresh(counts, newest.rig_time_us)
+            log.fresh[k] = True
+            log.sensor_seq[k], log.rig_time_us[k] = newest.seq, newest.rig_time_us
+            log.counts[k] = counts
+        elif k:
+            log.sensor_seq[k], log.rig_time_us[k] = log.sensor_seq[k - 1], log.rig_time_us[k - 1]
+            log.counts[k] = log.counts[k - 1]
+        log.lost[k], log.late[k], log.rejected[k] = self._lost, self._late, self.link.rejected
+        log.read[k] = time.perf_counter_ns()
+        self._read_cycle = k
+        log.cycles = k + 1
+        return self.sensors.state.copy()
+
+    def _take_frames(self, k: int):
+        """The newest frame, counting lost (gaps in the sequence) and late ones (arrived
+        after their own cycle's deadline)."""
+        frames = self.link.poll()
+        if self._pending is not None:
+            frames.insert(0, self._pending)
+            self._pending = None
+        newest = None
+        for frame in frames:
+            if frame.seq > self._highest_seq:
+                self._lost += frame.seq - self._highest_seq - 1
+                self._highest_seq = frame.seq
+            elif frame.seq < self._highest_seq:
+                self._lost -= 1  # counted lost, came after all
+            if frame.seq < self._first_seq + k:
+                self._late += 1
+            if newest is None or frame.seq > newest.seq:
+                newest = frame
+        return newest
+
+    def step(self, u: float, d: float, dt: float) -> None:
+        k, log = self._cycle, self.log
+        log.ready[k] = ready = time.perf_counter_ns()
+        sent = u
+        if ready > log.deadline[k] + self._period_ns:
+            log.missed[k] = True
+            policy = self.settings.miss_policy
+            if policy == "stop":
+                raise DeadlineMissed(f"deadline missed at cycle {k}: the command was ready "
+                                     f"{(ready - log.deadline[k]) * 1e-6:.3g} ms after its "
+                                     f"deadline (miss policy stop)")
+            sent = self._last_sent if policy == "hold" else 0.0
+        self.link.send(Command(k, sent, int(log.sensor_seq[k])))
+        log.sent[k] = time.perf_counter_ns()
+        log.u_sent[k] = self._last_sent = sent
+        self._cycle = k + 1
+
+    def extras(self) -> dict[str, float]:
+        return {}
+
+
+class RigSession:
+    """An open link: hello checked, period chosen; :meth:`close` sends the zero command
+    and the stop frame, once, and releases the link."""
+
+    def __init__(self, link: RigLink, hello: Hello, period_s: float) -> None:
+        self.link, self.hello, self.period_s = link, hello, period_s
+        self.plant: RigPlant | None = None
+        self.stop_reason = protocol.STOP_DONE
+        self.closed = False
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.link.stop(self.stop_reason)
+        finally:
+            self.link.close()
+
+
+def open_session(link: RigLink, machine: Plant, requested_period_s: float) -> RigSession:
+    """The link checked before any motion: the line's capacity (before any frame), the
+    hello's machine, the period the rig accepts."""
+    where = link.describe()
+    check_line(link, requested_period_s)
+    try:
+        hello = link.hello()
+        check_hello(hello, machine, where)
+        period = choose_period(requested_period_s, hello, where)
+    except BaseException:
+        link.close()
+        raise
+    return RigSession(link, hello, period)
+
+
+def rig_scenario(scenario, period_s: float):
+    """The scenario at the rig's period: the loop's sample time and the control period."""
+    from tspend.scenario import override
+
+    return override(scenario, **{"run.dt": period_s, "run.control_period": period_s})
+
+
+def session_settings(session: RigSession, duration_s: float, policy: str,
+                     estimator: VelocityEstimator) -> RigSettings:
+    return RigSettings(session.period_s, int(round(duration_s / session.period_s)), policy,
+                       estimator)
+
+
+__all__ = ["MISS_POLICIES", "RigPlant", "RigSession", "RigSettings", "open_session",
+           "rig_scenario", "machine_id"]
