@@ -29,7 +29,7 @@ from tspend.rig.timing import CycleLog
 MISS_POLICIES = ("hold", "zero", "stop")
 #: the first deadline comes this share of a period after the first sensor frame arrived,
 #: so a frame's arrival jitter up to it still lands before its deadline
-ALIGN_SHARE = 0.25
+ALIGN_SHARE = 0.5
 
 
 class DeadlineMissed(DivergenceError):
@@ -171,7 +171,9 @@ class RigPlant(Plant):
         elif k:
             log.sensor_seq[k], log.rig_time_us[k] = log.sensor_seq[k - 1], log.rig_time_us[k - 1]
             log.counts[k] = log.counts[k - 1]
-        log.lost[k], log.late[k], log.rejected[k] = self._lost, self._late, self.link.rejected
+        # a rejected frame left a gap too: lost counts the frames that never came at all
+        log.lost[k] = max(self._lost - self.link.rejected, 0)
+        log.late[k], log.rejected[k] = self._late, self.link.rejected
         log.read[k] = time.perf_counter_ns()
         self._read_cycle = k
         log.cycles = k + 1

@@ -1,0 +1,88 @@
+"""``tspend replay``: a rig run's recorded sensor frames through the velocity estimator and
+the same controller, offline, every command compared bit for bit with the recorded one."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from tspend.errors import ScenarioError
+from tspend.rig.closed_loop import RIG_ENTITY
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    cycles: int
+    equal: int
+    first_difference: int | None = None
+    recorded: float | None = None
+    replayed: float | None = None
+
+
+def session_notes(path) -> dict:
+    """The rig run's session document (scenario, controller, estimator, hello)."""
+    from rerun.chunk import RrdReader
+
+    target = f"/{RIG_ENTITY}/session"
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        chunks = RrdReader(str(path)).stream().filter(content=target, is_static=True).to_chunks()
+    for chunk in chunks:
+        if chunk.entity_path != target:
+            continue
+        batch = chunk.to_record_batch()
+        for i, name in enumerate(batch.schema.names):
+            if name.endswith(":text"):
+                return json.loads(batch.column(i).to_pylist()[0][0])
+    raise ScenarioError(f"{path}: not a recording of a rig run (no {target})")
+
+
+def _series(path, name: str) -> np.ndarray:
+    from tspend.recorder.readback import read_scalar_series
+
+    return read_scalar_series(path, f"{RIG_ENTITY}/{name}")[1]
+
+
+def replay(path) -> ReplayResult:
+    """Every recorded command of the rig run at ``path`` recomputed from its sensor frames."""
+    from tspend.controllers.base import Observation
+    from tspend.loop.simulation import prepare
+    from tspend.plants.base import velocity_name
+    from tspend.rig.estimator import SensorState, VelocityEstimator
+    from tspend.scenario import parse_scenario
+
+    try:
+        notes = session_notes(path)
+    except (OSError, ValueError) as exc:
+        raise ScenarioError(f"{path}: cannot be read as a recording ({exc})") from None
+    scenario = parse_scenario(notes["scenario_toml"], path=str(path))
+    prepared = prepare(scenario, controller=notes["controller"])
+    plant, ctrl, task = prepared.plant, prepared.controller, prepared.task
+    names = plant.state_names
+    counts = _series(path, "counts").reshape(len(_series(path, "fresh")), -1)
+    rig_time_us, fresh = _series(path, "rig_time_us"), _series(path, "fresh")
+    ref, recorded_u = _series(path, "ref"), _series(path, "u")
+    ref = ref.reshape(len(recorded_u), -1)
+    sensors = SensorState(np.asarray(notes["counts_per_unit"], dtype=float),
+                          np.array([names.index(j.name) for j in plant.joints]),
+                          np.array([names.index(velocity_name(j.name)) for j in plant.joints]),
+                          len(names), VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
+    dt, view = scenario.run.dt, task.view_index
+    equal, first, first_replayed = 0, None, None
+    for k in range(len(recorded_u)):
+        if fresh[k]:
+            sensors.fresh(counts[k].astype(np.int64), int(rig_time_us[k]))
+        full = sensors.state.copy()
+        replayed_u = float(ctrl.step(Observation(k * dt, full, full[view], ref[k], task.names,
+                                                 task.constraints), dt))
+        same = replayed_u == recorded_u[k] or (np.isnan(replayed_u) and np.isnan(recorded_u[k]))
+        if same:
+            equal += 1
+        elif first is None:
+            first, first_replayed = k, replayed_u
+    return ReplayResult(len(recorded_u), equal, first,
+                        None if first is None else float(recorded_u[first]),
+                        first_replayed)
