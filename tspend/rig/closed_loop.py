@@ -103,6 +103,7 @@ class TimingSink:
         columns = self.plant.log.series(start, start + k)
         exact = {"counts": self.plant.log.counts[start:start + k].astype(float),
                  "rig_time_us": self.plant.log.rig_time_us[start:start + k].astype(float),
+                 "sensor_seq": self.plant.log.sensor_seq[start:start + k].astype(float),
                  "ref": block.data["ref"], "state": block.data["state"], "u": block.data["u"]}
         for name, values in {**columns, **exact}.items():
             self.rec.send_columns(f"{RIG_ENTITY}/{name}", indexes=[times],

@@ -134,7 +134,7 @@ def as_hello(fields: tuple) -> Hello:
     if not 0 < n <= MAX_JOINTS:
         raise FrameError(f"a hello stating {n} joints (1 to {MAX_JOINTS})")
     return Hello(machine.rstrip(b"\0").decode("ascii", "replace"), tuple(counts[:n]),
-                 lo_us * 1e-6, hi_us * 1e-6, dog_us * 1e-6, u_limit)
+                 lo_us / 1e6, hi_us / 1e6, dog_us / 1e6, u_limit)  # / 1e6: 100000 us is 0.1 s
 
 
 def as_sensor(seq: int, fields: tuple) -> Sensor:
