@@ -19,9 +19,11 @@
 
 #define RIG_VERSION 1
 #define RIG_TICK_US 1000u            /* the rig's own step: 1 ms */
+#ifndef RIG_MIN_PERIOD_US              /* -DRIG_MIN_PERIOD_US=1000u: a 1 kHz rig */
 #define RIG_MIN_PERIOD_US 2000u
-#define RIG_MAX_PERIOD_US 100000u
-#define RIG_WATCHDOG_US 20000u       /* no valid command this long: motor to zero */
+#endif
+#define RIG_MAX_PERIOD_US 20000u
+#define RIG_WATCHDOG_US 50000u       /* no valid command this long: motor to zero */
 #define RIG_HOST_LOST_US 1000000u    /* watchdog tripped and silence this long: session over */
 #define RIG_U_LIMIT 2000.0           /* the amplifier's limit on |u| (N) */
 #define RIG_JOINTS 2
@@ -194,6 +196,7 @@ static void rig_tick(void) {
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <sched.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
@@ -256,6 +259,8 @@ int main(int argc, char **argv) {
     fd = *end == '\0' ? (int)as_fd : open(argv[1], O_RDWR | O_NOCTTY);
     if (fd < 0) { perror(argv[1]); return 2; }
     fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
+    struct sched_param fifo = {.sched_priority = 40};   /* a timer ISR's punctuality, where allowed */
+    if (sched_setscheduler(0, SCHED_FIFO, &fifo) != 0) fprintf(stderr, "rig_end: SCHED_FIFO not allowed; ticks may be late\n");
     double max_s = argc > 2 ? atof(argv[2]) : 60.0;
     uint64_t begin = hw_micros();
     struct timespec next;

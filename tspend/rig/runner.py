@@ -30,6 +30,9 @@ MISS_POLICIES = ("hold", "zero", "stop")
 #: the first deadline comes this share of a period after the first sensor frame arrived,
 #: so a frame's arrival jitter up to it still lands before its deadline
 ALIGN_SHARE = 0.5
+#: the rig's watchdog must outlast this many periods (a command a period late is not a
+#: lost host)
+WATCHDOG_PERIODS = 2
 
 
 class DeadlineMissed(DivergenceError):
@@ -59,6 +62,10 @@ def choose_period(requested_s: float, hello: Hello, where: str) -> float:
     if period > hello.max_period_s:
         raise RigRefused(f"{where}: the rig accepts periods of {hello.min_period_s * 1e3:g} to "
                          f"{hello.max_period_s * 1e3:g} ms, not {requested_s * 1e3:g} ms")
+    if WATCHDOG_PERIODS * period > hello.watchdog_s:
+        raise RigRefused(f"{where}: the rig's watchdog ({hello.watchdog_s * 1e3:g} ms) is shorter "
+                         f"than {WATCHDOG_PERIODS} periods of {period * 1e3:g} ms: one late "
+                         f"command would stop the motor")
     return period
 
 
