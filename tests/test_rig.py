@@ -40,11 +40,12 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def start_double(tmp_path: Path, *options: str) -> tuple[subprocess.Popen, str, Path]:
+def start_double(tmp_path: Path, *options: str,
+                 scenario: str = SCENARIO) -> tuple[subprocess.Popen, str, Path]:
     """``tspend rig serve`` on a free port, once it listens; (process, url, its log)."""
     port, log = free_udp_port(), tmp_path / "double.npz"
     url = f"udp://127.0.0.1:{port}"
-    proc = spawn("rig", "serve", SCENARIO, "--listen", url, "--log", str(log),
+    proc = spawn("rig", "serve", scenario, "--listen", url, "--log", str(log),
                  "--wait-s", "60", "--max-session-s", "90", *options, cwd=tmp_path)
     line = proc.stdout.readline()  # printed once the socket is bound
     assert line.startswith("rig serve:"), line + proc.stderr.read()
@@ -266,6 +267,26 @@ def test_an_unreachable_rig_and_a_wrong_machine_are_refused_in_one_line(tmp_path
     r = tspend("run", SCENARIO, "--rig", f"{plugin}:NotARig", "--no-record", cwd=tmp_path,
                timeout=PROCESS_TIMEOUT_S)
     assert r.status == 2 and "not a subclass" in r.one_error_line()
+
+
+def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path):
+    """The loop that makes the twin better: excite, run on the rig, export, identify."""
+    r = tspend("excite", SCENARIO, "--out", "exp.toml", "--duration", "10", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    double, url, _ = start_double(tmp_path, "--set", "plant.m=1.2", scenario="exp.toml")
+    r = tspend("run", "exp.toml", "--rig", url, "--out", "e.rrd", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    finish(double)
+    assert r.status == 0, r.err
+    r = tspend("export", "e.rrd", "--out", "e.csv", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    r = tspend("identify", "e.csv", "--model", str(ROOT / "models" / "cartpole.xml"),
+               "--params", "m", "--out", "cal.xml", "--metrics", "fit.json", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    fitted = json.loads((tmp_path / "fit.json").read_text())["parameters"]["m"]["value"]
+    assert abs(fitted / 1.2 - 1) < 0.02, fitted  # the double's pole is 20 % heavier than 1 kg
 
 
 # -- the C rig end over a serial line -------------------------------------------------------

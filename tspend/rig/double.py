@@ -12,7 +12,7 @@ import math
 import socket
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,6 +25,25 @@ HOST_LOST_S = 1.0
 #: STOP reason the double sends when it refuses a START (docs/rig.md)
 STOP_REFUSED_PERIOD = 4
 _LOG_CHUNK = 10_000
+#: a tick's physics step starts this long before the next tick (ns): time for the step
+STEP_MARGIN_NS = 150_000
+
+
+@dataclass
+class _Tick:
+    """A session's running state."""
+
+    t0: int
+    every: int
+    last_valid: int = 0
+    last_heard: int = 0
+    u: float = 0.0
+    command_seq: int = -1
+    seq: int = 0
+    tripped: bool = False
+    state: np.ndarray | None = None
+    commands: deque = field(default_factory=deque)   # (apply at ns, seq, u, flags)
+    outgoing: deque = field(default_factory=deque)   # (send at ns, frame)
 
 
 @dataclass(frozen=True)
@@ -183,64 +202,83 @@ class SimulatedRig:
 
     def session(self, period_s: float, max_s: float, log: TruthLog) -> str:
         """Run until the host's STOP, the host lost (the watchdog tripped and silence), or
-        ``max_s``; the reason."""
-        plant, f, dt = self.plant, self.faults, self.dt
+        ``max_s``; the reason.
+
+        Each physics step of ``dt`` is a tick: at its start the sensors are sampled (the
+        state at that time, sent as a frame every period); just before its end the
+        commands that arrived are applied and the step [t, t + dt) is integrated with
+        the command in force.  So a command that reaches the rig within the tick it was
+        sampled in acts from that sample on: the zero-order hold the controller's model
+        and ``tspend identify`` assume, plus the latencies the faults add."""
+        plant, dt = self.plant, self.dt
         plant.reset(np.asarray(self.scenario.plant.x0, dtype=float))
-        every = round(period_s / dt)
-        dt_ns, dog_ns = round(dt * 1e9), round(self.hello.watchdog_s * 1e9)
-        limit = self.hello.u_limit
-        t0 = time.perf_counter_ns()
-        last_valid = last_heard = t0
-        commands: deque = deque()   # (apply at ns, seq, u)
-        outgoing: deque = deque()   # (send at ns, frame)
-        u_command, command_seq, seq, tripped = 0.0, -1, 0, False
+        s = _Tick(t0=time.perf_counter_ns(), every=round(period_s / dt))
+        s.last_valid = s.last_heard = s.t0
+        dt_ns = round(dt * 1e9)
         for i in range(int(max_s / dt)):
-            now = wait_until(t0 + i * dt_ns)
-            for kind, fseq, fields in self._frames(now, log):
-                last_heard = now
-                if kind == protocol.STOP:
-                    log.events.append((now * 1e-9, "stop_frame"))
-                    return "stop frame"
-                if kind == protocol.COMMAND:
-                    commands.append((now + self._latency(f.command_latency_s), fseq, fields[0],
-                                     fields[2]))
-                    last_valid = now
-            while commands and commands[0][0] <= now:
-                _, cseq, u, flags = commands.popleft()
-                fresh = cseq > command_seq or flags & 1
-                log.commands.append((cseq, u, bool(fresh)))
-                if fresh:
-                    u_command, command_seq = u, cseq
-            if now - last_valid > dog_ns:
-                if not tripped:
-                    log.events.append((now * 1e-9, "watchdog"))
-                tripped = True
-                if now - last_heard > HOST_LOST_S * 1e9:
-                    return "host lost"
-            elif tripped:
-                tripped = False
-                log.events.append((now * 1e-9, "watchdog_cleared"))
-            applied = 0.0 if tripped else min(max(u_command, -limit), limit)
-            state = plant.full_state()
-            if i % every == 0:
-                counts = tuple(int(round(v)) for v in state[self.joint_index] * self.hello.counts_per_unit)
-                flags = (protocol.WATCHDOG_TRIPPED if tripped else 0) | \
-                    (protocol.AMPLIFIER_CLIPPED if applied != u_command and not tripped else 0)
-                frame = protocol.sensor(Sensor(seq, (now - t0) // 1000, command_seq, flags, counts))
-                dropped = f.drop > 0 and self.rng.random() < f.drop
-                corrupted = f.corrupt > 0 and self.rng.random() < f.corrupt
-                log.sensors.append((seq, (now - t0) // 1000, counts, dropped, corrupted))
-                if not dropped:
-                    outgoing.append((now + self._latency(f.sensor_latency_s),
-                                     _flip_bit(frame, self.rng) if corrupted else frame))
-                seq += 1
-            while outgoing and outgoing[0][0] <= now:
-                self.transport.send(outgoing.popleft()[1])
-            t = i * dt
-            d = float(self.scenario.disturbance(np.array([t]))[0])
-            log.row(((now - t0) * 1e-9, t, u_command, applied, float(tripped), command_seq), state)
+            self._sample(i, wait_until(s.t0 + i * dt_ns), s, log)
+            now = wait_until(s.t0 + (i + 1) * dt_ns - STEP_MARGIN_NS)
+            ended = self._receive(now, s, log)
+            if ended:
+                return ended
+            applied = 0.0 if s.tripped else min(max(s.u, -self.hello.u_limit), self.hello.u_limit)
+            d = float(self.scenario.disturbance(np.array([i * dt]))[0])
+            log.row(((now - s.t0) * 1e-9, i * dt, s.u, applied, float(s.tripped), s.command_seq),
+                    s.state)
             plant.step(applied, d, dt)
         return "session time limit"
+
+    def _sample(self, i: int, now: int, s: "_Tick", log: TruthLog) -> None:
+        """The tick's start: the state read, a sensor frame every period (faults drawn)."""
+        f = self.faults
+        s.state = self.plant.full_state()
+        if i % s.every == 0:
+            counts = tuple(int(round(v)) for v in s.state[self.joint_index] * self.hello.counts_per_unit)
+            flags = protocol.WATCHDOG_TRIPPED if s.tripped else 0
+            frame = protocol.sensor(Sensor(s.seq, (now - s.t0) // 1000, s.command_seq, flags, counts))
+            dropped = f.drop > 0 and self.rng.random() < f.drop
+            corrupted = f.corrupt > 0 and self.rng.random() < f.corrupt
+            log.sensors.append((s.seq, (now - s.t0) // 1000, counts, dropped, corrupted))
+            if not dropped:
+                s.outgoing.append((now + self._latency(f.sensor_latency_s),
+                                   _flip_bit(frame, self.rng) if corrupted else frame))
+            s.seq += 1
+        self._send_due(now, s)
+
+    def _send_due(self, now: int, s: "_Tick") -> None:
+        while s.outgoing and s.outgoing[0][0] <= now:
+            self.transport.send(s.outgoing.popleft()[1])
+
+    def _receive(self, now: int, s: "_Tick", log: TruthLog) -> str:
+        """The tick's end: frames in, commands due applied, the watchdog; "" or why the
+        session ends."""
+        self._send_due(now, s)
+        for kind, fseq, fields in self._frames(now, log):
+            s.last_heard = now
+            if kind == protocol.STOP:
+                log.events.append((now * 1e-9, "stop_frame"))
+                return "stop frame"
+            if kind == protocol.COMMAND:
+                s.commands.append((now + self._latency(self.faults.command_latency_s), fseq,
+                                   fields[0], fields[2]))
+                s.last_valid = now
+        while s.commands and s.commands[0][0] <= now:
+            _, cseq, u, flags = s.commands.popleft()
+            fresh = (cseq > s.command_seq or flags & 1) and math.isfinite(u)
+            log.commands.append((cseq, u, bool(fresh)))
+            if fresh:
+                s.u, s.command_seq = u, cseq
+        armed = s.command_seq >= 0  # the watchdog arms on the first command
+        if armed and now - s.last_valid > round(self.hello.watchdog_s * 1e9):
+            if not s.tripped:
+                log.events.append((now * 1e-9, "watchdog"))
+            s.tripped = True
+        if (s.tripped or not armed) and now - s.last_heard > HOST_LOST_S * 1e9:
+            return "host lost"
+        if s.tripped and now - s.last_valid <= round(self.hello.watchdog_s * 1e9):
+            s.tripped = False
+            log.events.append((now * 1e-9, "watchdog_cleared"))
+        return ""
 
     def _latency(self, base_s: float) -> int:
         jitter = self.faults.jitter_s * self.rng.random() if self.faults.jitter_s else 0.0

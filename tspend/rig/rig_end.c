@@ -181,8 +181,9 @@ static void rig_tick(void) {
     uint64_t now = hw_micros();
     read_frames(now);
     if (!rig.running) return;
-    rig.tripped = now - rig.last_valid_us > RIG_WATCHDOG_US;
-    if (rig.tripped && now - rig.last_heard_us > RIG_HOST_LOST_US) {
+    /* the watchdog arms on the first command */
+    rig.tripped = rig.command_seq >= 0 && now - rig.last_valid_us > RIG_WATCHDOG_US;
+    if ((rig.tripped || rig.command_seq < 0) && now - rig.last_heard_us > RIG_HOST_LOST_US) {
         rig.running = 0; rig.done = 1;
     }
     if (rig.tick % rig.period_ticks == 0) send_sensor(now);

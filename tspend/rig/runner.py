@@ -27,9 +27,13 @@ from tspend.rig.realtime import wait_until
 from tspend.rig.timing import CycleLog
 
 MISS_POLICIES = ("hold", "zero", "stop")
-#: the first deadline comes this share of a period after the first sensor frame arrived,
-#: so a frame's arrival jitter up to it still lands before its deadline
-ALIGN_SHARE = 0.5
+#: the first deadline comes this share of a period after the first sensor frame arrived:
+#: a frame's arrival jitter up to it still lands before its deadline, and the command
+#: still reaches a rig that integrates each step at its end (the double) within the
+#: sample it answers
+ALIGN_SHARE = 0.1
+#: frames whose arrival aligns the schedule on the rig's clock
+ALIGN_FRAMES = 5
 #: the rig's watchdog must outlast this many periods (a command a period late is not a
 #: lost host)
 WATCHDOG_PERIODS = 2
@@ -109,7 +113,6 @@ class RigPlant(Plant):
         self._used_seq = -1
         self._lost = self._late = 0
         self._last_sent = 0.0
-        self._pending = None  # the first frame, taken by begin() to align the schedule
 
     # what the model plant knows
     @property
@@ -143,20 +146,27 @@ class RigPlant(Plant):
 
     # the cycle
     def begin(self) -> None:
-        """Start sampling and align the schedule on the first sensor frame."""
+        """Start sampling and align the schedule on the rig's clock: the offset between
+        the host's clock and the rig's timestamps is the smallest seen over the first
+        :data:`ALIGN_FRAMES` frames (polled without sleeping, so each arrival is stamped
+        when it lands); cycle 0 is the frame after them."""
         self.link.start(self.settings.period_s)
         until = time.monotonic() + ANSWER_TIMEOUT_S
-        while time.monotonic() < until:
-            frames = self.link.poll()
-            if frames:
-                first = frames[-1]
-                self._first_seq = self._highest_seq = first.seq
-                self._pending = first
-                self._t0_ns = time.perf_counter_ns() + round(ALIGN_SHARE * self._period_ns)
-                return
-            time.sleep(0.0002)
-        raise RigRefused(f"{self.link.describe()}: no sensor frame within "
-                         f"{ANSWER_TIMEOUT_S:g} s of the start")
+        seen, offset = [], None
+        clock = time.perf_counter_ns
+        while len(seen) < ALIGN_FRAMES and time.monotonic() < until:
+            for frame in self.link.poll():
+                arrived = clock()
+                seen.append(frame)
+                lag = arrived - frame.rig_time_us * 1000
+                offset = lag if offset is None else min(offset, lag)
+        if not seen:
+            raise RigRefused(f"{self.link.describe()}: no sensor frame within "
+                             f"{ANSWER_TIMEOUT_S:g} s of the start")
+        last = seen[-1]
+        self._first_seq, self._highest_seq = last.seq + 1, last.seq
+        self._t0_ns = (offset + last.rig_time_us * 1000 + self._period_ns
+                       + round(ALIGN_SHARE * self._period_ns))
 
     def full_state(self) -> np.ndarray:
         k = self._cycle
@@ -190,9 +200,6 @@ class RigPlant(Plant):
         """The newest frame, counting lost (gaps in the sequence) and late ones (arrived
         after their own cycle's deadline)."""
         frames = self.link.poll()
-        if self._pending is not None:
-            frames.insert(0, self._pending)
-            self._pending = None
         newest = None
         for frame in frames:
             if frame.seq > self._highest_seq:
