@@ -42,11 +42,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     s.add_argument("--min-period-ms", type=finite(0.1, 1000.0), default=2.0, metavar="MS",
                    help="the shortest control period the rig accepts (default 2: 500 Hz); "
                         "a whole multiple of the scenario's dt")
-    s.add_argument("--max-period-ms", type=finite(0.1, 1000.0), default=100.0, metavar="MS",
-                   help="the longest control period the rig accepts (default 100)")
-    s.add_argument("--watchdog-ms", type=finite(0.1, 10_000.0), default=20.0, metavar="MS",
+    s.add_argument("--max-period-ms", type=finite(0.1, 1000.0), default=20.0, metavar="MS",
+                   help="the longest control period the rig accepts (default 20; the host "
+                        "needs the watchdog to outlast two periods)")
+    s.add_argument("--watchdog-ms", type=finite(0.1, 10_000.0), default=50.0, metavar="MS",
                    help="the motor command goes to zero when no valid command came for this "
-                        "long (default 20)")
+                        "long (default 50)")
     s.add_argument("--amp-limit", type=finite(), metavar="U",
                    help="the amplifier's limit on |u| (default: the machine's input range)")
     for name, what in (("drop", "share of sensor frames dropped"),
@@ -66,8 +67,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "per session: PATH.npz, then PATH-2.npz ...); never replaces a file")
     s.add_argument("--sessions", type=bounded_int(1, 1000), default=1, metavar="N",
                    help="serve this many runs, then exit (default 1)")
-    s.add_argument("--wait-s", type=finite(0.1, 86_400.0), default=60.0, metavar="S",
-                   help="how long to wait for a host's start (default 60)")
+    s.add_argument("--wait-s", type=finite(0.1, 86_400.0), default=600.0, metavar="S",
+                   help="how long to wait for a host's start (default 600: a first run "
+                        "compiles its controller between the hello and the start)")
     s.add_argument("--max-session-s", type=finite(0.1, 86_400.0), default=600.0, metavar="S",
                    help="the longest session (default 600)")
     s.set_defaults(handler=cmd)
@@ -136,7 +138,7 @@ def rig_for_run(args, scn):
         return
     from tspend.loop.simulation import build_plant
     from tspend.rig.links import parse_rig
-    from tspend.rig.runner import open_session, rig_scenario
+    from tspend.rig.runner import model_not_stepped, open_session, rig_scenario
 
     link = parse_rig(args.rig)
     requested = scn.run.control_period or scn.run.dt
@@ -146,7 +148,8 @@ def rig_for_run(args, scn):
             print(f"rig: it accepts periods from {session.hello.min_period_s * 1e3:g} ms; "
                   f"running at {session.period_s * 1e3:g} ms ({1 / session.period_s:g} Hz)",
                   flush=True)
-        yield RigRun(args, session, rig_scenario(scn, session.period_s))
+        with model_not_stepped():
+            yield RigRun(args, session, rig_scenario(scn, session.period_s))
     finally:
         session.close()
 

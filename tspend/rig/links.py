@@ -98,6 +98,8 @@ class _FramedLink(RigLink):
                         except FrameError as exc:
                             raise RigRefused(f"{self.describe()}: a malformed hello ({exc})")
                 time.sleep(0.001)
+        if getattr(self, "refused", False):
+            raise RigRefused(f"{self.describe()}: unreachable (nothing listens on that port)")
         raise RigRefused(f"{self.describe()}: no hello within {ANSWER_TIMEOUT_S:g} s "
                          f"(is the rig running and listening there?)")
 
@@ -132,6 +134,8 @@ class UdpLink(_FramedLink):
         super().__init__()
         self.host, self.port = host, port
         self._sock: socket.socket | None = None
+        #: an ICMP "port unreachable" came back for a datagram
+        self.refused = False
 
     def describe(self) -> str:
         return f"udp://{self.host}:{self.port}"
@@ -150,7 +154,9 @@ class UdpLink(_FramedLink):
         try:
             self._socket().send(frame)
         except ConnectionRefusedError:
-            raise RigRefused(f"{self.describe()}: unreachable (nothing listens on that port)")
+            # an ICMP answer to an earlier datagram (sent before the rig was up, or the
+            # rig gone): the hello says so after its tries, the runner on silence
+            self.refused = True
         except BlockingIOError:
             pass  # the socket's buffer is full: this frame is lost, as on a wire
 
@@ -162,7 +168,8 @@ class UdpLink(_FramedLink):
             except BlockingIOError:
                 return found
             except ConnectionRefusedError:
-                raise RigRefused(f"{self.describe()}: unreachable (nothing listens on that port)")
+                self.refused = True
+                continue
             try:
                 found.append(protocol.decode(data))
             except FrameError:

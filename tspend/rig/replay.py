@@ -52,6 +52,7 @@ def replay(path) -> ReplayResult:
     from tspend.loop.simulation import prepare
     from tspend.plants.base import velocity_name
     from tspend.rig.estimator import SensorState, VelocityEstimator
+    from tspend.rig.runner import model_not_stepped
     from tspend.scenario import parse_scenario
 
     try:
@@ -59,7 +60,8 @@ def replay(path) -> ReplayResult:
     except (OSError, ValueError) as exc:
         raise ScenarioError(f"{path}: cannot be read as a recording ({exc})") from None
     scenario = parse_scenario(notes["scenario_toml"], path=str(path))
-    prepared = prepare(scenario, controller=notes["controller"])
+    with model_not_stepped():
+        prepared = prepare(scenario, controller=notes["controller"])
     plant, ctrl, task = prepared.plant, prepared.controller, prepared.task
     names = plant.state_names
     counts = _series(path, "counts").reshape(len(_series(path, "fresh")), -1)

@@ -13,6 +13,8 @@ ended the run: completed, the task (rail, fall angle), a signal, an error.
 from __future__ import annotations
 
 import time
+import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +43,10 @@ WATCHDOG_PERIODS = 2
 
 class DeadlineMissed(DivergenceError):
     """Miss policy ``stop``: a command was ready after its period had ended."""
+
+
+class RigSilent(DivergenceError):
+    """No sensor frame for longer than the rig's watchdog: the rig is gone or stopped."""
 
 
 def machine_id(plant: Plant) -> str:
@@ -167,6 +173,7 @@ class RigPlant(Plant):
         self._first_seq, self._highest_seq = last.seq + 1, last.seq
         self._t0_ns = (offset + last.rig_time_us * 1000 + self._period_ns
                        + round(ALIGN_SHARE * self._period_ns))
+        self._last_fresh_ns = self._t0_ns
 
     def full_state(self) -> np.ndarray:
         k = self._cycle
@@ -178,7 +185,14 @@ class RigPlant(Plant):
         log.deadline[k] = deadline = self._t0_ns + k * self._period_ns
         log.wake[k] = wait_until(deadline)
         newest = self._take_frames(k)
-        if newest is not None and newest.seq > self._used_seq:
+        fresh_frame = newest is not None and newest.seq > self._used_seq
+        if fresh_frame:
+            self._last_fresh_ns = log.wake[k]
+        elif log.wake[k] - self._last_fresh_ns > self.hello.watchdog_s * 1e9:
+            raise RigSilent(f"no sensor frame from {self.link.describe()} for "
+                            f"{(log.wake[k] - self._last_fresh_ns) * 1e-6:.0f} ms, longer than "
+                            f"its watchdog ({self.hello.watchdog_s * 1e3:g} ms): the rig is gone")
+        if fresh_frame:
             self._used_seq = newest.seq
             counts = np.asarray(newest.counts, dtype=np.int64)
             self.sensors.fresh(counts, newest.rig_time_us)
@@ -267,6 +281,15 @@ def open_session(link: RigLink, machine: Plant, requested_period_s: float) -> Ri
         link.close()
         raise
     return RigSession(link, hello, period)
+
+
+@contextmanager
+def model_not_stepped():
+    """Quiet the model's warning on how its timestep splits a control sample: on a rig (and
+    in its replay) nothing steps the model, so it would be about a run that does not happen."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*physics steps per control sample")
+        yield
 
 
 def rig_scenario(scenario, period_s: float):
