@@ -241,6 +241,48 @@ def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
     assert (tmp_path / "rig.rrd").stat().st_size > 0
 
 
+def test_a_rig_gone_silent_ends_the_run_with_its_outputs_kept(tmp_path):
+    double, url, _ = start_double(tmp_path)
+    runner = spawn("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "60",
+                   "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path)
+    _wait_for_line(double, "session 1: period")
+    time.sleep(1.0)
+    double.send_signal(signal.SIGKILL)
+    finish(double)
+    out, err = finish(runner)
+    assert runner.returncode == 3, err
+    assert "the rig is gone" in out + err
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["status"] == "diverged" and (tmp_path / "rig.rrd").exists()
+
+
+def test_miss_policy_stop_ends_the_run_at_the_first_late_command(tmp_path):
+    """A plug-in rig whose read stalls one cycle by three periods (a slow driver)."""
+    plugin = tmp_path / "slow_rig.py"
+    plugin.write_text(
+        "import time\n"
+        "from tspend.rig.inprocess import InProcessCartPole\n"
+        "class Slow(InProcessCartPole):\n"
+        "    def poll(self):\n"
+        "        frames = super().poll()\n"
+        "        if any(f.seq == 100 for f in frames):\n"
+        "            time.sleep(0.006)\n"
+        "        return frames\n")
+    said = {}
+    for policy, status in (("stop", 3), ("zero", 0)):
+        r = said[policy] = tspend("run", SCENARIO, "--controller", "lqr", "--rig", f"{plugin}:Slow",
+                   "--set", "run.control_period=0.002", "--duration", "1", "--miss-policy",
+                   policy, "--metrics", f"{policy}.json", "--out", f"{policy}.rrd",
+                   cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+        assert r.status == status, r.err
+        timing = json.loads((tmp_path / f"{policy}.json").read_text())["timing"]
+        assert timing["misses"] >= 1
+    assert "deadline missed at cycle" in said["stop"].out + said["stop"].err
+    sent = rig_series(tmp_path / "zero.rrd", "u_sent")
+    missed = rig_series(tmp_path / "zero.rrd", "missed").astype(bool)
+    assert np.all(sent[missed] == 0.0) and np.any(sent[~missed] != 0.0)
+
+
 def test_an_unreachable_rig_and_a_wrong_machine_are_refused_in_one_line(tmp_path):
     r = tspend("run", SCENARIO, "--rig", f"udp://127.0.0.1:{free_udp_port()}", "--no-record",
                cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)

@@ -119,6 +119,7 @@ class RigPlant(Plant):
         self._used_seq = -1
         self._lost = self._late = 0
         self._last_sent = 0.0
+        self._silent = ""  # why the rig counts as gone ("" while it is not)
 
     # what the model plant knows
     @property
@@ -189,7 +190,9 @@ class RigPlant(Plant):
         if fresh_frame:
             self._last_fresh_ns = log.wake[k]
         elif log.wake[k] - self._last_fresh_ns > self.hello.watchdog_s * 1e9:
-            raise RigSilent(f"no sensor frame from {self.link.describe()} for "
+            # raised by step(), before anything is sent: the loop then ends the run as a
+            # plant failure, with what was recorded kept
+            self._silent = (f"no sensor frame from {self.link.describe()} for "
                             f"{(log.wake[k] - self._last_fresh_ns) * 1e-6:.0f} ms, longer than "
                             f"its watchdog ({self.hello.watchdog_s * 1e3:g} ms): the rig is gone")
         if fresh_frame:
@@ -230,6 +233,8 @@ class RigPlant(Plant):
     def step(self, u: float, d: float, dt: float) -> None:
         k, log = self._cycle, self.log
         log.ready[k] = ready = time.perf_counter_ns()
+        if self._silent:
+            raise RigSilent(self._silent)
         sent = u
         if ready > log.deadline[k] + self._period_ns:
             log.missed[k] = True
