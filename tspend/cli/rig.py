@@ -23,7 +23,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     from tspend.cli.common import PlainRawDescriptionFormatter
 
     r = subparsers.add_parser("rig", help="serve a simulated rig (the test double of a real one)")
-    sub = r.add_subparsers(dest="rig_command", required=True, metavar="ACTION")
+    sub = r.add_subparsers(dest="rig_command", required=True, metavar="ACTION",
+                           help="serve: a simulated rig ('tspend rig serve --help')")
     s = sub.add_parser("serve", help="the scenario's machine as a rig on a UDP port or serial line",
                        description="The scenario's MuJoCo machine, paced to the wall clock, "
                                    "speaking tspend's rig protocol (docs/rig.md) with an "
