@@ -149,6 +149,14 @@ def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):
 
     notes = replay_module.session_notes(tmp_path / "rig.rrd")
     assert replay_module.replay(tmp_path / "rig.rrd").equal == 250
+    # the twin: the same controller on the simulated machine from the rig's first state
+    # stays within 5 mrad (rms; the pole starts 105 mrad off) of what the rig (the double) did
+    gap = replay_module.twin(tmp_path / "rig.rrd", tmp_path / "twin.rrd")
+    assert gap["samples"] == 250 and 0 < gap["rms_gap"]["hinge"] < 5e-3
+    from tspend.recorder.readback import read_scalar_series
+
+    assert np.array_equal(read_scalar_series(tmp_path / "twin.rrd", "sim_vs_rig/hinge/rig")[1],
+                          rig_series(tmp_path / "rig.rrd", "state").reshape(250, -1)[:, 1])
     notes["timing_notes"]["velocity_tau_s"] *= 2
     monkeypatch.setattr(replay_module, "session_notes", lambda path: notes)
     assert replay_module.replay(tmp_path / "rig.rrd").equal < 250
