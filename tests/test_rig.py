@@ -197,11 +197,7 @@ def test_faults_are_counted_and_no_corrupt_frame_is_ever_applied(tmp_path):
 
 
 def test_sigkill_the_runner_the_watchdog_zeroes_the_command(tmp_path):
-    double, url, log = start_double(tmp_path, "--watchdog-ms", "20")
-    runner = spawn("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "60",
-                   "--no-record", cwd=tmp_path)
-    _wait_for_line(double, "session 1: period")
-    time.sleep(1.5)
+    double, runner, log = running_pair(tmp_path, 1.5, "--watchdog-ms", "20")
     runner.send_signal(signal.SIGKILL)
     finish(runner)
     out, _ = finish(double)
@@ -230,12 +226,19 @@ def _wait_for_line(proc: subprocess.Popen, text: str) -> None:
     pytest.fail(f"no line with {text!r}")
 
 
-def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
-    double, url, log = start_double(tmp_path)
+def running_pair(tmp_path: Path, seconds: float, *double_options: str):
+    """The double and a 60 s LQR run on it (metrics m.json, recording rig.rrd), ``seconds``
+    into the session; (double, runner, the double's log)."""
+    double, url, log = start_double(tmp_path, *double_options)
     runner = spawn("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "60",
                    "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path)
     _wait_for_line(double, "session 1: period")
-    time.sleep(1.5)
+    time.sleep(seconds)
+    return double, runner, log
+
+
+def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
+    double, runner, log = running_pair(tmp_path, 1.5)
     runner.send_signal(signal.SIGINT)
     out, err = finish(runner)
     double_out, _ = finish(double)
@@ -250,11 +253,7 @@ def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
 
 
 def test_a_rig_gone_silent_ends_the_run_with_its_outputs_kept(tmp_path):
-    double, url, _ = start_double(tmp_path)
-    runner = spawn("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "60",
-                   "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path)
-    _wait_for_line(double, "session 1: period")
-    time.sleep(1.0)
+    double, runner, _ = running_pair(tmp_path, 1.0)
     double.send_signal(signal.SIGKILL)
     finish(double)
     out, err = finish(runner)
