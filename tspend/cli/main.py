@@ -56,11 +56,11 @@ def command_modules() -> tuple:
     numba, and this module is imported before :func:`main` installs the signal guard,
     which must come first."""
     from tspend.cli import (compare, crosscheck, excite, export, figures, identify, inspect,
-                            plan, run, show, sweep, tune)
+                            plan, replay, rig, run, show, sweep, tune)
     from tspend.cli import list as list_command
 
     return (run, show, crosscheck, list_command, inspect, sweep, export, compare, tune,
-            figures, excite, identify, plan)
+            figures, excite, identify, plan, rig, replay)
 
 
 DESCRIPTION = ("Control experiments on pendulums: run a scenario headless or live, show and "

@@ -34,6 +34,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "keeps every constraint and the fall angle and ends in the "
                         "balancing LQR's safe set (same as --set safety.filter=NAME; "
                         "docs/safety.md)")
+    from tspend.cli.rig import add_rig_options
+
+    add_rig_options(r)
     return r
 
 
@@ -85,12 +88,16 @@ def cmd(args: argparse.Namespace) -> int:
                   OutputRequest("--metrics", "metrics", ".json", args.metrics)
                   if args.metrics is not None else None],
                  scenario_inputs(scn))
-    with mujoco_warnings_in_errors(uses_mujoco(scn)):
+    from tspend.cli.rig import rig_for_run
+
+    # --rig: the link checked (refused in one line) before anything is written or moves
+    with mujoco_warnings_in_errors(uses_mujoco(scn)), rig_for_run(args, scn) as rig:
         from tspend.loop.simulation import prepare, run
 
+        scn = rig.scenario if rig is not None else scn
         prepared = prepare(scn, controller=args.controller)
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
-            return _run(args, scn, prepared, stop, outs, run)
+            return _run(args, scn, prepared, stop, outs, rig.run if rig is not None else run)
 
 
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:

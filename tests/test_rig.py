@@ -1,0 +1,391 @@
+"""The rig: the wire protocol, the simulated rig over UDP, the real-time runner, faults,
+the watchdog, the stop frame, replay, and the C rig end over a pseudo-terminal.
+
+Every process is bounded in time (timeouts on every wait); sockets on 127.0.0.1 only.
+Timing figures are not asserted here (benchmarks/rig_timing.py measures them); what is
+asserted is behaviour: what the controller saw against what the double sent, what the
+double applied against what the host sent, bit-for-bit replay.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import signal
+import socket
+import subprocess
+import sys
+import time
+import tty
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.cli_harness import ROOT, spawn, tspend
+from tspend.rig import protocol
+from tspend.rig.protocol import Command, FrameError, Hello, Sensor
+
+SCENARIO = "pendulum_mujoco"
+C_SOURCE = ROOT / "tspend" / "rig" / "rig_end.c"
+#: the longest any one process of these tests may take (s)
+PROCESS_TIMEOUT_S = 120
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_double(tmp_path: Path, *options: str,
+                 scenario: str = SCENARIO) -> tuple[subprocess.Popen, str, Path]:
+    """``tspend rig serve`` on a free port, once it listens; (process, url, its log)."""
+    port, log = free_udp_port(), tmp_path / "double.npz"
+    url = f"udp://127.0.0.1:{port}"
+    proc = spawn("rig", "serve", scenario, "--listen", url, "--log", str(log),
+                 "--wait-s", "60", "--max-session-s", "90", *options, cwd=tmp_path)
+    line = proc.stdout.readline()  # printed once the socket is bound
+    assert line.startswith("rig serve:"), line + proc.stderr.read()
+    return proc, url, log
+
+
+def finish(proc: subprocess.Popen) -> tuple[str, str]:
+    try:
+        out, err = proc.communicate(timeout=PROCESS_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        pytest.fail(f"the process did not end: {out} {err}")
+    return out, err
+
+
+def rig_series(path: Path, name: str) -> np.ndarray:
+    from tspend.recorder.readback import read_scalar_series
+
+    return read_scalar_series(path, f"rig/{name}")[1]
+
+
+# -- the protocol ---------------------------------------------------------------------
+def test_crc_is_ieee_802_3_and_every_single_bit_error_is_rejected():
+    assert zlib.crc32(b"123456789") == 0xCBF43926  # the standard's check value
+    frame = protocol.sensor(Sensor(7, 123456, 6, 0, (1000, -2000)))
+    kind, seq, fields = protocol.decode(frame)
+    assert (kind, seq) == (protocol.SENSOR, 7)
+    assert protocol.as_sensor(seq, fields).counts == (1000, -2000)
+    for bit in range(len(frame) * 8):
+        bad = bytearray(frame)
+        bad[bit // 8] ^= 1 << (bit % 8)
+        with pytest.raises(FrameError):
+            protocol.decode(bytes(bad))
+
+
+def test_frames_round_trip_with_their_documented_sizes():
+    hello = Hello("cartpole:slider,hinge", (1e5, 3183.1), 0.002, 0.1, 0.02, 2000.0)
+    back = protocol.as_hello(protocol.decode(protocol.hello(hello))[2])
+    assert back == hello
+    u = 0.1 + 0.2  # not a short binary fraction: the command travels as binary64
+    c = protocol.as_command(9, protocol.decode(protocol.command(Command(9, u, 8)))[2])
+    assert c.u == u and c.sensor_seq == 8
+    # docs/rig.md's table
+    assert protocol.SIZES == {b"H": 16, b"h": 100, b"G": 20, b"S": 44, b"C": 28, b"X": 16}
+
+
+def test_a_byte_stream_resynchronises_after_garbage_and_a_corrupt_frame():
+    good = [protocol.sensor(Sensor(i, i * 2000, i, 0, (i, -i))) for i in range(3)]
+    corrupt = bytearray(good[1])
+    corrupt[20] ^= 0x10
+    stream = b"TS\x01junk" + good[0] + bytes(corrupt) + b"\x00TS" + good[2]
+    parser = protocol.StreamParser()
+    found = []
+    for i in range(0, len(stream), 5):  # arriving in pieces, as from a serial port
+        found += parser.feed(stream[i:i + 5])
+    assert [seq for _, seq, _ in found] == [0, 2]
+    assert parser.rejected == 1
+
+
+# -- the UDP double and the runner ------------------------------------------------------
+def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp_path):
+    double, url, log = start_double(tmp_path)
+    r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
+               "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    out, _ = finish(double)
+    assert r.status == 0, r.err
+    assert "completed: 1500 steps" in r.out  # the double's 2 ms period, said in one line
+    assert "running at 2 ms" in r.out
+    assert "ended (stop frame)" in out
+    m = json.loads((tmp_path / "m.json").read_text())
+    timing = m["timing"]
+    assert timing["cycles"] == 1500 and timing["period_s"] == 0.002
+    for key in ("lateness_us", "compute_us"):
+        q = timing[key]
+        assert q["p50"] <= q["p99"] <= q["p99_9"] <= q["max"]
+    assert set(timing["frames"]) >= {"lost", "late", "corrupt"}
+    assert "velocity_estimator" in timing and "realtime" in timing
+    # the timing panels are in the recording, one value per cycle
+    assert len(rig_series(tmp_path / "rig.rrd", "lateness_us")) == 1500
+    # what the controller saw is what the double measured, frame by frame
+    truth = np.load(log)
+    seq = rig_series(tmp_path / "rig.rrd", "sensor_seq").astype(int)
+    counts = rig_series(tmp_path / "rig.rrd", "counts").reshape(1500, -1)
+    sent = dict(zip(truth["sensor_seq"], map(tuple, truth["sensor_counts"])))
+    assert all(tuple(counts[k].astype(int)) == sent[seq[k]] for k in range(1500))
+
+    again = tspend("replay", "rig.rrd", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    assert again.status == 0, again.err
+    assert "1500 commands equal bit for bit, 0 differ" in again.out
+
+
+def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):
+    """Replay can fail: the same frames through another velocity filter give other commands."""
+    double, url, _ = start_double(tmp_path)
+    r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "0.5",
+               "--out", "rig.rrd", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    finish(double)
+    assert r.status == 0, r.err
+    from tspend.rig import replay as replay_module
+
+    notes = replay_module.session_notes(tmp_path / "rig.rrd")
+    assert replay_module.replay(tmp_path / "rig.rrd").equal == 250
+    # the twin: the same controller on the simulated machine from the rig's first state
+    # stays within 5 mrad (rms; the pole starts 105 mrad off) of what the rig (the double) did
+    gap = replay_module.twin(tmp_path / "rig.rrd", tmp_path / "twin.rrd")
+    assert gap["samples"] == 250 and 0 < gap["rms_gap"]["hinge"] < 5e-3
+    from tspend.recorder.readback import read_scalar_series
+
+    assert np.array_equal(read_scalar_series(tmp_path / "twin.rrd", "sim_vs_rig/hinge/rig")[1],
+                          rig_series(tmp_path / "rig.rrd", "state").reshape(250, -1)[:, 1])
+    notes["timing_notes"]["velocity_tau_s"] *= 2
+    monkeypatch.setattr(replay_module, "session_notes", lambda path: notes)
+    assert replay_module.replay(tmp_path / "rig.rrd").equal < 250
+
+
+def test_faults_are_counted_and_no_corrupt_frame_is_ever_applied(tmp_path):
+    double, url, log = start_double(tmp_path, "--drop", "0.05", "--sensor-latency-ms", "3",
+                                    "--corrupt", "0.01", "--fault-seed", "3")
+    r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "4",
+               "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    finish(double)
+    assert r.status in (0, 4), r.err  # completed, or the task ended it (its message says)
+    m = json.loads((tmp_path / "m.json").read_text())
+    frames, cycles = m["timing"]["frames"], m["timing"]["cycles"]
+    truth = np.load(log)
+    rrd = tmp_path / "rig.rrd"
+    seq = rig_series(rrd, "sensor_seq").astype(int)
+    counts = rig_series(rrd, "counts").reshape(cycles, -1).astype(int)
+    fresh = rig_series(rrd, "fresh").astype(bool)
+    # every frame up to the newest the host took has arrived or is accounted for
+    seen = truth["sensor_seq"] <= seq.max()
+    dropped, corrupted = truth["sensor_dropped"] & seen, truth["sensor_corrupted"] & seen
+    assert frames["lost"] == int(dropped.sum()) > 0
+    assert frames["corrupt"] == int((corrupted & ~dropped).sum()) > 0
+    # the counts of every frame the controller got are what the double measured: none of
+    # the corrupted ones reached it
+    sent = {s: tuple(c) for s, c in zip(truth["sensor_seq"], truth["sensor_counts"])}
+    bad = set(truth["sensor_seq"][truth["sensor_corrupted"]])
+    assert not bad & set(seq[fresh])
+    assert all(tuple(counts[k]) == sent[seq[k]] for k in np.nonzero(fresh)[0])
+    # and every command the double applied is one the host sent, exactly
+    u_sent = rig_series(rrd, "u_sent")
+    applied = truth["command_applied"] & (truth["command_seq_received"] < len(u_sent))
+    assert applied.sum() > 0.9 * cycles
+    assert np.array_equal(truth["command_u_received"][applied],
+                          u_sent[truth["command_seq_received"][applied]])
+    assert (truth["event"] == "rejected_command").sum() > 0  # corrupted commands: dropped
+
+
+def test_sigkill_the_runner_the_watchdog_zeroes_the_command(tmp_path):
+    double, runner, log = running_pair(tmp_path, 1.5, "--watchdog-ms", "20")
+    runner.send_signal(signal.SIGKILL)
+    finish(runner)
+    out, _ = finish(double)
+    assert "ended (host lost)" in out
+    truth = np.load(log)
+    trips = truth["event_wall_s"][truth["event"] == "watchdog"]
+    assert len(trips) == 1
+    wall, applied, cseq = truth["wall_s"], truth["u_applied"], truth["command_seq"]
+    tripped = np.nonzero(truth["watchdog"] > 0)[0]
+    first = tripped[0]
+    last_command = np.nonzero(np.diff(cseq[:first]) > 0)[0][-1] + 1
+    waited_s = wall[first] - wall[last_command]
+    # zero within the stated 20 ms, to the double's 1 ms step
+    assert 0.020 < waited_s <= 0.022, waited_s
+    assert np.all(applied[first:] == 0.0) and np.any(applied[:first] != 0.0)
+
+
+def _wait_for_line(proc: subprocess.Popen, text: str) -> None:
+    until = time.monotonic() + PROCESS_TIMEOUT_S
+    while time.monotonic() < until:
+        line = proc.stdout.readline()
+        if text in line:
+            return
+        if not line and proc.poll() is not None:
+            break
+    pytest.fail(f"no line with {text!r}")
+
+
+def running_pair(tmp_path: Path, seconds: float, *double_options: str):
+    """The double and a 60 s LQR run on it (metrics m.json, recording rig.rrd), ``seconds``
+    into the session; (double, runner, the double's log)."""
+    double, url, log = start_double(tmp_path, *double_options)
+    runner = spawn("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "60",
+                   "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path)
+    _wait_for_line(double, "session 1: period")
+    time.sleep(seconds)
+    return double, runner, log
+
+
+def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
+    double, runner, log = running_pair(tmp_path, 1.5)
+    runner.send_signal(signal.SIGINT)
+    out, err = finish(runner)
+    double_out, _ = finish(double)
+    assert runner.returncode == 130, err
+    assert "ended (stop frame)" in double_out
+    truth = np.load(log)
+    assert list(truth["event"]).count("stop_frame") == 1
+    assert truth["watchdog"].max() == 0  # stopped by the host, not by the watchdog
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["status"] == "interrupted" and 0 < m["timing"]["cycles"] < 30_000
+    assert (tmp_path / "rig.rrd").stat().st_size > 0
+
+
+def test_a_rig_gone_silent_ends_the_run_with_its_outputs_kept(tmp_path):
+    double, runner, _ = running_pair(tmp_path, 1.0)
+    double.send_signal(signal.SIGKILL)
+    finish(double)
+    out, err = finish(runner)
+    assert runner.returncode == 3, err
+    assert "the rig is gone" in out + err
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["status"] == "diverged" and (tmp_path / "rig.rrd").exists()
+
+
+def test_miss_policy_stop_ends_the_run_at_the_first_late_command(tmp_path):
+    """A plug-in rig whose read stalls one cycle by three periods (a slow driver)."""
+    plugin = tmp_path / "slow_rig.py"
+    plugin.write_text(
+        "import time\n"
+        "from tspend.rig.inprocess import InProcessCartPole\n"
+        "class Slow(InProcessCartPole):\n"
+        "    def poll(self):\n"
+        "        frames = super().poll()\n"
+        "        if any(f.seq == 100 for f in frames):\n"
+        "            time.sleep(0.006)\n"
+        "        return frames\n")
+    said = {}
+    for policy, status in (("stop", 3), ("zero", 0)):
+        r = said[policy] = tspend("run", SCENARIO, "--controller", "lqr", "--rig", f"{plugin}:Slow",
+                   "--set", "run.control_period=0.002", "--duration", "1", "--miss-policy",
+                   policy, "--metrics", f"{policy}.json", "--out", f"{policy}.rrd",
+                   cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+        assert r.status == status, r.err
+        timing = json.loads((tmp_path / f"{policy}.json").read_text())["timing"]
+        assert timing["misses"] >= 1
+    assert "deadline missed at cycle" in said["stop"].out + said["stop"].err
+    sent = rig_series(tmp_path / "zero.rrd", "u_sent")
+    missed = rig_series(tmp_path / "zero.rrd", "missed").astype(bool)
+    assert np.all(sent[missed] == 0.0) and np.any(sent[~missed] != 0.0)
+
+
+def test_an_unreachable_rig_and_a_wrong_machine_are_refused_in_one_line(tmp_path):
+    r = tspend("run", SCENARIO, "--rig", f"udp://127.0.0.1:{free_udp_port()}", "--no-record",
+               cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 2
+    assert "unreachable" in r.one_error_line() or "no hello" in r.one_error_line()
+    plugin = tmp_path / "my_rig.py"
+    plugin.write_text(
+        "from tspend.rig.links import RigLink\n"
+        "from tspend.rig.protocol import Hello\n"
+        "class Furuta(RigLink):\n"
+        "    def hello(self):\n"
+        "        return Hello('furuta:arm,pendulum', (1.0, 1.0), 0.001, 0.1, 0.02, 1.0)\n"
+        "    def start(self, period_s): raise AssertionError('moved')\n"
+        "    def poll(self): return []\n"
+        "    def send(self, command): raise AssertionError('moved')\n"
+        "    def stop(self, reason): self.stopped = True\n"
+        "class NotARig:\n"
+        "    pass\n")
+    r = tspend("run", SCENARIO, "--rig", f"{plugin}:Furuta", "--no-record", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 2
+    assert "the rig is 'furuta:arm,pendulum', the scenario's machine is 'cartpole:slider,hinge'" \
+        in r.one_error_line()
+    r = tspend("run", SCENARIO, "--rig", f"{plugin}:NotARig", "--no-record", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 2 and "not a subclass" in r.one_error_line()
+
+
+def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path):
+    """The loop that makes the twin better: excite, run on the rig, export, identify."""
+    r = tspend("excite", SCENARIO, "--out", "exp.toml", "--duration", "10", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    double, url, _ = start_double(tmp_path, "--set", "plant.m=1.2", scenario="exp.toml")
+    r = tspend("run", "exp.toml", "--rig", url, "--out", "e.rrd", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    finish(double)
+    assert r.status == 0, r.err
+    r = tspend("export", "e.rrd", "--out", "e.csv", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    r = tspend("identify", "e.csv", "--model", str(ROOT / "models" / "cartpole.xml"),
+               "--params", "m", "--out", "cal.xml", "--metrics", "fit.json", cwd=tmp_path,
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    fitted = json.loads((tmp_path / "fit.json").read_text())["parameters"]["m"]["value"]
+    assert abs(fitted / 1.2 - 1) < 0.02, fitted  # the double's pole is 20 % heavier than 1 kg
+
+
+# -- the C rig end over a serial line -------------------------------------------------------
+@pytest.fixture(scope="module")
+def rig_end(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("c") / "rig_end"
+    subprocess.run(["cc", "-std=c99", "-D_POSIX_C_SOURCE=200809L", "-Wall", "-Wextra", "-Werror",
+                    "-O2", "-DRIG_END_HOST", "-o", str(exe), str(C_SOURCE), "-lm"], check=True,
+                   timeout=PROCESS_TIMEOUT_S)
+    return exe
+
+
+def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
+    pytest.importorskip("serial")
+    master, slave = pty.openpty()
+    tty.setraw(slave)  # the line carries bytes, not text
+    try:
+        rig = subprocess.Popen([str(rig_end), str(master), "60"], pass_fds=[master],
+                               stdout=subprocess.PIPE, text=True)
+        r = tspend("run", SCENARIO, "--controller", "lqr", "--rig",
+                   f"serial://{os.ttyname(slave)}?baud=1000000", "--duration", "2",
+                   "--metrics", "m.json", "--no-record", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+        out, _ = rig.communicate(timeout=PROCESS_TIMEOUT_S)
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert r.status == 0, r.err
+    assert "completed: 1000 steps" in r.out
+    assert out.startswith("rig_end: stopped")  # by the host's stop frame
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["timing"]["frames"]["corrupt"] == 0 and m["joints"]["hinge"]["max_abs"] < 0.2
+
+
+def test_a_period_the_baud_rate_cannot_carry_is_refused_before_any_frame(tmp_path):
+    pytest.importorskip("serial")
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        r = tspend("run", SCENARIO, "--controller", "lqr", "--rig",
+                   f"serial://{os.ttyname(slave)}?baud=115200", "--no-record", cwd=tmp_path,
+                   timeout=PROCESS_TIMEOUT_S)
+        os.set_blocking(master, False)
+        try:
+            written = os.read(master, 4096)
+        except BlockingIOError:
+            written = b""
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert r.status == 2
+    # 44 + 28 bytes of 10 bits at 115200 baud: 6.25 ms, longer than the 1 ms period
+    assert "6.25 ms of line time, longer than the period 1 ms" in r.one_error_line()
+    assert written == b""

@@ -1,0 +1,271 @@
+"""``tspend rig serve``: the simulated rig; and the ``--rig`` options of ``tspend run``.
+
+docs/rig.md describes the protocol, the double and the runner.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+from tspend.cli.common import (EXIT_OK, add_scenario_options, bounded_int, finite,
+                               load_with_overrides, printable, say)
+
+SERVE_EXAMPLE = """example:
+  tspend rig serve pendulum_mujoco --listen udp://127.0.0.1:9500 &
+  tspend run pendulum_mujoco --controller lqr --rig udp://127.0.0.1:9500 --duration 20
+"""
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    from tspend.cli.common import PlainRawDescriptionFormatter
+
+    r = subparsers.add_parser("rig", help="serve a simulated rig (the test double of a real one)")
+    sub = r.add_subparsers(dest="rig_command", required=True, metavar="ACTION",
+                           help="serve: a simulated rig ('tspend rig serve --help')")
+    s = sub.add_parser("serve", help="the scenario's machine as a rig on a UDP port or serial line",
+                       description="The scenario's MuJoCo machine, paced to the wall clock, "
+                                   "speaking tspend's rig protocol (docs/rig.md) with an "
+                                   "encoder, latency, jitter, lost and corrupt frames, an "
+                                   "amplifier limit and a watchdog.",
+                       epilog=SERVE_EXAMPLE, formatter_class=PlainRawDescriptionFormatter)
+    s.add_argument("scenario", help="scenario name (see 'tspend list') or path to a .toml file")
+    add_scenario_options(s, recording=False)
+    s.add_argument("--listen", required=True, metavar="URL",
+                   help="udp://HOST:PORT (e.g. udp://127.0.0.1:9500) or "
+                        "serial:///dev/DEVICE?baud=N")
+    s.add_argument("--counts-per-unit", type=finite(), nargs="+", metavar="N",
+                   help="the encoders' counts per metre (slide) or per radian (hinge), one per "
+                        "joint in the model's order (default: 100000 per metre, 20000 per "
+                        "revolution)")
+    s.add_argument("--min-period-ms", type=finite(0.1, 1000.0), default=2.0, metavar="MS",
+                   help="the shortest control period the rig accepts (default 2: 500 Hz); "
+                        "a whole multiple of the scenario's dt")
+    s.add_argument("--max-period-ms", type=finite(0.1, 1000.0), default=20.0, metavar="MS",
+                   help="the longest control period the rig accepts (default 20; the host "
+                        "needs the watchdog to outlast two periods)")
+    s.add_argument("--watchdog-ms", type=finite(0.1, 10_000.0), default=50.0, metavar="MS",
+                   help="the motor command goes to zero when no valid command came for this "
+                        "long (default 50)")
+    s.add_argument("--amp-limit", type=finite(), metavar="U",
+                   help="the amplifier's limit on |u| (default: the machine's input range)")
+    for name, what in (("drop", "share of sensor frames dropped"),
+                       ("corrupt", "share of frames with one bit flipped (sensor frames sent, "
+                                   "commands received)")):
+        s.add_argument(f"--{name}", type=finite(0.0, 0.5, strict=False), default=0.0,
+                       metavar="P", help=f"{what}, 0 to 0.5 (default 0)")
+    for name, what in (("sensor-latency-ms", "added to every sensor frame"),
+                       ("command-latency-ms", "before a received command acts"),
+                       ("jitter-ms", "uniform extra latency, 0 to this, on each frame")):
+        s.add_argument(f"--{name}", type=finite(0.0, 1000.0, strict=False), default=0.0,
+                       metavar="MS", help=f"latency {what} (ms, default 0)")
+    s.add_argument("--fault-seed", type=bounded_int(0, 2**32 - 1), default=0, metavar="N",
+                   help="seed of the drawn faults (default 0)")
+    s.add_argument("--log", metavar="PATH.npz",
+                   help="write the double's true state, commands, frames and events (one file "
+                        "per session: PATH.npz, then PATH-2.npz ...); never replaces a file")
+    s.add_argument("--sessions", type=bounded_int(1, 1000), default=1, metavar="N",
+                   help="serve this many runs, then exit (default 1)")
+    s.add_argument("--wait-s", type=finite(0.1, 86_400.0), default=600.0, metavar="S",
+                   help="how long to wait for a host's start (default 600: a first run "
+                        "compiles its controller between the hello and the start)")
+    s.add_argument("--max-session-s", type=finite(0.1, 86_400.0), default=600.0, metavar="S",
+                   help="the longest session (default 600)")
+    s.set_defaults(handler=cmd)
+    return r
+
+
+def add_rig_options(p: argparse.ArgumentParser) -> None:
+    """``tspend run``'s options for a rig."""
+    p.add_argument("--rig", metavar="URL",
+                   help="close the loop on a rig instead of a simulation: udp://HOST:PORT, "
+                        "serial:///dev/ttyUSB0?baud=230400, or your own interface "
+                        "path/to/file.py:MyRig (a tspend.rig.links.RigLink); the period is the "
+                        "scenario's control period (run.control_period, else run.dt), raised "
+                        "to the shortest the rig accepts (docs/rig.md)")
+    p.add_argument("--miss-policy", choices=("hold", "zero", "stop"), default="hold",
+                   help="with --rig, a command ready after its period ended: 'hold' sends the "
+                        "previous command, 'zero' sends 0, 'stop' ends the run (default hold)")
+    p.add_argument("--velocity-tau-ms", type=finite(0.0, 1000.0, strict=False), default=5.0,
+                   metavar="MS",
+                   help="with --rig, the low-pass time constant of the velocity estimate "
+                        "from the rig's positions (default 5; 0: the bare backward difference)")
+
+
+class RigRun:
+    """An open rig session for ``tspend run``: the scenario at the rig's period and the
+    ``run`` callable the command hands its sinks to."""
+
+    def __init__(self, args, session, scenario) -> None:
+        self.args, self.session, self.scenario = args, session, scenario
+
+    def run(self, scn, sinks=(), keep_history=False, stop=None, controller=None, prepared=None):
+        from tspend.rig import protocol
+        from tspend.rig.closed_loop import run_on_rig
+        from tspend.rig.estimator import VelocityEstimator
+        from tspend.rig.runner import RigPlant, session_settings
+        from tspend.scenario_toml import dump_toml, resolved_document
+
+        estimator = VelocityEstimator(self.args.velocity_tau_ms * 1e-3)
+        settings = session_settings(self.session, scn.run.duration, self.args.miss_policy,
+                                    estimator)
+        plant = RigPlant(prepared.plant, self.session.link, self.session.hello, settings)
+        rec = next((s.rec for s in sinks if getattr(s, "rec", None) is not None), None)
+        hello = self.session.hello
+        notes = {"scenario_toml": dump_toml(resolved_document(prepared.scenario)),
+                 "controller": controller, "rig": self.args.rig,
+                 "counts_per_unit": list(hello.counts_per_unit),
+                 "timing_notes": {"link": self.args.rig, "machine": hello.machine,
+                                  "velocity_estimator": estimator.describe(),
+                                  "velocity_tau_s": estimator.tau_s}}
+        try:
+            result = run_on_rig(prepared, self.session, plant, sinks, stop, rec, notes)
+        except BaseException:
+            self.session.stop_reason = protocol.STOP_SIGNAL
+            raise
+        finally:
+            self.session.close()  # the stop frame at once, before the outputs are completed
+        return result
+
+
+@contextmanager
+def rig_for_run(args, scn):
+    """With ``--rig``: the link opened and checked (one line and exit 2 when refused, before
+    any motion), a :class:`RigRun`; the stop frame on every way out.  None without."""
+    if getattr(args, "rig", None) is None:
+        yield None
+        return
+    from tspend.loop.simulation import build_plant
+    from tspend.rig.links import parse_rig
+    from tspend.rig.runner import model_not_stepped, open_session, rig_scenario
+
+    link = parse_rig(args.rig)
+    requested = scn.run.control_period or scn.run.dt
+    session = open_session(link, build_plant(scn), requested)
+    try:
+        if session.period_s != requested:
+            print(f"rig: it accepts periods from {session.hello.min_period_s * 1e3:g} ms; "
+                  f"running at {session.period_s * 1e3:g} ms ({1 / session.period_s:g} Hz)",
+                  flush=True)
+        with model_not_stepped():
+            yield RigRun(args, session, rig_scenario(scn, session.period_s))
+    finally:
+        session.close()
+
+
+def _log_path(base: str | None, session: int) -> Path | None:
+    if base is None:
+        return None
+    path = Path(base)
+    return path if session == 1 else path.with_name(f"{path.stem}-{session}{path.suffix}")
+
+
+def _listen(url: str):
+    """The double's transport for ``--listen``."""
+    import urllib.parse
+
+    from tspend.errors import ScenarioError
+    from tspend.rig.double import SerialServer, UdpServer
+    from tspend.rig.links import BAUD_RANGE
+
+    parts = urllib.parse.urlsplit(url)
+    try:
+        if parts.scheme == "udp" and parts.hostname and parts.port:
+            return UdpServer(parts.hostname, parts.port)
+        if parts.scheme == "serial" and parts.path:
+            baud = int(urllib.parse.parse_qs(parts.query).get("baud", ["115200"])[0])
+            if not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
+                raise ValueError(f"baud {baud} outside {BAUD_RANGE[0]}-{BAUD_RANGE[1]}")
+            return SerialServer(parts.path, baud)
+    except (OSError, ValueError, ImportError) as exc:
+        raise ScenarioError(f"--listen {url}: {exc}") from None
+    raise ScenarioError(f"--listen {url}: expected udp://HOST:PORT or serial:///dev/DEVICE?baud=N")
+
+
+def build_double(args: argparse.Namespace, scn):
+    """The simulated rig the options describe (checked before it listens)."""
+    import math
+
+    import numpy as np
+
+    from tspend.errors import ScenarioError
+    from tspend.loop.simulation import build_plant
+    from tspend.rig.double import Faults, SimulatedRig, u_limit_of
+    from tspend.rig.protocol import MAX_JOINTS, Hello
+    from tspend.rig.runner import machine_id
+
+    plant = build_plant(scn)
+    joints = plant.joints
+    if not 0 < len(joints) <= MAX_JOINTS:
+        raise ScenarioError(f"{scn.name}: a rig carries 1 to {MAX_JOINTS} joints; this machine "
+                            f"has {len(joints)}")
+    counts = args.counts_per_unit or [1e5 if j.kind == "slide" else 2e4 / (2 * math.pi)
+                                      for j in joints]
+    if len(counts) != len(joints):
+        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
+                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    dt = scn.run.dt
+    for option in ("min_period_ms", "max_period_ms"):
+        period = getattr(args, option) * 1e-3
+        if abs(round(period / dt) * dt - period) > 1e-9 or period < dt:
+            raise ScenarioError(f"--{option.replace('_', '-')} {period * 1e3:g}: not a whole "
+                                f"multiple of the scenario's dt {dt * 1e3:g} ms")
+    if args.max_period_ms < args.min_period_ms:
+        raise ScenarioError("--max-period-ms is shorter than --min-period-ms")
+    if args.log and not args.log.endswith(".npz"):
+        raise ScenarioError(f"--log {printable(args.log)}: expected a .npz path")
+    hello = Hello(machine_id(plant), tuple(float(c) for c in counts), args.min_period_ms * 1e-3,
+                  args.max_period_ms * 1e-3, args.watchdog_ms * 1e-3,
+                  args.amp_limit if args.amp_limit is not None else u_limit_of(plant, scn))
+    faults = Faults(args.drop, args.corrupt, args.sensor_latency_ms * 1e-3,
+                    args.command_latency_ms * 1e-3, args.jitter_ms * 1e-3)
+    joint_index = np.array([plant.state_names.index(j.name) for j in joints])
+    return SimulatedRig(plant, scn, hello, faults, _listen(args.listen),
+                        np.random.default_rng(args.fault_seed), joint_index)
+
+
+def cmd(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    scn = load_with_overrides(args)
+    logs = [_log_path(args.log, i + 1) for i in range(args.sessions)] if args.log else []
+    for path in logs:
+        if path.exists():
+            from tspend.errors import OutputError
+
+            raise OutputError(f"--log {printable(path)}: exists; the double never replaces a file")
+    double = build_double(args, scn)
+    from tspend.rig.double import TruthLog
+    from tspend.rig.realtime import real_time
+
+    hello = double.hello
+    print(f"rig serve: {printable(scn.name)} as '{hello.machine}' on {printable(args.listen)}, "
+          f"periods {hello.min_period_s * 1e3:g}-{hello.max_period_s * 1e3:g} ms, watchdog "
+          f"{hello.watchdog_s * 1e3:g} ms, |u| <= {hello.u_limit:g}", flush=True)
+    import time
+
+    try:
+        for number in range(1, args.sessions + 1):
+            log = TruthLog(double.plant.state_names)
+            period = double.wait_for_start(time.monotonic() + args.wait_s, log)
+            if period is None:
+                say(f"rig serve: no host started a session within {args.wait_s:g} s")
+                return 2
+            print(f"session {number}: period {period * 1e3:g} ms", flush=True)
+            with real_time() as granted:
+                reason = double.session(period, args.max_session_s, log)
+            for line in granted.notes:
+                print(f"real time: {line}", flush=True)
+            arrays = log.arrays()
+            trips = int(np.sum(arrays["event"] == "watchdog"))
+            print(f"session {number}: ended ({reason}) after {len(arrays['t'])} steps; "
+                  f"watchdog trips {trips}", flush=True)
+            if logs:
+                log.save(logs[number - 1])
+                print(f"log: {printable(logs[number - 1])}", flush=True)
+            sys.stdout.flush()
+    finally:
+        double.transport.close()
+    return EXIT_OK

@@ -1,0 +1,174 @@
+"""A scenario's closed loop run on a rig: :func:`run_on_rig`, the rig's counterpart of
+:func:`tspend.loop.simulation.run` (same sinks, same metrics, same recording layout),
+plus :class:`TimingSink`, which adds the timing panels and the ``timing`` block."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
+from tspend.rig.runner import RigPlant, RigSession
+
+#: samples per block handed to the sinks: small, so the recording's work is spread over
+#: the run instead of landing on one cycle every few seconds
+BLOCK_SIZE = 100
+#: the recording's entity of the rig's panels and of the exact per-cycle data replay reads
+RIG_ENTITY = "rig"
+
+
+#: samples held back from the sinks during a rig run; past it the held blocks are
+#: delivered in the loop (that cycle is late, and counted so)
+DEFER_SAMPLES = 60_000
+
+
+class DeferredSinks:
+    """The sinks out of the real-time loop: each block is copied and held, and handed on
+    when the run ends (or when :data:`DEFER_SAMPLES` are held).  A recording's block costs
+    5 ms and more (measured: docs/rig.md), longer than a period."""
+
+    def __init__(self, sinks: Sequence[Sink], on_loop_end=None) -> None:
+        self.sinks = list(sinks)
+        #: called once the loop is over, before any held block is delivered (the rig's
+        #: stop frame goes out then, not after the recording's work)
+        self.on_loop_end = on_loop_end
+        self._held: list[Block] = []
+        self._samples = 0
+
+    def start(self, info: RunInfo) -> None:
+        for sink in self.sinks:
+            sink.start(info)
+
+    def block(self, block: Block) -> None:
+        self._held.append(Block(start=block.start,
+                                data={k: np.array(v, copy=True) for k, v in block.data.items()}))
+        self._samples += len(block.data["t"])
+        if self._samples >= DEFER_SAMPLES:
+            self.deliver()
+
+    def deliver(self) -> None:
+        held, self._held, self._samples = self._held, [], 0
+        for block in held:
+            for sink in self.sinks:
+                sink.block(block)
+
+    def inner(self, snap) -> None:
+        pass
+
+    def result(self, wall_s: float) -> dict:
+        """The metrics of every block: the held ones delivered first."""
+        if self.on_loop_end is not None:
+            self.on_loop_end()
+        self.deliver()
+        metrics = {}
+        for sink in self.sinks:
+            if hasattr(sink, "result"):
+                metrics = sink.result(wall_s=wall_s)
+        return metrics
+
+    def finish(self, end: RunEnd) -> None:
+        self.deliver()
+        for sink in self.sinks:
+            sink.finish(end)
+
+
+class TimingSink:
+    """Per-cycle timing and frames into the recording (``rig/...``), and the metrics'
+    ``timing`` block at the end (before the sinks after it see the metrics)."""
+
+    def __init__(self, plant: RigPlant, session: RigSession, rec=None, notes: dict | None = None) -> None:
+        self.plant, self.session, self.rec = plant, session, rec
+        self.notes = notes or {}
+
+    def start(self, info: RunInfo) -> None:
+        if self.rec is not None:
+            import json
+
+            import rerun as rr
+
+            self.rec.log(f"{RIG_ENTITY}/session", rr.TextDocument(
+                json.dumps(self.notes, indent=2), media_type="text/plain"), static=True)
+
+    def block(self, block: Block) -> None:
+        if self.rec is None:
+            return
+        import rerun as rr
+
+        from tspend.recorder.arrow import time_column
+
+        start, k = block.start, len(block.data["t"])
+        times = time_column(block.data["t"])
+        columns = self.plant.log.series(start, start + k)
+        exact = {"counts": self.plant.log.counts[start:start + k].astype(float),
+                 "rig_time_us": self.plant.log.rig_time_us[start:start + k].astype(float),
+                 "sensor_seq": self.plant.log.sensor_seq[start:start + k].astype(float),
+                 "ref": block.data["ref"], "state": block.data["state"], "u": block.data["u"]}
+        for name, values in {**columns, **exact}.items():
+            self.rec.send_columns(f"{RIG_ENTITY}/{name}", indexes=[times],
+                                  columns=rr.Scalars.columns(scalars=np.asarray(values, float)))
+
+    def inner(self, snap) -> None:
+        pass
+
+    def finish(self, end: RunEnd) -> None:
+        end.metrics["timing"] = {**self.plant.log.block(self.session.period_s,
+                                                       self.plant.settings.miss_policy),
+                                 **self.notes.get("timing_notes", {})}
+
+
+#: samples of the warm-up on the model plant (first calls compile and import: 0.5 s on the
+#: first cycle would put the whole schedule behind)
+WARM_UP_SAMPLES = 5
+
+
+def warm_up(prepared, settings) -> None:
+    """A few samples of the controller and the task's checks on the model plant, then the
+    controller reset to the state the run starts from (the seed's generator, as built)."""
+    import numpy as np
+
+    from tspend.loop.metrics import MetricsAccumulator
+    from tspend.loop.runner import ClosedLoop
+    from tspend.loop.simulation import run_info
+
+    scenario, plant = prepared.scenario, prepared.plant
+    short = replace(settings, steps=WARM_UP_SAMPLES)
+    loop = ClosedLoop(plant, prepared.controller, scenario.reference, scenario.disturbance,
+                      short, task=prepared.task)
+    loop.run(run_info(scenario, plant, WARM_UP_SAMPLES, None, prepared.controller, prepared.task),
+             [MetricsAccumulator(settings.dt, ss_start=0.0)])
+    prepared.controller.reset(np.random.default_rng(scenario.run.seed))
+    plant.reset(np.asarray(scenario.plant.x0, dtype=float))
+
+
+def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[Sink] = (),
+               stop=None, rec=None, notes: dict | None = None, fifo: bool = True):
+    """Run ``prepared``'s controller on the rig; a :class:`~tspend.loop.simulation.RunResult`
+    without history.  The real-time settings granted go into the timing block."""
+    from tspend.loop.metrics import MetricsAccumulator
+    from tspend.loop.runner import ClosedLoop, LoopSettings
+    from tspend.loop.simulation import RunResult, machine_info, run_info
+    from tspend.rig.realtime import real_time
+
+    scenario, ctrl, task = prepared.scenario, prepared.controller, prepared.task
+    steps, dt = plant.settings.cycles, session.period_s
+    settings = LoopSettings(dt=dt, steps=steps, block_size=BLOCK_SIZE, snapshot_every=0,
+                            state_bound=scenario.plant.state_bound,
+                            control_bound=scenario.run.control_bound, compiled=False)
+    loop = ClosedLoop(plant, ctrl, scenario.reference, scenario.disturbance, settings, stop,
+                      task=task)
+    metrics = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=scenario.run.seed,
+                                 machine=machine_info(prepared.plant, task, scenario, prepared.drawn))
+    info = replace(run_info(scenario, prepared.plant, steps, None, ctrl, task), extras=())
+    warm_up(prepared, settings)
+    notes = dict(notes or {})
+    with real_time(fifo=fifo) as granted:
+        notes["timing_notes"] = {"realtime": granted.as_dict(), **notes.get("timing_notes", {})}
+        for line in granted.notes:
+            print(f"real time: {line}", flush=True)
+        timing = TimingSink(plant, session, rec, notes)
+        for sink in sinks:  # the first block comes at the end now: no "compiling" notice
+            getattr(sink, "cancel", lambda: None)()
+        end = loop.run(info, [DeferredSinks([metrics, timing, *sinks], session.close)])
+    return RunResult(scenario, end, {}, ctrl, plant, info)
