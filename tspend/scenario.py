@@ -326,6 +326,8 @@ def _safety(r: Table) -> SafetyConfig:
             raise r.error(key, f"must be at most {high}, got {values[key]}")
     if not values.get("plan_period", 0.05) <= 1.0:
         raise r.error("plan_period", f"must be at most 1 s, got {values['plan_period']:g}")
+    if not values.get("budget_ms", 0.0) <= 1000.0:
+        raise r.error("budget_ms", f"must be at most 1000 ms, got {values['budget_ms']:g}")
     return SafetyConfig(**values)
 
 
