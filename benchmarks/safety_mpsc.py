@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 import warnings
 from pathlib import Path
@@ -68,6 +69,13 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.max_slack": sf.get("max_slack"),
                         "safety.fast_path": sf.get("fast_path_samples"),
                         "safety.uncertified": sf.get("uncertified_samples"),
+                        "safety.certified": sf.get("certified_samples"),
+                        "safety.admitted": sf.get("start_admitted"),
+                        "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
+                        "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
+                        "safety.over_budget": sf.get("over_budget_samples"),
+                        "safety.budget_ms": sf.get("budget_ms"),
+                        "load_average_1min": os.getloadavg()[0],
                         "samples": sf.get("samples")})
             print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
                   f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
@@ -134,6 +142,21 @@ def summary(table) -> dict:
                                                 / n).median()),
                 "infeasible_share_median": float((g["safety.infeasible"] / n).median()),
                 "max_slack": float(g["safety.max_slack"].max())})
+        if "safety.certified" in g and g["safety.certified"].notna().any():
+            n = g["samples"].astype(float)
+            row.update({
+                # issue 54's columns: certified share over all samples, uncertified samples,
+                # time per sample (median of run medians, largest p99, largest max)
+                "certified_share": float(g["safety.certified"].sum() / n.sum()),
+                "fallback_share": float(g["safety.fallbacks"].sum() / n.sum()),
+                "uncertified_samples": int(g["safety.uncertified"].sum()),
+                "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
+                "starts_admitted": int(g["safety.admitted"].astype(bool).sum()),
+                "time_per_sample_ms_p99_max": float(g["safety.time_p99_ms"].max()),
+                "time_per_sample_ms_max": float(g["safety.time_max_ms"].max()),
+                "over_budget_samples": int(g["safety.over_budget"].sum()),
+                "budget_ms": float(g["safety.budget_ms"].iloc[0]),
+                "load_average_1min_median": float(g["load_average_1min"].median())})
         out[ctrl] = row
     return out
 
@@ -230,7 +253,6 @@ def timing(samples: int) -> dict:
     # waits for a core, which no filter can shorten
     cb, cf = float(np.median(cpu_bare)) * 1e3, float(np.median(cpu_filt)) * 1e3
     n = sf["samples"]
-    import os
 
     return {"samples": len(ts), "bare_pd_ms_median": mb, "pd_mpsc_ms_median": mf,
             "filter_only_ms_median": sf["qp_ms"]["median"],

@@ -393,39 +393,48 @@ def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: fl
     return ca.Function(name, [x, Uk, ref], [m.rk4_map(dt, 1, name=name + "_rk4")(x, u), u])
 
 
-def certificate_rollout(cert: Certificate) -> Any:
-    """(P5) on the nominal model and every corner (P6) as one CasADi function ``(s, U (N,),
-    R (nx, N)) -> (nominal, summary)``: the nominal model's states
-    (``s``, after the first sample, after every RK4 step) over the inputs it applied
-    ``(nx + 1, 2 + steps)``, and per model ``(3 nx, models)`` the least and the largest
-    value of each state after ``s`` and the last state (what the certificate reads).
-    One RK4 step per model, iterated by ``mapaccum``: the C source grows with the models,
-    not with the horizon (the unrolled rollout for 17 models was 9.3 MB, 453 s of gcc)."""
+def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
+    """(P5) from ``s0`` for the plan ``(Un (N,), Rn (nx, N))`` (CasADi MX) on the nominal
+    model and every corner (P6): per model ``(path, used)``, its states after the first
+    sample and after every RK4 step ``(nx, 1 + steps)`` and the inputs it applied."""
     import casadi as ca
 
     nx, N, sub = cert.model.size, cert.N, cert.substeps
-    steps = (N - 1) * sub
-    s0, Un, Rn = ca.MX.sym("s0", nx), ca.MX.sym("U", N), ca.MX.sym("R", nx, N)
     # interval k's RK4 step j: U_k, towards R_k + j/sub (R_{k+1} - R_k) (R_k at the end)
     k = np.repeat(np.arange(1, N), sub)
     last = k + 1 >= N
     a = ca.DM(np.where(last, 0.0, np.tile(np.arange(sub) / sub, N - 1))).T
-    u0, U = Un[0], Un[[int(i) for i in k]].T
+    U = Un[[int(i) for i in k]].T
     Ref = (Rn[:, [int(i) for i in k]] * ca.repmat(1.0 - a, nx, 1)
            + Rn[:, [int(i) for i in np.where(last, k, k + 1)]] * ca.repmat(a, nx, 1))
-    nominal, summary = None, []
+    out = []
     for i, m in enumerate((cert.model, *cert.corners)):
-        x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, u0)
-        step = tracked_step(m, cert.h / cert.substeps, cert.K, cert.u_lo, cert.u_hi,
-                            f"mpsc_step_{i}")
-        X, used = step.mapaccum(f"mpsc_plan_{i}", steps)(x1, U, Ref)
-        path = ca.horzcat(x1, X)
-        summary.append(ca.vertcat(*[ca.mmin(path[j, :]) for j in range(nx)],
-                                  *[ca.mmax(path[j, :]) for j in range(nx)], X[:, -1]))
-        if nominal is None:
-            nominal = ca.vertcat(ca.horzcat(s0, x1, X), ca.horzcat(u0, u0, used))
-    return ca.Function("tspend_mpsc_rollout", [s0, Un, Rn],
-                       [nominal, ca.horzcat(*summary)])
+        x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, Un[0])
+        step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}")
+        X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, Ref)
+        out.append((ca.horzcat(x1, X), ca.horzcat(Un[0], used)))
+    return out
+
+
+def certificate_rollout(cert: Certificate) -> Any:
+    """(P5) on the nominal model and every corner (P6) as one CasADi function ``(s, U (N,),
+    R (nx, N)) -> (nominal, summary)``: the nominal model's states (``s``, after the first
+    sample, after every RK4 step) over the inputs it applied ``(nx + 1, 2 + steps)``, and
+    per model ``(3 nx, models)`` the least and the largest value of each state after
+    ``s`` and the last state (what the certificate reads).  One RK4 step per model,
+    iterated by ``mapaccum``: the C source grows with the models, not with the horizon
+    (the unrolled rollout for 17 models was 9.3 MB, 453 s of gcc)."""
+    import casadi as ca
+
+    nx, N = cert.model.size, cert.N
+    s0, Un, Rn = ca.MX.sym("s0", nx), ca.MX.sym("U", N), ca.MX.sym("R", nx, N)
+    paths = model_paths(cert, s0, Un, Rn)
+    summary = [ca.vertcat(*[ca.mmin(path[j, :]) for j in range(nx)],
+                          *[ca.mmax(path[j, :]) for j in range(nx)], path[:, -1])
+               for path, _ in paths]
+    path, used = paths[0]
+    nominal = ca.vertcat(ca.horzcat(s0, path), ca.horzcat(Un[0], used))
+    return ca.Function("tspend_mpsc_rollout", [s0, Un, Rn], [nominal, ca.horzcat(*summary)])
 
 
 class Rollout:
