@@ -112,7 +112,8 @@ def test_mpsc_completes_where_bare_pd_reaches_the_rail():
     assert 0.0 < sf["intervention_share"] < 1.0
 
 
-@pytest.mark.parametrize("key,value", [("horizon", 500), ("substeps", 99), ("plan_period", 3.0)])
+@pytest.mark.parametrize("key,value", [("horizon", 500), ("substeps", 99), ("plan_period", 3.0),
+                                       ("budget_ms", 5000.0)])
 def test_plan_sizes_are_bounded(key, value):
     with pytest.raises(ScenarioError, match=f"safety.{key}"):
         override(load_scenario("pendulum_finite_rail"), **{f"safety.{key}": value})
@@ -258,3 +259,65 @@ def test_a_start_with_no_certified_plan_completes_on_mujoco_through_the_recovery
     assert sf["recovery_plans"] >= 1 and sf["uncertified_samples"] >= 1
     assert r.status == "completed" and r.metrics["violations"] == 0
     assert r.metrics["joints"]["slider"]["max_abs"] < 1.0
+
+
+def _randomized_filter(seed):
+    from tspend.loop.simulation import prepare
+
+    scn, s = _randomized_start(seed)
+    f = prepare(scn, controller="pd").controller
+    f._rows = (np.arange(f.model.size),)
+    return f, s
+
+
+def test_the_rollout_on_every_corner_is_what_scipy_integrates():
+    """The certificate's one compiled rollout (mapaccum over one RK4 step per model)
+    against scipy's integration of (P5) on the corner machines themselves: the least and
+    largest cart position and the last state of each."""
+    f, s = _randomized_filter(3)
+    assert f.roll.models == 17 and len(f.cert.corner_names) == 4
+    U, R = f.lqr_tail(s)
+    U[0] = f.terminal_input(s)
+    summary = f.roll.run(s, U, R).copy()
+    nx = f.model.size
+    for m in (0, 5, 16):
+        model = f.cert.model if m == 0 else f.cert.corners[m - 1]
+        states, end = _solve_plan(f, s, (U, R), model=model)
+        assert summary[m, 0] == pytest.approx(states[:, 0].min(), abs=2e-3)
+        assert summary[m, nx] == pytest.approx(states[:, 0].max(), abs=2e-3)
+        assert summary[m, 2 * nx:] == pytest.approx(end, abs=2e-3)
+
+
+def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
+    """Seed 15's start (docs/safety.md): no tail and no QP plan is certified on the 17
+    models; the refusal names the bound, and scipy's integration of the saturated LQR
+    from it on the nominal model indeed leaves that bound."""
+    f, s = _randomized_filter(15)
+    f.recovery.plan = lambda state: None
+    f.admit(s)
+    assert f.admitted is False and f.plan is None
+    assert "slider's certified bound" in f.refusal and "nominal model" in f.refusal
+    U, R = f.lqr_tail(s)
+    U[0] = f.terminal_input(s)
+    states, _ = _solve_plan(f, s, (U, R))
+    assert np.abs(states[:, 0]).max() > f.cert.hi_check[0]
+
+
+def test_no_step_starts_past_the_budget():
+    """(P9): with a budget shorter than one rollout the filter tries none: the certified
+    plan made at admission goes on (tracked), counted as a fallback and as skipped."""
+    f = _filter(**{"safety.budget_ms": 1e-3})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    assert f.admitted and f.plan is not None and f._cost["roll"] > 1e-6
+    runs = []
+    original = f.roll.run
+    f.roll.run = lambda *a: runs.append(1) or original(*a)
+    for _ in range(5):
+        u, _ = f.filter(s, 5.0)
+    assert runs == [] and f.fallbacks == 5 and f.fast == 0 and f.skipped == 5
+    assert u == pytest.approx(f.tracking_input(s, f.stage_at(4 * f.cert.sample_s),
+                                               4 * f.cert.sample_s))
+    sf = f.more_metrics()
+    assert sf["budget_ms"] == pytest.approx(1e-3) and sf["budget_skipped_samples"] == 5
+    assert sf["certified_samples"] == 0 and sf["uncertified_samples"] == 0

@@ -27,13 +27,14 @@ models the caller built) is made once by :func:`design`; :func:`build_solvers` c
 the rollout and the QP (cached by their C source's hash); the filter that runs per sample
 only reads them.
 
-Per sample, within ``safety.budget_ms`` (P9) (every step below is tried only while the
-time left exceeds its measured cost; a step that does not fit is skipped, never started):
+Per sample, within ``safety.budget_ms`` (P9): every step below is started only while the
+time left before the deadline exceeds its measured cost (a moving average of its CPU
+time); a step that does not fit is skipped, never started:
 
-0. the fast path: ``[u_c, the certified plan's rest]``, then ``[u_c, the saturated LQR]``:
-   a certified rollout passes ``u_c`` unchanged;
-1. the closest certifiable input between ``u_c`` and a certified tail's own input, by
-   bisection on the certificate (as many halvings as the budget allows);
+1. on each certified tail in turn (the last certified plan's rest, tracked; the saturated
+   LQR): ``[u_c, tail]`` (the fast path: a certified rollout passes ``u_c`` unchanged),
+   else ``[the tail's own input, tail]``, then the closest certifiable input to ``u_c``
+   between the two by bisection, halving while the budget allows;
 2. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM) of
 
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
@@ -41,14 +42,14 @@ time left exceeds its measured cost; a step that does not fit is skipped, never 
    its plan applied only when certified on every model;
 3. else the last certified plan goes on, tracked by the LQR (a **fallback**: certified at
    an earlier sample, on the models);
-4. without any certified plan: **uncertified**, counted: the recovery plan (P8) made
-   before the run (IPOPT on the nominal model, tracked by the LQR), else the QP's own
-   plan, else the saturated LQR.
+4. without any certified plan: **uncertified**, counted: the recovery plan (P8) made at
+   admission (IPOPT on the nominal model, tracked by the LQR), else the QP's own plan,
+   else the saturated LQR.
 
 **Admission** (before the first sample is filtered, outside the budget: a rig's
-pre-flight check at its start): steps 0-2 with the QP iterated to convergence, then
-(P8); the metrics say whether the start was admitted (a certified plan from it) and why
-not.  So at every sample of steps 0-2 the applied input starts a plan certified from
+pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
+say whether the start was admitted (a certified plan from it) and why not.  So at every
+sample of steps 1-2 the applied input starts a plan certified from
 this state on the nominal model and every corner; at step 3 from an earlier state.
 Nothing is claimed for machines between the corners, for MuJoCo's integrator against the
 ODE beyond the margins stated in the metrics, or at step 4.
