@@ -14,7 +14,9 @@ clipped to the input's range, the filter asks for a backup plan ``u_0 .. u_{N-1}
     u(t) = U_k - K (x(t) - R(t))   (k >= 1; R the plan's states, x the rollout's)   (P5)
 
 ``F_0`` one control sample (RK4), ``F`` one ``plan_period``; (P5) is the plan as it is
-followed (the LQR ``K`` towards the plan's states, at every RK4 step).  **The
+followed (the LQR ``K`` towards the plan's states, evaluated at every RK4 stage: the
+runner tracks at every sample, so the certificate's rollout does not hold the
+correction over a step).  **The
 certificate** (P6): a plan is certified when (P5) rolled out on the nominal model *and on
 every corner model* keeps (P2) at every RK4 step and ends in (P3).  Every candidate the
 filter may apply is such a rollout (one compiled CasADi function over all models:
@@ -384,14 +386,27 @@ def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
 
 def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: float,
                  name: str) -> Any:
-    """One RK4 step of (P5) on ``m``: ``u = clip(U_k - K (x - ref))`` held over the step;
-    ``(x, U_k, ref) -> (x_next, u)``."""
+    """One RK4 step of (P5) on ``m`` with the LQR's correction evaluated at every stage
+    (``u = clip(U_k - K (x - ref))``, ``ref`` moving linearly from ``ref_0`` to ``ref_1``
+    over the step): the tracking the runner applies at every sample, not a hold over the
+    step; ``(x, U_k, ref_0, ref_1) -> (x_next, u at the step's start)``."""
     import casadi as ca
 
-    x, Uk, ref = ca.SX.sym("x", m.size), ca.SX.sym("u"), ca.SX.sym("r", m.size)
-    u = ca.fmin(ca.fmax(Uk - ca.dot(ca.DM(K), x - ref), u_lo if math.isfinite(u_lo) else -1e19),
-                u_hi if math.isfinite(u_hi) else 1e19)
-    return ca.Function(name, [x, Uk, ref], [m.rk4_map(dt, 1, name=name + "_rk4")(x, u), u])
+    x, Uk = ca.SX.sym("x", m.size), ca.SX.sym("u")
+    r0, r1 = ca.SX.sym("r0", m.size), ca.SX.sym("r1", m.size)
+    f, gain = m.symbolic(), ca.DM(K)
+    lo, hi = (u_lo if math.isfinite(u_lo) else -1e19), (u_hi if math.isfinite(u_hi) else 1e19)
+
+    def law(y, ref):
+        return ca.fmin(ca.fmax(Uk - ca.dot(gain, y - ref), lo), hi)
+
+    mid = 0.5 * (r0 + r1)
+    k1 = f(x, law(x, r0))
+    k2 = f(x + dt / 2 * k1, law(x + dt / 2 * k1, mid))
+    k3 = f(x + dt / 2 * k2, law(x + dt / 2 * k2, mid))
+    k4 = f(x + dt * k3, law(x + dt * k3, r1))
+    return ca.Function(name, [x, Uk, r0, r1],
+                       [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), law(x, r0)])
 
 
 def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
@@ -401,18 +416,25 @@ def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
     import casadi as ca
 
     nx, N, sub = cert.model.size, cert.N, cert.substeps
-    # interval k's RK4 step j: U_k, towards R_k + j/sub (R_{k+1} - R_k) (R_k at the end)
+    # interval k's RK4 step j: U_k, towards R_k + a (R_{k+1} - R_k) with a from j/sub to
+    # (j+1)/sub over the step (R_k throughout the last interval)
     k = np.repeat(np.arange(1, N), sub)
     last = k + 1 >= N
-    a = ca.DM(np.where(last, 0.0, np.tile(np.arange(sub) / sub, N - 1))).T
+    j = np.tile(np.arange(sub), N - 1)
     U = Un[[int(i) for i in k]].T
-    Ref = (Rn[:, [int(i) for i in k]] * ca.repmat(1.0 - a, nx, 1)
-           + Rn[:, [int(i) for i in np.where(last, k, k + 1)]] * ca.repmat(a, nx, 1))
+    nxt = [int(i) for i in np.where(last, k, k + 1)]
+
+    def ref(a: np.ndarray) -> Any:
+        a = ca.DM(np.where(last, 0.0, a)).T
+        return (Rn[:, [int(i) for i in k]] * ca.repmat(1.0 - a, nx, 1)
+                + Rn[:, nxt] * ca.repmat(a, nx, 1))
+
+    start, end = ref(j / sub), ref((j + 1) / sub)
     out = []
     for i, m in enumerate((cert.model, *cert.corners)):
         x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, Un[0])
         step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}")
-        X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, Ref)
+        X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, start, end)
         out.append((ca.horzcat(x1, X), ca.horzcat(Un[0], used)))
     return out
 
