@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 import warnings
 from pathlib import Path
@@ -68,6 +69,13 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.max_slack": sf.get("max_slack"),
                         "safety.fast_path": sf.get("fast_path_samples"),
                         "safety.uncertified": sf.get("uncertified_samples"),
+                        "safety.certified": sf.get("certified_samples"),
+                        "safety.admitted": sf.get("start_admitted"),
+                        "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
+                        "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
+                        "safety.over_budget": sf.get("over_budget_samples"),
+                        "safety.budget_ms": sf.get("budget_ms"),
+                        "load_average_1min": os.getloadavg()[0],
                         "samples": sf.get("samples")})
             print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
                   f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
@@ -134,6 +142,21 @@ def summary(table) -> dict:
                                                 / n).median()),
                 "infeasible_share_median": float((g["safety.infeasible"] / n).median()),
                 "max_slack": float(g["safety.max_slack"].max())})
+        if "safety.certified" in g and g["safety.certified"].notna().any():
+            n = g["samples"].astype(float)
+            row.update({
+                # issue 54's columns: certified share over all samples, uncertified samples,
+                # time per sample (median of run medians, largest p99, largest max)
+                "certified_share": float(g["safety.certified"].sum() / n.sum()),
+                "fallback_share": float(g["safety.fallbacks"].sum() / n.sum()),
+                "uncertified_samples": int(g["safety.uncertified"].sum()),
+                "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
+                "starts_admitted": int(g["safety.admitted"].astype(bool).sum()),
+                "time_per_sample_ms_p99_max": float(g["safety.time_p99_ms"].max()),
+                "time_per_sample_ms_max": float(g["safety.time_max_ms"].max()),
+                "over_budget_samples": int(g["safety.over_budget"].sum()),
+                "budget_ms": float(g["safety.budget_ms"].iloc[0]),
+                "load_average_1min_median": float(g["load_average_1min"].median())})
         out[ctrl] = row
     return out
 
@@ -230,7 +253,6 @@ def timing(samples: int) -> dict:
     # waits for a core, which no filter can shorten
     cb, cf = float(np.median(cpu_bare)) * 1e3, float(np.median(cpu_filt)) * 1e3
     n = sf["samples"]
-    import os
 
     return {"samples": len(ts), "bare_pd_ms_median": mb, "pd_mpsc_ms_median": mf,
             "filter_only_ms_median": sf["qp_ms"]["median"],
@@ -250,6 +272,53 @@ def timing(samples: int) -> dict:
             "closed_loop_bisected_share": loop_sf["bisected_samples"] / loop_sf["samples"]}
 
 
+def bare_replay(scn, history) -> dict:
+    """Bare pd's wall time per call (ms: median, max) over a run's recorded observations."""
+    from tspend.controllers.base import Observation
+    from tspend.loop.simulation import prepare
+
+    parts = prepare(scn, controller="pd")
+    parts.controller.reset(np.random.default_rng(0))
+    task, times = parts.task, []
+    for t, s, ref in zip(history["t"], history["state"], history["ref"]):
+        obs = Observation(float(t), s, s[task.view_index], ref, task.names, task.constraints)
+        a = time.perf_counter()
+        parts.controller.step(obs, 0.001)
+        times.append(time.perf_counter() - a)
+    return {"median": 1e3 * float(np.median(times)), "max": 1e3 * float(np.max(times))}
+
+
+def randomized_timing(machine: str, seeds: int) -> dict:
+    """The filter's time per sample in closed loops on the randomised machines (the
+    runner's own measurement: median, p99, max per run), and the bare pd's time per
+    controller call in the same process on the same seeds, with the load."""
+    from safety_filter import MACHINES
+    from tspend import load_scenario, override, run
+
+    name, changes = MACHINES[machine]
+    base = override(load_scenario(name), **changes)
+    runs = []
+    for seed in range(seeds):
+        scn = override(base, **{"run.seed": seed})
+        result = run(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+        filtered = result.metrics
+        # bare pd replayed on the filtered loop's observations (a bare run takes the
+        # compiled loop, which does not time its controller calls)
+        bare = bare_replay(scn, result.history)
+        sf = filtered["safety_filter"]
+        per = sf["time_per_sample_ms"]
+        runs.append({"seed": seed, "status": result.status,
+                     "mpsc_ms_median": per["median"], "mpsc_ms_p99": per["p99"],
+                     "mpsc_ms_max": per["max"], "budget_ms": sf["budget_ms"],
+                     "over_budget_samples": sf["over_budget_samples"],
+                     "certified_share": sf["certified_share"],
+                     "bare_pd_ms_median": bare["median"], "bare_pd_ms_max": bare["max"],
+                     "ratio_median_over_bare": per["median"] / bare["median"],
+                     "load_average_1min": os.getloadavg()[0]})
+        print(json.dumps(runs[-1]), flush=True)
+    return {"machine": machine, "runs": runs}
+
+
 def main() -> None:
     import pandas as pd
 
@@ -266,15 +335,30 @@ def main() -> None:
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--samples", type=int, default=5000)
+    ap.add_argument("--timing-machine", default="",
+                    help="with --timing-only: the closed loops of this machine of "
+                         "benchmarks/safety_filter.py (cartpole_rail: the randomised "
+                         "cart-pole), seeds 0..--seeds-1, pd behind mpsc and bare")
     short_defaults(ap, seeds=2, resamples=200, samples=100)
     args = ap.parse_args()
     if (not 1 <= args.seeds <= 200 or not 100 <= args.samples <= 20000
             or not 0 <= args.first_seed <= 10 ** 6):
         ap.error("--seeds 1..200, --first-seed 0..1000000, --samples 100..20000")
+    from safety_filter import MACHINES
+
+    if args.timing_machine and args.timing_machine not in MACHINES:
+        ap.error(f"--timing-machine: one of {', '.join(MACHINES)}")
     first, suffix = args.first_seed, tag(args.first_seed)
     warnings.simplefilter("ignore")
     out_path = OUT / "safety_mpsc.json"
     data: dict = {}
+    if args.timing_only and args.timing_machine:
+        tim = randomized_timing(args.timing_machine, args.seeds)
+        path = OUT / "safety_mpsc_timing.json"
+        kept = json.loads(path.read_text()) if path.is_file() else {}
+        kept["randomized_runs"] = kept.get("randomized_runs", []) + [tim]
+        path.write_text(json.dumps(kept, indent=1, default=float) + "\n")
+        return
     if args.timing_only:
         # its own file: one entry per run, appended (docs/safety.md quotes three)
         tim = timing(args.samples)

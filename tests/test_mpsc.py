@@ -42,28 +42,32 @@ def test_terminal_level_is_the_largest_ellipsoid_inside_the_rows():
     assert max(r / b for r, (_, b) in zip(reach, rows)) == pytest.approx(1.0, abs=2e-3)
 
 
-def _solve_plan(f, s, plan):
+def _solve_plan(f, s, plan, model=None):
     """The certified plan (P5) integrated by scipy: the first sample's input held, then
-    each RK4 step of each interval with the LQR correction towards the reference
-    interpolated between the nodes, held over the step; the states every millisecond."""
+    each interval with the LQR correction towards the reference interpolated between the
+    nodes, evaluated continuously (the runner tracks at every sample); the states every
+    millisecond."""
     from scipy.integrate import solve_ivp
 
     U, R = plan
+    c = f.cert
+    model = c.model if model is None else model
     x, out = np.array(s, dtype=float), [np.array(s, dtype=float)]
 
-    def hold(u, T, x):
-        sol = solve_ivp(lambda t, y: f.model.rhs(y, u), (0.0, T), x, rtol=1e-10, atol=1e-12,
+    def follow(law, T, x):
+        sol = solve_ivp(lambda t, y: model.rhs(y, law(t, y)), (0.0, T), x, rtol=1e-10,
+                        atol=1e-12, max_step=1e-3,
                         t_eval=np.linspace(0.0, T, max(2, int(round(T / 1e-3)) + 1)))
         out.append(sol.y.T)
         return sol.y[:, -1]
 
-    x = hold(U[0], f.dt0, x)
-    for k in range(1, f.N):
-        for j in range(f.substeps):
-            a = j / f.substeps
-            ref = R[:, k] if k + 1 >= f.N else (1 - a) * R[:, k] + a * R[:, k + 1]
-            u = min(max(float(U[k] - f.K @ (x - ref)), f.u_lo), f.u_hi)
-            x = hold(u, f.h / f.substeps, x)
+    x = follow(lambda t, y: U[0], c.sample_s, x)
+    for k in range(1, c.N):
+        def law(t, y, k=k):
+            a = 0.0 if k + 1 >= c.N else t / c.h
+            ref = (1 - a) * R[:, k] + a * R[:, min(k + 1, c.N - 1)]
+            return min(max(float(U[k] - c.K @ (y - ref)), c.u_lo), c.u_hi)
+        x = follow(law, c.h, x)
     return np.vstack(out[1:]), x
 
 
@@ -78,9 +82,10 @@ def test_the_certified_plan_keeps_the_rail_and_ends_in_the_ellipsoid_by_scipy(u_
     states, end = _solve_plan(f, s, f.plan)
     # scipy at 1 ms keeps what the certificate checked at its RK4 steps (the rail less
     # the disturbance's tube and 4 % of its half-width), to its integration's difference
-    assert np.abs(states[:, 0]).max() <= f.hi_check[0] + 1e-3
-    assert np.abs(states[:, 1]).max() < f.hi[1]
-    assert end @ f.P @ end <= f.level * (1 + 1e-3)
+    c = f.cert
+    assert np.abs(states[:, 0]).max() <= c.hi_check[0] + 1e-3
+    assert np.abs(states[:, 1]).max() < c.hi[1]
+    assert end @ c.P @ end <= c.level * (1 + 1e-3)
 
 
 def test_round_off_past_a_soft_bound_is_not_a_violation():
@@ -109,7 +114,8 @@ def test_mpsc_completes_where_bare_pd_reaches_the_rail():
     assert 0.0 < sf["intervention_share"] < 1.0
 
 
-@pytest.mark.parametrize("key,value", [("horizon", 500), ("substeps", 99), ("plan_period", 3.0)])
+@pytest.mark.parametrize("key,value", [("horizon", 500), ("substeps", 99), ("plan_period", 3.0),
+                                       ("budget_ms", 5000.0)])
 def test_plan_sizes_are_bounded(key, value):
     with pytest.raises(ScenarioError, match=f"safety.{key}"):
         override(load_scenario("pendulum_finite_rail"), **{f"safety.{key}": value})
@@ -128,8 +134,8 @@ def test_the_fast_path_passes_a_certifiable_command_without_the_qp():
     assert u == 5.0 and slack == 0.0 and f.fast == 1
     # and the plan it certified is what scipy's integration of (P5) keeps inside
     states, end = _solve_plan(f, s, f.plan)
-    assert np.abs(states[:, 0]).max() <= f.hi_check[0] + 1e-3
-    assert end @ f.P @ end <= f.level * (1 + 1e-3)
+    assert np.abs(states[:, 0]).max() <= f.cert.hi_check[0] + 1e-3
+    assert end @ f.cert.P @ end <= f.cert.level * (1 + 1e-3)
 
 
 def test_disturbance_input_is_mujocos_mass_matrix_solve():
@@ -219,11 +225,12 @@ def test_the_recovery_plan_is_what_scipy_integrates_and_travels_less_than_the_lq
 
     scn, s = _randomized_start(15)
     f = prepare(scn, controller="pd").controller
-    U, X, t = f.recovery_plan(s)
-    grid = np.concatenate([[0.0], f.dt0 + f.h_rec * np.arange(f.M_rec)])
+    rec, c = f.recovery, f.cert
+    U, X, t = rec.plan(s)
+    grid = np.concatenate([[0.0], c.sample_s + rec.h * np.arange(rec.M)])
     x, peak, node_peak = s.copy(), 0.0, 0.0
-    for k in range(f.M_rec):
-        sol = solve_ivp(lambda _, y: f.model.rhs(y, U[k]), (grid[k], grid[k + 1]), x,
+    for k in range(rec.M):
+        sol = solve_ivp(lambda _, y: c.model.rhs(y, U[k]), (grid[k], grid[k + 1]), x,
                         rtol=1e-10, atol=1e-12, max_step=2e-3)
         x = sol.y[:, -1]
         peak = max(peak, float(np.abs(sol.y[0]).max()))
@@ -231,16 +238,16 @@ def test_the_recovery_plan_is_what_scipy_integrates_and_travels_less_than_the_lq
         assert np.allclose(x, X[:, k + 1], atol=2e-3 * (1 + np.abs(X[:, k + 1]))), k
     # t is in shares of the constraint's half-width (the rail's 1 m), kept at the nodes;
     # between them (20 ms) the cart may turn round past its node (10 mm here)
-    assert f._room_hi[0] == pytest.approx(1.0)
+    assert rec.room[0] == pytest.approx(1.0)
     assert t < 0.0
-    assert node_peak <= f.hi[0] + t * 1.0 + 2e-3
-    assert peak <= f.hi[0] + t * 1.0 + 0.02
-    assert x @ f.P @ x <= f.level
-    assert np.all((U >= f.u_lo - 1e-6) & (U <= f.u_hi + 1e-6))
+    assert node_peak <= c.hi[0] + t * 1.0 + 2e-3
+    assert peak <= c.hi[0] + t * 1.0 + 0.02
+    assert x @ c.P @ x <= c.level
+    assert np.all((U >= c.u_lo - 1e-6) & (U <= c.u_hi + 1e-6))
     # the saturated LQR alone from the same start, on the same model, goes farther
     y, lqr_peak = s.copy(), 0.0
     for _ in range(3000):
-        y = np.asarray(f._rec_maps[0](y, f.terminal_input(y))).ravel()
+        y = np.asarray(rec.maps[0](y, f.terminal_input(y))).ravel()
         lqr_peak = max(lqr_peak, abs(float(y[0])))
     assert lqr_peak > peak + 0.05
 
@@ -254,3 +261,65 @@ def test_a_start_with_no_certified_plan_completes_on_mujoco_through_the_recovery
     assert sf["recovery_plans"] >= 1 and sf["uncertified_samples"] >= 1
     assert r.status == "completed" and r.metrics["violations"] == 0
     assert r.metrics["joints"]["slider"]["max_abs"] < 1.0
+
+
+def _randomized_filter(seed):
+    from tspend.loop.simulation import prepare
+
+    scn, s = _randomized_start(seed)
+    f = prepare(scn, controller="pd").controller
+    f._rows = (np.arange(f.model.size),)
+    return f, s
+
+
+def test_the_rollout_on_every_corner_is_what_scipy_integrates():
+    """The certificate's one compiled rollout (mapaccum over one RK4 step per model)
+    against scipy's integration of (P5) on the corner machines themselves: the least and
+    largest cart position and the last state of each."""
+    f, s = _randomized_filter(3)
+    assert f.roll.models == 17 and len(f.cert.corner_names) == 4
+    U, R = f.lqr_tail(s)
+    U[0] = f.terminal_input(s)
+    summary = f.roll.run(s, U, R).copy()
+    nx = f.model.size
+    for m in (0, 5, 16):
+        model = f.cert.model if m == 0 else f.cert.corners[m - 1]
+        states, end = _solve_plan(f, s, (U, R), model=model)
+        assert summary[m, 0] == pytest.approx(states[:, 0].min(), abs=2e-3)
+        assert summary[m, nx] == pytest.approx(states[:, 0].max(), abs=2e-3)
+        assert summary[m, 2 * nx:] == pytest.approx(end, abs=2e-3)
+
+
+def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
+    """Seed 15's start (docs/safety.md): no tail and no QP plan is certified on the 17
+    models; the refusal names the bound, and scipy's integration of the saturated LQR
+    from it on the nominal model indeed leaves that bound."""
+    f, s = _randomized_filter(15)
+    f.recovery.plan = lambda state: None
+    f.admit(s)
+    assert f.admitted is False and f.plan is None
+    assert "slider's certified bound" in f.refusal and "nominal model" in f.refusal
+    U, R = f.lqr_tail(s)
+    U[0] = f.terminal_input(s)
+    states, _ = _solve_plan(f, s, (U, R))
+    assert np.abs(states[:, 0]).max() > f.cert.hi_check[0]
+
+
+def test_no_step_starts_past_the_budget():
+    """(P9): with a budget shorter than one rollout the filter tries none: the certified
+    plan made at admission goes on (tracked), counted as a fallback and as skipped."""
+    f = _filter(**{"safety.budget_ms": 1e-3})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    assert f.admitted and f.plan is not None and f._cost["roll"] > 1e-6
+    runs = []
+    original = f.roll.run
+    f.roll.run = lambda *a: runs.append(1) or original(*a)
+    for _ in range(5):
+        u, _ = f.filter(s, 5.0)
+    assert runs == [] and f.fallbacks == 5 and f.fast == 0 and f.skipped == 5
+    assert u == pytest.approx(f.tracking_input(s, f.stage_at(4 * f.cert.sample_s),
+                                               4 * f.cert.sample_s))
+    sf = f.more_metrics()
+    assert sf["budget_ms"] == pytest.approx(1e-3) and sf["budget_skipped_samples"] == 5
+    assert sf["certified_samples"] == 0 and sf["uncertified_samples"] == 0

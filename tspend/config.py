@@ -330,6 +330,10 @@ class SafetyConfig:
     plan_period: float = field(default=0.0, metadata=_at_least_zero())
     #: mpsc: RK4 steps per plan interval (0: at most 0.25 / the machine's fastest pole)
     substeps: int = field(default=0, metadata={"low": 0})
+    #: mpsc: the filter's time per sample (ms): it answers within it with the certified
+    #: plan it has when a better one is not certified in time (0: 0.8 x the control
+    #: period; at most 1000)
+    budget_ms: float = field(default=0.0, metadata=_at_least_zero())
 
 
 @dataclass(frozen=True)

@@ -331,6 +331,8 @@ def _safety(r: Table, control_period_s: float) -> SafetyConfig:
     if period and not control_period_s <= period <= 1.0:
         raise r.error("plan_period", f"must be 0 (from the machine) or from the control period "
                                      f"({control_period_s:g} s) to 1 s, got {period:g}")
+    if not values.get("budget_ms", 0.0) <= 1000.0:
+        raise r.error("budget_ms", f"must be at most 1000 ms, got {values['budget_ms']:g}")
     return SafetyConfig(**values)
 
 

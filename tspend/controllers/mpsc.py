@@ -4,68 +4,65 @@ Model predictive safety certification (Wabersich and Zeilinger, "Linear model pr
 safety certification for learning-based control", CDC 2018; "A predictive safety filter
 for learning-based control of constrained nonlinear dynamical systems", Automatica 129,
 2021) on the domain's own model (:class:`~tspend.plants.domain.FullModel`, the nominal
-machine).  At every controller sample, with ``s`` the measured full state and ``u_c`` the
-inner controller's command clipped to the input's range, the filter looks for a backup
-plan ``u_0 .. u_{N-1}`` on the model
+machine) and on every corner of the ``[randomize]`` parameter box.  At every controller
+sample, with ``s`` the measured full state and ``u_c`` the inner controller's command
+clipped to the input's range, the filter asks for a backup plan ``u_0 .. u_{N-1}``:
 
     s_1 = F_0(s, u_0),  s_{k+1} = F(s_k, u_k)   (k >= 1)                         (P1)
-    lo <= s_k <= hi  (k = 1 .. N: the hard position boxes, the fall angle, tightened)
-    u_lo <= u_k <= u_hi,  soft rows C s_k + D u_k - e_k <= b, e_k >= 0          (P2)
+    lo <= s_k <= hi  (the hard position boxes, the fall angle, tightened)       (P2)
     s_N in X_f = {s : s^T P s <= c}                                             (P3)
-
-``F_0`` one control sample (RK4), ``F`` one ``plan_period`` (``substeps`` RK4 steps):
-the first input is held for one sample only, as the runner holds it.  ``X_f`` is the
-balancing LQR's sublevel set (``P`` its Riccati matrix, the weights ``lqr`` uses), ``c``
-the largest level whose ellipsoid lies inside every tightened position bound, the fall
-angle and ``|K s| <= u_max`` (:func:`terminal_level`), then shrunk until, from sampled
-points of its boundary, the saturated LQR keeps every bound and returns inside on the
-nominal model and on every vertex of the ``[randomize]`` box (:func:`recurrent_level`,
-:func:`vertex_models`).  A plan is rolled out with its own LQR correction at every RK4
-step, towards the plan's states interpolated between its nodes (as the fallback tracks
-it at every sample)
-
     u(t) = U_k - K (x(t) - R(t))   (k >= 1; R the plan's states, x the rollout's)   (P5)
 
-and certified when, on the nominal model and every vertex model (P6), it keeps the hard
-bounds at every RK4 step and ends in ``X_f``.  The task's declared disturbance ``|d| <=
-d_max`` moves every hard bound in by (P7) :func:`disturbance_tube`, the most it can move
-the tracked state off its plan on the linearisation.
+``F_0`` one control sample (RK4), ``F`` one ``plan_period``; (P5) is the plan as it is
+followed (the LQR ``K`` towards the plan's states, evaluated at every RK4 stage: the
+runner tracks at every sample, so the certificate's rollout does not hold the
+correction over a step).  **The
+certificate** (P6): a plan is certified when (P5) rolled out on the nominal model *and on
+every corner model* keeps (P2) at every RK4 step and ends in (P3).  Every candidate the
+filter may apply is such a rollout (one compiled CasADi function over all models:
+:func:`certificate_rollout`), so an input is applied as certified only when its plan was
+checked on all of them: what is solved is what is certified.  (P7) tightens (P2) by the
+declared disturbance's tube; :func:`design` states every margin.
 
-Per sample (docs/safety.md says it with the figures), each step only when the one before
-found nothing:
+The design (:class:`Certificate`: bounds, margins, the LQR, the terminal set, the corner
+models the caller built) is made once by :func:`design`; :func:`build_solvers` compiles
+the rollout and the QP (cached by their C source's hash); the filter that runs per sample
+only reads them.
 
-0. the fast path: ``[u_c, the certified plan's rest]``, then ``[u_c, the saturated
-   LQR]`` certified by the rollout: ``u_c`` passes unchanged, no QP;
-1. the closest certifiable input between ``u_c`` and a certified tail's own input (the
-   certified plan's, the LQR's), by bisection on the certificate, no QP;
+Per sample, within ``safety.budget_ms`` (P9): every step below is started only while the
+time left before the deadline exceeds its measured cost (a moving average of its CPU
+time); a step that does not fit is skipped, never started:
+
+1. on each certified tail in turn (the last certified plan's rest, tracked; the saturated
+   LQR): ``[u_c, tail]`` (the fast path: a certified rollout passes ``u_c`` unchanged),
+   else ``[the tail's own input, tail]``, then the closest certifiable input to ``u_c``
+   between the two by bisection, halving while the budget allows;
 2. one Gauss-Newton SQP step (:class:`~.mpc_rti.RealTimeSQP`, HPIPM) of
 
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
-   under (P1), (P2) as exact-penalty rows, linearised, and (P3) as a cube inside the
-   ellipsoid; ``[u_c, its plan's rest]``, else its own plan, certified;
-3. else the last certified plan goes on, its states tracked by the LQR every sample (a
-   **fallback**);
-4. without any certified plan (``no_plan``): the recovery plan, made once by IPOPT on the
-   nominal model (multiple shooting, intervals of the plan's interval / RECOVERY_REFINE)
+   its plan applied only when certified on every model;
+3. else the last certified plan goes on, tracked by the LQR (a **fallback**: certified at
+   an earlier sample, on the models);
+4. without any certified plan: **uncertified**, counted: the recovery plan (P8) made at
+   admission (IPOPT on the nominal model, tracked by the LQR), else the QP's own plan,
+   else the saturated LQR.
 
-       min t + effort,  lo_i - t w_i <= s_k,i <= hi_i + t w_i,  s_M in X_f (0.95 c)     (P8)
-
-   (``w_i`` the half-width of constraint ``i``: t < 0 keeps -t of every half-width to
-   spare, so the plan least uses the rail and the fall angle), tracked by the LQR towards
-   its states until a certified plan exists again or it runs out; uncertified and
-   counted.  When IPOPT fails: the QP's own plan, else the saturated LQR.
-
-So at every sample of steps 0-3 the applied input starts a plan certified on the model
-(and the vertex models): following it lands in ``X_f``, where the LQR stays.  Nothing is
-claimed for a machine between the vertices or for a start with no certified plan.
+**Admission** (before the first sample is filtered, outside the budget: a rig's
+pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
+say whether the start was admitted (a certified plan from it) and why not.  So at every
+sample of steps 1-2 the applied input starts a plan certified from
+this state on the nominal model and every corner; at step 3 from an earlier state.
+Nothing is claimed for machines between the corners, for MuJoCo's integrator against the
+ODE beyond the margins stated in the metrics, or at step 4.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
+import time
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -78,7 +75,8 @@ if TYPE_CHECKING:
     from tspend.config import SafetyConfig, Scenario
     from tspend.plants.domain import FullModel
 
-__all__ = ["PredictiveSafetyFilter", "terminal_level", "vertex_models", "wrap"]
+__all__ = ["Certificate", "PredictiveSafetyFilter", "build_solvers", "design",
+           "terminal_level", "vertex_models", "wrap"]
 
 #: eps of (P4): the weight of the backup plan's own LQR cost against the first input's
 #: distance from the command (1 on the input's range)
@@ -88,29 +86,26 @@ SHRINK = 0.8
 #: boundary points of X_f sampled per model for the recurrence check
 BOUNDARY_POINTS = 64
 #: the QP aims its plan's end at this share of (P3)'s level, the certificate checks all
-#: of it; the plan keeps the whole margin from its second node on, the certificate (and
-#: the plan's first node, one sample ahead) CHECK_MARGIN of it: the room between absorbs
-#: the difference between the linearised plan and its rollout, between nodes too
+#: of it; the plan keeps the whole margin from its second node on, the certificate
+#: CHECK_MARGIN of it: the room between absorbs the difference between the linearised
+#: plan and its rollout, between nodes too
 TERMINAL_AIM = 0.95
 CHECK_MARGIN = 0.8
 #: the plan's end level costs as much as a command TERMINAL_WEIGHT x the input's range off
 TERMINAL_WEIGHT = 0.1
-#: bisection steps between the command and the certified plan's input (2^-8 of the gap)
+#: the most bisection steps between the command and the certified plan's input (2^-8 of
+#: the gap); the budget may allow fewer
 BISECTIONS = 8
 #: the longest plan (intervals) chosen automatically
 MAX_AUTO_HORIZON = 40
-#: HPIPM's options for the QP: "speed" mode's relative stopping test iterated 40-60
-#: times here (6 ms per sample), "speed_abs" stops at the absolute residuals (1e-7) in
-#: about 10 (1.2 ms)
+#: HPIPM's options for the QP: "speed_abs" stops at the absolute residuals (1e-7)
 QP_OPTIONS = {"mode": "speed_abs"}
-#: the largest constraint residual of a QP's answer taken as a step: the QP proposes a
-#: plan that the certificate (a rollout on every model) accepts or refuses, so a
-#: millimetre of residual in the linearised rows costs no safety
+#: the largest constraint residual of a QP's answer taken as a step (the certificate
+#: decides: a millimetre of residual in the linearised rows costs no safety)
 QP_ACCEPTANCE = 1e-3
-#: SQP steps per sample while no certified plan exists (its plan is then applied)
-RECOVERY_ITERATIONS = 3
-#: the recovery plan (step 4, (P8)): intervals of the plan's interval / RECOVERY_REFINE
-#: (a manoeuvre that must catch the pole within a plan interval needs switches inside it)
+#: SQP steps at admission (no budget there)
+ADMISSION_ITERATIONS = 10
+#: the recovery plan (P8): intervals of the plan's interval / RECOVERY_REFINE
 RECOVERY_REFINE = 5
 #: IPOPT's iterations for one recovery plan
 RECOVERY_MAX_ITER = 200
@@ -118,8 +113,14 @@ RECOVERY_MAX_ITER = 200
 RECOVERY_EFFORT = 1e-3
 #: the disturbance's samples read for its bound (P7)
 MAX_DISTURBANCE_SAMPLES = 10 ** 6
-#: at most this many [randomize] parameters spanned by vertices (2^6 = 64 models)
+#: at most this many [randomize] parameters spanned by corners (2^6 = 64 models)
 MAX_VERTEX_PARAMETERS = 6
+#: (P9): the default budget, a share of the control period (the rest is the inner
+#: controller's and the loop's)
+BUDGET_SHARE = 0.8
+#: (P9): a step's cost estimate is the moving average of its CPU time with this weight
+#: on the latest (a step dearer than the budget, the QP at 1 kHz, is then never started)
+COST_AVERAGE = 0.2
 
 
 def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float:
@@ -270,179 +271,460 @@ def plan_grid(K: np.ndarray, model: "FullModel", cfg: "SafetyConfig") -> tuple[f
     return h, horizon, substeps
 
 
+@dataclass(frozen=True)
+class Certificate:
+    """The filter's design, made once by :func:`design` on the nominal machine and the
+    corner machines the caller built: what the certificate checks and the numbers the
+    filter reads at every sample (nothing here is changed by a run)."""
+
+    model: "FullModel"
+    #: the corner models of the [randomize] box (P6), and the parameters they span
+    corners: tuple
+    corner_names: tuple[str, ...]
+    sample_s: float
+    h: float
+    N: int
+    substeps: int
+    #: the plan's bounds (the QP's, tightened by the margin) and the certificate's
+    lo: np.ndarray
+    hi: np.ndarray
+    lo_check: np.ndarray
+    hi_check: np.ndarray
+    #: the hard bounds before any tightening (the recovery plan's unit of relaxation)
+    limits: tuple[np.ndarray, np.ndarray]
+    #: (P7)'s tightening per state
+    tube: np.ndarray
+    u_lo: float
+    u_hi: float
+    #: the soft rows of the run's constraint set (C, D, b, selection) for the QP
+    rows: tuple
+    K: np.ndarray
+    P: np.ndarray
+    level: float
+    Q: np.ndarray
+    R: float
+    #: (P9): seconds per sample
+    budget_s: float
+    #: how X_f's recurrence was shown: "sampled" (boundary points on every model)
+    terminal: str = "sampled"
+
+
+def hard_bounds(scenario: "Scenario", machine: Any, model: "FullModel",
+                cs: Any) -> tuple[np.ndarray, np.ndarray, float, float, tuple]:
+    """``(lo, hi, u_lo, u_hi, rows)``: the hard boxes of the run's constraint set and the
+    task's fall angle (a constraint of the safe set: certified plans keep the pole up),
+    the input's range and the soft rows."""
+    from tspend.controllers.mpc import ocp_constraints
+    from tspend.task import build_task
+
+    lo, hi, u_lo, u_hi, rows, _ = ocp_constraints(model, cs, 0.0)
+    lo = np.where(lo <= -1e19, -np.inf, lo)
+    hi = np.where(hi >= 1e19, np.inf, hi)
+    task = build_task(machine, scenario.task, scenario.effects, where=str(scenario.path))
+    for j, limit in enumerate(task.lo_limits):
+        if limit is not None and limit.status == "fell":
+            i = model.state_names.index(task.names[j])
+            lo[i], hi[i] = max(lo[i], task.lo[j]), min(hi[i], task.hi[j])
+    return lo, hi, u_lo, u_hi, rows
+
+
+def ellipsoid_rows(bounds: tuple, K: np.ndarray, u_lo: float, u_hi: float) -> list:
+    """(P3)'s rows: every two-sided tightened bound, and ``|K s| <= `` the input's reach."""
+    rows = []
+    for i in range(bounds[0].size):
+        if math.isfinite(bounds[0][i]) and math.isfinite(bounds[1][i]):
+            e = np.zeros(bounds[0].size)
+            e[i] = 1.0
+            rows.append((e, min(-bounds[0][i], bounds[1][i])))
+    reach = min(abs(u_lo), abs(u_hi))
+    if math.isfinite(reach):
+        rows.append((K, reach))
+    return rows
+
+
+def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
+           sample_s: float) -> Certificate:
+    """The certificate's numbers for ``scenario`` on its nominal ``machine`` and the
+    ``corners`` (FullModels of the [randomize] box's corners, :func:`vertex_models`),
+    for a controller sampled every ``sample_s`` seconds."""
+    from tspend.controllers.full_model import full_model_and_constraints
+    from tspend.controllers.lqr import default_state_weights, design_model, lqr_full_gain
+
+    cfg = scenario.safety
+    model, cs = full_model_and_constraints(scenario, machine)
+    lo, hi, u_lo, u_hi, rows = hard_bounds(scenario, machine, model, cs)
+    A, B = design_model(scenario, machine)
+    b_pole = float(B[model.dof + model.pole, 0])
+    Q = np.diag(default_state_weights(model))
+    K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
+    K = np.asarray(K, dtype=float).ravel()
+    # (P7): every bound moved in by the most the disturbance can move the tracked state
+    tube = disturbance_tube(scenario, model, A - np.outer(B[:, 0], K))
+    limits = (lo.copy(), hi.copy())
+    lo, hi = lo + tube, hi - tube
+    # the margin: a share of each two-sided bound's half-width, kept by the plan at its
+    # nodes and (CHECK_MARGIN of it) by the certificate at every RK4 step
+    half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
+    bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
+              lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
+    level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
+    if not math.isfinite(level):
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": no bound limits the "
+                            f"terminal set (no position bound, fall angle or input range)")
+    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
+    level = recurrent_level([model] + list(corners), P, K, level, bounds[0], bounds[1],
+                            u_lo, u_hi, horizon * h, np.random.default_rng(0))
+    if level <= 0.0:
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": the LQR's ellipsoid "
+                            f"shrank to nothing without the LQR keeping it safe on the "
+                            f"machine and its [randomize] corners")
+    budget = cfg.budget_ms * 1e-3 if cfg.budget_ms > 0.0 else BUDGET_SHARE * sample_s
+    return Certificate(model, tuple(corners), tuple(names), float(sample_s), h, horizon + 1,
+                       substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K, P,
+                       level, Q, b_pole ** 2, budget)
+
+
+def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: float,
+                 name: str) -> Any:
+    """One RK4 step of (P5) on ``m`` with the LQR's correction evaluated at every stage
+    (``u = clip(U_k - K (x - ref))``, ``ref`` moving linearly from ``ref_0`` to ``ref_1``
+    over the step): the tracking the runner applies at every sample, not a hold over the
+    step; ``(x, U_k, ref_0, ref_1) -> (x_next, u at the step's start)``."""
+    import casadi as ca
+
+    x, Uk = ca.SX.sym("x", m.size), ca.SX.sym("u")
+    r0, r1 = ca.SX.sym("r0", m.size), ca.SX.sym("r1", m.size)
+    f, gain = m.symbolic(), ca.DM(K)
+    lo, hi = (u_lo if math.isfinite(u_lo) else -1e19), (u_hi if math.isfinite(u_hi) else 1e19)
+
+    def law(y, ref):
+        return ca.fmin(ca.fmax(Uk - ca.dot(gain, y - ref), lo), hi)
+
+    mid = 0.5 * (r0 + r1)
+    k1 = f(x, law(x, r0))
+    k2 = f(x + dt / 2 * k1, law(x + dt / 2 * k1, mid))
+    k3 = f(x + dt / 2 * k2, law(x + dt / 2 * k2, mid))
+    k4 = f(x + dt * k3, law(x + dt * k3, r1))
+    return ca.Function(name, [x, Uk, r0, r1],
+                       [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), law(x, r0)])
+
+
+def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
+    """(P5) from ``s0`` for the plan ``(Un (N,), Rn (nx, N))`` (CasADi MX) on the nominal
+    model and every corner (P6): per model ``(path, used)``, its states after the first
+    sample and after every RK4 step ``(nx, 1 + steps)`` and the inputs it applied."""
+    import casadi as ca
+
+    nx, N, sub = cert.model.size, cert.N, cert.substeps
+    # interval k's RK4 step j: U_k, towards R_k + a (R_{k+1} - R_k) with a from j/sub to
+    # (j+1)/sub over the step (R_k throughout the last interval)
+    k = np.repeat(np.arange(1, N), sub)
+    last = k + 1 >= N
+    j = np.tile(np.arange(sub), N - 1)
+    U = Un[[int(i) for i in k]].T
+    nxt = [int(i) for i in np.where(last, k, k + 1)]
+
+    def ref(a: np.ndarray) -> Any:
+        a = ca.DM(np.where(last, 0.0, a)).T
+        return (Rn[:, [int(i) for i in k]] * ca.repmat(1.0 - a, nx, 1)
+                + Rn[:, nxt] * ca.repmat(a, nx, 1))
+
+    start, end = ref(j / sub), ref((j + 1) / sub)
+    out = []
+    for i, m in enumerate((cert.model, *cert.corners)):
+        x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, Un[0])
+        step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}")
+        X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, start, end)
+        out.append((ca.horzcat(x1, X), ca.horzcat(Un[0], used)))
+    return out
+
+
+def certificate_rollout(cert: Certificate) -> Any:
+    """(P5) on the nominal model and every corner (P6) as one CasADi function ``(s, U (N,),
+    R (nx, N)) -> (nominal, summary)``: the nominal model's states (``s``, after the first
+    sample, after every RK4 step) over the inputs it applied ``(nx + 1, 2 + steps)``, and
+    per model ``(3 nx, models)`` the least and the largest value of each state after
+    ``s`` and the last state (what the certificate reads).  One RK4 step per model,
+    iterated by ``mapaccum``: the C source grows with the models, not with the horizon
+    (the unrolled rollout for 17 models was 9.3 MB, 453 s of gcc)."""
+    import casadi as ca
+
+    nx, N = cert.model.size, cert.N
+    s0, Un, Rn = ca.MX.sym("s0", nx), ca.MX.sym("U", N), ca.MX.sym("R", nx, N)
+    paths = model_paths(cert, s0, Un, Rn)
+    summary = [ca.vertcat(*[ca.mmin(path[j, :]) for j in range(nx)],
+                          *[ca.mmax(path[j, :]) for j in range(nx)], path[:, -1])
+               for path, _ in paths]
+    path, used = paths[0]
+    nominal = ca.vertcat(ca.horzcat(s0, path), ca.horzcat(Un[0], used))
+    return ca.Function("tspend_mpsc_rollout", [s0, Un, Rn], [nominal, ca.horzcat(*summary)])
+
+
+class Rollout:
+    """:func:`certificate_rollout` evaluated in place: CasADi's buffer interface on
+    persistent arrays (a Python call with its conversions costs several times the
+    compiled rollout)."""
+
+    def __init__(self, fn: Any, cert: Certificate) -> None:
+        nx, N, sub = cert.model.size, cert.N, cert.substeps
+        self.fn, self.nx, self.N, self.sub = fn, nx, N, sub
+        self.models, self.cols = 1 + len(cert.corners), 2 + (N - 1) * sub
+        self._in = (np.zeros(nx), np.zeros(N), np.zeros((N, nx)))
+        # column-major outputs: [step, state..., u] of the nominal model, [model, summary]
+        self._nominal = np.zeros((self.cols, nx + 1))
+        self._summary = np.zeros((self.models, 3 * nx))
+        self._buffer, self._eval = fn.buffer()
+        for i, array in enumerate(self._in):
+            self._buffer.set_arg(i, memoryview(array.reshape(-1)))
+        self._buffer.set_res(0, memoryview(self._nominal.reshape(-1)))
+        self._buffer.set_res(1, memoryview(self._summary.reshape(-1)))
+
+    def run(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(P5) from ``s`` on every model: per model ``[least state, largest state, last
+        state]`` (a view, valid until the next call)."""
+        s_in, U_in, R_in = self._in
+        s_in[:], U_in[:], R_in[:] = s, U, R.T
+        self._eval()
+        return self._summary
+
+    def nominal(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal model's states at the plan's nodes (nx, N + 1) and the inputs it
+        applied at each interval's start (N,)."""
+        self.run(s, U, R)
+        V = self._nominal
+        every = V[:, :self.nx].T
+        nodes = np.hstack([every[:, :2], every[:, 1 + self.sub::self.sub]])
+        return nodes.copy(), V[1::self.sub, self.nx][:self.N].copy()
+
+
+def plan_qp(cert: Certificate, cfg: "SafetyConfig", compiled: bool) -> Any:
+    """(P4) as a :class:`~.mpc_rti.RealTimeSQP`: the hard bounds (P2) as exact-penalty rows
+    (the QP proposes, the certificate decides), (P3) as the cube ``|L^T s_N| <= sqrt(0.95 c
+    / n)`` (``P = L L^T``) inside the ellipsoid and a cost on the end's level."""
+    import casadi as ca
+
+    from tspend.controllers.mpc_rti import RealTimeSQP
+
+    nx, N, model = cert.model.size, cert.N, cert.model
+    G, bG, ns = qp_rows(cert)
+    nz = nx + 1 + ns
+    scale = max([abs(v) for v in (cert.u_lo, cert.u_hi) if math.isfinite(v)], default=1.0)
+    # the Hessian in the input's unit, times scale^2: the first input against the command
+    # (weight 1), the rest of the plan a small LQR cost (eps), the slacks
+    stages = np.zeros((N, nz, nz))
+    stages[:, :nx, :nx] = 2.0 * PROXIMAL * cert.Q / cert.R
+    stages[:, nx, nx] = 2.0 * PROXIMAL
+    stages[0, nx, nx] = 2.0
+    stages[:, nx + 1:, nx + 1:] = 2.0 * scale ** 2 * np.eye(ns)
+    terminal = (2.0 * PROXIMAL * cert.P / cert.R
+                + 2.0 * (TERMINAL_WEIGHT * scale) ** 2 * cert.P / cert.level)
+    free = np.full(nx, np.inf)
+    z_lo = np.concatenate([np.tile(np.concatenate([-free, [cert.u_lo], np.zeros(ns)]), N), -free])
+    z_hi = np.concatenate([np.tile(np.concatenate([free, [cert.u_hi], np.full(ns, np.inf)]), N),
+                           free])
+    L = np.linalg.cholesky(cert.P)
+    xN = ca.SX.sym("xN", nx)
+    cube = ca.mtimes(ca.DM(L.T), xN) / math.sqrt(TERMINAL_AIM * cert.level / nx)
+    inner_box = ca.Function("mpsc_terminal", [xN], [ca.vertcat(cube, -cube) - 1.0])
+    gradient = np.concatenate([np.zeros(nx + 1), np.full(ns, cfg.slack_weight * scale ** 2)])
+    return RealTimeSQP(model.rk4_map(cert.h, cert.substeps, name="mpsc_plan"), nx, N, stages,
+                       terminal, z_lo, z_hi, "hpipm", compiled, stage_rows=G, stage_bound=bG,
+                       stage_gradient=gradient, nz=nz,
+                       first_map=model.rk4_map(cert.sample_s, 1, name="mpsc_first"),
+                       terminal_constraint=inner_box, qp_options=QP_OPTIONS,
+                       acceptance=QP_ACCEPTANCE)
+
+
+def qp_rows(cert: Certificate) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(G, b, ns)``: the soft rows and the hard two-sided bounds as rows ``G z_k <= b``
+    over a stage ``z_k = [s, u, slacks]``, one slack per row group."""
+    nx = cert.model.size
+    C, D, b, sel = cert.rows
+    hard = [i for i in range(nx) if math.isfinite(cert.lo[i]) and math.isfinite(cert.hi[i])]
+    if hard:
+        eye = np.eye(nx)[hard]
+        C = np.vstack([C, eye, -eye])
+        D = np.concatenate([D, np.zeros(2 * len(hard))])
+        b = np.concatenate([b, cert.hi[hard], -cert.lo[hard]])
+        extra = np.vstack([np.eye(len(hard))] * 2)
+        sel = np.block([[sel, np.zeros((sel.shape[0], len(hard)))],
+                        [np.zeros((2 * len(hard), sel.shape[1])), extra]])
+    ns = sel.shape[1]
+    return np.hstack([C, D[:, None], -sel]), b, ns
+
+
+@dataclass(frozen=True)
+class Solvers:
+    """What :func:`build_solvers` compiled for a :class:`Certificate`."""
+
+    rollout: Rollout
+    qp: Any
+    recovery: "Recovery"
+
+
+def build_solvers(cert: Certificate, cfg: "SafetyConfig", compiled: bool = True) -> Solvers:
+    """The rollout (one C function over every model) and the QP, compiled (cached by
+    their C source's hash: :func:`~.mpc_rti.compiled_function`), and (P8)'s NLP."""
+    from tspend.controllers.mpc_rti import compiled_function
+
+    fn = certificate_rollout(cert)
+    return Solvers(Rollout(compiled_function(fn) if compiled else fn, cert),
+                   plan_qp(cert, cfg, compiled), Recovery(cert))
+
+
+class Recovery:
+    """(P8), the recovery plan from a start with no certified plan, on the nominal model
+    (multiple shooting, intervals of the plan's / RECOVERY_REFINE; IPOPT, built on first
+    use: most runs never need it)
+
+        min t + effort,  lo_i - t w_i <= s_k,i <= hi_i + t w_i,  s_M in X_f (0.95 c)     (P8)
+
+    (``w_i`` the half-width of constraint ``i``: t < 0 keeps -t of every half-width to
+    spare, so the plan least uses the rail and the fall angle).  Uncertified: the same
+    over every corner model took minutes per plan."""
+
+    def __init__(self, cert: Certificate) -> None:
+        self.cert = cert
+        self.h = cert.h / RECOVERY_REFINE
+        self.M = 1 + int(round((cert.N - 1) * cert.h / self.h))
+        finite = [abs(v) for v in (cert.u_lo, cert.u_hi) if math.isfinite(v)]
+        self.u_scale = max(finite) if finite else 1.0
+        self.checked = np.flatnonzero(np.isfinite(cert.lo_check) | np.isfinite(cert.hi_check))
+        half = 0.5 * (cert.limits[1] - cert.limits[0])
+        unit = np.where(np.isfinite(half), half, np.maximum(np.abs(cert.lo), np.abs(cert.hi)))
+        unit = unit[self.checked]
+        #: the relaxation's unit per checked bound: the constraint's own half-width
+        self.room = np.where(np.isfinite(unit) & (unit > 0), unit, 1.0)
+        self.maps = (cert.model.rk4_map(cert.sample_s, 1), cert.model.rk4_map(self.h, 1))
+        self._nlp: tuple | None = None
+
+    def nlp(self) -> tuple:
+        """(P8) as a CasADi nlpsol and its bounds (built once)."""
+        import casadi as ca
+
+        if self._nlp is not None:
+            return self._nlp
+        cert, nx, M, scale = self.cert, self.cert.model.size, self.M, self.u_scale
+        X, V = ca.SX.sym("X", nx, M + 1), ca.SX.sym("V", M)
+        t, s0 = ca.SX.sym("t"), ca.SX.sym("s0", nx)
+        F0, F = self.maps
+        g, lbg, ubg = [X[:, 0] - s0], [0.0] * nx, [0.0] * nx
+        for k in range(M):
+            g.append(X[:, k + 1] - (F0 if k == 0 else F)(X[:, k], scale * V[k]))
+            lbg += [0.0] * nx
+            ubg += [0.0] * nx
+        # every hard bound relaxed by t of its constraint's half-width
+        for a, i in enumerate(self.checked):
+            for sign, bound in ((1.0, cert.hi[i]), (-1.0, -cert.lo[i])):
+                if math.isfinite(bound):
+                    g.append(sign * X[i, 1:].T - t * self.room[a])
+                    lbg += [-np.inf] * M
+                    ubg += [float(bound)] * M
+        g.append(ca.bilin(ca.DM(cert.P), X[:, M], X[:, M]))
+        lbg.append(-np.inf)
+        ubg.append(TERMINAL_AIM * cert.level)
+        solver = ca.nlpsol("mpsc_recovery", "ipopt",
+                           {"x": ca.vertcat(ca.vec(X), V, t), "p": s0,
+                            "f": t + RECOVERY_EFFORT * ca.sumsqr(V) / M, "g": ca.vertcat(*g)},
+                           {"print_time": False, "ipopt": {
+                               "print_level": 0, "sb": "yes", "max_iter": RECOVERY_MAX_ITER}})
+        lo_u = cert.u_lo / scale if math.isfinite(cert.u_lo) else -np.inf
+        hi_u = cert.u_hi / scale if math.isfinite(cert.u_hi) else np.inf
+        # t down to -1: below 0 the plan keeps that share of every half-width to spare
+        lbx = np.concatenate([np.full(nx * (M + 1), -np.inf), np.full(M, lo_u), [-1.0]])
+        ubx = np.concatenate([np.full(nx * (M + 1), np.inf), np.full(M, hi_u), [np.inf]])
+        self._nlp = (solver, lbx, ubx, np.array(lbg, dtype=float), np.array(ubg, dtype=float))
+        return self._nlp
+
+    def plan(self, s: np.ndarray) -> tuple | None:
+        """(P8) from ``s``: ``(U (M,), X (nx, M+1), t)``, or None when IPOPT fails; warm
+        started from the saturated LQR's rollout on the model."""
+        solver, lbx, ubx, lbg, ubg = self.nlp()
+        cert, nx, M = self.cert, self.cert.model.size, self.M
+        X, V = np.zeros((nx, M + 1)), np.zeros(M)
+        X[:, 0] = s
+        for k in range(M):
+            V[k] = lqr_input(cert, X[:, k]) / self.u_scale
+            X[:, k + 1] = np.asarray(self.maps[k > 0](X[:, k], self.u_scale * V[k])).ravel()
+        if not np.all(np.isfinite(X)):
+            X[:] = s[:, None]
+        sol = solver(x0=np.concatenate([X.ravel(order="F"), V, [1.0]]), p=s, lbx=lbx,
+                     ubx=ubx, lbg=lbg, ubg=ubg)
+        if not solver.stats()["success"]:
+            return None
+        z = np.asarray(sol["x"], dtype=float).ravel()
+        X = z[:nx * (M + 1)].reshape(nx, M + 1, order="F")
+        return self.u_scale * z[nx * (M + 1):nx * (M + 1) + M], X, float(z[-1])
+
+    def input(self, plan: tuple, s: np.ndarray, tau: float) -> float | None:
+        """``plan``'s input ``tau`` seconds into it, corrected by the LQR towards its state
+        there (interpolated between its nodes); None past its end."""
+        U, X, _ = plan
+        dt0 = self.cert.sample_s
+        if tau < dt0 - 1e-12:
+            return float(U[0])
+        k = 1 + int(math.floor((tau - dt0) / self.h + 1e-9))
+        if k >= self.M:
+            return None
+        a = min(max((tau - (dt0 + (k - 1) * self.h)) / self.h, 0.0), 1.0)
+        ref = (1.0 - a) * X[:, k] + a * X[:, k + 1]
+        return clip_input(self.cert, float(U[k] - self.cert.K @ (s - ref)))
+
+
+def clip_input(cert: Certificate, u: float) -> float:
+    return min(max(u, cert.u_lo), cert.u_hi)
+
+
+def lqr_input(cert: Certificate, s: np.ndarray) -> float:
+    """The saturated LQR: the terminal set's law."""
+    return clip_input(cert, float(-cert.K @ s))
+
+
 class PredictiveSafetyFilter(SafetyFilter):
-    """``inner`` behind the predictive safety certification (module docstring)."""
+    """``inner`` behind the predictive safety certification (module docstring): the
+    per-sample law over a :class:`Certificate` and its :class:`Solvers`."""
 
     FILTER = "mpsc"
 
-    def __init__(self, inner: Controller, model: "FullModel", cfg: "SafetyConfig",
-                 sample_s: float, bounds: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-                 u_range: tuple[float, float], rows: tuple, K: np.ndarray, P: np.ndarray,
-                 level: float, Q: np.ndarray, R: float, vertices: tuple = (),
-                 compiled: bool = True, tube: np.ndarray | None = None,
-                 limits: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        import casadi as ca
-
-        from tspend.controllers.mpc_rti import RealTimeSQP, compiled_function
-
-        super().__init__(inner, model, cfg)
-        #: (P7)'s tightening per state (zeros: no disturbance declared)
-        self.tube = np.zeros(model.size) if tube is None else np.asarray(tube, dtype=float)
-        self.u_lo, self.u_hi = u_range
-        finite = [abs(v) for v in u_range if math.isfinite(v)]
-        self.bounded = len(finite) == 2
-        self.u_scale = max(finite) if finite else 1.0
-        nx = model.size
-        h, horizon, substeps = plan_grid(np.asarray(K, dtype=float).reshape(1, -1), model, cfg)
-        N = horizon + 1
-        self.nx, self.N, self.dt0, self.h = nx, N, float(sample_s), h
-        #: the plan's hard bounds (tightened by the margin) and the certification's (half)
-        self.lo, self.hi, self.lo_check, self.hi_check = bounds
-        self.K, self.P, self.level = np.asarray(K, dtype=float).ravel(), P, level
-        C, D, b, sel = rows
-        # the hard bounds (P2) in the QP as exact-penalty rows, not as bounds: the QP
-        # proposes, the certificate decides, so a softened proposal costs no safety; where
-        # the linearised plan can keep them its slack is 0 (an exact penalty), where it
-        # cannot (a state the certificate no longer covers) the QP still answers with the
-        # plan that leaves them least, which step 4 applies, where a bound would fail it
-        hard = [i for i in range(nx) if math.isfinite(self.lo[i]) and math.isfinite(self.hi[i])]
-        if hard:
-            eye = np.eye(nx)[hard]
-            C = np.vstack([C, eye, -eye])
-            D = np.concatenate([D, np.zeros(2 * len(hard))])
-            b = np.concatenate([b, self.hi[hard], -self.lo[hard]])
-            extra = np.vstack([np.eye(len(hard))] * 2)
-            sel = np.block([[sel, np.zeros((sel.shape[0], len(hard)))],
-                            [np.zeros((2 * len(hard), sel.shape[1])), extra]])
-        ns = sel.shape[1]
-        self.ns, self.nz = ns, nx + 1 + ns
-        nz = self.nz
-        F0 = model.rk4_map(self.dt0, 1, name="mpsc_first")
-        F = model.rk4_map(self.h, substeps, name="mpsc_plan")
-        self.substeps = substeps
-        self.iterations = 1
-        # (P4)'s Hessian stage by stage, times u_scale^2 (the QP in the input's unit: its
-        # solver's absolute tolerances then mean something): the first input against the
-        # command (weight 1), the rest of the plan a small LQR cost (eps: an input as far
-        # off as the command costs eps) that makes the backup smooth and heads it upright
-        w = PROXIMAL
-        self._slack_scale = self.u_scale ** 2
-        stages = np.zeros((N, nz, nz))
-        stages[:, :nx, :nx] = 2.0 * w * Q / R
-        stages[:, nx, nx] = 2.0 * w
-        stages[0, nx, nx] = 2.0
-        stages[:, nx + 1:, nx + 1:] = 2.0 * self._slack_scale * np.eye(ns)
-        # and a cost on the plan's end level (as much as a command a tenth of the input's
-        # range off at the level c), so that plans end deep inside (P3), where the next
-        # sample's QP (its cube) can start from them
-        terminal = 2.0 * w * P / R + 2.0 * (TERMINAL_WEIGHT * self.u_scale) ** 2 * P / level
-        ulo = self.u_lo if math.isfinite(self.u_lo) else -np.inf
-        uhi = self.u_hi if math.isfinite(self.u_hi) else np.inf
-        lo_s, hi_s = np.full(nx, -np.inf), np.full(nx, np.inf)
-        z_lo = np.concatenate([np.tile(np.concatenate([lo_s, [ulo], np.zeros(ns)]), N), lo_s])
-        z_hi = np.concatenate([np.tile(np.concatenate([hi_s, [uhi], np.full(ns, np.inf)]), N),
-                               hi_s])
-        # (P3) in the QP: the cube |L^T s_N|_inf <= sqrt(0.95 c / n) (P = L L^T) inside the
-        # ellipsoid, linear, so the QP's plan ends inside whatever its step (the tangent
-        # of the ellipsoid, linearised, lies outside it: plans slid out along it)
-        L = np.linalg.cholesky(P)
-        xN = ca.SX.sym("xN", nx)
-        cube = ca.mtimes(ca.DM(L.T), xN) / math.sqrt(TERMINAL_AIM * level / nx)
-        inner_box = ca.Function("mpsc_terminal", [xN], [ca.vertcat(cube, -cube) - 1.0])
-        G = np.hstack([C, D[:, None], -sel]) if ns else None
-        self.sqp = RealTimeSQP(F, nx, N, stages, terminal, z_lo, z_hi,
-                               "hpipm", compiled, stage_rows=G, stage_bound=b if ns else None,
-                               stage_gradient=np.concatenate([np.zeros(nx + 1),
-                                                              np.full(ns, cfg.slack_weight * self._slack_scale)]),
-                               nz=nz, first_map=F0, terminal_constraint=inner_box,
-                               qp_options=QP_OPTIONS, acceptance=QP_ACCEPTANCE)
-        # (P5): the backup plan's own rollout, each interval's input corrected by the LQR
-        # towards the plan's state at the interval's start (held over the interval)
-        s0, U, Rf = ca.SX.sym("s0", nx), ca.SX.sym("U", N), ca.SX.sym("R", nx, N)
-        Kd = ca.DM(self.K.reshape(1, -1))
-        lo_u = self.u_lo if math.isfinite(self.u_lo) else -1e19
-        hi_u = self.u_hi if math.isfinite(self.u_hi) else 1e19
-        # every RK4 step's state is returned, so that the certificate checks the bounds
-        # between the plan's nodes too (a cart at 3 m/s moves 0.3 m in one interval); the
-        # same plan rolled out on every vertex model of the [randomize] box below the
-        # nominal's (P6): the certificate asks it of all of them
-        blocks = []
-        for m in (model, *vertices):
-            F0m = m.rk4_map(self.dt0, 1, name="mpsc_first")
-            F_step = m.rk4_map(self.h / substeps, 1, name="mpsc_step")
-            x, cols, used = s0, [s0], []
-            for k in range(N):
-                if k == 0:
-                    x = F0m(x, U[0])
-                    cols.append(x)
-                    used.append(U[0])
-                    continue
-                for j in range(substeps):
-                    # the reference between the nodes as the fallback interpolates it
-                    # (tracking_input), the correction at every RK4 step
-                    a = j / substeps
-                    ref = Rf[:, k] if k + 1 >= N else (1.0 - a) * Rf[:, k] + a * Rf[:, k + 1]
-                    u = ca.fmin(ca.fmax(U[k] - ca.mtimes(Kd, x - ref), lo_u), hi_u)
-                    x = F_step(x, u)
-                    cols.append(x)
-                    if j == 0:
-                        used.append(u)
-            used += [0.0] * (len(cols) - N)
-            blocks.append(ca.vertcat(ca.horzcat(*cols), ca.horzcat(*used)))
-        self._cols, self._models = len(cols), 1 + len(vertices)
-        roll = ca.Function("tspend_mpsc_rollout", [s0, U, Rf], [ca.vertcat(*blocks)])
-        self.rollout = compiled_function(roll) if compiled else roll
-        # evaluated through CasADi's buffer interface on persistent arrays (a Python call
-        # with its conversions costs 3-4 times the compiled rollout itself)
-        self._roll_in = (np.zeros(nx), np.zeros(N), np.zeros(nx * N))
-        self._roll_out = np.zeros((nx + 1) * self._models * self._cols)
-        self._roll_buffer, self._roll_eval = self.rollout.buffer()
-        for i, array in enumerate(self._roll_in):
-            self._roll_buffer.set_arg(i, memoryview(array))
-        self._roll_buffer.set_res(0, memoryview(self._roll_out))
-        self._maps = (F0, F)
-        #: the states with a bound the certificate checks, and those bounds
-        self._checked = np.flatnonzero(np.isfinite(self.lo_check) | np.isfinite(self.hi_check))
-        self._check_lo = self.lo_check[self._checked]
-        self._check_hi = self.hi_check[self._checked]
-        self._angles = np.flatnonzero(model.angles)
-        # (P8)'s grid, and its relaxation's unit per checked bound: the half-width of the
-        # constraint itself (a share of the rail, of the fall angle), so that minimising
-        # the relaxation minimises the largest share of any bound the plan uses
-        self.h_rec = h / RECOVERY_REFINE
-        self.M_rec = 1 + int(round((N - 1) * h / self.h_rec))
-        raw_lo, raw_hi = (self.lo, self.hi) if limits is None else limits
-        half_raw = 0.5 * (np.asarray(raw_hi, dtype=float) - np.asarray(raw_lo, dtype=float))
-        unit = np.where(np.isfinite(half_raw), half_raw,
-                        np.maximum(np.abs(self.lo), np.abs(self.hi)))
-        unit = unit[self._checked]
-        self._room_hi = self._room_lo = np.where(np.isfinite(unit) & (unit > 0), unit, 1.0)
-        self._recovery = None
-        self._rec_maps = (model.rk4_map(self.dt0, 1), model.rk4_map(self.h_rec, 1))
+    def __init__(self, inner: Controller, cert: Certificate, solvers: Solvers,
+                 cfg: "SafetyConfig") -> None:
+        super().__init__(inner, cert.model, cfg)
+        self.cert, self.roll = cert, solvers.rollout
+        self.sqp, self.recovery = solvers.qp, solvers.recovery
+        self.u_lo, self.u_hi = cert.u_lo, cert.u_hi
+        self._checked = np.flatnonzero(np.isfinite(cert.lo_check) | np.isfinite(cert.hi_check))
+        #: the certificate's bounds on every state (+/-inf: none), for one comparison each
+        self._lo, self._hi = cert.lo_check, cert.hi_check
+        #: (shifted's grid per plan age: the old intervals the new ones start in)
+        self._shift_grid: dict[int, tuple] = {}
+        self._angles = np.flatnonzero(cert.model.angles)
+        #: (P9): each step's cost estimate (s); the QP's and (P8)'s measured at admission
+        self._cost = {"roll": 0.0, "qp": math.inf, "recovery": math.inf}
+        self._deadline = math.inf
         self.reset_plan()
 
     # -- state ----------------------------------------------------------------------------
     def reset_plan(self) -> None:
-        #: the last certified plan's inputs (N,) and the samples since it was certified
-        #: the last certified plan: (U (N,), R (nx, N)) of (P5)
+        #: the last certified plan (U (N,), R (nx, N)) of (P5), and the samples since
         self.plan: tuple | None = None
         self.plan_age = 0
         #: the QP's last answer (its next warm start), certified or not
         self.iterate_plan: tuple | None = None
-        #: the fallback's input for the interval it is in: (interval, u)
-        self._held: tuple[int, float] | None = None
-        self.fallbacks = self.infeasible_qp = self.rejected = self.no_plan = self.bisected = 0
-        #: samples passed by the fast path (no QP), and samples on an uncertified QP plan
-        self.fast = self.uncertified = 0
-        #: the last uncertified QP plan applied without a certified one, and its age
-        self.effort: tuple | None = None
-        self.effort_age = 0
-        #: the recovery plan (P8) being tracked, its age in samples, and how many were made
+        #: the recovery plan (P8) tracked without a certified plan, and its age
         self.rescue: tuple | None = None
         self.rescue_age = 0
-        self.recoveries = 0
+        self.fast = self.bisected = self.qp_certified = self.fallbacks = 0
+        self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
+        #: samples where a step was skipped for the budget, and samples over it
+        self.skipped = self.over_budget = 0
+        self._skipped_now = False
         self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
+        #: admission (before the first sample): None until made, then whether a plan was
+        #: certified from the start, why not, and its time
+        self.admitted: bool | None = None
+        self.refusal = ""
+        self.admission_ms = 0.0
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
@@ -452,13 +734,73 @@ class PredictiveSafetyFilter(SafetyFilter):
         perm = np.array([obs.names.index(n) for n in self.model.state_names], dtype=np.intp)
         self._rows = (perm,)
 
+    def step(self, obs: Observation, dt: float) -> float:
+        if self.admitted is None:
+            if self._rows is None:
+                self._prepare(obs)
+            self.admit(np.asarray(obs.state, dtype=float)[self._rows[0]])
+        return super().step(obs, dt)
+
     # -- the certificate ------------------------------------------------------------------
+    def _affords(self, what: str) -> bool:
+        """(P9): whether ``what`` (its cost estimate) still fits before the deadline."""
+        if time.perf_counter() + self._cost[what] <= self._deadline:
+            return True
+        self._skipped_now = True
+        return False
+
+    def _measured(self, what: str, cpu_s: float) -> None:
+        """A step's cost: this thread's CPU time (a wait for a core, on a shared machine,
+        is not the step's cost and no estimate predicts it)."""
+        cost = self._cost[what]
+        self._cost[what] = (COST_AVERAGE * cpu_s + (1.0 - COST_AVERAGE) * cost
+                            if math.isfinite(cost) else cpu_s)
+
+    def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool | None:
+        """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on every model (P6),
+        keeps the certificate's bounds at every RK4 step and ends in (P3); if so it
+        becomes the certified plan.  None: not tried, the budget has no room for it."""
+        if not self._affords("roll"):
+            return None
+        t0 = time.thread_time()
+        V = self.roll.run(s, U, R)
+        ok = self.verdict(V) is None
+        self._measured("roll", time.thread_time() - t0)
+        if ok:
+            R = np.array(R, dtype=float)
+            R[:, 0] = s
+            self.plan, self.plan_age, self.rescue = (np.array(U, dtype=float), R), 1, None
+        return ok
+
+    def verdict(self, V: np.ndarray) -> str | None:
+        """None when the rollout's summary ``V`` (per model: least, largest, last state)
+        keeps every bound and ends in (P3) on every model, else what it breaks first and
+        on which model."""
+        cert, nx = self.cert, self.roll.nx
+        end = V[:, 2 * nx:]
+        levels = np.einsum("mi,ij,mj->m", end, cert.P, end)
+        below, above = V[:, :nx] < self._lo, V[:, nx:2 * nx] > self._hi
+        if not (below.any() or above.any()):
+            # a non-finite state anywhere reaches the end (RK4 carries it)
+            return None if np.all(levels <= cert.level) else \
+                f"ends outside the terminal set on {self.model_name(int(np.argmax(levels)))}"
+        m, i = np.argwhere(below | above)[0]
+        return (f"leaves {cert.model.state_names[i]}'s certified bound "
+                f"[{cert.lo_check[i]:.4g}, {cert.hi_check[i]:.4g}] on {self.model_name(m)}")
+
+    def model_name(self, m: int) -> str:
+        if m == 0:
+            return "the nominal model"
+        cert = self.cert
+        return f"corner {m} of {len(cert.corners)} ({', '.join(cert.corner_names)})"
+
     def stage_at(self, tau: float) -> int | None:
         """The plan's interval ``tau`` seconds after it was made (None: past its end)."""
-        if tau < self.dt0 - 1e-12:
+        dt0 = self.cert.sample_s
+        if tau < dt0 - 1e-12:
             return 0
-        k = 1 + int(math.floor((tau - self.dt0) / self.h + 1e-9))
-        return k if k < self.N else None
+        k = 1 + int(math.floor((tau - dt0) / self.cert.h + 1e-9))
+        return k if k < self.cert.N else None
 
     def shifted(self, plan: tuple | None, age: int, s: np.ndarray) -> tuple | None:
         """``plan = (U, R)`` made ``age`` samples ago, on this sample's grid from state
@@ -468,410 +810,281 @@ class PredictiveSafetyFilter(SafetyFilter):
         if plan is None:
             return None
         U, R = plan
-        N, h, dt0 = self.N, self.h, self.dt0
-        t = age * dt0 + np.concatenate([[0.0], dt0 + h * np.arange(N - 1)])
-        k = np.where(t < dt0 - 1e-12, 0, 1 + np.floor((t - dt0) / h + 1e-9).astype(np.intp))
-        live = k < N
-        U2, R2 = np.zeros(N), np.zeros((self.nx, N))
-        kl = k[live]
-        a = np.where(kl == 0, 0.0, np.clip((t[live] - (dt0 + (kl - 1) * h)) / h, 0.0, 1.0))
-        nxt = np.minimum(kl + 1, N - 1)
+        live, kl, a, nxt = self.shift_grid(age)
+        U2, R2 = np.zeros(self.cert.N), np.zeros((self.roll.nx, self.cert.N))
         U2[live] = U[kl]
         R2[:, live] = (1.0 - a) * R[:, kl] + a * R[:, nxt]
         R2[:, 0] = s
         return U2, R2
 
+    def shift_grid(self, age: int) -> tuple:
+        """For :meth:`shifted`: which new nodes lie within the old plan, the old interval
+        each starts in, its share of that interval, and the next old node (per age)."""
+        grid = self._shift_grid.get(age)
+        if grid is None:
+            N, h, dt0 = self.cert.N, self.cert.h, self.cert.sample_s
+            t = age * dt0 + np.concatenate([[0.0], dt0 + h * np.arange(N - 1)])
+            k = np.where(t < dt0 - 1e-12, 0, 1 + np.floor((t - dt0) / h + 1e-9).astype(np.intp))
+            live = k < N
+            kl = k[live]
+            a = np.where(kl == 0, 0.0, np.clip((t[live] - (dt0 + (kl - 1) * h)) / h, 0.0, 1.0))
+            grid = (live, kl, a, np.minimum(kl + 1, N - 1))
+            if len(self._shift_grid) < 100000:
+                self._shift_grid[age] = grid
+        return grid
+
     def lqr_tail(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The saturated LQR as a backup plan from ``s`` (U = 0, R = 0 in (P5))."""
-        R = np.zeros((self.nx, self.N))
+        R = np.zeros((self.roll.nx, self.cert.N))
         R[:, 0] = s
-        return np.zeros(self.N), R
-
-    def roll(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(P5) from ``s``: the states at the plan's nodes (nx, N+1), the inputs applied
-        (N,), and the states after every RK4 step (nx, 2 + (N-1) substeps)."""
-        a, b, c = self._roll_in
-        a[:], b[:], c[:] = s, U, np.asarray(R, dtype=float).ravel(order="F")
-        self._roll_eval()
-        rows = (self.nx + 1) * self._models
-        out = self._roll_out.reshape(self._cols, rows).T             # column-major
-        every = out[:self.nx].copy()
-        nodes = np.hstack([every[:, :2], every[:, 1 + self.substeps::self.substeps]])
-        # every model's states stacked: (models, nx, steps)
-        allm = out.reshape(self._models, self.nx + 1, self._cols)[:, :self.nx]
-        return nodes, out[self.nx, :self.N].copy(), allm
-
-    def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool:
-        """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on the nonlinear
-        model, keeps the hard bounds at every RK4 step and ends in the terminal ellipsoid
-        (P3), on every model (P6); if so it becomes the certified plan.  Read in place
-        from the compiled rollout's output (no copies: this runs up to a dozen times a
-        sample)."""
-        a, b, c = self._roll_in
-        a[:], b[:] = s, U
-        c.reshape(self.N, self.nx)[:] = np.asarray(R, dtype=float).T
-        self._roll_eval()
-        # column-major (rows, steps) with rows = models x (nx + 1): [step, model, row]
-        V = self._roll_out.reshape(self._cols, self._models, self.nx + 1)
-        end = V[-1, :, :self.nx]
-        # a non-finite state anywhere reaches the end (RK4 carries it): the level test fails
-        if not np.all(np.einsum("mi,ij,mj->m", end, self.P, end) <= self.level):
-            return False
-        inner = V[1:, :, self._checked]
-        if np.any(inner < self._check_lo) or np.any(inner > self._check_hi):
-            return False
-        R = np.array(R, dtype=float)
-        R[:, 0] = s
-        self.plan, self.plan_age, self._held = (U.copy(), R), 1, None
-        # a later start outside the certified set plans its recovery afresh
-        self.rescue = None
-        return True
-
-    def terminal_input(self, s: np.ndarray) -> float:
-        return min(max(float(-self.K @ s), self.u_lo), self.u_hi)
-
-    def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
-        """``(u, slack)``: steps 0-4 of the module docstring at full state ``s``."""
-        s = np.array(s, dtype=float)
-        s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
-        u_c = min(max(u_c, self.u_lo), self.u_hi) if math.isfinite(u_c) else math.nan
-        # the last certified plan from now on, (P5) as it would go on (the fallback)
-        going_on = self.shifted(self.plan, self.plan_age, s) if self.plan is not None else None
-        if math.isfinite(u_c):
-            # 0: the fast path: the command followed by the certified plan's rest, or by
-            # the saturated LQR: a rollout certified on every model IS a backup plan, so
-            # u_c passes without the QP (the certificate is the same as after it)
-            for tail in (going_on, self.lqr_tail(s)):
-                if tail is not None:
-                    candidate = tail[0].copy()
-                    candidate[0] = u_c
-                    if self.certifies(s, candidate, tail[1]):
-                        self.fast += 1
-                        # the QP's next warm start: this plan, not its older answer
-                        self.iterate_plan = None
-                        return u_c, 0.0
-        # 1: the closest certifiable input on a certified tail: between u_c and the
-        # tail's own input now (the fallback's, or the LQR's), by bisection on the
-        # certificate (a few rollouts, no QP)
-        k = self.stage_at(self.plan_age * self.dt0) if self.plan is not None else None
-        tails = []
-        if going_on is not None and k is not None:
-            tails.append((going_on, self.tracking_input(s, k, self.plan_age * self.dt0)))
-        tails.append((self.lqr_tail(s), self.terminal_input(s)))
-        kept = (self.plan, self.plan_age, self._held)
-        for tail, own in tails:
-            candidate = tail[0].copy()
-            candidate[0] = own
-            if not self.certifies(s, candidate, tail[1]):
-                continue
-            good, bad = own, u_c if math.isfinite(u_c) else None
-            for _ in range(BISECTIONS if bad is not None else 0):
-                mid = 0.5 * (good + bad)
-                candidate[0] = mid
-                # a certified candidate becomes the plan: the last one is the answer's
-                if self.certifies(s, candidate, tail[1]):
-                    good = mid
-                else:
-                    bad = mid
-            self.bisected += 1
-            self.iterate_plan = None
-            return good, 0.0
-        self.plan, self.plan_age, self._held = kept
-        if k is None:
-            # 4: no certified plan: the recovery plan (P8), made once from this state and
-            # tracked by the LQR until a certified plan exists again or it runs out
-            # (made afresh every interval from the measured state, it did worse: from a
-            # state off the nominal's path the nominal model needs more of the rail)
-            u = self.recovery_input(s, self.rescue_age * self.dt0) if self.rescue else None
-            if u is None:
-                found = self.recovery_plan(s)
-                if found is not None:
-                    self.rescue, self.rescue_age = found, 0
-                    self.recoveries += 1
-                    self.rescue_relaxation = max(self.rescue_relaxation, found[2])
-                    u = self.recovery_input(s, 0.0)
-            if u is not None:
-                self.rescue_age += 1
-                self.no_plan += 1
-                self.uncertified += 1
-                self.iterate_plan = None
-                return u, 0.0
-        nz, nx, N = self.nz, self.nx, self.N
-        # 2: no certified tail takes any input: one real-time iteration of the QP (P4),
-        # from its own last answer (a real-time iteration converges over samples),
-        # certified or not, else from the certified plan, else from the LQR's rollout
-        warm = (self.shifted(self.iterate_plan, 1, s) or going_on)
-        cold = warm is None
-        if cold:
-            warm = self.lqr_tail(s)
-        S0, U0, _ = self.roll(s, *warm)
-        if cold:
-            U0[0] = self.terminal_input(s)
-            S0, U0, _ = self.roll(s, U0, warm[1])
-        z = np.zeros(N * nz + nx)
-        body = z[:N * nz].reshape(N, nz)
-        body[:, :nx], body[:, nx] = S0[:, :N].T, U0
-        z[N * nz:] = S0[:, N]
-        # (P4)'s reference: the command for u_0, the upright at rest for the rest; without
-        # a certified plan (recovery: step 4 applies the QP's u_0) the plan's own u_0, so
-        # that the command does not pull the plan it applies towards itself
-        zr = np.zeros_like(z)
-        zr[nx] = u_c if math.isfinite(u_c) and going_on is not None else U0[0]
-        plan = None
-        slack = 0.0
-        # without a certified plan to fall back on, the QP iterates further: its plan is
-        # then what the filter applies
-        steps = 10 if cold else (RECOVERY_ITERATIONS if going_on is None else self.iterations)
-        if np.all(np.isfinite(z)):
-            try:
-                z, _ = self.sqp.iterate(z, s, zr, steps, 1e-8)
-                body = z[:N * nz].reshape(N, nz)
-                plan = (np.clip(body[:, nx], self.u_lo, self.u_hi), body[:, :nx].T.copy())
-                slack = float(body[:, nx + 1:].max(initial=0.0))
-            except RuntimeError:
-                self.infeasible_qp += 1
-                self.sqp.reset()
-        else:
-            self.infeasible_qp += 1
-        self.iterate_plan = plan
-        if plan is not None:
-            # the command followed by the QP's plan, else the QP's own input
-            if math.isfinite(u_c):
-                candidate = plan[0].copy()
-                candidate[0] = u_c
-                if self.certifies(s, candidate, plan[1]):
-                    return u_c, slack
-            if self.certifies(s, *plan):
-                self.max_slack = max(self.max_slack, slack)
-                return float(plan[0][0]), slack
-            self.rejected += 1
-        # 3: the last certified plan goes on, its states tracked by the LQR at every
-        # sample (the certificate's rollout (P5) corrects at every RK4 step towards the
-        # same interpolated states); past its end: 4
-        self.plan_age += 1
-        if k is None:
-            # 4: no certified plan (a start outside the certified set, or a plan run out):
-            # the QP's own plan, which keeps every bound on the nominal model's
-            # linearisation, uncertified (counted); the saturated LQR when the QP failed
-            self.no_plan += 1
-            if plan is not None:
-                self.uncertified += 1
-                self.effort, self.effort_age = plan, 1
-                return float(plan[0][0]), slack
-            # the QP failed too: the last such plan tracked as the fallback tracks its own
-            k_e = self.stage_at(self.effort_age * self.dt0) if self.effort is not None else None
-            if k_e is not None:
-                self.effort_age += 1
-                self.uncertified += 1
-                return self.tracking_input(s, k_e, (self.effort_age - 1) * self.dt0,
-                                           self.effort), 0.0
-            return self.terminal_input(s), 0.0
-        self.fallbacks += 1
-        return self.tracking_input(s, k, (self.plan_age - 1) * self.dt0), 0.0
-
-    # -- recovery (P8) -----------------------------------------------------------------
-    def _recovery_nlp(self) -> Any:
-        """(P8) as a CasADi nlpsol on the nominal model, multiple shooting (built on first
-        use: most runs never need it).  The same over the 17 models of (P6) (a state copy
-        per model, each corrected by the LQR towards the nominal's path) took minutes per
-        plan: it is not done."""
-        import casadi as ca
-
-        if self._recovery is not None:
-            return self._recovery
-        nx, M, scale = self.nx, self.M_rec, self.u_scale
-        X, V = ca.SX.sym("X", nx, M + 1), ca.SX.sym("V", M)
-        t, s0 = ca.SX.sym("t"), ca.SX.sym("s0", nx)
-        F0 = self.model.rk4_map(self.dt0, 1, name="mpsc_rec_first")
-        F = self.model.rk4_map(self.h_rec, 1, name="mpsc_rec")
-        g, lbg, ubg = [], [], []
-
-        def rows(expr, lo, hi):
-            g.append(expr)
-            lbg.extend(np.broadcast_to(lo, (expr.numel(),)))
-            ubg.extend(np.broadcast_to(hi, (expr.numel(),)))
-
-        rows(X[:, 0] - s0, 0.0, 0.0)
-        for k in range(M):
-            rows(X[:, k + 1] - (F0 if k == 0 else F)(X[:, k], scale * V[k]), 0.0, 0.0)
-        # every hard bound relaxed by t of its constraint's half-width
-        for a, i in enumerate(self._checked):
-            row = X[i, 1:].T
-            if math.isfinite(self.hi[i]):
-                rows(row - t * self._room_hi[a], -np.inf, float(self.hi[i]))
-            if math.isfinite(self.lo[i]):
-                rows(row + t * self._room_lo[a], float(self.lo[i]), np.inf)
-        end = X[:, M]
-        rows(ca.bilin(ca.DM(self.P), end, end), -np.inf, TERMINAL_AIM * self.level)
-        # min t, and a little of the input's energy (in shares of its range) so that the
-        # plan is unique where t does not bind
-        obj = t + RECOVERY_EFFORT * ca.sumsqr(V) / M
-        solver = ca.nlpsol("mpsc_recovery", "ipopt",
-                           {"x": ca.vertcat(ca.vec(X), V, t), "p": s0, "f": obj,
-                            "g": ca.vertcat(*g)},
-                           {"print_time": False, "ipopt": {
-                               "print_level": 0, "sb": "yes", "max_iter": RECOVERY_MAX_ITER}})
-        lo_u = self.u_lo / scale if math.isfinite(self.u_lo) else -np.inf
-        hi_u = self.u_hi / scale if math.isfinite(self.u_hi) else np.inf
-        # t down to -1: below 0 the plan keeps that share of every bound's half-width to
-        # spare (the least peak travel), not just the bounds
-        lbx = np.concatenate([np.full(nx * (M + 1), -np.inf), np.full(M, lo_u), [-1.0]])
-        ubx = np.concatenate([np.full(nx * (M + 1), np.inf), np.full(M, hi_u), [np.inf]])
-        self._recovery = (solver, lbx, ubx, np.array(lbg, dtype=float),
-                          np.array(ubg, dtype=float))
-        return self._recovery
-
-    def recovery_plan(self, s: np.ndarray) -> tuple | None:
-        """(P8) from ``s``: ``(U (M,), X (nx, M+1), t)`` or None when IPOPT fails; warm
-        started from the tracked recovery plan where there is one, else from the saturated
-        LQR's rollout on the model."""
-        solver, lbx, ubx, lbg, ubg = self._recovery_nlp()
-        nx, M = self.nx, self.M_rec
-        grid = np.concatenate([[0.0], self.dt0 + self.h_rec * np.arange(M)])
-        if self.rescue is not None:
-            # the tracked plan from now on, on the new grid (its last state held)
-            U_old, X_old, t_old = self.rescue
-            at = grid + self.rescue_age * self.dt0
-            X = np.array([np.interp(at, grid, row) for row in X_old])
-            X[:, 0] = s
-            k = np.minimum(np.searchsorted(grid, at[:-1], side="right") - 1, M - 1)
-            V = U_old[k] / self.u_scale
-            t0 = t_old
-        else:
-            X = np.zeros((nx, M + 1))
-            V = np.zeros(M)
-            X[:, 0] = s
-            F0, F = self._rec_maps
-            for k in range(M):
-                V[k] = self.terminal_input(X[:, k]) / self.u_scale
-                X[:, k + 1] = np.asarray((F0 if k == 0 else F)(X[:, k],
-                                                               self.u_scale * V[k])).ravel()
-            t0 = 1.0
-        if not np.all(np.isfinite(X)):
-            X[:] = s[:, None]
-        x0 = np.concatenate([X.ravel(order="F"), V, [t0]])
-        sol = solver(x0=x0, p=s, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        if not solver.stats()["success"]:
-            return None
-        z = np.asarray(sol["x"], dtype=float).ravel()
-        X = z[:nx * (M + 1)].reshape(nx, M + 1, order="F")
-        return self.u_scale * z[nx * (M + 1):nx * (M + 1) + M], X, float(z[-1])
-
-    def recovery_input(self, s: np.ndarray, tau: float) -> float | None:
-        """The recovery plan's input ``tau`` seconds into it, corrected by the LQR towards
-        its state there (interpolated between its nodes); None past its end."""
-        U, X, _ = self.rescue
-        if tau < self.dt0 - 1e-12:
-            return float(U[0])
-        k = 1 + int(math.floor((tau - self.dt0) / self.h_rec + 1e-9))
-        if k >= self.M_rec:
-            return None
-        a = min(max((tau - (self.dt0 + (k - 1) * self.h_rec)) / self.h_rec, 0.0), 1.0)
-        ref = (1.0 - a) * X[:, k] + a * X[:, k + 1]
-        return min(max(float(U[k] - self.K @ (s - ref)), self.u_lo), self.u_hi)
+        return np.zeros(self.cert.N), R
 
     def tracking_input(self, s: np.ndarray, k: int, tau: float, plan: tuple | None = None) -> float:
         """The certified plan's (or ``plan``'s) input in interval ``k`` at ``tau`` seconds
         into the plan, corrected by the LQR towards its state there (interpolated between
         the nodes)."""
         U, R = self.plan if plan is None else plan
+        cert = self.cert
         if k == 0:
             return float(U[0])
-        start = self.dt0 + (k - 1) * self.h
-        a = min(max((tau - start) / self.h, 0.0), 1.0)
-        ref = R[:, k] if k + 1 >= self.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
-        return min(max(float(U[k] - self.K @ (s - ref)), self.u_lo), self.u_hi)
+        start = cert.sample_s + (k - 1) * cert.h
+        a = min(max((tau - start) / cert.h, 0.0), 1.0)
+        ref = R[:, k] if k + 1 >= cert.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
+        return clip_input(cert, float(U[k] - cert.K @ (s - ref)))
+
+    def terminal_input(self, s: np.ndarray) -> float:
+        return lqr_input(self.cert, s)
+
+    # -- per sample (module docstring, steps 0-4) -------------------------------------------
+    def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
+        """``(u, slack)``: steps 0-4 at full state ``s`` within the budget (P9)."""
+        t0 = time.perf_counter()
+        if self.admitted is not None:
+            self._deadline = t0 + self.cert.budget_s
+        self._skipped_now = False
+        s = np.array(s, dtype=float)
+        s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
+        u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
+        going_on = self.shifted(self.plan, self.plan_age, s)
+        k = self.stage_at(self.plan_age * self.cert.sample_s) if self.plan is not None else None
+        answer = self.on_tails(s, u_c, going_on, k)
+        if answer is None and k is None:
+            answer = self.rescue_input(s)
+        qp_plan = None
+        if answer is None:
+            answer, qp_plan = self.solve_qp(s, u_c, going_on)
+        if answer is None:
+            answer = self.fallback(s, k, qp_plan)
+        self.skipped += self._skipped_now
+        self.over_budget += (time.perf_counter() - t0) > self.cert.budget_s
+        return answer
+
+    def on_tails(self, s: np.ndarray, u_c: float, going_on: tuple | None,
+                 k: int | None) -> tuple | None:
+        """0-1 on each certified tail in turn (the last plan's rest, tracked; the saturated
+        LQR): ``[u_c, tail]`` (the fast path: ``u_c`` passes unchanged), else the tail's own
+        input now, then the closest to ``u_c`` between them by bisection, halving while the
+        budget allows."""
+        tails = []
+        if going_on is not None and k is not None:
+            tails.append((going_on, self.tracking_input(s, k, self.plan_age * self.cert.sample_s)))
+        tails.append((self.lqr_tail(s), self.terminal_input(s)))
+        for tail, own in tails:
+            candidate = tail[0].copy()
+            if math.isfinite(u_c):
+                candidate[0] = u_c
+                if self.certifies(s, candidate, tail[1]):
+                    self.fast += 1
+                    self.iterate_plan = None
+                    return u_c, 0.0
+            candidate[0] = own
+            if not self.certifies(s, candidate, tail[1]):
+                continue
+            good, bad = own, u_c if math.isfinite(u_c) else None
+            for _ in range(BISECTIONS if bad is not None else 0):
+                candidate[0] = 0.5 * (good + bad)
+                ok = self.certifies(s, candidate, tail[1])
+                if ok is None:
+                    break
+                good, bad = (candidate[0], bad) if ok else (good, candidate[0])
+            self.bisected += 1
+            self.iterate_plan = None
+            return good, 0.0
+        return None
+
+    def solve_qp(self, s: np.ndarray, u_c: float,
+                 going_on: tuple | None) -> tuple[tuple | None, tuple | None]:
+        """2: SQP steps of (P4) (one per sample; to convergence at admission), warm from
+        the QP's last answer, else the certified plan, else the LQR's rollout; its plan
+        (after ``u_c``, else its own) applied when certified.  ``(answer, the QP's plan)``."""
+        if not self._affords("qp"):
+            return None, None
+        t0 = time.thread_time()
+        warm = self.shifted(self.iterate_plan, 1, s) or going_on
+        S0, U0 = self.roll.nominal(s, *(warm or self.lqr_tail(s)))
+        if warm is None:
+            U0[0] = self.terminal_input(s)
+            S0, U0 = self.roll.nominal(s, U0, self.lqr_tail(s)[1])
+        t1 = time.thread_time()
+        cert, nx, N = self.cert, self.roll.nx, self.cert.N
+        nz = self.sqp.nz
+        z = np.zeros(N * nz + nx)
+        body = z[:N * nz].reshape(N, nz)
+        body[:, :nx], body[:, nx] = S0[:, :N].T, U0
+        z[N * nz:] = S0[:, N]
+        zr = np.zeros_like(z)
+        # (P4)'s reference: the command for u_0, else the plan's own
+        zr[nx] = u_c if math.isfinite(u_c) and going_on is not None else U0[0]
+        plan, slack = None, 0.0
+        steps = ADMISSION_ITERATIONS if self.admitted is None else 1
+        try:
+            if not np.all(np.isfinite(z)):
+                raise RuntimeError("non-finite warm start")
+            z, _ = self.sqp.iterate(z, s, zr, steps, 1e-8)
+            body = z[:N * nz].reshape(N, nz)
+            plan = (np.clip(body[:, nx], cert.u_lo, cert.u_hi), body[:, :nx].T.copy())
+            slack = float(body[:, nx + 1:].max(initial=0.0))
+        except RuntimeError:
+            self.infeasible_qp += 1
+            self.sqp.reset()
+        self._measured("qp", t1 - t0 + (time.thread_time() - t1) / steps)
+        self.iterate_plan = plan
+        return self.certified_qp(s, u_c, plan, slack), plan
+
+    def certified_qp(self, s: np.ndarray, u_c: float, plan: tuple | None,
+                     slack: float) -> tuple | None:
+        """``[u_c, the QP's rest]``, else the QP's own plan, when certified."""
+        if plan is None:
+            return None
+        if math.isfinite(u_c):
+            candidate = plan[0].copy()
+            candidate[0] = u_c
+            if self.certifies(s, candidate, plan[1]):
+                self.qp_certified += 1
+                return u_c, slack
+        if self.certifies(s, *plan):
+            self.qp_certified += 1
+            self.max_slack = max(self.max_slack, slack)
+            return float(plan[0][0]), slack
+        self.rejected += 1
+        return None
+
+    def fallback(self, s: np.ndarray, k: int | None, qp_plan: tuple | None) -> tuple:
+        """3: the last certified plan goes on, tracked by the LQR; 4 without one:
+        uncertified (counted), the QP's own plan, else the saturated LQR."""
+        self.plan_age += 1
+        if k is not None:
+            self.fallbacks += 1
+            return self.tracking_input(s, k, (self.plan_age - 1) * self.cert.sample_s), 0.0
+        self.uncertified += 1
+        if qp_plan is not None:
+            return float(qp_plan[0][0]), 0.0
+        return self.terminal_input(s), 0.0
+
+    def rescue_input(self, s: np.ndarray) -> tuple | None:
+        """4 without a certified plan: the recovery plan (P8) tracked, made from this
+        state when none is (at admission, or when the budget has room for IPOPT)."""
+        dt0 = self.cert.sample_s
+        u = self.recovery.input(self.rescue, s, self.rescue_age * dt0) if self.rescue else None
+        if u is None and self._affords("recovery"):
+            t0 = time.thread_time()
+            found = self.recovery.plan(s)
+            self._measured("recovery", time.thread_time() - t0)
+            if found is not None:
+                self.rescue, self.rescue_age = found, 0
+                self.recoveries += 1
+                self.rescue_relaxation = max(self.rescue_relaxation, found[2])
+                u = self.recovery.input(found, s, 0.0)
+        if u is None:
+            self.rescue = None
+            return None
+        self.rescue_age += 1
+        self.uncertified += 1
+        self.iterate_plan = None
+        return u, 0.0
+
+    # -- admission and metrics --------------------------------------------------------------
+    def admit(self, s: np.ndarray) -> None:
+        """Before the first sample, with no budget (a rig's pre-flight check at its start):
+        a certified plan from ``s`` by steps 1-2 (the QP iterated), else the recovery plan
+        (P8); the QP's and (P8)'s costs measured for the budget (P9)."""
+        t0 = time.perf_counter()
+        self._deadline = math.inf
+        s = np.array(s, dtype=float)
+        s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
+        lqr = self.lqr_tail(s)
+        found = self.on_tails(s, math.nan, None, None)
+        if found is None:
+            found, _ = self.solve_qp(s, math.nan, None)
+        else:
+            # the QP's cost, measured once for the budget, its plan not used
+            self.solve_qp(s, math.nan, None)
+        self.admitted = self.plan is not None
+        if not self.admitted:
+            lqr[0][0] = self.terminal_input(s)
+            why = self.verdict(self.roll.run(s, *lqr))
+            self.refusal = (f"no plan certified from the start on the {self.roll.models} "
+                            f"models: the saturated LQR {why}, the QP's plan too")
+            self.rescue_input(s)
+            self.rescue_age = 0
+        self.plan_age = 0
+        self.bisected = self.qp_certified = self.rejected = self.uncertified = 0
+        self.admission_ms = 1e3 * (time.perf_counter() - t0)
 
     def more_metrics(self) -> dict[str, Any]:
-        n = self.samples
-        return {"solver": "hpipm", "horizon_s": self.dt0 + (self.N - 1) * self.h,
-                "fallbacks": self.fallbacks, "no_plan": self.no_plan,
-                "infeasible_samples": self.infeasible_qp, "rejected_samples": self.rejected,
-                "bisected_samples": self.bisected, "fast_path_samples": self.fast,
-                "uncertified_samples": self.uncertified,
-                "fallback_share": (self.fallbacks + self.no_plan) / n if n else None,
-                "max_slack": self.max_slack, "terminal_level": self.level,
-                "recovery_plans": self.recoveries,
+        n, cert = self.samples, self.cert
+        certified = self.fast + self.bisected + self.qp_certified
+        names = cert.model.state_names
+        return {"solver": "hpipm", "horizon_s": cert.sample_s + (cert.N - 1) * cert.h,
+                "budget_ms": 1e3 * cert.budget_s,
+                "time_per_sample_ms": {"median": self.time_quantile_ms(0.5),
+                                       "p99": self.time_quantile_ms(0.99),
+                                       "max": 1e3 * self.time_max if n else None},
+                "over_budget_samples": self.over_budget, "budget_skipped_samples": self.skipped,
+                "certified_samples": certified, "certified_share": certified / n if n else None,
+                "fast_path_samples": self.fast, "bisected_samples": self.bisected,
+                "qp_certified_samples": self.qp_certified, "fallbacks": self.fallbacks,
+                "fallback_share": self.fallbacks / n if n else None,
+                "uncertified_samples": self.uncertified, "no_plan": self.uncertified,
+                "rejected_samples": self.rejected,
+                "infeasible_samples": self.infeasible_qp,
+                "start_admitted": self.admitted, "start_refusal": self.refusal or None,
+                "admission_ms": self.admission_ms,
+                "certificate": {"models": self.roll.models,
+                                "corner_parameters": list(cert.corner_names),
+                                "terminal_set": cert.terminal, "terminal_level": cert.level,
+                                # every margin the certificate keeps, per bounded state
+                                "bounds": {names[i]: [float(cert.lo_check[i]),
+                                                      float(cert.hi_check[i])]
+                                           for i in self._checked},
+                                "margin_share": CHECK_MARGIN * self.cfg.margin,
+                                "disturbance_tube": {names[i]: float(cert.tube[i])
+                                                     for i in range(len(names))
+                                                     if cert.tube[i] > 0.0}},
+                "max_slack": self.max_slack, "recovery_plans": self.recoveries,
                 "recovery_relaxation_max": (self.rescue_relaxation if self.recoveries
-                                            else None),
-                # (P7): how far each bounded state's bound was moved in for the disturbance
-                "disturbance_tube": {name: float(self.tube[i])
-                                     for i, name in enumerate(self.model.state_names)
-                                     if self.tube[i] > 0.0}}
+                                            else None)}
 
 
 def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSafetyFilter:
     """``inner`` behind the predictive safety filter on the scenario's nominal ``machine``
-    (:func:`tspend.loop.simulation.nominal_machine`)."""
-    from tspend.controllers.full_model import full_model_and_constraints, has_full_state
-    from tspend.controllers.lqr import default_state_weights, design_model, lqr_full_gain
-    from tspend.controllers.mpc import ocp_constraints
-    from tspend.plants import registry
-    from tspend.task import build_task
+    (:func:`tspend.loop.simulation.nominal_machine`): the corner machines built here (the
+    caller that builds plants), the design, the compiled solvers, then the filter."""
+    from tspend.controllers.full_model import has_full_state
+    from tspend.runtime.extras import missing_extra
 
     if not has_full_state(scenario):
         raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": plant "
                             f"'{scenario.plant.kind}' has no full-state model to plan on; "
                             f"allowed: \"off\"")
-    from tspend.runtime.extras import missing_extra
-
     problem = missing_extra("casadi", "safety.filter = \"mpsc\"")
     if problem:
         raise ScenarioError(problem)
-    cfg = scenario.safety
-    model, cs = full_model_and_constraints(scenario, machine)
-    nx = model.size
-    lo, hi, u_lo, u_hi, rows, _ = ocp_constraints(model, cs, 0.0)
-    lo = np.where(lo <= -1e19, -np.inf, lo)
-    hi = np.where(hi >= 1e19, np.inf, hi)
-    # the fall angle is a constraint of the safe set: the certified plans keep the pole up
-    task = build_task(machine, scenario.task, scenario.effects,
-                      where=str(scenario.path))
-    for j, limit in enumerate(task.lo_limits):
-        if limit is not None and limit.status == "fell":
-            i = model.state_names.index(task.names[j])
-            lo[i], hi[i] = max(lo[i], task.lo[j]), min(hi[i], task.hi[j])
-    A, B = design_model(scenario, machine)
-    b_pole = float(B[model.dof + model.pole, 0])
-    Q = np.diag(default_state_weights(model))
-    K, P = lqr_full_gain(A, B, Q, b_pole ** 2)
-    K = np.asarray(K, dtype=float).ravel()
-    # the task's declared disturbance (P7): every bound tightened by the most it can move
-    # the state off the plan while the LQR tracks it
-    tube = disturbance_tube(scenario, model, A - np.outer(B[:, 0], K))
-    limits = (lo.copy(), hi.copy())
-    lo, hi = lo + tube, hi - tube
-    # the margin: a share of each two-sided bound's half-width (the room a machine that
-    # is not the model needs), kept by the plan at its nodes and by the certificate at
-    # every RK4 step
-    half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
-    bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
-              lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    # (P3): inside every tightened bound and |K s| <= the input's reach
-    ell_rows = []
-    for i in range(nx):
-        if math.isfinite(bounds[0][i]) and math.isfinite(bounds[1][i]):
-            e = np.zeros(nx)
-            e[i] = 1.0
-            ell_rows.append((e, min(-bounds[0][i], bounds[1][i])))
-    reach = min(abs(u_lo), abs(u_hi))
-    if math.isfinite(reach):
-        ell_rows.append((K, reach))
-    level = terminal_level(P, ell_rows)
-    if not math.isfinite(level):
-        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": no bound limits the "
-                            f"terminal set (no position bound, fall angle or input range)")
-    models, _ = vertex_models(scenario)
-    h, horizon, _ = plan_grid(K.reshape(1, -1), model, cfg)
-    level = recurrent_level([model] + models, P, K, level, bounds[0], bounds[1], u_lo, u_hi,
-                            horizon * h, np.random.default_rng(0))
-    if level <= 0.0:
-        raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": the LQR's ellipsoid "
-                            f"shrank to nothing without the LQR keeping it safe on the "
-                            f"machine and its [randomize] vertices")
     sample = inner.sample_period or scenario.run.dt
+    cfg = scenario.safety
     if cfg.plan_period and cfg.plan_period < sample:  # the scenario checked run's period only
         raise ScenarioError(f"{scenario.path}: safety.plan_period = {cfg.plan_period:g} s is "
                             f"shorter than the controller's sample ({sample:g} s)")
-    return PredictiveSafetyFilter(inner, model, cfg, sample, bounds, (u_lo, u_hi), rows, K, P,
-                                  level, Q, b_pole ** 2, tuple(models), tube=tube, limits=limits)
+    corners, names = vertex_models(scenario)
+    cert = design(scenario, machine, corners, names, sample)
+    return PredictiveSafetyFilter(inner, cert, build_solvers(cert, cfg), cfg)

@@ -313,9 +313,14 @@ class SafetyFilter(Controller):
         return u
 
     def _median_ms(self) -> float | None:
+        return self.time_quantile_ms(0.5)
+
+    def time_quantile_ms(self, q: float) -> float | None:
+        """The ``q`` quantile of the filter's time per sample (ms), from its histogram
+        (log bins, 2 % wide)."""
         if not self.samples:
             return None
-        k = int(np.searchsorted(np.cumsum(self.time_hist), (self.samples + 1) // 2))
+        k = int(np.searchsorted(np.cumsum(self.time_hist), max(1, math.ceil(q * self.samples))))
         lo = _TIME_BINS[k - 1] if k > 0 else _TIME_BINS[0]
         hi = _TIME_BINS[min(k, _TIME_BINS.size - 1)]
         return 1e3 * math.sqrt(lo * hi)
