@@ -295,10 +295,11 @@ class ConstraintsConfig:
 class SafetyConfig:
     """``[safety]``: a safety filter between any controller and the plant (docs/safety.md)."""
 
-    #: "off", "cbf" (a control barrier function QP per sample, tspend/controllers/safety.py)
-    #: or "mpsc" (predictive safety certification: a backup plan over a horizon ending in
-    #: the LQR's invariant ellipsoid, tspend/controllers/mpsc.py)
-    filter: str = field(default="off", metadata={"choices": ("off", "cbf", "mpsc")})
+    #: "off" or a name in the registry of safety filters (``tspend.controllers.SAFETY_FILTERS``,
+    #: which the scenario reader checks it against): "cbf" (a control barrier function QP
+    #: per sample), "mpsc" (predictive safety certification: a backup plan over a horizon
+    #: ending in the LQR's invariant ellipsoid)
+    filter: str = "off"
     #: class-K gains of the (high-order) barrier conditions, 1/s: psi_1 = h' + alpha_1 h,
     #: psi_1' + alpha_2 psi_1 >= 0 (a position box), h' + alpha_1 h >= 0 (a velocity's)
     alpha_1: float = field(default=2.0, metadata=_positive())

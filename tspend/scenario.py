@@ -24,7 +24,7 @@ from tspend.runtime.bounds import (MAX_FILE_BYTES, MAX_LIST, MAX_NAME, MAX_NESTI
 from tspend.config import (BoxConstraint, ConstraintsConfig, ControllerConfig, EffectsConfig,
     LinearConstraint, OuterLoopConfig, ParameterChange, PlantConfig, RunConfig, SafetyConfig,
     Scenario, TaskConfig)
-from tspend.controllers import settings_classes
+from tspend.controllers import SAFETY_CHOICES, settings_classes
 from tspend.controllers.settings import PAPER_KINDS, parse_kind_tables, read_settings
 from tspend.errors import ScenarioError
 from tspend.tables import Table, read_fields
@@ -317,6 +317,7 @@ def parse_scenario(text: str, path: str = "<string>", name: str | None = None,
 def _safety(r: Table) -> SafetyConfig:
     """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md)."""
     values = read_fields(r, SafetyConfig, "in [safety]")
+    values["filter"] = r.string("filter", "off", SAFETY_CHOICES)  # the registry's names
     if not values.get("margin", 0.0) < 1.0:
         raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
                                 f"half-width), got {values['margin']:g}")

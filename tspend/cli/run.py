@@ -27,13 +27,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
-    r.add_argument("--safety", choices=("off", "cbf", "mpsc"),
+    r.add_argument("--safety", metavar="FILTER",
                    help="run the controller behind a safety filter: 'cbf', a control barrier "
                         "function QP keeping the task's constraints; 'mpsc', predictive "
                         "safety certification: the input passes only when a backup plan "
                         "keeps every constraint and the fall angle and ends in the "
-                        "balancing LQR's safe set (same as --set safety.filter=NAME; "
-                        "docs/safety.md)")
+                        "balancing LQR's safe set; 'off' (the default) none (same as "
+                        "--set safety.filter=FILTER; docs/safety.md; e.g. --safety cbf)")
     return r
 
 

@@ -60,8 +60,6 @@ from tspend.errors import ScenarioError
 
 __all__ = ["SUFFIX", "SafetyFilter", "barrier_rows", "wrap"]
 
-#: ``--controller pd+cbf``: the kind ``pd`` behind the filter
-SUFFIX = "+cbf"
 #: relative change of u below which a sample does not count as changed
 CHANGED_REL = 1e-9
 #: the slack's quadratic weight eps in (S3): 1, as the input's, so the Hessian is well
@@ -339,6 +337,10 @@ class SafetyFilter(Controller):
         return {}
 
 
+#: ``--controller pd+cbf``: the kind ``pd`` behind the filter
+SUFFIX = "+" + SafetyFilter.FILTER
+
+
 def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:
     """``inner`` behind the scenario's ``[safety]`` filter on the domain's full-state model
     of the nominal ``machine`` (:func:`tspend.loop.simulation.nominal_machine`).
@@ -347,7 +349,7 @@ def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:
     from tspend.controllers.full_model import full_model, has_full_state
 
     if not has_full_state(scenario):
-        raise ScenarioError(f"{scenario.path}: safety.filter = \"cbf\": plant "
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"{SafetyFilter.FILTER}\": plant "
                             f"'{scenario.plant.kind}' has no full-state model (q'' = f + g u) "
                             f"for the barrier conditions; allowed: \"off\"")
     cfg = scenario.safety
