@@ -127,7 +127,7 @@ def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
     """The default run's recording: every sample of the state, r and u as the run had them,
     the diagnostics thinned, and about a third of the full recording's size."""
     import tspend
-    from tspend.studies.timeseries import recording_table
+    from tspend.recorder.timeseries import recording_table
 
     monkeypatch.chdir(tmp_path)
     assert main(["run", "--duration", "2", "--out", "c.rrd", "--metrics", "m.json"]) == 0

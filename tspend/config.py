@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from tspend.runtime.bounds import MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS
 from tspend.signals import Disturbance, Reference
 
@@ -48,6 +50,21 @@ def _identity_times_10(n: int) -> tuple[tuple[float, ...], ...]:
 
 def _zeros(n: int) -> tuple[float, ...]:
     return (0.0,) * n
+
+
+def companion(lam: Any) -> np.ndarray:
+    """Lambda of the paper's (18): ones above the diagonal, last row ``-lambda``."""
+    lam = np.asarray(lam, dtype=float)
+    n = lam.size
+    A = np.eye(n, k=1)
+    A[-1, :] = -lam
+    return A
+
+
+def is_hurwitz(lam: Any) -> bool:
+    """Whether ``s^n + lambda_n s^(n-1) + .. + lambda_1`` has all roots in Re s < 0 (the
+    condition on ``[controller] lambda`` that :meth:`ControllerConfig.check` states)."""
+    return bool(np.all(np.linalg.eigvals(companion(lam)).real < 0.0))
 
 
 @dataclass(frozen=True)
@@ -140,7 +157,6 @@ class ControllerConfig:
         Hurwitz of length n, n state sets, enough control points, rule counts bounded."""
         import math
 
-        from tspend.controllers.paper.control_law import is_hurwitz
         from tspend.runtime.bounds import MAX_RULES
 
         if len(self.lam) != n:

@@ -169,7 +169,7 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
             ctrl = base.build(scenario, machine)
             return ctrl if isinstance(ctrl, safety.SafetyFilter) else safety.wrap(scenario, ctrl, machine)
 
-        return replace(base, name=base.name + SUFFIX, build=filtered,
+        return replace(base, name=base.name + safety.SUFFIX, build=filtered,
                        summary=f"{base.summary} (behind the CBF safety filter)")
     if plugins.is_spec(spec):
         return _plugin_kind(plugins.load_object(spec, option), spec, option)
@@ -282,8 +282,17 @@ def available() -> list[Kind]:
             summary = found.summary + (f" (kind {found.name})" if found.name != name else "")
             kinds.append(replace(found, name=name, summary=summary))
         except ScenarioError as exc:
-            kinds.append(Kind(name, lambda s: None, None, f"(cannot be loaded: {exc})"))  # type: ignore[arg-type, return-value]
+            kinds.append(Kind(name, _unloadable(f"--controller {name}: {exc}"), None,
+                              f"(cannot be loaded: {exc})"))
     return kinds
+
+
+def _unloadable(message: str) -> Callable[..., Controller]:
+    """The builder of a listed plug-in that cannot be loaded: it refuses in one line."""
+    def build(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        raise ScenarioError(message)
+
+    return build
 
 
 def _plain_text(text: str) -> str:

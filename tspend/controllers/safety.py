@@ -212,16 +212,9 @@ class SafetyFilter(Controller):
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
         if self._P is not None:
-            # (S5): the position rows give way to the largest LQR ellipsoid inside them all
-            P_inv = np.linalg.inv(self._P)
-            dof = model.dof
-            on_q = np.array([not A[i, dof:].any() and A[i, :dof].any() for i in range(len(b))],
-                            dtype=bool)
-            levels = [b[i] ** 2 / float(A[i, :-1] @ P_inv @ A[i, :-1])
-                      for i in np.flatnonzero(on_q) if b[i] > 0.0]
-            if levels:
-                self._level = min(levels)
-                A, b = A[~on_q], b[~on_q]
+            level, kept = lyapunov_level(A, b, self._P, model.dof)
+            if kept is not None:
+                self._level, A, b = level, A[kept], b[kept]
         self._rows = (perm, A, b)
         # (S4)'s deceleration per row: a share of what the input's range gives at rest
         g0 = model.input_map(np.zeros(model.size))[1]
@@ -230,16 +223,10 @@ class SafetyFilter(Controller):
                                 for row in A])
         m = A.shape[0]
         cas = self._casadi
-        opts: dict = {"error_on_fail": False}
-        if self.cfg.solver == "qpoases":
-            opts["printLevel"] = "none"
-        elif self.cfg.solver == "osqp":
-            opts["osqp"] = {"verbose": False, "eps_abs": 1e-10, "eps_rel": 1e-10,
-                            "max_iter": 20000, "polish": True}
         m += int(math.isfinite(self._level))
         self._solver = cas.conic("safety_filter", self.cfg.solver,
                                  {"h": cas.Sparsity.dense(2, 2), "a": cas.Sparsity.dense(max(m, 1), 2)},
-                                 opts)
+                                 qp_options(self.cfg.solver))
         self._H = np.diag([2.0, 2.0 * SLACK_EPS])
 
     def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
@@ -335,6 +322,33 @@ class SafetyFilter(Controller):
     def more_metrics(self) -> dict[str, Any]:
         """A subclass's own entries of ``safety_filter`` (:mod:`.mpsc`'s fallbacks)."""
         return {}
+
+
+
+def lyapunov_level(A: np.ndarray, b: np.ndarray, P: np.ndarray, dof: int
+                   ) -> tuple[float, np.ndarray | None]:
+    """(S5): ``(c, kept)``, the largest level ``c`` of the LQR's ellipsoid ``s^T P s <= c``
+    inside every position row ``A s <= b`` (rows on positions alone), and the rows kept
+    beside it (the others); ``kept`` None when no position row bounds it."""
+    P_inv = np.linalg.inv(P)
+    on_q = np.array([not A[i, dof:].any() and A[i, :dof].any() for i in range(len(b))],
+                    dtype=bool)
+    levels = [b[i] ** 2 / float(A[i, :-1] @ P_inv @ A[i, :-1])
+              for i in np.flatnonzero(on_q) if b[i] > 0.0]
+    if not levels:
+        return math.inf, None
+    return min(levels), ~on_q
+
+
+def qp_options(solver: str) -> dict:
+    """The QP solver's options: failures found by the answer, not raised; no printing."""
+    opts: dict = {"error_on_fail": False}
+    if solver == "qpoases":
+        opts["printLevel"] = "none"
+    elif solver == "osqp":
+        opts["osqp"] = {"verbose": False, "eps_abs": 1e-10, "eps_rel": 1e-10,
+                        "max_iter": 20000, "polish": True}
+    return opts
 
 
 #: ``--controller pd+cbf``: the kind ``pd`` behind the filter

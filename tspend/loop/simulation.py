@@ -31,6 +31,7 @@ from tspend.errors import ModelWarning
 from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 from tspend.task import Task, build_task
+from tspend.task_feasibility import check_task
 
 
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
@@ -293,7 +294,7 @@ class RunResult:
         ``units=False``, deprecated (removed in the next release): the series' internal keys
         (``x1``, ``r_d1``, ``e_1``, ``u``), indexed by ``t``.
         """
-        from tspend.studies.timeseries import history_frame, run_table
+        from tspend.recorder.timeseries import history_frame, run_table
 
         if units is False:
             import warnings
@@ -309,7 +310,7 @@ class RunResult:
     def plot(self, every: int = 1):
         """The run in the paper's panels (states against references, then u): a matplotlib
         Figure (needs the ``plot`` extra)."""
-        from tspend.studies.figures import run_figure
+        from tspend.recorder.plotting import run_figure
 
         return run_figure(self, every)
 
@@ -383,7 +384,7 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     drawn = randomize.draw(scenario)
     plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
-    plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
+    check_task(plant, task, scenario)
     scenario, scaled = with_input_sets(with_gain_sign(scenario, plant), plant)
     # the controller designs on the nominal machine (built in build_controller), not on
     # `plant`, the draw

@@ -115,7 +115,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
 
     from tspend.loop import simulation
     from tspend.plants import randomize
-    from tspend.plants import registry as plant_registry
+    from tspend.task_feasibility import check_task
 
     # the models go into MJX in float64 whatever the run's precision (a float32 run casts
     # them later): put_model under JAX's default float32 would round them here
@@ -145,7 +145,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
                                 f"model to step (the mjx backend needs one)")
         task = simulation.scenario_task(scn, plant)
         if first is None:
-            plant_registry.domain_of(scn.plant.kind).check_task(plant, task, scn)
+            check_task(plant, task, scn)
             first, link0 = (scn, plant, task), link
             ref, dist = _tables(scn, steps, len(task.view))
         else:

@@ -33,7 +33,6 @@ from tspend.runtime.jit import JIT
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.drawing.base import Drawing
-    from tspend.task import Task
 
 __all__ = ["Domain", "Backend", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
@@ -433,10 +432,6 @@ class Domain(ABC):
         of a relative ``[randomize]`` draw (:mod:`tspend.plants.randomize`).  A key not
         listed is 0 on the machine.  By default none: a 0 is 0."""
         return {}
-
-    def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
-        """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``
-        (the cart-pole: its actuator cannot give the force the reference needs)."""
 
     # The three models a model-based controller designs on take ``machine``: the nominal
     # machine the runner built once (tspend.loop.simulation.nominal_machine, a plant of

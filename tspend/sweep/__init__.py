@@ -85,7 +85,7 @@ from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
 from tspend.sweep.table import KEY_COLUMN, RowTable, TableLock, read_table, typed
 from tspend.loop.metrics import is_machine_column
-from tspend.sweep.worker import METRIC_COLUMNS, run_job
+from tspend.sweep.worker import METRIC_COLUMNS, finished_row, run_job
 
 #: columns of every row besides the grid columns, in table order around them
 LEADING_COLUMNS = ("scenario",)
@@ -197,7 +197,8 @@ class PreparedSweep:
 
                 owned = False
                 shown.start(1, "mjx")
-                for row in run_jobs(todo, self.precision):
+                for ran in run_jobs(todo, self.precision):
+                    row = finished_row(*ran)
                     if table is not None:
                         table.append(row)
                     rows.append(row)
