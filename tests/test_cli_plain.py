@@ -49,7 +49,7 @@ def test_every_help_is_plain_text_with_every_option_explained():
 
 def test_show_prints_a_scenario_that_runs_the_same(tmp_path, monkeypatch, capsys):
     from tspend.scenario import available_scenarios, load_scenario, parse_scenario
-    from tspend.scenario_toml import resolved_document, resolved_toml
+    from tspend.scenario.writer import resolved_document, resolved_toml
 
     for path in available_scenarios():  # every shipped scenario reads back as itself
         scn = load_scenario(path)

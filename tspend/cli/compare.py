@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from tspend.cli.common import add_metrics_option
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

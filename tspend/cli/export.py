@@ -19,7 +19,7 @@ import json
 import os
 from pathlib import Path
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 FORMATS = (".parquet", ".csv")
 #: the suffix of a CSV's metadata file, beside it

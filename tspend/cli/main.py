@@ -30,7 +30,7 @@ from tspend.cli import (common, compare, crosscheck, excite, export, figures, id
 from tspend.cli import list as list_command
 from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,
                                ReaderGoneTolerant, release_warnings, say)
-from tspend.errors import TspendError
+from tspend.runtime.errors import TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard
 from tspend.shipped import SCENARIO_PATH_VARIABLE
 

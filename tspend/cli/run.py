@@ -12,7 +12,7 @@ from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIV
     add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
-from tspend.errors import OutputError, ScenarioError
+from tspend.runtime.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
 
 

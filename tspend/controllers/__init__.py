@@ -39,7 +39,7 @@ from tspend.controllers import mpsc, safety
 from tspend.controllers.base import Controller, Diagnostic
 from tspend.controllers.paper.controller import AdaptiveFuzzyController, FirstTypeController
 from tspend.controllers.settings import KindSettings
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime import plugins
 
 if TYPE_CHECKING:

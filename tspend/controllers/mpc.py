@@ -19,7 +19,7 @@ whose ``accel_factory`` is the domain's equations over CasADi's sin, cos, tanh, 
 model is the simulated machine, not a copy.  The bounds (the actuator's range, the
 positions' ranges: a rail, a joint's range, a task's state bound) are the domain's too
 (:func:`.full_model.full_model`).  With ``constraints = true`` (the default) the OCP
-also keeps the run's constraint set (:mod:`tspend.constraints`, the ``ConstraintSet`` the
+also keeps the run's constraint set (:mod:`tspend.task.constraints`, the ``ConstraintSet`` the
 run measures, ``Observation.constraints``): a hard box on a position is a bound on the
 predicted states (M2), like the rail; a box on the input narrows ``u_lo, u_hi``; every
 other row (a hard box on a velocity: a measured speed at its bound would leave no
@@ -70,14 +70,14 @@ from tspend.plants.domain import FULL_STATE, SYMBOLIC
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.bounds import MAX_MPC_HORIZON, MAX_MPC_SUBSTEPS
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
-    from tspend.constraints import ConstraintSet
+    from tspend.task.constraints import ConstraintSet
 
 __all__ = ["MPCDesign", "MPCSettings", "MPCController", "SCHEMES", "build", "design",
            "ocp_constraints"]

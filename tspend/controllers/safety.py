@@ -2,7 +2,7 @@
 
 ``SafetyFilter(inner, model, cfg)`` runs the controller ``inner`` (any kind: the paper's,
 a baseline, ``policy``, a plug-in) and changes its command ``u_c`` as little as possible
-so that the task's state constraints (:mod:`tspend.constraints`, ``Observation.constraints``)
+so that the task's state constraints (:mod:`tspend.task.constraints`, ``Observation.constraints``)
 stay invariant on the domain's own model ``q'' = f(s) + g(s) u``
 (:meth:`tspend.plants.domain.FullModel.input_map`: the accelerations are affine in u).
 docs/safety.md derives every equation below and says what it guarantees.
@@ -56,7 +56,7 @@ import numpy as np
 
 from tspend.config import SafetyConfig
 from tspend.controllers.base import Controller, Diagnostic, Observation
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["SUFFIX", "SafetyFilter", "barrier_rows", "wrap"]
 

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.plants.domain import FullModel

@@ -17,21 +17,21 @@ import numpy as np
 
 from tspend import __version__
 from tspend.config import RunConfig, Scenario
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers import needs_machine as controller_needs_machine
 from tspend.controllers.base import Controller
-from tspend.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+from tspend.loop.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
     unsupported as effects_unsupported)
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
-from tspend.errors import ModelWarning
+from tspend.runtime.errors import ModelWarning
 from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 from tspend.task import Task, build_task
-from tspend.task_feasibility import check_task
+from tspend.task.feasibility import check_task
 
 
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
@@ -40,7 +40,7 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     ``[randomize]`` draws at its seed (:mod:`tspend.plants.randomize`).
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
-    :class:`tspend.errors.ModelWarning` (one line each), before the first step.
+    :class:`tspend.runtime.errors.ModelWarning` (one line each), before the first step.
 
     Raises
     ------

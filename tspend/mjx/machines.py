@@ -19,14 +19,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["Fleet", "build_fleet", "refusal"]
 
 
 def refusal(scenario: Any) -> str:
     """Why the MJX backend cannot run ``scenario`` (one line), or ""."""
-    from tspend.effects import needs_hook, needs_plant_wrapper
+    from tspend.loop.effects import needs_hook, needs_plant_wrapper
     from tspend.plants.registry import PLANT_KINDS
 
     where = scenario.path or scenario.name
@@ -115,7 +115,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
 
     from tspend.loop import simulation
     from tspend.plants import randomize
-    from tspend.task_feasibility import check_task
+    from tspend.task.feasibility import check_task
 
     # the models go into MJX in float64 whatever the run's precision (a float32 run casts
     # them later): put_model under JAX's default float32 would round them here

@@ -27,7 +27,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["BLOCK", "MAX_BATCH", "closed_loop_rows", "run_jobs"]
 

@@ -203,7 +203,7 @@ class Plant(ABC):
 
     def underlying(self) -> "Plant":
         """The plant this one is seen through: itself; a wrapper (the effects' actuator,
-        :class:`tspend.effects.EffectsPlant`) returns the plant it wraps, so a domain reads
+        :class:`tspend.loop.effects.EffectsPlant`) returns the plant it wraps, so a domain reads
         its own plant's numbers without knowing of any wrapper."""
         return self
 

@@ -20,7 +20,7 @@ model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpol
 This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
 (``slide`` = the cart, ``hinge`` = the pole), labels and units and the default task (view
 ``hinge``, ``hinge_dot``; fall angle pi/2); it is drawn as every machine is, from its own
-geoms (:class:`~tspend.drawing.model.ModelDrawing`, with its rail).
+geoms (:class:`~tspend.plants.drawing.model.ModelDrawing`, with its rail).
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ import mujoco
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.drawing.model import ModelDrawing
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.model import ModelDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_view,
     pumped_full_model)
@@ -448,7 +448,7 @@ class CartPoleDomain(Domain):
         return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> ModelDrawing:
-        """The machine's own geoms (:class:`~tspend.drawing.model.ModelDrawing`),
+        """The machine's own geoms (:class:`~tspend.plants.drawing.model.ModelDrawing`),
         on its rail, the cart posed by the extra ``cart_pos``."""
         machine = cartpole_machine(plant)
         slide = machine.joint_names[[j.kind for j in machine.tree.joints].index("slide")]

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.drawing.furuta import FurutaDrawing
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.furuta import FurutaDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedDomain,
     ArticulatedMujoco, ArticulatedODE, pumped_full_model)
 from tspend.plants.articulated.machine import Machine, open_spec

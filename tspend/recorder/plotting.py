@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 STYLE = {
     "figure.dpi": 100, "savefig.dpi": 150, "font.size": 9, "axes.titlesize": 10,

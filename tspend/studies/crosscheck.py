@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from tspend.config import Scenario
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.runner import StopRequest
 from tspend.loop.simulation import build_plant, run
 from tspend.loop.sinks import Sink

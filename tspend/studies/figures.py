@@ -17,7 +17,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.recorder.plotting import (PALETTE, STYLE, kind_colour, kind_dash, kind_label,
     matplotlib_parts, new_figure, state_units)
 

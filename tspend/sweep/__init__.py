@@ -78,7 +78,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Iterable
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.runtime.bounds import DEFAULT_RUN_TIMEOUT_S, MAX_RUN_TIMEOUT_S
 from tspend.sweep.executors import WorkerDied, make_executor
@@ -321,7 +321,7 @@ def build_once(plan: list[Job]) -> None:
     """Build the plant, task and controller of each scenario / grid point and each kind
     once (not per seed), so that a model that cannot be built is one ScenarioError before
     anything runs.  A plug-in whose constructor raises is bad input too."""
-    from tspend.errors import TspendError
+    from tspend.runtime.errors import TspendError
     from tspend.loop.simulation import prepare
     from tspend.runtime.native_logs import mujoco_warnings_in_errors
 

@@ -25,8 +25,8 @@ import numpy as np
 from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.drawing.model import ModelDrawing
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.model import ModelDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.base import InputInfo, JointInfo, MachinePlant, Plant, TaskDefaults, read_as

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.domain import applied_forces
 from tspend.plants.base import CartPolePlant, MachinePlant, read_as
 from tspend.plants.mjcf import CartPoleParams, actuator_force_range

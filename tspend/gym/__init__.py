@@ -9,12 +9,12 @@
 :class:`TspendEnv` is a thin layer on the machinery a run uses
 (:mod:`tspend.loop.simulation`): the scenario's plant with its real-world effects
 (``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
-its disturbance and its measurement effects (:class:`tspend.effects.Measurement`).
+its disturbance and its measurement effects (:class:`tspend.loop.effects.Measurement`).
 Nothing here integrates anything: each env step holds the action (zero-order hold) over
 ``frame_skip`` physics steps of ``run.dt``, exactly as the runner's sampled loop does; on
 a MuJoCo plant without per-sample effects in one compiled call
 (:mod:`tspend.loop.envstep`), otherwise through ``plant.step(u, d, run.dt)``.  N envs in
-one call: :mod:`tspend.gym_vector`.
+one call: :mod:`tspend.gym.vector`.
 
 Observation (:attr:`TspendEnv.observation_names`, :attr:`TspendEnv.observation_units`):
 the plant's full named state (positions, then velocities, the task's view entries as the
@@ -52,7 +52,7 @@ from gymnasium import spaces  # noqa: E402
 
 from tspend.controllers.base import Observation
 from tspend.loop import envstep
-from tspend.errors import DivergenceError, ScenarioError, TspendError
+from tspend.runtime.errors import DivergenceError, ScenarioError, TspendError
 
 __all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "autoreset_mode_of",
            "env_id", "register_all"]
@@ -285,8 +285,8 @@ class TspendEnv(gymnasium.Env):
     def _compiled_frame(self) -> envstep.Frame | None:
         """The env for :func:`tspend.loop.envstep.env_step`, when its plant offers MuJoCo's
         compiled step and nothing runs per sample in Python (no effects wrapper, no
-        measurement hook: :mod:`tspend.effects`)."""
-        from tspend.effects import needs_hook, needs_plant_wrapper
+        measurement hook: :mod:`tspend.loop.effects`)."""
+        from tspend.loop.effects import needs_hook, needs_plant_wrapper
         from tspend.plants.mujoco_plant import mj_step_pointer
 
         effects = self.scenario.effects
@@ -304,7 +304,7 @@ class TspendEnv(gymnasium.Env):
 
     def adopt_rows(self, ints: np.ndarray, floats: np.ndarray) -> None:
         """Keep the compiled step's rows in ``ints``, ``floats`` (rows of a vector env's
-        matrices: :class:`tspend.gym_vector.TspendVectorEnv`)."""
+        matrices: :class:`tspend.gym.vector.TspendVectorEnv`)."""
         self.frame.adopt(ints, floats)
         self._ints = self.frame.ints
 
@@ -364,7 +364,7 @@ class TspendEnv(gymnasium.Env):
         ones a seed drawn from ``np_random``.
         """
         from tspend.loop import simulation
-        from tspend.effects import Measurement, needs_hook, needs_plant_wrapper
+        from tspend.loop.effects import Measurement, needs_hook, needs_plant_wrapper
 
         if seed is None and not self._seeded:
             seed = self._first_seed
@@ -613,7 +613,7 @@ def register_all() -> list[str]:
         eid = env_id(name)
         if eid not in gymnasium.registry:
             gymnasium.register(id=eid, entry_point="tspend.gym:TspendEnv",
-                               vector_entry_point="tspend.gym_vector:TspendVectorEnv",
+                               vector_entry_point="tspend.gym.vector:TspendVectorEnv",
                                kwargs={"scenario": name}, disable_env_checker=False)
         ids.append(eid)
     return ids

@@ -1,7 +1,7 @@
 """Typed, frozen configuration: what a scenario file maps onto.
 
 Every field here has a key of the same name in the scenario TOML (see
-``tspend/scenario.py`` for the loading and validation, and ``scenarios/`` for examples).
+``tspend/scenario/__init__.py`` for the loading and validation, and ``scenarios/`` for examples).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tspend.runtime.bounds import MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS
-from tspend.signals import Disturbance, Reference
+from tspend.config.signals import Disturbance, Reference
 
 
 #: the largest closed-loop pole (rad/s) any kind's search reaches: the same cap on the same
@@ -275,7 +275,7 @@ class EffectsConfig:
 class BoxConstraint:
     """``[task.constraints.box] NAME = {lo, hi, hard}``: ``lo <= NAME <= hi`` on a named state
     or the input (+/-inf: open).  ``hard``: crossing it ends the run ``constraint`` (a state's
-    box only); soft: measured (tspend/constraints.py)."""
+    box only); soft: measured (tspend/task/constraints.py)."""
 
     lo: float = -float("inf")
     hi: float = float("inf")
@@ -296,7 +296,7 @@ class LinearConstraint:
 @dataclass(frozen=True)
 class ConstraintsConfig:
     """``[task.constraints]``: the constraints a run is measured against and a safety filter
-    keeps (tspend/constraints.py, docs/safety.md)."""
+    keeps (tspend/task/constraints.py, docs/safety.md)."""
 
     #: the domain's own: every joint range and the rail (hard, as the task ends runs on
     #: them), the actuator's range (soft)
@@ -351,7 +351,7 @@ class SafetyConfig:
 
 @dataclass(frozen=True)
 class TaskConfig:
-    """``[task]``: what the controllers track and what ends a run (tspend/task.py).
+    """``[task]``: what the controllers track and what ends a run (tspend/task/__init__.py).
 
     Every field left at its default takes the plant domain's own (the cart-pole: view
     ``("hinge", "hinge_dot")``, fall at pi/2 from upright).
@@ -403,7 +403,7 @@ class Scenario:
     description: str
     run: RunConfig
     plant: PlantConfig
-    #: a reference and a disturbance of ``tspend.signals`` (frozen dataclasses too)
+    #: a reference and a disturbance of ``tspend.config.signals`` (frozen dataclasses too)
     reference: Reference
     disturbance: Disturbance
     controller: ControllerConfig
