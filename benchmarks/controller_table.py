@@ -25,7 +25,7 @@ if str(ROOT) not in sys.path:
 
 from tspend import load_scenario, override, run  # noqa: E402
 from tspend.controllers import KINDS  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 from short_mode import short_defaults
 
 SCENARIOS = ("ex1_nonaffine_case1", "ex1_nonaffine_case2", "ex2_duffing", "ex3_pendulum_ode",

@@ -639,7 +639,7 @@ import sys, warnings
 warnings.simplefilter("ignore")
 try:
     import tspend
-    from tspend.errors import TspendError
+    from tspend.runtime.errors import TspendError
     S = lambda: tspend.load_scenario("ex3_pendulum_ode")
 except Exception as exc:
     print("tspend could not be imported:", exc, file=sys.stderr); sys.exit(70)

@@ -38,7 +38,7 @@ BEGIN, END = "<!-- machines x kinds: begin -->", "<!-- machines x kinds: end -->
 def one(job: tuple[str, str, int]) -> dict:
     from tspend import load_scenario, override
     from tspend.controllers import unsupported
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.loop.simulation import run
     from tspend.plants.articulated.machine import load_machine
 

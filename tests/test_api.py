@@ -41,7 +41,7 @@ def test_run_takes_a_name_a_path_or_a_scenario_alike() -> None:
 
 
 def test_run_rejects_a_bad_override_with_one_line() -> None:
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     with pytest.raises(ScenarioError) as exc:
         tspend.run("ex2_duffing", overrides={"run.durration": 1.0})

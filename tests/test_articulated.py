@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from tspend import load_scenario, override
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import run
 from tspend.plants.articulated.machine import Machine, load_machine
 from tspend.plants.registry import DOMAINS

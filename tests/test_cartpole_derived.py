@@ -111,7 +111,7 @@ def test_the_controllers_models_are_the_nominal_derived_machine() -> None:
 
 def _hand_reference_force(p, scn) -> tuple[float, float, float]:
     """The task check's need from the hand-written inverse dynamics (the oracle)."""
-    from tspend.task_feasibility import NEED_SAMPLES
+    from tspend.task.feasibility import NEED_SAMPLES
 
     n = int(min(NEED_SAMPLES, max(2, round(scn.run.duration / scn.run.dt))))
     t = np.linspace(0.0, scn.run.duration, n + 1)
@@ -138,7 +138,7 @@ def test_the_ode_twin_and_the_task_check_are_derived_the_ode_scenario_too() -> N
     assert isinstance(DOMAIN.build(ex3), DerivedCartPoleODE)
     # the task check's need, from the derived and the hand-written inverse dynamics, on
     # the same machine (with its damping and dry friction on pendulum_friction)
-    from tspend.task_feasibility import reference_force
+    from tspend.task.feasibility import reference_force
 
     for name in ("pendulum_mujoco", "pendulum_friction", "ex3_pendulum_ode"):
         scn = load_scenario(name)

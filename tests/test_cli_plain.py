@@ -49,7 +49,7 @@ def test_every_help_is_plain_text_with_every_option_explained():
 
 def test_show_prints_a_scenario_that_runs_the_same(tmp_path, monkeypatch, capsys):
     from tspend.scenario import available_scenarios, load_scenario, parse_scenario
-    from tspend.scenario_toml import resolved_document, resolved_toml
+    from tspend.scenario.writer import resolved_document, resolved_toml
 
     for path in available_scenarios():  # every shipped scenario reads back as itself
         scn = load_scenario(path)
@@ -127,7 +127,7 @@ def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
     """The default run's recording: every sample of the state, r and u as the run had them,
     the diagnostics thinned, and about a third of the full recording's size."""
     import tspend
-    from tspend.studies.timeseries import recording_table
+    from tspend.recorder.timeseries import recording_table
 
     monkeypatch.chdir(tmp_path)
     assert main(["run", "--duration", "2", "--out", "c.rrd", "--metrics", "m.json"]) == 0

@@ -26,7 +26,7 @@ from tspend.controllers.feedback_linearization import solve_for_u
 from tspend.controllers.gaussian_basis import basis, gaussian_grid
 from tspend.controllers.plant_model import plant_model
 from tspend.loop.simulation import nominal_machine
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.metrics import METRIC_KEYS
 
 

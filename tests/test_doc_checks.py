@@ -78,7 +78,7 @@ def test_a_misspelt_program_fails_where_output_would_have_hidden_it(tmp_path: Pa
                    '```\ntspnd run ex2_duffing\n```\n\n'
                    '```\npython -c "print(1)"\n\nstray text\n```\n\n'
                    '```\n$ tspend run ex2_duffing\ntspend: error: ...\n$ tspned list\n```\n\n'
-                   '```\nscenario.toml ──► tspend/tables.py\n  hinge   0.001 / 0.0366\n```\n')
+                   '```\nscenario.toml ──► tspend/config/tables.py\n  hinge   0.001 / 0.0366\n```\n')
     problems = [(c.line, c.problem) for c in check_docs.extract(doc) if c.problem]
     assert [line for line, _ in problems] == [4, 8, 14, 20]
     assert "'tspnd' is not a program" in problems[0][1] and "'tspnd'" in problems[1][1]

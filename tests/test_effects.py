@@ -21,8 +21,8 @@ from tspend.cli.main import main
 from tspend.config import EffectsConfig, ParameterChange
 from tspend.studies.crosscheck_openloop import chirp_force, open_loop_compare
 from cartpole_oracle import CartPoleParams, cartpole_ode_plant
-from tspend.effects import EffectsPlant, Measurement
-from tspend.errors import ModelWarning
+from tspend.loop.effects import EffectsPlant, Measurement
+from tspend.runtime.errors import ModelWarning
 from tspend.scenario import available_scenarios
 from tspend.loop.simulation import build_plant
 

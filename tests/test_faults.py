@@ -14,7 +14,7 @@ from rerun.chunk import RrdReader
 
 from tspend import load_scenario, override, run
 from tspend.cli.main import main
-from tspend.studies.timeseries import recording_table
+from tspend.recorder.timeseries import recording_table
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series, series_location
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The gymnasium environment (tspend/gym.py): checked by gymnasium's own env checker and
+"""The gymnasium environment (tspend/gym/__init__.py): checked by gymnasium's own env checker and
 vector envs, and against the runner: the env driven by the ``pd`` controller retraces
 ``tspend.run(..., controller="pd")`` sample for sample."""
 
@@ -13,7 +13,7 @@ gymnasium = pytest.importorskip("gymnasium")
 
 import tspend  # noqa: E402
 import tspend.gym  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 from tspend.gym import RenderError, TspendEnv, env_id  # noqa: E402
 from tspend.loop import simulation  # noqa: E402
 from tspend.scenario import available_scenarios, load_scenario, override  # noqa: E402
@@ -147,7 +147,7 @@ def test_make_vec(mode: str) -> None:
 
 
 def test_bad_options_are_one_line_scenario_errors() -> None:
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     with pytest.raises(ScenarioError, match="whole multiple"):
         TspendEnv("pendulum_mujoco", control_period=0.0015)

@@ -12,7 +12,7 @@ import pytest
 gymnasium = pytest.importorskip("gymnasium")
 
 import tspend.gym  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 from tspend.gym import RewardWeights, TspendEnv, env_id  # noqa: E402
 from tspend.scenario import available_scenarios  # noqa: E402
 

@@ -1,5 +1,5 @@
 """The compiled env step and the batched vector env (tspend/loop/envstep.py,
-tspend/gym_vector.py).
+tspend/gym/vector.py).
 
 Oracles: the env's own Python step (``plant.step`` per physics step, the tables looked up
 per step), which the compiled step must equal bit for bit, and N single envs in
@@ -15,9 +15,9 @@ gymnasium = pytest.importorskip("gymnasium")
 
 import tspend.gym  # noqa: E402,F401
 from gymnasium.vector import AutoresetMode  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 from tspend.gym import TspendEnv  # noqa: E402
-from tspend.gym_vector import TspendVectorEnv  # noqa: E402
+from tspend.gym.vector import TspendVectorEnv  # noqa: E402
 
 
 def _episode_steps(env, actions, seed):

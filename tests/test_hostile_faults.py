@@ -155,7 +155,7 @@ def test_a_pole_made_a_slide_is_refused_when_the_model_is_read_naming_it(
     import re
 
     import tspend
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     text = (ROOT / "models" / model).read_text()
     changed, count = re.subn(rf'(<joint name="{joint}" type=)"hinge"', r'\1"slide"', text)
@@ -183,7 +183,7 @@ def test_the_mpsc_plan_period_is_bounded_by_the_control_period(changes, refused)
     150 s.  A plan interval shorter than a control sample is refused when the scenario
     is read (exit 2 on the CLI), 0 (from the machine) and one sample upwards are not."""
     import tspend
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     base = tspend.load_scenario("pendulum_mujoco")
     changes = {"safety.filter": "mpsc", **changes}
@@ -288,7 +288,7 @@ def test_the_gym_env_refuses_an_action_that_is_not_a_number(action):
     """Item 19: ``env.step("0.5")`` and ``env.step(b"1")`` were read as numbers (numpy
     parses strings), where the runner refuses a controller's string."""
     pytest.importorskip("gymnasium")
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.gym import TspendEnv
 
     env = TspendEnv("pendulum_mujoco")
@@ -316,7 +316,7 @@ def test_mjx_says_out_of_memory_before_the_work(monkeypatch):
     reference tables, a batch's samples) and a shortfall is one line saying so."""
     pytest.importorskip("mujoco.mjx")
     import tspend
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.mjx import sweep as mjx_sweep
 
     scn = tspend.load_scenario("pendulum_mujoco")
@@ -346,7 +346,7 @@ def test_mjx_without_the_device_asked_for_is_one_line():
     pytest.importorskip("mujoco.mjx")
     import os
 
-    probe = ("from tspend.errors import ScenarioError\nfrom tspend.mjx import require\n"
+    probe = ("from tspend.runtime.errors import ScenarioError\nfrom tspend.mjx import require\n"
              "try:\n    require()\nexcept ScenarioError as exc:\n    print('REFUSED', exc)\n")
     env = dict(os.environ, JAX_PLATFORMS="no_such_platform")
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,

@@ -23,7 +23,7 @@ control = pytest.importorskip("control")
 
 import tspend
 from tspend import load_scenario
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants import registry
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ import pytest
 
 from tspend import load_scenario, override, run
 from tspend.cli.main import main
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import prepare
 from tspend.studies.cartpole_greybox import accelerations, machine_of
 from tspend.plants.cartpole import MujocoCartPole

@@ -18,7 +18,7 @@ pytest.importorskip("jax")
 pytest.importorskip("mujoco.mjx")
 
 import tspend  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 from tspend.scenario import load_scenario, override  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("casadi")
 
 from tspend import load_scenario, override, run  # noqa: E402
-from tspend.errors import ScenarioError  # noqa: E402
+from tspend.runtime.errors import ScenarioError  # noqa: E402
 
 
 def _filter(**changes):

@@ -18,7 +18,7 @@ import pytest
 
 from cartpole_oracle import ReferenceCartPole
 from tspend.studies.crosscheck_openloop import OpenLoopComparison, chirp_force, open_loop_compare
-from tspend.signals import SquareWave
+from tspend.config.signals import SquareWave
 
 _SQUARE = SquareWave(amplitude=0.05)
 
@@ -26,7 +26,7 @@ _SQUARE = SquareWave(amplitude=0.05)
 def square_disturbance(t: float) -> float:
     """The paper's +/-0.05 square wave of period 2 pi, at one time."""
     return float(_SQUARE(np.array([t]))[0])
-from tspend.errors import DivergenceError, ScenarioError
+from tspend.runtime.errors import DivergenceError, ScenarioError
 from cartpole_oracle import CartPoleParams, cartpole_ode_plant
 from tspend.plants.base import Plant
 from tspend.plants.cartpole import MujocoCartPole

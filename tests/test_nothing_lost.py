@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 import tspend
-from tspend.errors import TspendError
+from tspend.runtime.errors import TspendError
 from tspend.sweep import read_table
 from tspend.sweep.table import journal_path, lock_path
 
@@ -207,7 +207,7 @@ def test_api_raises_tspend_errors(call):
 
 def test_compare_json_replaced_only_when_complete(tmp_path):
     from tspend.runtime.outputs import write_atomic
-    from tspend.errors import OutputError
+    from tspend.runtime.errors import OutputError
 
     target = tmp_path / "c.json"
     target.write_text('{"old": true}\n')

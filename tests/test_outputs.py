@@ -21,7 +21,7 @@ from rerun.chunk import RrdReader
 
 from cli_harness import assert_intact, snapshot, spawn, tspend, user_files
 from tspend.runtime import outputs
-from tspend.errors import OutputError, ScenarioError
+from tspend.runtime.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, claim, plan_outputs
 from tspend.recorder import read_scalar_series
 from tspend.recorder.series import SAMPLES_ENTITY

@@ -171,7 +171,7 @@ def _small_plan(**change) -> "Plan":
     ("off its step", {"t": np.array([0.0, 0.001, 0.005, 0.006, 0.007])}, "not on its step"),
 ])
 def test_a_bad_plan_file_is_refused_on_load(tmp_path, label, change, phrase) -> None:
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     path = tmp_path / "bad.parquet"
     write_plan(_small_plan(**change), path)

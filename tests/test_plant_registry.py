@@ -8,9 +8,9 @@ import pytest
 
 from tspend import load_scenario, override
 from tspend.config import AnalyticPlantConfig
-from tspend.drawing.model import ModelDrawing
+from tspend.plants.drawing.model import ModelDrawing
 from tspend.plants.cartpole import CartPoleConfig, MujocoCartPoleConfig
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.registry import PLANT_KINDS
 from tspend.loop.simulation import build_plant, run_info
 

@@ -327,7 +327,7 @@ def test_a_cart_machine_is_drawn_on_its_rail_in_the_models_colours(tmp_path: Pat
     """The model's own geoms, a material's colour as MuJoCo renders it; the cart (a slide
     along x on a body of the world) found whatever comes first in the file, its box giving
     the rail's width and height; a machine without one has no rail."""
-    from tspend.drawing.model import ModelDrawing
+    from tspend.plants.drawing.model import ModelDrawing
     from tspend.plants.articulated.machine import load_machine
 
     mjcf = tmp_path / "cp.xml"

@@ -15,7 +15,7 @@ import pyarrow as pa
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from tspend.studies.timeseries import recording_table
+from tspend.recorder.timeseries import recording_table
 
 import tspend
 from tspend.cli.main import main

@@ -12,8 +12,8 @@ import pytest
 from scipy import signal
 
 from tspend import load_scenario, override, run
-from tspend.errors import ScenarioError
-from tspend.signals import CsvReference, StepSequence
+from tspend.runtime.errors import ScenarioError
+from tspend.config.signals import CsvReference, StepSequence
 
 
 def lsim_derivatives(t: np.ndarray, v: np.ndarray, n: int, w: float) -> np.ndarray:

@@ -18,7 +18,7 @@ from scipy.optimize import minimize
 
 from tspend.controllers.base import Observation
 from tspend.controllers.safety import SafetyFilter, barrier_rows
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import prepare, run
 from tspend.scenario import load_scenario, override
 

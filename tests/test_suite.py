@@ -16,7 +16,7 @@ import pytest
 
 from tspend import load_scenario, override
 from tspend.controllers import KINDS, unsupported
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import build_controller, build_plant, run
 from tspend.plants.registry import DOMAINS, PLANT_KINDS
 from tspend.recorder import RerunSink, close_recording, open_recording, read_scalar_series

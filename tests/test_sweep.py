@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 import tspend
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.sweep import plan
 from tspend.sweep.table import journal_path, read_table
 

@@ -22,17 +22,17 @@ from scipy.integrate import solve_ivp
 from cartpole_oracle import ReferenceCartPole
 from cli_harness import tspend
 from tspend.controllers.base import Controller, Observation
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import Prepared, build_plant, prepare, run, scenario_task
 from tspend.scenario import load_scenario, override
-from tspend.signals import NoDisturbance
+from tspend.config.signals import NoDisturbance
 from tspend.task import EXIT_TERMINATED, TERMINATIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT_RAIL = str(ROOT / "tests" / "models" / "cartpole_short_rail.xml")
 DT = 1e-3
 # the short-rail model's limits and ctrlrange are departures from the paper's ODE, warned about
-pytestmark = pytest.mark.filterwarnings("ignore::tspend.errors.ModelWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::tspend.runtime.errors.ModelWarning")
 
 
 class Constant(Controller):

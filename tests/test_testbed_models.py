@@ -20,9 +20,9 @@ import pytest
 from tspend import load_scenario, override, run
 from tspend.cli.main import main
 from tspend.studies.crosscheck import failure_reason, open_loop
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.mjcf import CartPoleParams
-from tspend.errors import ModelWarning
+from tspend.runtime.errors import ModelWarning
 from tspend.plants.cartpole import MujocoCartPole
 from tspend.loop.simulation import build_plant
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tspend import load_scenario, override
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.simulation import run
 
 from cli_harness import ROOT, tspend

@@ -120,7 +120,7 @@ def test_every_controller_field_is_a_declared_setting(tmp_path):
 
     from tspend.config import ControllerConfig
     from tspend.controllers.settings import key_of
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.scenario import load_scenario
 
     fields = dataclasses.fields(ControllerConfig)

@@ -80,7 +80,7 @@ def test_a_controller_without_diag_runs_from_the_command_line_and_from_python(tm
 
 
 def test_run_refuses_what_is_not_a_controller() -> None:
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     with pytest.raises(ScenarioError, match="not a Controller"):
         tspend.run("ex3_pendulum_ode", controller=dict, duration=0.1)

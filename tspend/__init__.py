@@ -70,17 +70,17 @@ def run(scenario="pendulum_mujoco", controller: str | None = None, seed: int | N
 
     Raises
     ------
-    tspend.errors.ScenarioError
+    tspend.runtime.errors.ScenarioError
         any bad input: no such scenario, an unknown controller kind or plug-in that
         cannot be loaded, an invalid override, seed or duration, an unknown option, a
-        model that cannot be built.  Every error is a :class:`tspend.errors.TspendError`.
-    tspend.errors.DivergenceError
+        model that cannot be built.  Every error is a :class:`tspend.runtime.errors.TspendError`.
+    tspend.runtime.errors.DivergenceError
         never: a run that diverges returns, with ``status`` ``"diverged"``.
     """
     from collections.abc import Mapping
 
     from tspend.config import Scenario
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.loop import simulation
     from tspend.scenario import load_scenario, override
 

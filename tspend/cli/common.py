@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from typing import Any, Iterable, Iterator, Sequence
 
 from tspend import __version__
-from tspend.errors import OutputError, ScenarioError, TspendError
+from tspend.runtime.errors import OutputError, ScenarioError, TspendError
 from tspend.runtime.interrupts import Interrupted, SignalGuard, StopRequest
 from tspend.runtime.outputs import (Output, OutputRequest, PlannedOutput, claim, display,
     plan_outputs)

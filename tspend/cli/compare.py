@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from tspend.cli.common import add_metrics_option
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -249,7 +249,7 @@ def cmd(args: argparse.Namespace) -> int:
     import json
 
     from tspend.cli.common import controller_help, write_json
-    from tspend.studies.stats import _json_number, markdown, to_json
+    from tspend.studies.stats import json_number, markdown, to_json
 
     if controller_help(args):
         return 0
@@ -272,7 +272,7 @@ def cmd(args: argparse.Namespace) -> int:
         doc = to_json(comp)
         if tuned is not None:
             doc["tuned"] = [dict(scenario=scn, controller=kind, values=r.values,
-                                 train_score=_json_number(r.train_score), trials=r.trials,
+                                 train_score=json_number(r.train_score), trials=r.trials,
                                  train_seeds=r.train_seeds, metric=r.metric)
                             for (scn, kind), r in tuned.items()]
         doc["seeds"] = opts["seeds"]

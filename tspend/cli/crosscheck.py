@@ -9,7 +9,7 @@ from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_OK, EXIT_TOLERANCE, Claime
     load_with_overrides, plan, printable, recording_request, release_warnings, say,
     scenario_inputs)
 from tspend.cli.run import close_sinks, open_sinks
-from tspend.errors import OutputError, ScenarioError
+from tspend.runtime.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
 
 

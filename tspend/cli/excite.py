@@ -19,7 +19,7 @@ import json
 import math
 
 from tspend.cli.common import EXIT_OK, finite, plan
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.outputs import OutputRequest, display
 
 

@@ -2,7 +2,7 @@
 table: ``t_s``, then every state and its derivative, the reference and its derivatives,
 the input, the disturbance and the controller's series, each named by the model (the
 joint's name, the unit at the end: ``hinge_rad``, ``hinge_dot_rad_s``, ``slider_m``,
-``u_N``; :func:`tspend.studies.timeseries.recording_table`), as
+``u_N``; :func:`tspend.recorder.timeseries.recording_table`), as
 :meth:`tspend.loop.simulation.RunResult.to_pandas` and the metrics name them.
 
 The run's scenario, seed and controller go into the Parquet schema's metadata (key
@@ -19,7 +19,7 @@ import json
 import os
 from pathlib import Path
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 FORMATS = (".parquet", ".csv")
 #: the suffix of a CSV's metadata file, beside it
@@ -78,7 +78,7 @@ def csv_metadata(table, metadata: dict[str, dict]) -> dict:
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.studies.timeseries import recording_table
+    from tspend.recorder.timeseries import recording_table
 
     if args.out is None:
         raise ScenarioError("--out PATH.parquet|PATH.csv: required (the table to write)")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.extras import EXTRAS, missing_extra
 
 __all__ = ["EXTRAS", "KIND_NEEDS", "missing_extra", "needed", "check_needed"]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

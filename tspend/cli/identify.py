@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 
 from tspend.cli.common import EXIT_OK, bounded_int, finite, plan, say
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.bounds import MAX_BOOTSTRAP, MAX_SEED, MIN_SEGMENT_SAMPLES
 from tspend.runtime.outputs import OutputRequest, display
 

@@ -106,7 +106,7 @@ def contacts_at_rest(model: str) -> list[str]:
 def _domain_of(model: str):
     """The domain whose machine the MJCF looks like (ScenarioError: none, unreadable, or
     past the size bounds of docs/reliability.md)."""
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.runtime.model_file import read_spec
     from tspend.plants.registry import DOMAINS
 

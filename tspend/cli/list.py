@@ -9,7 +9,7 @@ import shutil
 import textwrap
 
 from tspend.cli.common import DEFAULT_SCENARIO, EXIT_OK, printable
-from tspend.errors import TspendError
+from tspend.runtime.errors import TspendError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -46,7 +46,7 @@ if _EARLY_GUARD is not None:
 from tspend import __version__  # noqa: E402 - after the guard, on purpose
 from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,  # noqa: E402
                                ReaderGoneTolerant, release_warnings, say)
-from tspend.errors import TspendError  # noqa: E402
+from tspend.runtime.errors import TspendError  # noqa: E402
 from tspend.shipped import SCENARIO_PATH_VARIABLE  # noqa: E402
 
 

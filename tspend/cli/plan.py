@@ -50,7 +50,7 @@ def cmd(args: argparse.Namespace) -> int:
     from tspend.controllers.trajectory import (PlanFailed, check_plan_input,
                                                plan_swingup, write_plan)
     from tspend.controllers.tvlqr import plan_of
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.loop.simulation import build_plant, nominal_machine
 
     scn = load_with_overrides(args)

@@ -33,7 +33,7 @@ def cmd(args: argparse.Namespace) -> int:
     if args.twin is not None:
         from pathlib import Path
 
-        from tspend.errors import OutputError
+        from tspend.runtime.errors import OutputError
 
         if Path(args.twin).exists():
             raise OutputError(f"--twin {printable(args.twin)}: exists; nothing is overwritten")

@@ -106,7 +106,7 @@ class RigRun:
         from tspend.rig.closed_loop import run_on_rig
         from tspend.rig.estimator import VelocityEstimator
         from tspend.rig.runner import RigPlant, session_settings
-        from tspend.scenario_toml import dump_toml, resolved_document
+        from tspend.scenario.writer import dump_toml, resolved_document
 
         estimator = VelocityEstimator(self.args.velocity_tau_ms * 1e-3)
         settings = session_settings(self.session, scn.run.duration, self.args.miss_policy,
@@ -166,7 +166,7 @@ def _listen(url: str):
     """The double's transport for ``--listen``."""
     import urllib.parse
 
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.rig.double import SerialServer, UdpServer
     from tspend.rig.links import BAUD_RANGE
 
@@ -190,7 +190,7 @@ def build_double(args: argparse.Namespace, scn):
 
     import numpy as np
 
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.loop.simulation import build_plant
     from tspend.rig.double import Faults, SimulatedRig, u_limit_of
     from tspend.rig.protocol import MAX_JOINTS, Hello
@@ -233,7 +233,7 @@ def cmd(args: argparse.Namespace) -> int:
     logs = [_log_path(args.log, i + 1) for i in range(args.sessions)] if args.log else []
     for path in logs:
         if path.exists():
-            from tspend.errors import OutputError
+            from tspend.runtime.errors import OutputError
 
             raise OutputError(f"--log {printable(path)}: exists; the double never replaces a file")
     double = build_double(args, scn)

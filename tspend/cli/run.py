@@ -12,7 +12,7 @@ from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIV
     add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
-from tspend.errors import OutputError, ScenarioError
+from tspend.runtime.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
 
 
@@ -27,13 +27,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "'tspend run --controller help' lists the kinds")
     r.add_argument("--metrics", metavar="PATH.json",
                    help="write the metrics as one JSON object (replaced only by a complete one)")
-    r.add_argument("--safety", choices=("off", "cbf", "mpsc"),
+    r.add_argument("--safety", metavar="FILTER",
                    help="run the controller behind a safety filter: 'cbf', a control barrier "
                         "function QP keeping the task's constraints; 'mpsc', predictive "
                         "safety certification: the input passes only when a backup plan "
                         "keeps every constraint and the fall angle and ends in the "
-                        "balancing LQR's safe set (same as --set safety.filter=NAME; "
-                        "docs/safety.md)")
+                        "balancing LQR's safe set; 'off' (the default) none (same as "
+                        "--set safety.filter=FILTER; docs/safety.md; e.g. --safety cbf)")
     from tspend.cli.rig import add_rig_options
 
     add_rig_options(r)

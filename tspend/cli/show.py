@@ -24,7 +24,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd(args: argparse.Namespace) -> int:
-    from tspend.scenario_toml import resolved_toml
+    from tspend.scenario.writer import resolved_toml
 
     scn = load_with_overrides(args)
     text = resolved_toml(scn)

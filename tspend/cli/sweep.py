@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(sub) -> None:

@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -35,10 +35,11 @@ from tspend.controllers import mpc
 from tspend.controllers import tvlqr
 from tspend.controllers import policy
 from tspend.controllers import excitation
+from tspend.controllers import mpsc, safety
 from tspend.controllers.base import Controller, Diagnostic
 from tspend.controllers.paper.controller import AdaptiveFuzzyController, FirstTypeController
 from tspend.controllers.settings import KindSettings
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime import plugins
 
 if TYPE_CHECKING:
@@ -55,6 +56,24 @@ KINDS: dict[str, type[Controller]] = {cls.kind: cls for cls in (
     sliding_mode.SlidingModeController, wang_indirect.WangIndirectController,
     swingup.SwingUpController, mpc.MPCController, tvlqr.TVLQRController,
     policy.PolicyController, excitation.ExcitedController)}
+
+
+@dataclass(frozen=True)
+class SafetyFilterKind:
+    """A safety filter ``[safety] filter`` names: its class (whose ``FILTER`` is the name)
+    and ``wrap(scenario, controller, machine)``, which puts it around a controller."""
+
+    cls: type[safety.SafetyFilter]
+    wrap: Callable[..., safety.SafetyFilter]
+
+
+#: safety filter name -> the filter, the one registry of safety filters (docs/safety.md);
+#: ``[safety] filter`` takes "off" or one of these names
+SAFETY_FILTERS: dict[str, SafetyFilterKind] = {f.cls.FILTER: f for f in (
+    SafetyFilterKind(safety.SafetyFilter, safety.wrap),
+    SafetyFilterKind(mpsc.PredictiveSafetyFilter, mpsc.wrap))}
+#: what ``[safety] filter`` and ``--safety`` accept
+SAFETY_CHOICES = ("off", *SAFETY_FILTERS)
 
 
 def _table_settings(cls: type[Controller]) -> type | None:
@@ -142,19 +161,15 @@ def resolve(spec: str, option: str = "--controller") -> Kind:
     if spec in KINDS:
         cls = KINDS[spec]
         return Kind(spec, cls.from_scenario, _table_settings(cls), _summary(spec), "", cls)
-    from tspend.controllers.safety import SUFFIX
-
-    if spec.endswith(SUFFIX) and len(spec) > len(SUFFIX):
+    if spec.endswith(safety.SUFFIX) and len(spec) > len(safety.SUFFIX):
         # ``pd+cbf``: the kind behind the safety filter (docs/safety.md)
-        base = resolve(spec[:-len(SUFFIX)], option)
+        base = resolve(spec[:-len(safety.SUFFIX)], option)
 
         def filtered(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
-            from tspend.controllers.safety import SafetyFilter, wrap
-
             ctrl = base.build(scenario, machine)
-            return ctrl if isinstance(ctrl, SafetyFilter) else wrap(scenario, ctrl, machine)
+            return ctrl if isinstance(ctrl, safety.SafetyFilter) else safety.wrap(scenario, ctrl, machine)
 
-        return replace(base, name=base.name + SUFFIX, build=filtered,
+        return replace(base, name=base.name + safety.SUFFIX, build=filtered,
                        summary=f"{base.summary} (behind the CBF safety filter)")
     if plugins.is_spec(spec):
         return _plugin_kind(plugins.load_object(spec, option), spec, option)
@@ -207,11 +222,9 @@ def needs_machine(scenario: "Scenario", kind: str | None = None) -> bool:
     scenario's own) for ``scenario`` designs on a model of the plant, so the runner must
     hand it the nominal machine: a built-in kind that needs a model of the plant's domain,
     the ``excited`` kind around one, and any kind behind the safety filter."""
-    from tspend.controllers.safety import SUFFIX
-
     if kind is None:
         kind = scenario.run.controller or None
-    if scenario.safety.filter in ("cbf", "mpsc") or (kind or "").endswith(SUFFIX):
+    if scenario.safety.filter in SAFETY_FILTERS or (kind or "").endswith(safety.SUFFIX):
         return True
     cls = KINDS.get(kind or "")
     if cls is excitation.ExcitedController:
@@ -269,8 +282,17 @@ def available() -> list[Kind]:
             summary = found.summary + (f" (kind {found.name})" if found.name != name else "")
             kinds.append(replace(found, name=name, summary=summary))
         except ScenarioError as exc:
-            kinds.append(Kind(name, lambda s: None, None, f"(cannot be loaded: {exc})"))  # type: ignore[arg-type, return-value]
+            kinds.append(Kind(name, _unloadable(f"--controller {name}: {exc}"), None,
+                              f"(cannot be loaded: {exc})"))
     return kinds
+
+
+def _unloadable(message: str) -> Callable[..., Controller]:
+    """The builder of a listed plug-in that cannot be loaded: it refuses in one line."""
+    def build(scenario: "Scenario", machine: "Plant | None" = None) -> Controller:
+        raise ScenarioError(message)
+
+    return build
 
 
 def _plain_text(text: str) -> str:
@@ -286,7 +308,8 @@ def help_text() -> str:
     lines = [f"{k.name:<{width}}  {_plain_text(k.summary)}" for k in kinds]
     lines.append(f"{'FILE.py:Class':<{width}}  your own controller (docs/writing-a-controller.md;"
                  f" also package.module:Class)")
-    lines.append(f"{'KIND+cbf':<{width}}  any kind behind the CBF safety filter (docs/safety.md)")
+    lines.append(f"{'KIND' + safety.SUFFIX:<{width}}  any kind behind the CBF safety filter "
+                 f"(docs/safety.md)")
     return "\n".join(lines) + "\n"
 
 
@@ -299,8 +322,8 @@ def settings_class(name: str) -> type | None:
     """
     if name in KINDS:
         return _table_settings(KINDS[name])
-    if name.endswith("+cbf") and name != "+cbf":
-        return settings_class(name[:-len("+cbf")])
+    if name.endswith(safety.SUFFIX) and name != safety.SUFFIX:
+        return settings_class(name[:-len(safety.SUFFIX)])
     if name in _LOADED:
         return _LOADED[name]
     if name in plugins.entry_point_names(ENTRY_POINT_GROUP):
@@ -385,22 +408,16 @@ def build(scenario: "Scenario", kind: str | None = None,
           machine: "Plant | None" = None) -> Controller:
     """The controller ``kind`` for ``scenario`` (``None``: the scenario's own controller),
     behind the safety filter when the scenario's ``[safety]`` asks for one (or the kind is
-    spelled ``KIND+cbf``: :mod:`tspend.controllers.safety`; ``filter = "mpsc"``:
-    :mod:`tspend.controllers.mpsc`).
+    spelled ``KIND+cbf``): the filter :data:`SAFETY_FILTERS` names.
 
     ``kind`` is any spec :func:`resolve` accepts; ``machine`` the nominal machine the
     runner built for a kind that designs on one (:func:`needs_machine`;
     :func:`tspend.loop.simulation.nominal_machine`).
     """
     ctrl = _build(scenario, kind, machine)
-    if scenario.safety.filter in ("cbf", "mpsc"):
-        from tspend.controllers.safety import SafetyFilter, wrap
-
-        if scenario.safety.filter == "mpsc":
-            from tspend.controllers.mpsc import wrap  # noqa: F811 - the predictive filter's
-
-        if not isinstance(ctrl, SafetyFilter):
-            ctrl = wrap(scenario, ctrl, machine)
+    chosen = SAFETY_FILTERS.get(scenario.safety.filter)
+    if chosen is not None and not isinstance(ctrl, safety.SafetyFilter):
+        ctrl = chosen.wrap(scenario, ctrl, machine)
     return ctrl
 
 

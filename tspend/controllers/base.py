@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, NamedTuple
 import numpy as np
 
 if TYPE_CHECKING:
-    from tspend.constraints import ConstraintSet
+    from tspend.task.constraints import ConstraintSet
     from tspend.plants.domain import Domain
 
 __all__ = ["CompiledController", "Controller", "Diagnostic", "Observation", "RESERVED", "chain_observation",
@@ -115,7 +115,7 @@ class Observation(NamedTuple):
     and its derivatives; ``names`` the full state's names.  The arrays are read-only views
     of the runner's (writing into one raises ``ValueError``): a controller that keeps one
     must copy it.  ``constraints``: the task's constraints over the full state and the
-    input (:class:`tspend.constraints.ConstraintSet`: boxes and linear inequalities, each
+    input (:class:`tspend.task.constraints.ConstraintSet`: boxes and linear inequalities, each
     hard or soft, with their margins at any state; None when the caller has no task).
     """
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from tspend.controllers.base import Controller, Diagnostic, Observation
 from tspend.controllers.settings import KindSettings, setting, settings_for
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant

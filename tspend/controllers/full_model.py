@@ -21,13 +21,13 @@ import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.domain import FULL_STATE, FD_STEP, FullModel, wrap_angle
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
     from tspend.plants.base import Plant
-    from tspend.constraints import ConstraintSet
+    from tspend.task.constraints import ConstraintSet
 
 __all__ = ["FullModel", "full_model", "full_model_and_constraints", "has_full_state",
            "wrap_angle", "FD_STEP"]

@@ -61,7 +61,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from numba import njit
 from numba.extending import register_jitable
 
@@ -365,7 +365,7 @@ def default_state_weights(model: "FullModel") -> np.ndarray:
 
 def reference_omega_of(scenario: "Scenario") -> float:
     """The scenario's sine reference's frequency (0 for any other reference)."""
-    from tspend.signals import Sine
+    from tspend.config.signals import Sine
 
     ref = scenario.reference
     return float(ref.omega) if isinstance(ref, Sine) else 0.0

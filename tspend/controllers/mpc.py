@@ -19,7 +19,7 @@ whose ``accel_factory`` is the domain's equations over CasADi's sin, cos, tanh, 
 model is the simulated machine, not a copy.  The bounds (the actuator's range, the
 positions' ranges: a rail, a joint's range, a task's state bound) are the domain's too
 (:func:`.full_model.full_model`).  With ``constraints = true`` (the default) the OCP
-also keeps the run's constraint set (:mod:`tspend.constraints`, the ``ConstraintSet`` the
+also keeps the run's constraint set (:mod:`tspend.task.constraints`, the ``ConstraintSet`` the
 run measures, ``Observation.constraints``): a hard box on a position is a bound on the
 predicted states (M2), like the rail; a box on the input narrows ``u_lo, u_hi``; every
 other row (a hard box on a velocity: a measured speed at its bound would leave no
@@ -61,7 +61,7 @@ import io
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -70,16 +70,17 @@ from tspend.plants.domain import FULL_STATE, SYMBOLIC
 from tspend.controllers.full_model import FullModel, wrap_angle
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.mpc_rti import QP_SOLVERS, RealTimeSQP
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.bounds import MAX_MPC_HORIZON, MAX_MPC_SUBSTEPS
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
     from tspend.config import Scenario
     from tspend.controllers.lqr import FullStateLQR
-    from tspend.constraints import ConstraintSet
+    from tspend.task.constraints import ConstraintSet
 
-__all__ = ["MPCSettings", "MPCController", "SCHEMES", "build", "ocp_constraints"]
+__all__ = ["MPCDesign", "MPCSettings", "MPCController", "SCHEMES", "build", "design",
+           "ocp_constraints"]
 
 #: how each sample's problem is solved (:attr:`MPCSettings.scheme`)
 SCHEMES = ("ipopt", "rti", "sqp")
@@ -151,126 +152,22 @@ class MPCController(Controller):
                   "failed or late solves counted, never silent; no stability proof, no "
                   "recursive feasibility")
 
-    def __init__(self, model: FullModel, settings: MPCSettings, lqr: "FullStateLQR",
-                 Q: np.ndarray, R: float, order: int,
-                 constraints: "ConstraintSet | None" = None) -> None:
-        import casadi
-
-        self.model, self.s, self.lqr = model, settings, lqr
-        self.order = order
-        self.sample_period = settings.period
-        self.Q, self.R = np.asarray(Q, dtype=float), float(R)
-        N, nx, h = settings.horizon, model.size, settings.period
-        # F: substeps RK4 steps over h (u held): the same hold the plant sees
-        F = model.rk4_map(h, settings.substeps, name="F")
-        self.N, self.nx = N, nx
-        lo_s, hi_s, u_lo, u_hi = self._bounds(constraints if settings.constraints else None)
-        C, D, b, sel = self.rows
-        ns = sel.shape[1]
-        S = casadi.SX.sym("S", nx, N + 1)
-        U = casadi.SX.sym("U", 1, N)
-        E = casadi.SX.sym("E", ns, N)
-        s0 = casadi.SX.sym("s0", nx)
-        Sr = casadi.SX.sym("Sr", nx, N + 1)
-        Ur = casadi.SX.sym("Ur", 1, N)
-        Qm, P = casadi.DM(self.Q), casadi.DM(lqr.P)
-        #: the QP solver the rti and sqp schemes use (``solver``, "auto" resolved)
-        self.qp_solver = settings.solver
-        if settings.solver == "auto":
-            self.qp_solver = "hpipm" if ns else "qrqp"
-        elif settings.solver == "qrqp" and ns and settings.scheme != "ipopt":
-            # measured: with (M3)'s rows active qrqp (CasADi 3.8.2) stalls at its iteration
-            # limit or reports success on answers metres outside them
-            raise ScenarioError(f"controllers.mpc.solver: qrqp cannot take the task's soft "
-                                f"constraints ({', '.join(self.soft_names)}: rows with slacks "
-                                f"in the OCP); allowed: auto, hpipm, daqp, osqp, or "
-                                f"controllers.mpc.constraints = false")
-        rho = settings.slack_weight
-        cost, g = 0, [S[:, 0] - s0]
-        rows = []
-        for k in range(N):
-            e = S[:, k] - Sr[:, k]
-            # h x the stage: a rectangle sum of the LQR's integral cost, so P is its tail
-            cost += h * (casadi.mtimes([e.T, Qm, e]) + self.R * (U[0, k] - Ur[0, k]) ** 2)
-            g.append(S[:, k + 1] - F(S[:, k], U[0, k]))
-            if ns:
-                # (M3) and its exact penalty (M1)
-                cost += rho * casadi.sum1(E[:, k]) + _SLACK_QUADRATIC * casadi.sumsqr(E[:, k])
-                rows.append(casadi.mtimes(casadi.DM(C), S[:, k]) + casadi.DM(D) * U[0, k]
-                            - casadi.mtimes(casadi.DM(sel), E[:, k]))
-        eN = S[:, N] - Sr[:, N]
-        cost += casadi.mtimes([eN.T, P, eN])
-        # decision vector: [S (column by column), U, E (column by column)]; the constraints:
-        # the shooting equalities, then (M3)'s rows stage by stage
-        w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1),
-                           casadi.reshape(E, -1, 1))
-        p = casadi.vertcat(s0, casadi.reshape(Sr, -1, 1), casadi.reshape(Ur, -1, 1))
-        nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g, *rows)}
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tolerance}
-        self.solver = (casadi.nlpsol("mpc", "ipopt", nlp, opts)
-                       if settings.scheme == "ipopt" else None)
-        self.ns = ns
-        self.lbg = np.concatenate([np.zeros(nx * (N + 1)), np.full(N * len(b), -np.inf)])
-        self.ubg = np.concatenate([np.zeros(nx * (N + 1)), np.tile(b, N)])
-        # bounds on the decision vector (the first state's are moot: s_0 = s(t))
-        self.lbx = np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo), np.zeros(N * ns)])
-        self.ubx = np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi),
-                                   np.full(N * ns, _FREE)])
-        self.state_lo, self.state_hi, self.u_lo, self.u_hi = lo_s, hi_s, u_lo, u_hi
-        self.rti: RealTimeSQP | None = None
-        nz = nx + 1 + ns
-        self.nz = nz
-        if settings.scheme != "ipopt":
-            # the same cost's Hessian stage by stage: (x_k, u_k, e_k), then x_N
-            stage = np.zeros((nz, nz))
-            stage[:nx, :nx], stage[nx, nx] = 2.0 * h * self.Q, 2.0 * h * self.R
-            stage[nx + 1:, nx + 1:] = 2.0 * _SLACK_QUADRATIC * np.eye(ns)
-            inf_lo = np.where(lo_s <= -_FREE, -np.inf, lo_s)
-            inf_hi = np.where(hi_s >= _FREE, np.inf, hi_s)
-            ulo = u_lo if u_lo > -_FREE else -np.inf
-            uhi = u_hi if u_hi < _FREE else np.inf
-            z_lo = np.concatenate([np.tile(np.concatenate([inf_lo, [ulo], np.zeros(ns)]), N),
-                                   inf_lo])
-            z_hi = np.concatenate([np.tile(np.concatenate([inf_hi, [uhi], np.full(ns, np.inf)]),
-                                           N), inf_hi])
-            G = np.hstack([C, D[:, None], -sel])
-            self.rti = RealTimeSQP(F, nx, N, stage, 2.0 * np.asarray(lqr.P, dtype=float),
-                                   z_lo, z_hi, self.qp_solver, settings.compiled,
-                                   stage_rows=G, stage_bound=b,
-                                   stage_gradient=np.concatenate([np.zeros(nx + 1),
-                                                                  np.full(ns, rho)]),
-                                   nz=nz)
-        self._reference_map = self._linear_reference_map()
+    def __init__(self, design: "MPCDesign") -> None:
+        # stores the design (:func:`design`): the OCP and its solvers are made there, once
+        d = design
+        self.design, self.model, self.s, self.lqr = d, d.model, d.settings, d.lqr
+        self.order, self.sample_period = d.order, d.settings.period
+        self.Q, self.R, self.rows, self.soft_names = d.Q, d.R, d.rows, d.soft_names
+        self.qp_solver, self.solver, self.rti = d.qp_solver, d.nlp_solver, d.rti
+        self.lbx, self.ubx, self.lbg, self.ubg = d.lbx, d.ubx, d.lbg, d.ubg
+        self.state_lo, self.state_hi, self.u_lo, self.u_hi = d.state_lo, d.state_hi, d.u_lo, d.u_hi
+        self._reference_map = d.reference_map
+        self.N, self.nx, self.ns = d.settings.horizon, d.model.size, d.rows[3].shape[1]
+        self.nz, self.ng = self.nx + 1 + self.ns, self.nx * (self.N + 1)
         self._u_ref = 0.0
-        self.ng = nx * (N + 1)
-        self.diagnostics = diagnostics(
-            ("solve_ms", 1, {"panel": "solver", "unit": "ms",
-                             "description": "wall time of this sample's NLP solve "
-                                            "(rti, sqp: of the whole sample)"}),
-            ("solve_failures", 1, {"panel": "counters",
-                                   "description": "solves that did not succeed, so far"}),
-            ("solve_overruns", 1, {"panel": "counters",
-                                   "description": "solves longer than the period, so far"}),
-            ("iterations", 1, {"panel": "solver",
-                               "description": "IPOPT iterations (rti, sqp: SQP steps)"}),
-            ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}),
-            # the CPU time this thread spent on the sample: on a loaded machine the wall
-            # time also counts waits for a core, which no solver can shorten
-            ("solve_cpu_ms", 1, {"panel": "solver", "unit": "ms",
-                                 "description": "this thread's CPU time in the sample's solve"}),
-            ("solve_cpu_overruns", 1, {"panel": "counters",
-                                       "description": "solves whose CPU time exceeded the "
-                                                      "period, so far"}))
+        self.diagnostics = DIAGNOSTICS
         self.diag = np.zeros(diag_width(self.diagnostics))
         self.reset(None)
-
-    def _bounds(self, cs: "ConstraintSet | None") -> tuple[np.ndarray, np.ndarray, float, float]:
-        """``(state lo, state hi, u_lo, u_hi)`` of (M2) and the input, with ``self.rows =
-        (C, D, b, S)`` of (M3) and ``self.soft_names``: :func:`ocp_constraints`."""
-        lo_s, hi_s, u_lo, u_hi, self.rows, self.soft_names = ocp_constraints(
-            self.model, cs, self.s.margin)
-        return lo_s, hi_s, u_lo, u_hi
 
     def reset(self, rng: np.random.Generator | None) -> None:
         self.w0: np.ndarray | None = None
@@ -285,19 +182,6 @@ class MPCController(Controller):
         self.z: np.ndarray | None = None
         if self.rti is not None:
             self.rti.reset()
-
-    def _linear_reference_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """``(E_s, c_s, e_u, c_u)``: the LQR's ``reference_state`` is affine in the
-        reference row, ``s_r = E_s row + c_s``, ``u_r = e_u . row + c_u``; read off it once
-        so that the horizon's references are two matrix products per sample."""
-        s_c, u_c = self.lqr.reference_state(np.zeros(3))
-        E_s, e_u = np.empty((self.nx, 3)), np.empty(3)
-        for i in range(3):
-            row = np.zeros(3)
-            row[i] = 1.0
-            s_i, u_i = self.lqr.reference_state(row)
-            E_s[:, i], e_u[i] = s_i - s_c, u_i - u_c
-        return E_s, np.asarray(s_c, dtype=float), e_u, float(u_c)
 
     def references(self, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(S_r (nx, N+1), U_r (N,))`` over the horizon from the reference row now."""
@@ -437,12 +321,187 @@ class MPCController(Controller):
         return {}
 
 
-def ocp_constraints(model: FullModel, cs: "ConstraintSet | None", margin: float) -> tuple:
-    """``(state lo, state hi, u_lo, u_hi, (C, D, b, S), soft_names)``: the bounds of (M2)
-    and the input, the rows of (M3) (S: each row's slack, one per constraint) and the
-    constraints (M3) keeps, in slack order, from the model's bounds and the constraint
-    set ``cs`` (None: the model's bounds only); every box keeps ``margin`` (also the
-    predictive safety filter's, :mod:`.mpsc`)."""
+#: what the mpc kind shows each sample (its panels in a recording)
+DIAGNOSTICS = diagnostics(
+    ("solve_ms", 1, {"panel": "solver", "unit": "ms",
+                     "description": "wall time of this sample's NLP solve "
+                                    "(rti, sqp: of the whole sample)"}),
+    ("solve_failures", 1, {"panel": "counters",
+                           "description": "solves that did not succeed, so far"}),
+    ("solve_overruns", 1, {"panel": "counters",
+                           "description": "solves longer than the period, so far"}),
+    ("iterations", 1, {"panel": "solver",
+                       "description": "IPOPT iterations (rti, sqp: SQP steps)"}),
+    ("u_ref", 1, {"panel": "control", "description": "feedforward u_r"}),
+    # the CPU time this thread spent on the sample: on a loaded machine the wall
+    # time also counts waits for a core, which no solver can shorten
+    ("solve_cpu_ms", 1, {"panel": "solver", "unit": "ms",
+                         "description": "this thread's CPU time in the sample's solve"}),
+    ("solve_cpu_overruns", 1, {"panel": "counters",
+                               "description": "solves whose CPU time exceeded the "
+                                              "period, so far"}))
+
+
+@dataclass(frozen=True)
+class MPCDesign:
+    """What the mpc kind designs once on the nominal machine (:func:`design`): the OCP's
+    weights, bounds and rows and its compiled solvers; :class:`MPCController` runs over it."""
+
+    model: FullModel
+    settings: MPCSettings
+    lqr: "FullStateLQR"
+    Q: np.ndarray
+    R: float
+    order: int
+    #: (C, D, b, S) of (M3) and the soft rows' names (:func:`ocp_constraints`)
+    rows: tuple
+    soft_names: tuple[str, ...]
+    #: the QP solver the rti and sqp schemes use (``solver``, "auto" resolved)
+    qp_solver: str
+    #: IPOPT on the NLP (scheme ipopt), else None
+    nlp_solver: Any
+    #: the rti and sqp schemes' SQP (:mod:`.mpc_rti`), else None
+    rti: RealTimeSQP | None
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    state_lo: np.ndarray
+    state_hi: np.ndarray
+    u_lo: float
+    u_hi: float
+    #: (E_s, c_s, e_u, c_u) of :func:`linear_reference_map`
+    reference_map: tuple
+
+
+def design(model: FullModel, settings: MPCSettings, lqr: "FullStateLQR", Q: np.ndarray,
+           R: float, order: int, constraints: "ConstraintSet | None" = None) -> MPCDesign:
+    """The mpc kind's :class:`MPCDesign` on ``model`` (the nominal machine's): (M2)'s bounds
+    and (M3)'s rows (:func:`ocp_constraints`), the NLP or the SQP over ``F``, the RK4 map
+    of one period (the hold the plant sees), and the LQR's terminal cost and references."""
+    Q, R = np.asarray(Q, dtype=float), float(R)
+    N, nx = settings.horizon, model.size
+    lo_s, hi_s, u_lo, u_hi, rows, soft_names = ocp_constraints(
+        model, constraints if settings.constraints else None, settings.margin)
+    b, ns = rows[2], rows[3].shape[1]
+    qp_solver = _qp_solver(settings, ns, soft_names)
+    F = model.rk4_map(settings.period, settings.substeps, name="F")
+    nlp_solver = rti = None
+    if settings.scheme == "ipopt":
+        nlp_solver = _ipopt_solver(F, settings, Q, R, np.asarray(lqr.P, dtype=float), rows, nx)
+    else:
+        rti = _sqp_solver(F, settings, Q, R, np.asarray(lqr.P, dtype=float), rows,
+                          (lo_s, hi_s, u_lo, u_hi), qp_solver, nx)
+    return MPCDesign(
+        model=model, settings=settings, lqr=lqr, Q=Q, R=R, order=order, rows=rows,
+        soft_names=soft_names, qp_solver=qp_solver, nlp_solver=nlp_solver, rti=rti,
+        # bounds on the decision vector (the first state's are moot: s_0 = s(t))
+        lbx=np.concatenate([np.tile(lo_s, N + 1), np.full(N, u_lo), np.zeros(N * ns)]),
+        ubx=np.concatenate([np.tile(hi_s, N + 1), np.full(N, u_hi), np.full(N * ns, _FREE)]),
+        lbg=np.concatenate([np.zeros(nx * (N + 1)), np.full(N * len(b), -np.inf)]),
+        ubg=np.concatenate([np.zeros(nx * (N + 1)), np.tile(b, N)]),
+        state_lo=lo_s, state_hi=hi_s, u_lo=u_lo, u_hi=u_hi,
+        reference_map=linear_reference_map(lqr, nx))
+
+
+def _qp_solver(settings: MPCSettings, ns: int, soft_names: tuple[str, ...]) -> str:
+    """``solver`` with "auto" resolved: hpipm when the OCP has soft rows, else qrqp."""
+    if settings.solver == "auto":
+        return "hpipm" if ns else "qrqp"
+    if settings.solver == "qrqp" and ns and settings.scheme != "ipopt":
+        # measured: with (M3)'s rows active qrqp (CasADi 3.8.2) stalls at its iteration
+        # limit or reports success on answers metres outside them
+        raise ScenarioError(f"controllers.mpc.solver: qrqp cannot take the task's soft "
+                            f"constraints ({', '.join(soft_names)}: rows with slacks "
+                            f"in the OCP); allowed: auto, hpipm, daqp, osqp, or "
+                            f"controllers.mpc.constraints = false")
+    return settings.solver
+
+
+def _ipopt_solver(F: Any, settings: MPCSettings, Q: np.ndarray, R: float, P: np.ndarray,
+                  rows: tuple, nx: int) -> Any:
+    """IPOPT on the whole NLP: multiple shooting over ``F``, (M1)'s cost and (M3)'s rows."""
+    import casadi
+
+    N, h, rho = settings.horizon, settings.period, settings.slack_weight
+    C, D, _, sel = rows
+    ns = sel.shape[1]
+    S = casadi.SX.sym("S", nx, N + 1)
+    U = casadi.SX.sym("U", 1, N)
+    E = casadi.SX.sym("E", ns, N)
+    s0 = casadi.SX.sym("s0", nx)
+    Sr = casadi.SX.sym("Sr", nx, N + 1)
+    Ur = casadi.SX.sym("Ur", 1, N)
+    Qm = casadi.DM(Q)
+    cost, g = 0, [S[:, 0] - s0]
+    stage_rows = []
+    for k in range(N):
+        e = S[:, k] - Sr[:, k]
+        # h x the stage: a rectangle sum of the LQR's integral cost, so P is its tail
+        cost += h * (casadi.mtimes([e.T, Qm, e]) + R * (U[0, k] - Ur[0, k]) ** 2)
+        g.append(S[:, k + 1] - F(S[:, k], U[0, k]))
+        if ns:
+            # (M3) and its exact penalty (M1)
+            cost += rho * casadi.sum1(E[:, k]) + _SLACK_QUADRATIC * casadi.sumsqr(E[:, k])
+            stage_rows.append(casadi.mtimes(casadi.DM(C), S[:, k]) + casadi.DM(D) * U[0, k]
+                              - casadi.mtimes(casadi.DM(sel), E[:, k]))
+    eN = S[:, N] - Sr[:, N]
+    cost += casadi.mtimes([eN.T, casadi.DM(P), eN])
+    # decision vector: [S (column by column), U, E (column by column)]; the constraints:
+    # the shooting equalities, then (M3)'s rows stage by stage
+    w = casadi.vertcat(casadi.reshape(S, -1, 1), casadi.reshape(U, -1, 1),
+                       casadi.reshape(E, -1, 1))
+    p = casadi.vertcat(s0, casadi.reshape(Sr, -1, 1), casadi.reshape(Ur, -1, 1))
+    nlp = {"x": w, "p": p, "f": cost, "g": casadi.vertcat(*g, *stage_rows)}
+    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+            "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tolerance}
+    return casadi.nlpsol("mpc", "ipopt", nlp, opts)
+
+
+def _sqp_solver(F: Any, settings: MPCSettings, Q: np.ndarray, R: float, P: np.ndarray,
+                rows: tuple, bounds: tuple, qp_solver: str, nx: int) -> RealTimeSQP:
+    """The rti and sqp schemes' SQP (:class:`RealTimeSQP`): the same cost's Hessian stage
+    by stage over ``(x_k, u_k, e_k)``, then ``x_N``, the bounds with no bound as infinite."""
+    C, D, b, sel = rows
+    lo_s, hi_s, u_lo, u_hi = bounds
+    N, h, ns = settings.horizon, settings.period, sel.shape[1]
+    nz = nx + 1 + ns
+    stage = np.zeros((nz, nz))
+    stage[:nx, :nx], stage[nx, nx] = 2.0 * h * Q, 2.0 * h * R
+    stage[nx + 1:, nx + 1:] = 2.0 * _SLACK_QUADRATIC * np.eye(ns)
+    inf_lo = np.where(lo_s <= -_FREE, -np.inf, lo_s)
+    inf_hi = np.where(hi_s >= _FREE, np.inf, hi_s)
+    ulo = u_lo if u_lo > -_FREE else -np.inf
+    uhi = u_hi if u_hi < _FREE else np.inf
+    z_lo = np.concatenate([np.tile(np.concatenate([inf_lo, [ulo], np.zeros(ns)]), N), inf_lo])
+    z_hi = np.concatenate([np.tile(np.concatenate([inf_hi, [uhi], np.full(ns, np.inf)]), N),
+                           inf_hi])
+    G = np.hstack([C, D[:, None], -sel])
+    return RealTimeSQP(F, nx, N, stage, 2.0 * P, z_lo, z_hi, qp_solver, settings.compiled,
+                       stage_rows=G, stage_bound=b,
+                       stage_gradient=np.concatenate([np.zeros(nx + 1),
+                                                      np.full(ns, settings.slack_weight)]),
+                       nz=nz)
+
+
+def linear_reference_map(lqr: "FullStateLQR", nx: int
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(E_s, c_s, e_u, c_u)``: the LQR's ``reference_state`` is affine in the
+    reference row, ``s_r = E_s row + c_s``, ``u_r = e_u . row + c_u``; read off it once
+    so that the horizon's references are two matrix products per sample."""
+    s_c, u_c = lqr.reference_state(np.zeros(3))
+    E_s, e_u = np.empty((nx, 3)), np.empty(3)
+    for i in range(3):
+        row = np.zeros(3)
+        row[i] = 1.0
+        s_i, u_i = lqr.reference_state(row)
+        E_s[:, i], e_u[i] = s_i - s_c, u_i - u_c
+    return E_s, np.asarray(s_c, dtype=float), e_u, float(u_c)
+
+
+def _model_bounds(model: FullModel, margin: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(state lo, state hi, u_lo, u_hi)`` of the model: its positions' ranges less
+    ``margin`` and the input's range, :data:`_FREE` where there is none."""
     nx = model.size
     lo_s, hi_s = np.full(nx, -_FREE), np.full(nx, _FREE)
     for j in range(model.dof):
@@ -453,17 +512,33 @@ def ocp_constraints(model: FullModel, cs: "ConstraintSet | None", margin: float)
             hi_s[j] = hi - margin
     u_lo = model.u_lo if math.isfinite(model.u_lo) else -_FREE
     u_hi = model.u_hi if math.isfinite(model.u_hi) else _FREE
+    return lo_s, hi_s, u_lo, u_hi
+
+
+def _state_columns(model: FullModel, cs: "ConstraintSet") -> list[int]:
+    """Where each of the model's states sits among the constraint set's columns, by name:
+    the plant's full state (then u) is the model's, but nothing here relies on the order
+    being the same (ScenarioError when the names differ)."""
+    if tuple(cs.names[:-1]) != tuple(model.state_names):
+        missing = set(model.state_names) - set(cs.names[:-1])
+        if missing or len(cs.names) - 1 != model.size:
+            raise ScenarioError(f"controllers.mpc: the constraints' states "
+                                f"({', '.join(cs.names[:-1])}) are not the model's "
+                                f"({', '.join(model.state_names)})")
+    return [cs.names.index(n) for n in model.state_names]
+
+
+def ocp_constraints(model: FullModel, cs: "ConstraintSet | None", margin: float) -> tuple:
+    """``(state lo, state hi, u_lo, u_hi, (C, D, b, S), soft_names)``: the bounds of (M2)
+    and the input, the rows of (M3) (S: each row's slack, one per constraint) and the
+    constraints (M3) keeps, in slack order, from the model's bounds and the constraint
+    set ``cs`` (None: the model's bounds only); every box keeps ``margin`` (also the
+    predictive safety filter's, :mod:`.mpsc`)."""
+    nx = model.size
+    lo_s, hi_s, u_lo, u_hi = _model_bounds(model, margin)
     C, D, b, owner, names = [], [], [], [], []
     if cs is not None:
-        # the set's columns by name: the plant's full state (then u) is the model's,
-        # but nothing here relies on the order being the same
-        if tuple(cs.names[:-1]) != tuple(model.state_names):
-            missing = set(model.state_names) - set(cs.names[:-1])
-            if missing or len(cs.names) - 1 != nx:
-                raise ScenarioError(f"controllers.mpc: the constraints' states "
-                                    f"({', '.join(cs.names[:-1])}) are not the model's "
-                                    f"({', '.join(model.state_names)})")
-        col = [cs.names.index(n) for n in model.state_names]
+        col = _state_columns(model, cs)
         for c in cs:
             for a_row, b_row in zip(c.A, c.b):
                 a_s, a_u = a_row[col], float(a_row[-1])
@@ -528,5 +603,5 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> MPCController
     else:
         Q = lqr.Q
     R = s.R if s.R is not None else lqr.R
-    return MPCController(model, s, lqr, Q, R, order=len(scenario.plant.x0),
-                         constraints=constraints)
+    return MPCController(design(model, s, lqr, Q, R, order=len(scenario.plant.x0),
+                                constraints=constraints))

@@ -69,7 +69,7 @@ import numpy as np
 
 from tspend.controllers.base import Controller, Observation
 from tspend.controllers.safety import SafetyFilter
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import SafetyConfig, Scenario

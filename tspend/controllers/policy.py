@@ -29,7 +29,7 @@ import numpy as np
 
 from tspend.controllers.base import Controller, Observation
 from tspend.controllers.settings import KindSettings, setting, settings_for
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant

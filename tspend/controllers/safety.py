@@ -2,7 +2,7 @@
 
 ``SafetyFilter(inner, model, cfg)`` runs the controller ``inner`` (any kind: the paper's,
 a baseline, ``policy``, a plug-in) and changes its command ``u_c`` as little as possible
-so that the task's state constraints (:mod:`tspend.constraints`, ``Observation.constraints``)
+so that the task's state constraints (:mod:`tspend.task.constraints`, ``Observation.constraints``)
 stay invariant on the domain's own model ``q'' = f(s) + g(s) u``
 (:meth:`tspend.plants.domain.FullModel.input_map`: the accelerations are affine in u).
 docs/safety.md derives every equation below and says what it guarantees.
@@ -56,12 +56,10 @@ import numpy as np
 
 from tspend.config import SafetyConfig
 from tspend.controllers.base import Controller, Diagnostic, Observation
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["SUFFIX", "SafetyFilter", "barrier_rows", "wrap"]
 
-#: ``--controller pd+cbf``: the kind ``pd`` behind the filter
-SUFFIX = "+cbf"
 #: relative change of u below which a sample does not count as changed
 CHANGED_REL = 1e-9
 #: the slack's quadratic weight eps in (S3): 1, as the input's, so the Hessian is well
@@ -214,16 +212,9 @@ class SafetyFilter(Controller):
         A = np.vstack(rows_A) if rows_A else np.zeros((0, len(names) + 1))
         b = np.concatenate(rows_b) if rows_b else np.zeros(0)
         if self._P is not None:
-            # (S5): the position rows give way to the largest LQR ellipsoid inside them all
-            P_inv = np.linalg.inv(self._P)
-            dof = model.dof
-            on_q = np.array([not A[i, dof:].any() and A[i, :dof].any() for i in range(len(b))],
-                            dtype=bool)
-            levels = [b[i] ** 2 / float(A[i, :-1] @ P_inv @ A[i, :-1])
-                      for i in np.flatnonzero(on_q) if b[i] > 0.0]
-            if levels:
-                self._level = min(levels)
-                A, b = A[~on_q], b[~on_q]
+            level, kept = lyapunov_level(A, b, self._P, model.dof)
+            if kept is not None:
+                self._level, A, b = level, A[kept], b[kept]
         self._rows = (perm, A, b)
         # (S4)'s deceleration per row: a share of what the input's range gives at rest
         g0 = model.input_map(np.zeros(model.size))[1]
@@ -232,16 +223,10 @@ class SafetyFilter(Controller):
                                 for row in A])
         m = A.shape[0]
         cas = self._casadi
-        opts: dict = {"error_on_fail": False}
-        if self.cfg.solver == "qpoases":
-            opts["printLevel"] = "none"
-        elif self.cfg.solver == "osqp":
-            opts["osqp"] = {"verbose": False, "eps_abs": 1e-10, "eps_rel": 1e-10,
-                            "max_iter": 20000, "polish": True}
         m += int(math.isfinite(self._level))
         self._solver = cas.conic("safety_filter", self.cfg.solver,
                                  {"h": cas.Sparsity.dense(2, 2), "a": cas.Sparsity.dense(max(m, 1), 2)},
-                                 opts)
+                                 qp_options(self.cfg.solver))
         self._H = np.diag([2.0, 2.0 * SLACK_EPS])
 
     def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
@@ -344,6 +329,37 @@ class SafetyFilter(Controller):
         return {}
 
 
+
+def lyapunov_level(A: np.ndarray, b: np.ndarray, P: np.ndarray, dof: int
+                   ) -> tuple[float, np.ndarray | None]:
+    """(S5): ``(c, kept)``, the largest level ``c`` of the LQR's ellipsoid ``s^T P s <= c``
+    inside every position row ``A s <= b`` (rows on positions alone), and the rows kept
+    beside it (the others); ``kept`` None when no position row bounds it."""
+    P_inv = np.linalg.inv(P)
+    on_q = np.array([not A[i, dof:].any() and A[i, :dof].any() for i in range(len(b))],
+                    dtype=bool)
+    levels = [b[i] ** 2 / float(A[i, :-1] @ P_inv @ A[i, :-1])
+              for i in np.flatnonzero(on_q) if b[i] > 0.0]
+    if not levels:
+        return math.inf, None
+    return min(levels), ~on_q
+
+
+def qp_options(solver: str) -> dict:
+    """The QP solver's options: failures found by the answer, not raised; no printing."""
+    opts: dict = {"error_on_fail": False}
+    if solver == "qpoases":
+        opts["printLevel"] = "none"
+    elif solver == "osqp":
+        opts["osqp"] = {"verbose": False, "eps_abs": 1e-10, "eps_rel": 1e-10,
+                        "max_iter": 20000, "polish": True}
+    return opts
+
+
+#: ``--controller pd+cbf``: the kind ``pd`` behind the filter
+SUFFIX = "+" + SafetyFilter.FILTER
+
+
 def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:
     """``inner`` behind the scenario's ``[safety]`` filter on the domain's full-state model
     of the nominal ``machine`` (:func:`tspend.loop.simulation.nominal_machine`).
@@ -352,7 +368,7 @@ def wrap(scenario: Any, inner: Controller, machine: Any) -> SafetyFilter:
     from tspend.controllers.full_model import full_model, has_full_state
 
     if not has_full_state(scenario):
-        raise ScenarioError(f"{scenario.path}: safety.filter = \"cbf\": plant "
+        raise ScenarioError(f"{scenario.path}: safety.filter = \"{SafetyFilter.FILTER}\": plant "
                             f"'{scenario.plant.kind}' has no full-state model (q'' = f + g u) "
                             f"for the barrier conditions; allowed: \"off\"")
     cfg = scenario.safety

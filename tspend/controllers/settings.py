@@ -9,7 +9,7 @@ length n, an n x n matrix, a choice, ...) and its documentation.  A scenario may
 
 and :func:`parse_kind_tables` turns those tables into the dataclasses when the scenario
 is loaded, so a bad key or value stops the run before anything is written, with one line
-naming the file, the key and what is allowed (``tspend.errors.ScenarioError``, exit 2).
+naming the file, the key and what is allowed (``tspend.runtime.errors.ScenarioError``, exit 2).
 A kind without a table runs on its documented defaults.  ``None`` in a field means
 "derived from the plant when the controller is built" (each module says how).
 
@@ -25,7 +25,7 @@ import math
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 from tspend.config import POLE_CAP, ControllerConfig, setting  # noqa: F401 (re-exported)
-from tspend.tables import Table
+from tspend.config.tables import Table
 
 if TYPE_CHECKING:
     from tspend.config import Scenario

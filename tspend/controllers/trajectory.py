@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 if TYPE_CHECKING:
     from tspend.plants.domain import FullModel
@@ -160,11 +160,52 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
     it is asked after every solve, and :class:`PlanStopped` is raised instead of trying
     the next start or handing back a plan.  IPOPT reports a signal only as an exception
     in its callback (:data:`_STOPPED`), which ends the tries as well."""
-    import casadi
-
     s0 = np.asarray(s0, dtype=float)
     step = dt if step is None else step
     N = check_plan_input(model, s0, horizon, interval, dt, margin, where, step)
+    nx = model.size
+    solver, lbx, ubx, n_variables = _plan_nlp(model, N, interval, step, margin, max_iter,
+                                              tolerance)
+    attempts = []
+    for start in _representations(model, s0):
+        w0 = _straight_line(model, start, N, horizon)
+        started = time.perf_counter()
+        lbx[:nx] = ubx[:nx] = start
+        # CasADi prints, through Python's stderr, a warning for the signal it caught: the
+        # command says it in its own line
+        with contextlib.redirect_stderr(io.StringIO()):
+            sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
+        wall = time.perf_counter() - started
+        stats = solver.stats()
+        if (stopped is not None and stopped()) or stats.get("return_status") == _STOPPED:
+            raise PlanStopped(f"{where}: the solve was stopped after {wall:.3g} s "
+                              f"({stats.get('return_status', '')}); no plan")
+        attempts.append({"status": str(stats.get("return_status", "")),
+                         "iterations": int(stats.get("iter_count", 0)),
+                         "solve_s": wall, "success": bool(stats.get("success", False))})
+        if attempts[-1]["success"]:
+            wv = np.asarray(sol["x"]).ravel()
+            nodes = wv[:nx * (N + 1)].reshape(N + 1, nx)
+            u_nodes = wv[nx * (N + 1):]
+            defect = float(np.max(np.abs(np.asarray(sol["g"]).ravel())))
+            figures = dict(attempts[-1], cost=float(sol["f"]), constraint_violation=defect,
+                           attempts=len(attempts), total_solve_s=sum(a["solve_s"] for a in attempts),
+                           intervals=N, nlp_variables=n_variables,
+                           start_state=[float(v) for v in start])
+            figures["step_s"] = float(step)
+            return _fine(model, model.rk4_map(dt), nodes, u_nodes,
+                         int(round(interval / dt)), dt, interval, figures, units)
+    why = "; ".join(f"{a['status']} after {a['iterations']} iterations" for a in attempts)
+    raise PlanFailed(f"{where}: IPOPT found no plan to the upright in {horizon:g} s ({why})")
+
+
+def _plan_nlp(model: "FullModel", N: int, interval: float, step: float, margin: float,
+              max_iter: int, tolerance: float) -> tuple[Any, np.ndarray, np.ndarray, int]:
+    """``(IPOPT on (T1)-(T3), lbx, ubx, variables)``: ``N`` intervals of ``interval`` s,
+    each ``interval / step`` RK4 steps with u held; the upright at rest the last node's
+    bounds (the first node's are the start's, set per try)."""
+    import casadi
+
     nx, K = model.size, int(round(interval / step))
     G = model.rk4_map(step)
     # one interval: K steps of G with u held (mapaccum feeds each step's output to the next)
@@ -187,42 +228,16 @@ def plan_swingup(model: "FullModel", s0: np.ndarray, horizon: float, interval: f
     lbx = np.concatenate([np.tile(lo, N + 1), np.full(N, u_lo)])
     ubx = np.concatenate([np.tile(hi, N + 1), np.full(N, u_hi)])
     lbx[nx * N:nx * (N + 1)] = ubx[nx * N:nx * (N + 1)] = 0.0
-    attempts = []
-    for start in _representations(model, s0):
-        # the initial guess: the straight line from the start to the upright, at rest, u = 0
-        frac = np.linspace(0.0, 1.0, N + 1)[:, None]
-        guess = (1.0 - frac) * start[None, :]
-        guess[:, model.dof:] = -(start[:model.dof] / horizon)[None, :]
-        guess[-1, model.dof:] = 0.0
-        w0 = np.concatenate([guess.ravel(), np.zeros(N)])
-        started = time.perf_counter()
-        lbx[:nx] = ubx[:nx] = start
-        # CasADi prints, through Python's stderr, a warning for the signal it caught: the
-        # command says it in its own line
-        with contextlib.redirect_stderr(io.StringIO()):
-            sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
-        wall = time.perf_counter() - started
-        stats = solver.stats()
-        if (stopped is not None and stopped()) or stats.get("return_status") == _STOPPED:
-            raise PlanStopped(f"{where}: the solve was stopped after {wall:.3g} s "
-                              f"({stats.get('return_status', '')}); no plan")
-        attempts.append({"status": str(stats.get("return_status", "")),
-                         "iterations": int(stats.get("iter_count", 0)),
-                         "solve_s": wall, "success": bool(stats.get("success", False))})
-        if attempts[-1]["success"]:
-            wv = np.asarray(sol["x"]).ravel()
-            nodes = wv[:nx * (N + 1)].reshape(N + 1, nx)
-            u_nodes = wv[nx * (N + 1):]
-            defect = float(np.max(np.abs(np.asarray(sol["g"]).ravel())))
-            figures = dict(attempts[-1], cost=float(sol["f"]), constraint_violation=defect,
-                           attempts=len(attempts), total_solve_s=sum(a["solve_s"] for a in attempts),
-                           intervals=N, nlp_variables=int(w.shape[0]),
-                           start_state=[float(v) for v in start])
-            figures["step_s"] = float(step)
-            return _fine(model, model.rk4_map(dt), nodes, u_nodes,
-                         int(round(interval / dt)), dt, interval, figures, units)
-    why = "; ".join(f"{a['status']} after {a['iterations']} iterations" for a in attempts)
-    raise PlanFailed(f"{where}: IPOPT found no plan to the upright in {horizon:g} s ({why})")
+    return solver, lbx, ubx, int(w.shape[0])
+
+
+def _straight_line(model: "FullModel", start: np.ndarray, N: int, horizon: float) -> np.ndarray:
+    """The initial guess: the straight line from ``start`` to the upright, at rest, u = 0."""
+    frac = np.linspace(0.0, 1.0, N + 1)[:, None]
+    guess = (1.0 - frac) * start[None, :]
+    guess[:, model.dof:] = -(start[:model.dof] / horizon)[None, :]
+    guess[-1, model.dof:] = 0.0
+    return np.concatenate([guess.ravel(), np.zeros(N)])
 
 
 def _representations(model: "FullModel", s0: np.ndarray) -> list[np.ndarray]:

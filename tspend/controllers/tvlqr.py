@@ -37,7 +37,7 @@ import numpy as np
 from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.trajectory import Plan, PlanFailed, plan_swingup, read_plan
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.domain import FULL_STATE, SYMBOLIC
 
 if TYPE_CHECKING:

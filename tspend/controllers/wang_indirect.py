@@ -62,7 +62,7 @@ from numba.extending import register_jitable
 
 from tspend.config import SetSpec
 from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL

@@ -5,7 +5,7 @@ of samples ``[a, b)`` of the block, run without Python between them.  This modul
 one place that decides whether a loop gets one (:func:`segment_runner`): the controller
 must offer ``compiled()`` (a :class:`tspend.controllers.base.CompiledController`), the plant a
 ``compiled()`` step (or ``compiled_mujoco(dt)``) and ``extras_index()``, and no per-sample hook may be on (sensor noise, delay, the outer
-loop: :mod:`tspend.effects`); otherwise the generic Python loop runs, sample by sample.
+loop: :mod:`tspend.loop.effects`); otherwise the generic Python loop runs, sample by sample.
 Sampled control (a controller period of several steps, a computation delay) runs in both
 (:class:`Hold`).
 Everything else (the blocks, the divergence messages, stop requests, snapshots, sinks)

@@ -34,10 +34,10 @@ Of the whole machine (issue 20; when the accumulator is given a :class:`MachineI
   memory stays flat on long runs;
 * ``counters.<name>``: the last value of every diagnostic on the ``counters`` panel
   (MPC's ``solve_failures``, ``solve_overruns``);
-* ``constraints.<name>``: per constraint of the task (:mod:`tspend.constraints`, the
+* ``constraints.<name>``: per constraint of the task (:mod:`tspend.task.constraints`, the
   margin ``min(b - A [s, u])`` of (C1) at every recorded sample, ``u`` the command):
   ``samples_outside`` (margin below ``-1e-9 (1 + max |b|)``, so that round-off is not a
-  violation: :data:`tspend.constraints.OUTSIDE_TOLERANCE`), ``time_outside_s``,
+  violation: :data:`tspend.task.constraints.OUTSIDE_TOLERANCE`), ``time_outside_s``,
   ``max_depth`` (the largest ``-margin``, 0 when never outside), ``min_margin``, ``hard``; ``violations`` (samples with any constraint
   outside) and ``max_violation`` (the largest depth of any) are comparable metrics like
   ``rmse`` (0: every constraint held; a run the task ended scores +inf in a comparison).
@@ -76,7 +76,7 @@ class MachineInfo:
     #: the task's goal: |e1| <= goal_angle from goal_by s on (0: none; tspend.config.TaskConfig)
     goal_angle: float = 0.0
     goal_by: float = 0.0
-    #: the task's constraints (tspend.constraints.ConstraintSet; None: none measured)
+    #: the task's constraints (tspend.task.constraints.ConstraintSet; None: none measured)
     constraints: object = None
     #: u's unit ("ctrl" for a geared motor's control), and where u is not the force the
     #: actuator applies, that force's unit and the force per unit of u at rest
@@ -202,7 +202,7 @@ class MetricsAccumulator:
             return
         margin = m.constraints.margins(state, u)                     # (k, C)
         # NaN (a diverged sample) is neither inside nor outside: not counted; nor is a
-        # margin within the stated tolerance below 0 (round-off: tspend.constraints)
+        # margin within the stated tolerance below 0 (round-off: tspend.task.constraints)
         outside = margin < -m.constraints.tolerances
         self.c_outside += outside.sum(axis=0)
         self.any_outside += int(np.count_nonzero(outside.any(axis=1)))

@@ -31,12 +31,12 @@ from typing import Callable
 import numpy as np
 
 from tspend.controllers.base import Controller, Diagnostic, Observation, check_diagnostics
-from tspend.errors import DivergenceError
+from tspend.runtime.errors import DivergenceError
 from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
 from tspend.runtime.interrupts import Interrupted, StopRequest
 from tspend.runtime.plugins import own_failure
 from tspend.plants.base import Plant
-from tspend.signals import Disturbance, Reference
+from tspend.config.signals import Disturbance, Reference
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
 from tspend.task import TERMINATIONS, Task, build_task
 
@@ -213,7 +213,7 @@ class ClosedLoop:
         self.s = settings
         self.stop = stop if stop is not None else StopRequest()
         #: per-sample hook (t, x, ref row) -> the state the controller sees; it may shape
-        #: the reference row in place (tspend.effects: sensor noise, delay, outer loop)
+        #: the reference row in place (tspend.loop.effects: sensor noise, delay, outer loop)
         self.hook = hook
         self._done = 0
         self.end: RunEnd | None = None

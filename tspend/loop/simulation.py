@@ -17,21 +17,22 @@ import numpy as np
 
 from tspend import __version__
 from tspend.config import RunConfig, Scenario
-from tspend.errors import ControllerError, ScenarioError
+from tspend.runtime.errors import ControllerError, ScenarioError
 from tspend.controllers import build as build_controller_kind
 from tspend.controllers import needs_machine as controller_needs_machine
 from tspend.controllers.base import Controller
-from tspend.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
+from tspend.loop.effects import (EffectsPlant, Measurement, needs_hook, needs_plant_wrapper,
     unsupported as effects_unsupported)
 from tspend.loop.metrics import MachineInfo, MetricsAccumulator
 from tspend.plants import randomize
 from tspend.plants import registry as plant_registry
 from tspend.plants.base import Plant
 from tspend.runtime.plugins import own_failure
-from tspend.errors import ModelWarning
+from tspend.runtime.errors import ModelWarning
 from tspend.loop.runner import ClosedLoop, LoopSettings, StopRequest, controller_failure
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo, Sink
 from tspend.task import Task, build_task
+from tspend.task.feasibility import check_task
 
 
 def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
@@ -40,7 +41,7 @@ def build_plant(scenario: Scenario, kind: str | None = None) -> Plant:
     ``[randomize]`` draws at its seed (:mod:`tspend.plants.randomize`).
 
     A MuJoCo model's departures from the paper's ODE are warned about here, once, as
-    :class:`tspend.errors.ModelWarning` (one line each), before the first step.
+    :class:`tspend.runtime.errors.ModelWarning` (one line each), before the first step.
 
     Raises
     ------
@@ -301,7 +302,7 @@ class RunResult:
         ``units=False``, deprecated (removed in the next release): the series' internal keys
         (``x1``, ``r_d1``, ``e_1``, ``u``), indexed by ``t``.
         """
-        from tspend.studies.timeseries import history_frame, run_table
+        from tspend.recorder.timeseries import history_frame, run_table
 
         if units is False:
             import warnings
@@ -317,7 +318,7 @@ class RunResult:
     def plot(self, every: int = 1):
         """The run in the paper's panels (states against references, then u): a matplotlib
         Figure (needs the ``plot`` extra)."""
-        from tspend.studies.figures import run_figure
+        from tspend.recorder.plotting import run_figure
 
         return run_figure(self, every)
 
@@ -391,7 +392,7 @@ def prepare(scenario: Scenario, plant_kind: str | None = None,
     drawn = randomize.draw(scenario)
     plant = _built(drawn.scenario, plant_kind)
     task = scenario_task(scenario, plant)
-    plant_registry.domain_of(plant_kind or scenario.plant.kind).check_task(plant, task, scenario)
+    check_task(plant, task, scenario)
     scenario, scaled = with_input_sets(with_gain_sign(scenario, plant), plant)
     # the controller designs on the nominal machine (built in build_controller), not on
     # `plant`, the draw

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from tspend.drawing.base import Drawing
+from tspend.plants.drawing.base import Drawing
 from tspend.task import Bound
 
 if TYPE_CHECKING:

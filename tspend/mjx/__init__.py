@@ -29,7 +29,7 @@ Needs ``pip install 'tspend[mjx]'`` (jax, mujoco-mjx, onnx).
 
 from __future__ import annotations
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["PRECISIONS", "require", "set_precision"]
 

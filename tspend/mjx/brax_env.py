@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop import envstep
 
 __all__ = ["BraxEnv"]

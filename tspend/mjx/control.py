@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["KINDS", "jax_law"]
 

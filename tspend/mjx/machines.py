@@ -19,14 +19,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["Fleet", "build_fleet", "refusal"]
 
 
 def refusal(scenario: Any) -> str:
     """Why the MJX backend cannot run ``scenario`` (one line), or ""."""
-    from tspend.effects import needs_hook, needs_plant_wrapper
+    from tspend.loop.effects import needs_hook, needs_plant_wrapper
     from tspend.plants.registry import PLANT_KINDS
 
     where = scenario.path or scenario.name
@@ -115,7 +115,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
 
     from tspend.loop import simulation
     from tspend.plants import randomize
-    from tspend.plants import registry as plant_registry
+    from tspend.task.feasibility import check_task
 
     # the models go into MJX in float64 whatever the run's precision (a float32 run casts
     # them later): put_model under JAX's default float32 would round them here
@@ -145,7 +145,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
                                 f"model to step (the mjx backend needs one)")
         task = simulation.scenario_task(scn, plant)
         if first is None:
-            plant_registry.domain_of(scn.plant.kind).check_task(plant, task, scn)
+            check_task(plant, task, scn)
             first, link0 = (scn, plant, task), link
             ref, dist = _tables(scn, steps, len(task.view))
         else:

@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["OPS", "onnx_function"]
 

@@ -27,7 +27,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["BLOCK", "MAX_BATCH", "closed_loop_rows", "run_jobs", "check_memory", "samples_batch"]
 
@@ -280,13 +280,14 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
 
 
 def run_jobs(jobs: Iterable[Any], precision: str = "float64",
-             batch: int = MAX_BATCH) -> Iterator[dict[str, Any]]:
-    """The rows of a sweep's ``jobs`` (:class:`tspend.sweep.plan.Job`), each scenario
-    point and controller kind one batch of its seeds; the rows as
-    :func:`tspend.sweep.worker.run_job` makes them (:func:`tspend.sweep.worker.table_row`)."""
+             batch: int = MAX_BATCH) -> Iterator[tuple[Any, str, str, dict[str, Any], float]]:
+    """How each of a sweep's ``jobs`` (:class:`tspend.sweep.plan.Job`) ended, each scenario
+    point and controller kind one batch of its seeds: ``(job, status, message, metrics,
+    job_s)``, its share of the time in ``job_s``.  The sweep makes the row and any
+    recording of it (:func:`tspend.sweep.worker.finished_row`): this backend knows nothing
+    of the sweep's table."""
     from tspend.loop.simulation import prepare
     from tspend.mjx.machines import build_fleet
-    from tspend.sweep.worker import table_row
 
     groups: dict[tuple[int, Any], list] = {}
     for job in jobs:
@@ -298,26 +299,7 @@ def run_jobs(jobs: Iterable[Any], precision: str = "float64",
         controller = prepare(fleet.scenario, controller=kind).controller
         built = (time.perf_counter() - started) / len(group)
         for e, status, message, metrics in closed_loop_rows(fleet, controller, precision, batch):
-            job = group[e]
-            recording = None
-            if job.record == "all" or (job.record == "failed" and status != "completed"):
-                recording = _cpu_recording(job)
-            yield table_row(job, status, message, metrics, recording,
-                            built + float(metrics.get("wall_s") or 0.0))
-
-
-def _cpu_recording(job: Any) -> str | None:
-    """The CPU backend's recording of the job's run (its path), None if it failed."""
-    from pathlib import Path
-
-    from tspend.sweep.worker import _recorded_run
-
-    path = Path(job.record_path)
-    try:
-        _recorded_run(job, path)
-    except Exception:
-        pass
-    return str(path) if path.exists() else None
+            yield group[e], status, message, metrics, built + float(metrics.get("wall_s") or 0.0)
 
 
 def check_batch(batch: Any) -> int:

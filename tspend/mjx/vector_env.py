@@ -1,6 +1,6 @@
 """``gymnasium.make_vec("tspend/<scenario>-v0", num_envs=N, vectorization_mode="vector_entry_point", backend="mjx")``.
 
-The CPU vector env (:class:`tspend.gym_vector.TspendVectorEnv`) with its physics stepped
+The CPU vector env (:class:`tspend.gym.vector.TspendVectorEnv`) with its physics stepped
 by MJX: env ``i`` is the machine the scenario's ``[randomize]`` draws at ``seed + i``
 (:func:`tspend.mjx.machines.build_fleet`, the CPU plant's own model), each step holds the
 action over ``frame_skip`` physics steps and stops an env at the first physics step that
@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop import envstep
 
 __all__ = ["MjxVectorEnv"]
@@ -34,7 +34,7 @@ __all__ = ["MjxVectorEnv"]
 
 class MjxVectorEnv(VectorEnv):
     """N envs of a scenario stepped by MJX (module docstring); the arguments of
-    :class:`tspend.gym_vector.TspendVectorEnv` (``threads`` ignored) and ``precision``
+    :class:`tspend.gym.vector.TspendVectorEnv` (``threads`` ignored) and ``precision``
     (``"float64"``, ``"float32"``)."""
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}

@@ -17,11 +17,16 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
-__all__ = ["InputInfo", "JointInfo", "Plant", "TaskDefaults", "velocity_name"]
+if TYPE_CHECKING:
+    from tspend.plants.articulated.machine import Machine
+    from tspend.plants.mjcf import CartPoleParams
+
+__all__ = ["CartPolePlant", "InputInfo", "JointInfo", "MachinePlant", "Plant", "TaskDefaults",
+           "read_as", "velocity_name"]
 
 
 def velocity_name(position: str) -> str:
@@ -195,3 +200,46 @@ class Plant(ABC):
     def instability(self, t0: float) -> Exception | None:
         """The error a compiled MuJoCo step ended on (None: none)."""
         return None
+
+    def underlying(self) -> "Plant":
+        """The plant this one is seen through: itself; a wrapper (the effects' actuator,
+        :class:`tspend.loop.effects.EffectsPlant`) returns the plant it wraps, so a domain reads
+        its own plant's numbers without knowing of any wrapper."""
+        return self
+
+
+# -- what domains read of their own plants, beyond the loop's Plant ---------------------
+@runtime_checkable
+class MachinePlant(Protocol):
+    """A plant stepped over a derived articulated machine (both backends of every domain
+    over :mod:`tspend.plants.articulated`): what its domain designs and draws from."""
+
+    @property
+    def machine(self) -> "Machine": ...
+
+    @property
+    def q0(self) -> tuple[float, ...]: ...
+
+
+@runtime_checkable
+class CartPolePlant(Protocol):
+    """A cart-pole plant: the paper's numbers (M, m, l, J, the actuator's) read off its
+    compiled model, which a run may change (``[effects.change]``: a payload picked up)."""
+
+    @property
+    def params(self) -> "CartPoleParams": ...
+
+    def set_params(self, params: "CartPoleParams") -> None: ...
+
+
+ReadAs = TypeVar("ReadAs")
+
+
+def read_as(plant: Plant, protocol: type[ReadAs]) -> ReadAs:
+    """``plant`` (the plant behind any wrapper: :meth:`Plant.underlying`) as ``protocol``,
+    what the caller reads of it; TypeError naming both when it is not one (a domain asked
+    about another domain's plant: a bug, not a user's mistake)."""
+    inner = plant.underlying()
+    if not isinstance(inner, protocol):
+        raise TypeError(f"{type(inner).__name__} is not a {protocol.__name__}")
+    return inner

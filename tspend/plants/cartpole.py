@@ -20,7 +20,7 @@ model ``tspend identify`` fits and the test oracle (:mod:`tspend.studies.cartpol
 This module holds the scenario's ``[plant]`` configuration, the roles of the MJCF's joints
 (``slide`` = the cart, ``hinge`` = the pole), labels and units and the default task (view
 ``hinge``, ``hinge_dot``; fall angle pi/2); it is drawn as every machine is, from its own
-geoms (:class:`~tspend.drawing.model.ModelDrawing`, with its rail).
+geoms (:class:`~tspend.plants.drawing.model.ModelDrawing`, with its rail).
 """
 
 from __future__ import annotations
@@ -29,22 +29,21 @@ import copy
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import mujoco
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.drawing.model import ModelDrawing
-from tspend.effects import EffectsPlant
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.model import ModelDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants import mjcf
 from tspend.plants.articulated.domain import (ArticulatedMujoco, ArticulatedODE, derived_view,
     pumped_full_model)
 from tspend.plants.articulated.machine import Machine
 from tspend.plants.articulated.derive import parameter_table
 from tspend.plants.articulated.tree import read_tree
-from tspend.plants.base import InputInfo, Plant, TaskDefaults
+from tspend.plants.base import CartPolePlant, InputInfo, MachinePlant, Plant, TaskDefaults, read_as
 from tspend.plants.mjcf import AXIAL_INERTIA_RATIO, OVERRIDABLE, CartPoleParams, compile_cartpole
 from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
     PARAMETER_CHANGE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
@@ -52,7 +51,6 @@ from tspend.plants.domain import (CART_CENTRING, CHIRP_F0_HZ, FULL_STATE,
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.task import Task
 
 __all__ = ["CartPoleParams", "CartPoleConfig", "MujocoCartPoleConfig", "MujocoCartPole",
            "DerivedCartPoleODE",
@@ -138,9 +136,7 @@ def cartpole_machine(plant: Plant) -> Machine:
     model read and derived (docs/articulated.md), the hinge its pole, ``u`` its actuator;
     the machine of a :class:`DerivedCartPoleODE` is its own.  ScenarioError (one line
     naming what to change) for a model the derivation refuses."""
-    if isinstance(plant, EffectsPlant):
-        plant = plant.inner
-    return plant.machine  # type: ignore[attr-defined]
+    return read_as(plant, MachinePlant).machine
 
 
 def nominal_machine(machine: Machine) -> Machine:
@@ -164,6 +160,7 @@ class _CartPole:
     machine: Machine
     _mujoco: "MujocoCartPole"
     domain = "cartpole"
+    full_state: Callable[[], np.ndarray]  # the plant's (the other base class defines it)
 
     #: the motor on the slide joint, bounded by its ctrlrange when ``ctrllimited``
     inputs = property(lambda self: self._mujoco._inputs)
@@ -176,7 +173,7 @@ class _CartPole:
         return self.params.finite()
 
     def extras(self) -> dict[str, float]:
-        s, cart = self.full_state(), 1 - self.machine.view_joint  # type: ignore[attr-defined]
+        s, cart = self.full_state(), 1 - self.machine.view_joint
         return {"cart_pos": float(s[cart]), "cart_vel": float(s[2 + cart])}
 
     def extras_index(self) -> np.ndarray:
@@ -407,14 +404,14 @@ class CartPoleDomain(Domain):
         rest, the joints' damping and friction loss); the ODE's ``J`` (the rod's) and
         ``gear`` (1)."""
         plant = self.build(scenario)
-        if isinstance(scenario.plant, MujocoCartPoleConfig):
-            f = plant.facts  # type: ignore[attr-defined]
+        if isinstance(plant, MujocoCartPole):
+            f = plant.facts
             return {"M": f.cart_mass, "m": f.pole_mass, "l": f.pole_com,
                     "J": f.pole_inertia_pivot, "g": f.gravity, "gear": f.force_per_u,
                     "cart_damping": f.slide.damping, "hinge_damping": f.hinge.damping,
                     "cart_friction": f.slide.frictionloss,
                     "hinge_friction": f.hinge.frictionloss}
-        p = plant.params  # type: ignore[attr-defined]
+        p = read_as(plant, CartPolePlant).params
         return {"J": p.pole_inertia_pivot, "gear": p.force_per_u}
 
     def nominal_derived(self, scenario: "Scenario", plant: Plant) -> Machine:
@@ -425,7 +422,7 @@ class CartPoleDomain(Domain):
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The nominal machine over ``[slider, hinge, slider_dot, hinge_dot]`` (the plant's
         own joint names), with MuJoCo's clips of ctrl and force (:func:`pumped_full_model`)."""
-        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        params = _nominal(read_as(machine, CartPolePlant).params)
         return pumped_full_model(self.name, machine, self.nominal_derived(scenario, machine),
                                  params.finite(), clips=True)
 
@@ -433,7 +430,7 @@ class CartPoleDomain(Domain):
         # sliding mode's k = 0.5 rad/s^2: the disturbance is 0.05 / 41 ~ 1.2e-3 and the
         # linearisation's error ~ 2.6 theta^3 / 6 is smaller still; 0.5 gives a fast
         # reaching phase from theta(0) = pi/30
-        params = _nominal(machine.params)  # type: ignore[attr-defined]
+        params = _nominal(read_as(machine, CartPolePlant).params)
         # the view's pole'' with the cart at rest, d the hinge torque -d m l / (M + m)
         view = derived_view(self.nominal_derived(scenario, machine), params.disturbance_torque)
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
@@ -451,7 +448,7 @@ class CartPoleDomain(Domain):
         return None
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> ModelDrawing:
-        """The machine's own geoms (:class:`~tspend.drawing.model.ModelDrawing`),
+        """The machine's own geoms (:class:`~tspend.plants.drawing.model.ModelDrawing`),
         on its rail, the cart posed by the extra ``cart_pos``."""
         machine = cartpole_machine(plant)
         slide = machine.joint_names[[j.kind for j in machine.tree.joints].index("slide")]
@@ -460,13 +457,6 @@ class CartPoleDomain(Domain):
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         # one slide and one hinge: a chain of more is the articulated domain's
         return joint_types.count("slide") == 1 and len(joint_types) == 2
-
-    def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
-        """The force the reference and the disturbance need against what the actuator can
-        give (:func:`tspend.task_feasibility.check_cart_force`)."""
-        from tspend.task_feasibility import check_cart_force
-
-        check_cart_force(plant, cartpole_machine(plant), task, scenario)
 
     def inspect(self, model_path: str, names: dict[str, str] | None = None,
                 dt: float | None = None) -> tuple[dict[str, Any], list[str]]:
@@ -500,7 +490,7 @@ class CartPoleDomain(Domain):
         divided by the force per unit u); on a limited rail at most the force that swings
         the cart over half its range at the chirp's first 0.1 Hz, so the comparison runs
         longer before the cart meets the rail's end."""
-        p: CartPoleParams = plant.params  # type: ignore[attr-defined]
+        p = read_as(plant, CartPolePlant).params
         force = CHIRP_N_PER_KG * (p.M + p.m)
         slide = plant.state_names[0]
         rail = next((j.range for j in plant.joints if j.name == slide and j.range), None)
@@ -512,7 +502,7 @@ class CartPoleDomain(Domain):
     def ode_of(self, plant: Plant) -> Plant:
         """The ODE of the MuJoCo ``plant``'s machine: the equations derived from its
         compiled model (:class:`DerivedCartPoleODE`)."""
-        return DerivedCartPoleODE(plant)  # type: ignore[arg-type]
+        return DerivedCartPoleODE(read_as(plant, MujocoCartPole))
 
 
 #: the cart-pole domain

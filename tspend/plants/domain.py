@@ -4,7 +4,7 @@ A *domain* (the cart-pole, the Furuta pendulum, the paper's chain plants) holds 
 its machine means, in its own module under ``tspend/plants/``: the equations, the roles of
 its MJCF joints and how each backend is built, its linearisation and the model the
 model-based controllers assume (:class:`PlantModel`), the drawing for Rerun
-(:class:`~tspend.drawing.base.Drawing`), labels and units (:class:`PlantLabels`), the default task
+(:class:`~tspend.plants.drawing.base.Drawing`), labels and units (:class:`PlantLabels`), the default task
 (:class:`TaskDefaults`) and the scenario configuration class of each plant kind.
 :mod:`tspend.plants.registry` maps plant kinds and domain names to domains; the runner,
 recorder, cross-check, effects and controllers ask the domain and name no concrete plant.
@@ -26,14 +26,13 @@ from numba.core import types
 from numba.extending import overload, register_jitable
 
 from tspend.config import PlantConfig
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 from tspend.runtime.jit import JIT
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
-    from tspend.drawing.base import Drawing
-    from tspend.task import Task
+    from tspend.plants.drawing.base import Drawing
 
 __all__ = ["Domain", "Backend", "FullModel", "PlantLabels", "PlantModel", "Quantity",
            "TaskDefaults", "FD_STEP", "VIEW_MODEL", "FULL_STATE", "SYMBOLIC", "PARAMETER_CHANGE",
@@ -433,10 +432,6 @@ class Domain(ABC):
         of a relative ``[randomize]`` draw (:mod:`tspend.plants.randomize`).  A key not
         listed is 0 on the machine.  By default none: a 0 is 0."""
         return {}
-
-    def check_task(self, plant: Plant, task: "Task", scenario: "Scenario") -> None:
-        """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``
-        (the cart-pole: its actuator cannot give the force the reference needs)."""
 
     # The three models a model-based controller designs on take ``machine``: the nominal
     # machine the runner built once (tspend.loop.simulation.nominal_machine, a plant of

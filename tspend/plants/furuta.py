@@ -26,12 +26,12 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.drawing.furuta import FurutaDrawing
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.furuta import FurutaDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.domain import (INTEGRATOR_CHOICES, ArticulatedDomain,
     ArticulatedMujoco, ArticulatedODE, pumped_full_model)
 from tspend.plants.articulated.machine import Machine, open_spec
-from tspend.plants.base import InputInfo, Plant, velocity_name
+from tspend.plants.base import InputInfo, MachinePlant, Plant, read_as, velocity_name
 from tspend.plants.domain import (FULL_STATE, PUMPED_ENERGY, SYMBOLIC, VIEW_MODEL, Backend, Domain,
     FullModel, PlantLabels, Quantity, TaskDefaults)
 
@@ -261,7 +261,7 @@ class FurutaDomain(ArticulatedDomain):
         """The derived equations over ``[arm, pendulum, arm_dot, pendulum_dot]`` (the plant's
         joint names; no clips: the MPC bounds u itself; the arm turns about the vertical,
         its own energy left out: :func:`pumped_full_model`)."""
-        m: Machine = machine.machine  # type: ignore[attr-defined]
+        m = read_as(machine, MachinePlant).machine
         return pumped_full_model(self.name, machine, m, coefficients(m))
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
@@ -298,7 +298,7 @@ class FurutaDomain(ArticulatedDomain):
         (twice its hinge to its centre of mass) measured on the compiled model."""
         import mujoco
 
-        m = plant.machine.model  # type: ignore[attr-defined]
+        m = read_as(plant, MachinePlant).machine.model
         data = mujoco.MjData(m)
         mujoco.mj_forward(m, data)
         axis = np.asarray(data.xaxis[0])
@@ -312,7 +312,7 @@ class FurutaDomain(ArticulatedDomain):
         return 3.0
 
     def ode_of(self, plant: Plant) -> Plant:
-        return FurutaODE(plant.machine)  # type: ignore[attr-defined]
+        return FurutaODE(read_as(plant, MachinePlant).machine)
 
 
 #: the Furuta domain

@@ -29,7 +29,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.tree import (INTEGRATOR_NAMES, collision_pairs, law_refusals,
                                             read_actuator, read_gravity, read_joint)
 

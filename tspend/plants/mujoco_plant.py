@@ -13,7 +13,7 @@ from typing import Any, Final, NamedTuple
 import mujoco
 import numpy as np
 
-from tspend.errors import DivergenceError, ScenarioError
+from tspend.runtime.errors import DivergenceError, ScenarioError
 from tspend.plants.base import Plant
 
 # MuJoCo's "huge value" threshold (mjMAXVAL): beyond it, ctrl is ignored with a warning.

@@ -62,9 +62,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.registry import domain_of
-from tspend.tables import Table
+from tspend.config.tables import Table
 
 if TYPE_CHECKING:
     from tspend.config import PlantConfig, Scenario

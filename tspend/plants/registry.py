@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from tspend.config import PlantConfig
-from tspend.drawing.base import Drawing
+from tspend.plants.drawing.base import Drawing
 from tspend.plants import analytic, cartpole, furuta
 from tspend.plants.articulated import domain as articulated
 from tspend.plants.base import Plant
@@ -42,7 +42,7 @@ def installed_domains(builtin: tuple[Domain, ...]) -> tuple[Domain, ...]:
     """
     import warnings
 
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
     from tspend.runtime import plugins
 
     taken = {kind for d in builtin for kind in d.kinds} | {d.name for d in builtin}

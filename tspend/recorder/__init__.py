@@ -16,7 +16,7 @@ What is logged (entity paths relative to the sink's ``prefix``):
   aggregation, ``log`` diagnostics as log10), ``series/error_steady`` (the steady-state
   window only), ``series/compensator_share`` (-u_s / b_hat, in u's unit),
   ``series/plant/<extra>``; see :func:`series_specs`
-- ``world/...``: the plant's domain draws it (:class:`~tspend.drawing.base.Drawing`):
+- ``world/...``: the plant's domain draws it (:class:`~tspend.plants.drawing.base.Drawing`):
   the cart-pole's ``world/cart``, ``world/pole`` (a ``Transform3D`` per body at ~50 Hz),
   ``world/rail`` with metre ticks and labelled marks, ``world/cart/readout``; the task's
   bounds (``world/rail/ends``, ``world/cart/bounds``; the Furuta's ``world/arm/bounds``)
@@ -50,7 +50,7 @@ Where things are:
 - :mod:`.documents`: the markdown documents (run, scenario, status, metrics), relative paths only
 - :mod:`.labels`: physical names and units of a plant's states, control and extras
 - :mod:`.fuzzy_axes`: membership-function axes and term labels
-- the plant in 3D is its domain's :class:`~tspend.drawing.base.Drawing`
+- the plant in 3D is its domain's :class:`~tspend.plants.drawing.base.Drawing`
 - :mod:`.crosscheck`: the cross-check recording (differences, verdict, layout)
 - :mod:`.arrow`: the columns built directly in Arrow
 - :mod:`.readback`: reading series back from an ``.rrd`` (:func:`read_scalar_series`)

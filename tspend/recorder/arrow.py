@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from tspend.errors import TspendError
+from tspend.runtime.errors import TspendError
 from tspend.recorder.common import TIMELINE
 
 

@@ -152,7 +152,7 @@ def fuzzy_views(info: RunInfo, prefix: str = "", suffix: str = "") -> tuple[list
 
 
 def plant_view(info: RunInfo, prefix: str = "", suffix: str = "") -> rrb.View:
-    """The plant in 3D as its domain draws it (:meth:`tspend.drawing.base.Drawing.view`)."""
+    """The plant in 3D as its domain draws it (:meth:`tspend.plants.drawing.base.Drawing.view`)."""
     assert info.drawing is not None
     return info.drawing.view(_abs(prefix, "world"), suffix)
 

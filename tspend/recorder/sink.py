@@ -11,7 +11,7 @@ import numpy as np
 import rerun as rr
 
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
-from tspend.drawing.base import Drawing
+from tspend.plants.drawing.base import Drawing
 from tspend.recorder.arrow import (check_tensor_type, points_column, strips_column, tensor_column,
     time_column)
 from tspend.recorder.blueprint import build_blueprint

@@ -14,7 +14,7 @@ import time
 import urllib.parse
 from abc import ABC, abstractmethod
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.rig import protocol
 from tspend.rig.protocol import Command, FrameError, Hello, Sensor
 

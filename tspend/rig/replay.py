@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.rig.closed_loop import RIG_ENTITY
 
 

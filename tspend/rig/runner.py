@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tspend.errors import DivergenceError
+from tspend.runtime.errors import DivergenceError
 from tspend.plants.base import Plant, velocity_name
 from tspend.rig import protocol
 from tspend.rig.estimator import SensorState, VelocityEstimator

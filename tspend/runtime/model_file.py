@@ -11,7 +11,7 @@ import xml.etree.ElementTree as ET
 import mujoco
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.bounds import MAX_BODIES, MAX_HFIELD_CELLS, MAX_MODEL_BYTES
 
 __all__ = ["read_spec"]

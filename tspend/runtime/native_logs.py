@@ -13,7 +13,7 @@ import os
 from contextlib import contextmanager
 from typing import Iterator
 
-from tspend.errors import TspendError
+from tspend.runtime.errors import TspendError
 
 
 def quiet_rerun() -> None:

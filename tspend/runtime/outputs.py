@@ -41,7 +41,7 @@ try:
 except ImportError:  # Windows: no advisory locks; exclusive creation still protects
     fcntl = None  # type: ignore[assignment]
 
-from tspend.errors import OutputError, ScenarioError
+from tspend.runtime.errors import OutputError, ScenarioError
 
 PARTIAL_TAG = ".partial"
 #: how many numbered alternatives a default name or a partial file may try

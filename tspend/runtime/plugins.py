@@ -9,7 +9,7 @@ A user's controller or plant is named on the command line or in Python by a *spe
 - a bare name registered by an installed package under an entry-point group
   (``tspend.controllers``, ``tspend.plants``; :mod:`importlib.metadata`).
 
-Every failure is a :class:`~tspend.errors.ScenarioError` (exit 2) of one line naming the
+Every failure is a :class:`~tspend.runtime.errors.ScenarioError` (exit 2) of one line naming the
 spec and what is wrong.  A module is imported once per process and path (a sweep's worker
 loads it once for all its runs).
 """
@@ -26,7 +26,7 @@ from functools import lru_cache
 from pathlib import Path
 from types import ModuleType
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["ENTRY_POINT_GROUPS", "is_spec", "load_object", "entry_point_names", "load_entry_point",
            "own_failure", "failure_text"]

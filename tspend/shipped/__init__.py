@@ -58,7 +58,7 @@ def locate(path: str | os.PathLike, scenario_path: str = "") -> Path | None:
 def find_named_file(path: str, scenario: Any, key: str) -> Path:
     """The file a scenario's setting ``key`` names (a policy, a plan), looked for like a
     scenario's MJCF (:func:`locate`; ScenarioError naming ``key`` if none)."""
-    from tspend.errors import ScenarioError
+    from tspend.runtime.errors import ScenarioError
 
     found = locate(path, scenario.path)
     if found is not None:

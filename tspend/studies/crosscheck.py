@@ -16,8 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from tspend.config import Scenario
-from tspend.effects import EffectsPlant
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.runner import StopRequest
 from tspend.loop.simulation import build_plant, run
 from tspend.loop.sinks import Sink
@@ -54,9 +53,7 @@ def open_loop(scenario: Scenario, duration: float = 10.0) -> dict:
     and ``open_loop_stopped_by`` say when and which."""
     domain, mj_kind, _ = backends(scenario)
     # the machine itself: effects (actuator, rail, noise) stay out of the open loop
-    mj = build_plant(scenario, mj_kind)
-    if isinstance(mj, EffectsPlant):
-        mj = mj.inner
+    mj = build_plant(scenario, mj_kind).underlying()
     # the ODE of the very machine MuJoCo compiled
     ode = domain.ode_of(mj)
     amplitude = domain.chirp_amplitude(mj)

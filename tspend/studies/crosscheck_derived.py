@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from tspend.plants.base import Plant
+from tspend.plants.base import MachinePlant, Plant, read_as
 from tspend.studies.crosscheck_openloop import open_loop_compare
 
 __all__ = ["accelerations_check", "free_motion", "RATE_MAX", "TIGHT", "LOOSE", "FREE_MIN_S",
@@ -49,7 +49,7 @@ def accelerations_check(plant: Plant, n_states: int = ACCEL_STATES, seed: int = 
 
     from tspend.plants.mujoco_plant import active_constraint
 
-    machine = plant.machine  # type: ignore[attr-defined]
+    machine = read_as(plant, MachinePlant).machine
     model = plant.mj_model()
     data = mujoco.MjData(model)
     rng = np.random.default_rng(seed)

@@ -3,7 +3,7 @@ and after adaptation, box plots of a comparison across seeds, heat maps of a two
 
 Every figure is written as PNG and PDF with the data it draws beside it as CSV (same
 name, ``.csv``), each file atomically, so a reader can check or replot any curve.  One style for all
-(:data:`STYLE`, applied with ``matplotlib.rc_context``: no global state), one colour per
+(:data:`tspend.recorder.plotting.STYLE`, applied with ``matplotlib.rc_context``: no global state), one colour per
 controller kind, axis labels with units.  matplotlib is a core dependency; figures are drawn on ``matplotlib.figure.Figure``
 objects with the Agg canvas, never through pyplot, so no display is needed.
 """
@@ -17,20 +17,10 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
+from tspend.recorder.plotting import (PALETTE, STYLE, kind_colour, kind_dash, kind_label,
+    matplotlib_parts, new_figure, state_units)
 
-STYLE = {
-    "figure.dpi": 100, "savefig.dpi": 150, "font.size": 9, "axes.titlesize": 10,
-    "axes.labelsize": 9, "legend.fontsize": 8, "figure.titlesize": 10, "xtick.labelsize": 8, "ytick.labelsize": 8,
-    "axes.grid": True, "grid.alpha": 0.3, "grid.linewidth": 0.6, "lines.linewidth": 1.2,
-    "axes.spines.top": False, "axes.spines.right": False, "legend.frameon": False,
-    "savefig.bbox": "tight",
-}
-#: one colour per controller kind, the same in every figure (Okabe-Ito, colour-blind safe)
-PALETTE = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442",
-           "#000000")
-#: line styles that tell kinds apart in grey print too
-DASHES = ("-", "--", "-.", ":")
 #: every figure is written in these formats: the picture twice and what it plots
 FORMATS = (".png", ".pdf", ".csv")
 #: a paper column (inches): the box plots are this wide
@@ -44,48 +34,6 @@ PAPER_CASES = (("ex1_nonaffine_case1", "Example 1, case 1 (nonaffine plant)"),
                ("ex1_nonaffine_case2", "Example 1, case 2 (nonaffine plant)"),
                ("ex2_duffing", "Example 2 (Duffing oscillator)"),
                ("ex3_pendulum_ode", "Example 3 (cart-pole, ODE)"))
-
-
-def state_units(plant_kind: str, order: int) -> tuple[tuple[str, ...], str]:
-    """(symbol [unit] of each state, of u) for a plant kind's axis labels."""
-    from tspend.recorder.labels import plant_labels
-
-    labels = plant_labels(plant_kind, order)
-    greek = {"theta": "θ", "theta'": "θ'", "alpha": "α", "alpha'": "α'"}
-
-    def axis(q) -> str:
-        return f"{greek.get(q.symbol, q.symbol)} [{q.unit or '–'}]"
-
-    return tuple(axis(q) for q in labels.states), axis(labels.control)
-
-
-def _matplotlib():
-    from tspend.runtime.extras import missing_extra
-
-    problem = missing_extra("matplotlib", "figures")
-    if problem:
-        raise ScenarioError(problem)
-    import matplotlib
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    return matplotlib, Figure, FigureCanvasAgg
-
-
-def kind_colour(kind: str, kinds: Sequence[str] | None = None) -> str:
-    """The colour of a controller kind: its place in the registry, so it never changes
-    between figures."""
-    from tspend.controllers import KINDS
-
-    order = list(KINDS) + [k for k in (kinds or ()) if k not in KINDS]
-    i = order.index(kind) if kind in order else len(order)
-    return PALETTE[i % len(PALETTE)]
-
-
-def kind_dash(kind: str) -> str:
-    from tspend.controllers import KINDS
-
-    order = list(KINDS)
-    return DASHES[(order.index(kind) if kind in order else 0) % len(DASHES)]
 
 
 @dataclass
@@ -124,7 +72,7 @@ class Figures:
 
         from tspend.runtime.outputs import OutputRequest, claim, plan_outputs
 
-        mpl, _, Canvas = _matplotlib()
+        mpl, _, Canvas = matplotlib_parts()
         self.out.mkdir(parents=True, exist_ok=True)
         paths = self.paths(name)
         Canvas(fig)
@@ -146,15 +94,6 @@ class Figures:
                     output.discard()
             raise
         return self.written[-3]
-
-
-def new_figure(rows: int, cols: int, size: tuple[float, float]):
-    """A Figure with a grid of axes in the common style (no pyplot)."""
-    mpl, Figure, _ = _matplotlib()
-    with mpl.rc_context(STYLE):
-        fig = Figure(figsize=size, layout="constrained")
-        axes = fig.subplots(rows, cols, squeeze=False)
-    return fig, axes
 
 
 # -- time series -------------------------------------------------------------------------
@@ -197,13 +136,13 @@ def tracking_figure(fig_out: Figures, runs: dict, name: str, title: str, every: 
         ax.plot(data["t"], data[ref_col], color="0.35", lw=1.0, ls=":", label=f"reference {ref_label}")
         for kind in runs:
             ax.plot(data["t"], data[f"x{i}_{kind}"], color=kind_colour(kind), ls=kind_dash(kind),
-                    label=_kind_label(kind, runs[kind]))
+                    label=kind_label(kind, runs[kind]))
         ax.set_ylabel(labels[i - 1])
     err = axes[2, 0]
     unit = labels[0].split(" ", 1)[1] if " " in labels[0] else ""
     for kind in runs:
         err.plot(data["t"], np.maximum(data[f"abs_e1_{kind}"], ERROR_FLOOR), color=kind_colour(kind),
-                 ls=kind_dash(kind), lw=1.0, label=_kind_label(kind, runs[kind]))
+                 ls=kind_dash(kind), lw=1.0, label=kind_label(kind, runs[kind]))
     err.set_yscale("log")
     err.set_ylabel(f"|e₁| = |x₁ − r| {unit}".strip())
     err.set_xlabel("t [s]")
@@ -211,38 +150,6 @@ def tracking_figure(fig_out: Figures, runs: dict, name: str, title: str, every: 
     seed = first.scenario.run.seed
     fig.suptitle(f"{title}, seed {seed}")
     return fig_out.save(fig, data, name)
-
-
-def run_figure(result, every: int = 1):
-    """One run in the paper's panels: each state of the task's view against its
-    reference (x1 and r, x2 and r', ...), then the control u; a matplotlib Figure
-    (``RunResult.plot()``)."""
-    h = result.history
-    if not h:
-        raise ValueError("the run kept no history (run it with keep_history=True)")
-    n = h["x"].shape[1]
-    labels, u_label = state_units(result.scenario.plant.kind, n)
-    kind = getattr(result.controller, "kind", "")
-    keep = slice(None, None, max(1, int(every)))
-    t = h["t"][keep]
-    fig, axes = new_figure(n + 1, 1, (6.4, 1.6 * (n + 1) + 0.6))
-    colour = kind_colour(kind) if kind else PALETTE[0]
-    for i in range(n):
-        ax = axes[i, 0]
-        ref = "r" + "'" * i
-        ax.plot(t, h["ref"][keep, i], color="0.35", lw=1.0, ls=":", label=f"reference {ref}")
-        ax.plot(t, h["x"][keep, i], color=colour, label=_kind_label(kind or "x", result))
-        ax.set_ylabel(labels[i] if i < len(labels) else f"x{i + 1}")
-    axes[0, 0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, fontsize=7)
-    axes[n, 0].plot(t, h["u"][keep], color=colour, lw=0.5)
-    axes[n, 0].set_ylabel(u_label)
-    axes[n, 0].set_xlabel("t [s]")
-    fig.suptitle(f"{result.scenario.name}, {kind}, seed {result.scenario.run.seed}")
-    return fig
-
-
-def _kind_label(kind: str, res) -> str:
-    return kind if res.status == "completed" else f"{kind} ({res.status})"
 
 
 def control_figure(fig_out: Figures, runs: dict, name: str, title: str,
@@ -255,7 +162,7 @@ def control_figure(fig_out: Figures, runs: dict, name: str, title: str,
     fig, axes = new_figure(len(runs), 1, (6.4, 1.9 * len(runs) + 0.6))
     for ax, kind in zip(axes[:, 0], runs):
         ax.plot(data["t"], data[f"u_{kind}"], color=kind_colour(kind), lw=0.5,
-                label=_kind_label(kind, runs[kind]))
+                label=kind_label(kind, runs[kind]))
         ax.set_ylabel(u_label)
         ax.legend(loc="upper right")
     axes[-1, 0].set_xlabel("t [s]")
@@ -378,7 +285,7 @@ def box_figure(fig_out: Figures, table, metric: str, name: str,
     keys = list(dict.fromkeys(map(tuple, data[groups].astype(str).to_numpy())))
     rows = len(keys)
     fig, axes = new_figure(rows, 1, (COLUMN_WIDTH_IN, 2.5 * rows + 0.35))
-    with _matplotlib()[0].rc_context(STYLE):
+    with matplotlib_parts()[0].rc_context(STYLE):
         for ax, key in zip(axes.flat, keys):
             sel = np.all(data[groups].astype(str).to_numpy() == np.array(key), axis=1)
             _box_panel(ax, data[sel], metric, kinds)

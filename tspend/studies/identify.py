@@ -43,7 +43,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tspend.errors import ScenarioError, TspendError
+from tspend.runtime.errors import ScenarioError, TspendError
 from tspend.studies.identify_model import OFFSET, ParametricModel
 
 __all__ = ["Record", "Fit", "FitFailed", "read_record", "column", "check_names",

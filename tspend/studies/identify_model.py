@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["ParametricModel", "cartpole_model", "furuta_model", "articulated_model",
            "load_model", "OFFSET"]

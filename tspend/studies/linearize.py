@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.analytic import AnalyticPlant
 from tspend.plants.base import Plant, velocity_name
 from tspend.plants.domain import FD_STEP

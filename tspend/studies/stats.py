@@ -660,7 +660,7 @@ def verdict_text(r) -> str:
     return f"{r.verdict} (negligible)" if r.negligible else r.verdict
 
 
-def _json_number(v: Any) -> Any:
+def json_number(v: Any) -> Any:
     """JSON has no infinity: +-inf become the strings "inf" / "-inf", nan null."""
     if isinstance(v, (float, np.floating)):
         v = float(v)
@@ -679,11 +679,11 @@ def _json_number(v: Any) -> Any:
 def to_json(comp: Comparison) -> dict:
     """The comparison as plain JSON types (infinities as the strings "inf", "-inf")."""
     def records(df):
-        return [{k: _json_number(v) for k, v in rec.items()} for rec in df.to_dict("records")]
+        return [{k: json_number(v) for k, v in rec.items()} for rec in df.to_dict("records")]
 
     outcomes = comp.outcomes if comp.outcomes is not None else None
     return {"controllers": comp.controllers, "metrics": comp.metrics,
             "group_columns": comp.group_columns, "settings": comp.settings,
             "summary": records(comp.summary), "pairs": records(comp.pairs),
             "outcomes": records(outcomes) if outcomes is not None else [],
-            "duplicates": [{k: _json_number(v) for k, v in d.items()} for d in comp.duplicates]}
+            "duplicates": [{k: json_number(v) for k, v in d.items()} for d in comp.duplicates]}

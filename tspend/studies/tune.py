@@ -32,8 +32,8 @@ import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
-from tspend.errors import ScenarioError
-from tspend.scenario_toml import dump_toml
+from tspend.runtime.errors import ScenarioError
+from tspend.scenario.writer import dump_toml
 
 #: the metric a tuning minimises unless asked otherwise
 DEFAULT_METRIC = "rmse"

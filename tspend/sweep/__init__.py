@@ -80,14 +80,14 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Iterable
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.loop.runner import RunInterrupted, StopRequest
 from tspend.runtime.bounds import DEFAULT_RUN_TIMEOUT_S, MAX_RUN_TIMEOUT_S
 from tspend.sweep.executors import WorkerDied, make_executor
 from tspend.sweep.plan import RECORD_MODES, Job, make_plan
 from tspend.sweep.table import KEY_COLUMN, RowTable, TableLock, read_table, typed
 from tspend.loop.metrics import is_machine_column
-from tspend.sweep.worker import METRIC_COLUMNS, run_job
+from tspend.sweep.worker import METRIC_COLUMNS, finished_row, run_job
 
 #: columns of every row besides the grid columns, in table order around them
 LEADING_COLUMNS = ("scenario",)
@@ -202,7 +202,8 @@ class PreparedSweep:
 
                 owned = False
                 shown.start(1, "mjx")
-                for row in run_jobs(todo, self.precision):
+                for ran in run_jobs(todo, self.precision):
+                    row = finished_row(*ran)
                     if table is not None:
                         table.append(row)
                     rows.append(row)
@@ -357,7 +358,7 @@ def build_once(plan: list[Job]) -> None:
     """Build the plant, task and controller of each scenario / grid point and each kind
     once (not per seed), so that a model that cannot be built is one ScenarioError before
     anything runs.  A plug-in whose constructor raises is bad input too."""
-    from tspend.errors import TspendError
+    from tspend.runtime.errors import TspendError
     from tspend.loop.simulation import prepare
     from tspend.runtime.native_logs import mujoco_warnings_in_errors
 

@@ -16,7 +16,7 @@ from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterable
 
-from tspend.errors import ScenarioError, TspendError
+from tspend.runtime.errors import ScenarioError, TspendError
 from tspend.sweep.worker import init_worker, warm
 
 DASK_EXTRA = "pip install 'tspend[dask]'"

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from tspend.config import Scenario
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 #: where a run's recording is kept: never, only when it did not complete, always
 RECORD_MODES = ("failed", "all", "none")

@@ -37,7 +37,7 @@ try:
 except ImportError:  # Windows: no advisory locks
     fcntl = None  # type: ignore[assignment]
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.sweep.worker import METRIC_COLUMNS
 
 NUMERIC_COLUMNS = METRIC_COLUMNS + ("job_s",)

@@ -94,6 +94,18 @@ def run_job(job: Job) -> dict[str, Any]:
                      time.perf_counter() - started)
 
 
+def finished_row(job: Job, status: str, message: str, metrics: dict, job_s: float) -> dict[str, Any]:
+    """The row of ``job`` as another backend ran it (:func:`tspend.mjx.sweep.run_jobs`),
+    recorded when the plan asks by the CPU run of the same job (runs are deterministic; a
+    recording run that fails leaves the row without a recording, as :func:`run_job`)."""
+    recording = None
+    if job.record == "all" or (job.record == "failed" and status != "completed"):
+        path = Path(job.record_path)
+        _attempt(job, path)
+        recording = str(path) if path.exists() else None
+    return table_row(job, status, message, metrics, recording, job_s)
+
+
 def table_row(job: Job, status: str, message: str, metrics: dict, recording: str | None,
               job_s: float) -> dict[str, Any]:
     """The sweep table's row of ``job`` (whichever backend ran it): its identity, how it

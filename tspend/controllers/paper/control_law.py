@@ -19,21 +19,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+# Lambda of (18) and its Hurwitz test live with the settings they validate (tspend.config)
+from tspend.config import companion, is_hurwitz  # noqa: F401 - re-exported
 from tspend.runtime.jit import JIT
-
-
-def companion(lam: np.ndarray) -> np.ndarray:
-    """Lambda of (18): ones above the diagonal, last row ``-lambda``."""
-    lam = np.asarray(lam, dtype=float)
-    n = lam.size
-    A = np.eye(n, k=1)
-    A[-1, :] = -lam
-    return A
-
-
-def is_hurwitz(lam: np.ndarray) -> bool:
-    """Whether ``s^n + lambda_n s^(n-1) + .. + lambda_1`` has all roots in Re s < 0."""
-    return bool(np.all(np.linalg.eigvals(companion(lam)).real < 0.0))
 
 
 def lyapunov_gamma(lam: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -25,11 +25,11 @@ import numpy as np
 from numba.extending import register_jitable
 
 from tspend.config import PlantConfig
-from tspend.drawing.model import ModelDrawing
-from tspend.errors import ScenarioError
+from tspend.plants.drawing.model import ModelDrawing
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.analytic import COMPILED_RHS, AnalyticPlant, CompiledPlant, rk4_work
 from tspend.plants.articulated.machine import Machine, load_machine
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.base import InputInfo, JointInfo, MachinePlant, Plant, TaskDefaults, read_as
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend,
     Domain, FullModel, PlantLabels, PlantModel, Quantity)
 from tspend.plants.mujoco_plant import MujocoPlant
@@ -440,7 +440,7 @@ class ArticulatedDomain(Domain):
         return plant.default_task().view
 
     def machine(self, scenario: "Scenario") -> Machine:
-        return self.build(scenario).machine  # type: ignore[attr-defined]
+        return read_as(self.build(scenario), MachinePlant).machine
 
     def nominal_values(self, scenario: "Scenario") -> dict[str, float]:
         """The compiled model's ``BODY.mass``, ``JOINT.damping``, ``JOINT.armature``
@@ -453,14 +453,14 @@ class ArticulatedDomain(Domain):
         """The tracked pole's acceleration with every other joint at rest; sliding mode's
         k is of the order of the upright's instability, what that model leaves out (the
         Furuta's arm reaction and back-EMF: ~100 rad/s^2 at 0.1 rad)."""
-        view = derived_view(machine.machine)  # type: ignore[attr-defined]
+        view = derived_view(read_as(machine, MachinePlant).machine)
         return PlantModel(scenario.plant.kind, 2, view.accel, affine_in_u=True,
                           x_op=(0.0, 0.0), switching_gain=20.0, compiled=view)
 
     def full_model(self, scenario: "Scenario", machine: Plant) -> FullModel:
         """The derived equations over ``[q, q']`` (the joints' names): numbers through the
         compiled module, CasADi through the derivation (no clips: MPC bounds u)."""
-        m: Machine = machine.machine  # type: ignore[attr-defined]
+        m = read_as(machine, MachinePlant).machine
         nv = m.nv
 
         def factory(sin, cos, tanh):
@@ -482,23 +482,24 @@ class ArticulatedDomain(Domain):
                          accel_unit="m/s^2" if m.tree.joints[m.actuated].kind == "slide" else "rad/s^2")
 
     def linearisation(self, scenario: "Scenario", machine: Plant) -> tuple[np.ndarray, np.ndarray]:
-        return machine.machine.linearisation()  # type: ignore[attr-defined]
+        return read_as(machine, MachinePlant).machine.linearisation()
 
     def jacobians(self, plant: Plant, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        return plant.machine.linearisation(at)  # type: ignore[attr-defined]
+        return read_as(plant, MachinePlant).machine.linearisation(at)
 
     def drawing(self, plant: Plant, scenario: "Scenario") -> ModelDrawing:
-        m: Machine = plant.machine  # type: ignore[attr-defined]
+        m = read_as(plant, MachinePlant).machine
         return ModelDrawing(m, plant.default_task().view, Path(m.where).stem.replace("_", " "))
 
     def chirp_amplitude(self, plant: Plant) -> float:
-        a = plant.machine.actuator  # type: ignore[attr-defined]
+        a = read_as(plant, MachinePlant).machine.actuator
         if a.ctrlrange is not None:
             return 0.3 * min(abs(a.ctrlrange[0]), abs(a.ctrlrange[1]))
         return 1.0
 
     def ode_of(self, plant: Plant) -> Plant:
-        return ArticulatedODE(plant.machine, plant.q0)  # type: ignore[attr-defined]
+        own = read_as(plant, MachinePlant)
+        return ArticulatedODE(own.machine, own.q0)
 
     def fits_mjcf(self, joint_types: tuple[str, ...]) -> bool:
         return bool(joint_types) and all(t in ("hinge", "slide") for t in joint_types) \

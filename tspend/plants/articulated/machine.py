@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.derive import Derivation, compiled_module, derive, parameter_table
 from tspend.plants.articulated.tree import INTEGRATOR_NAMES, Tree, read_tree
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 
 __all__ = ["QUANTITIES", "LOWER_BOUNDS", "split", "model_values", "write_values", "check_values", "compile_with_values",
            "check_names"]

@@ -17,17 +17,17 @@ from pathlib import Path
 from typing import Any, Callable
 
 
-from tspend import signals
+from tspend.config import signals
 from tspend.shipped import scenario_search_path
 from tspend.runtime.bounds import (MAX_FILE_BYTES, MAX_LIST, MAX_NAME, MAX_NESTING, MAX_SEED,
     MAX_STEPS, MAX_TERMS)
 from tspend.config import (BoxConstraint, ConstraintsConfig, ControllerConfig, EffectsConfig,
     LinearConstraint, OuterLoopConfig, ParameterChange, PlantConfig, RunConfig, SafetyConfig,
     Scenario, TaskConfig)
-from tspend.controllers import settings_classes
+from tspend.controllers import SAFETY_CHOICES, settings_classes
 from tspend.controllers.settings import PAPER_KINDS, parse_kind_tables, read_settings
-from tspend.errors import ScenarioError
-from tspend.tables import Table, read_fields
+from tspend.runtime.errors import ScenarioError
+from tspend.config.tables import Table, read_fields
 from tspend.plants.randomize import read_randomize
 from tspend.plants.registry import PLANT_KINDS, resolve_model_path
 
@@ -235,7 +235,7 @@ def _task(r: Table, n: int) -> TaskConfig:
 
 def _constraints(r: Table) -> ConstraintsConfig:
     """``[task.constraints]``: the names are checked against the plant's states and input
-    when the run is built (:func:`tspend.constraints.build_constraints`), the numbers here."""
+    when the run is built (:func:`tspend.task.constraints.build_constraints`), the numbers here."""
     r.check_keys(("defaults", "box", "linear"), "in [task.constraints]")
     boxes = []
     box_r = r.table_of("box")
@@ -318,6 +318,7 @@ def _safety(r: Table, control_period_s: float) -> SafetyConfig:
     """``[safety]`` onto :class:`SafetyConfig` (docs/safety.md); ``control_period_s``: how
     often the controller runs (``run.control_period``, else ``run.dt``)."""
     values = read_fields(r, SafetyConfig, "in [safety]")
+    values["filter"] = r.string("filter", "off", SAFETY_CHOICES)  # the registry's names
     if not values.get("margin", 0.0) < 1.0:
         raise r.error("margin", f"must be from 0 to below 1 (a share of each box's "
                                 f"half-width), got {values['margin']:g}")

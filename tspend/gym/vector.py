@@ -36,14 +36,14 @@ from typing import Any
 
 from tspend.runtime.extras import require
 
-require("gymnasium", "tspend.gym_vector")  # else one line naming the extra
+require("gymnasium", "tspend.gym.vector")  # else one line naming the extra
 
 import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 from gymnasium.vector import AutoresetMode, VectorEnv  # noqa: E402
 from gymnasium.vector.utils import batch_space  # noqa: E402
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.gym import TspendEnv, autoreset_mode_of
 from tspend.loop import envstep
 

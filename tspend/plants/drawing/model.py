@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
-from tspend.drawing.base import END_COLOR, Drawing, bound_text
+from tspend.plants.drawing.base import END_COLOR, Drawing, bound_text
 
 if TYPE_CHECKING:
     from tspend.plants.articulated.machine import Machine

@@ -2,7 +2,7 @@
 
 A :class:`Table` reads the keys of one TOML table by type (a number, an integer, a string
 from a set of choices, a list of numbers, an n x n matrix, fuzzy-set tables), each problem a
-:class:`~tspend.errors.ScenarioError` whose one-line message names the file, the dotted key
+:class:`~tspend.runtime.errors.ScenarioError` whose one-line message names the file, the dotted key
 and what is allowed, e.g. ``scenarios/x.toml: controller.eta: must be > 0, got -1``.
 
 :func:`read_fields` maps a table onto a frozen dataclass: its fields are the allowed keys,
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from tspend.config import SetSpec
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.runtime.bounds import MAX_LIST, MAX_TERMS
 
 __all__ = ["Table", "read_fields", "SET_KEYS"]

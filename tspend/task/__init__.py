@@ -19,7 +19,7 @@ and the plant's domain (:meth:`tspend.plants.base.Plant.default_task`):
   - ``state_bounds``: ``|value| > bound`` for a named state ends it ``state_bound``;
   - ``constraints``: a hard box of ``[task.constraints.box]`` on a state ends it
     ``constraint``; every constraint, the domain's defaults included, is measured
-    (:mod:`tspend.constraints`, ``Task.constraints``).
+    (:mod:`tspend.task.constraints`, ``Task.constraints``).
 
 A terminated run keeps its outputs up to the sample that crossed (recorded, its control
 never applied), exits with status :data:`EXIT_TERMINATED` on the CLI, and its message
@@ -36,12 +36,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tspend.config import EffectsConfig, TaskConfig
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.base import Plant
 
 if TYPE_CHECKING:
-    from tspend.constraints import ConstraintSet
-    from tspend.signals import Disturbance, Reference
+    from tspend.task.constraints import ConstraintSet
+    from tspend.config.signals import Disturbance, Reference
 
 __all__ = ["EXIT_TERMINATED", "TERMINATIONS", "Bound", "Limit", "Task", "build_task"]
 
@@ -96,7 +96,7 @@ class Task:
     hi_limits: tuple[Limit | None, ...]
     reference: "Reference | None" = None
     disturbance: "Disturbance | None" = None
-    #: the constraints the run is measured against (tspend/constraints.py; None: none built)
+    #: the constraints the run is measured against (tspend/task/constraints.py; None: none built)
     constraints: "ConstraintSet | None" = None
     #: (index, lo, hi) of every bounded entry: the generic loop's per-sample check
     watched: tuple[tuple[int, float, float], ...] = field(init=False)
@@ -224,7 +224,7 @@ def build_task(plant: Plant, cfg: TaskConfig = TaskConfig(),
         bound(j, -value, value, Limit("state_bound", f"task.state_bounds.{name} = {value:g}{unit}",
                                       symmetric=True))
 
-    from tspend.constraints import build_constraints
+    from tspend.task.constraints import build_constraints
 
     # the domain's default constraints: every bound so far but the fall angle
     own = []

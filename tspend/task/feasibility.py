@@ -3,8 +3,8 @@
 The physics says what the actuator can give (:func:`tspend.plants.mjcf.actuator_force_range`);
 the task says what the reference and the disturbance ask.  :func:`check_cart_force`
 compares the two for a balancing task (one that ends on a fall) and refuses, with the
-reason, a run no controller could finish; the cart-pole domain calls it from
-:meth:`tspend.plants.domain.Domain.check_task`.
+reason, a run no controller could finish.  :func:`check_task` is what the runners call
+before a run, for any plant: the task side depends on the physics, never the reverse.
 """
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tspend.errors import ScenarioError
+from tspend.runtime.errors import ScenarioError
 from tspend.plants.articulated.domain import applied_forces
+from tspend.plants.base import CartPolePlant, MachinePlant, read_as
 from tspend.plants.mjcf import CartPoleParams, actuator_force_range
 
 if TYPE_CHECKING:
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
     from tspend.plants.base import Plant
     from tspend.task import Task
 
-__all__ = ["check_cart_force", "reference_force", "inverse_dynamics", "NEED_SAMPLES"]
+__all__ = ["check_task", "check_cart_force", "reference_force", "inverse_dynamics", "NEED_SAMPLES"]
 
 
 def inverse_dynamics(machine: Machine, q: float, w: float, q_dd: float, cart_vel: float,
@@ -100,7 +101,7 @@ def check_cart_force(plant: "Plant", machine: "Machine", task: "Task", scenario:
     """
     if not any(limit is not None and limit.status == "fell" for limit in task.lo_limits):
         return
-    p: CartPoleParams = plant.params  # type: ignore[attr-defined]
+    p = read_as(plant, CartPolePlant).params
     sat = scenario.effects.saturation
     lo, hi = actuator_force_range(p, -sat if sat > 0 else -math.inf,
                                   sat if sat > 0 else math.inf)
@@ -121,3 +122,12 @@ def check_cart_force(plant: "Plant", machine: "Machine", task: "Task", scenario:
         f"(gear {p.gear:g} x gain {p.gain:g} x u in [{max(p.ctrl_min, -sat if sat > 0 else -math.inf):g}, "
         f"{min(p.ctrl_max, sat if sat > 0 else math.inf):g}]); lower reference.amplitude "
         f"or widen the actuator's range")
+
+
+def check_task(plant: "Plant", task: "Task", scenario: "Scenario") -> None:
+    """Raise ScenarioError, before a run, when ``plant`` plainly cannot do ``task``: a
+    cart-pole's actuator weaker than the reference needs (:func:`check_cart_force`); no
+    other plant is checked."""
+    inner = plant.underlying()
+    if isinstance(inner, CartPolePlant) and isinstance(inner, MachinePlant):
+        check_cart_force(plant, inner.machine, task, scenario)

@@ -9,12 +9,12 @@
 :class:`TspendEnv` is a thin layer on the machinery a run uses
 (:mod:`tspend.loop.simulation`): the scenario's plant with its real-world effects
 (``build_plant``), its task (view, reference, termination bounds: :mod:`tspend.task`),
-its disturbance and its measurement effects (:class:`tspend.effects.Measurement`).
+its disturbance and its measurement effects (:class:`tspend.loop.effects.Measurement`).
 Nothing here integrates anything: each env step holds the action (zero-order hold) over
 ``frame_skip`` physics steps of ``run.dt``, exactly as the runner's sampled loop does; on
 a MuJoCo plant without per-sample effects in one compiled call
 (:mod:`tspend.loop.envstep`), otherwise through ``plant.step(u, d, run.dt)``.  N envs in
-one call: :mod:`tspend.gym_vector`.
+one call: :mod:`tspend.gym.vector`.
 
 Observation (:attr:`TspendEnv.observation_names`, :attr:`TspendEnv.observation_units`):
 the plant's full named state (positions, then velocities, the task's view entries as the
@@ -52,7 +52,7 @@ from gymnasium import spaces  # noqa: E402
 
 from tspend.controllers.base import Observation
 from tspend.loop import envstep
-from tspend.errors import DivergenceError, ScenarioError, TspendError
+from tspend.runtime.errors import DivergenceError, ScenarioError, TspendError
 
 __all__ = ["ENV_PREFIX", "RenderError", "RewardWeights", "TspendEnv", "autoreset_mode_of",
            "env_id", "register_all"]
@@ -114,6 +114,30 @@ def env_id(scenario: str) -> str:
     return f"{ENV_PREFIX}/{scenario}-v0"
 
 
+def reward_weights(reward: Any) -> RewardWeights:
+    """``reward`` (RewardWeights, a dict of its fields, or None: the defaults) as weights;
+    ScenarioError naming what is wrong."""
+    if not isinstance(reward, (RewardWeights, dict, type(None))):
+        raise ScenarioError(f"reward: a RewardWeights or a dict, got {type(reward).__name__}")
+    unknown = sorted(set(reward or {}) - set(RewardWeights.__dataclass_fields__)) \
+        if isinstance(reward, dict) else []
+    if unknown:
+        raise ScenarioError(f"reward: unknown key(s) {', '.join(map(str, unknown))}; allowed: "
+                            f"{', '.join(RewardWeights.__dataclass_fields__)}")
+    return reward if isinstance(reward, RewardWeights) else RewardWeights(**dict(reward or {}))
+
+
+def initial_noise(init_noise: Any, size: int) -> np.ndarray:
+    """``init_noise`` as one bound per entry of plant.x0 (one number for all, or ``size``);
+    ScenarioError for anything else or a negative or non-finite bound."""
+    noise = np.broadcast_to(np.asarray(init_noise, dtype=float), (size,)) \
+        if np.ndim(init_noise) == 0 or np.size(init_noise) == size else None
+    if noise is None or not np.all(np.isfinite(noise)) or np.any(noise < 0):
+        raise ScenarioError(f"init_noise {init_noise!r}: one number >= 0 or {size} "
+                            f"(plant.x0's length)")
+    return np.array(noise, dtype=float)
+
+
 class TspendEnv(gymnasium.Env):
     """A tspend scenario as a gymnasium environment (module docstring; docs/gym.md).
 
@@ -167,15 +191,7 @@ class TspendEnv(gymnasium.Env):
         self.scenario = scn
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
-        if not isinstance(reward, (RewardWeights, dict, type(None))):
-            raise ScenarioError(f"reward: a RewardWeights or a dict, got {type(reward).__name__}")
-        unknown = sorted(set(reward or {}) - set(RewardWeights.__dataclass_fields__)) \
-            if isinstance(reward, dict) else []
-        if unknown:
-            raise ScenarioError(f"reward: unknown key(s) {', '.join(map(str, unknown))}; allowed: "
-                                f"{', '.join(RewardWeights.__dataclass_fields__)}")
-        self.reward_weights = reward if isinstance(reward, RewardWeights) else \
-            RewardWeights(**dict(reward or {}))
+        self.reward_weights = reward_weights(reward)
         self._first_seed = scn.run.seed if seed is None else int(seed)
 
         self.dt = float(scn.run.dt)
@@ -192,14 +208,25 @@ class TspendEnv(gymnasium.Env):
         self.task = simulation.scenario_task(scn, self.plant)
         self.order = len(self.task.view)
         n, N = self.order, len(self.task.names)
-        x0 = np.asarray(scn.plant.x0, dtype=float)
-        noise = np.broadcast_to(np.asarray(init_noise, dtype=float), x0.shape) \
-            if np.ndim(init_noise) == 0 or np.size(init_noise) == x0.size else None
-        if noise is None or not np.all(np.isfinite(noise)) or np.any(noise < 0):
-            raise ScenarioError(f"init_noise {init_noise!r}: one number >= 0 or {x0.size} "
-                                f"(plant.x0's length)")
-        self.init_noise = np.array(noise, dtype=float)
+        self.init_noise = initial_noise(init_noise, len(scn.plant.x0))
+        self.normalize = bool(normalize)
+        self._observation_layout()
+        self._action_layout(simulation.machine_info(self.plant, self.task, scn))
+        self._tracking = np.zeros(n)
+        w = np.asarray(self.reward_weights.tracking, dtype=float)[:n]
+        self._tracking[:w.size] = w
+        hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
+        self._wraps = np.array([v in hinges for v in self.task.view], dtype=bool)
+        self._work_arrays(n, N)
+        self._renderer: Any = None
+        self._camera: Any = None
+        self._seeded = False
 
+    # -- construction helpers -------------------------------------------------------
+    def _observation_layout(self) -> None:
+        """The observation's names and units (the full state, then r and its derivatives),
+        its space and the state columns' names."""
+        n, N = self.order, len(self.task.names)
         refs = tuple("r" + "'" * k for k in range(n + 1))
         view_units = [self.task.units[j] for j in self.task.view_index]
         ref_units = [self._per_second(view_units[0], k) for k in range(n + 1)]
@@ -208,7 +235,6 @@ class TspendEnv(gymnasium.Env):
         self.observation_units: tuple[str, ...] = tuple(self.task.units) + tuple(ref_units)
         #: normalised spaces for learning libraries: actions in [-1, 1] (float32) mapped
         #: onto the actuator's range, observations as float32
-        self.normalize = bool(normalize)
         dtype = np.float32 if self.normalize else np.float64
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(N + n + 1,), dtype=dtype)
         #: each state's name as in an export and the metrics (the model's joint, its unit)
@@ -217,7 +243,8 @@ class TspendEnv(gymnasium.Env):
         self.state_columns = tuple(f"{name}_{unit_slug(unit)}" if unit_slug(unit) else name
                                    for name, unit in zip(self.task.names, self.task.units))
 
-        machine = simulation.machine_info(self.plant, self.task, scn)
+    def _action_layout(self, machine: Any) -> None:
+        """The action's space (the actuator's range, or [-1, 1] onto it), name and unit."""
         lo, hi = machine.u_lo, machine.u_hi
         if self.normalize and not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
             raise ScenarioError(f"normalize=True: the actuator's range [{lo:g}, {hi:g}] is not "
@@ -231,12 +258,10 @@ class TspendEnv(gymnasium.Env):
         self.action_unit = (self.plant.inputs[0].unit if self.plant.inputs else "") or \
             self._control_unit()
         self.u_scale = hi if math.isfinite(hi) and hi > 0 else 1.0
-        self._tracking = np.zeros(n)
-        w = np.asarray(self.reward_weights.tracking, dtype=float)[:n]
-        self._tracking[:w.size] = w
-        hinges = {j.name for j in self.plant.joints if j.kind == "hinge"}
-        self._wraps = np.array([v in hinges for v in self.task.view], dtype=bool)
 
+    def _work_arrays(self, n: int, N: int) -> None:
+        """What each step works in: the clock, the observation, the reference and
+        disturbance tables' window, the compiled step's frame."""
         # physics steps done in this episode and the tables' window's first step, in the
         # compiled step's int64 row (envstep.CLOCK, BASE): the compiled step advances it
         self._ints = np.zeros(envstep.INT_SLOTS, dtype=np.int64)
@@ -256,16 +281,12 @@ class TspendEnv(gymnasium.Env):
         self.frame = self._compiled_frame()
         if self.frame is not None:
             self._ints = self.frame.ints
-        self._renderer: Any = None
-        self._camera: Any = None
-        self._seeded = False
 
-    # -- construction helpers -------------------------------------------------------
     def _compiled_frame(self) -> envstep.Frame | None:
         """The env for :func:`tspend.loop.envstep.env_step`, when its plant offers MuJoCo's
         compiled step and nothing runs per sample in Python (no effects wrapper, no
-        measurement hook: :mod:`tspend.effects`)."""
-        from tspend.effects import needs_hook, needs_plant_wrapper
+        measurement hook: :mod:`tspend.loop.effects`)."""
+        from tspend.loop.effects import needs_hook, needs_plant_wrapper
         from tspend.plants.mujoco_plant import mj_step_pointer
 
         effects = self.scenario.effects
@@ -283,7 +304,7 @@ class TspendEnv(gymnasium.Env):
 
     def adopt_rows(self, ints: np.ndarray, floats: np.ndarray) -> None:
         """Keep the compiled step's rows in ``ints``, ``floats`` (rows of a vector env's
-        matrices: :class:`tspend.gym_vector.TspendVectorEnv`)."""
+        matrices: :class:`tspend.gym.vector.TspendVectorEnv`)."""
         self.frame.adopt(ints, floats)
         self._ints = self.frame.ints
 
@@ -343,7 +364,7 @@ class TspendEnv(gymnasium.Env):
         ones a seed drawn from ``np_random``.
         """
         from tspend.loop import simulation
-        from tspend.effects import Measurement, needs_hook, needs_plant_wrapper
+        from tspend.loop.effects import Measurement, needs_hook, needs_plant_wrapper
 
         if seed is None and not self._seeded:
             seed = self._first_seed
@@ -595,7 +616,7 @@ def register_all() -> list[str]:
         eid = env_id(name)
         if eid not in gymnasium.registry:
             gymnasium.register(id=eid, entry_point="tspend.gym:TspendEnv",
-                               vector_entry_point="tspend.gym_vector:TspendVectorEnv",
+                               vector_entry_point="tspend.gym.vector:TspendVectorEnv",
                                kwargs={"scenario": name}, disable_env_checker=False)
         ids.append(eid)
     return ids

@@ -3,8 +3,8 @@
 A domain says how its machine is drawn (:meth:`tspend.plants.domain.Domain.drawing`); the
 drawing itself is neither physics nor task, so it lives here: :class:`Drawing`, the
 protocol the recorder (:mod:`tspend.recorder.sink`) and :mod:`tspend.loop.sinks` call,
-:class:`~tspend.drawing.model.ModelDrawing`, any MJCF drawn from its own geoms (with a
-cart's rail), and :class:`~tspend.drawing.furuta.FurutaDrawing`, the QUBE rig.
+:class:`~tspend.plants.drawing.model.ModelDrawing`, any MJCF drawn from its own geoms (with a
+cart's rail), and :class:`~tspend.plants.drawing.furuta.FurutaDrawing`, the QUBE rig.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from tspend.config import EffectsConfig, OuterLoopConfig
-from tspend.plants.base import InputInfo, JointInfo, Plant, TaskDefaults
+from tspend.plants.base import CartPolePlant, InputInfo, JointInfo, Plant, TaskDefaults, read_as
 from tspend.plants.domain import CAPABILITIES, CART_CENTRING, PARAMETER_CHANGE, Domain
 
 
@@ -53,9 +53,14 @@ class EffectsPlant(Plant):
 
     @property
     def params(self) -> Any:
-        """The inner machine's parameters (its domain's drawing and the outer loop read
-        them); AttributeError for a plant that has none, as on the plant itself."""
-        return self.inner.params  # type: ignore[attr-defined]
+        """The inner machine's parameters; AttributeError for a plant that has none, as on
+        the plant itself (what a wrapper forwards is the inner plant's own attribute)."""
+        return getattr(self.inner, "params")
+
+    def underlying(self) -> Plant:
+        """The plant behind the effects: what its domain reads of it (its machine, its
+        numbers), through :func:`tspend.plants.base.read_as`."""
+        return self.inner.underlying()
 
     @property
     def name(self) -> str:  # type: ignore[override]
@@ -125,9 +130,10 @@ class EffectsPlant(Plant):
     def step(self, u: float, d: float, dt: float) -> None:
         change = self.cfg.change
         if change is not None and not self._changed and self._t >= change.at - 0.5 * dt:
-            p = self.inner.params  # type: ignore[attr-defined]
-            self.inner.set_params(replace(p, M=change.M or p.M, m=change.m or p.m,  # type: ignore[attr-defined]
-                                          l=change.l or p.l, J=0.0))
+            inner = read_as(self.inner, CartPolePlant)
+            p = inner.params
+            inner.set_params(replace(p, M=change.M or p.M, m=change.m or p.m, l=change.l or p.l,
+                                     J=0.0))
             self._changed = True
         if math.isfinite(u):
             u = self.applied(u, dt)
@@ -191,7 +197,8 @@ class Measurement:
         self.past: deque[np.ndarray] = deque(maxlen=cfg.delay + 1)
         ol = cfg.outer_loop
         on = ol is not None and (ol.k_x != 0.0 or ol.k_v != 0.0)
-        self.outer = OuterLoop(ol, n, dt, plant.params.theta_sign) if on else None  # type: ignore[attr-defined]
+        self.outer = OuterLoop(ol, n, dt, read_as(plant, CartPolePlant).params.theta_sign) \
+            if on else None
 
     def __call__(self, t: float, x: np.ndarray, ref_row: np.ndarray) -> np.ndarray:
         if self.outer is not None:

@@ -1,7 +1,7 @@
 """Typed, frozen configuration: what a scenario file maps onto.
 
 Every field here has a key of the same name in the scenario TOML (see
-``tspend/scenario.py`` for the loading and validation, and ``scenarios/`` for examples).
+``tspend/scenario/__init__.py`` for the loading and validation, and ``scenarios/`` for examples).
 """
 
 from __future__ import annotations
@@ -9,8 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from tspend.runtime.bounds import MAX_BSPLINE_ORDER, MAX_CONTROL_POINTS
-from tspend.signals import Disturbance, Reference
+from tspend.config.signals import Disturbance, Reference
 
 
 #: the largest closed-loop pole (rad/s) any kind's search reaches: the same cap on the same
@@ -48,6 +50,21 @@ def _identity_times_10(n: int) -> tuple[tuple[float, ...], ...]:
 
 def _zeros(n: int) -> tuple[float, ...]:
     return (0.0,) * n
+
+
+def companion(lam: Any) -> np.ndarray:
+    """Lambda of the paper's (18): ones above the diagonal, last row ``-lambda``."""
+    lam = np.asarray(lam, dtype=float)
+    n = lam.size
+    A = np.eye(n, k=1)
+    A[-1, :] = -lam
+    return A
+
+
+def is_hurwitz(lam: Any) -> bool:
+    """Whether ``s^n + lambda_n s^(n-1) + .. + lambda_1`` has all roots in Re s < 0 (the
+    condition on ``[controller] lambda`` that :meth:`ControllerConfig.check` states)."""
+    return bool(np.all(np.linalg.eigvals(companion(lam)).real < 0.0))
 
 
 @dataclass(frozen=True)
@@ -140,7 +157,6 @@ class ControllerConfig:
         Hurwitz of length n, n state sets, enough control points, rule counts bounded."""
         import math
 
-        from tspend.controllers.paper.control_law import is_hurwitz
         from tspend.runtime.bounds import MAX_RULES
 
         if len(self.lam) != n:
@@ -259,7 +275,7 @@ class EffectsConfig:
 class BoxConstraint:
     """``[task.constraints.box] NAME = {lo, hi, hard}``: ``lo <= NAME <= hi`` on a named state
     or the input (+/-inf: open).  ``hard``: crossing it ends the run ``constraint`` (a state's
-    box only); soft: measured (tspend/constraints.py)."""
+    box only); soft: measured (tspend/task/constraints.py)."""
 
     lo: float = -float("inf")
     hi: float = float("inf")
@@ -280,7 +296,7 @@ class LinearConstraint:
 @dataclass(frozen=True)
 class ConstraintsConfig:
     """``[task.constraints]``: the constraints a run is measured against and a safety filter
-    keeps (tspend/constraints.py, docs/safety.md)."""
+    keeps (tspend/task/constraints.py, docs/safety.md)."""
 
     #: the domain's own: every joint range and the rail (hard, as the task ends runs on
     #: them), the actuator's range (soft)
@@ -295,10 +311,11 @@ class ConstraintsConfig:
 class SafetyConfig:
     """``[safety]``: a safety filter between any controller and the plant (docs/safety.md)."""
 
-    #: "off", "cbf" (a control barrier function QP per sample, tspend/controllers/safety.py)
-    #: or "mpsc" (predictive safety certification: a backup plan over a horizon ending in
-    #: the LQR's invariant ellipsoid, tspend/controllers/mpsc.py)
-    filter: str = field(default="off", metadata={"choices": ("off", "cbf", "mpsc")})
+    #: "off" or a name in the registry of safety filters (``tspend.controllers.SAFETY_FILTERS``,
+    #: which the scenario reader checks it against): "cbf" (a control barrier function QP
+    #: per sample), "mpsc" (predictive safety certification: a backup plan over a horizon
+    #: ending in the LQR's invariant ellipsoid)
+    filter: str = "off"
     #: class-K gains of the (high-order) barrier conditions, 1/s: psi_1 = h' + alpha_1 h,
     #: psi_1' + alpha_2 psi_1 >= 0 (a position box), h' + alpha_1 h >= 0 (a velocity's)
     alpha_1: float = field(default=2.0, metadata=_positive())
@@ -338,7 +355,7 @@ class SafetyConfig:
 
 @dataclass(frozen=True)
 class TaskConfig:
-    """``[task]``: what the controllers track and what ends a run (tspend/task.py).
+    """``[task]``: what the controllers track and what ends a run (tspend/task/__init__.py).
 
     Every field left at its default takes the plant domain's own (the cart-pole: view
     ``("hinge", "hinge_dot")``, fall at pi/2 from upright).
@@ -390,7 +407,7 @@ class Scenario:
     description: str
     run: RunConfig
     plant: PlantConfig
-    #: a reference and a disturbance of ``tspend.signals`` (frozen dataclasses too)
+    #: a reference and a disturbance of ``tspend.config.signals`` (frozen dataclasses too)
     reference: Reference
     disturbance: Disturbance
     controller: ControllerConfig

@@ -1,1 +1,0 @@
-"""3D drawings of the machines for Rerun (:mod:`tspend.drawing.base`)."""
