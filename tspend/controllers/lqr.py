@@ -63,15 +63,19 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 from numba import njit
-from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
+from tspend.controllers import xp
 from tspend.controllers.full_model import wrap_angle
+from tspend.controllers.law import array_law, mark_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
+
+#: the angle's wrap is arithmetic over ``math``: laws that call it have its own text in JAX
+mark_law(wrap_angle)
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -147,35 +151,36 @@ class ViewLQRLaw(NamedTuple):
     e: np.ndarray      # (n,) scratch: the error
 
 
-@register_jitable
-def view_lqr_law(law: ViewLQRLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
-    """``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring), diagnostics into
-    ``diag``; the one implementation, plain Python in the generic loop, compiled in the
-    compiled ones."""
+@array_law
+def view_lqr_law(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                 ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)``, ``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring),
+    diagnostics into ``diag``; the one implementation, for numba and JAX
+    (:mod:`tspend.controllers.law`)."""
     e = law.e
     n = e.size
     ar = 0.0
     u_fb = 0.0
     for j in range(n):
         ar += law.a[j] * (ref[j] - law.x_op[j])
-        e[j] = x[j] - ref[j]
+        e = xp.put(e, j, x[j] - ref[j])
         u_fb -= law.K[j] * e[j]
     u_ff = law.u_op + (ref[n] - ar) / law.b
     V = 0.0
     for i in range(n):
         for j in range(n):
             V += e[i] * law.P[i, j] * e[j]
-    diag[0] = u_ff
-    diag[1] = u_fb
-    diag[2] = V
-    return u_ff + u_fb
+    diag = xp.put(diag, 0, u_ff)
+    diag = xp.put(diag, 1, u_fb)
+    diag = xp.put(diag, 2, V)
+    return u_ff + u_fb, state
 
 
 @njit(**JIT)
 def view_lqr_step(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
                   ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`view_lqr_law` behind the compiled controllers' common signature."""
-    return view_lqr_law(law, x, ref, diag)
+    return view_lqr_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class LQRController(Controller):
@@ -224,7 +229,7 @@ class LQRController(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(view_lqr_step, self.law, None, None)
+        return CompiledController(view_lqr_step, self.law, None, None, view_lqr_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}
@@ -246,18 +251,18 @@ class FullLQRLaw(NamedTuple):
     e: np.ndarray          # (N,) scratch: the error
 
 
-@register_jitable
+@array_law
 def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
     """``u = u_r - K (s - s_r)`` (module docstring), diagnostics into ``diag``; the one
-    implementation, plain Python in the generic loop, compiled in the compiled ones."""
+    implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
     s_r, e = law.s_r, law.e
     r, rd, rdd = ref[0], ref[1], ref[2]
     for j in range(s_r.size):
-        s_r[j] = 0.0
-    s_r[law.pole] = r
-    s_r[law.dof + law.pole] = rd
-    s_r[law.actuated] = law.kappa * r
-    s_r[law.dof + law.actuated] = law.kappa * rd
+        s_r = xp.put(s_r, j, 0.0)
+    s_r = xp.put(s_r, law.pole, r)
+    s_r = xp.put(s_r, law.dof + law.pole, rd)
+    s_r = xp.put(s_r, law.actuated, law.kappa * r)
+    s_r = xp.put(s_r, law.dof + law.actuated, law.kappa * rd)
     acc = 0.0
     for j in range(s_r.size):
         acc += law.a_pole[j] * s_r[j]
@@ -265,17 +270,24 @@ def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.nd
     u_fb = 0.0
     for j in range(e.size):
         d = full[j] - s_r[j]
-        e[j] = wrap_angle(d) if law.wraps[j] and abs(d) > math.pi else d
+        e = xp.put(e, j, xp.where(law.wraps[j] & (abs(d) > math.pi), wrap_angle(d), d))
         u_fb -= law.K[j] * e[j]
     V = 0.0
     for i in range(e.size):
         for j in range(e.size):
             V += e[i] * law.P[i, j] * e[j]
-    diag[0] = u_ff
-    diag[1] = u_fb
-    diag[2] = V
-    diag[3] = s_r[law.actuated]
+    diag = xp.put(diag, 0, u_ff)
+    diag = xp.put(diag, 1, u_fb)
+    diag = xp.put(diag, 2, V)
+    diag = xp.put(diag, 3, s_r[law.actuated])
     return u_ff + u_fb
+
+
+@array_law
+def full_lqr_control(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray,
+                     x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)`` of :func:`full_lqr_law`, in the laws' common signature."""
+    return full_lqr_law(law, full, ref, diag), state
 
 
 @njit(**JIT)
@@ -343,7 +355,7 @@ class FullStateLQR(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(full_lqr_step, self.law, None, None)
+        return CompiledController(full_lqr_step, self.law, None, None, full_lqr_control)
 
     def step(self, obs: Observation, dt: float) -> float:
         # the compiled law from Python too: one dispatch instead of the law interpreted
