@@ -101,15 +101,17 @@ def jax_form(fn: Any) -> Callable:
     return built
 
 
-def jax_design(design: Any) -> Any:
+def jax_design(design: Any, every_array: bool = False) -> Any:
     """``design`` (NamedTuples of numbers and numpy arrays) with every float array a JAX
     array, a constant of the trace that calls the law (integer and boolean arrays stay
-    numpy: static indices and flags)."""
+    numpy: static indices and flags); ``every_array``: every array (a scratch the law
+    writes, integer spans included)."""
     import jax
     import jax.numpy as jnp
 
     def convert(leaf):
-        if isinstance(leaf, np.ndarray) and np.issubdtype(leaf.dtype, np.floating):
+        if isinstance(leaf, np.ndarray) and (every_array or
+                                             np.issubdtype(leaf.dtype, np.floating)):
             return jnp.asarray(leaf)
         return leaf
 

@@ -48,7 +48,8 @@ def jax_law(scenario: Any, controller: Any, view_index: np.ndarray,
     if compiled is None or compiled.law is None:
         raise _refuse(controller.kind)
     form = jax_form(compiled.law)
-    design, scratch = jax_design(compiled.settings), jax_design(compiled.scratch)
+    design = jax_design(compiled.settings)
+    scratch = jax_design(compiled.scratch, every_array=True)
     diag = jnp.zeros(np.asarray(controller.diag).size)
     view = np.asarray(view_index)
 
