@@ -19,7 +19,7 @@ import pytest
 
 jax = pytest.importorskip("jax")
 
-from tspend.controllers.law import jax_form  # noqa: E402
+from tspend.controllers.law import jax_step  # noqa: E402
 from tspend.loop.simulation import prepare  # noqa: E402
 from tspend.scenario import load_scenario, override  # noqa: E402
 
@@ -30,6 +30,8 @@ CASES = [
      "tspend.controllers.lqr.view_lqr_law"),
     ("double_cartpole_mujoco", "lqr", {}, "tspend.controllers.lqr.full_lqr_control"),
     ("pendulum_mujoco_randomized", "sliding_mode", {}, "tspend.controllers.sliding_mode.sliding_law"),
+    ("ex3_pendulum_ode", "wang_indirect", {},
+     "tspend.controllers.wang_indirect.wang_law"),
     ("pendulum_mujoco_randomized", "second_type", {},
      "tspend.controllers.paper.controller.controller_law"),
     ("pendulum_mujoco_randomized", "first_type", {},
@@ -69,9 +71,7 @@ def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name)
     c = prepared.controller
     compiled = c.compiled()
     assert f"{compiled.law.__module__}.{compiled.law.__name__}" == name
-    form = jax.jit(lambda state, t, full, x, ref, dt: jax_form(compiled.law)(
-        jax.tree_util.tree_map(lambda a: a, _jax(compiled.settings)), state,
-        _jax(compiled.scratch, True), t, full, x, ref, dt, jax.numpy.zeros(c.diag.size)))
+    form = jax.jit(jax_step(compiled.law, compiled.settings, compiled.scratch, c.diag.size))
     view = np.asarray(prepared.task.view_index)
     full_size = len(prepared.task.names)
     rng = np.random.default_rng(52)
@@ -94,8 +94,3 @@ def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name)
                                        atol=RTOL * float(np.max(np.abs(b), initial=0.0)),
                                        err_msg=f"{kind} state, draw {i}")
 
-
-def _jax(tree, every_array=False):
-    from tspend.controllers.law import jax_design
-
-    return jax_design(tree, every_array)

@@ -30,7 +30,8 @@ from numba import njit
 
 from tspend.runtime.jit import JIT
 
-__all__ = ["array_law", "is_law", "jax_design", "jax_form", "jax_math", "jax_space", "mark_law"]
+__all__ = ["Cells", "array_law", "as_arrays", "as_cells", "is_law", "jax_design", "jax_form",
+           "jax_math", "jax_space", "jax_step", "mark_law"]
 
 #: the Python functions written as laws (their numba builds' ``py_func``)
 _LAWS: set[Callable] = set()
@@ -60,15 +61,146 @@ def mark_law(fn: Callable) -> Callable:
     return fn
 
 
+def _write(a: Any, index: Any, value: Any, accumulate: bool) -> Any:
+    if isinstance(a, Cells):
+        return a.write(index, value, accumulate)
+    return a.at[index].add(value) if accumulate else a.at[index].set(value)
+
+
 def jax_space() -> types.SimpleNamespace:
     """The namespace ``xp`` of a law's JAX form: the names of
     :mod:`tspend.controllers.xp`, over ``jax.numpy``, writes returning new arrays."""
     import jax.numpy as jnp
 
     return types.SimpleNamespace(
-        put=lambda a, index, value: a.at[index].set(value),
-        add=lambda a, index, value: a.at[index].add(value),
+        put=lambda a, index, value: _write(a, index, value, False),
+        add=lambda a, index, value: _write(a, index, value, True),
         where=jnp.where)
+
+
+def _static(i: Any) -> bool:
+    return isinstance(i, (int, np.integer, slice))
+
+
+class Cells:
+    """A JAX array as a law's JAX form reads and writes it: by its scalar entries.
+
+    A law is written entry by entry (numba compiles loops); traced as is, every read
+    ``a[i, k]`` and every write ``xp.put(a, (i, k), v)`` of a JAX array would be an XLA
+    slice or scatter, tens of thousands for the paper's controller, and XLA's compile
+    time grows with them.  A :class:`Cells` keeps the entries written at static
+    indices in a dict and those read in another, so static reads and writes cost no
+    operation at all; the array is assembled (one scatter) only where an index is
+    traced or the law returns it.  Values, never views: every write returns a new one.
+    """
+
+    def __init__(self, base: Any, written: dict | None = None) -> None:
+        self.base = base                      # the array before the writes, flat
+        self.shape = tuple(base.shape)
+        self.written = written or {}          # flat index -> value written
+        self._read: dict[int, Any] = {}
+        self._array: Any = None
+
+    @classmethod
+    def of(cls, a: Any) -> "Cells":
+        import jax.numpy as jnp
+
+        a = jnp.asarray(a)
+        cells = cls(a.reshape(-1))
+        cells.shape = tuple(a.shape)
+        if not cells.written:
+            cells._array = a
+        return cells
+
+    size = property(lambda self: int(np.prod(self.shape, dtype=np.int64)))
+    ndim = property(lambda self: len(self.shape))
+    dtype = property(lambda self: self.base.dtype)
+
+    def cell(self, k: int) -> Any:
+        if k in self.written:
+            return self.written[k]
+        if k not in self._read:
+            self._read[k] = self.base[k]
+        return self._read[k]
+
+    def array(self) -> Any:
+        """The whole array (one scatter of the written entries into the base)."""
+        import jax.numpy as jnp
+
+        if self._array is None:
+            flat = self.base
+            if self.written:
+                keys = np.fromiter(self.written, dtype=np.int64)
+                flat = flat.at[keys].set(jnp.stack([jnp.asarray(self.written[int(k)],
+                                                                dtype=flat.dtype)
+                                                    for k in keys]))
+            self._array = flat.reshape(self.shape)
+        return self._array
+
+    __jax_array__ = array
+
+    def _positions(self, index: tuple) -> np.ndarray:
+        return np.arange(self.size).reshape(self.shape)[index]
+
+    def __getitem__(self, index: Any) -> Any:
+        index = index if isinstance(index, tuple) else (index,)
+        if not all(_static(i) for i in index):
+            return self.array()[index]
+        at = self._positions(index)
+        if at.ndim == 0:
+            return self.cell(int(at))
+        sub = Cells(self.base[at.reshape(-1)],
+                    {j: self.written[int(k)] for j, k in enumerate(at.reshape(-1))
+                     if int(k) in self.written})
+        sub.shape = tuple(at.shape)
+        return sub
+
+    def write(self, index: Any, value: Any, accumulate: bool) -> "Cells":
+        index = index if isinstance(index, tuple) else (index,)
+        if all(isinstance(i, (int, np.integer)) for i in index) and len(index) == self.ndim:
+            k = int(self._positions(index))
+            new = Cells(self.base, dict(self.written))
+            new.shape = self.shape
+            new._read = self._read
+            new.written[k] = self.cell(k) + value if accumulate else value
+            return new
+        a = self.array()
+        return Cells.of(a.at[index].add(value) if accumulate else a.at[index].set(value))
+
+
+def as_cells(tree: Any) -> Any:
+    """Every JAX array of ``tree`` as :class:`Cells` (numpy arrays stay: static)."""
+    import jax
+
+    return jax.tree_util.tree_map(
+        lambda leaf: Cells.of(leaf) if isinstance(leaf, jax.Array) else leaf, tree)
+
+
+def as_arrays(tree: Any) -> Any:
+    """Every :class:`Cells` of ``tree`` as its JAX array."""
+    import jax
+
+    return jax.tree_util.tree_map(lambda leaf: leaf.array() if isinstance(leaf, Cells)
+                                  else leaf, tree, is_leaf=lambda x: isinstance(x, Cells))
+
+
+def jax_step(fn: Any, settings: Any, scratch: Any, diag_size: int) -> Callable:
+    """The law ``fn`` (a kind's :attr:`~tspend.controllers.base.CompiledController.law`)
+    in JAX over the design ``settings`` and the work arrays ``scratch``: a pure
+    ``u, state = step(state, t, full, x, ref, dt)``."""
+    import jax.numpy as jnp
+
+    form = jax_form(fn)
+    design = jax_design(settings)
+    work = jax_design(scratch, every_array=True)
+    diag = jnp.zeros(diag_size)
+
+    def step(state, t, full, x, ref, dt):
+        u, state = form(as_cells(design), as_cells(state), as_cells(work), t,
+                        Cells.of(full), Cells.of(x), Cells.of(ref), dt, Cells.of(diag))
+        return jnp.asarray(u, dtype=jnp.asarray(full).dtype), as_arrays(state)
+
+    return step
 
 
 def jax_math() -> types.SimpleNamespace:
@@ -77,7 +209,7 @@ def jax_math() -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         sqrt=jnp.sqrt, ceil=jnp.ceil, floor=jnp.floor, exp=jnp.exp, sin=jnp.sin,
-        cos=jnp.cos, tanh=jnp.tanh, fabs=jnp.abs, isnan=jnp.isnan, isfinite=jnp.isfinite,
+        cos=jnp.cos, tanh=jnp.tanh, fabs=jnp.abs, copysign=jnp.copysign, isnan=jnp.isnan, isfinite=jnp.isfinite,
         pi=math.pi, inf=math.inf, nan=math.nan)
 
 

@@ -36,10 +36,7 @@ def jax_law(scenario: Any, controller: Any, view_index: np.ndarray,
     nominal scenario and reset): ``u, carry = law(carry, t, full, ref, dt)``, pure, for
     ``jax.jit``/``jax.vmap``; ``carry`` its start (the controller's state now, in
     ``dtype``'s floats); ``view_index``: the task's view in the full state."""
-    import jax
-    import jax.numpy as jnp
-
-    from tspend.controllers.law import jax_design, jax_form
+    from tspend.controllers.law import jax_step
 
     period = float(getattr(controller, "sample_period", 0.0) or 0.0)
     if controller.kind == "policy":
@@ -47,15 +44,12 @@ def jax_law(scenario: Any, controller: Any, view_index: np.ndarray,
     compiled = controller.compiled()
     if compiled is None or compiled.law is None:
         raise _refuse(controller.kind)
-    form = jax_form(compiled.law)
-    design = jax_design(compiled.settings)
-    scratch = jax_design(compiled.scratch, every_array=True)
-    diag = jnp.zeros(np.asarray(controller.diag).size)
+    step = jax_step(compiled.law, compiled.settings, compiled.scratch,
+                    np.asarray(controller.diag).size)
     view = np.asarray(view_index)
 
     def law(carry, t, full, ref, dt):
-        u, carry = form(design, carry, scratch, t, full, full[view], ref, dt, diag)
-        return jnp.asarray(u, dtype=full.dtype), carry
+        return step(carry, t, full, full[view], ref, dt)
 
     return law, _carry(compiled.state, dtype), period
 
