@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 
 __all__ = ["GaussianGrid", "GaussianTable", "basis", "basis_into", "gaussian_grid",

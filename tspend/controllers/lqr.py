@@ -67,7 +67,7 @@ from numba import njit
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.full_model import wrap_angle
 from tspend.controllers.law import array_law, mark_law
 from tspend.runtime.jit import JIT

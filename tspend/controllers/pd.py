@@ -29,7 +29,7 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for

@@ -45,7 +45,7 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model

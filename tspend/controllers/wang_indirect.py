@@ -65,7 +65,7 @@ from tspend.errors import ScenarioError
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.controllers.gaussian_basis import GaussianGrid, GaussianTable, basis_into, gaussian_grid
 from tspend.runtime.jit import JIT

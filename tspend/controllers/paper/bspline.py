@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.runtime.jit import JIT
 

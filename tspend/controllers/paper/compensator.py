@@ -31,7 +31,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.config import ControllerConfig
 from tspend.controllers.paper.rules import (Firing, Grid, membership_gradient, move_control_points,

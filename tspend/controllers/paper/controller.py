@@ -42,7 +42,7 @@ from numba.experimental import structref
 from tspend.controllers.paper import rules
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import BSplineInput
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.controllers.paper.compensator import (CompensatorSettings, compensator_law,
     compensator_settings, estimate, sets_gradient, switching)

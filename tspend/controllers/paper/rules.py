@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import (BSplineInput, basis_values, membership_curves,

@@ -28,7 +28,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from tspend.controllers import xp
+import tspend.controllers.xp as xp
 from tspend.controllers.law import array_law
 from tspend.config import ControllerConfig
 from tspend.controllers.paper.rules import Firing, Grid, membership_gradient, move_control_points
