@@ -183,6 +183,30 @@ def view_lqr_step(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x
     return view_lqr_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
+@dataclass(frozen=True)
+class ViewLQRDesign:
+    """The view design's numbers, made once (:func:`design_view`): the linear model
+    ``(A, B)``, the weights, the gain ``K`` and cost ``P``, and the law's record."""
+
+    A: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    R: float
+    K: np.ndarray      # (n,)
+    P: np.ndarray      # (n, n)
+    law: ViewLQRLaw
+
+
+def design_view(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float, x_op: np.ndarray,
+                u_op: float) -> ViewLQRDesign:
+    """The view design (module docstring) on the chain ``(A, B)`` at the operating point
+    ``(x_op, u_op)``: pure, python-control style."""
+    K, P = lqr_gain(A, B, Q, float(R))
+    law = ViewLQRLaw(K[0].copy(), np.ascontiguousarray(P), A[-1].copy(), float(B[-1, 0]),
+                     np.array(x_op, dtype=float), float(u_op), np.zeros(A.shape[0]))
+    return ViewLQRDesign(A, B, Q, float(R), K[0], P, law)
+
+
 class LQRController(Controller):
     """The ``lqr`` kind (a :class:`~tspend.controllers.base.Controller`)."""
 
@@ -197,14 +221,11 @@ class LQRController(Controller):
                   "machine with a full state (exact sine tracking on the linear model), else of "
                   "the view's error")
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
-                 x_op: np.ndarray, u_op: float) -> None:
-        self.A, self.B, self.Q, self.R = A, B, Q, float(R)
-        self.order = A.shape[0]
-        K, P = lqr_gain(A, B, Q, self.R)
-        self.K, self.P = K[0], P
-        self.a, self.b = A[-1].copy(), float(B[-1, 0])
-        self.x_op, self.u_op = np.asarray(x_op, dtype=float), float(u_op)
+    def __init__(self, design: "ViewLQRDesign") -> None:
+        self.design = design
+        self.A, self.B, self.Q, self.R = design.A, design.B, design.Q, design.R
+        self.K, self.P, self.law = design.K, design.P, design.law
+        self.order = design.A.shape[0]
         self.diagnostics = diagnostics(
             ("u_ff", 1, {"panel": "control",
                          "description": "feedforward u* + (r^(n) - a^T (r - x*)) / b"}),
@@ -212,8 +233,6 @@ class LQRController(Controller):
             ("V", 1, {"panel": "lyapunov", "log": True,
                       "description": "cost-to-go e^T P e of the linear design"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
-        self.law = ViewLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a.copy(),
-                              self.b, self.x_op.copy(), self.u_op, np.zeros(self.order))
 
     def closed_loop(self) -> np.ndarray:
         """``A - B K``, Hurwitz by construction."""
@@ -297,29 +316,56 @@ def full_lqr_step(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray, x
     return full_lqr_law(law, full, ref, diag)
 
 
+@dataclass(frozen=True)
+class FullLQRDesign:
+    """The full-state design's numbers, made once (:func:`design_full`)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    R: float
+    K: np.ndarray      # (N,)
+    P: np.ndarray      # (N, N)
+    omega: float       # the reference's frequency behind kappa
+    law: FullLQRLaw
+
+
+def design_full(model: "FullModel", A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
+                omega: float) -> FullLQRDesign:
+    """The full-state design (module docstring) on the machine's linearisation ``(A, B)``
+    at the upright: the gain by python-control, the pole's feedforward row and the
+    actuated joint's reference gain kappa.  Pure; ScenarioError when the input does not
+    reach the pole."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    Q, R = np.asarray(Q, dtype=float), float(R)
+    K, P = lqr_full_gain(A, B, Q, R)
+    dof, pole, act = model.dof, model.pole, model.actuated
+    #: the pole's acceleration row, and the actuated joint's (see the docstring)
+    a_pole, b_pole = A[dof + pole].copy(), float(B[dof + pole, 0])
+    if b_pole == 0.0:
+        raise ScenarioError("controllers.lqr: the input does not reach the pole's "
+                            "acceleration at the upright; no feedforward exists")
+    b_act = float(B[dof + act, 0])
+    kappa0 = float(A[dof + act, pole]) - b_act * float(A[dof + pole, pole]) / b_pole
+    omega = float(omega)
+    kappa = b_act / b_pole - (kappa0 / omega ** 2 if omega > 0.0 else 0.0)
+    N = model.size
+    law = FullLQRLaw(K[0].copy(), np.ascontiguousarray(P), a_pole, b_pole, float(kappa), pole,
+                     act, dof, np.array(model.angles, dtype=np.bool_), np.zeros(N), np.zeros(N))
+    return FullLQRDesign(A, B, Q, R, K[0], P, omega, law)
+
+
 class FullStateLQR(Controller):
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
     kind = "lqr"
 
-    def __init__(self, model: "FullModel", A: np.ndarray, B: np.ndarray, Q: np.ndarray,
-                 R: float, omega: float, order: int) -> None:
-        self.model = model
-        self.A, self.B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
-        self.Q, self.R = np.asarray(Q, dtype=float), float(R)
-        K, P = lqr_full_gain(self.A, self.B, self.Q, self.R)
-        self.K, self.P = K[0], P
-        self.order = order
-        dof, pole, act = model.dof, model.pole, model.actuated
-        #: the pole's acceleration row, and the actuated joint's (see the docstring)
-        self.a_pole, self.b_pole = self.A[dof + pole].copy(), float(self.B[dof + pole, 0])
-        if self.b_pole == 0.0:
-            raise ScenarioError("controllers.lqr: the input does not reach the pole's "
-                                "acceleration at the upright; no feedforward exists")
-        b_act = float(self.B[dof + act, 0])
-        kappa0 = float(self.A[dof + act, pole]) - b_act * float(self.A[dof + pole, pole]) / self.b_pole
-        self.omega = float(omega)
-        self.kappa = b_act / self.b_pole - (kappa0 / self.omega ** 2 if self.omega > 0.0 else 0.0)
+    def __init__(self, model: "FullModel", design: "FullLQRDesign", order: int) -> None:
+        self.model, self.design, self.order = model, design, order
+        self.A, self.B, self.Q, self.R = design.A, design.B, design.Q, design.R
+        self.K, self.P, self.law = design.K, design.P, design.law
+        self.a_pole, self.b_pole = design.law.a_pole, design.law.b_pole
+        self.kappa, self.omega = design.law.kappa, design.omega
         self.diagnostics = diagnostics(
             ("u_ff", 1, {"panel": "control",
                          "description": "feedforward u_r = (r'' - a_th^T s_r) / b_th"}),
@@ -329,10 +375,6 @@ class FullStateLQR(Controller):
             ("x_ref", 1, {"panel": "state", "unit": "m",
                           "description": "the actuated joint's reference kappa r"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
-        N = model.size
-        self.law = FullLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a_pole.copy(),
-                              self.b_pole, float(self.kappa), pole, act, dof,
-                              np.array(model.angles, dtype=np.bool_), np.zeros(N), np.zeros(N))
 
     def closed_loop(self) -> np.ndarray:
         return self.A - self.B @ self.K[None, :]
@@ -437,9 +479,10 @@ def build_full(scenario: "Scenario", s: LQRSettings, machine: "Plant") -> FullSt
     R = s.R if s.R is not None else b_pole ** 2
     omega = s.reference_omega if s.reference_omega is not None else reference_omega_of(scenario)
     try:
-        return FullStateLQR(model, A, B, np.diag(w), R, omega, order=len(scenario.plant.x0))
+        design = design_full(model, A, B, np.diag(w), R, omega)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise ScenarioError(f"{where}.state_weights: no stabilising LQR gain ({exc})") from None
+    return FullStateLQR(model, design, order=len(scenario.plant.x0))
 
 
 def build(scenario: "Scenario", machine: "Plant | None" = None) -> "LQRController | FullStateLQR":
@@ -461,4 +504,4 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> "LQRControlle
                             f"point of plant '{model.name}'; LQR cannot act")
     Q = np.asarray(s.Q) if s.Q is not None else default_Q(model.order)
     R = s.R if s.R is not None else 1.0 / b**2
-    return LQRController(A, B, Q, R, np.asarray(model.x_op), model.u_op)
+    return LQRController(design_view(A, B, Q, R, np.asarray(model.x_op), model.u_op))
