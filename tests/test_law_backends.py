@@ -19,7 +19,7 @@ import pytest
 
 jax = pytest.importorskip("jax")
 
-from tspend.controllers.law import jax_step  # noqa: E402
+from tspend.controllers.law import jax_form, jax_step  # noqa: E402
 from tspend.loop.simulation import prepare  # noqa: E402
 from tspend.scenario import load_scenario, override  # noqa: E402
 
@@ -71,6 +71,8 @@ def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name)
     c = prepared.controller
     compiled = c.compiled()
     assert f"{compiled.law.__module__}.{compiled.law.__name__}" == name
+    # one text: the JAX form runs the very code object numba compiled
+    assert jax_form(compiled.law).__code__ is compiled.law.py_func.__code__
     form = jax.jit(jax_step(compiled.law, compiled.settings, compiled.scratch, c.diag.size))
     view = np.asarray(prepared.task.view_index)
     full_size = len(prepared.task.names)
