@@ -282,14 +282,16 @@ class WangIndirectController(Controller):
     guarantees = ("bounded tracking error (Lyapunov, with the supervisor) under the fuzzy "
                   "approximation's assumptions")
 
-    def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, gamma_f: float,
-                 gamma_g: float, g_init: float, g_min: float, f_radius: float = 0.0,
-                 g_radius: float = 0.0, supervisor: Supervisor | None = None) -> None:
+    def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, P: np.ndarray,
+                 gamma_f: float, gamma_g: float, g_init: float, g_min: float,
+                 f_radius: float = 0.0, g_radius: float = 0.0,
+                 supervisor: Supervisor | None = None) -> None:
+        """Stores the design :func:`build` made (``P`` solves the Lyapunov equation of
+        ``lam`` and ``Q``)."""
         self.grid = grid
         self.lam = np.asarray(lam, dtype=float)
         self.order = n = self.lam.size
-        self.Q = np.asarray(Q, dtype=float)
-        self.P = lyapunov_gamma(self.lam, self.Q)
+        self.Q, self.P = np.asarray(Q, dtype=float), np.asarray(P, dtype=float)
         self.gamma_f, self.gamma_g = float(gamma_f), float(gamma_g)
         self.g_init, self.g_min = float(g_init), float(g_min)
         self.f_radius, self.g_radius = float(f_radius), float(g_radius)
@@ -358,5 +360,6 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> WangIndirectC
     if s.supervisory:
         supervisor = Supervisor(s.f_upper, s.g_upper, finite_or(s.g_lower, g_min), s.V_bar)
     return WangIndirectController(
-        grid, lam, Q, s.gamma_f, finite_or(s.gamma_g, s.gamma_f * b0**2), g_init, g_min,
+        grid, lam, Q, lyapunov_gamma(np.asarray(lam, dtype=float), np.asarray(Q, dtype=float)),
+        s.gamma_f, finite_or(s.gamma_g, s.gamma_f * b0**2), g_init, g_min,
         s.f_radius, s.g_radius, supervisor)
