@@ -225,6 +225,8 @@ class LQRController(Controller):
         self.design = design
         self.A, self.B, self.Q, self.R = design.A, design.B, design.Q, design.R
         self.K, self.P, self.law = design.K, design.P, design.law
+        self.a, self.b = design.law.a, design.law.b
+        self.x_op, self.u_op = design.law.x_op, design.law.u_op
         self.order = design.A.shape[0]
         self.diagnostics = diagnostics(
             ("u_ff", 1, {"panel": "control",
