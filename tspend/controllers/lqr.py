@@ -184,16 +184,22 @@ def view_lqr_step(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x
 
 
 @dataclass(frozen=True)
-class ViewLQRDesign:
-    """The view design's numbers, made once (:func:`design_view`): the linear model
-    ``(A, B)``, the weights, the gain ``K`` and cost ``P``, and the law's record."""
+class LQRDesign:
+    """An LQR design's numbers, made once: the linear model ``(A, B)``, the weights, the
+    gain ``K`` (one row) and the cost ``P``."""
 
     A: np.ndarray
     B: np.ndarray
     Q: np.ndarray
     R: float
-    K: np.ndarray      # (n,)
-    P: np.ndarray      # (n, n)
+    K: np.ndarray
+    P: np.ndarray
+
+
+@dataclass(frozen=True)
+class ViewLQRDesign(LQRDesign):
+    """The view design (:func:`design_view`) and its law's record."""
+
     law: ViewLQRLaw
 
 
@@ -319,16 +325,11 @@ def full_lqr_step(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray, x
 
 
 @dataclass(frozen=True)
-class FullLQRDesign:
-    """The full-state design's numbers, made once (:func:`design_full`)."""
+class FullLQRDesign(LQRDesign):
+    """The full-state design (:func:`design_full`), the reference's frequency behind
+    kappa, and its law's record."""
 
-    A: np.ndarray
-    B: np.ndarray
-    Q: np.ndarray
-    R: float
-    K: np.ndarray      # (N,)
-    P: np.ndarray      # (N, N)
-    omega: float       # the reference's frequency behind kappa
+    omega: float
     law: FullLQRLaw
 
 
