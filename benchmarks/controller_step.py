@@ -144,7 +144,8 @@ def kernel_only_cost(cfg: ControllerConfig, steps: int = 100_000) -> float:
     c = make_controller(cfg)
     c.reset(np.random.default_rng(1))
     x, ref = signals(cfg)[100]
-    args = (*c.compiled(), x, ref, 1e-6, c.diag)
+    c_step = c.compiled()
+    args = (c_step.step, c_step.settings, c_step.state, c_step.scratch, x, ref, 1e-6, c.diag)
     loop(10, *args)
     costs = []
     for _ in range(5):

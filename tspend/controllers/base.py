@@ -154,12 +154,19 @@ class CompiledController(NamedTuple):
     controller's ``diag`` size.  ``state`` is the controller's own (stepping here adapts
     it); ``settings`` must be an instance of a module-level NamedTuple class, which
     compiled code dispatches on (:mod:`tspend.loop.fastloop`).
+
+    ``law``: the kind's law written once over an array namespace
+    (:func:`tspend.controllers.law.array_law`), with the step's arguments and returning
+    ``(u, state)``; ``step`` is it behind the compiled loops' signature, and its JAX form
+    (:func:`tspend.controllers.law.jax_form`) is what the mjx backend runs.  None: the
+    kind has no JAX form.
     """
 
     step: Callable
     settings: Any
     state: Any
     scratch: Any
+    law: Callable | None = None
 
 
 _NO_DIAG = np.zeros(0)

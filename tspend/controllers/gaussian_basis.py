@@ -26,7 +26,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba.extending import register_jitable
+
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 
 __all__ = ["GaussianGrid", "GaussianTable", "basis", "basis_into", "gaussian_grid",
            "memberships"]
@@ -89,24 +91,26 @@ def _slices(sizes: list[int]) -> tuple[slice, ...]:
     return tuple(slice(int(e - k), int(e)) for e, k in zip(ends, sizes))
 
 
-@register_jitable
-def memberships_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray) -> None:
+@array_law
+def memberships_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray) -> tuple:
     """``mu_ij(x_i)`` of every set into ``mu`` (the sets of input 0 first), with ``x_i``
-    clamped to its interval."""
+    clamped to its interval; returns ``(mu,)``."""
     for k in range(mu.size):
         i = table.owner[k]
-        z = min(max(x[i], table.lo[i]), table.hi[i])
+        z = xp.where(table.lo[i] > x[i], table.lo[i], x[i])
+        z = xp.where(table.hi[i] < z, table.hi[i], z)
         w = (z - table.centres[k]) / table.sigma[k]
-        mu[k] = math.exp(-(w * w))
+        mu = xp.put(mu, k, math.exp(-(w * w)))
+    return (mu,)
 
 
-@register_jitable
-def basis_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray, xi: np.ndarray) -> None:
+@array_law
+def basis_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray, xi: np.ndarray) -> tuple:
     """``xi(x)`` into ``xi``: every rule's product of memberships (row-major grid order: the
     last input's set varies fastest), normalised to sum 1; ``mu`` is scratch of one entry
-    per set.  The one implementation: plain Python from :func:`basis`, compiled in the
-    compiled loops."""
-    memberships_into(table, x, mu)
+    per set; returns ``(xi,)``.  The one implementation, for numba and JAX
+    (:mod:`tspend.controllers.law`)."""
+    mu, = memberships_into(table, x, mu)
     inputs = table.terms.size
     total = 0.0
     for rule in range(xi.size):
@@ -122,10 +126,11 @@ def basis_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray, xi: np.ndarr
             rest -= j * stride
             g *= mu[offset + j]
             offset += table.terms[i]
-        xi[rule] = g
+        xi = xp.put(xi, rule, g)
         total += g
     for rule in range(xi.size):
-        xi[rule] /= total
+        xi = xp.put(xi, rule, xi[rule] / total)
+    return (xi,)
 
 
 def memberships(grid: GaussianGrid, x: np.ndarray) -> list[np.ndarray]:

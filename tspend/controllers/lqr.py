@@ -63,15 +63,19 @@ import numpy as np
 
 from tspend.runtime.errors import ScenarioError
 from numba import njit
-from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
+import tspend.controllers.xp as xp
 from tspend.controllers.full_model import wrap_angle
+from tspend.controllers.law import array_law, mark_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
+
+#: the angle's wrap is arithmetic over ``math``: laws that call it have its own text in JAX
+mark_law(wrap_angle)
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -147,35 +151,66 @@ class ViewLQRLaw(NamedTuple):
     e: np.ndarray      # (n,) scratch: the error
 
 
-@register_jitable
-def view_lqr_law(law: ViewLQRLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
-    """``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring), diagnostics into
-    ``diag``; the one implementation, plain Python in the generic loop, compiled in the
-    compiled ones."""
+@array_law
+def view_lqr_law(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                 ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)``, ``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring),
+    diagnostics into ``diag``; the one implementation, for numba and JAX
+    (:mod:`tspend.controllers.law`)."""
     e = law.e
     n = e.size
     ar = 0.0
     u_fb = 0.0
     for j in range(n):
         ar += law.a[j] * (ref[j] - law.x_op[j])
-        e[j] = x[j] - ref[j]
+        e = xp.put(e, j, x[j] - ref[j])
         u_fb -= law.K[j] * e[j]
     u_ff = law.u_op + (ref[n] - ar) / law.b
     V = 0.0
     for i in range(n):
         for j in range(n):
             V += e[i] * law.P[i, j] * e[j]
-    diag[0] = u_ff
-    diag[1] = u_fb
-    diag[2] = V
-    return u_ff + u_fb
+    diag = xp.put(diag, 0, u_ff)
+    diag = xp.put(diag, 1, u_fb)
+    diag = xp.put(diag, 2, V)
+    return u_ff + u_fb, state
 
 
 @njit(**JIT)
 def view_lqr_step(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
                   ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`view_lqr_law` behind the compiled controllers' common signature."""
-    return view_lqr_law(law, x, ref, diag)
+    return view_lqr_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
+
+
+@dataclass(frozen=True)
+class LQRDesign:
+    """An LQR design's numbers, made once: the linear model ``(A, B)``, the weights, the
+    gain ``K`` (one row) and the cost ``P``."""
+
+    A: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    R: float
+    K: np.ndarray
+    P: np.ndarray
+
+
+@dataclass(frozen=True)
+class ViewLQRDesign(LQRDesign):
+    """The view design (:func:`design_view`) and its law's record."""
+
+    law: ViewLQRLaw
+
+
+def design_view(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float, x_op: np.ndarray,
+                u_op: float) -> ViewLQRDesign:
+    """The view design (module docstring) on the chain ``(A, B)`` at the operating point
+    ``(x_op, u_op)``: pure, python-control style."""
+    K, P = lqr_gain(A, B, Q, float(R))
+    law = ViewLQRLaw(K[0].copy(), np.ascontiguousarray(P), A[-1].copy(), float(B[-1, 0]),
+                     np.array(x_op, dtype=float), float(u_op), np.zeros(A.shape[0]))
+    return ViewLQRDesign(A, B, Q, float(R), K[0], P, law)
 
 
 class LQRController(Controller):
@@ -192,14 +227,13 @@ class LQRController(Controller):
                   "machine with a full state (exact sine tracking on the linear model), else of "
                   "the view's error")
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
-                 x_op: np.ndarray, u_op: float) -> None:
-        self.A, self.B, self.Q, self.R = A, B, Q, float(R)
-        self.order = A.shape[0]
-        K, P = lqr_gain(A, B, Q, self.R)
-        self.K, self.P = K[0], P
-        self.a, self.b = A[-1].copy(), float(B[-1, 0])
-        self.x_op, self.u_op = np.asarray(x_op, dtype=float), float(u_op)
+    def __init__(self, design: "ViewLQRDesign") -> None:
+        self.design = design
+        self.A, self.B, self.Q, self.R = design.A, design.B, design.Q, design.R
+        self.K, self.P, self.law = design.K, design.P, design.law
+        self.a, self.b = design.law.a, design.law.b
+        self.x_op, self.u_op = design.law.x_op, design.law.u_op
+        self.order = design.A.shape[0]
         self.diagnostics = diagnostics(
             ("u_ff", 1, {"panel": "control",
                          "description": "feedforward u* + (r^(n) - a^T (r - x*)) / b"}),
@@ -207,8 +241,6 @@ class LQRController(Controller):
             ("V", 1, {"panel": "lyapunov", "log": True,
                       "description": "cost-to-go e^T P e of the linear design"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
-        self.law = ViewLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a.copy(),
-                              self.b, self.x_op.copy(), self.u_op, np.zeros(self.order))
 
     def closed_loop(self) -> np.ndarray:
         """``A - B K``, Hurwitz by construction."""
@@ -224,7 +256,7 @@ class LQRController(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(view_lqr_step, self.law, None, None)
+        return CompiledController(view_lqr_step, self.law, None, None, view_lqr_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}
@@ -246,18 +278,18 @@ class FullLQRLaw(NamedTuple):
     e: np.ndarray          # (N,) scratch: the error
 
 
-@register_jitable
+@array_law
 def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
     """``u = u_r - K (s - s_r)`` (module docstring), diagnostics into ``diag``; the one
-    implementation, plain Python in the generic loop, compiled in the compiled ones."""
+    implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
     s_r, e = law.s_r, law.e
     r, rd, rdd = ref[0], ref[1], ref[2]
     for j in range(s_r.size):
-        s_r[j] = 0.0
-    s_r[law.pole] = r
-    s_r[law.dof + law.pole] = rd
-    s_r[law.actuated] = law.kappa * r
-    s_r[law.dof + law.actuated] = law.kappa * rd
+        s_r = xp.put(s_r, j, 0.0)
+    s_r = xp.put(s_r, law.pole, r)
+    s_r = xp.put(s_r, law.dof + law.pole, rd)
+    s_r = xp.put(s_r, law.actuated, law.kappa * r)
+    s_r = xp.put(s_r, law.dof + law.actuated, law.kappa * rd)
     acc = 0.0
     for j in range(s_r.size):
         acc += law.a_pole[j] * s_r[j]
@@ -265,17 +297,24 @@ def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.nd
     u_fb = 0.0
     for j in range(e.size):
         d = full[j] - s_r[j]
-        e[j] = wrap_angle(d) if law.wraps[j] and abs(d) > math.pi else d
+        e = xp.put(e, j, xp.where(law.wraps[j] & (abs(d) > math.pi), wrap_angle(d), d))
         u_fb -= law.K[j] * e[j]
     V = 0.0
     for i in range(e.size):
         for j in range(e.size):
             V += e[i] * law.P[i, j] * e[j]
-    diag[0] = u_ff
-    diag[1] = u_fb
-    diag[2] = V
-    diag[3] = s_r[law.actuated]
+    diag = xp.put(diag, 0, u_ff)
+    diag = xp.put(diag, 1, u_fb)
+    diag = xp.put(diag, 2, V)
+    diag = xp.put(diag, 3, s_r[law.actuated])
     return u_ff + u_fb
+
+
+@array_law
+def full_lqr_control(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray,
+                     x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)`` of :func:`full_lqr_law`, in the laws' common signature."""
+    return full_lqr_law(law, full, ref, diag), state
 
 
 @njit(**JIT)
@@ -285,29 +324,51 @@ def full_lqr_step(law: FullLQRLaw, state, scratch, t: float, full: np.ndarray, x
     return full_lqr_law(law, full, ref, diag)
 
 
+@dataclass(frozen=True)
+class FullLQRDesign(LQRDesign):
+    """The full-state design (:func:`design_full`), the reference's frequency behind
+    kappa, and its law's record."""
+
+    omega: float
+    law: FullLQRLaw
+
+
+def design_full(model: "FullModel", A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: float,
+                omega: float) -> FullLQRDesign:
+    """The full-state design (module docstring) on the machine's linearisation ``(A, B)``
+    at the upright: the gain by python-control, the pole's feedforward row and the
+    actuated joint's reference gain kappa.  Pure; ScenarioError when the input does not
+    reach the pole."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    Q, R = np.asarray(Q, dtype=float), float(R)
+    K, P = lqr_full_gain(A, B, Q, R)
+    dof, pole, act = model.dof, model.pole, model.actuated
+    #: the pole's acceleration row, and the actuated joint's (see the docstring)
+    a_pole, b_pole = A[dof + pole].copy(), float(B[dof + pole, 0])
+    if b_pole == 0.0:
+        raise ScenarioError("controllers.lqr: the input does not reach the pole's "
+                            "acceleration at the upright; no feedforward exists")
+    b_act = float(B[dof + act, 0])
+    kappa0 = float(A[dof + act, pole]) - b_act * float(A[dof + pole, pole]) / b_pole
+    omega = float(omega)
+    kappa = b_act / b_pole - (kappa0 / omega ** 2 if omega > 0.0 else 0.0)
+    N = model.size
+    law = FullLQRLaw(K[0].copy(), np.ascontiguousarray(P), a_pole, b_pole, float(kappa), pole,
+                     act, dof, np.array(model.angles, dtype=np.bool_), np.zeros(N), np.zeros(N))
+    return FullLQRDesign(A, B, Q, R, K[0], P, omega, law)
+
+
 class FullStateLQR(Controller):
     """The ``lqr`` kind's full-state design (module docstring): ``u = u_r - K (s - s_r)``."""
 
     kind = "lqr"
 
-    def __init__(self, model: "FullModel", A: np.ndarray, B: np.ndarray, Q: np.ndarray,
-                 R: float, omega: float, order: int) -> None:
-        self.model = model
-        self.A, self.B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
-        self.Q, self.R = np.asarray(Q, dtype=float), float(R)
-        K, P = lqr_full_gain(self.A, self.B, self.Q, self.R)
-        self.K, self.P = K[0], P
-        self.order = order
-        dof, pole, act = model.dof, model.pole, model.actuated
-        #: the pole's acceleration row, and the actuated joint's (see the docstring)
-        self.a_pole, self.b_pole = self.A[dof + pole].copy(), float(self.B[dof + pole, 0])
-        if self.b_pole == 0.0:
-            raise ScenarioError("controllers.lqr: the input does not reach the pole's "
-                                "acceleration at the upright; no feedforward exists")
-        b_act = float(self.B[dof + act, 0])
-        kappa0 = float(self.A[dof + act, pole]) - b_act * float(self.A[dof + pole, pole]) / self.b_pole
-        self.omega = float(omega)
-        self.kappa = b_act / self.b_pole - (kappa0 / self.omega ** 2 if self.omega > 0.0 else 0.0)
+    def __init__(self, model: "FullModel", design: "FullLQRDesign", order: int) -> None:
+        self.model, self.design, self.order = model, design, order
+        self.A, self.B, self.Q, self.R = design.A, design.B, design.Q, design.R
+        self.K, self.P, self.law = design.K, design.P, design.law
+        self.a_pole, self.b_pole = design.law.a_pole, design.law.b_pole
+        self.kappa, self.omega = design.law.kappa, design.omega
         self.diagnostics = diagnostics(
             ("u_ff", 1, {"panel": "control",
                          "description": "feedforward u_r = (r'' - a_th^T s_r) / b_th"}),
@@ -317,10 +378,6 @@ class FullStateLQR(Controller):
             ("x_ref", 1, {"panel": "state", "unit": "m",
                           "description": "the actuated joint's reference kappa r"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
-        N = model.size
-        self.law = FullLQRLaw(self.K.copy(), np.ascontiguousarray(self.P), self.a_pole.copy(),
-                              self.b_pole, float(self.kappa), pole, act, dof,
-                              np.array(model.angles, dtype=np.bool_), np.zeros(N), np.zeros(N))
 
     def closed_loop(self) -> np.ndarray:
         return self.A - self.B @ self.K[None, :]
@@ -343,7 +400,7 @@ class FullStateLQR(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(full_lqr_step, self.law, None, None)
+        return CompiledController(full_lqr_step, self.law, None, None, full_lqr_control)
 
     def step(self, obs: Observation, dt: float) -> float:
         # the compiled law from Python too: one dispatch instead of the law interpreted
@@ -425,9 +482,10 @@ def build_full(scenario: "Scenario", s: LQRSettings, machine: "Plant") -> FullSt
     R = s.R if s.R is not None else b_pole ** 2
     omega = s.reference_omega if s.reference_omega is not None else reference_omega_of(scenario)
     try:
-        return FullStateLQR(model, A, B, np.diag(w), R, omega, order=len(scenario.plant.x0))
+        design = design_full(model, A, B, np.diag(w), R, omega)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise ScenarioError(f"{where}.state_weights: no stabilising LQR gain ({exc})") from None
+    return FullStateLQR(model, design, order=len(scenario.plant.x0))
 
 
 def build(scenario: "Scenario", machine: "Plant | None" = None) -> "LQRController | FullStateLQR":
@@ -449,4 +507,4 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> "LQRControlle
                             f"point of plant '{model.name}'; LQR cannot act")
     Q = np.asarray(s.Q) if s.Q is not None else default_Q(model.order)
     R = s.R if s.R is not None else 1.0 / b**2
-    return LQRController(A, B, Q, R, np.asarray(model.x_op), model.u_op)
+    return LQRController(design_view(A, B, Q, R, np.asarray(model.x_op), model.u_op))

@@ -24,12 +24,13 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit
-from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
 
@@ -71,26 +72,27 @@ class PDLaw(NamedTuple):
     b0: float
 
 
-@register_jitable
-def pd_law(law: PDLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
-    """``u = (r^(n) - k^T e) / b0`` (module docstring), its parts into ``diag``; the one
-    implementation: plain Python in the generic loop, compiled in the compiled ones."""
+@array_law
+def pd_law(law: PDLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+           ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)``, ``u = (r^(n) - k^T e) / b0`` (module docstring), its parts into
+    ``diag``; the one implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
     n = law.k.size
     ke = 0.0
     for j in range(n):
         ke += law.k[j] * (x[j] - ref[j])
     u_ff = ref[n] / law.b0
     u_fb = -ke / law.b0
-    diag[0] = u_ff
-    diag[1] = u_fb
-    return u_ff + u_fb
+    diag = xp.put(diag, 0, u_ff)
+    diag = xp.put(diag, 1, u_fb)
+    return u_ff + u_fb, state
 
 
 @njit(**JIT)
 def pd_step(law: PDLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
             ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`pd_law` behind the compiled controllers' common signature."""
-    return pd_law(law, x, ref, diag)
+    return pd_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class PDController(Controller):
@@ -125,7 +127,7 @@ class PDController(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(pd_step, self.law, None, None)
+        return CompiledController(pd_step, self.law, None, None, pd_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

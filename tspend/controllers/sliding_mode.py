@@ -40,12 +40,13 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit
-from numba.extending import register_jitable
 
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
@@ -85,9 +86,9 @@ class SlidingModeSettings(KindSettings):
         return None
 
 
-@register_jitable
+@array_law
 def sat(z: float) -> float:
-    return z if -1.0 <= z <= 1.0 else (1.0 if z > 0.0 else -1.0)
+    return xp.where(-1.0 <= z, xp.where(z <= 1.0, z, 1.0), -1.0)
 
 
 class SlidingLaw(NamedTuple):
@@ -102,11 +103,12 @@ class SlidingLaw(NamedTuple):
     u_op: float
 
 
-@register_jitable
-def sliding_law(law: SlidingLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
-    """``u = u* + (r^(n) - f_hat(x) - sum_{i<n} c_i e_{i+1} - k sat(s / phi)) / b_hat``
-    (module docstring), its parts into ``diag``; the one implementation, plain Python in
-    the generic loop, compiled in the compiled ones."""
+@array_law
+def sliding_law(law: SlidingLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
+                ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)``, ``u = u* + (r^(n) - f_hat(x) - sum_{i<n} c_i e_{i+1} - k sat(s /
+    phi)) / b_hat`` (module docstring), its parts into ``diag``; the one implementation,
+    for numba and JAX (:mod:`tspend.controllers.law`)."""
     n = law.c.size
     s = 0.0
     f_hat = 0.0
@@ -119,18 +121,18 @@ def sliding_law(law: SlidingLaw, x: np.ndarray, ref: np.ndarray, diag: np.ndarra
             shift += law.c[j - 1] * e_j
     u_eq = law.u_op + (ref[n] - f_hat - shift) / law.b0
     u_sw = -law.k * sat(s / law.phi) / law.b0
-    diag[0] = s
-    diag[1] = s / law.phi
-    diag[2] = u_eq
-    diag[3] = u_sw
-    return u_eq + u_sw
+    diag = xp.put(diag, 0, s)
+    diag = xp.put(diag, 1, s / law.phi)
+    diag = xp.put(diag, 2, u_eq)
+    diag = xp.put(diag, 3, u_sw)
+    return u_eq + u_sw, state
 
 
 @njit(**JIT)
 def sliding_step(law: SlidingLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
                  ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`sliding_law` behind the compiled controllers' common signature."""
-    return sliding_law(law, x, ref, diag)
+    return sliding_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class SlidingModeController(Controller):
@@ -174,7 +176,7 @@ class SlidingModeController(Controller):
 
     def compiled(self) -> CompiledController:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
-        return CompiledController(sliding_step, self.law, None, None)
+        return CompiledController(sliding_step, self.law, None, None, sliding_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

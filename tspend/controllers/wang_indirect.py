@@ -58,7 +58,6 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit
-from numba.extending import register_jitable
 
 from tspend.config import SetSpec
 from tspend.controllers.paper.control_law import is_hurwitz, lyapunov_gamma
@@ -66,6 +65,8 @@ from tspend.runtime.errors import ScenarioError
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.controllers.gaussian_basis import GaussianGrid, GaussianTable, basis_into, gaussian_grid
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
@@ -157,61 +158,70 @@ class WangScratch(NamedTuple):
     xi: np.ndarray         # (rules,)
 
 
-@register_jitable
+@array_law
 def supervisory(law: WangLaw, e_delta: float, V: float, f_hat: float, g_hat: float,
                 u_c: float) -> float:
     """Wang's ``u_s`` (module docstring): 0 when off, when ``V_e <= V_bar`` or ``e_Delta = 0``."""
-    if not law.supervised or V <= law.V_bar or e_delta == 0.0:
+    if not law.supervised:
         return 0.0
     size = (abs(f_hat) + law.f_upper + abs(g_hat * u_c) + law.g_upper * abs(u_c)) / law.g_lower
-    return -math.copysign(size, e_delta)
+    return xp.where((V <= law.V_bar) | (e_delta == 0.0), 0.0, -math.copysign(size, e_delta))
 
 
-@register_jitable
-def _scale_onto_ball(theta: np.ndarray, radius: float) -> None:
+@array_law
+def _scale_onto_ball(theta: np.ndarray, radius: float) -> tuple:
     norm = 0.0
     for l in range(theta.size):
         norm += theta[l] * theta[l]
     norm = math.sqrt(norm)
-    if norm > radius:
-        scale = radius / norm
-        for l in range(theta.size):
-            theta[l] *= scale
+    scale = radius / norm
+    for l in range(theta.size):
+        theta = xp.put(theta, l, xp.where(norm > radius, theta[l] * scale, theta[l]))
+    return (theta,)
 
 
-@register_jitable
+@array_law
 def law_coefficients(law: WangLaw, e_delta: float, u_c: float) -> tuple[float, float]:
     """The laws are ``theta_f' = a_f xi(x)`` and ``theta_g' = a_g xi(x)``: ``(a_f, a_g)``
     with ``a_f = gamma_f e_Delta``, ``a_g = gamma_g e_Delta u_c``."""
     return law.gamma_f * e_delta, law.gamma_g * e_delta * u_c
 
 
-@register_jitable
-def project(law: WangLaw, state: WangState) -> None:
-    """Wang's projection: ``theta_g >= g_min``, then the balls ``|theta| <= radius``
-    (those that are on), then the lower bound again (the ball must not undo it)."""
-    theta_g = state.theta_g
-    for l in range(theta_g.size):
-        theta_g[l] = max(theta_g[l], law.g_min)
+@array_law
+def _at_least(theta: np.ndarray, low: float, when: bool) -> tuple:
+    """``theta_l = max(theta_l, low)`` where ``when``; returns ``(theta,)``."""
+    for l in range(theta.size):
+        theta = xp.put(theta, l, xp.where(when & (low > theta[l]), low, theta[l]))
+    return (theta,)
+
+
+@array_law
+def project(law: WangLaw, state: WangState, when: bool = True) -> WangState:
+    """Wang's projection, where ``when``: ``theta_g >= g_min``, then the balls
+    ``|theta| <= radius`` (those that are on), then the lower bound again (the ball must
+    not undo it); the state after it."""
+    theta_f = state.theta_f
+    theta_g, = _at_least(state.theta_g, law.g_min, when)
     if law.f_radius > 0.0:
-        _scale_onto_ball(state.theta_f, law.f_radius)
+        theta_f, = _scale_onto_ball(theta_f, law.f_radius)
     if law.g_radius > 0.0:
-        _scale_onto_ball(theta_g, law.g_radius)
-        for l in range(theta_g.size):
-            theta_g[l] = max(theta_g[l], law.g_min)
+        theta_g, = _scale_onto_ball(theta_g, law.g_radius)
+        theta_g, = _at_least(theta_g, law.g_min, when)
+    return WangState(theta_f, theta_g)
 
 
-@register_jitable
-def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, x: np.ndarray,
-             ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
-    """One sample of the scheme (module docstring): ``u = u_c + u_s``, diagnostics into
-    ``diag``, the laws integrated by forward Euler over ``dt`` and projected.  The one
-    implementation: plain Python in the generic loop, compiled in the compiled ones."""
-    e, xi = scratch.e, scratch.xi
+@array_law
+def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, t: float,
+             full: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
+             diag: np.ndarray) -> tuple:
+    """``(u, state)``: one sample of the scheme (module docstring), ``u = u_c + u_s``,
+    diagnostics into ``diag``, the laws integrated by forward Euler over ``dt`` and
+    projected.  The one implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
+    e = scratch.e
     theta_f, theta_g = state.theta_f, state.theta_g
     n = e.size
     for j in range(n):
-        e[j] = x[j] - ref[j]
+        e = xp.put(e, j, x[j] - ref[j])
     e_delta = 0.0    # e^T P b = P[n-1] . e
     lam_e = 0.0
     V = 0.0
@@ -221,7 +231,7 @@ def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, x: np.ndarray
         for j in range(n):
             V += e[i] * law.P[i, j] * e[j]
     V *= 0.5
-    basis_into(law.grid, x, scratch.mu, xi)
+    xi, = basis_into(law.grid, x, scratch.mu, scratch.xi)
     f_hat = 0.0
     g_hat = 0.0
     norm_f = 0.0
@@ -230,25 +240,25 @@ def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, x: np.ndarray
         f_hat += theta_f[l] * xi[l]
         g_hat += theta_g[l] * xi[l]
         norm_f += theta_f[l] * theta_f[l]
-        min_g = min(min_g, theta_g[l])
+        min_g = xp.where(theta_g[l] < min_g, theta_g[l], min_g)
     u_c = (-f_hat + ref[n] - lam_e) / g_hat
     u_s = supervisory(law, e_delta, V, f_hat, g_hat, u_c)
-    diag[0] = u_c
-    diag[1] = u_s
-    diag[2] = f_hat
-    diag[3] = g_hat
-    diag[4] = e_delta
-    diag[5] = V
-    diag[6] = math.sqrt(norm_f)
-    diag[7] = min_g
+    diag = xp.put(diag, 0, u_c)
+    diag = xp.put(diag, 1, u_s)
+    diag = xp.put(diag, 2, f_hat)
+    diag = xp.put(diag, 3, g_hat)
+    diag = xp.put(diag, 4, e_delta)
+    diag = xp.put(diag, 5, V)
+    diag = xp.put(diag, 6, math.sqrt(norm_f))
+    diag = xp.put(diag, 7, min_g)
     a_f, a_g = law_coefficients(law, e_delta, u_c)
     step_f, step_g = dt * a_f, dt * a_g
     for l in range(xi.size):
-        theta_f[l] += step_f * xi[l]
-        theta_g[l] += step_g * xi[l]
-    if a_g < 0.0 or law.f_radius > 0.0 or law.g_radius > 0.0:
-        project(law, state)  # xi > 0: only a_g < 0 (or a ball) can leave the set
-    return u_c + u_s
+        theta_f = xp.add(theta_f, l, step_f * xi[l])
+        theta_g = xp.add(theta_g, l, step_g * xi[l])
+    # xi > 0: only a_g < 0 (or a ball) can leave the set
+    when = (a_g < 0.0) | (law.f_radius > 0.0) | (law.g_radius > 0.0)
+    return u_c + u_s, project(law, WangState(theta_f, theta_g), when)
 
 
 @njit(**JIT)
@@ -256,7 +266,7 @@ def wang_step(law: WangLaw, state: WangState, scratch: WangScratch, t: float,
               full: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
               diag: np.ndarray) -> float:
     """:func:`wang_law` behind the compiled controllers' common signature."""
-    return wang_law(law, state, scratch, x, ref, dt, diag)
+    return wang_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class WangIndirectController(Controller):
@@ -272,14 +282,16 @@ class WangIndirectController(Controller):
     guarantees = ("bounded tracking error (Lyapunov, with the supervisor) under the fuzzy "
                   "approximation's assumptions")
 
-    def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, gamma_f: float,
-                 gamma_g: float, g_init: float, g_min: float, f_radius: float = 0.0,
-                 g_radius: float = 0.0, supervisor: Supervisor | None = None) -> None:
+    def __init__(self, grid: GaussianGrid, lam: np.ndarray, Q: np.ndarray, P: np.ndarray,
+                 gamma_f: float, gamma_g: float, g_init: float, g_min: float,
+                 f_radius: float = 0.0, g_radius: float = 0.0,
+                 supervisor: Supervisor | None = None) -> None:
+        """Stores the design :func:`build` made (``P`` solves the Lyapunov equation of
+        ``lam`` and ``Q``)."""
         self.grid = grid
         self.lam = np.asarray(lam, dtype=float)
         self.order = n = self.lam.size
-        self.Q = np.asarray(Q, dtype=float)
-        self.P = lyapunov_gamma(self.lam, self.Q)
+        self.Q, self.P = np.asarray(Q, dtype=float), np.asarray(P, dtype=float)
         self.gamma_f, self.gamma_g = float(gamma_f), float(gamma_g)
         self.g_init, self.g_min = float(g_init), float(g_min)
         self.f_radius, self.g_radius = float(f_radius), float(g_radius)
@@ -325,7 +337,7 @@ class WangIndirectController(Controller):
     def compiled(self) -> CompiledController:
         """The same scheme in the compiled loops (:mod:`tspend.loop.fastloop`); adapting
         there adapts ``theta_f``, ``theta_g`` here."""
-        return CompiledController(wang_step, self.law, self.state, self.scratch)
+        return CompiledController(wang_step, self.law, self.state, self.scratch, wang_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {"theta_f": self.theta_f.copy(), "theta_g": self.theta_g.copy()}
@@ -348,5 +360,6 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> WangIndirectC
     if s.supervisory:
         supervisor = Supervisor(s.f_upper, s.g_upper, finite_or(s.g_lower, g_min), s.V_bar)
     return WangIndirectController(
-        grid, lam, Q, s.gamma_f, finite_or(s.gamma_g, s.gamma_f * b0**2), g_init, g_min,
+        grid, lam, Q, lyapunov_gamma(np.asarray(lam, dtype=float), np.asarray(Q, dtype=float)),
+        s.gamma_f, finite_or(s.gamma_g, s.gamma_f * b0**2), g_init, g_min,
         s.f_radius, s.g_radius, supervisor)

@@ -1,16 +1,16 @@
-"""The controller kinds with a JAX form, designed on the CPU as the CPU backend designs them.
+"""A controller kind in JAX: its law's JAX form, designed on the CPU as the CPU backend
+designs it.
 
-:func:`jax_law` builds the kind's CPU controller (``tspend.loop.simulation.prepare``:
-the LQR gain from the nominal machine's linearisation, the PD gains, the ONNX file) and
-returns its law as a pure JAX function ``u = law(params, full, ref)`` of the full state
-and the reference row ``r .. r^(n)``, with the numbers in ``params`` (a pytree of
-arrays).  The laws are the CPU kinds' equations, read from the same numbers the compiled
-CPU laws read (``PDLaw``, ``ViewLQRLaw``, ``FullLQRLaw``: tspend/controllers/pd.py and
-lqr.py state them): pd, u = (r^(n) - k^T e) / b0; lqr (view design), u = u* + (r^(n) -
-a^T (r - x*)) / b - K e; lqr (full-state design), u = u_r - K (s - s_r) with angle errors
-wrapped.  ``policy``: the ONNX graph's own operations evaluated in JAX
-(:mod:`tspend.mjx.onnx_jax`) on the observation the CPU kind builds, [full state, r ..
-r^(n)], in the graph's input type.  Any other kind is refused in one line.
+Every arithmetic kind's law is written once (:mod:`tspend.controllers.law`) and offered
+by the CPU controller's :meth:`~tspend.controllers.base.Controller.compiled` (the
+``law`` of :class:`~tspend.controllers.base.CompiledController`): its numbers are the
+controller's design (made on the nominal machine: the LQR gain, the PD gains, the rule
+bases), its carry the controller's adapted state.  :func:`jax_law` returns that law's
+JAX form as a pure step ``u, carry = law(carry, t, full, ref, dt)`` of the full state
+and the reference row ``r .. r^(n)``; a kind without such a law (the solver kinds: mpc,
+the QP filters) is refused in one line.  ``policy``: the ONNX graph's own operations
+evaluated in JAX (:mod:`tspend.mjx.onnx_jax`) on the observation the CPU kind builds,
+[full state, r .. r^(n)], in the graph's input type; it carries nothing.
 """
 
 from __future__ import annotations
@@ -21,85 +21,86 @@ import numpy as np
 
 from tspend.runtime.errors import ScenarioError
 
-__all__ = ["KINDS", "jax_law"]
-
-#: the kinds that have a JAX form
-KINDS = ("pd", "lqr", "policy")
+__all__ = ["jax_law", "seeded_carries"]
 
 
 def _refuse(kind: str) -> ScenarioError:
-    return ScenarioError(f"controller kind {kind!r} has no JAX form: the mjx backend runs "
-                         f"{', '.join(KINDS)}; run {kind} on the CPU backend")
+    return ScenarioError(f"controller kind {kind!r} has no JAX form (its law calls a solver "
+                         f"or is not written over an array namespace); run {kind} on the "
+                         f"CPU backend")
 
 
 def jax_law(scenario: Any, controller: Any, view_index: np.ndarray,
-            wraps_full: np.ndarray) -> tuple[Callable, Any, float]:
-    """``(law, params, sample_period_s)`` of the CPU ``controller`` (already built on the
-    nominal scenario); ``view_index``: the task's view in the full state; ``wraps_full``:
-    which full-state entries are revolute angles."""
+            dtype: Any = None) -> tuple[Callable, Any, float]:
+    """``(law, carry, sample_period_s)`` of the CPU ``controller`` (already built on the
+    nominal scenario and reset): ``u, carry = law(carry, t, full, ref, dt)``, pure, for
+    ``jax.jit``/``jax.vmap``; ``carry`` its start (the controller's state now, in
+    ``dtype``'s floats); ``view_index``: the task's view in the full state."""
+    from tspend.controllers.law import jax_step
+
+    period = float(getattr(controller, "sample_period", 0.0) or 0.0)
+    if controller.kind == "policy":
+        return _policy_law(scenario, period)
+    compiled = controller.compiled()
+    if compiled is None or compiled.law is None:
+        raise _refuse(controller.kind)
+    step = jax_step(compiled.law, compiled.settings, compiled.scratch,
+                    np.asarray(controller.diag).size)
+    view = np.asarray(view_index)
+
+    def law(carry, t, full, ref, dt):
+        return step(carry, t, full, full[view], ref, dt)
+
+    return law, _carry(compiled.state, dtype), period
+
+
+def _carry(state: Any, dtype: Any) -> Any:
+    """A copy of a compiled controller's ``state`` as JAX arrays, floats in ``dtype``."""
+    import jax
     import jax.numpy as jnp
 
-    from tspend.controllers.lqr import FullLQRLaw, ViewLQRLaw
-    from tspend.controllers.pd import PDLaw
+    def start(leaf):
+        a = np.array(leaf)
+        if dtype is not None and np.issubdtype(a.dtype, np.floating):
+            a = a.astype(dtype)
+        return jnp.asarray(a)
 
-    kind = controller.kind
-    if kind not in KINDS:
-        raise _refuse(kind)
-    view = jnp.asarray(view_index)
-    period = float(getattr(controller, "sample_period", 0.0) or 0.0)
-    if kind == "policy":
-        from tspend.controllers.policy import PolicySettings, find_policy
-        from tspend.controllers.settings import settings_for
-        from tspend.mjx.onnx_jax import onnx_function
+    return jax.tree_util.tree_map(start, state)
 
-        path = find_policy(settings_for(scenario, PolicySettings).path, scenario)
-        fn, params, dtype = onnx_function(path)
 
-        def policy(p, full, ref):
-            row = jnp.concatenate((full, ref)).astype(dtype)[None, :]
-            return fn(p, row).reshape(-1)[0].astype(full.dtype)
+def seeded_carries(controller: Any, seeds: Any, dtype: Any = None) -> Any:
+    """The law's carry at the start of each seed's run, stacked on a leading env axis: the
+    controller reset as the CPU run resets it (``np.random.default_rng(seed)``,
+    :func:`tspend.loop.simulation.build_controller`), so an adaptive kind starts each
+    env from the parameters its CPU run draws; the controller is left reset at the last."""
+    import jax
+    import jax.numpy as jnp
 
-        return policy, params, period
-    law = getattr(controller, "law", None)
-    if isinstance(law, PDLaw):
-        params = {"k": jnp.asarray(law.k), "b0": jnp.asarray(law.b0)}
+    if controller.kind == "policy":
+        return None
+    carries = []
+    for seed in seeds:
+        controller.reset(np.random.default_rng(int(seed)))
+        compiled = controller.compiled()
+        if compiled is None or compiled.law is None:
+            raise _refuse(controller.kind)
+        carries.append(_carry(compiled.state, dtype))
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *carries)
 
-        def pd(p, full, ref):
-            n = p["k"].size
-            ke = jnp.dot(p["k"], full[view] - ref[:n])
-            return ref[n] / p["b0"] + (-ke / p["b0"])
 
-        return pd, params, period
-    if isinstance(law, ViewLQRLaw):
-        params = {"K": jnp.asarray(law.K), "a": jnp.asarray(law.a), "b": jnp.asarray(law.b),
-                  "x_op": jnp.asarray(law.x_op), "u_op": jnp.asarray(law.u_op)}
+def _policy_law(scenario: Any, period: float) -> tuple[Callable, Any, float]:
+    import jax.numpy as jnp
 
-        def view_lqr(p, full, ref):
-            n = p["K"].size
-            ar = jnp.dot(p["a"], ref[:n] - p["x_op"])
-            u_fb = -jnp.dot(p["K"], full[view] - ref[:n])
-            return (p["u_op"] + (ref[n] - ar) / p["b"]) + u_fb
+    from tspend.controllers.policy import PolicySettings, find_policy
+    from tspend.controllers.settings import settings_for
+    from tspend.mjx.onnx_jax import onnx_function
 
-        return view_lqr, params, period
-    if isinstance(law, FullLQRLaw):
-        N = law.K.size
-        pole, act, dof = int(law.pole), int(law.actuated), int(law.dof)
-        # s_r = M ref[:2]: the pole's angle and rate follow r, r'; the actuated joint kappa r
-        M = np.zeros((N, 2))
-        M[pole, 0] = M[dof + pole, 1] = 1.0
-        M[act, 0] = M[dof + act, 1] = law.kappa
-        params = {"K": jnp.asarray(law.K), "a_pole": jnp.asarray(law.a_pole),
-                  "b_pole": jnp.asarray(law.b_pole), "M": jnp.asarray(M),
-                  "wraps": jnp.asarray(np.asarray(law.wraps, dtype=bool))}
+    path = find_policy(settings_for(scenario, PolicySettings).path, scenario)
+    fn, params, dtype = onnx_function(path)
 
-        def full_lqr(p, full, ref):
-            s_r = p["M"] @ ref[:2]
-            u_ff = (ref[2] - jnp.dot(p["a_pole"], s_r)) / p["b_pole"]
-            d = full - s_r
-            # tspend.plants.domain.wrap_angle: to (-pi, pi]
-            wrapped = d - 2.0 * jnp.pi * jnp.ceil((d - jnp.pi) / (2.0 * jnp.pi))
-            e = jnp.where(p["wraps"] & (jnp.abs(d) > jnp.pi), wrapped, d)
-            return u_ff + (-jnp.dot(p["K"], e))
+    def policy(carry, t, full, ref, dt):
+        # the graph's weights are constants of the trace: one copy, not one per env
+        row = jnp.concatenate((full, ref)).astype(dtype)[None, :]
+        return fn(params, row).reshape(-1)[0].astype(full.dtype), carry
 
-        return full_lqr, params, period
-    raise _refuse(f"{kind} ({type(controller).__name__})")
+    return policy, None, period

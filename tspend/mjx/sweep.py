@@ -118,26 +118,32 @@ def make_block_runner(fleet: Any, law: Any, every: int, block: int = BLOCK) -> A
     from mujoco import mjx
 
     act, omega, nstep = fleet.actuator, fleet.omega, fleet.nstep
+    dt = fleet.dt
 
     def one_env(model, data, u_held, params, d_to_tau, ref, dist, g0):
         def sample(carry, k):
-            data, u_held = carry
+            data, u_held, params = carry
             g = g0 + k
             full = jnp.concatenate((data.qpos, data.qvel))
             r = jax.lax.dynamic_index_in_dim(ref, k, keepdims=False)
             d = jax.lax.dynamic_index_in_dim(dist, k, keepdims=False)
-            # sampled control: a new u every `every` steps, held in between (the runner's)
-            u = jnp.where(g % every == 0, law(params, full, r).astype(full.dtype), u_held)
+            # sampled control: a new u every `every` steps, held in between (the runner's);
+            # the law's carry (an adaptive controller's state) moves only when it samples
+            due = g % every == 0
+            u_new, adapted = law(params, g * dt, full, r, dt * every)
+            u = jnp.where(due, u_new.astype(full.dtype), u_held)
+            params = jax.tree_util.tree_map(lambda a, b: jnp.where(due, a, b), adapted, params)
             data = data.replace(ctrl=data.ctrl.at[act].set(u),
                                 qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
             for _ in range(nstep):
                 data = mjx.step(model, data)
-            return (data, u), (full, u)
+            return (data, u, params), (full, u)
 
-        (data, u_held), (full, u) = jax.lax.scan(sample, (data, u_held), jnp.arange(block))
-        return data, u_held, full, u
+        (data, u_held, params), (full, u) = jax.lax.scan(sample, (data, u_held, params),
+                                                         jnp.arange(block))
+        return data, u_held, params, full, u
 
-    batched = jax.vmap(one_env, in_axes=(fleet.in_axes, 0, 0, None, 0, None, None, None))
+    batched = jax.vmap(one_env, in_axes=(fleet.in_axes, 0, 0, 0, 0, None, None, None))
     return jax.jit(batched)
 
 
@@ -191,16 +197,12 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
     from tspend.loop.simulation import control_every
     from tspend.loop.sinks import Block
     from tspend.mjx import set_precision
-    from tspend.mjx.control import jax_law
+    from tspend.mjx.control import jax_law, seeded_carries
 
     set_precision(precision)
     dtype = jnp.float64 if precision == "float64" else jnp.float32
     scn = fleet.scenario
-    wraps_full = np.array([j.kind == "hinge" for j in fleet.plant.joints], dtype=bool)
-    law, params, _ = jax_law(scn, controller, fleet.view_index, wraps_full)
-    params = jax.tree_util.tree_map(
-        lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) and
-        x.dtype in (jnp.float32, jnp.float64) and controller.kind != "policy" else x, params)
+    law, _, _ = jax_law(scn, controller, fleet.view_index, dtype)
     every = control_every(scn.run, controller)
     batch = samples_batch(len(fleet.names), batch)   # a block's samples within a budget
     steps, dt, n = fleet.steps, fleet.dt, fleet.order
@@ -222,6 +224,9 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
         model = _subset(fleet, index, dtype)
         data = initial_data(fleet, index, dtype)
         u_held = jax.device_put(jnp.zeros(index.size, dtype=dtype), jax.devices()[0])
+        # every env's law starts from the state its CPU run's controller is reset to
+        params = jax.device_put(seeded_carries(controller, [fleet.seeds[e] for e in index],
+                                               dtype), jax.devices()[0])
         d_to_tau = jnp.asarray(fleet.d_to_tau[index], dtype=dtype)
         accs, ends = [], {}
         for e in index:
@@ -235,7 +240,7 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
             if not alive.any():
                 break
             g0 = b * BLOCK
-            data, u_held, full, u = runner(model, data, u_held, params, d_to_tau,
+            data, u_held, params, full, u = runner(model, data, u_held, params, d_to_tau,
                                            jnp.asarray(ref[g0:g0 + BLOCK], dtype=dtype),
                                            jnp.asarray(dist[g0:g0 + BLOCK], dtype=dtype), g0)
             full = np.asarray(full, dtype=float)

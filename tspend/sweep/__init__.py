@@ -39,8 +39,8 @@ The Python API (stable; ``tspend sweep`` and ``tspend compare`` are built on it)
 ``backend``
     ``"cpu"`` (the default: one process per run, as above) or ``"mjx"``: the runs of a
     scenario point and controller kind stepped together by MuJoCo's JAX engine
-    (:mod:`tspend.mjx.sweep`; ``pip install 'tspend[mjx]'``, kinds ``pd``, ``lqr``,
-    ``policy``); ``precision`` (``"float64"``, ``"float32"``) is its float width.  An
+    (:mod:`tspend.mjx.sweep`; ``pip install 'tspend[mjx]'``; every kind whose law
+    has a JAX form, :func:`tspend.mjx.control.jax_law`); ``precision`` (``"float64"``, ``"float32"``) is its float width.  An
     option the backend would not use is refused: ``precision`` other than float64 on the
     cpu backend, ``dask`` or ``run_timeout`` on the mjx one.
 ``run_timeout``
@@ -320,7 +320,6 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
     if backend not in BACKENDS:
         raise ScenarioError(f"--backend {backend!r}: allowed: {', '.join(BACKENDS)}")
     from tspend.mjx import PRECISIONS, require
-    from tspend.mjx.control import KINDS
     from tspend.mjx.machines import refusal
     from tspend.mjx.sweep import check_memory
 
@@ -329,12 +328,11 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
     require()
     # each scenario point's seeds are one fleet, built whole: checked once per point (a
     # million seeds are a million jobs), out of memory said before anything is built
-    points: dict[int, tuple[Any, set, set]] = {}
+    points: dict[int, tuple[Any, set]] = {}
     for job in plan:
-        point = points.setdefault(id(job.scenario), (job.scenario, set(), set()))
+        point = points.setdefault(id(job.scenario), (job.scenario, set()))
         point[1].add(job.seed)
-        point[2].add(job.controller)
-    for scenario, seeds, kinds in points.values():
+    for scenario, seeds in points.values():
         why = refusal(scenario)
         if why:
             raise ScenarioError(why)
@@ -342,11 +340,8 @@ def check_backend(backend: Any, precision: Any, plan: list[Job]) -> None:
             raise ScenarioError(f"{scenario.path or scenario.name}: safety.filter = "
                                 f"{scenario.safety.filter!r} is not in the mjx backend; "
                                 f"run it on the CPU backend")
-        for kind in sorted(kinds, key=str):
-            if kind not in KINDS:
-                raise ScenarioError(f"--backend mjx: controller kind {kind!r} has no JAX "
-                                    f"form (the mjx backend runs {', '.join(KINDS)}; give "
-                                    f"--controller)")
+        # a kind without a JAX form is refused when its law is asked for
+        # (tspend.mjx.control.jax_law), after build_once built it on the CPU
         check_memory(scenario, len(seeds))
 
 

@@ -29,8 +29,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from tspend.runtime.jit import JIT
 from numba import njit
+
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
+from tspend.runtime.jit import JIT
 
 #: linguistic term names by number of sets
 TERM_NAMES = {
@@ -113,77 +116,83 @@ class BSplineInput:
 #: and every structure passed between these small functions would touch atomic counters.
 
 
-@njit(**JIT)
-def basis(z: float, knots: np.ndarray, points: int, order: int, out: np.ndarray) -> int:
-    """The ``d`` basis functions (3)-(4) that can be nonzero at ``z``, into ``out[:d]``.
-
-    Returns the knot span s: ``out[l]`` is ``N_{s-d+1+l, d}(z)``.  Terms of (4) with a
-    zero-length support (0/0) are zero.
-    """
+@array_law
+def basis_values(z: float, knots: np.ndarray, points: int, order: int,
+                 out: np.ndarray) -> tuple:
+    """``(s, out)``: the knot span s and the ``d`` basis functions (3)-(4) that can be
+    nonzero at ``z`` in ``out[:d]`` (``out[l]`` is ``N_{s-d+1+l, d}(z)``); terms of (4)
+    with a zero-length support (0/0) are zero.  Written without a branch on ``z``
+    (:mod:`tspend.controllers.law`): the span is the one half-open span holding z."""
     d = order
     lo = knots[0]
     hi = knots[points + d - 1]
-    if z < lo:
-        z = lo
-    if z > hi:
-        z = hi
-    for l in range(d):
-        out[l] = 0.0
-    if not (z >= lo):          # NaN: every basis function is zero
-        return d - 1
-    s = points - 1             # z == hi: the last non-empty span
-    if z < hi:
-        for k in range(d - 1, points):
-            if knots[k] <= z and z < knots[k + 1]:
-                s = k
-                break
+    z = xp.where(z < lo, lo, z)
+    z = xp.where(z > hi, hi, z)
+    number = z >= lo          # False for NaN: every basis function is zero
+    s = points - 1            # z == hi: the last non-empty span
+    for k in range(d - 1, points):
+        s = xp.where((knots[k] <= z) & (z < knots[k + 1]), k, s)
     base = s - d + 1
-    out[d - 1] = 1.0           # order 1 (3): the indicator of span s
+    for l in range(d):
+        out = xp.put(out, l, 0.0)
+    out = xp.put(out, d - 1, 1.0)   # order 1 (3): the indicator of span s
     for k in range(2, d + 1):
         # order k (4): N_i = left_i N_i + right_i N_{i+1} for i = s-k+1 .. s; ascending i
         # overwrites N_i only after it was read, and N_{s+1} of order k-1 is zero
-        for i in range(s - k + 1, s + 1):
-            a = i - base
+        for step in range(k):
+            a = d - k + step
+            i = base + a
             left_den = knots[i + k - 1] - knots[i]
             right_den = knots[i + k] - knots[i + 1]
-            left = (z - knots[i]) / left_den if left_den > 0.0 else 0.0
-            right = (knots[i + k] - z) / right_den if right_den > 0.0 else 0.0
-            nxt = out[a + 1] if i < s else 0.0
-            out[a] = left * out[a] + right * nxt
-    return s
+            left = xp.where(left_den > 0.0, (z - knots[i]) / left_den, 0.0)
+            right = xp.where(right_den > 0.0, (knots[i + k] - z) / right_den, 0.0)
+            nxt = out[a + 1] if step < k - 1 else 0.0
+            out = xp.put(out, a, left * out[a] + right * nxt)
+    for l in range(d):
+        out = xp.put(out, l, xp.where(number, out[l], 0.0))
+    return xp.where(number, s, d - 1), out
 
 
 @njit(**JIT)
-def memberships(C: np.ndarray, N: np.ndarray, span: int, order: int, terms: int,
-                mu: np.ndarray) -> float:
-    """Memberships (5) of the first ``terms`` sets (rows of ``C``) into ``mu``; returns their sum.
+def basis(z: float, knots: np.ndarray, points: int, order: int, out: np.ndarray) -> int:
+    """The knot span of :func:`basis_values`, its basis functions written into ``out``."""
+    return basis_values(z, knots, points, order, out)[0]
 
-    ``N`` and ``span`` are :func:`basis` at the input.  S clips to [0, 1]; where it
-    clips, ``d mu / d c = 0`` (see :func:`unsaturated`).
-    """
+
+@array_law
+def membership_values(C: np.ndarray, N: np.ndarray, span: int, order: int, terms: int,
+                      mu: np.ndarray) -> tuple:
+    """``(sum, mu)``: the memberships (5) of the first ``terms`` sets (rows of ``C``) in
+    ``mu`` and their sum.  ``N`` and ``span`` are :func:`basis_values` at the input.  S
+    clips to [0, 1]; where it clips, ``d mu / d c = 0`` (see :func:`unsaturated`)."""
     base = span - order + 1
     total = 0.0
     for t in range(terms):
         B = 0.0
         for l in range(order):
             B += C[t, base + l] * N[l]
-        if B < 0.0:
-            B = 0.0
-        if B > 1.0:
-            B = 1.0
-        mu[t] = B
+        B = xp.where(B < 0.0, 0.0, B)
+        B = xp.where(B > 1.0, 1.0, B)
+        mu = xp.put(mu, t, B)
         total += B
-    return total
+    return total, mu
 
 
 @njit(**JIT)
+def memberships(C: np.ndarray, N: np.ndarray, span: int, order: int, terms: int,
+                mu: np.ndarray) -> float:
+    """The sum of :func:`membership_values`, the memberships written into ``mu``."""
+    return membership_values(C, N, span, order, terms, mu)[0]
+
+
+@array_law
 def unsaturated(mu: float) -> bool:
     """Whether S of (5) passes the curve through: ``0 < B < 1``, equivalently ``0 < mu < 1``.
 
     There ``d mu / d c_l = N_l``; elsewhere S is flat and the gradient is zero
     (docs/paper-notes.md section 1).
     """
-    return 0.0 < mu < 1.0
+    return (0.0 < mu) & (mu < 1.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -199,24 +208,28 @@ def membership_curves(C: np.ndarray, knots: np.ndarray, points: int, order: int,
             out[t, g] = mu[t]
 
 
-@njit(**JIT)
-def project_unimodal(c: np.ndarray, first: int, last: int) -> None:
-    """Make the control polygon ``c`` unimodal with its peak in ``c[first:last + 1]``, in place.
+@array_law
+def project_unimodal(c: np.ndarray, first: int, last: int) -> np.ndarray:
+    """Make the control polygon ``c`` unimodal with its peak in ``c[first:last + 1]``
+    (in place under numba); returns ``(c,)`` (numba, without its runtime, returns an
+    array only inside a tuple).
 
     The peak is the largest point inside the window; moving away from it on either side
     every point is lowered to at most its inner neighbour.  Points already in shape do
-    not move, so the map is a projection (applying it twice changes nothing).
+    not move, so the map is a projection (applying it twice changes nothing).  The peak's
+    place is data, so each side is one pass over every point, masked to that side.
     """
     k = first
+    best = c[first]
     for l in range(first + 1, last + 1):
-        if c[l] > c[k]:
-            k = l
-    for l in range(k - 1, -1, -1):
-        if c[l] > c[l + 1]:
-            c[l] = c[l + 1]
-    for l in range(k + 1, c.size):
-        if c[l] > c[l - 1]:
-            c[l] = c[l - 1]
+        higher = c[l] > best
+        k = xp.where(higher, l, k)
+        best = xp.where(higher, c[l], best)
+    for l in range(c.size - 2, -1, -1):
+        c = xp.put(c, l, xp.where((l < k) & (c[l] > c[l + 1]), c[l + 1], c[l]))
+    for l in range(1, c.size):
+        c = xp.put(c, l, xp.where((l > k) & (c[l] > c[l - 1]), c[l - 1], c[l]))
+    return (c,)
 
 
 def peak_windows(C: np.ndarray) -> np.ndarray:

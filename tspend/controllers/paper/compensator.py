@@ -31,9 +31,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
-
-from tspend.runtime.jit import JIT
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.config import ControllerConfig
 from tspend.controllers.paper.rules import (Firing, Grid, membership_gradient, move_control_points,
     weighted_output)
@@ -57,51 +56,48 @@ def compensator_settings(cfg: ControllerConfig, grid: Grid) -> CompensatorSettin
                                adapt_sets=cfg.adaptation != "first")
 
 
-@njit(**JIT)
+@array_law
 def switching(e_delta: float, boundary_layer: float) -> float:
     """sign(e_Delta) of (21), or sat(e_Delta / eps) with a boundary layer eps > 0."""
     if boundary_layer > 0.0:
         sw = e_delta / boundary_layer
-        if sw < -1.0:
-            sw = -1.0
-        if sw > 1.0:
-            sw = 1.0
-        return sw
-    if e_delta > 0.0:
-        return 1.0
-    if e_delta < 0.0:
-        return -1.0
-    return e_delta            # sign(0) = 0 (and NaN stays NaN)
+        sw = xp.where(sw < -1.0, -1.0, sw)
+        return xp.where(sw > 1.0, 1.0, sw)
+    # sign(0) = 0 (and NaN stays NaN)
+    return xp.where(e_delta > 0.0, 1.0, xp.where(e_delta < 0.0, -1.0, e_delta))
 
 
-@njit(**JIT)
+@array_law
 def estimate(tau: np.ndarray, q: np.ndarray) -> float:
     """(23): ``d_hat = sum_i tau^i q^i``, the compensator rule base's weighted output."""
     return weighted_output(tau, q)
 
 
-@njit(**JIT)
-def sets_gradient(s: CompensatorSettings, q: np.ndarray, f: Firing, varpi: float) -> None:
-    """``d d_hat / dmu`` into ``f.dmu`` (per-rule outputs ``q^i``)."""
+@array_law
+def sets_gradient(s: CompensatorSettings, q: np.ndarray, f: Firing, varpi: float) -> Firing:
+    """``d d_hat / dmu`` into ``f.dmu`` (per-rule outputs ``q^i``); returns ``f``."""
     y = f.y
     for i in range(q.size):
-        y[i] = q[i]
-    membership_gradient(s.grid, f, varpi)
+        y = xp.put(y, i, q[i])
+    return membership_gradient(s.grid, Firing(f.z, f.basis, f.span, f.mu, f.dmu, f.w, y),
+                               varpi)
 
 
-@njit(**JIT)
+@array_law
 def compensator_law(s: CompensatorSettings, q: np.ndarray, C: np.ndarray, f: Firing,
-                    e_delta: float, dt: float) -> None:
+                    e_delta: float, dt: float) -> tuple:
     """(27) with the optional leakage, one forward-Euler step; then its membership part
-    ``dc/dt = gamma |e_Delta| d d_hat / dc`` (gradient from :func:`sets_gradient`)."""
+    ``dc/dt = gamma |e_Delta| d d_hat / dc`` (gradient from :func:`sets_gradient`);
+    returns ``(q, C)``."""
     tau = f.w
     ae = s.gamma * abs(e_delta)
     if s.leakage > 0.0:
         gs = s.gamma * s.leakage * (abs(e_delta) if s.e_modification else 1.0)
         for i in range(q.size):
-            q[i] += dt * (ae * tau[i] - gs * q[i])
+            q = xp.add(q, i, dt * (ae * tau[i] - gs * q[i]))
     else:
         for i in range(q.size):
-            q[i] += dt * (ae * tau[i])
+            q = xp.add(q, i, dt * (ae * tau[i]))
     if s.adapt_sets:
-        move_control_points(s.grid, C, f, ae, dt)
+        C, = move_control_points(s.grid, C, f, ae, dt)
+    return q, C

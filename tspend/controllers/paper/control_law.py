@@ -21,6 +21,8 @@ from numba import njit
 
 # Lambda of (18) and its Hurwitz test live with the settings they validate (tspend.config)
 from tspend.config import companion, is_hurwitz  # noqa: F401 - re-exported
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.runtime.jit import JIT
 
 
@@ -52,20 +54,28 @@ def control_law_settings(lam, Q) -> ControlLawSettings:
     return ControlLawSettings(lam=lam, Gamma=lyapunov_gamma(lam, np.asarray(Q, dtype=float)))
 
 
-@njit(**JIT)
-def tracking_error(s: ControlLawSettings, x: np.ndarray, ref: np.ndarray, e: np.ndarray) -> float:
-    """``e = x - r`` into ``e``; returns ``e_Delta = e^T Gamma b_e`` (Gamma's last row . e)."""
+@array_law
+def tracking_errors(s: ControlLawSettings, x: np.ndarray, ref: np.ndarray,
+                    e: np.ndarray) -> tuple:
+    """``(e_Delta, e)``: ``e = x - r`` in ``e`` and ``e_Delta = e^T Gamma b_e`` (Gamma's
+    last row . e)."""
     G = s.Gamma
     n = e.size
     e_delta = 0.0
     for k in range(n):
         ek = x[k] - ref[k]
-        e[k] = ek
+        e = xp.put(e, k, ek)
         e_delta += G[n - 1, k] * ek
-    return e_delta
+    return e_delta, e
 
 
 @njit(**JIT)
+def tracking_error(s: ControlLawSettings, x: np.ndarray, ref: np.ndarray, e: np.ndarray) -> float:
+    """The ``e_Delta`` of :func:`tracking_errors`, ``e`` written into ``e``."""
+    return tracking_errors(s, x, ref, e)[0]
+
+
+@array_law
 def lyapunov_tracking(s: ControlLawSettings, e: np.ndarray) -> float:
     """The tracking part of the Lyapunov function (28): ``V = 1/2 e^T Gamma e``."""
     G = s.Gamma
@@ -79,7 +89,7 @@ def lyapunov_tracking(s: ControlLawSettings, e: np.ndarray) -> float:
     return V
 
 
-@njit(**JIT)
+@array_law
 def control(p: np.ndarray, x_delta: np.ndarray, r_n: float, lam: np.ndarray,
             e: np.ndarray, u_s: float, u_o: float) -> float:
     """The control law (19): ``u = (-p_{1..n} . x_delta + r^(n) - lambda^T e - u_s) / p_{n+1} + u_o``."""

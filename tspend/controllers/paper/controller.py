@@ -42,13 +42,15 @@ from numba.experimental import structref
 from tspend.controllers.paper import rules
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import BSplineInput
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.controllers.paper.compensator import (CompensatorSettings, compensator_law,
     compensator_settings, estimate, sets_gradient, switching)
 from tspend.config import ControllerConfig, SetSpec
 from tspend.controllers.paper.control_law import (ControlLawSettings, control,
-    control_law_settings, lyapunov_tracking, tracking_error)
+    control_law_settings, lyapunov_tracking, tracking_errors)
 from tspend.controllers.base import CompiledController, Controller, Diagnostic, Observation
-from tspend.controllers.paper.rules import Firing, fire
+from tspend.controllers.paper.rules import Firing, fire_values, with_inputs
 from tspend.loop.sinks import FuzzyInputInfo, InnerSnapshot
 from tspend.controllers.paper.ts_model import (ModelSettings, antecedent_gradient, antecedent_law,
     consequent_law, initial_consequents, model_output, model_settings)
@@ -207,92 +209,112 @@ def scratch_of(settings: Settings) -> Scratch:
 
 
 # -- one sample ---------------------------------------------------------------------------
-@njit(**JIT)
+@array_law
 def operating_point(o: OperatingPoint, x: np.ndarray, last_u: float, z: np.ndarray,
-                    v: np.ndarray) -> float:
-    """``z = [x_o; u_o]`` and ``v[:n] = x_delta = x - x_o``; returns u_o."""
+                    v: np.ndarray) -> tuple:
+    """``(u_o, z, v)``: ``z = [x_o; u_o]`` and ``v[:n] = x_delta = x - x_o``."""
     n = x.size
     if o.state_following:
         u_o = o.u_o_fraction * last_u
         for k in range(n):
-            z[k] = x[k]
-            v[k] = x[k] - x[k]
+            z = xp.put(z, k, x[k])
+            v = xp.put(v, k, x[k] - x[k])
     else:
         u_o = o.u_o
         x_o = o.x_o
         for k in range(n):
-            z[k] = x_o[k]
-            v[k] = x[k] - x_o[k]
-    z[n] = u_o
-    return u_o
+            z = xp.put(z, k, x_o[k])
+            v = xp.put(v, k, x[k] - x_o[k])
+    z = xp.put(z, n, u_o)
+    return u_o, z, v
 
 
-@njit(**JIT)
-def record(slots: DiagSlots, state: State, scratch: Scratch, diag: np.ndarray, u: float,
-           u_s: float, d_hat: float, e_delta: float, V: float) -> None:
-    """The sample's diagnostics into ``diag``, of the parameters the sample used."""
-    P, q, e, p = state.P, state.q, scratch.e, scratch.p
+@array_law
+def record(slots: DiagSlots, P: np.ndarray, q: np.ndarray, e: np.ndarray, p: np.ndarray,
+           diag: np.ndarray, u: float, u_s: float, d_hat: float, e_delta: float,
+           V: float) -> np.ndarray:
+    """The sample's diagnostics into ``diag``, of the parameters ``P``, ``q`` the sample
+    used; returns ``(diag,)``."""
     n = e.size
-    diag[slots.u] = u
-    diag[slots.u_s] = u_s
-    diag[slots.d_hat] = d_hat
-    diag[slots.e_delta] = e_delta
-    diag[slots.V] = V
+    diag = xp.put(diag, slots.u, u)
+    diag = xp.put(diag, slots.u_s, u_s)
+    diag = xp.put(diag, slots.d_hat, d_hat)
+    diag = xp.put(diag, slots.e_delta, e_delta)
+    diag = xp.put(diag, slots.V, V)
     sq = 0.0
     bmin = np.inf
     for i in range(P.shape[0]):
         for k in range(n + 1):
             sq += P[i, k] * P[i, k]
-        if P[i, n] < bmin:
-            bmin = P[i, n]
-    diag[slots.norm_P] = math.sqrt(sq)
+        bmin = xp.where(P[i, n] < bmin, P[i, n], bmin)
+    diag = xp.put(diag, slots.norm_P, math.sqrt(sq))
     sq = 0.0
     for i in range(q.size):
         sq += q[i] * q[i]
-    diag[slots.norm_q] = math.sqrt(sq)
-    diag[slots.min_b] = bmin
+    diag = xp.put(diag, slots.norm_q, math.sqrt(sq))
+    diag = xp.put(diag, slots.min_b, bmin)
     for k in range(n):
-        diag[slots.e + k] = e[k]
+        diag = xp.put(diag, slots.e + k, e[k])
     for k in range(n + 1):
-        diag[slots.p + k] = p[k]
+        diag = xp.put(diag, slots.p + k, p[k])
+    return (diag,)
+
+
+@array_law
+def adapt(s: Settings, st: State, fm: Firing, fc: Firing, v: np.ndarray, e_delta: float,
+          u: float, varpi: float, cvarpi: float, dt: float) -> State:
+    """The adaptive laws (25)-(27) and the control-point laws, every rate from the
+    parameters ``st`` the sample used; the state after them."""
+    second_type = s.model.eta_mu != 0.0
+    if second_type:
+        fm = antecedent_gradient(s.model, st.P, v, fm, varpi)
+    if s.compensator.adapt_sets:
+        fc = sets_gradient(s.compensator, st.q, fc, cvarpi)
+    P, = consequent_law(s.model, st.P, fm.w, v, e_delta, dt)
+    C_model = st.C_model
+    if second_type:
+        C_model, = antecedent_law(s.model, C_model, fm, e_delta, dt)
+    q, C_compensator = compensator_law(s.compensator, st.q, st.C_compensator, fc, e_delta, dt)
+    return State(P, C_model, q, C_compensator, xp.put(st.last_u, 0, u),
+                 xp.add(st.samples, 0, 1))
+
+
+@array_law
+def controller_law(settings: Settings, state: State, scratch: Scratch, t: float,
+                   full: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
+                   diag: np.ndarray) -> tuple:
+    """``(u, state)``: one sample of the adaptive fuzzy controller at the task's view
+    ``x`` (n,) with reference derivatives ``ref`` (n+1,) and sample time ``dt``; writes
+    ``diag`` (:func:`diag_layout`).  The one implementation, for numba (``state`` and
+    ``scratch`` updated in place) and JAX (:mod:`tspend.controllers.law`)."""
+    s, st, w = settings, state, scratch
+    n = w.e.size
+    e_delta, e = tracking_errors(s.law, x, ref, w.e)
+    u_o, z, v = operating_point(s.operating_point, x, st.last_u[0], w.model.z, w.v)
+    varpi, fm = fire_values(s.model.grid, st.C_model, with_inputs(w.model, z))
+    p, = model_output(fm.w, st.P, w.p)
+    xx = 0.0
+    for k in range(n):
+        xx += x[k] * x[k]
+    cz = xp.put(w.compensator.z, 0, e_delta)
+    cz = xp.put(cz, 1, math.sqrt(xx))
+    cvarpi, fc = fire_values(s.compensator.grid, st.C_compensator,
+                             with_inputs(w.compensator, cz))
+    d_hat = estimate(fc.w, st.q)
+    u_s = switching(e_delta, s.compensator.boundary_layer) * d_hat
+    u = control(p, v, ref[n], s.law.lam, e, u_s, u_o)
+    v = xp.put(v, n, u - u_o)
+    diag, = record(s.slots, st.P, st.q, e, p, diag, u, u_s, d_hat, e_delta,
+                  lyapunov_tracking(s.law, e))
+    return u, adapt(s, st, fm, fc, v, e_delta, u, varpi, cvarpi, dt)
 
 
 @njit(**JIT)
 def controller_step(settings: Settings, state: State, scratch: Scratch, x: np.ndarray,
                     ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
-    """One sample of the adaptive fuzzy controller at state ``x`` (n,) with reference
-    derivatives ``ref`` (n+1,) and sample time ``dt``; returns u, writes ``diag``
-    (:func:`diag_layout`), updates ``state`` in place."""
-    s, st, w = settings, state, scratch
-    n = w.e.size
-    e_delta = tracking_error(s.law, x, ref, w.e)
-    u_o = operating_point(s.operating_point, x, st.last_u[0], w.model.z, w.v)
-    varpi = fire(s.model.grid, st.C_model, w.model)
-    model_output(w.model.w, st.P, w.p)
-    xx = 0.0
-    for k in range(n):
-        xx += x[k] * x[k]
-    w.compensator.z[0] = e_delta
-    w.compensator.z[1] = math.sqrt(xx)
-    cvarpi = fire(s.compensator.grid, st.C_compensator, w.compensator)
-    d_hat = estimate(w.compensator.w, st.q)
-    u_s = switching(e_delta, s.compensator.boundary_layer) * d_hat
-    u = control(w.p, w.v, ref[n], s.law.lam, w.e, u_s, u_o)
-    w.v[n] = u - u_o
-    record(s.slots, st, w, diag, u, u_s, d_hat, e_delta, lyapunov_tracking(s.law, w.e))
-    # every rate from the parameters the sample used, then the updates
-    second_type = s.model.eta_mu != 0.0
-    if second_type:
-        antecedent_gradient(s.model, st.P, w.v, w.model, varpi)
-    if s.compensator.adapt_sets:
-        sets_gradient(s.compensator, st.q, w.compensator, cvarpi)
-    consequent_law(s.model, st.P, w.model.w, w.v, e_delta, dt)
-    if second_type:
-        antecedent_law(s.model, st.C_model, w.model, e_delta, dt)
-    compensator_law(s.compensator, st.q, st.C_compensator, w.compensator, e_delta, dt)
-    st.last_u[0] = u
-    st.samples[0] += 1
-    return u
+    """:func:`controller_law`'s u at the view ``x`` (``state`` and ``scratch`` updated in
+    place, ``diag`` written)."""
+    return controller_law(settings, state, scratch, 0.0, x, x, ref, dt, diag)[0]
 
 
 # -- the Python boundary ------------------------------------------------------------------
@@ -362,7 +384,7 @@ def compiled_step(settings: Settings, state: State, scratch: Scratch, t: float,
     """:func:`controller_step` behind the compiled controllers' common signature
     (:class:`tspend.controllers.base.CompiledController`): the paper's controller sees the
     task's view ``x`` only, not the full state."""
-    return controller_step(settings, state, scratch, x, ref, dt, diag)
+    return controller_law(settings, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class FiringView(NamedTuple):
@@ -478,7 +500,8 @@ class AdaptiveFuzzyController(Controller):
 
     def compiled(self) -> CompiledController:
         """The compiled step and this controller's structures, for a closed loop in numba."""
-        return CompiledController(compiled_step, self.settings, self.state, self.scratch)
+        return CompiledController(compiled_step, self.settings, self.state, self.scratch,
+                                  controller_law)
 
     @property
     def u_prev(self) -> float:

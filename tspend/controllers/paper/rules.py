@@ -30,8 +30,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.runtime.jit import JIT
-from tspend.controllers.paper.bspline import BSplineInput, basis, membership_curves, memberships, peak_windows, project_unimodal, unsaturated
+from tspend.controllers.paper.bspline import (BSplineInput, basis_values, membership_curves,
+    membership_values, peak_windows, project_unimodal, unsaturated)
 
 #: regularisation of the normalisation (12); see the module docstring
 VARPI_EPS = 1e-12
@@ -100,21 +103,29 @@ def firing(g: Grid) -> Firing:
                   mu=np.zeros((m, T)), dmu=np.zeros((m, T)), w=np.zeros(h), y=np.zeros(h))
 
 
-@njit(**JIT)
-def fire(g: Grid, C: np.ndarray, f: Firing) -> float:
-    """Memberships of every input at ``f.z`` and the guarded firing strengths (12) into ``f``.
+@array_law
+def with_inputs(f: Firing, z: np.ndarray) -> Firing:
+    """``f`` with the inputs ``z``."""
+    return Firing(z, f.basis, f.span, f.mu, f.dmu, f.w, f.y)
 
-    Returns ``varpi`` (plus eps), which :func:`membership_gradient` needs.
-    """
-    # array fields held in locals: numba then touches their reference counts once
+
+@array_law
+def fire_values(g: Grid, C: np.ndarray, f: Firing) -> tuple:
+    """``(varpi, f)``: the memberships of every input at ``f.z`` and the guarded firing
+    strengths (12) in ``f``, and ``varpi`` (plus eps), which :func:`membership_gradient`
+    needs."""
     z, N, span, mu, fw, tidx = f.z, f.basis, f.span, f.mu, f.w, g.term_index
     m = z.size
     h = fw.size
     prod = 1.0
     for j in range(m):
-        s = basis(z[j], g.knots[j], g.points, g.order, N[j])
-        span[j] = s
-        total = memberships(C[j], N[j], s, g.order, g.terms[j], mu[j])
+        s, row = basis_values(z[j], g.knots[j], g.points, g.order, N[j])
+        for l in range(g.order):    # in place already under numba; JAX's row is new
+            N = xp.put(N, (j, l), row[l])
+        span = xp.put(span, j, s)
+        total, row = membership_values(C[j], N[j], s, g.order, g.terms[j], mu[j])
+        for t in range(g.terms[j]):
+            mu = xp.put(mu, (j, t), row[t])
         prod = total if j == 0 else prod * total
     varpi = prod + g.eps
     floor = g.eps / h
@@ -122,11 +133,17 @@ def fire(g: Grid, C: np.ndarray, f: Firing) -> float:
         w = mu[0, tidx[i, 0]]
         for j in range(1, m):
             w = w * mu[j, tidx[i, j]]
-        fw[i] = (w + floor) / varpi
-    return varpi
+        fw = xp.put(fw, i, (w + floor) / varpi)
+    return varpi, Firing(z, N, span, mu, f.dmu, fw, f.y)
 
 
 @njit(**JIT)
+def fire(g: Grid, C: np.ndarray, f: Firing) -> float:
+    """The ``varpi`` of :func:`fire_values`, the firing written into ``f``."""
+    return fire_values(g, C, f)[0]
+
+
+@array_law
 def weighted_output(w: np.ndarray, y: np.ndarray) -> float:
     """``y = sum_i w^i y^i``: the rule base's output for per-rule outputs ``y``."""
     acc = 0.0
@@ -135,15 +152,16 @@ def weighted_output(w: np.ndarray, y: np.ndarray) -> float:
     return acc
 
 
-@njit(**JIT)
-def membership_gradient(g: Grid, f: Firing, varpi: float) -> None:
-    """``dy/dmu`` (11) of ``y = sum_i w^i y^i`` (``y^i`` in ``f.y``) into ``f.dmu``."""
+@array_law
+def membership_gradient(g: Grid, f: Firing, varpi: float) -> Firing:
+    """``dy/dmu`` (11) of ``y = sum_i w^i y^i`` (``y^i`` in ``f.y``) into ``f.dmu``;
+    returns ``f``."""
     mu, dmu, yr, tidx = f.mu, f.dmu, f.y, g.term_index
     m = f.z.size
     y = weighted_output(f.w, yr)
     for j in range(m):
         for t in range(dmu.shape[1]):
-            dmu[j, t] = 0.0
+            dmu = xp.put(dmu, (j, t), 0.0)
     for i in range(yr.size):
         D = (yr[i] - y) / varpi
         for j in range(m):
@@ -151,12 +169,16 @@ def membership_gradient(g: Grid, f: Firing, varpi: float) -> None:
             for k in range(m):
                 if k != j:
                     d = d * mu[k, tidx[i, k]]
-            dmu[j, tidx[i, j]] += d
+            dmu = xp.add(dmu, (j, tidx[i, j]), d)
+    return Firing(f.z, f.basis, f.span, mu, dmu, f.w, yr)
 
 
-@njit(**JIT)
-def move_control_points(g: Grid, C: np.ndarray, f: Firing, rate: float, dt: float) -> None:
-    """Forward Euler of ``dc/dt = rate dy/dc``, ``dy/dc_{s,l} = dy/dmu_s N_l`` where unsaturated.
+@array_law
+def move_control_points(g: Grid, C: np.ndarray, f: Firing, rate: float,
+                        dt: float) -> np.ndarray:
+    """Forward Euler of ``dc/dt = rate dy/dc``, ``dy/dc_{s,l} = dy/dmu_s N_l`` where
+    unsaturated; returns ``(C,)`` (numba, without its runtime, returns an array only
+    inside a tuple).
 
     Only the ``d`` control points under the input's span move; then the optional shape
     projection.
@@ -166,19 +188,25 @@ def move_control_points(g: Grid, C: np.ndarray, f: Firing, rate: float, dt: floa
     for j in range(span.size):
         base = span[j] - d + 1
         for t in range(terms[j]):
-            gs = dmu[j, t] * (1.0 if unsaturated(mu[j, t]) else 0.0)
+            gs = dmu[j, t] * xp.where(unsaturated(mu[j, t]), 1.0, 0.0)
             for l in range(d):
-                C[j, t, base + l] += dt * (rate * (gs * N[j, l]))
+                C = xp.add(C, (j, t, base + l), dt * (rate * (gs * N[j, l])))
     if g.shape_projection:
-        project_shapes(g, C)
+        C, = project_shapes(g, C)
+    return (C,)
 
 
-@njit(**JIT)
-def project_shapes(g: Grid, C: np.ndarray) -> None:
-    """Every set unimodal with its peak in its own window (so an input's sets stay ordered)."""
+@array_law
+def project_shapes(g: Grid, C: np.ndarray) -> np.ndarray:
+    """Every set unimodal with its peak in its own window (so an input's sets stay
+    ordered); returns ``(C,)``."""
     for j in range(g.terms.size):
         for t in range(g.terms[j]):
-            project_unimodal(C[j, t, : g.points], g.peak_windows[j, t, 0], g.peak_windows[j, t, 1])
+            row, = project_unimodal(C[j, t, : g.points], g.peak_windows[j, t, 0],
+                                   g.peak_windows[j, t, 1])
+            for l in range(g.points):
+                C = xp.put(C, (j, t, l), row[l])
+    return (C,)
 
 
 def curves(g: Grid, C: np.ndarray, j: int, grid_z: np.ndarray) -> np.ndarray:

@@ -28,9 +28,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
-
-from tspend.runtime.jit import JIT
+import tspend.controllers.xp as xp
+from tspend.controllers.law import array_law
 from tspend.config import ControllerConfig
 from tspend.controllers.paper.rules import Firing, Grid, membership_gradient, move_control_points
 
@@ -52,56 +51,65 @@ def model_settings(cfg: ControllerConfig, grid: Grid) -> ModelSettings:
                          b_sign=cfg.b_sign, norm_radius=cfg.norm_radius)
 
 
-@njit(**JIT)
-def model_output(w: np.ndarray, P: np.ndarray, p: np.ndarray) -> None:
-    """(9): ``p_k = sum_i w^i p_k^i`` into ``p`` (n+1,)."""
+@array_law
+def model_output(w: np.ndarray, P: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(9): ``p_k = sum_i w^i p_k^i`` into ``p`` (n+1,); returns ``(p,)`` (numba, without
+    its runtime, returns an array only inside a tuple)."""
     for k in range(P.shape[1]):
         acc = 0.0
         for i in range(w.size):
             acc += w[i] * P[i, k]
-        p[k] = acc
+        p = xp.put(p, k, acc)
+    return (p,)
 
 
-@njit(**JIT)
-def rule_outputs(P: np.ndarray, v: np.ndarray, y: np.ndarray) -> None:
-    """Each rule's consequent (13) at ``v``: ``y^i = p^i . v``."""
+@array_law
+def rule_outputs(P: np.ndarray, v: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Each rule's consequent (13) at ``v``: ``y^i = p^i . v``; returns ``(y,)``."""
     for i in range(P.shape[0]):
         acc = 0.0
         for k in range(P.shape[1]):
             acc += P[i, k] * v[k]
-        y[i] = acc
+        y = xp.put(y, i, acc)
+    return (y,)
 
 
-@njit(**JIT)
+@array_law
 def antecedent_gradient(s: ModelSettings, P: np.ndarray, v: np.ndarray, f: Firing,
-                        varpi: float) -> None:
-    """``d(p . v)/dmu`` into ``f.dmu``: the regressors of (11) summed over k (chain rule)."""
-    rule_outputs(P, v, f.y)
-    membership_gradient(s.grid, f, varpi)
+                        varpi: float) -> Firing:
+    """``d(p . v)/dmu`` into ``f.dmu``: the regressors of (11) summed over k (chain rule);
+    returns ``f``."""
+    y, = rule_outputs(P, v, f.y)
+    return membership_gradient(s.grid, Firing(f.z, f.basis, f.span, f.mu, f.dmu, f.w, y),
+                               varpi)
 
 
-@njit(**JIT)
-def antecedent_law(s: ModelSettings, C: np.ndarray, f: Firing, e_delta: float, dt: float) -> None:
-    """Second type law: ``dc/dt = eta_mu e_Delta d(p . v)/dc`` (gradient from :func:`antecedent_gradient`)."""
-    move_control_points(s.grid, C, f, s.eta_mu * e_delta, dt)
+@array_law
+def antecedent_law(s: ModelSettings, C: np.ndarray, f: Firing, e_delta: float,
+                   dt: float) -> np.ndarray:
+    """Second type law: ``dc/dt = eta_mu e_Delta d(p . v)/dc`` (gradient from
+    :func:`antecedent_gradient`); returns ``(C,)``."""
+    return move_control_points(s.grid, C, f, s.eta_mu * e_delta, dt)
 
 
-@njit(**JIT)
+@array_law
 def consequent_law(s: ModelSettings, P: np.ndarray, w: np.ndarray, v: np.ndarray,
-                   e_delta: float, dt: float) -> None:
-    """(25)-(26): ``dP/dt = eta e_Delta w v^T``, one forward-Euler step, then the projections."""
+                   e_delta: float, dt: float) -> np.ndarray:
+    """(25)-(26): ``dP/dt = eta e_Delta w v^T``, one forward-Euler step, then the
+    projections; returns ``(P,)``."""
     c = s.eta * e_delta
     for i in range(P.shape[0]):
         wi = w[i]
         for k in range(P.shape[1]):
-            P[i, k] += dt * (c * (wi * v[k]))
-    project(s, P)
+            P = xp.add(P, (i, k), dt * (c * (wi * v[k])))
+    return project(s, P)
 
 
-@njit(**JIT)
-def project(s: ModelSettings, P: np.ndarray) -> None:
+@array_law
+def project(s: ModelSettings, P: np.ndarray) -> np.ndarray:
     """Assumption 4 (each column onto ``||p_k|| <= radius``, if set), then Assumption 5:
-    ``b_sign p_{n+1}^i >= b_min`` (``b_sign = -1`` on a plant whose gain is negative)."""
+    ``b_sign p_{n+1}^i >= b_min`` (``b_sign = -1`` on a plant whose gain is negative);
+    returns ``(P,)``."""
     n = P.shape[1] - 1
     if s.norm_radius > 0.0:
         for k in range(n + 1):
@@ -109,16 +117,15 @@ def project(s: ModelSettings, P: np.ndarray) -> None:
             for i in range(P.shape[0]):
                 sq += P[i, k] * P[i, k]
             nrm = math.sqrt(sq)
-            if nrm < 1e-300:
-                nrm = 1e-300
+            nrm = xp.where(nrm < 1e-300, 1e-300, nrm)
             f = s.norm_radius / nrm
-            if f > 1.0:
-                f = 1.0
+            f = xp.where(f > 1.0, 1.0, f)
             for i in range(P.shape[0]):
-                P[i, k] *= f
+                P = xp.put(P, (i, k), P[i, k] * f)
     for i in range(P.shape[0]):
-        if s.b_sign * P[i, n] < s.b_min:
-            P[i, n] = s.b_sign * s.b_min
+        P = xp.put(P, (i, n), xp.where(s.b_sign * P[i, n] < s.b_min, s.b_sign * s.b_min,
+                                       P[i, n]))
+    return (P,)
 
 
 def initial_consequents(s: ModelSettings, rng: np.random.Generator, order: int,

@@ -1,0 +1,118 @@
+"""Each arithmetic kind's law is one text, built for numba and for JAX
+(tspend/controllers/law.py); here both builds are evaluated on the same 1,000 drawn
+states, references and adaptive states and must agree within 1e-12 relative (u; an
+adaptive state's arrays relative to their largest entry).
+
+The law both backends call is the ``law`` of the kind's
+:class:`~tspend.controllers.base.CompiledController`, named in :data:`CASES`: the CPU
+loop calls its numba build, the mjx backend its JAX form (:func:`tspend.controllers.law.jax_form`,
+the same code object with another ``xp``), so a law changed in one backend only cannot
+exist; the test fails if the kind's law is another function or has no JAX form.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+jax = pytest.importorskip("jax")
+
+from tspend.controllers.law import jax_form, jax_step  # noqa: E402
+from tspend.loop.simulation import prepare  # noqa: E402
+from tspend.scenario import load_scenario, override  # noqa: E402
+
+#: (scenario, kind, overrides, the law both backends call)
+CASES = [
+    ("pendulum_mujoco_randomized", "pd", {}, "tspend.controllers.pd.pd_law"),
+    ("ex3_pendulum_ode", "lqr", {"controllers.lqr.design": "view"},
+     "tspend.controllers.lqr.view_lqr_law"),
+    ("double_cartpole_mujoco", "lqr", {}, "tspend.controllers.lqr.full_lqr_control"),
+    ("pendulum_mujoco_randomized", "sliding_mode", {}, "tspend.controllers.sliding_mode.sliding_law"),
+    ("ex3_pendulum_ode", "wang_indirect", {},
+     "tspend.controllers.wang_indirect.wang_law"),
+    ("pendulum_mujoco_randomized", "second_type", {},
+     "tspend.controllers.paper.controller.controller_law"),
+    ("pendulum_mujoco_randomized", "first_type", {},
+     "tspend.controllers.paper.controller.controller_law"),
+]
+DRAWS = 1000
+RTOL = 1e-12
+
+
+def _built(scenario: str, kind: str, overrides: dict):
+    scn = load_scenario(scenario)
+    if overrides:
+        scn = override(scn, **overrides)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prepared = prepare(scn, controller=kind)
+    return prepared
+
+
+def _draws(rng, c, full_size: int):
+    """A drawn full state, reference row and adaptive state around the controller's."""
+    n = c.order
+    full = rng.uniform(-1.0, 1.0, full_size)
+    ref = rng.uniform(-1.0, 1.0, n + 1)
+    compiled = c.compiled()
+    state = jax.tree_util.tree_map(
+        lambda a: a * rng.uniform(0.5, 1.5, np.shape(a)) if np.issubdtype(np.asarray(a).dtype,
+                                                                           np.floating) else a,
+        jax.tree_util.tree_map(np.array, compiled.state))
+    return full, ref, state
+
+
+@pytest.mark.parametrize("scenario, kind, overrides, name", CASES)
+def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name):
+    jax.config.update("jax_enable_x64", True)
+    prepared = _built(scenario, kind, overrides)
+    c = prepared.controller
+    compiled = c.compiled()
+    assert f"{compiled.law.__module__}.{compiled.law.__name__}" == name
+    # one text: the JAX form runs the very code object numba compiled
+    assert jax_form(compiled.law).__code__ is compiled.law.py_func.__code__
+    form = jax.jit(jax_step(compiled.law, compiled.settings, compiled.scratch, c.diag.size))
+    view = np.asarray(prepared.task.view_index)
+    full_size = len(prepared.task.names)
+    rng = np.random.default_rng(52)
+    dt = 1e-3
+    for i in range(DRAWS):
+        full, ref, state = _draws(rng, c, full_size)
+        x = full[view]
+        t = i * dt
+        cpu_state = jax.tree_util.tree_map(np.array, state)
+        u_cpu, after_cpu = compiled.law(compiled.settings, cpu_state, compiled.scratch, t, full,
+                                        x, ref, dt, np.zeros(c.diag.size))
+        u_jax, after_jax = form(state, t, full, x, ref, dt)
+        np.testing.assert_allclose(float(u_jax), u_cpu, rtol=RTOL, atol=0.0,
+                                   err_msg=f"{kind} u, draw {i}")
+        for a, b in zip(jax.tree_util.tree_leaves(after_jax),
+                        jax.tree_util.tree_leaves(after_cpu)):
+            # relative to the array's largest entry: a control point that started at 0
+            # holds only its increment, whose last bits XLA may round differently
+            np.testing.assert_allclose(np.asarray(a), b, rtol=RTOL,
+                                       atol=RTOL * float(np.max(np.abs(b), initial=0.0)),
+                                       err_msg=f"{kind} state, draw {i}")
+
+
+
+@pytest.mark.parametrize("kind", ["sliding_mode", "second_type", "first_type"])
+def test_mjx_sweep_of_an_adaptive_or_switching_kind_is_the_cpu_sweep(kind):
+    """The mjx backend runs the kind's JAX law with its state as the scan's carry, each
+    env's state drawn as its CPU run draws it: the rows agree (status equal; rmse,
+    rmse_ss within 1e-9 relative in float64).  2 seeds, the first 2 s."""
+    pytest.importorskip("mujoco.mjx")
+    import tspend
+
+    scn = override(load_scenario("pendulum_mujoco_randomized"), **{"run.duration": 2.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cpu = tspend.sweep(scn, seeds="0:2", controllers=kind, jobs=1, record="none")
+        mjx = tspend.sweep(scn, seeds="0:2", controllers=kind, jobs=1, record="none",
+                           backend="mjx")
+    assert list(mjx["status"]) == list(cpu["status"])
+    for key in ("rmse", "rmse_ss"):
+        np.testing.assert_allclose(mjx[key].to_numpy(float), cpu[key].to_numpy(float),
+                                   rtol=1e-9, err_msg=key)
