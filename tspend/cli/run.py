@@ -9,7 +9,7 @@ import re
 from tspend import __version__
 from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
     EXIT_TERMINATED, Claimed,
-    add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
+    add_scenario_options, check_model_size, check_viewer_url, controller_help, doc, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
     scenario_inputs, uses_mujoco)
 from tspend.errors import OutputError, ScenarioError
@@ -33,7 +33,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "safety certification: the input passes only when a backup plan "
                         "keeps every constraint and the fall angle and ends in the "
                         "balancing LQR's safe set (same as --set safety.filter=NAME; "
-                        "docs/safety.md)")
+                        f"{doc('docs/safety.md')})")
     return r
 
 
@@ -161,36 +161,35 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
 SATURATION_SHARE = 0.01
 #: seconds without a first block before the compile notice
 COMPILE_NOTICE_S = 2.0
+#: the first run's compile, as benchmarks/install_footprint.py measures it (README.md)
+COMPILE_ESTIMATE = "the first run only, then cached; about 25 s on 2 idle cores, longer on a busy machine"
 
 
 class CompileNotice:
-    """A sink that says, once, that the closed loop is being compiled when the first
-    block has not come within :data:`COMPILE_NOTICE_S` (numba's first compile takes
-    ~13 s; later runs load it from the cache), so the first run is not silent."""
+    """A sink that says that the closed loop is being compiled when the first block has not
+    come within :data:`COMPILE_NOTICE_S` (numba's first compile; later runs load it from
+    the cache), with an estimate, and how long it took, so the first run is not silent."""
 
     def __init__(self) -> None:
-        import threading
+        from tspend.runtime.progress import SlowStep
 
-        self._timer = threading.Timer(COMPILE_NOTICE_S, say, args=(
-            "compiling the controller and the closed loop with numba (the first run only; "
-            "cached for later runs)...",))
-        self._timer.daemon = True
-        self._timer.start()
+        self._step = SlowStep("compiling the controller and the closed loop with numba",
+                              COMPILE_ESTIMATE, after=COMPILE_NOTICE_S).begin()
 
     def cancel(self) -> None:
-        self._timer.cancel()
+        self._step.end()
 
     def start(self, info) -> None:
         pass
 
     def block(self, block) -> None:
-        self._timer.cancel()
+        self._step.end()
 
     def inner(self, snap) -> None:
         pass
 
     def finish(self, end) -> None:
-        self._timer.cancel()
+        self._step.end()
 
 
 def summary_units(prepared) -> dict[str, str]:
