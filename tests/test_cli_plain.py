@@ -47,6 +47,37 @@ def test_every_help_is_plain_text_with_every_option_explained():
                     assert plain in words, f"{name} {action.dest}: {plain!r} broken or changed"
 
 
+def test_every_subcommand_help_ends_with_examples_that_parse_and_names_files_that_exist():
+    """Issue 51, item 8: every subcommand's help has the one or two commands a user needs,
+    each parsed here; a document it names is a path to a file that is there (the shipped
+    copy, in a wheel too: tests/test_wheel.py); possessives read plainly; an option that
+    does nothing says so and warns."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    top = build_parser()
+    for name, parser in list(_parsers(top))[1:]:
+        text = parser.format_help()
+        assert "\nexamples:\n" in text, f"{name} --help has no example"
+        examples = text.split("\nexamples:\n", 1)[1].splitlines()
+        assert examples and all(line.startswith(f"  {name}") or
+                                line.startswith(f"  {name.rsplit(' ', 1)[0]}")
+                                for line in examples), (name, examples)
+        for line in examples:
+            argv = shlex.split(line.split("#")[0].split(">")[0])[1:]
+            top.parse_args(argv)  # an example that does not parse fails here (UsageError)
+        for named in re.findall(r"(\S*docs/[\w/.-]+\.md)", " ".join(text.split())):
+            assert Path(named).is_absolute() and Path(named).is_file(), (name, named)
+        assert "''s" not in text, name
+    export = dict(_parsers(top))["tspend export"].format_help()
+    assert "never overwritten" not in export and "complete file" in export
+    paper = dict(_parsers(top))["tspend figures paper"]
+    assert paper.description and "ex2_duffing" in paper.description
+    args = top.parse_args(["figures", "paper", "--pdf"])
+    assert "does nothing" in args.deprecations[0]
+
+
 def test_show_prints_a_scenario_that_runs_the_same(tmp_path, monkeypatch, capsys):
     from tspend.scenario import available_scenarios, load_scenario, parse_scenario
     from tspend.scenario_toml import resolved_document, resolved_toml

@@ -85,6 +85,18 @@ def test_ci_runs_the_tests_from_new_empty_caches(tmp_path) -> None:
     assert not any(Path(f).exists() for f in folders.values())  # and removed after
 
 
+def test_every_extra_and_example_is_reachable_from_the_readme() -> None:
+    """Issue 51, item 7: each extra of pyproject.toml is named in the README (``[name]``),
+    each example file too, and the README says how to find them in an installed wheel."""
+    import tomllib
+
+    text = README.read_text()
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert [e for e in extras if f"[{e}]" not in text] == []
+    assert [p.name for p in (ROOT / "examples").glob("*.py") if f"examples/{p.name}" not in text] == []
+    assert "tspend list --files" in text
+
+
 def test_readme_links_and_pictures_exist() -> None:
     targets = re.findall(r"\]\(([^)#]+)\)", README.read_text())
     assert any(t.startswith("docs/img/") for t in targets)
