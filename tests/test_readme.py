@@ -97,6 +97,29 @@ def test_every_extra_and_example_is_reachable_from_the_readme() -> None:
     assert "tspend list --files" in text
 
 
+def test_no_document_uses_a_deprecated_spelling() -> None:
+    """Issue 51, item 6: every ``tspend`` command of README.md and docs/*.md, in a block or
+    in running text, parsed by tspend's parser, uses no deprecated option (``crosscheck
+    --json``): a reader copies what the documents show."""
+    from tspend.cli.common import UsageError
+
+    parser = build_parser()
+    used = []
+    for path in [README, *sorted((ROOT / "docs").rglob("*.md"))]:
+        text = path.read_text()
+        commands = re.findall(r"`(tspend [^`\n]+)`", text)
+        commands += [line for block in blocks(path) for line in block.splitlines()
+                     if line.startswith("tspend ")]
+        for command in commands:
+            try:
+                argv = shlex.split(command.split("#")[0].split(" > ")[0].split(" | ")[0])[1:]
+                args = parser.parse_args(argv)
+            except (UsageError, ValueError, SystemExit):
+                continue  # a placeholder (<machine>) or an excerpt: not this test's subject
+            used += [f"{path.name}: {command}: {n}" for n in getattr(args, "deprecations", [])]
+    assert used == []
+
+
 def test_readme_links_and_pictures_exist() -> None:
     targets = re.findall(r"\]\(([^)#]+)\)", README.read_text())
     assert any(t.startswith("docs/img/") for t in targets)
