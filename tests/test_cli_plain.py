@@ -175,3 +175,16 @@ def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
         np.testing.assert_array_equal(table[column].to_numpy(), whole[column].to_numpy())
         np.testing.assert_array_equal(table[column].to_numpy(), ref[column].to_numpy())
     assert table["e_hinge_rad"].notna().sum() == 100  # a diagnostic at 50 Hz
+
+
+def test_mjx_is_imported_without_warps_lines():
+    """MJX prints "Failed to import warp: ..." twice on stdout at its first import when
+    NVIDIA Warp is missing (here it is): tspend's import of MJX, before every sweep and env
+    of the mjx backend, holds them back (issue 51, item 5)."""
+    pytest.importorskip("mujoco.mjx")
+    code = ("from tspend.mjx import set_precision; set_precision('float64'); "
+            "from mujoco import mjx; print('imported', mjx.__name__)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "imported mujoco.mjx\n" and "warp" not in done.stderr.lower()
