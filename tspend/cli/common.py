@@ -299,12 +299,21 @@ def uses_mujoco(scn) -> bool:
     return PLANT_KINDS[scn.plant.kind].mujoco
 
 
+def reads_mjcf(scn) -> bool:
+    """Whether a run reads an MJCF through MuJoCo: a MuJoCo plant, or an ODE whose machine
+    is read and whose equations are derived from its MJCF (``double_cartpole_ode``: its
+    MuJoCo warnings and errors, too, belong in the one line, never in MUJOCO_LOG.TXT)."""
+    from tspend.plants.registry import domain_of
+
+    return uses_mujoco(scn) or bool(domain_of(scn.plant.kind).model_file(scn.plant))
+
+
 def scenario_inputs(scn) -> list[str]:
     """Every file a run reads: outputs must never be one of them."""
     from tspend.scenario import resolve_model_path
 
     inputs = [scn.path] if scn.path and scn.path != "<string>" else []
-    if uses_mujoco(scn):
+    if reads_mjcf(scn):
         inputs.append(str(resolve_model_path(scn)))
     return inputs
 

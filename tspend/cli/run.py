@@ -11,7 +11,7 @@ from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIV
     EXIT_TERMINATED, Claimed,
     add_scenario_options, check_model_size, check_viewer_url, controller_help, doc, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
-    scenario_inputs, uses_mujoco)
+    reads_mjcf, scenario_inputs)
 from tspend.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
 
@@ -85,7 +85,7 @@ def cmd(args: argparse.Namespace) -> int:
                   OutputRequest("--metrics", "metrics", ".json", args.metrics)
                   if args.metrics is not None else None],
                  scenario_inputs(scn))
-    with mujoco_warnings_in_errors(uses_mujoco(scn)):
+    with mujoco_warnings_in_errors(reads_mjcf(scn)):
         from tspend.loop.simulation import prepare, run
 
         prepared = prepare(scn, controller=args.controller)
