@@ -169,3 +169,25 @@ def test_summary_prints_units_excursions_saturation_and_events(capsys) -> None:
     assert "caught_at_s" in out and "2.5 s" in out and "not reached" in out
     print_summary({"rmse": 0.01, "saturated_fraction": 0.001}, {"e": "rad", "u": "N"})
     assert "saturation" not in capsys.readouterr().out
+
+
+def test_summary_says_what_the_paper_controller_leaves_free_and_what_mpsc_counted(capsys):
+    """Issue 51, items 9 and 10: the default run's "largest |joint| slider 42.79 m" says the
+    paper's controller regulates the pole only and how to keep the cart; a full-state
+    controller gets no such line. The mpsc counts say what each one counts."""
+    from tspend.cli.run import print_summary
+
+    assert main(["run", "--duration", "0.05", "--no-record"]) == 0
+    out = capsys.readouterr().out
+    note = out.split("largest |joint|", 1)[1].splitlines()[1]
+    assert "slider not regulated: second_type, the paper's controller, regulates hinge" in note
+    assert "--controller lqr" in note and "effects.rail" in note
+    assert main(["run", "--duration", "0.05", "--no-record", "--controller", "lqr"]) == 0
+    assert "not regulated" not in capsys.readouterr().out
+    safety = {"filter": "mpsc", "solver": "hpipm", "samples": 20000, "intervention_share": 0.68,
+              "mean_abs_du": 1.0, "qp_ms": {"median": 0.46}, "fallbacks": 4490, "no_plan": 3,
+              "infeasible_samples": 6}
+    print_summary({"rmse": 0.01, "safety_filter": safety}, {"e": "rad", "u": "N"})
+    out = capsys.readouterr().out
+    assert "4490 samples on the last certified plan" in out
+    assert "3 on an uncertified recovery plan" in out and "6 plan QPs that failed" in out

@@ -124,7 +124,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end is not None:
         print(f"{end.status}: {end.steps_done} steps" + (f" ({printable(end.message)})"
                                                           if end.message else ""))
-        print_summary(end.metrics, summary_units(prepared))
+        print_summary(end.metrics, summary_units(prepared), notes=unregulated_note(prepared))
     if recording is not None and recording.committed:
         print(f"recording: {printable(display(recording.target))}  "
               f"(open with: rerun {printable(display(recording.target))})")
@@ -221,10 +221,30 @@ def _with(value, unit: str) -> str:
 
 
 
-def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
+#: the kinds that control the task's view only (the paper's): a joint outside it is free
+VIEW_ONLY_KINDS = ("second_type", "first_type")
+
+
+def unregulated_note(prepared) -> str:
+    """For the paper's controllers: which joints they leave free and how to keep them, said
+    under "largest |joint|" (the default run's cart travels tens of metres; issue 51)."""
+    kind = getattr(prepared.controller, "kind", "")
+    view = tuple(prepared.task.view) if prepared.task is not None else ()
+    joints = [j for j in getattr(prepared.plant, "joints", ()) if j.name not in view]
+    if kind not in VIEW_ONLY_KINDS or not view or not joints:
+        return ""
+    free = ", ".join(j.name for j in joints)
+    rail = (", --set effects.rail=2 ends the run at a rail of +/-2 m"
+            if any(j.kind == "slide" for j in joints) else "")
+    return (f"{free} not regulated: {kind}, the paper's controller, regulates {view[0]} "
+            f"only; --controller lqr regulates the whole state{rail}")
+
+
+def print_summary(metrics: dict, units: dict[str, str], stream=None, notes: str = "") -> None:
     """The metrics a person reads: every figure with its unit, each joint's largest
-    excursion, the actuator's saturation when it clipped more than
-    :data:`SATURATION_SHARE` of the samples, and the task's events (goal, catch)."""
+    excursion (with ``notes``: what the controller leaves free), the actuator's saturation
+    when it clipped more than :data:`SATURATION_SHARE` of the samples, and the task's
+    events (goal, catch)."""
     import sys
 
     stream = stream or sys.stdout
@@ -259,6 +279,8 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         parts = [f"{name} {_with(j.get('max_abs'), states.get(name, ''))}"
                  for name, j in joints.items() if isinstance(j, dict)]
         print(f"  {'largest |joint|':<{width}}  {', '.join(parts)}", file=stream)
+        if notes:
+            print(f"  {'':<{width}}  ({notes})", file=stream)
     goal = metrics.get("goal")
     if isinstance(goal, dict):
         reached = goal.get("reached_at_s")
@@ -285,8 +307,10 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
               f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "
               f"mean |du| {_with(safety['mean_abs_du'], u)}, QP "
               f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median"
-              + (f", fallbacks {safety['fallbacks'] + safety['no_plan']}, infeasible "
-                 f"{safety['infeasible_samples']}" if "fallbacks" in safety else ""), file=stream)
+              + (f"; {safety['fallbacks']} samples on the last certified plan (no new plan "
+                 f"passed), {safety['no_plan']} on an uncertified recovery plan, "
+                 f"{safety['infeasible_samples']} plan QPs that failed (docs/safety.md)"
+                 if "fallbacks" in safety else ""), file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")
