@@ -188,3 +188,29 @@ def test_mjx_is_imported_without_warps_lines():
                           timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "imported mujoco.mjx\n" and "warp" not in done.stderr.lower()
+
+
+def test_a_slow_step_says_what_it_is_how_long_it_takes_and_took():
+    """Issue 51, item 4: a step past its delay gets one line naming it with its estimate,
+    then one with the time it took; a quick step prints nothing; a failed one no "done"
+    (its error says what happened). Off a terminal: whole lines, no counting in place."""
+    import io
+    import time
+
+    from tspend.runtime.progress import PROGRESS_PREFIX, SlowStep
+
+    out = io.StringIO()
+    with SlowStep("designing", "about 1 s", stream=out, after=0.05):
+        time.sleep(0.4)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == f"{PROGRESS_PREFIX}designing (about 1 s)..."
+    assert lines[1].startswith(f"{PROGRESS_PREFIX}designing: done in ") and len(lines) == 2
+    quick = io.StringIO()
+    with SlowStep("designing", "about 1 s", stream=quick, after=5.0):
+        pass
+    assert quick.getvalue() == ""
+    failed = io.StringIO()
+    with pytest.raises(ValueError), SlowStep("designing", "about 1 s", stream=failed, after=0.05):
+        time.sleep(0.3)
+        raise ValueError("bad")
+    assert failed.getvalue().splitlines() == [f"{PROGRESS_PREFIX}designing (about 1 s)..."]

@@ -288,8 +288,9 @@ def test_a_cold_cache_first_run_says_it_compiles_and_adds_no_error_line(tmp_path
     r = tspend("run", "pendulum_mujoco", *SHORT, "--no-record", cwd=tmp_path, env=env,
                timeout=900)
     assert r.status == 0, r.err
-    progress = [line for line in r.err.splitlines() if line.startswith(PROGRESS_PREFIX)]
-    assert len(progress) == 2 and "compiling" in progress[0] and "about 25 s" in progress[0]
+    progress = [line for line in r.err.splitlines()
+                if line.startswith(PROGRESS_PREFIX + "compiling")]  # (a busy machine: "preparing" too)
+    assert len(progress) == 2 and "about 25 s" in progress[0]
     assert "done in" in progress[1]
     assert r.err_lines == []
     assert any((cold / "numba").rglob("*.nbi"))  # it was cold: numba wrote its cache there

@@ -87,8 +87,10 @@ def cmd(args: argparse.Namespace) -> int:
                  scenario_inputs(scn))
     with mujoco_warnings_in_errors(reads_mjcf(scn)):
         from tspend.loop.simulation import prepare, run
+        from tspend.runtime.progress import SlowStep
 
-        prepared = prepare(scn, controller=args.controller)
+        with SlowStep(PREPARE_STEP, PREPARE_ESTIMATE, after=PREPARE_NOTICE_S):
+            prepared = prepare(scn, controller=args.controller)
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
             return _run(args, scn, prepared, stop, outs, run)
 
@@ -159,6 +161,13 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
 # -- the printed summary -----------------------------------------------------------------
 #: a saturation line is printed when the actuator clipped more than this share of samples
 SATURATION_SHARE = 0.01
+#: the design before a run (a derivation, a safety filter's plans compiled to C): said
+#: once it has taken this long, with what it is and about how long it takes
+PREPARE_NOTICE_S = 5.0
+PREPARE_STEP = "preparing the plant and the controller"
+#: a cold cache's --safety mpsc design: 12 s of CPU measured (TSPEND_CACHE_DIR empty)
+PREPARE_ESTIMATE = ("the first time only, then cached; about 15 s for --safety mpsc, whose "
+                    "plans compile to C")
 #: seconds without a first block before the compile notice
 COMPILE_NOTICE_S = 2.0
 #: the first run's compile, as benchmarks/install_footprint.py measures it (README.md)

@@ -229,13 +229,14 @@ class SlowStep:
         while not self._ended.wait(1.0):  # the line counts the seconds in place
             self._say(f"\r{head}: {time.monotonic() - self._started:.0f} s", end="")
 
-    def end(self) -> None:
-        """The step is over: one line with its duration when it was announced."""
+    def end(self, failed: bool = False) -> None:
+        """The step is over: one line with its duration when it was announced (none when it
+        ``failed``: the error says what happened)."""
         if self._ended is None or self._ended.is_set():
             return
         self._ended.set()
         self._thread.join()
-        if self.announced:
+        if self.announced and not failed:
             # on a terminal: over the counting line, erased to its end
             lead, tail = ("\r", "\033[K") if _on_terminal(self.stream) else ("", "")
             self._say(f"{lead}{PROGRESS_PREFIX}{self.what}: done in "
@@ -244,5 +245,5 @@ class SlowStep:
     def __enter__(self) -> "SlowStep":
         return self.begin()
 
-    def __exit__(self, *exc) -> None:
-        self.end()
+    def __exit__(self, kind, value, traceback) -> None:
+        self.end(failed=kind is not None)
