@@ -125,3 +125,18 @@ def test_what_the_docs_and_help_name_is_in_the_wheel(installed):
         named = re.findall(r"(\S*docs/[\w/.-]+\.md)", text)
         assert named and all(Path(p).is_relative_to(site) and Path(p).is_file()
                              for p in named), named
+
+
+def test_the_wheel_mode_of_check_docs_takes_the_tour_and_refuses_the_checkout():
+    """tools/check_docs.py --wheel runs each document's first block with a command to run:
+    the README's tour (its first two blocks install), a benchmark of the checkout skipped;
+    an interpreter that imports tspend from this checkout is refused (issue 51)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from check_docs_wheel import first_block, from_the_wheel
+
+    tour = first_block(ROOT / "README.md", short=False)
+    assert tour[0].text.startswith("tspend list --long") and len(tour) >= 20
+    bench = [c for c in first_block(ROOT / "docs" / "safety.md", short=False)
+             if "benchmarks/" in c.text]
+    assert bench and all(c.skip for c in bench)
+    assert "from this checkout" in from_the_wheel(sys.executable)

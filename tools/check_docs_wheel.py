@@ -110,9 +110,11 @@ def run_first_blocks(python: str, paths: list[Path], short: bool, timeout: float
                     continue
                 ran += 1
                 failed += not _run_one(cmd, work, env, short, timeout, verbose)
-        if subprocess.run(state, cwd=ROOT, capture_output=True, text=True).stdout != before:
+        after = subprocess.run(state, cwd=ROOT, capture_output=True, text=True).stdout
+        if after != before:
             failed += 1
-            print(f"  FAIL {path.name}: its commands changed the checkout")
+            changed = sorted(set(after.splitlines()) ^ set(before.splitlines()))
+            print(f"  FAIL {path.name}: the checkout changed while its commands ran: {changed[:5]}")
     return ran, failed, skipped
 
 
