@@ -21,7 +21,12 @@ class Result:
 
     @property
     def err_lines(self) -> list[str]:
-        return [line for line in self.err.splitlines() if line.strip()]
+        """stderr's lines less the progress of a slow step (numba's first compile, on a cold
+        cache or a busy machine): those say how long to wait, never what went wrong."""
+        from tspend.runtime.progress import PROGRESS_PREFIX
+
+        return [line for line in self.err.splitlines()
+                if line.strip() and not line.startswith(PROGRESS_PREFIX)]
 
     def one_error_line(self) -> str:
         """The single stderr line, asserting there is exactly one and no traceback."""

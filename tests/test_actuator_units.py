@@ -14,9 +14,9 @@ from tspend import load_scenario, override
 from tspend.cli.main import main
 from tspend.loop.simulation import build_plant, prepare
 
-MODELS = Path(__file__).parent / "models" / "third_party"
+MODELS = Path(__file__).parents[1] / "models" / "third_party"
 #: gymnasium's double pendulum on a cart: motor gear 500, ctrlrange -1 1
-DOUBLE = MODELS.parent / "gymnasium_double_pendulum_ranges.xml"
+DOUBLE = Path(__file__).parent / "models" / "gymnasium_double_pendulum_ranges.xml"
 #: dm_control's cart-pole: motor gear 10, ctrlrange -1 1
 DMC = MODELS / "dm_control_cartpole_physics.xml"
 ON_DOUBLE = ["--set", f'plant.model="{DOUBLE}"', "--set", 'plant.actuator="slide"']

@@ -293,3 +293,19 @@ def test_the_recording_labels_u_in_the_unit_of_the_models_actuator(name, unit) -
     spec = next(sp for sp in specs_of(info) if sp.entity == "series/control")
     assert f"u ({unit})" in spec.title
     assert spec.columns[0] == "u_" + unit.replace(" ", "_")
+
+
+def test_a_nan_mass_model_of_a_derived_ode_exits_2_in_one_line_and_leaves_no_log(tmp_path):
+    """The ODE derived from an MJCF reads it through MuJoCo too: a NaN mass exits 2 with
+    MuJoCo's warning in the one line, and no MUJOCO_LOG.TXT is left in the working folder
+    (issue 51, item 18: the ODE was not counted as reading an MJCF)."""
+    from cli_harness import tspend as cli
+
+    text = (Path(__file__).parents[1] / "models" / "double_cartpole.xml").read_text()
+    import re
+
+    (tmp_path / "nan.xml").write_text(re.sub(r'mass="[^"]*"', 'mass="nan"', text, count=1))
+    r = cli("run", "double_cartpole_ode", "--set", 'plant.model="nan.xml"', "--duration",
+            "0.1", "--no-record", cwd=tmp_path, timeout=300)
+    assert r.status == 2 and "NaN" in r.one_error_line() and r.out == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nan.xml"]

@@ -166,7 +166,7 @@ def _third_party() -> list:
     # the parallel hinge is refused by the cart-pole itself (tests/test_mjcf_cartpoles.py)
     return [p for p in sorted((ROOT / "tests" / "models").glob("cartpole_*.xml"))
             if p.stem != "cartpole_parallel_hinge"] + \
-        sorted((ROOT / "tests" / "models" / "third_party").glob("*.xml"))
+        sorted((ROOT / "models" / "third_party").glob("*.xml"))
 
 
 @pytest.mark.parametrize("model", _third_party(), ids=lambda p: p.stem)

@@ -47,6 +47,37 @@ def test_every_help_is_plain_text_with_every_option_explained():
                     assert plain in words, f"{name} {action.dest}: {plain!r} broken or changed"
 
 
+def test_every_subcommand_help_ends_with_examples_that_parse_and_names_files_that_exist():
+    """Issue 51, item 8: every subcommand's help has the one or two commands a user needs,
+    each parsed here; a document it names is a path to a file that is there (the shipped
+    copy, in a wheel too: tests/test_wheel.py); possessives read plainly; an option that
+    does nothing says so and warns."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    top = build_parser()
+    for name, parser in list(_parsers(top))[1:]:
+        text = parser.format_help()
+        assert "\nexamples:\n" in text, f"{name} --help has no example"
+        examples = text.split("\nexamples:\n", 1)[1].splitlines()
+        assert examples and all(line.startswith(f"  {name}") or
+                                line.startswith(f"  {name.rsplit(' ', 1)[0]}")
+                                for line in examples), (name, examples)
+        for line in examples:
+            argv = shlex.split(line.split("#")[0].split(">")[0])[1:]
+            top.parse_args(argv)  # an example that does not parse fails here (UsageError)
+        for named in re.findall(r"(\S*docs/[\w/.-]+\.md)", " ".join(text.split())):
+            assert Path(named).is_absolute() and Path(named).is_file(), (name, named)
+        assert "''s" not in text, name
+    export = dict(_parsers(top))["tspend export"].format_help()
+    assert "never overwritten" not in export and "complete file" in export
+    paper = dict(_parsers(top))["tspend figures paper"]
+    assert paper.description and "ex2_duffing" in paper.description
+    args = top.parse_args(["figures", "paper", "--pdf"])
+    assert "does nothing" in args.deprecations[0]
+
+
 def test_show_prints_a_scenario_that_runs_the_same(tmp_path, monkeypatch, capsys):
     from tspend.scenario import available_scenarios, load_scenario, parse_scenario
     from tspend.scenario.writer import resolved_document, resolved_toml
@@ -144,3 +175,42 @@ def test_compact_recording_keeps_every_sample(tmp_path, monkeypatch):
         np.testing.assert_array_equal(table[column].to_numpy(), whole[column].to_numpy())
         np.testing.assert_array_equal(table[column].to_numpy(), ref[column].to_numpy())
     assert table["e_hinge_rad"].notna().sum() == 100  # a diagnostic at 50 Hz
+
+
+def test_mjx_is_imported_without_warps_lines():
+    """MJX prints "Failed to import warp: ..." twice on stdout at its first import when
+    NVIDIA Warp is missing (here it is): tspend's import of MJX, before every sweep and env
+    of the mjx backend, holds them back (issue 51, item 5)."""
+    pytest.importorskip("mujoco.mjx")
+    code = ("from tspend.mjx import set_precision; set_precision('float64'); "
+            "from mujoco import mjx; print('imported', mjx.__name__)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "imported mujoco.mjx\n" and "warp" not in done.stderr.lower()
+
+
+def test_a_slow_step_says_what_it_is_how_long_it_takes_and_took():
+    """Issue 51, item 4: a step past its delay gets one line naming it with its estimate,
+    then one with the time it took; a quick step prints nothing; a failed one no "done"
+    (its error says what happened). Off a terminal: whole lines, no counting in place."""
+    import io
+    import time
+
+    from tspend.runtime.progress import PROGRESS_PREFIX, SlowStep
+
+    out = io.StringIO()
+    with SlowStep("designing", "about 1 s", stream=out, after=0.05):
+        time.sleep(0.4)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == f"{PROGRESS_PREFIX}designing (about 1 s)..."
+    assert lines[1].startswith(f"{PROGRESS_PREFIX}designing: done in ") and len(lines) == 2
+    quick = io.StringIO()
+    with SlowStep("designing", "about 1 s", stream=quick, after=5.0):
+        pass
+    assert quick.getvalue() == ""
+    failed = io.StringIO()
+    with pytest.raises(ValueError), SlowStep("designing", "about 1 s", stream=failed, after=0.05):
+        time.sleep(0.3)
+        raise ValueError("bad")
+    assert failed.getvalue().splitlines() == [f"{PROGRESS_PREFIX}designing (about 1 s)..."]

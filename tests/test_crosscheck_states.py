@@ -16,9 +16,9 @@ from tspend.loop.simulation import build_plant
 from tspend.studies.crosscheck import verdict
 from tspend.studies.crosscheck_derived import accelerations_check
 
-MODELS = Path(__file__).parent / "models" / "third_party"
+MODELS = Path(__file__).parents[1] / "models" / "third_party"
 #: gymnasium's double pendulum on a cart, both hinges limited, the slide with a margin
-RANGES = MODELS.parent / "gymnasium_double_pendulum_ranges.xml"
+RANGES = Path(__file__).parent / "models" / "gymnasium_double_pendulum_ranges.xml"
 ON_RANGES = ["--set", f'plant.model="{RANGES}"', "--set", 'plant.actuator="slide"']
 
 

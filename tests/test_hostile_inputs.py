@@ -20,6 +20,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from cli_harness import ROOT, assert_intact, snapshot, spawn, tspend, user_files
+from tspend.runtime.progress import PROGRESS_PREFIX
 
 SHORT = ("--duration", "0.05")
 OUT = ("--out", "K.rrd", "--metrics", "K.json")
@@ -218,7 +219,7 @@ def test_a_second_signal_does_not_cut_the_cleanup_short(tmp_path):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 129, err  # the first signal's status, not a later one's
     # one line, besides the notice a slow start prints while numba compiles (under load)
-    lines = [l for l in err.strip().splitlines() if not l.startswith("tspend: compiling")]
+    lines = [l for l in err.strip().splitlines() if not l.startswith(PROGRESS_PREFIX)]
     assert "Traceback" not in err and len(lines) == 1
     assert "interrupted by SIGHUP" in lines[0]
     metrics = json.loads((tmp_path / "K.json").read_text())

@@ -169,3 +169,15 @@ def test_bootstrap_spread_agrees_with_the_curvature_and_is_seeded(tmp_path):
     b = ident.fit(model, rec, ("m", "M"), segment_s=0.25, bootstrap=3,
                   rng=np.random.default_rng(1))
     np.testing.assert_array_equal(a.replicates[:3], b.replicates)
+
+
+def test_identify_finds_a_shipped_model_as_inspect_does(tmp_path, monkeypatch, capsys):
+    """``--model models/cartpole.xml`` from a folder without models/ is the shipped model,
+    as ``tspend inspect models/cartpole.xml`` finds it (issue 51, item 2: "no such file"
+    from an installed wheel); what is then missing is the data, and the one line says so."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["inspect", "models/cartpole.xml"]) == 0
+    capsys.readouterr()
+    status = main(["identify", "e3.csv", "--model", "models/cartpole.xml", "--params", "m"])
+    err = capsys.readouterr().err
+    assert status == 2 and "e3.csv" in err and "--model" not in err, err

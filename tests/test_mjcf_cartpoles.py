@@ -2,7 +2,7 @@
 actuator and its limits, each checked against MuJoCo itself.
 
 The models under tests/models/ are of our own making, one per case; the third-party ones
-(tests/models/third_party/) are gymnasium's inverted pendulum (a copy) and dm_control's
+(models/third_party/) are gymnasium's inverted pendulum (a copy) and dm_control's
 cart-pole (its physics, written from its numbers).  The oracle is MuJoCo: its forward
 dynamics at random states (``mj_forward``'s ``qacc``) and its RK4 trajectories.
 """
@@ -26,8 +26,8 @@ from tspend.studies.crosscheck import closed_loop, open_loop, parting, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "tests" / "models"
-GYM = MODELS / "third_party" / "gymnasium_inverted_pendulum.xml"
-DMC = MODELS / "third_party" / "dm_control_cartpole_physics.xml"
+GYM = ROOT / "models" / "third_party" / "gymnasium_inverted_pendulum.xml"
+DMC = ROOT / "models" / "third_party" / "dm_control_cartpole_physics.xml"
 
 #: model -> (slide joint, hinge joint, actuator)
 OWN = {

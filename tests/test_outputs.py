@@ -275,6 +275,27 @@ def test_a_full_tmpfs_fails_the_run_and_keeps_the_old_files(tmp_path):
         subprocess.run(["umount", str(disk)])
 
 
+def test_a_cold_cache_first_run_says_it_compiles_and_adds_no_error_line(tmp_path):
+    """From empty caches (a new machine, CI) the first run compiles for tens of seconds:
+    progress lines say so, with an estimate and then how long it took, and they are not
+    error lines, so a failure's one line stays one line (issue 51, items 1 and 4: the
+    compile notice broke the full-tmpfs check on a new machine)."""
+    from tspend.runtime.progress import PROGRESS_PREFIX
+
+    cold = tmp_path / "cold"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cold / "numba"),
+               TSPEND_CACHE_DIR=str(cold / "tspend"))
+    r = tspend("run", "pendulum_mujoco", *SHORT, "--no-record", cwd=tmp_path, env=env,
+               timeout=900)
+    assert r.status == 0, r.err
+    progress = [line for line in r.err.splitlines()
+                if line.startswith(PROGRESS_PREFIX + "compiling")]  # (a busy machine: "preparing" too)
+    assert len(progress) == 2 and "about 25 s" in progress[0]
+    assert "done in" in progress[1]
+    assert r.err_lines == []
+    assert any((cold / "numba").rglob("*.nbi"))  # it was cold: numba wrote its cache there
+
+
 def test_sigkill_leaves_a_readable_partial_recording_under_a_name_that_says_so(tmp_path):
     before = user_files(tmp_path)
     proc = spawn("run", "pendulum_mujoco", "--duration", "600", "--out", "K.rrd", cwd=tmp_path)

@@ -64,6 +64,62 @@ def test_readme_is_short_and_keeps_the_quick_start() -> None:
     assert QUICK_START[1] in (ROOT / ".ci" / "run").read_text()
 
 
+def test_ci_runs_the_tests_from_new_empty_caches(tmp_path) -> None:
+    """.ci/run points every cache folder (numba's, tspend's, JAX's and the other
+    XDG ones, matplotlib's, Python's byte code) at a new empty folder before the README's
+    test command, so a test that passes only on a warm cache fails in CI (issue 51)."""
+    source = "\n".join(p.read_text() for p in (ROOT / "tspend").rglob("*.py"))
+    read = set(re.findall(r'environ\.get\("([A-Z_]*CACHE_(?:DIR|HOME))"', source))
+    wanted = read | {"NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "MPLCONFIGDIR", "PYTHONPYCACHEPREFIX"}
+    script = (ROOT / ".ci" / "run").read_text()
+    probe = "; ".join(f'echo "{v}=${{{v}:-}}"; '
+                      f'{{ ls -A "${{{v}:-/nonexistent}}" 2>/dev/null || true; }}'
+                      for v in sorted(wanted))
+    (tmp_path / ".ci").mkdir()
+    (tmp_path / ".ci" / "run").write_text(script.replace(QUICK_START[1], probe))
+    out = subprocess.run(["bash", str(tmp_path / ".ci" / "run")], capture_output=True,
+                         text=True, check=True, timeout=60).stdout.splitlines()
+    folders = dict(line.split("=", 1) for line in out if "=" in line)
+    assert set(folders) == wanted and all(folders.values()), out
+    assert len(out) == len(wanted)  # nothing listed: every folder new and empty
+    assert not any(Path(f).exists() for f in folders.values())  # and removed after
+
+
+def test_every_extra_and_example_is_reachable_from_the_readme() -> None:
+    """Issue 51, item 7: each extra of pyproject.toml is named in the README (``[name]``),
+    each example file too, and the README says how to find them in an installed wheel."""
+    import tomllib
+
+    text = README.read_text()
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert [e for e in extras if f"[{e}]" not in text] == []
+    assert [p.name for p in (ROOT / "examples").glob("*.py") if f"examples/{p.name}" not in text] == []
+    assert "tspend list --files" in text
+
+
+def test_no_document_uses_a_deprecated_spelling() -> None:
+    """Issue 51, item 6: every ``tspend`` command of README.md and docs/*.md, in a block or
+    in running text, parsed by tspend's parser, uses no deprecated option (``crosscheck
+    --json``): a reader copies what the documents show."""
+    from tspend.cli.common import UsageError
+
+    parser = build_parser()
+    used = []
+    for path in [README, *sorted((ROOT / "docs").rglob("*.md"))]:
+        text = path.read_text()
+        commands = re.findall(r"`(tspend [^`\n]+)`", text)
+        commands += [line for block in blocks(path) for line in block.splitlines()
+                     if line.startswith("tspend ")]
+        for command in commands:
+            try:
+                argv = shlex.split(command.split("#")[0].split(" > ")[0].split(" | ")[0])[1:]
+                args = parser.parse_args(argv)
+            except (UsageError, ValueError, SystemExit):
+                continue  # a placeholder (<machine>) or an excerpt: not this test's subject
+            used += [f"{path.name}: {command}: {n}" for n in getattr(args, "deprecations", [])]
+    assert used == []
+
+
 def test_readme_links_and_pictures_exist() -> None:
     targets = re.findall(r"\]\(([^)#]+)\)", README.read_text())
     assert any(t.startswith("docs/img/") for t in targets)

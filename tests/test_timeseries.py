@@ -76,9 +76,30 @@ def test_export_of_pendulum_mujoco_names_columns_with_units_and_equals_the_recor
     side = json.loads((tmp_path / "e.csv.json").read_text())
     assert (side["scenario"], side["seed"], side["controller"]) == ("pendulum_mujoco", 1,
                                                                     "second_type")
+    # an existing table is replaced by a complete one, as every command's output (issue 51)
+    (tmp_path / "e.csv").write_text("old\n")
     again = subprocess.run([sys.executable, "-m", "tspend.cli", "export", str(rrd), "--out",
                             str(tmp_path / "e.csv")], capture_output=True, text=True)
-    assert again.returncode == 2 and "exists" in again.stderr
+    assert again.returncode == 0, again.stderr
+    assert (tmp_path / "e.csv").read_text().splitlines()[0].startswith("t_s,hinge_rad,")
+
+
+def test_export_gives_each_rate_its_own_table(tmp_path):
+    """A default recording keeps the diagnostics at 50 Hz: the CSV of the every-sample
+    series and the CSV of the 50 Hz ones each read back with no empty cell, and hold the
+    recorded values at the recorded times (issue 51, item 11: most rows were empty cells)."""
+    rrd = tmp_path / "r.rrd"
+    assert main(["run", "pendulum_mujoco", "--duration", "0.3", "--out", str(rrd)]) == 0
+    every = export(rrd, tmp_path / "r.csv")
+    slow = pd.read_csv(tmp_path / "r.50Hz.csv")
+    assert len(every) == 300 and every.notna().all().all()
+    assert slow.notna().all().all() and "e_hinge_rad" in slow and "e_hinge_rad" not in every
+    np.testing.assert_allclose(np.diff(slow["t_s"]), 0.02, atol=1e-9)
+    t, e = read_scalar_series(rrd, "series/error")  # recorded at 50 Hz, on its own times
+    np.testing.assert_allclose(slow["t_s"], t, atol=1e-9)
+    np.testing.assert_array_equal(slow["e_hinge_rad"], e[:, 0])
+    side = json.loads((tmp_path / "r.csv.json").read_text())
+    assert set(side["tables"]) == {"r.csv", "r.50Hz.csv"}
 
 
 def test_export_of_furuta_mujoco_names_the_arm_and_the_pendulum(tmp_path):

@@ -126,12 +126,17 @@ class OwnBase(_Base):
 
 def test_a_crosscheck_that_compared_nothing_is_inconclusive(tmp_path: Path) -> None:
     r = tspend("crosscheck", "pendulum_mujoco", "--set", f"plant.model={TOUCHING}",
-               "--set", "run.duration=1", "--json", str(tmp_path / "cc.json"),
+               "--set", "run.duration=1", "--metrics", str(tmp_path / "cc.json"),
                "--no-record", cwd=ROOT, timeout=300)
     assert r.status == 1, r.err
     report = json.loads((tmp_path / "cc.json").read_text())
     assert report["inconclusive"] is True and report["open_loop_ok"] is False
-    assert "nothing compared" in report["verdict"] and "INCONCLUSIVE" in report["verdict"]
+    assert report["open_loop_compared_s"] == 0.0
+    # it opens with what was compared (nothing), and claims nothing of what was not: no
+    # difference, no integrators' truncation error (issue 51, item 21)
+    assert report["verdict"].startswith("open loop INCONCLUSIVE: nothing compared")
+    open_loop = report["verdict"].split("derived accelerations")[0]
+    assert "truncation" not in report["verdict"] and "nan" not in open_loop
     # and the contact was named before the run, as a warning
     assert "at the start" in r.err and "'rail1' and 'cart'" in r.err
 

@@ -44,7 +44,9 @@ def test_export_csv_reads_with_no_arguments_and_names_the_angle_as_metrics_and_t
     # the angle: the model's joint "hinge" everywhere, its unit at the end of a column
     assert "hinge" in metrics["joints"]
     assert "hinge_rad" in table.columns and "hinge_rad" in frame.columns
-    assert list(table.columns) == ["t_s", *frame.columns]
+    # each rate its own table (diagnostics at 50 Hz beside it): together, to_pandas' columns
+    slow = pd.read_csv(tmp_path / "x.50Hz.csv")
+    assert set(table.columns) | set(slow.columns) == {"t_s", *frame.columns}
     np.testing.assert_array_equal(table["hinge_rad"].to_numpy(), frame["hinge_rad"].to_numpy())
     assert abs(metrics["joints"]["hinge"]["max_abs"] - table["hinge_rad"].abs().max()) < 1e-12
     side = json.loads((tmp_path / "x.csv.json").read_text())
@@ -169,3 +171,25 @@ def test_summary_prints_units_excursions_saturation_and_events(capsys) -> None:
     assert "caught_at_s" in out and "2.5 s" in out and "not reached" in out
     print_summary({"rmse": 0.01, "saturated_fraction": 0.001}, {"e": "rad", "u": "N"})
     assert "saturation" not in capsys.readouterr().out
+
+
+def test_summary_says_what_the_paper_controller_leaves_free_and_what_mpsc_counted(capsys):
+    """Issue 51, items 9 and 10: the default run's "largest |joint| slider 42.79 m" says the
+    paper's controller regulates the pole only and how to keep the cart; a full-state
+    controller gets no such line. The mpsc counts say what each one counts."""
+    from tspend.cli.run import print_summary
+
+    assert main(["run", "--duration", "0.05", "--no-record"]) == 0
+    out = capsys.readouterr().out
+    note = out.split("largest |joint|", 1)[1].splitlines()[1]
+    assert "slider not regulated: second_type, the paper's controller, regulates hinge" in note
+    assert "--controller lqr" in note and "effects.rail" in note
+    assert main(["run", "--duration", "0.05", "--no-record", "--controller", "lqr"]) == 0
+    assert "not regulated" not in capsys.readouterr().out
+    safety = {"filter": "mpsc", "solver": "hpipm", "samples": 20000, "intervention_share": 0.68,
+              "mean_abs_du": 1.0, "qp_ms": {"median": 0.46}, "fallbacks": 4490, "no_plan": 3,
+              "infeasible_samples": 6}
+    print_summary({"rmse": 0.01, "safety_filter": safety}, {"e": "rad", "u": "N"})
+    out = capsys.readouterr().out
+    assert "4490 samples on the last certified plan" in out
+    assert "3 on an uncertified recovery plan" in out and "6 plan QPs that failed" in out

@@ -99,3 +99,44 @@ def test_python_call_from_an_empty_folder(installed):
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["completed", "200"]
+
+
+def test_what_the_docs_and_help_name_is_in_the_wheel(installed):
+    """Issue 51, items 2, 3, 7 and 8, from an empty folder: identify finds a shipped model
+    as inspect does (what is missing is then the data), the third-party models ship with
+    their licences, ``tspend list --files`` says where the examples are, and the documents
+    the help names are files in the install."""
+    import re
+
+    _, work, site = installed
+    third = _tspend(installed, "inspect", "models/third_party/gymnasium_inverted_pendulum.xml")
+    assert third.returncode == 0, third.stderr
+    shipped = site / "tspend" / "shipped" / "models" / "third_party"
+    assert all("License" in p.read_text() or "Apache" in p.read_text()
+               for p in shipped.glob("*.xml")) and len(list(shipped.glob("*.xml"))) == 2
+    fit = _tspend(installed, "identify", "e3.csv", "--model", "models/cartpole.xml",
+                  "--params", "m")
+    assert fit.returncode == 2 and "e3.csv" in fit.stderr and "--model" not in fit.stderr
+    files = _tspend(installed, "list", "--files")
+    assert files.returncode == 0 and "train_mjx_ppo.py" in files.stdout
+    assert str(site / "tspend" / "shipped" / "examples") in files.stdout
+    for command in ("run", "sweep"):
+        text = " ".join(_tspend(installed, command, "--help").stdout.split())
+        named = re.findall(r"(\S*docs/[\w/.-]+\.md)", text)
+        assert named and all(Path(p).is_relative_to(site) and Path(p).is_file()
+                             for p in named), named
+
+
+def test_the_wheel_mode_of_check_docs_takes_the_tour_and_refuses_the_checkout():
+    """tools/check_docs.py --wheel runs each document's first block with a command to run:
+    the README's tour (its first two blocks install), a benchmark of the checkout skipped;
+    an interpreter that imports tspend from this checkout is refused (issue 51)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from check_docs_wheel import first_block, from_the_wheel
+
+    tour = first_block(ROOT / "README.md", short=False)
+    assert tour[0].text.startswith("tspend list --long") and len(tour) >= 20
+    bench = [c for c in first_block(ROOT / "docs" / "safety.md", short=False)
+             if "benchmarks/" in c.text]
+    assert bench and all(c.skip for c in bench)
+    assert "from this checkout" in from_the_wheel(sys.executable)

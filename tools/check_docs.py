@@ -4,6 +4,7 @@
     python tools/check_docs.py --short               # runs shortened, no benchmarks (tests)
     python tools/check_docs.py --short docs/identify.md README.md
     python tools/check_docs.py --list                # what would run and what is skipped, why
+    python tools/check_docs.py --wheel ENV/bin/python  # first blocks, from the wheel
 
 Which blocks: every fenced block of the documents named (default README.md and
 docs/*.md) whose language is empty, ``sh``, ``bash``, ``shell``, ``console`` (shell) or
@@ -535,6 +536,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=900.0,
                     help="seconds one command may take (1-7200)")
     ap.add_argument("-v", "--verbose", action="store_true", help="print every command's result")
+    ap.add_argument("--wheel", metavar="PYTHON",
+                    help="wheel mode (tools/check_docs_wheel.py): each document's first block "
+                         "run by the tspend of PYTHON's environment, installed from the wheel, "
+                         "in an empty folder")
     args = ap.parse_args(argv)
     if not 1 <= args.timeout <= 7200:
         ap.error(f"--timeout: {args.timeout} is outside 1..7200")
@@ -544,6 +549,10 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"check_docs: error: no such document: {missing[0]}", file=sys.stderr)
         return 2
+    if args.wheel:
+        from check_docs_wheel import check_wheel
+
+        return check_wheel(args.wheel, paths, args.short, args.timeout, args.verbose)
     ran = skipped = failed = 0
     started = time.perf_counter()
     reasons: dict[str, int] = {}

@@ -53,12 +53,58 @@ class UsageError(ScenarioError):
 
 _RST_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")
 _RST_LITERAL = re.compile(r"``([^`]+)``")
+#: a literal with a possessive (``[controllers.tvlqr]``'s): double quotes, so the help does
+#: not read '[controllers.tvlqr]''s
+_RST_POSSESSIVE = re.compile(r"``([^`]+)``'s\b")
 
 
 def plain_text(text: str) -> str:
     """Help text as a terminal shows it: reStructuredText roles and literals (from a
     docstring) become plain words and quotes."""
-    return _RST_LITERAL.sub(r"'\1'", _RST_ROLE.sub(r"\1", text))
+    text = _RST_POSSESSIVE.sub("\"\\1\"'s", _RST_ROLE.sub(r"\1", text))
+    return _RST_LITERAL.sub(r"'\1'", text)
+
+
+def doc(name: str) -> str:
+    """Where a user reads the document ``name`` (``docs/safety.md``): the copy shipped with
+    tspend, beside a checkout's package or inside an installed wheel, so help text points
+    at a file that is there (``tspend list --files`` lists the folder)."""
+    from tspend.shipped import data_root
+
+    return str(data_root() / name)
+
+
+#: how the examples that end every command's help start (:data:`EXAMPLES`)
+EXAMPLES_HEAD = "examples:"
+#: the one or two commands a user needs first, by parser (``tspend figures paper``): the end
+#: of each command's ``--help`` (tests/test_cli_plain.py parses every one)
+EXAMPLES = {
+    "tspend run": ("tspend run                          # the default scenario, headless",
+                   "tspend run ex2_duffing --controller lqr --seed 3 --metrics m.json "
+                   "--out duffing.rrd"),
+    "tspend show": ("tspend show pendulum_mujoco > mine.toml   # then: tspend run mine.toml",),
+    "tspend crosscheck": ("tspend crosscheck acrobot_mujoco --metrics cc.json",),
+    "tspend list": ("tspend list --long", "tspend list --files   # where the examples and "
+                                          "documents are"),
+    "tspend inspect": ("tspend inspect models/double_cartpole.xml",),
+    "tspend sweep": ("tspend sweep ex2_duffing --seeds 0:20 --grid controller.gamma=0.1,0.3 "
+                     "--out gamma.parquet",),
+    "tspend export": ("tspend export duffing.rrd --out duffing.csv",),
+    "tspend compare": ("tspend compare ex2_duffing --controller second_type,first_type "
+                       "--seeds 0:20",),
+    "tspend tune": ("tspend tune ex3_pendulum_ode --controller pd --trials 8 --seeds 0:3 "
+                    "--out tuned.toml",),
+    "tspend figures": ("tspend figures paper --out figures",
+                       "tspend figures box gamma.parquet --metric rmse_ss"),
+    "tspend figures paper": ("tspend figures paper --out figures --duration 5",),
+    "tspend figures box": ("tspend figures box gamma.parquet --metric rmse_ss,control_energy",),
+    "tspend figures heatmap": ("tspend figures heatmap grid.parquet --x controller.gamma "
+                               "--y controller.eta",),
+    "tspend excite": ("tspend excite pendulum_mujoco_randomized --out exp.toml --duration 16",),
+    "tspend identify": ("tspend identify e3.csv --model models/cartpole.xml --params m,l,M "
+                        "--out fitted.xml",),
+    "tspend plan": ("tspend plan double_cartpole_swingup --nominal --out p.parquet",),
+}
 
 
 class PlainHelpFormatter(argparse.HelpFormatter):
@@ -70,6 +116,8 @@ class PlainHelpFormatter(argparse.HelpFormatter):
         return textwrap.wrap(text, width, break_long_words=False, break_on_hyphens=False)
 
     def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith(EXAMPLES_HEAD):  # commands: one a line, as typed
+            return "".join(indent + line for line in text.splitlines(keepends=True))
         text = " ".join(plain_text(text).split())
         return textwrap.fill(text, width, initial_indent=indent, subsequent_indent=indent,
                              break_long_words=False, break_on_hyphens=False)
@@ -88,6 +136,9 @@ class Parser(argparse.ArgumentParser):
 
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", PlainHelpFormatter)
+        examples = EXAMPLES.get(kwargs.get("prog", ""))
+        if examples and not kwargs.get("epilog"):  # a subcommand's help ends with them
+            kwargs["epilog"] = "\n".join([EXAMPLES_HEAD, *("  " + e for e in examples)])
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
@@ -109,6 +160,19 @@ class _DeprecatedAlias(argparse.Action):
         setattr(namespace, self.dest, values)
         notes = namespace.__dict__.setdefault("deprecations", [])
         notes.append(f"{option_string} is deprecated and goes in the next release; use {self.new}")
+
+
+class DeprecatedFlag(argparse.Action):
+    """A flag that no longer does anything (``figures --pdf``: PDF is always written): kept
+    one release so old scripts run, and said so in one ``tspend: warning:`` line."""
+
+    def __init__(self, option_strings, dest, why: str = "", **kwargs) -> None:
+        self.why = why
+        super().__init__(option_strings, dest, nargs=0, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        notes = namespace.__dict__.setdefault("deprecations", [])
+        notes.append(f"{option_string} does nothing ({self.why}) and goes in the next release")
 
 
 def add_deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, metavar: str) -> None:
@@ -235,12 +299,21 @@ def uses_mujoco(scn) -> bool:
     return PLANT_KINDS[scn.plant.kind].mujoco
 
 
+def reads_mjcf(scn) -> bool:
+    """Whether a run reads an MJCF through MuJoCo: a MuJoCo plant, or an ODE whose machine
+    is read and whose equations are derived from its MJCF (``double_cartpole_ode``: its
+    MuJoCo warnings and errors, too, belong in the one line, never in MUJOCO_LOG.TXT)."""
+    from tspend.plants.registry import domain_of
+
+    return uses_mujoco(scn) or bool(domain_of(scn.plant.kind).model_file(scn.plant))
+
+
 def scenario_inputs(scn) -> list[str]:
     """Every file a run reads: outputs must never be one of them."""
     from tspend.scenario import resolve_model_path
 
     inputs = [scn.path] if scn.path and scn.path != "<string>" else []
-    if uses_mujoco(scn):
+    if reads_mjcf(scn):
         inputs.append(str(resolve_model_path(scn)))
     return inputs
 

@@ -9,14 +9,19 @@ The run's scenario, seed and controller go into the Parquet schema's metadata (k
 ``tspend``, JSON, and one key each) and, for a CSV, into ``PATH.csv.json`` beside it: the
 CSV itself is plain (one header row, then one row per sample), so
 ``pandas.read_csv(path)`` with no arguments and any spreadsheet read it.
-``--to`` is the deprecated spelling of ``--out`` (kept one release).
+
+Each rate has its own table: the series recorded at every sample go into ``PATH``; those
+recorded at a lower rate (the controller's diagnostics at 50 Hz by default,
+``--diagnostics-hz``) into ``PATH`` with the rate before the suffix (``run.50Hz.csv``), on
+their own rows, so no column of either is mostly empty cells. ``PATH`` is replaced only by
+a complete file, as every command's output. ``--to`` is the deprecated spelling of
+``--out`` (kept one release).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 from tspend.runtime.errors import ScenarioError
@@ -38,10 +43,14 @@ def add_parser(sub) -> None:
                                    "at the end (hinge_rad, hinge_dot_rad_s, ref_rad, u_N, "
                                    "slider_m ...). Scenario, seed and controller go into the "
                                    "Parquet metadata or, for a CSV, into PATH.csv.json beside "
-                                   "it (the CSV has one header row).")
+                                   "it (the CSV has one header row). Series recorded at a "
+                                   "lower rate (diagnostics at 50 Hz by default) go into a "
+                                   "table of their own beside it, the rate in its name "
+                                   "(PATH.50Hz.csv), so no column is mostly empty.")
     p.add_argument("recording", metavar="FILE.rrd", help="a recording made by tspend")
     p.add_argument("--out", metavar="PATH.parquet|PATH.csv",
-                   help="the table to write (the suffix picks the format; never overwritten)")
+                   help="the table to write (the suffix picks the format; replaced only by "
+                        "a complete file)")
     add_deprecated_alias(p, "--to", "--out", "PATH")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 
@@ -72,6 +81,37 @@ def write_table(table, metadata: dict[str, dict], target: Path, fmt: str) -> Non
     pq.write_table(arrow.replace_schema_metadata(meta), target)
 
 
+def by_rate(table) -> list[tuple[str, object]]:
+    """``table`` split by the rate its columns were recorded at: ``("", columns recorded at
+    every sample)``, then one ``(".50Hz", t_s and the columns recorded at 50 Hz, on their
+    own rows)`` per lower rate. A column is recorded at a lower rate when it holds a value
+    in at most half the rows (a diverged run's last NaN does not move a column)."""
+    import numpy as np
+
+    recorded = table.notna()
+    rows = len(table)
+    thinned: dict[bytes, list[str]] = {}
+    for column in table.columns:
+        have = recorded[column].to_numpy()
+        if 0 < have.sum() <= rows // 2:
+            thinned.setdefault(have.tobytes(), []).append(column)
+    full = [c for c in table.columns if not any(c in cs for cs in thinned.values())]
+    out = [("", table[full])]
+    for columns in thinned.values():
+        part = table.loc[recorded[columns[0]], ["t_s", *columns]].reset_index(drop=True)
+        step = np.median(np.diff(part["t_s"])) if len(part) > 1 else 0.0
+        name = f".{1.0 / step:.4g}Hz" if step > 0 else ".thinned"
+        while name in dict(out):  # two groups at one rate (never seen): kept apart
+            name += "_"
+        out.append((name, part))
+    return out
+
+
+def rate_path(target: Path, rate: str) -> Path:
+    """Where the table of one lower rate goes: ``run.csv`` -> ``run.50Hz.csv``."""
+    return target.with_name(target.stem + rate + target.suffix)
+
+
 def csv_metadata(table, metadata: dict[str, dict]) -> dict:
     """What ``PATH.csv.json`` holds: the run's identity and every column's unit."""
     return {**_flat(metadata), "columns": list(table.columns)}
@@ -95,30 +135,41 @@ def cmd(args: argparse.Namespace) -> int:
     plan_outputs([OutputRequest("--out", "table", suffix, str(target))]
                  + ([OutputRequest("--out (metadata)", "metadata", ".json", str(side))]
                     if side else []), inputs=[source])
-    for path in (target, side):
-        if path is not None and os.path.lexists(path):
-            raise ScenarioError(f"--out {path}: exists; choose another path (nothing is "
-                                f"overwritten)")
     try:
         table, metadata = recording_table(source)
     except (ValueError, OSError, RuntimeError, KeyError) as exc:
         # Rerun's reader reports a corrupt or foreign file as a RuntimeError
         raise ScenarioError(f"{source}: not a readable tspend recording "
                             f"({' '.join(str(exc).split())[:300]})") from None
+    tables = by_rate(table)
+    plan_outputs([OutputRequest("--out", f"table{rate}", suffix, str(rate_path(target, rate)))
+                  for rate, _ in tables[1:]], inputs=[source])
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ScenarioError(f"--out {target}: cannot create directory {target.parent}: "
                             f"{exc.strerror or exc}") from None
+    _write_all(tables, metadata, target, side, suffix)
+    return 0
+
+
+def _write_all(tables, metadata, target: Path, side: Path | None, suffix: str) -> None:
+    """Each rate's table, then the CSV's metadata; each replaced only by a complete file."""
     from tspend.runtime.outputs import write_atomic
 
-    write_atomic(target, lambda tmp: write_table(table, metadata, tmp, suffix), replace=False,
-                 what="--out")
+    said = []
+    for rate, part in tables:
+        path = rate_path(target, rate)
+        write_atomic(path, lambda tmp, part=part: write_table(part, metadata, tmp, suffix),
+                     replace=True, what="--out")
+        said.append(f"{path}: {len(part)} samples x {part.shape[1]} columns "
+                    f"({', '.join(part.columns[:8])}{', ...' if part.shape[1] > 8 else ''})"
+                    + (f", recorded at {rate[1:]}" if rate else ""))
     if side is not None:
-        text = json.dumps(csv_metadata(table, metadata), indent=2, default=str) + "\n"
-        write_atomic(side, lambda tmp: tmp.write_text(text, encoding="utf-8"), replace=False,
+        text = json.dumps({**csv_metadata(tables[0][1], metadata),
+                           "tables": {str(rate_path(target, r).name): list(t.columns)
+                                      for r, t in tables}}, indent=2, default=str) + "\n"
+        write_atomic(side, lambda tmp: tmp.write_text(text, encoding="utf-8"), replace=True,
                      what="--out (metadata)")
-    print(f"{target}: {len(table)} samples x {table.shape[1]} columns "
-          f"({', '.join(table.columns[:8])}{', ...' if table.shape[1] > 8 else ''})"
-          + (f"; run metadata in {side}" if side else ""))
+    print("\n".join(said) + (f"\nrun metadata in {side}" if side else ""))
     return 0

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tspend.cli.common import DeprecatedFlag
 from tspend.runtime.errors import ScenarioError
 
 
@@ -30,20 +31,32 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     def common(q):
         q.add_argument("--out", default="figures", metavar="DIR",
                        help="directory for the files (default: figures)")
-        q.add_argument("--pdf", action="store_true", help="(PDF is always written; kept for old scripts)")
+        q.add_argument("--pdf", action=DeprecatedFlag, why="PDF is always written beside the PNG",
+                       help="deprecated, does nothing: PDF is always written beside the PNG "
+                            "(kept one release for old scripts, with a warning)")
         q.add_argument("--overwrite", action="store_true", help="replace existing files")
         q.add_argument("--controller", metavar="K1,K2,...", help="controller kinds to draw")
         q.add_argument("--debug", action="store_true", help="show tracebacks")
 
     pp = sub.add_parser("paper", help="x1, x2 against the reference for Examples 1-3, u of "
-                        "Example 2, its membership functions before and after adaptation")
+                        "Example 2, its membership functions before and after adaptation",
+                        description="The paper's figures redrawn from runs of its examples "
+                                    "(ex1_nonaffine_case1, ex1_nonaffine_case2, ex2_duffing, "
+                                    "ex3_pendulum_ode at their own seeds, or --seed): x1 and "
+                                    "x2 against the reference for Examples 1-3, the control u "
+                                    "of Example 2 and its membership functions before and "
+                                    "after adaptation; each as PNG and PDF with its data as "
+                                    "CSV under --out DIR.")
     common(pp)
     pp.add_argument("--seed", type=int, metavar="N", help="seed (default: each scenario's)")
     pp.add_argument("--duration", type=float, metavar="S", help="override run.duration")
     pp.add_argument("--every", type=int, default=10, metavar="N",
                     help="draw every Nth sample of x (default 10; u is drawn in full)")
 
-    bp = sub.add_parser("box", help="box plots across seeds of a sweep/compare table")
+    bp = sub.add_parser("box", help="box plots across seeds of a sweep/compare table",
+                        description="Box plots across seeds of one metric per figure, one box "
+                                    "per controller, from a table of tspend sweep or tspend "
+                                    "compare --out.")
     common(bp)
     bp.add_argument("table", metavar="RUNS.parquet",
                     help="a table written by tspend sweep or tspend compare --out")
@@ -53,7 +66,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
     add_deprecated_alias(bp, "--metrics", "--metric", "M1,M2,...")  # --metrics is a file elsewhere
 
-    hp = sub.add_parser("heatmap", help="median of a metric over a two-key sweep")
+    hp = sub.add_parser("heatmap", help="median of a metric over a two-key sweep",
+                        description="The median over seeds of one metric on the grid of two "
+                                    "--grid keys of a tspend sweep table.")
     common(hp)
     hp.add_argument("table", metavar="RUNS.parquet",
                     help="a table written by tspend sweep over two --grid keys")

@@ -83,6 +83,10 @@ def cmd(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from tspend.shipped import given_or_shipped
+
+    # as inspect finds it: as given, else the shipped model of that name
+    args.model = given_or_shipped(args.model)
     plans = plan([OutputRequest("--out", "calibrated model", ".xml", args.out) if args.out else None,
                   OutputRequest("--metrics", "metrics", ".json", args.metrics) if args.metrics else None,
                   OutputRequest("--figure", "figure", ".png", args.figure) if args.figure else None],

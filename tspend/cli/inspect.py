@@ -48,10 +48,9 @@ def _cmd(args: argparse.Namespace) -> int:
     json_path = Path(args.metrics) if args.metrics else None
     if json_path is not None:
         check_writable(json_path, "json")
-    from tspend.shipped import locate
+    from tspend.shipped import given_or_shipped
 
-    # as given, else the shipped model of that name (models/cartpole.xml from any folder)
-    model = str(args.model if Path(args.model).is_file() else locate(args.model) or args.model)
+    model = given_or_shipped(args.model)
     domain = _domain_of(model)
     names = {k: v for k, v in (("slide", args.slide), ("hinge", args.hinge),
                                ("actuator", args.actuator)) if v is not None}

@@ -21,6 +21,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--long", action="store_true",
                    help="add each scenario's plant kind, machine (its model file), default "
                         "controller, duration and file")
+    p.add_argument("--files", action="store_true",
+                   help="print instead where the shipped files are (models, examples to copy, "
+                        "the documents the help text names) and what each example is")
     return p
 
 
@@ -36,7 +39,32 @@ def facts(scn) -> str:
             f"{scn.run.duration:g} s")
 
 
+def shipped_files() -> list[str]:
+    """The lines of ``tspend list --files``: the shipped folders, each example with the
+    first line of its docstring (a checkout has them at its top level, a wheel inside the
+    package: examples/train_mjx_ppo.py is otherwise hard to find)."""
+    import ast
+
+    from tspend.shipped import data_root
+
+    root = data_root()
+    lines = [f"shipped with tspend, under {root}:"]
+    for folder, what in (("models", "MJCF models (models/third_party/: with their licences)"),
+                         ("scenarios", "the scenarios tspend list shows"),
+                         ("docs", "the documents; docs/reference/cli.md: every option and "
+                                  "exit status"),
+                         ("examples", "to copy and run (python FILE --help)")):
+        lines.append(f"  {folder + '/':<11} {root / folder}  {what}")
+    for example in sorted((root / "examples").glob("*.py")):
+        doc = ast.get_docstring(ast.parse(example.read_text(encoding="utf-8"))) or ""
+        lines.append(f"    {example.name}: {first_sentence(doc, 90)}")
+    return lines
+
+
 def cmd(args: argparse.Namespace) -> int:
+    if args.files:
+        print("\n".join(printable(line) for line in shipped_files()))
+        return EXIT_OK
     from tspend.scenario import available_scenarios, load_scenario, scenario_dirs
     from tspend.shipped import scenario_search_path
 

@@ -66,7 +66,7 @@ def command_modules() -> tuple:
 DESCRIPTION = ("Control experiments on pendulums: run a scenario headless or live, show and "
                "list scenarios, cross-check MuJoCo against the derived equations, compare, "
                "tune and sweep controllers, identify a rig, plan swing-ups. 'tspend COMMAND "
-               "--help' explains each command; docs/reference/cli.md has every option.")
+               "--help' explains each command; every option: {cli_md}")
 
 #: the exit statuses, as --help prints them
 EXIT_STATUSES = """exit status:
@@ -88,7 +88,10 @@ Every error is one line on stderr, "tspend: error: ...".
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="tspend", description=textwrap.fill(DESCRIPTION, 88), epilog=EXIT_STATUSES,
+    from tspend.cli.common import doc  # where docs/reference/cli.md is, checkout or wheel
+
+    p = Parser(prog="tspend", description=textwrap.fill(
+               DESCRIPTION.format(cli_md=doc("docs/reference/cli.md")), 88, break_long_words=False), epilog=EXIT_STATUSES,
                formatter_class=PlainRawDescriptionFormatter)
     p.add_argument("--version", action="version", version=f"tspend {__version__}",
                    help="print tspend's version and exit")

@@ -9,9 +9,9 @@ import re
 from tspend import __version__
 from tspend.cli.common import (DEFAULT_SCENARIO, EXIT_CONTROLLER_ERROR, EXIT_DIVERGED, EXIT_OK,
     EXIT_TERMINATED, Claimed,
-    add_scenario_options, check_model_size, check_viewer_url, controller_help, load_with_overrides,
+    add_scenario_options, check_model_size, check_viewer_url, controller_help, doc, load_with_overrides,
     metrics_document, plan, printable, recording_request, release_warnings, say,
-    scenario_inputs, uses_mujoco)
+    reads_mjcf, scenario_inputs)
 from tspend.runtime.errors import OutputError, ScenarioError
 from tspend.runtime.outputs import OutputRequest, display, slug
 
@@ -33,7 +33,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "safety certification: the input passes only when a backup plan "
                         "keeps every constraint and the fall angle and ends in the "
                         "balancing LQR's safe set; 'off' (the default) none (same as "
-                        "--set safety.filter=FILTER; docs/safety.md; e.g. --safety cbf)")
+                        f"--set safety.filter=FILTER; {doc('docs/safety.md')}; e.g. --safety cbf)")
     from tspend.cli.rig import add_rig_options
 
     add_rig_options(r)
@@ -91,11 +91,13 @@ def cmd(args: argparse.Namespace) -> int:
     from tspend.cli.rig import rig_for_run
 
     # --rig: the link checked (refused in one line) before anything is written or moves
-    with mujoco_warnings_in_errors(uses_mujoco(scn)), rig_for_run(args, scn) as rig:
+    with mujoco_warnings_in_errors(reads_mjcf(scn)), rig_for_run(args, scn) as rig:
         from tspend.loop.simulation import prepare, run
+        from tspend.runtime.progress import SlowStep
 
         scn = rig.scenario if rig is not None else scn
-        prepared = prepare(scn, controller=args.controller)
+        with SlowStep(PREPARE_STEP, PREPARE_ESTIMATE, after=PREPARE_NOTICE_S):
+            prepared = prepare(scn, controller=args.controller)
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
             return _run(args, scn, prepared, stop, outs, rig.run if rig is not None else run)
 
@@ -131,7 +133,7 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end is not None:
         print(f"{end.status}: {end.steps_done} steps" + (f" ({printable(end.message)})"
                                                           if end.message else ""))
-        print_summary(end.metrics, summary_units(prepared))
+        print_summary(end.metrics, summary_units(prepared), notes=unregulated_note(prepared))
     if recording is not None and recording.committed:
         print(f"recording: {printable(display(recording.target))}  "
               f"(open with: rerun {printable(display(recording.target))})")
@@ -166,38 +168,44 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
 # -- the printed summary -----------------------------------------------------------------
 #: a saturation line is printed when the actuator clipped more than this share of samples
 SATURATION_SHARE = 0.01
+#: the design before a run (a derivation, a safety filter's plans compiled to C): said
+#: once it has taken this long, with what it is and about how long it takes
+PREPARE_NOTICE_S = 5.0
+PREPARE_STEP = "preparing the plant and the controller"
+#: a cold cache's --safety mpsc design: 12 s of CPU measured (TSPEND_CACHE_DIR empty)
+PREPARE_ESTIMATE = ("the first time only, then cached; about 15 s for --safety mpsc, whose "
+                    "plans compile to C")
 #: seconds without a first block before the compile notice
 COMPILE_NOTICE_S = 2.0
+#: the first run's compile, as benchmarks/install_footprint.py measures it (README.md)
+COMPILE_ESTIMATE = "the first run only, then cached; about 25 s on 2 idle cores, longer on a busy machine"
 
 
 class CompileNotice:
-    """A sink that says, once, that the closed loop is being compiled when the first
-    block has not come within :data:`COMPILE_NOTICE_S` (numba's first compile takes
-    ~13 s; later runs load it from the cache), so the first run is not silent."""
+    """A sink that says that the closed loop is being compiled when the first block has not
+    come within :data:`COMPILE_NOTICE_S` (numba's first compile; later runs load it from
+    the cache), with an estimate, and how long it took, so the first run is not silent."""
 
     def __init__(self) -> None:
-        import threading
+        from tspend.runtime.progress import SlowStep
 
-        self._timer = threading.Timer(COMPILE_NOTICE_S, say, args=(
-            "compiling the controller and the closed loop with numba (the first run only; "
-            "cached for later runs)...",))
-        self._timer.daemon = True
-        self._timer.start()
+        self._step = SlowStep("compiling the controller and the closed loop with numba",
+                              COMPILE_ESTIMATE, after=COMPILE_NOTICE_S).begin()
 
     def cancel(self) -> None:
-        self._timer.cancel()
+        self._step.end()
 
     def start(self, info) -> None:
         pass
 
     def block(self, block) -> None:
-        self._timer.cancel()
+        self._step.end()
 
     def inner(self, snap) -> None:
         pass
 
     def finish(self, end) -> None:
-        self._timer.cancel()
+        self._step.end()
 
 
 def summary_units(prepared) -> dict[str, str]:
@@ -229,10 +237,30 @@ def _with(value, unit: str) -> str:
 
 
 
-def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
+#: the kinds that control the task's view only (the paper's): a joint outside it is free
+VIEW_ONLY_KINDS = ("second_type", "first_type")
+
+
+def unregulated_note(prepared) -> str:
+    """For the paper's controllers: which joints they leave free and how to keep them, said
+    under "largest |joint|" (the default run's cart travels tens of metres; issue 51)."""
+    kind = getattr(prepared.controller, "kind", "")
+    view = tuple(prepared.task.view) if prepared.task is not None else ()
+    joints = [j for j in getattr(prepared.plant, "joints", ()) if j.name not in view]
+    if kind not in VIEW_ONLY_KINDS or not view or not joints:
+        return ""
+    free = ", ".join(j.name for j in joints)
+    rail = (", --set effects.rail=2 ends the run at a rail of +/-2 m"
+            if any(j.kind == "slide" for j in joints) else "")
+    return (f"{free} not regulated: {kind}, the paper's controller, regulates {view[0]} "
+            f"only; --controller lqr regulates the whole state{rail}")
+
+
+def print_summary(metrics: dict, units: dict[str, str], stream=None, notes: str = "") -> None:
     """The metrics a person reads: every figure with its unit, each joint's largest
-    excursion, the actuator's saturation when it clipped more than
-    :data:`SATURATION_SHARE` of the samples, and the task's events (goal, catch)."""
+    excursion (with ``notes``: what the controller leaves free), the actuator's saturation
+    when it clipped more than :data:`SATURATION_SHARE` of the samples, and the task's
+    events (goal, catch)."""
     import sys
 
     stream = stream or sys.stdout
@@ -267,6 +295,8 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
         parts = [f"{name} {_with(j.get('max_abs'), states.get(name, ''))}"
                  for name, j in joints.items() if isinstance(j, dict)]
         print(f"  {'largest |joint|':<{width}}  {', '.join(parts)}", file=stream)
+        if notes:
+            print(f"  {'':<{width}}  ({notes})", file=stream)
     goal = metrics.get("goal")
     if isinstance(goal, dict):
         reached = goal.get("reached_at_s")
@@ -293,8 +323,10 @@ def print_summary(metrics: dict, units: dict[str, str], stream=None) -> None:
               f"in {100 * safety['intervention_share']:.1f} % of {safety['samples']} samples, "
               f"mean |du| {_with(safety['mean_abs_du'], u)}, QP "
               f"{_with((safety.get('qp_ms') or {}).get('median'), 'ms')} median"
-              + (f", fallbacks {safety['fallbacks'] + safety['no_plan']}, infeasible "
-                 f"{safety['infeasible_samples']}" if "fallbacks" in safety else ""), file=stream)
+              + (f"; {safety['fallbacks']} samples on the last certified plan (no new plan "
+                 f"passed), {safety['no_plan']} on an uncertified recovery plan, "
+                 f"{safety['infeasible_samples']} plan QPs that failed (docs/safety.md)"
+                 if "fallbacks" in safety else ""), file=stream)
     share = metrics.get("saturated_fraction")
     if isinstance(share, (int, float)) and share > SATURATION_SHARE:
         limit = metrics.get("u_limit") or (metrics.get("plant") or {}).get("ctrl_max")

@@ -17,6 +17,8 @@ from tspend.runtime.errors import ScenarioError
 
 
 def add_parser(sub) -> None:
+    from tspend.cli.common import doc
+
     p = sub.add_parser("sweep", help="run a grid of scenario values x seeds x controllers, "
                                      "one table row per run",
                        description="Run the product of --grid values, --seeds and --controller "
@@ -54,10 +56,10 @@ def add_parser(sub) -> None:
                    help="cpu: one process per run (default); mjx: every seed of a scenario "
                         "and controller stepped at once by MuJoCo MJX on JAX's default device "
                         "(a GPU when JAX has one; kinds pd, lqr, policy; needs pip install "
-                        "'tspend[mjx]'; docs/accelerator.md)")
+                        f"'tspend[mjx]'; {doc('docs/accelerator.md')})")
     p.add_argument("--precision", choices=("float64", "float32"), default="float64",
                    help="the mjx backend's float width: float64 (default, as the CPU) or "
-                        "float32 (faster on a GPU; the departure is in docs/accelerator.md)")
+                        f"float32 (faster on a GPU; the departure is in {doc('docs/accelerator.md')})")
     add_run_timeout_option(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 

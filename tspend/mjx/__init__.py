@@ -42,7 +42,7 @@ def require() -> None:
     """ScenarioError in one line when JAX or MJX is missing."""
     try:
         import jax  # noqa: F401
-        from mujoco import mjx  # noqa: F401
+        _import_mjx_quietly()
     except ImportError as exc:
         raise ScenarioError(f"the mjx backend needs JAX and MuJoCo MJX ({exc.name or exc} is "
                             f"missing): pip install 'tspend[mjx]'") from None
@@ -67,6 +67,22 @@ def _require_device() -> None:
                             + f" ({reason}); the mjx backend needs JAX's CPU device, and a GPU "
                               f"only where one and its jax build are installed: unset "
                               f"JAX_PLATFORMS or set it to 'cpu' or 'cuda,cpu'") from None
+
+
+def _import_mjx_quietly() -> None:
+    """Import MuJoCo MJX without its two lines "Failed to import warp: ..." and "Failed to
+    import mujoco_warp: ..." (printed on stdout at its first import when NVIDIA Warp is not
+    installed, in every sweep and env): tspend steps MJX's JAX implementation, never the
+    Warp one, so the lines say nothing about a tspend run (issue 51). Only that import's
+    stdout is held; an ImportError still propagates."""
+    import contextlib
+    import io
+    import sys
+
+    if "mujoco.mjx" in sys.modules:
+        return
+    with contextlib.redirect_stdout(io.StringIO()):
+        from mujoco import mjx  # noqa: F401
 
 
 def set_precision(precision: str = "float64") -> str:

@@ -177,3 +177,73 @@ class TuneProgress:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+#: how every progress line of a slow step starts on stderr; such a line is never an error,
+#: so a script (or a test) that reads stderr for the one error line of a failure skips it
+PROGRESS_PREFIX = "tspend: progress: "
+
+
+class SlowStep:
+    """A step that can take long with nothing else to show (numba's first compile, a
+    safety filter's design): once it has lasted ``after`` seconds, one line says what it
+    is and about how long it takes (``estimate``, e.g. "about 25 s on 2 idle cores"); on
+    a terminal that line then counts the seconds in place; when the step ends after such
+    a notice, one more line says how long it took. A step that ends sooner prints nothing.
+
+    Use as ``with SlowStep(...):`` or call :meth:`begin` and :meth:`end` (a sink ends it
+    on the closed loop's first block)."""
+
+    def __init__(self, what: str, estimate: str, stream: TextIO | None = None,
+                 after: float = 2.0) -> None:
+        self.what, self.estimate, self.after = what, estimate, after
+        self.stream = stream if stream is not None else sys.stderr
+        self.announced = False
+        self._started = 0.0
+        self._thread = None
+        self._ended = None
+
+    def begin(self) -> "SlowStep":
+        import threading
+
+        self._started = time.monotonic()
+        self._ended = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True, name="slow-step")
+        self._thread.start()
+        return self
+
+    def _say(self, text: str, end: str = "\n") -> None:
+        try:
+            print(text, file=self.stream, end=end, flush=True)
+        except (OSError, ValueError):  # a vanished terminal is not the step's failure
+            pass
+
+    def _watch(self) -> None:
+        if self._ended.wait(self.after):
+            return
+        self.announced = True
+        head = f"{PROGRESS_PREFIX}{self.what} ({self.estimate})"
+        if not _on_terminal(self.stream):
+            self._say(head + "...")
+            return
+        while not self._ended.wait(1.0):  # the line counts the seconds in place
+            self._say(f"\r{head}: {time.monotonic() - self._started:.0f} s", end="")
+
+    def end(self, failed: bool = False) -> None:
+        """The step is over: one line with its duration when it was announced (none when it
+        ``failed``: the error says what happened)."""
+        if self._ended is None or self._ended.is_set():
+            return
+        self._ended.set()
+        self._thread.join()
+        if self.announced and not failed:
+            # on a terminal: over the counting line, erased to its end
+            lead, tail = ("\r", "\033[K") if _on_terminal(self.stream) else ("", "")
+            self._say(f"{lead}{PROGRESS_PREFIX}{self.what}: done in "
+                      f"{time.monotonic() - self._started:.0f} s{tail}")
+
+    def __enter__(self) -> "SlowStep":
+        return self.begin()
+
+    def __exit__(self, kind, value, traceback) -> None:
+        self.end(failed=kind is not None)

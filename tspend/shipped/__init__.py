@@ -15,7 +15,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-__all__ = ["data_root", "scenario_search_path", "locate", "find_named_file",
+__all__ = ["data_root", "scenario_search_path", "locate", "given_or_shipped", "find_named_file",
            "SCENARIO_PATH_VARIABLE"]
 
 #: the environment variable that names a user's own folders of scenarios (os.pathsep
@@ -53,6 +53,14 @@ def locate(path: str | os.PathLike, scenario_path: str = "") -> Path | None:
         bases.append(Path(scenario_path).resolve().parent)
     bases += [Path.cwd(), data_root()]
     return next((b / p for b in bases if (b / p).is_file()), None)
+
+
+def given_or_shipped(path: str) -> str:
+    """A file a user names on the command line (``inspect MODEL.xml``, ``identify --model``):
+    as given when it is there, else the shipped file of that name (``models/cartpole.xml``
+    from any folder, as a scenario finds it: :func:`locate`), else as given, so the
+    command's own check says "no such file" of what the user typed."""
+    return str(locate(path) or path)
 
 
 def find_named_file(path: str, scenario: Any, key: str) -> Path:

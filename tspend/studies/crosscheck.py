@@ -170,9 +170,13 @@ def verdict(report: dict) -> str:
                  and isinstance(v, float)), default=math.nan)
     word = ("INCONCLUSIVE" if report.get("inconclusive")
             else "agrees" if report.get("open_loop_ok") else "DISAGREES")
-    open_part = (f"open loop {word}: max "
+    compared_s = report.get("open_loop_compared_s", 0.0)
+    # a verdict states only what was compared: with nothing compared, no difference (nan)
+    # and no claim on how the backends part
+    open_part = (f"open loop {word}: nothing compared" if compared_s == 0.0 else
+                 f"open loop {word}: max "
                  f"|d{tracked}| = {report.get('open_loop_max_tracked', math.nan):.3g} (every "
-                 f"state within {worst:.3g}) over {report.get('open_loop_compared_s', 0.0):.6g} s")
+                 f"state within {worst:.3g}) over {compared_s:.6g} s")
     if report.get("open_loop_stopped_by"):
         open_part += f", compared up to {report['open_loop_stopped_by']} (the ODE has no limits or contacts)"
     if "accel_ok" in report and report.get("open_loop_within_tol_s", 0.0) < report.get("open_loop_compared_s", 0.0):
@@ -188,7 +192,7 @@ def verdict(report: dict) -> str:
                       f"of open loop before MuJoCo applies a constraint the ODE does not have)")
     integrator = report.get("mujoco_integrator", "RK4")
     parts = []
-    if integrator != "RK4":
+    if integrator != "RK4" and compared_s > 0.0:
         # the backends part at the first step: nothing else can be judged before this
         parts.append(f"MuJoCo steps the model with {integrator}, the ODE with RK4: the backends "
                      f"part from the first step by the integrators' truncation error "
