@@ -63,6 +63,9 @@ class Fleet:
     d_to_tau: np.ndarray
     #: MuJoCo steps per physics step of run.dt
     nstep: int
+    #: what MuJoCo takes as a huge value (its mjMAXVAL): beyond it an input is refused and
+    #: a state unstable (:mod:`tspend.plants.mujoco_plant`)
+    max_input: float
     dt: float
     steps: int
     #: the task: full-state names, the view's indices, which view entries are angles,
@@ -176,7 +179,7 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
         scenario=simulation.with_gain_sign(scn0, plant0), seeds=seeds, model=model,
         in_axes=in_axes, qpos0=np.stack(qpos), qvel0=np.stack(qvel),
         actuator=int(link0.actuator), omega=int(link0.omega), d_to_tau=np.array(d_to_tau),
-        nstep=int(link0.nstep), dt=float(scn0.run.dt), steps=steps, names=tuple(task0.names),
+        nstep=int(link0.nstep), max_input=float(link0.max_input), dt=float(scn0.run.dt), steps=steps, names=tuple(task0.names),
         view_index=np.asarray(task0.view_index, dtype=np.int64),
         wraps=np.array([v in hinges for v in task0.view], dtype=bool),
         lo=np.stack(lo), hi=np.stack(hi), ref=ref, dist=dist, tasks=tasks, machines=machines,
