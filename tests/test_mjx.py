@@ -52,6 +52,72 @@ def test_mjx_sweep_rows_agree_with_the_cpu_sweep(scenario, seeds, duration):
         np.testing.assert_allclose(mjx[c].to_numpy(float), cpu[c].to_numpy(float), rtol=0, err_msg=c)
 
 
+#: every ending the CPU loop knows, each driven on both randomised machines (short runs):
+#: completed, fell, rail_end, and a state MuJoCo finds non-finite or huge ("the plant
+#: failed": a gain of 10^12 or a push of 5e9 makes qacc huge in the first step; a gain of
+#: 10^7 makes u huge a few samples in, which MuJoCo would refuse)
+ENDINGS = [
+    ("pendulum_mujoco_randomized", "0:8", 0.3, {"effects.rail": 0.002, "task.fall_angle": 0.1},
+     {"fell", "rail_end"}),
+    ("pendulum_mujoco_randomized", "0:3", 0.05, {"randomize.gear.low": 1e7,
+                                                 "randomize.gear.high": 2e7,
+                                                 "task.fall_angle": 0.0}, {"diverged"}),
+    ("pendulum_mujoco_randomized", "3:5", 0.05, {"randomize.gear.low": 1e12,
+                                                 "randomize.gear.high": 2e12,
+                                                 "task.fall_angle": 0.0}, {"diverged"}),
+    ("double_cartpole_mujoco_randomized", "0:8", 0.3, {"task.fall_angle": 0.09},
+     {"completed", "fell"}),
+    ("double_cartpole_mujoco_randomized", "0:3", 0.1, {"plant.q0": [-2.49, 0.1, -0.05]},
+     {"rail_end"}),
+    ("double_cartpole_mujoco_randomized", "0:2", 0.05,
+     {"disturbance.kind": "square", "disturbance.amplitude": 5e9, "disturbance.period": 0.2,
+      "task.joint_limits": False, "task.fall_angle": 0.0}, {"diverged"}),
+]
+
+
+def _assert_rows_equal(mjx, cpu, rtol=1e-9):
+    """Same columns, seeds, statuses, steps; every number within ``rtol`` relative (NaN
+    where the CPU's is; the wall times aside)."""
+    assert list(mjx.columns) == list(cpu.columns)
+    assert list(mjx["seed"]) == list(cpu["seed"])
+    assert list(mjx["status"]) == list(cpu["status"])
+    assert list(mjx["steps"]) == list(cpu["steps"])
+    for c in cpu.columns:
+        if c in ("wall_s", "job_s") or cpu[c].dtype == object:
+            continue
+        a, b = cpu[c].to_numpy(float), mjx[c].to_numpy(float)
+        np.testing.assert_allclose(b, a, rtol=rtol, atol=0, equal_nan=True, err_msg=c)
+
+
+@pytest.mark.parametrize("scenario, seeds, duration, overrides, statuses", ENDINGS)
+def test_mjx_sweep_rows_equal_the_cpu_rows_on_every_ending(scenario, seeds, duration,
+                                                           overrides, statuses):
+    scn = override(load_scenario(scenario), **{"run.duration": duration, **overrides})
+    cpu = _rows(scn, seeds, "cpu")
+    assert set(cpu["status"]) == statuses       # the case drives the endings it names
+    _assert_rows_equal(_rows(scn, seeds, "mjx"), cpu)
+
+
+def test_a_sweep_batch_runs_on_the_device_without_a_transfer():
+    import jax
+
+    from tspend.loop.simulation import prepare
+    from tspend.mjx import sweep as mjx_sweep
+    from tspend.mjx.machines import build_fleet
+
+    scn = override(load_scenario("pendulum_mujoco_randomized"), **{"run.duration": 0.02})
+    fleet = build_fleet(scn, range(4))
+    program = mjx_sweep.prepare_program(fleet, prepare(fleet.scenario, controller="lqr").controller)
+    inputs = mjx_sweep.batch_inputs(fleet, np.arange(4), program)
+    figures, end = mjx_sweep.run_batch(program.run, inputs)
+    # one record per env, still on the device
+    assert all(v.shape[0] == 4 for v in jax.tree_util.tree_leaves((figures, end)))
+    assert all(isinstance(v, jax.Array) for v in jax.tree_util.tree_leaves((figures, end)))
+    # the guard is armed: a host array handed to the program inside it is refused
+    with pytest.raises(Exception, match="[Dd]isallowed"):
+        mjx_sweep.run_batch(program.run, inputs[:3] + (np.asarray(inputs[3]),) + inputs[4:])
+
+
 def test_mjx_sweep_refuses_what_it_cannot_run():
     with pytest.raises(ScenarioError, match="no JAX form"):
         tspend.sweep("pendulum_mujoco", seeds="0:2", controllers="mpc", backend="mjx")

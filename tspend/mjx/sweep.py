@@ -37,7 +37,8 @@ import numpy as np
 
 from tspend.errors import ScenarioError
 
-__all__ = ["CHUNK", "MAX_BATCH", "closed_loop_rows", "make_run", "run_batch", "run_jobs"]
+__all__ = ["CHUNK", "MAX_BATCH", "batch_inputs", "closed_loop_rows", "make_run", "prepare_program",
+           "run_batch", "run_jobs"]
 
 #: samples folded into the figures at once on the device (memory: CHUNK full states per env)
 CHUNK = 100
@@ -210,21 +211,58 @@ def run_batch(run: Any, inputs: tuple) -> Any:
     return out
 
 
-def batch_inputs(fleet: Any, index: np.ndarray, params: Any, dtype: Any, chunk: int) -> tuple:
-    """The device arrays of envs ``index`` that :func:`make_run`'s program takes."""
+def batch_inputs(fleet: Any, index: np.ndarray, program: Any) -> tuple:
+    """The device arrays of envs ``index`` that ``program``'s run takes
+    (:func:`prepare_program`)."""
     import jax
     import jax.numpy as jnp
 
-    ref, dist = _padded_tables(fleet, chunk)
+    dtype = program.dtype
+    ref, dist = _padded_tables(fleet, program.chunk)
     dev = jax.devices()[0]
 
     def put(a):
         return jax.device_put(jnp.asarray(a, dtype=dtype), dev)
 
     return (jax.device_put(_subset(fleet, index, dtype), dev), initial_data(fleet, index, dtype),
-            jax.device_put(params, dev), put(fleet.d_to_tau[index]), put(fleet.lo[index]),
-            put(fleet.hi[index]), put(fleet.u_lo[index]), put(fleet.u_hi[index]), put(ref),
-            put(dist))
+            jax.device_put(program.params, dev), put(fleet.d_to_tau[index]),
+            put(fleet.lo[index]), put(fleet.hi[index]), put(fleet.u_lo[index]),
+            put(fleet.u_hi[index]), put(ref), put(dist))
+
+
+def prepare_program(fleet: Any, controller: Any, precision: str = "float64") -> Any:
+    """The jitted program of ``fleet``'s closed loops under ``controller`` (:func:`make_run`)
+    and what reading its records needs: ``run``, ``params`` (the law's numbers),
+    ``settings`` (the runner's :class:`~tspend.loop.runner.LoopSettings`), ``ss_start``,
+    ``chunk``, ``dtype``."""
+    import jax
+    import jax.numpy as jnp
+
+    from tspend.loop.metrics import FoldSettings
+    from tspend.loop.runner import LoopSettings
+    from tspend.loop.simulation import control_every
+    from tspend.mjx import set_precision
+    from tspend.mjx.control import jax_law
+
+    set_precision(precision)
+    dtype = jnp.float64 if precision == "float64" else jnp.float32
+    scn = fleet.scenario
+    wraps_full = np.array([j.kind == "hinge" for j in fleet.plant.joints], dtype=bool)
+    law, params, _ = jax_law(scn, controller, fleet.view_index, wraps_full)
+    params = jax.tree_util.tree_map(
+        lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) and
+        x.dtype in (jnp.float32, jnp.float64) and controller.kind != "policy" else x, params)
+    every = control_every(scn.run, controller)
+    steps, dt = fleet.steps, fleet.dt
+    settings = LoopSettings(dt=dt, steps=steps, block_size=steps,
+                            state_bound=scn.plant.state_bound,
+                            control_bound=scn.run.control_bound, control_every=every)
+    ss_start = 0.5 * steps * dt
+    fold = FoldSettings.of(dt, ss_start, fleet.machines[0])
+    chunk = min(CHUNK, steps)
+    run = make_run(fleet, law, every, settings, fold, dtype, chunk)
+    return SimpleNamespace(run=run, params=params, settings=settings, ss_start=ss_start,
+                           chunk=chunk, dtype=dtype)
 
 
 def _ending(fleet: Any, e: int, settings: Any, code: int, g: int, full: np.ndarray, u: float,
@@ -256,36 +294,16 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
     (the CPU controller built on the nominal scenario), as the CPU run ends and measures
     it; batches of at most ``batch`` envs, each one program on the device."""
     import jax
-    import jax.numpy as jnp
 
-    from tspend.loop.metrics import FoldSettings, MetricsAccumulator
-    from tspend.loop.runner import ClosedLoop, LoopSettings
-    from tspend.loop.simulation import control_every
-    from tspend.mjx import set_precision
-    from tspend.mjx.control import jax_law
+    from tspend.loop.metrics import MetricsAccumulator
+    from tspend.loop.runner import ClosedLoop
 
-    set_precision(precision)
-    dtype = jnp.float64 if precision == "float64" else jnp.float32
-    scn = fleet.scenario
-    wraps_full = np.array([j.kind == "hinge" for j in fleet.plant.joints], dtype=bool)
-    law, params, _ = jax_law(scn, controller, fleet.view_index, wraps_full)
-    params = jax.tree_util.tree_map(
-        lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) and
-        x.dtype in (jnp.float32, jnp.float64) and controller.kind != "policy" else x, params)
-    every = control_every(scn.run, controller)
+    program = prepare_program(fleet, controller, precision)
     steps, dt = fleet.steps, fleet.dt
-    settings = LoopSettings(dt=dt, steps=steps, block_size=steps,
-                            state_bound=scn.plant.state_bound,
-                            control_bound=scn.run.control_bound, control_every=every)
-    ss_start = 0.5 * steps * dt
-    fold = FoldSettings.of(dt, ss_start, fleet.machines[0])
-    chunk = min(CHUNK, steps)
-    run = make_run(fleet, law, every, settings, fold, dtype, chunk)
     for first in range(0, fleet.n_envs, batch):
         index = np.arange(first, min(first + batch, fleet.n_envs))
         started = time.perf_counter()
-        figures, end = jax.device_get(run_batch(run, batch_inputs(fleet, index, params,
-                                                                  dtype, chunk)))
+        figures, end = jax.device_get(run_batch(program.run, batch_inputs(fleet, index, program)))
         figures = {k: np.asarray(v, dtype=float if np.asarray(v).dtype.kind == "f" else None)
                    for k, v in figures.items()}
         code, g, full, u, d = (np.asarray(a) for a in end)
@@ -294,9 +312,11 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
             e = int(e)
             status, message, done = "completed", "", steps
             if code[j] != ALIVE:
-                status, message, done = _ending(fleet, e, settings, int(code[j]), int(g[j]),
-                                                full[j].astype(float), float(u[j]), float(d[j]))
-            acc = MetricsAccumulator(dt, ss_start, seed=fleet.seeds[e], machine=fleet.machines[e])
+                status, message, done = _ending(fleet, e, program.settings, int(code[j]),
+                                                int(g[j]), full[j].astype(float), float(u[j]),
+                                                float(d[j]))
+            acc = MetricsAccumulator(dt, program.ss_start, seed=fleet.seeds[e],
+                                     machine=fleet.machines[e])
             acc.figures = {k: v[j] for k, v in figures.items()}
             own = SimpleNamespace(controller=controller, plant=_NoContacts(), end=None)
             end_e = ClosedLoop._finish(own, [acc], status, message, done,
