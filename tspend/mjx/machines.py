@@ -111,7 +111,22 @@ def _tables(scenario: Any, steps: int, order: int) -> tuple[np.ndarray, np.ndarr
 
 def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None) -> Fleet:
     """The machines of ``scenario`` at ``seeds`` (module docstring); ``steps`` physics
-    steps of tables (default: the run's).  ScenarioError for what the backend cannot run."""
+    steps of tables (default: the run's).  ScenarioError for what the backend cannot run.
+
+    One CPU build (the first seed's) and the ``[randomize]`` draw as arrays written into
+    its model's fields per env (:mod:`tspend.mjx.drawn`) where the draw's keys have that form;
+    else each seed's CPU build (:func:`build_fleet_per_seed`)."""
+    seeds = tuple(int(s) for s in seeds)
+    from tspend.mjx.drawn import drawn_fleet
+
+    fleet = drawn_fleet(scenario, seeds, steps) if len(seeds) > 1 else None
+    return fleet if fleet is not None else build_fleet_per_seed(scenario, seeds, steps=steps)
+
+
+def build_fleet_per_seed(scenario: Any, seeds: Sequence[int], *,
+                         steps: int | None = None) -> Fleet:
+    """:func:`build_fleet` by the CPU backend's build of every seed (the reference the
+    array form is tested against, and the form of draws it does not know)."""
     from mujoco import mjx
 
     import jax
