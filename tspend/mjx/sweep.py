@@ -324,11 +324,12 @@ def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
             yield e, end_e.status, end_e.message, end_e.metrics
 
 
-def run_jobs(jobs: Iterable[Any], precision: str = "float64",
-             batch: int = MAX_BATCH) -> Iterator[dict[str, Any]]:
+def run_jobs(jobs: Iterable[Any], precision: str = "float64", batch: int = MAX_BATCH,
+             report: Any = None) -> Iterator[dict[str, Any]]:
     """The rows of a sweep's ``jobs`` (:class:`tspend.sweep.plan.Job`), each scenario
     point and controller kind one batch of its seeds; the rows as
-    :func:`tspend.sweep.worker.run_job` makes them (:func:`tspend.sweep.worker.table_row`)."""
+    :func:`tspend.sweep.worker.run_job` makes them (:func:`tspend.sweep.worker.table_row`).
+    ``report(line)``, when given, hears how long the machines took to build."""
     from tspend.loop.simulation import prepare
     from tspend.mjx.machines import build_fleet
     from tspend.sweep.worker import table_row
@@ -340,6 +341,10 @@ def run_jobs(jobs: Iterable[Any], precision: str = "float64",
         started = time.perf_counter()
         scenario = group[0].scenario
         fleet = build_fleet(scenario, [job.seed for job in group])
+        built_s = time.perf_counter() - started
+        if report is not None:
+            report(f"mjx: built the machines of {len(group)} seeds of "
+                   f"{scenario.name} in {built_s:.1f} s")
         controller = prepare(fleet.scenario, controller=kind).controller
         built = (time.perf_counter() - started) / len(group)
         for e, status, message, metrics in closed_loop_rows(fleet, controller, precision, batch):

@@ -197,7 +197,8 @@ class PreparedSweep:
 
                 owned = False
                 shown.start(1, "mjx")
-                for row in run_jobs(todo, self.precision):
+                for row in run_jobs(todo, self.precision,
+                                    report=lambda line: print(line, file=sys.stderr)):
                     if table is not None:
                         table.append(row)
                     rows.append(row)
