@@ -82,8 +82,10 @@ def _assert_rows_equal(mjx, cpu, rtol=1e-9):
     assert list(mjx["seed"]) == list(cpu["seed"])
     assert list(mjx["status"]) == list(cpu["status"])
     assert list(mjx["steps"]) == list(cpu["steps"])
+    import pandas as pd
+
     for c in cpu.columns:
-        if c in ("wall_s", "job_s") or cpu[c].dtype == object:
+        if c in ("wall_s", "job_s") or not pd.api.types.is_numeric_dtype(cpu[c]):
             continue
         a, b = cpu[c].to_numpy(float), mjx[c].to_numpy(float)
         np.testing.assert_allclose(b, a, rtol=rtol, atol=0, equal_nan=True, err_msg=c)
@@ -199,6 +201,60 @@ def test_brax_env_is_the_gym_env_as_pure_functions():
     states = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
     states = jax.jit(jax.vmap(env.step))(states, jnp.zeros((4, 1)))
     assert states.obs.shape == (4, env.observation_size) and np.isfinite(states.reward).all()
+
+
+def test_mjx_vector_env_equals_the_cpu_one_through_an_ending_of_every_env():
+    # randomised machines, a fall angle inside x0's range: every env falls, is reset and
+    # runs again; rewards, terminations, truncations and observations as the CPU env's
+    cpu, mjx = _vector_envs("pendulum_mujoco_randomized", 6,
+                            overrides={"task.fall_angle": 0.11, "run.duration": 0.3})
+    cpu.reset(seed=0)
+    mjx.reset(seed=0)
+    rng = np.random.default_rng(2)
+    hi = cpu.single_action_space.high
+    ended = np.zeros(6, dtype=int)
+    for _ in range(40):
+        a = rng.uniform(-1.0, 1.0, size=(6, 1)) * hi
+        c, m = cpu.step(a), mjx.step(a)
+        np.testing.assert_allclose(m[0], c[0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(m[1], c[1], rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(m[2], c[2])
+        np.testing.assert_array_equal(m[3], c[3])
+        assert list(m[4]["status"]) == list(c[4]["status"])
+        ended += c[2] | c[3]
+    assert (ended >= 1).all(), ended          # every env ended at least once
+    cpu.close()
+    mjx.close()
+
+
+def test_brax_env_draws_a_machine_per_env_and_steps_without_a_host_call():
+    pytest.importorskip("brax")
+    import jax
+    import jax.numpy as jnp
+
+    from tspend.mjx.brax_env import BraxEnv
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env = BraxEnv("pendulum_mujoco_randomized", control_period=0.02, machines=16)
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 8))
+    picked = np.asarray(states.info["machine"])
+    assert len(set(picked.tolist())) > 1
+    masses = np.array([np.asarray(env.machine(int(i)).body_mass) for i in picked])
+    # different picks, different machines: the CPU's at those seeds
+    assert len({tuple(m) for m in masses}) == len(set(picked.tolist()))
+    assert not np.array_equal(np.asarray(states.obs[0]), np.asarray(states.obs[1])) or \
+        picked[0] == picked[1]
+    step = jax.jit(jax.vmap(env.step))
+    actions = jax.device_put(jnp.zeros((8, 1), dtype=states.obs.dtype))
+    # no callback in the step's program, and no transfer while it runs
+    text = str(jax.make_jaxpr(jax.vmap(env.step))(states, actions))
+    assert "callback" not in text
+    step(states, actions)                      # compiled outside the guard
+    with jax.transfer_guard("disallow"):
+        states = step(states, actions)
+        jax.block_until_ready(states)
+    assert np.isfinite(np.asarray(states.reward)).all()
 
 
 @pytest.mark.parametrize("policy", ["pendulum_mujoco", "double_cartpole_mujoco"])
