@@ -100,6 +100,44 @@ def test_mjx_sweep_rows_equal_the_cpu_rows_on_every_ending(scenario, seeds, dura
     _assert_rows_equal(_rows(scn, seeds, "mjx"), cpu)
 
 
+@pytest.mark.parametrize("scenario", ["pendulum_mujoco_randomized",
+                                      "double_cartpole_mujoco_randomized"])
+def test_drawn_machines_are_each_seeds_cpu_build(scenario):
+    """The machines written from the draw as arrays (tspend/mjx/drawn.py) against each
+    seed's CPU build: every field MJX steps (the geoms' shapes aside: they only draw), the
+    start state, the push per unit d, the metrics' parameters and draw."""
+    import jax
+
+    from tspend.mjx.machines import build_fleet, build_fleet_per_seed
+
+    scn = load_scenario(scenario)
+    seeds = [3, 4, 5, 6]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        drawn, cpu = build_fleet(scn, seeds), build_fleet_per_seed(scn, seeds)
+
+    def leaves(fleet):
+        flat = jax.tree_util.tree_flatten_with_path(fleet.model)[0]
+        axes = jax.tree_util.tree_leaves(fleet.in_axes, is_leaf=lambda x: x is None)
+        return {jax.tree_util.keystr(p): np.asarray(v) if a == 0 else
+                np.broadcast_to(np.asarray(v), (len(seeds),) + np.shape(v))
+                for (p, v), a in zip(flat, axes)}
+
+    a, b = leaves(drawn), leaves(cpu)
+    assert a.keys() == b.keys()
+    shapes = ("geom_", "stat.meansize", "stat.extent", "stat.center")
+    for k in a:
+        if a[k].dtype.kind == "f" and not any(s in k for s in shapes):
+            np.testing.assert_allclose(a[k], b[k], rtol=1e-13, atol=1e-300, err_msg=k)
+    np.testing.assert_array_equal(drawn.qpos0, cpu.qpos0)
+    np.testing.assert_array_equal(drawn.qvel0, cpu.qvel0)
+    np.testing.assert_allclose(drawn.d_to_tau, cpu.d_to_tau, rtol=1e-14)
+    for m, c in zip(drawn.machines, cpu.machines):
+        assert m.drawn == c.drawn and list(m.parameters) == list(c.parameters)
+        np.testing.assert_allclose(list(m.parameters.values()), list(c.parameters.values()),
+                                   rtol=1e-13)
+
+
 def test_a_sweep_batch_runs_on_the_device_without_a_transfer():
     import jax
 
