@@ -1,4 +1,4 @@
-"""tspend's MJX sweep and vector env beside the bare MJX loop and MuJoCo's threaded batch, in one run.
+"""tspend's MJX sweep and vector env beside the bare MJX loop and mujoco.batch, in one run.
 
     python benchmarks/accelerator_speed.py                      # small sizes: any CPU
     python benchmarks/accelerator_speed.py --envs 1024,16384,131072 --precision float32,float64 \\
@@ -29,8 +29,8 @@ and prints the ratios mjx loop / batch and mjx / cpu env.  Then tspend's own pat
 ``--prepare DIR`` writes what the device part needs (each model as MuJoCo's binary .mjb,
 the gain, the start state, and the scenarios tspend's rows run) and stops; ``--plan DIR``
 runs from it: the bare loop with only MuJoCo, MJX, JAX and numpy, tspend's rows where the
-device's checkout imports tspend (a line says when it does not).  ``--json FILE`` appends one JSON line per
-measurement.  ``--departure`` also measures MJX's departure from CPU MuJoCo after 0.1 s
+device's checkout imports tspend (a line says when it does not).  ``--json FILE``
+appends one JSON line per measurement.  ``--departure`` also measures MJX's departure from CPU MuJoCo after 0.1 s
 and 1 s from the same states (float64 and float32).  docs/accelerator.md.
 """
 

@@ -289,10 +289,11 @@ class MetricsAccumulator:
         keep = np.ones(t.size, dtype=bool)
         self.figures = fold_samples(np, self.figures, t, block.data["e"][:, 0], block.data["u"],
                                     state, keep, self.fold)
+        data = block.data
         for name in self.counter_names:
-            data = block.data
             if name in data and len(data[name]):
-                self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
+                last = np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0]
+                self.counters[name] = float(last)
 
     def constraints_result(self) -> dict:
         """Per constraint: samples and time outside, largest depth, smallest margin."""

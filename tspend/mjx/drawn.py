@@ -30,7 +30,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["drawn_fleet"]
+from tspend.plants.randomize import draw_values
+
+__all__ = ["array_form", "drawn_fleet"]
 
 #: the cart-pole keys with an array form, and a model's quantities
 CARTPOLE_KEYS = ("M", "m", "l", "gear")
@@ -40,12 +42,13 @@ DERIVED = ("body_subtreemass", "body_invweight0", "dof_invweight0", "dof_M0", "a
            "light_poscom0", "cam_poscom0")
 
 
-def _array_form(scenario: Any, names: list[str]) -> str:
-    """Which writer the draw's keys take ("cartpole", "model"), "" when one has none."""
+def array_form(scenario: Any) -> str:
+    """Which writer the scenario's draw takes ("cartpole", "model"), "" when a key of it
+    has no array form."""
     from tspend.plants.articulated.model_numbers import split
     from tspend.plants.randomize import takes_model_values
 
-    rest = [n for n in names if not n.startswith("x0[")]
+    rest = [d.name for d in scenario.randomize if not d.name.startswith("x0[")]
     if scenario.plant.kind == "cartpole_mujoco" and all(n in CARTPOLE_KEYS for n in rest):
         return "cartpole"
     if takes_model_values(scenario.plant) and all(
@@ -212,23 +215,12 @@ def _machines(first: Any, values: dict, table: dict, n: int) -> list:
     return out
 
 
-def drawn_fleet(scenario: Any, seeds: tuple[int, ...], steps: int | None) -> Any:
-    """The fleet of ``seeds`` by one CPU build and the draw as arrays (module docstring);
-    None where a key of the draw has no array form, or the reference or disturbance
-    differs between seeds (the per-seed build then says so)."""
-    from tspend.mjx.machines import Fleet, _seeded, _tables, build_fleet_per_seed
-    from tspend.plants.randomize import draw_values
-
-    form = _array_form(scenario, [d.name for d in scenario.randomize])
-    if not form:
-        return None
-    first = build_fleet_per_seed(scenario, seeds[:1], steps=steps)
-    ref, dist = _tables(_seeded(scenario, seeds[-1]), first.steps, first.order)
-    if not (np.array_equal(ref, first.ref) and np.array_equal(dist, first.dist)):
-        return None
+def drawn_fleet(scenario: Any, seeds: tuple[int, ...], first: Any) -> Any:
+    """The fleet of ``seeds`` from ``first`` (the CPU build of ``seeds[0]``, a one-env
+    fleet) and the draw as arrays (module docstring)."""
     n, plant, cfg = len(seeds), first.plant, scenario.plant
     values = draw_values(scenario, seeds)
-    writer = _cartpole_fields if form == "cartpole" else _model_fields
+    writer = _cartpole_fields if array_form(scenario) == "cartpole" else _model_fields
     fields, extra = writer(plant.model, plant, cfg, values, n)
     per_env = {**fields, **_derived(plant.model, fields, n)}
     x0s = np.stack([np.broadcast_to(values.get(f"x0[{i}]", v), (n,))
