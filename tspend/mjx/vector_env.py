@@ -152,7 +152,7 @@ class MjxVectorEnv(VectorEnv):
                          self._clock_dev, self._put(restart, bool), self._put(skip, bool),
                          *self._tables)
         self._data, self._clock_dev = out[0], out[1]
-        obs, reward, code, full, clock = jax.device_get(out[2:])
+        clock, obs, reward, code, full = jax.device_get(out[1:])
         self._clock = np.asarray(clock, dtype=np.int64)
         code = np.asarray(code)
         # a non-finite state is not observed: the env keeps its last observation (the CPU's)
