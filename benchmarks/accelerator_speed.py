@@ -30,8 +30,9 @@ and prints the ratios mjx loop / batch and mjx / cpu env.  Then tspend's own pat
 the gain, the start state, and the scenarios tspend's rows run) and stops; ``--plan DIR``
 runs from it: the bare loop with only MuJoCo, MJX, JAX and numpy, tspend's rows where the
 device's checkout imports tspend (a line says when it does not).  ``--json FILE``
-appends one JSON line per measurement.  ``--departure`` also measures MJX's departure from CPU MuJoCo after 0.1 s
-and 1 s from the same states (float64 and float32).  docs/accelerator.md.
+appends one JSON line per measurement.  ``--departure`` also measures MJX's departure
+from CPU MuJoCo after 0.1 s and 1 s from the same states (float64 and float32).
+docs/accelerator.md.
 """
 
 from __future__ import annotations
