@@ -64,6 +64,19 @@ def _is_bad(jnp: Any, v: Any, max_value: float) -> Any:
     return jnp.any(~(jnp.abs(v) <= max_value))
 
 
+def _integrator(mjx: Any, model: Any) -> Any:
+    """The integration ``mjx.step`` runs after its forward, by the model's integrator."""
+    import mujoco
+
+    by_kind = {int(mujoco.mjtIntegrator.mjINT_EULER): mjx.euler,
+               int(mujoco.mjtIntegrator.mjINT_RK4): mjx.rungekutta4,
+               int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): mjx.implicit}
+    kind = int(model.opt.integrator)
+    if kind not in by_kind:
+        raise ScenarioError(f"the mjx backend: MuJoCo integrator {kind} is not in MJX")
+    return by_kind[kind]
+
+
 def _ends(jnp: Any, x: Any, u: Any, full: Any, lo: Any, hi: Any, bounds: Any) -> Any:
     """Whether the runner looks at this sample (tspend.loop.fastloop's ``_take_sample``):
     u not finite or beyond the control bound, the view beyond the state bound (NaN
@@ -111,9 +124,11 @@ def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: An
             unstable = jnp.zeros((), dtype=bool)
             for _ in range(nstep):
                 # mj_step's own checks: qpos, qvel before the step, qacc after its forward
+                # (mjx.step's parts: its data's qacc is RK4's last stage, not the checked one)
                 unstable |= _is_bad(jnp, data.qpos, max_value) | _is_bad(jnp, data.qvel, max_value)
-                data = mjx.step(model, data)
+                data = mjx.forward(model, data)
                 unstable |= _is_bad(jnp, data.qacc, max_value)
+                data = _integrator(mjx, model)(model, data)
             code = jnp.where(check, CHECK, jnp.where(refused, BAD_INPUT,
                                                      jnp.where(unstable, UNSTABLE, ALIVE)))
             ends = alive & (g < steps) & (code != ALIVE)
