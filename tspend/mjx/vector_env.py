@@ -284,6 +284,8 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
         data = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), data0, data)
         clock = jnp.where(restart, 0, clock)
         data, code, done, full = physics(model, data, u, clock, skip, d_to_tau, lo, hi, dist)
+        # a reset step has no physics: the env stays where a run starts
+        data = jax.tree_util.tree_map(lambda a, b: jnp.where(skip, a, b), data0, data)
         clock = clock + done
         obs = jnp.concatenate((full, ref[jnp.minimum(clock, horizon)]))
         wrote = ((code == envstep.RUNNING) | (code == envstep.ENDED)) & ~skip
