@@ -58,14 +58,15 @@ def test_mjx_sweep_rows_agree_with_the_cpu_sweep(scenario, seeds, duration):
 #: completed, fell, rail_end, and a state MuJoCo finds non-finite or huge ("the plant
 #: failed": a gain of 10^12 or a push of 5e9 makes qacc huge in the first step; a gain of
 #: 10^7 makes u huge a few samples in, which MuJoCo would refuse).  The last number: the
-#: rows' relative tolerance (1e-9; 1e-7 where the gain of 10^7 multiplies the backends'
-#: round-off by about as much before the run ends)
+#: rows' relative tolerance (1e-9; 1e-5 where the gain of 10^7 multiplies the backends'
+#: 1e-16 round-off by some 10^10 in the three samples before u reaches 10^10: measured
+#: 3e-6 on seed 2, 6e-9 on seeds 0 and 1)
 ENDINGS = [
     ("pendulum_mujoco_randomized", "0:8", 0.3, {"effects.rail": 0.002, "task.fall_angle": 0.1},
      {"fell", "rail_end"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:3", 0.05, {"randomize.gear.low": 1e7,
                                                  "randomize.gear.high": 2e7,
-                                                 "task.fall_angle": 0.0}, {"diverged"}, 1e-7),
+                                                 "task.fall_angle": 0.0}, {"diverged"}, 1e-5),
     ("pendulum_mujoco_randomized", "3:5", 0.05, {"randomize.gear.low": 1e12,
                                                  "randomize.gear.high": 2e12,
                                                  "task.fall_angle": 0.0}, {"diverged"}, 1e-9),

@@ -111,6 +111,8 @@ class MjxVectorEnv(VectorEnv):
         self._autoreset = np.zeros(num_envs, dtype=bool)
         #: envs reset on the host (same-step autoreset) whose device data restarts next step
         self._restart = np.zeros(num_envs, dtype=bool)
+        self._running = np.full(num_envs, "running", dtype=object)
+        self._no_message = np.full(num_envs, "", dtype=object)
 
     def _put(self, a: Any, dtype: Any = None) -> Any:
         import jax
@@ -161,8 +163,9 @@ class MjxVectorEnv(VectorEnv):
         terminated = (code != envstep.RUNNING) & ~skip
         truncated = (self._clock >= self.horizon) & ~skip & ~terminated
         ended = terminated | truncated
-        status = np.where(truncated, "completed", "running").astype(object)
-        message = np.full(self.num_envs, "", dtype=object)
+        # copies of ready-made object arrays: no Python object made per env
+        status, message = self._running.copy(), self._no_message.copy()
+        status[truncated] = "completed"
         for i in np.flatnonzero(terminated):     # the envs that ended now, not every env
             status[i], message[i] = (self.fleet.tasks[i].termination(
                 np.asarray(full[i], dtype=float), self._clock[i] * self.dt) or ("diverged", "")) \
