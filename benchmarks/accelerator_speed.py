@@ -1,4 +1,4 @@
-"""Closed loops on MJX against tspend's CPU vector env and MuJoCo's threaded batch, in one run.
+"""tspend's MJX sweep and vector env beside the bare MJX loop and mujoco.batch, in one run.
 
     python benchmarks/accelerator_speed.py                      # small sizes: any CPU
     python benchmarks/accelerator_speed.py --envs 1024,16384,131072 --precision float32,float64 \\
@@ -16,12 +16,23 @@ its full-state LQR gain designed on the CPU) and batch size N, on the same machi
   of ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` on the CPU
   backend (its threads on every core) and with ``backend="mjx"``, zero actions;
 
-and prints the ratios mjx loop / batch and mjx / cpu env.  ``--prepare DIR`` writes what the
-device part needs (each model as MuJoCo's binary .mjb, the gain, the start state) and
-stops; ``--plan DIR`` runs from it with only MuJoCo, MJX, JAX and numpy (an accelerator
-machine without tspend's other dependencies).  ``--json FILE`` appends one JSON line per
-measurement.  ``--departure`` also measures MJX's departure from CPU MuJoCo after 0.1 s
-and 1 s from the same states (float64 and float32).  docs/accelerator.md.
+and prints the ratios mjx loop / batch and mjx / cpu env.  Then tspend's own paths at each N
+(where tspend imports, N up to ``--tspend-max``), beside the bare loop at that N:
+
+* ``sweep``: ``tspend sweep --backend mjx``'s program (:mod:`tspend.mjx.sweep`: the LQR
+  law, the reference and disturbance, every ending and metric folded on the device) on N
+  machines the scenario's ``[randomize]`` draws, ``--steps`` samples: physics steps/s of
+  the second call, and its ratio to the bare loop's;
+* ``mjx env``: ``backend="mjx"``'s vector env at N: env-steps/s and the host's time per
+  step (the step's wall time less the device call's, so what grows with N on the host).
+
+``--prepare DIR`` writes what the device part needs (each model as MuJoCo's binary .mjb,
+the gain, the start state, and the scenarios tspend's rows run) and stops; ``--plan DIR``
+runs from it: the bare loop with only MuJoCo, MJX, JAX and numpy, tspend's rows where the
+device's checkout imports tspend (a line says when it does not).  ``--json FILE``
+appends one JSON line per measurement.  ``--departure`` also measures MJX's departure
+from CPU MuJoCo after 0.1 s and 1 s from the same states (float64 and float32).
+docs/accelerator.md.
 """
 
 from __future__ import annotations
@@ -32,6 +43,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +53,9 @@ MACHINES = {"cartpole": "pendulum_mujoco", "double_cartpole": "double_cartpole_m
             "pendubot": "pendubot_mujoco", "reaction_wheel": "reaction_wheel_mujoco",
             "rotary_double": "rotary_double_mujoco", "furuta": "furuta_mujoco"}
 MAX_ENVS = 1 << 20
+#: the scenario each machine's tspend rows run: its randomised form where one ships
+RANDOMIZED = {"cartpole": "pendulum_mujoco_randomized",
+              "double_cartpole": "double_cartpole_mujoco_randomized"}
 
 
 def _ints(text: str, what: str) -> list[int]:
@@ -77,7 +92,8 @@ def prepare(machines: list[str], where: Path) -> dict:
         mujoco.mj_saveModel(fleet.plant.model, str(path), None)
         plan[name] = {"model": path.name, "K": K.tolist(), "actuator": fleet.actuator,
                       "nstep": fleet.nstep, "qpos0": fleet.qpos0[0].tolist(),
-                      "qvel0": fleet.qvel0[0].tolist(), "scenario": MACHINES[name]}
+                      "qvel0": fleet.qvel0[0].tolist(), "scenario": MACHINES[name],
+                      "sweep_scenario": RANDOMIZED.get(name, MACHINES[name])}
     (where / "plan.json").write_text(json.dumps(plan, indent=1))
     return plan
 
@@ -222,6 +238,98 @@ def departure(model, spec: dict) -> dict:
     return out
 
 
+def sweep_rate(scenario: str, n: int, steps: int, precision: str) -> tuple[float, float]:
+    """(compile + first call s, physics steps/s of the second call) of tspend's MJX sweep
+    program on n machines of ``scenario`` (seeds 0 .. n-1), ``steps`` samples."""
+    import warnings
+
+    import jax
+
+    from tspend.loop.simulation import prepare as prepare_run
+    from tspend.mjx import sweep as mjx_sweep
+    from tspend.mjx.machines import build_fleet
+    from tspend.scenario import load_scenario, override
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scn = load_scenario(scenario)
+        scn = override(scn, **{"run.duration": steps * scn.run.dt})
+        fleet = build_fleet(scn, range(n))
+        ctrl = prepare_run(fleet.scenario, controller="lqr").controller
+    program = mjx_sweep.prepare_program(fleet, ctrl, precision)
+    inputs = mjx_sweep.batch_inputs(fleet, np.arange(n), program)
+    t0 = time.perf_counter()
+    mjx_sweep.run_batch(program.run, inputs)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(mjx_sweep.run_batch(program.run, inputs))
+    return first, n * fleet.steps / (time.perf_counter() - t0)
+
+
+def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, float]:
+    """(env-steps/s, host ms per step) of the MJX vector env at n envs: the host's share is
+    each step's wall time less the time in its device call (waited for)."""
+    import warnings
+
+    import gymnasium
+    import jax
+
+    import tspend.gym  # noqa: F401
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        envs = gymnasium.make_vec(f"tspend/{scenario}-v0", num_envs=n, precision=precision,
+                                  vectorization_mode="vector_entry_point", backend="mjx")
+    inner = envs.unwrapped
+    device_s = [0.0]
+    call = inner._step
+
+    def timed(*args):
+        t = time.perf_counter()
+        out = jax.block_until_ready(call(*args))
+        device_s[0] += time.perf_counter() - t
+        return out
+
+    inner._step = timed
+    envs.reset(seed=0)
+    a = np.zeros((n, 1))
+    envs.step(a)                                   # compiles
+    device_s[0] = 0.0
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        envs.step(a)
+    wall = time.perf_counter() - t0
+    envs.close()
+    return n * steps / wall, 1e3 * (wall - device_s[0]) / steps
+
+
+def tspend_rows(plan: dict, machines: list[str], sizes: list[int], args: Any,
+                bare: dict, emit: Any) -> None:
+    """The sweep and env rows of tspend's own paths (module docstring)."""
+    try:
+        import tspend  # noqa: F401
+    except ImportError as exc:
+        print(f"tspend's rows not run: tspend does not import here ({exc})")
+        return
+    print(f"{'machine':<16} {'N':>7} {'precision':>9} {'sweep':>10} {'sweep/loop':>10} "
+          f"{'sweep compile_s':>15} {'mjx env':>10} {'env host ms/step':>16}")
+    for name in machines:
+        spec = plan[name]
+        for n in (v for v in sizes if v <= args.tspend_max):
+            for q in args.precisions:
+                first, rate = sweep_rate(spec.get("sweep_scenario", spec["scenario"]), n,
+                                         args.steps, q)
+                env_rate, host_ms = env_host(spec["scenario"], n, args.env_steps, q)
+                loop = bare.get((name, n, q), float("nan"))
+                emit({"machine": name, "envs": n, "precision": q, "sweep": rate,
+                      "sweep_compile_s": first, "sweep_over_loop": rate / loop,
+                      "mjx_env": env_rate, "env_host_ms": host_ms})
+                print(f"{name:<16} {n:>7} {q:>9} {rate:>10.3g} {rate / loop:>10.3g} "
+                      f"{first:>15.1f} {env_rate:>10.3g} {host_ms:>16.3g}", flush=True)
+    print("sweep: physics steps/s of tspend's whole MJX sweep program (law, endings, metrics); "
+          "mjx env: env-steps/s and the host's ms per step of the MJX vector env")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="MJX closed loops against tspend's CPU vector env "
                                             "and mujoco.batch, in one run (docs/accelerator.md)")
@@ -236,6 +344,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="the largest N run on mujoco.batch (its time grows with N; default 16384)")
     p.add_argument("--env-max", type=int, default=64,
                    help="the largest N run on the vector envs (default 64; 0: skip them)")
+    p.add_argument("--tspend-max", type=int, default=4096,
+                   help="the largest N of tspend's sweep and env rows (default 4096; 0: skip)")
+    p.add_argument("--env-steps", type=int, default=5,
+                   help="steps of the MJX vector env timed per N (default 5)")
     p.add_argument("--departure", action="store_true",
                    help="also measure MJX's departure from CPU MuJoCo (float64, float32)")
     p.add_argument("--prepare", metavar="DIR", help="write the plan for --plan and stop")
@@ -250,6 +362,9 @@ def main(argv: list[str] | None = None) -> int:
     sizes = _ints(args.envs, "--envs")
     if not 1 <= args.steps <= 100_000:
         raise SystemExit("accelerator_speed: --steps: from 1 to 100000")
+    if not 1 <= args.env_steps <= 10_000 or not 0 <= args.tspend_max <= MAX_ENVS:
+        raise SystemExit("accelerator_speed: --env-steps from 1 to 10000, --tspend-max from 0 "
+                         f"to {MAX_ENVS}")
     precisions = [q for q in args.precision.split(",") if q]
     if not precisions or any(q not in ("float64", "float32") for q in precisions):
         raise SystemExit(f"accelerator_speed: --precision {args.precision}: float64, float32")
@@ -286,6 +401,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{'batch':>10} {'loop/batch':>10} {'cpu env':>10} {'mjx env':>10} "
               f"{'mjx loop/cpu env':>16} {'mjx env/cpu env':>15}")
     print(header)
+    bare: dict = {}
     for name in machines:
         spec = plan[name]
         model = mujoco.MjModel.from_binary_path(str(where / spec["model"]))
@@ -296,6 +412,7 @@ def main(argv: list[str] | None = None) -> int:
                 env_cpu, env_mjx, _ = env_rates(spec["scenario"], n, args.steps)
             for q in precisions:
                 first, rate = mjx_loop(model, spec, n, args.steps, q)
+                bare[(name, n, q)] = rate
                 row = {"machine": name, "envs": n, "precision": q, "compile_s": first,
                        "mjx_loop": rate, "batch": rate_b, "cpu_env": env_cpu, "mjx_env": env_mjx}
                 emit(row)
@@ -310,6 +427,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{gaps['float32_100']:.2g} / {gaps['float32_1000']:.2g}")
     print("steps/s of all envs together; mjx loop and batch: physics steps of the closed loop "
           "u = -K s; env: env steps of tspend's vector env (zero actions)")
+    args.precisions = precisions
+    if args.tspend_max:
+        tspend_rows(plan, machines, sizes, args, bare, emit)
     if sink is not None:
         sink.close()
     return 0

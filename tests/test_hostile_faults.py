@@ -331,13 +331,20 @@ def test_mjx_says_out_of_memory_before_the_work(monkeypatch):
 
 def test_an_mjx_batch_keeps_its_samples_within_a_budget():
     """Item 16: a batch of 131,072 envs returned 1000 steps of samples per block at once
-    (16 GB for the cart-pole); the batch is made smaller to fit the budget."""
+    (16 GB for the cart-pole).  Now the samples never leave the device: each env folds
+    :data:`CHUNK` of them at once into its figures (issue 55), so what an env takes does
+    not grow with the run's length, and the memory estimate counts that chunk."""
+    pytest.importorskip("mujoco.mjx")
+    import tspend
     from tspend.mjx import sweep as mjx_sweep
 
-    batch = mjx_sweep.samples_batch(4)
-    assert 1 <= batch < mjx_sweep.MAX_BATCH
-    assert batch * mjx_sweep.BLOCK * 5 * 8 * 3 <= mjx_sweep.SAMPLES_BUDGET_BYTES
-    assert mjx_sweep.samples_batch(4, 64) == 64
+    scn = tspend.load_scenario("pendulum_mujoco")
+    need, per_env, tables, steps = mjx_sweep.memory_need(scn, 4)
+    long = tspend.override(scn, **{"run.duration": 100 * scn.run.duration})
+    need_l, per_env_l, tables_l, steps_l = mjx_sweep.memory_need(long, 4)
+    assert steps_l > 50 * steps and per_env_l == per_env and tables_l > 50 * tables
+    assert need == 4 * per_env + tables
+    assert per_env >= mjx_sweep.CHUNK * 8 * 3   # a chunk of samples (state, u, keep)
 
 
 def test_mjx_without_the_device_asked_for_is_one_line():

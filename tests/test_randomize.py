@@ -229,3 +229,25 @@ def test_furuta_draws_its_initial_state_on_both_backends():
     with pytest.raises(Exception, match="randomize.m: unknown key"):
         parse_scenario(text.replace("[randomize]\n", '[randomize]\nm = {dist = "uniform", '
                                     'low = 0.1, high = 0.2}\n'), "furuta.toml")
+
+
+def test_draw_values_are_each_seeds_draw():
+    """The draw of many seeds as arrays (the MJX backend's machines) is, seed by seed, the
+    CPU backend's: numpy's seeded Generator computed for all seeds at once, and the
+    per-seed path for seeds beyond 32 bits."""
+    import numpy as np
+
+    from tspend.plants.randomize import _rng, draw, draw_values, first_uniforms
+    from tspend.scenario import load_scenario, override
+
+    seeds = np.concatenate([np.arange(300), [2**31, 2**32 - 1, 2**32, 2**40]])
+    got = first_uniforms(seeds, "x0[1]")
+    want = np.array([_rng(int(s), "x0[1]").random() for s in seeds])
+    assert np.array_equal(got, want)
+    for name in ("pendulum_mujoco_randomized", "double_cartpole_mujoco_randomized"):
+        scn = load_scenario(name)
+        values = draw_values(scn, [0, 5, 77, 2**32 + 3])
+        for i, seed in enumerate([0, 5, 77, 2**32 + 3]):
+            one = draw(override(scn, **{"run.seed": seed})).values
+            assert list(one) == list(values)
+            assert all(one[k] == values[k][i] for k in one), (name, seed)

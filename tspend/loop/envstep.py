@@ -44,7 +44,7 @@ from tspend.loop.fastloop import _beyond  # the task's termination check, one de
 from tspend.runtime.jit import JIT
 
 __all__ = ["BAD_INPUT", "ENDED", "NOT_FINITE", "REFILL", "RUNNING", "UNSTABLE", "Frame",
-           "env_step", "env_steps", "reward_of"]
+           "env_step", "env_steps", "reward_factory", "reward_of"]
 
 #: what a step reports: ran every physics step; the task's bounds crossed; the state not
 #: finite; an input MuJoCo would ignore (not stepped); MuJoCo reset an unstable
@@ -163,22 +163,33 @@ class Frame:
         self.ints, self.floats = ints, floats
 
 
-@njit(**_JIT)
-def reward_of(obs: np.ndarray, n_state: int, view_index: np.ndarray, tracking: np.ndarray,
-              wraps: np.ndarray, alive: float, control: float, u_scale: float, u: float,
-              seconds: float) -> float:
-    """``seconds * alive / (1 + c)``, ``c = sum_i tracking_i e_i^2 + control (u / u_scale)^2``
-    with ``e = x_view - r[:n]``, angles wrapped to [-pi, pi) (tspend.gym's docstring): the
-    survival reward ``seconds * alive`` less a penalty ``seconds * alive * c / (1 + c)`` that
-    never reaches it, so every step survived pays and ending early never does."""
-    cost = 0.0
-    for k in range(view_index.size):
-        e = obs[view_index[k]] - obs[n_state + k]
-        if wraps[k]:
-            e = np.mod(e + np.pi, 2 * np.pi) - np.pi
-        cost += tracking[k] * (e * e)
-    s = u / u_scale
-    return seconds * alive / (1.0 + cost + control * (s * s))
+def reward_factory(mod: Any) -> Any:
+    """The reward's one text, built for numba (``np.mod``: :func:`reward_of`) and for JAX
+    (``jnp.mod``: the MJX envs, :mod:`tspend.mjx.vector_env`, :mod:`tspend.mjx.brax_env`),
+    as ``FullModel.accel_factory`` builds the laws."""
+
+    def reward(obs: np.ndarray, n_state: int, view_index: np.ndarray, tracking: np.ndarray,
+               wraps: np.ndarray, alive: float, control: float, u_scale: float, u: float,
+               seconds: float) -> float:
+        """``seconds * alive / (1 + c)``, ``c = sum_i tracking_i e_i^2 + control (u /
+        u_scale)^2`` with ``e = x_view - r[:n]``, angles wrapped to [-pi, pi) (tspend.gym's
+        docstring): the survival reward ``seconds * alive`` less a penalty ``seconds * alive
+        * c / (1 + c)`` that never reaches it, so every step survived pays and ending early
+        never does."""
+        cost = 0.0
+        for k in range(view_index.size):
+            e = obs[view_index[k]] - obs[n_state + k]
+            if wraps[k]:
+                e = mod(e + np.pi, 2 * np.pi) - np.pi
+            cost += tracking[k] * (e * e)
+        s = u / u_scale
+        return seconds * alive / (1.0 + cost + control * (s * s))
+
+    return reward
+
+
+#: the reward of one step, compiled (:func:`reward_factory`)
+reward_of = njit(**_JIT)(reward_factory(np.mod))
 
 
 @njit(**_JIT)

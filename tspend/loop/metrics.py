@@ -52,11 +52,12 @@ import math
 import numpy as np
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from tspend.loop.sinks import Block, InnerSnapshot, RunEnd, RunInfo
 
-__all__ = ["METRIC_KEYS", "MACHINE_PREFIXES", "MachineInfo", "MetricsAccumulator", "flatten",
-           "is_machine_column"]
+__all__ = ["METRIC_KEYS", "MACHINE_PREFIXES", "FoldSettings", "MachineInfo", "MetricsAccumulator",
+           "flatten", "fold_samples", "is_machine_column", "start_figures"]
 
 #: log-spaced bins of the controller's compute time (s): 1 ns .. 100 s, ~2 % wide
 _TIME_BINS = np.logspace(-9, 2, 1281)
@@ -114,15 +115,128 @@ METRIC_KEYS = ("rmse", "rmse_ss", "max_abs_e", "max_abs_e_ss", "iae", "ise", "it
                "sim_s", "steps", "seed", "violations", "max_violation")
 
 
+@dataclass(frozen=True)
+class FoldSettings:
+    """What :func:`fold_samples` needs to know of a run besides its samples: the steady
+    window's start (s; half a step early, so round-off in t does not drop its first
+    sample), the actuator's range, the goal's angle (0: none), each joint's index in the
+    full state, the task's constraints (None: none) and what runs on the metrics' numbers:
+    numbers may be arrays (one per env) under ``jax.vmap``."""
+
+    ss_from: Any = 0.0
+    u_lo: Any = -math.inf
+    u_hi: Any = math.inf
+    goal_angle: float = 0.0
+    joint_index: tuple[int, ...] = ()
+    constraints: Any = None
+
+    @classmethod
+    def of(cls, dt: float, ss_start: float, machine: "MachineInfo | None") -> "FoldSettings":
+        m = machine
+        if m is None:
+            return cls(ss_from=ss_start - 0.5 * dt)
+        cons = m.constraints if m.constraints is not None and len(m.constraints) else None
+        return cls(ss_from=ss_start - 0.5 * dt, u_lo=m.u_lo, u_hi=m.u_hi,
+                   goal_angle=m.goal_angle, joint_index=tuple(j for _, j in m.joints),
+                   constraints=cons)
+
+
+def start_figures(xp: Any, settings: FoldSettings, dtype: Any = float) -> dict:
+    """The running figures of a run before its first sample (:func:`fold_samples`)."""
+    zero = xp.zeros((), dtype=dtype)
+    C = len(settings.constraints) if settings.constraints is not None else 0
+    J = len(settings.joint_index)
+    return {"steps": xp.zeros((), dtype=np.int64 if xp is np else int),
+            **{k: zero for k in ("sum_e2", "sum_abs_e", "sum_t_abs_e", "sum_u2",
+                                 "sum_u2_applied", "max_abs_e", "max_abs_u",
+                                 "max_abs_u_applied", "ss_sum_e2", "ss_max_abs_e", "tv_u",
+                                 "u_last")},
+            "ss_steps": xp.zeros((), dtype=np.int64 if xp is np else int),
+            "saturated": xp.zeros((), dtype=np.int64 if xp is np else int),
+            "saturated_at_end": xp.zeros((), dtype=np.int64 if xp is np else int),
+            # the last sample's time outside the goal; -inf: never
+            "last_outside": xp.full((), -xp.inf, dtype=dtype),
+            "joint_max": xp.zeros(J, dtype=dtype), "joint_final": xp.full(J, xp.nan, dtype=dtype),
+            "c_outside": xp.zeros(C, dtype=np.int64 if xp is np else int),
+            "any_outside": xp.zeros((), dtype=np.int64 if xp is np else int),
+            "c_depth": xp.zeros(C, dtype=dtype), "c_margin": xp.full(C, xp.inf, dtype=dtype)}
+
+
+def fold_samples(xp: Any, fig: dict, t: Any, e1: Any, u: Any, state: Any, keep: Any,
+                 s: FoldSettings) -> dict:
+    """The running figures ``fig`` after k more samples (times ``t``, output error ``e1``,
+    command ``u``, full ``state`` (k, N)) of which the first ``keep.sum()`` belong to the
+    run (``keep``: a prefix; the rest is ignored).  One text for the CPU's
+    :class:`MetricsAccumulator` (numpy) and the accelerator's closed loops (jax.numpy,
+    :mod:`tspend.mjx.sweep`); the module docstring defines each figure."""
+    where = xp.where
+    n = xp.sum(keep)
+    abs_e = where(keep, xp.abs(e1), 0.0)
+    e_k, u_k = where(keep, e1, 0.0), where(keep, u, 0.0)
+    applied = where(keep, xp.clip(u, s.u_lo, s.u_hi), 0.0)
+    steady = keep & (t >= s.ss_from)
+    e_ss = where(steady, e1, 0.0)
+    last = xp.maximum(n - 1, 0)
+    before = fig["steps"] > 0
+    pairs = keep[1:] & keep[:-1]
+    tv = xp.sum(where(pairs, xp.abs(u[1:] - u[:-1]), 0.0)) + where(
+        before & keep[0], xp.abs(u[0] - fig["u_last"]), 0.0)
+    clipped = keep & ((u < s.u_lo) | (u > s.u_hi))
+    inside = xp.max(where(keep & ~clipped, xp.arange(keep.shape[0]), -1))
+    out = {"steps": fig["steps"] + n,
+           "sum_e2": fig["sum_e2"] + xp.sum(e_k * e_k),
+           "sum_abs_e": fig["sum_abs_e"] + xp.sum(abs_e),
+           "sum_t_abs_e": fig["sum_t_abs_e"] + xp.sum(t * abs_e),
+           "sum_u2": fig["sum_u2"] + xp.sum(u_k * u_k),
+           "sum_u2_applied": fig["sum_u2_applied"] + xp.sum(applied * applied),
+           "max_abs_e": xp.fmax(fig["max_abs_e"], xp.max(abs_e)),
+           "max_abs_u": xp.fmax(fig["max_abs_u"], xp.max(xp.abs(u_k))),
+           "max_abs_u_applied": xp.fmax(fig["max_abs_u_applied"], xp.max(xp.abs(applied))),
+           "ss_steps": fig["ss_steps"] + xp.sum(steady),
+           "ss_sum_e2": fig["ss_sum_e2"] + xp.sum(e_ss * e_ss),
+           "ss_max_abs_e": xp.fmax(fig["ss_max_abs_e"], xp.max(xp.abs(e_ss))),
+           "tv_u": fig["tv_u"] + tv,
+           "u_last": where(n > 0, u[last], fig["u_last"]),
+           "saturated": fig["saturated"] + xp.sum(clipped),
+           "saturated_at_end": where(inside >= 0, n - 1 - inside, fig["saturated_at_end"] + n),
+           "last_outside": fig["last_outside"]}
+    if s.goal_angle > 0.0:
+        outside = keep & ~(xp.abs(e1) <= s.goal_angle)
+        out["last_outside"] = xp.maximum(fig["last_outside"], xp.max(where(outside, t, -xp.inf)))
+    if s.joint_index:
+        col = state[:, np.asarray(s.joint_index)]
+        out["joint_max"] = xp.fmax(fig["joint_max"],
+                                   xp.max(where(keep[:, None], xp.abs(col), 0.0), axis=0))
+        out["joint_final"] = where(n > 0, col[last], fig["joint_final"])
+    else:
+        out["joint_max"], out["joint_final"] = fig["joint_max"], fig["joint_final"]
+    out.update(_fold_constraints(xp, fig, state, u, keep, s.constraints))
+    return out
+
+
+def _fold_constraints(xp: Any, fig: dict, state: Any, u: Any, keep: Any, cons: Any) -> dict:
+    """The constraints' figures after the samples (module docstring: a NaN margin is
+    neither inside nor outside; a margin within the tolerance below 0 is round-off)."""
+    if cons is None:
+        return {k: fig[k] for k in ("c_outside", "any_outside", "c_depth", "c_margin")}
+    margin = xp.where(keep[:, None], cons.margins(state, u, xp), xp.inf)      # (k, C)
+    outside = margin < -xp.asarray(cons.tolerances)
+    depth = xp.where(outside, -margin, 0.0)
+    return {"c_outside": fig["c_outside"] + xp.sum(outside, axis=0),
+            "any_outside": fig["any_outside"] + xp.sum(xp.any(outside, axis=1)),
+            "c_depth": xp.fmax(fig["c_depth"], xp.max(xp.where(xp.isnan(depth), -xp.inf, depth),
+                                                      axis=0, initial=-xp.inf)),
+            "c_margin": xp.fmin(fig["c_margin"], xp.min(xp.where(xp.isnan(margin), xp.inf,
+                                                                  margin), axis=0,
+                                                         initial=xp.inf))}
+
+
 class MetricsAccumulator:
     """A sink that folds each block into running sums; :meth:`result` gives the metrics."""
 
     def __init__(self, dt: float, ss_start: float, seed: int = 0,
                  machine: MachineInfo | None = None) -> None:
         self.machine = machine
-        self.joint_max = {name: 0.0 for name, _ in machine.joints} if machine else {}
-        self.joint_final: dict[str, float] = {}
-        self.saturated = 0
         self.time_hist = np.zeros(_TIME_BINS.size + 1, dtype=np.int64)
         self.time_max = 0.0
         self.timed = 0
@@ -131,24 +245,29 @@ class MetricsAccumulator:
         self.dt = dt
         self.ss_start = ss_start
         self.seed = seed
-        self.steps = 0
-        self.sum_e2 = self.sum_abs_e = self.sum_t_abs_e = self.sum_u2 = 0.0
-        self.sum_u2_applied = 0.0
-        self.max_abs_e = self.max_abs_u = self.max_abs_u_applied = 0.0
-        #: the last sample's time at which |e1| lay outside the goal (None: never)
-        self.last_outside: float | None = None
-        #: how many samples at the end of the run so far had u clipped by the actuator
-        self.saturated_at_end = 0
-        self.ss_steps = 0
-        self.ss_sum_e2 = 0.0
-        self.ss_max_abs_e = 0.0
-        self.tv_u = 0.0
-        self.u_last: float | None = None
-        C = len(machine.constraints) if machine is not None and machine.constraints is not None else 0
-        self.c_outside = np.zeros(C, dtype=np.int64)
-        self.c_depth = np.zeros(C)
-        self.c_margin = np.full(C, np.inf)
-        self.any_outside = 0
+        #: what folds the samples (:func:`fold_samples`) and its running figures
+        self.fold = FoldSettings.of(dt, ss_start, machine)
+        self.figures = start_figures(np, self.fold)
+
+    def __getattr__(self, name: str) -> Any:
+        # the running figures read as attributes (acc.steps, acc.sum_e2, ...)
+        figures = self.__dict__.get("figures")
+        if figures is not None and name in figures:
+            v = np.asarray(figures[name])
+            return v.item() if v.ndim == 0 else v
+        raise AttributeError(name)
+
+    @property
+    def joint_max(self) -> dict[str, float]:
+        names = [name for name, _ in self.machine.joints] if self.machine else []
+        return {name: float(v) for name, v in zip(names, self.figures["joint_max"])}
+
+    @property
+    def joint_final(self) -> dict[str, float]:
+        if not self.figures["steps"] or self.machine is None:
+            return {}
+        return {name: float(v) for (name, _), v in zip(self.machine.joints,
+                                                        self.figures["joint_final"])}
 
     # sink protocol ----------------------------------------------------------------------
     def start(self, info: RunInfo) -> None:
@@ -164,52 +283,17 @@ class MetricsAccumulator:
         t = block.data["t"]
         if t.size == 0:
             return
-        e1 = block.data["e"][:, 0]
-        u = block.data["u"]
-        abs_e = np.abs(e1)
-        self.steps += t.size
-        self.sum_e2 += float(e1 @ e1)
-        self.sum_abs_e += float(abs_e.sum())
-        self.sum_t_abs_e += float(t @ abs_e)
-        self.sum_u2 += float(u @ u)
-        self.max_abs_e = max(self.max_abs_e, float(abs_e.max()))
-        self.max_abs_u = max(self.max_abs_u, float(np.abs(u).max()))
-        m = self.machine
-        if m is not None and m.goal_angle > 0.0:
-            outside = np.flatnonzero(~(abs_e <= m.goal_angle))
-            if outside.size:
-                self.last_outside = float(t[outside[-1]])
-        applied = np.clip(u, m.u_lo, m.u_hi) if m is not None else u
-        self.max_abs_u_applied = max(self.max_abs_u_applied, float(np.abs(applied).max()))
-        self.sum_u2_applied += float(applied @ applied)
-        steady = t >= self.ss_start - 0.5 * self.dt
-        if steady.any():
-            e_ss = e1[steady]
-            self.ss_steps += e_ss.size
-            self.ss_sum_e2 += float(e_ss @ e_ss)
-            self.ss_max_abs_e = max(self.ss_max_abs_e, float(np.abs(e_ss).max()))
-        if self.u_last is not None:
-            self.tv_u += abs(float(u[0]) - self.u_last)
-        self.tv_u += float(np.abs(np.diff(u)).sum())
-        self.u_last = float(u[-1])
-        self._machine_block(block.data, u)
-        self._constraints_block(block.data, u)
-
-    def _constraints_block(self, data: dict, u: np.ndarray) -> None:
-        m = self.machine
-        state = data.get("state")
-        if m is None or m.constraints is None or not len(m.constraints) or state is None:
-            return
-        margin = m.constraints.margins(state, u)                     # (k, C)
-        # NaN (a diverged sample) is neither inside nor outside: not counted; nor is a
-        # margin within the stated tolerance below 0 (round-off: tspend.task.constraints)
-        outside = margin < -m.constraints.tolerances
-        self.c_outside += outside.sum(axis=0)
-        self.any_outside += int(np.count_nonzero(outside.any(axis=1)))
-        with np.errstate(invalid="ignore"):
-            self.c_depth = np.fmax(self.c_depth, np.nanmax(np.where(outside, -margin, 0.0), axis=0))
-            self.c_margin = np.fmin(self.c_margin, np.nanmin(np.where(np.isnan(margin), np.inf,
-                                                                      margin), axis=0))
+        state = block.data.get("state")
+        if state is None or not state.shape[1]:
+            state = np.zeros((t.size, 0))
+        keep = np.ones(t.size, dtype=bool)
+        self.figures = fold_samples(np, self.figures, t, block.data["e"][:, 0], block.data["u"],
+                                    state, keep, self.fold)
+        data = block.data
+        for name in self.counter_names:
+            if name in data and len(data[name]):
+                last = np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0]
+                self.counters[name] = float(last)
 
     def constraints_result(self) -> dict:
         """Per constraint: samples and time outside, largest depth, smallest margin."""
@@ -225,24 +309,6 @@ class MetricsAccumulator:
                            "min_margin": float(self.c_margin[i]) if self.steps and
                            math.isfinite(self.c_margin[i]) else None}
         return out
-
-    def _machine_block(self, data: dict, u: np.ndarray) -> None:
-        m = self.machine
-        if m is not None:
-            state = data.get("state")
-            if state is not None and state.shape[1]:
-                for name, j in m.joints:
-                    col = state[:, j]
-                    self.joint_max[name] = max(self.joint_max[name], float(np.abs(col).max()))
-                    self.joint_final[name] = float(col[-1])
-            clipped = (u < m.u_lo) | (u > m.u_hi)
-            self.saturated += int(np.count_nonzero(clipped))
-            inside = np.flatnonzero(~clipped)
-            self.saturated_at_end = (clipped.size - 1 - int(inside[-1]) if inside.size
-                                     else self.saturated_at_end + clipped.size)
-        for name in self.counter_names:
-            if name in data and len(data[name]):
-                self.counters[name] = float(np.asarray(data[name]).reshape(len(data[name]), -1)[-1, 0])
 
     #: the runner hands this sink the controller's wall time per sample
     wants_compute_times = True
@@ -271,7 +337,7 @@ class MetricsAccumulator:
         m = self.machine
         if not self.steps:
             reached = None
-        elif self.last_outside is None:
+        elif self.last_outside == -math.inf:   # never outside
             reached = 0.0
         else:
             reached = self.last_outside + self.dt

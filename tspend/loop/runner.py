@@ -26,7 +26,7 @@ import time
 import warnings
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -74,6 +74,17 @@ class LoopSettings:
         return self.control_every > 1 or self.control_delay > 0
 
 
+def output_error(xp: Any, x: Any, ref: Any, wraps: np.ndarray | None) -> Any:
+    """e = x - r per sample (k, n), the entries of revolute angles (``wraps``; None: none)
+    wrapped to (-pi, pi] only where they turned over, so an unwrapped error keeps its exact
+    value.  One text for the CPU runner (numpy) and the accelerator (jax.numpy)."""
+    e = x - ref
+    if wraps is None or not np.any(wraps):
+        return e
+    turned = xp.asarray(wraps) & (xp.abs(e) > np.pi)
+    return xp.where(turned, xp.mod(e + np.pi, 2 * np.pi) - np.pi, e)
+
+
 class BlockBuffer:
     """Preallocated arrays of one block; ``view(k)`` exposes the first k samples.
 
@@ -103,12 +114,7 @@ class BlockBuffer:
 
     def view(self, k: int, t: np.ndarray, ref: np.ndarray, d: np.ndarray) -> dict[str, np.ndarray]:
         D, X = self.diag[:k], self.x[:k]
-        e = X - ref[:k, :self.n]
-        if self.wraps is not None:
-            e = e.copy()
-            w = e[:, self.wraps]
-            # only where it turned over, so an unwrapped error keeps its exact value
-            e[:, self.wraps] = np.where(np.abs(w) > np.pi, np.mod(w + np.pi, 2 * np.pi) - np.pi, w)
+        e = output_error(np, X, ref[:k, :self.n], self.wraps)
         data = {"t": t[:k], "x": X, "ref": ref[:k], "e": e, "u": self.u[:k],
                 "d": d[:k]}
         if self.full.shape[1]:

@@ -11,7 +11,11 @@
 ``State``: ``pipeline_state`` the MJX data, ``obs``, ``reward``, ``done``, ``info``), so
 they jit, vmap and run under brax's trainers (``brax.training.agents.ppo.train``:
 examples/train_mjx_ppo.py).  The machine is the one the scenario's ``[randomize]``
-draws at ``seed`` (default ``run.seed``), as :class:`tspend.gym.TspendEnv` builds it; the
+draws at ``seed`` (default ``run.seed``), as :class:`tspend.gym.TspendEnv` builds it, or
+with ``machines=K`` one of the K machines it draws at ``seed .. seed + K - 1``, picked by
+each reset's ``rng`` (default: 256 when the scenario has a ``[randomize]``, so each env of
+a vmapped batch trains on its own machine; :func:`tspend.mjx.machines.build_fleet`, the
+CPU's machines at those seeds); the
 observation is that env's ([full state, r .. r^(n)]), the step holds the action over
 ``frame_skip`` physics steps and stops at the first that crosses the task's bounds
 (:func:`tspend.mjx.vector_env.env_substeps`); ``done`` is 1 when the task ended the run,
@@ -20,10 +24,9 @@ the state stopped being finite, or the scenario's duration was reached
 
 Actions are in [-1, 1] (what brax's policies output), mapped linearly onto
 ``[-action_scale, action_scale]`` (default: the actuator's bound) and clipped to the
-actuator's range.  The reward is the gym env's, computed by the same function
-(:func:`tspend.loop.envstep.reward_of`) through ``jax.pure_callback``: one host call per
-step, which costs little on a CPU and a device-to-host round trip on an accelerator (pass
-``reward_fn`` to replace it by a JAX function of ``(obs, u, seconds)`` where that matters).
+actuator's range.  The reward is the gym env's, the same text
+(:func:`tspend.loop.envstep.reward_factory`) built for JAX: no host call in a step (pass
+``reward_fn``, a JAX function of ``(obs, u, seconds)``, to replace it).
 """
 
 from __future__ import annotations
@@ -57,14 +60,17 @@ class BraxEnv(_Env):
     Parameters: ``scenario``, ``seed``, ``control_period`` / ``frame_skip``,
     ``overrides``, ``reward`` as :class:`tspend.gym.TspendEnv`; ``action_scale`` (the
     actuator's unit per unit of action); ``precision`` (``"float64"``, ``"float32"``);
-    ``reward_fn`` (module docstring).
+    ``reward_fn`` and ``machines`` (module docstring).
     """
+
+    #: machines a reset picks from at most
+    MAX_MACHINES = 1 << 16
 
     def __init__(self, scenario: str | Path = "pendulum_mujoco", *, seed: int | None = None,
                  control_period: float | None = None, frame_skip: int | None = None,
                  overrides: dict | None = None, reward: Any = None,
                  action_scale: float | None = None, precision: str = "float64",
-                 reward_fn: Callable | None = None) -> None:
+                 reward_fn: Callable | None = None, machines: int | None = None) -> None:
         import jax.numpy as jnp
 
         from tspend.gym import TspendEnv
@@ -85,7 +91,13 @@ class BraxEnv(_Env):
         if overrides:
             scn = override(scn, **dict(overrides))
         first = scn.run.seed if seed is None else int(seed)
-        fleet = build_fleet(override(scn, **{"run.seed": first}), [first], steps=env.horizon)
+        if machines is None:
+            machines = 256 if scn.randomize else 1
+        if isinstance(machines, bool) or not isinstance(machines, int) or \
+                not 1 <= machines <= self.MAX_MACHINES:
+            raise ScenarioError(f"machines {machines!r}: an integer from 1 to {self.MAX_MACHINES}")
+        fleet = build_fleet(override(scn, **{"run.seed": first}),
+                            [first + i for i in range(machines)], steps=env.horizon)
         set_precision(precision)
         self.fleet = fleet
         lo, hi = env.u_range
@@ -98,22 +110,26 @@ class BraxEnv(_Env):
         self.action_scale = float(action_scale)
         self._u_lo, self._u_hi = lo, hi
         self._dtype = dtype
-        index = np.arange(1)
-        batched = _subset(fleet, index, dtype)
-        import jax
-
-        self._model = jax.tree_util.tree_map(lambda x, a: x if a is None else x[0], batched,
-                                             fleet.in_axes, is_leaf=lambda x: x is None)
-        self._data0 = jax.tree_util.tree_map(lambda x: x[0], initial_data(fleet, index, dtype))
+        index = np.arange(machines)
+        #: every machine's model (the fields that differ on a leading axis) and start
+        self._models = _subset(fleet, index, dtype)
+        self._data0 = initial_data(fleet, index, dtype)
         self._one = env_substeps(fleet, env.frame_skip, env.horizon)
         pad = np.zeros(env.horizon + env.frame_skip)
         pad[:env.horizon] = fleet.dist
         self._dist = jnp.asarray(pad, dtype=dtype)
         self._ref = jnp.asarray(fleet.ref, dtype=dtype)
-        self._lo, self._hi = jnp.asarray(fleet.lo[0], dtype=dtype), jnp.asarray(fleet.hi[0], dtype=dtype)
-        self._d_to_tau = jnp.asarray(fleet.d_to_tau[0], dtype=dtype)
+        self._lo, self._hi = jnp.asarray(fleet.lo, dtype=dtype), jnp.asarray(fleet.hi, dtype=dtype)
+        self._d_to_tau = jnp.asarray(fleet.d_to_tau, dtype=dtype)
         self._n_state = len(env.task.names)
-        self._reward = reward_fn if reward_fn is not None else self._host_reward()
+        self._reward = reward_fn if reward_fn is not None else self._jax_reward()
+
+    def machine(self, i: Any) -> Any:
+        """The mjx.Model of machine ``i`` (an int or a traced index)."""
+        import jax
+
+        return jax.tree_util.tree_map(lambda x, a: x if a is None else x[i], self._models,
+                                      self.fleet.in_axes, is_leaf=lambda x: x is None)
 
     # -- brax's Env ----------------------------------------------------------------------
     @property
@@ -129,15 +145,17 @@ class BraxEnv(_Env):
         return "mjx"
 
     def reset(self, rng: Any) -> Any:
-        """Where a run starts (the same state whatever ``rng``: the scenario's x0 on the
-        drawn machine, as the CPU env's reset without ``init_noise``)."""
+        """Where a run starts on a machine ``rng`` picks (``info["machine"]``): its x0 on
+        it, as the CPU env's reset without ``init_noise``."""
+        import jax
         import jax.numpy as jnp
 
-        data = self._data0
+        i = jax.random.randint(rng, (), 0, self.fleet.n_envs)
+        data = jax.tree_util.tree_map(lambda x: x[i], self._data0)
         zero = jnp.zeros((), dtype=self._dtype)
         obs = jnp.concatenate((data.qpos, data.qvel, self._ref[0]))
         info = {"clock": jnp.int32(0), "u": zero, "code": jnp.int32(envstep.RUNNING),
-                "truncation": zero}
+                "truncation": zero, "machine": i}
         return _State(pipeline_state=data, obs=obs, reward=zero, done=zero, metrics={},
                       info=info)
 
@@ -146,10 +164,10 @@ class BraxEnv(_Env):
 
         a = jnp.clip(jnp.reshape(action, (-1,))[0], -1.0, 1.0).astype(self._dtype)
         u = jnp.clip(a * self.action_scale, self._u_lo, self._u_hi)
-        clock = state.info["clock"]
-        data, code, done, full = self._one(self._model, state.pipeline_state, u, clock,
-                                           jnp.bool_(False), self._d_to_tau, self._lo,
-                                           self._hi, self._dist)
+        clock, i = state.info["clock"], state.info["machine"]
+        data, code, done, full = self._one(self.machine(i), state.pipeline_state, u, clock,
+                                           jnp.bool_(False), self._d_to_tau[i], self._lo[i],
+                                           self._hi[i], self._dist)
         clock = clock + done
         wrote = (code == envstep.RUNNING) | (code == envstep.ENDED)
         ref = self._ref[jnp.minimum(clock, self._ref.shape[0] - 1)]
@@ -168,30 +186,18 @@ class BraxEnv(_Env):
         return self
 
     # -- the reward ------------------------------------------------------------------------
-    def _host_reward(self) -> Callable:
-        """The gym env's reward (:func:`tspend.loop.envstep.reward_of`) as a JAX function,
-        through ``jax.pure_callback`` (it vmaps: rows are looped on the host)."""
-        import jax
+    def _jax_reward(self) -> Callable:
+        """The gym env's reward (:func:`tspend.loop.envstep.reward_factory`'s text) in JAX."""
+        import jax.numpy as jnp
 
         env = self.template
         w = env.reward_weights
-        n_state = self._n_state
-        args = (env._view_index, env._tracking, env._wrap_flags, float(w.alive),
-                float(w.control), float(env.u_scale))
-        dtype = self._dtype
-
-        def host(obs, u, seconds):
-            obs = np.asarray(obs, dtype=float)
-            shape = obs.shape[:-1]
-            rows = obs.reshape(-1, obs.shape[-1])
-            us = np.broadcast_to(np.asarray(u, dtype=float), shape).reshape(-1)
-            ss = np.broadcast_to(np.asarray(seconds, dtype=float), shape).reshape(-1)
-            out = np.array([envstep.reward_of(rows[i], n_state, *args, float(us[i]), float(ss[i]))
-                            for i in range(rows.shape[0])])
-            return out.reshape(shape).astype(dtype)
+        law = envstep.reward_factory(jnp.mod)
+        view, tracking = np.asarray(env._view_index), np.asarray(env._tracking)
+        wraps, n_state = np.asarray(env._wrap_flags), self._n_state
+        alive, control, u_scale = float(w.alive), float(w.control), float(env.u_scale)
 
         def reward(obs, u, seconds):
-            return jax.pure_callback(host, jax.ShapeDtypeStruct(obs.shape[:-1], dtype), obs, u,
-                                     seconds, vmap_method="broadcast_all")
+            return law(obs, n_state, view, tracking, wraps, alive, control, u_scale, u, seconds)
 
         return reward

@@ -7,8 +7,9 @@ the CPU plant, reset to x0), and that plant's own ``mjModel`` is put into MJX.  
 equal across the envs stay single (``in_axes`` None), the others are stacked on a leading
 env axis, so ``jax.vmap(f, in_axes=(fleet.in_axes, 0))`` steps each env on its own machine.
 
-Building costs the CPU backend's build per seed (milliseconds for a cart-pole): a sweep of
-10^5 seeds spends minutes here before the first step (docs/accelerator.md).
+Where the draw's keys have an array form, only the first seed is built so: the others are
+its compiled model with their draw written into its fields (:mod:`tspend.mjx.drawn`), so
+10^5 machines cost seconds, not the hours of a CPU build each (docs/accelerator.md).
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ class Fleet:
     d_to_tau: np.ndarray
     #: MuJoCo steps per physics step of run.dt
     nstep: int
+    #: what MuJoCo takes as a huge value (its mjMAXVAL): beyond it an input is refused and
+    #: a state unstable (:mod:`tspend.plants.mujoco_plant`)
+    max_input: float
     dt: float
     steps: int
     #: the task: full-state names, the view's indices, which view entries are angles,
@@ -108,7 +112,29 @@ def _tables(scenario: Any, steps: int, order: int) -> tuple[np.ndarray, np.ndarr
 
 def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None) -> Fleet:
     """The machines of ``scenario`` at ``seeds`` (module docstring); ``steps`` physics
-    steps of tables (default: the run's).  ScenarioError for what the backend cannot run."""
+    steps of tables (default: the run's).  ScenarioError for what the backend cannot run.
+
+    One CPU build (the first seed's) and the ``[randomize]`` draw as arrays written into
+    its model's fields per env (:mod:`tspend.mjx.drawn`) where the draw's keys have that form;
+    else each seed's CPU build (:func:`build_fleet_per_seed`)."""
+    from tspend.mjx.drawn import array_form, drawn_fleet
+
+    seeds = tuple(int(s) for s in seeds)
+    if len(seeds) < 2 or not array_form(scenario):
+        return build_fleet_per_seed(scenario, seeds, steps=steps)
+    first = build_fleet_per_seed(scenario, seeds[:1], steps=steps)
+    # the reference and disturbance may depend on the seed: one table serves all only
+    # where the last seed's is the first's (else the per-seed build says where they differ)
+    ref, dist = _tables(_seeded(scenario, seeds[-1]), first.steps, first.order)
+    if not (np.array_equal(ref, first.ref) and np.array_equal(dist, first.dist)):
+        return build_fleet_per_seed(scenario, seeds, steps=steps)
+    return drawn_fleet(scenario, seeds, first)
+
+
+def build_fleet_per_seed(scenario: Any, seeds: Sequence[int], *,
+                         steps: int | None = None) -> Fleet:
+    """:func:`build_fleet` by the CPU backend's build of every seed (the reference the
+    array form is tested against, and the form of draws it does not know)."""
     from mujoco import mjx
 
     import jax
@@ -176,7 +202,8 @@ def build_fleet(scenario: Any, seeds: Sequence[int], *, steps: int | None = None
         scenario=simulation.with_gain_sign(scn0, plant0), seeds=seeds, model=model,
         in_axes=in_axes, qpos0=np.stack(qpos), qvel0=np.stack(qvel),
         actuator=int(link0.actuator), omega=int(link0.omega), d_to_tau=np.array(d_to_tau),
-        nstep=int(link0.nstep), dt=float(scn0.run.dt), steps=steps, names=tuple(task0.names),
+        nstep=int(link0.nstep), max_input=float(link0.max_input), dt=float(scn0.run.dt),
+        steps=steps, names=tuple(task0.names),
         view_index=np.asarray(task0.view_index, dtype=np.int64),
         wraps=np.array([v in hinges for v in task0.view], dtype=bool),
         lo=np.stack(lo), hi=np.stack(hi), ref=ref, dist=dist, tasks=tasks, machines=machines,

@@ -3,15 +3,22 @@
 The jobs of one scenario (grid point) and controller kind are one batch: their seeds'
 machines (:func:`tspend.mjx.machines.build_fleet`), the kind's JAX law
 (:mod:`tspend.mjx.control`), sampled every ``control_every`` physics steps and held in
-between as the CPU runner does, stepped in a ``jax.lax.scan`` over blocks of
-:data:`BLOCK` physics steps under ``jax.vmap``.  Each block's samples (full state and u
-per env and step) come back to the host, where the CPU's own code decides everything a
-row says: the runner's end conditions (:meth:`tspend.loop.runner.ClosedLoop._diagnose`:
-the state or u not finite, ``plant.state_bound``, ``run.control_bound``, the task's
-bounds), its closing (``_finish``: ``not_reached``, the message) and the metrics
-(:class:`tspend.loop.metrics.MetricsAccumulator`, fed the runner's blocks).  So a row has
-the CPU sweep's columns, and the rows of the seeds both backends ran agree
-(tests/test_mjx.py: same status, rmse and rmse_ss within 1e-6 relative).
+between as the CPU runner does.  The whole run of a batch is one jitted program
+(:func:`make_run`, a ``jax.lax.scan`` over the run's samples under ``jax.vmap``): each
+env's ending is decided on the device and frozen at its sample, by the CPU loop's rules
+(:mod:`tspend.loop.fastloop`: u not finite or beyond ``run.control_bound``, the view
+beyond ``plant.state_bound``, the full state outside the task's bounds; an input MuJoCo
+would refuse; MuJoCo's own instability check, NaN or beyond 1e10 in qpos, qvel, qacc),
+and every figure of its row is folded on the device by the CPU's own text
+(:func:`tspend.loop.metrics.fold_samples`, the error by
+:func:`tspend.loop.runner.output_error`).  The host receives one small record per env
+(the figures, the ending's code, sample, state and u) and builds the rows with the CPU's
+code: the message (:meth:`tspend.loop.runner.ClosedLoop._diagnose`), the closing
+(``_finish``: ``not_reached``) and the metrics
+(:meth:`tspend.loop.metrics.MetricsAccumulator.result`).  So a row has the CPU sweep's
+columns, and the rows of the seeds both backends ran agree (tests/test_mjx.py: same
+status, metrics within 1e-9 relative, on runs that complete, fall, reach the rail's end
+and go non-finite).
 
 What the CPU row has and this one does not: the controller's diagnostics (not computed
 in JAX: no counters), a MuJoCo warning in the message, ``controller_ms`` (null, as in a
@@ -21,6 +28,7 @@ compiled CPU loop).  ``wall_s`` is the batch's wall time divided by its runs.  W
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from types import SimpleNamespace
 from typing import Any, Iterable, Iterator
@@ -29,40 +37,47 @@ import numpy as np
 
 from tspend.runtime.errors import ScenarioError
 
-__all__ = ["BLOCK", "MAX_BATCH", "closed_loop_rows", "run_jobs", "check_memory", "samples_batch"]
+__all__ = ["CHUNK", "MAX_BATCH", "batch_inputs", "check_memory", "closed_loop_rows", "make_run",
+           "memory_need", "prepare_program", "run_batch", "run_jobs"]
 
-#: physics steps per scan call (the CPU runner's block size: the metrics fold the same blocks)
-BLOCK = 1000
+#: samples folded into the figures at once on the device (memory: CHUNK full states per env)
+CHUNK = 100
 #: envs stepped in one batch at most (more seeds run as several batches)
 MAX_BATCH = 1 << 17
-#: bytes one block's samples of a batch may take (the device's output, its float64 copy
-#: on the host, their slices): the batch is made smaller to fit (131,072 cart-poles would
-#: take 16 GB a block)
-SAMPLES_BUDGET_BYTES = 1 << 30
+#: how a run ended on the device: it did not; the sample's check (the runner's
+#: _diagnose says why); an input MuJoCo refuses; MuJoCo's instability check
+ALIVE, CHECK, BAD_INPUT, UNSTABLE = 0, 1, 2, 3
 
 
-def samples_batch(n_full: int, batch: int = MAX_BATCH) -> int:
-    """Envs per batch so one block's samples (full state and u, float64, three copies)
-    stay within :data:`SAMPLES_BUDGET_BYTES`."""
-    return max(1, min(batch, SAMPLES_BUDGET_BYTES // (BLOCK * (n_full + 1) * 8 * 3)))
-
-
-def check_memory(scenario: Any, n_envs: int) -> None:
-    """ScenarioError, before any work, when ``n_envs`` machines of ``scenario`` would not
-    fit in the memory this process can have (:func:`available_bytes`): each env holds an
-    MJX model (measured: about 2.2 x MuJoCo's model buffer on the cart-pole), the run's
-    reference and disturbance tables are held whole, a batch's samples take at most
-    :data:`SAMPLES_BUDGET_BYTES`."""
+def memory_need(scenario: Any, n_envs: int) -> tuple[float, float, float, int] | None:
+    """``(need, per_env, tables, steps)``: the bytes that ``n_envs`` machines of ``scenario`` take on
+    the device (None: no MuJoCo model).  Per env: its MJX model (measured: about 2.2 x
+    MuJoCo's model buffer on the cart-pole) and data, the :data:`CHUNK` samples it folds
+    at once (full state, u, keep) and its figures; the samples never leave the device, so
+    nothing grows with the run's length but the reference and disturbance tables, held
+    whole (padded to whole chunks)."""
     from tspend.loop import simulation
 
     plant = simulation.build_plant(scenario)
     model = getattr(plant, "model", None)
     if model is None:
-        return   # no MuJoCo model: the backend refuses it with its own line
+        return None   # no MuJoCo model: the backend refuses it with its own line
     steps = simulation.steps_of(scenario)
-    per_env = 3 * model.nbuffer + getattr(plant, "data").nbuffer + (64 << 10)
-    tables = (steps + 1) * (plant.order + 2) * 8 * 4   # r .. r^(n), d, t; four copies
-    need = n_envs * per_env + tables + SAMPLES_BUDGET_BYTES
+    n_full = int(model.nq + model.nv)
+    samples = CHUNK * (n_full + 2) * 8 * 2          # a chunk's samples, and the fold's copy
+    per_env = 3 * model.nbuffer + getattr(plant, "data").nbuffer + samples + (64 << 10)
+    tables = (steps + CHUNK) * (plant.order + 2) * 8 * 4   # r .. r^(n), d, t; four copies
+    return n_envs * per_env + tables, per_env, tables, steps
+
+
+def check_memory(scenario: Any, n_envs: int) -> None:
+    """ScenarioError, before any work, when ``n_envs`` machines of ``scenario`` would not
+    fit in the memory this process can have (:func:`available_bytes`; the estimate:
+    :func:`memory_need`)."""
+    need = memory_need(scenario, n_envs)
+    if need is None:
+        return
+    need, per_env, tables, steps = need
     have = available_bytes()
     if need > have:
         gib = 2.0**30
@@ -109,46 +124,120 @@ class _NoContacts:
         return ""
 
 
-def make_block_runner(fleet: Any, law: Any, every: int, block: int = BLOCK) -> Any:
-    """A jitted ``run(model, data, u_held, params, d_to_tau, ref, dist, g0)`` that steps
-    every env ``block`` physics steps from step ``g0``: the new data, the held u, and per
-    env and step the full state before the step and the u applied over it."""
+def _is_bad(jnp: Any, v: Any, max_value: float) -> Any:
+    """MuJoCo's mju_isBad over a vector: any entry NaN or beyond +-max_value."""
+    return jnp.any(~(jnp.abs(v) <= max_value))
+
+
+def _integrator(mjx: Any, model: Any) -> Any:
+    """The integration ``mjx.step`` runs after its forward, by the model's integrator."""
+    import mujoco
+
+    by_kind = {int(mujoco.mjtIntegrator.mjINT_EULER): mjx.euler,
+               int(mujoco.mjtIntegrator.mjINT_RK4): mjx.rungekutta4,
+               int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): mjx.implicit}
+    kind = int(model.opt.integrator)
+    if kind not in by_kind:
+        raise ScenarioError(f"the mjx backend: MuJoCo integrator {kind} is not in MJX")
+    return by_kind[kind]
+
+
+def _ends(jnp: Any, x: Any, u: Any, full: Any, lo: Any, hi: Any, bounds: Any) -> Any:
+    """Whether the runner looks at this sample (tspend.loop.fastloop's ``_take_sample``):
+    u not finite or beyond the control bound, the view beyond the state bound (NaN
+    compares False: a non-finite state reaches u first), the task's bounds crossed."""
+    out = ~jnp.isfinite(u) | jnp.any(full < lo) | jnp.any(full > hi)
+    if bounds.control_bound > 0.0:
+        out |= jnp.abs(u) > bounds.control_bound
+    if bounds.state_bound > 0.0:
+        out |= jnp.any(jnp.abs(x) > bounds.state_bound)
+    return out
+
+
+def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: Any,
+             chunk: int = CHUNK) -> Any:
+    """A jitted ``run(model, data, carry, d_to_tau, lo, hi, u_lo, u_hi, ref, dist)``: every
+    env's whole closed loop of ``fleet.steps`` samples, ``law`` its controller
+    (:func:`tspend.mjx.control.jax_law`) and ``carry`` each env's start of the law's carry
+    (:func:`tspend.mjx.control.seeded_carries`); per env its figures
+    (:func:`tspend.loop.metrics.fold_samples` under ``fold``, whose ``u_lo``/``u_hi``
+    are the env's), the ending's code, sample ``g``, full state, u and d."""
     import jax
     import jax.numpy as jnp
     from mujoco import mjx
 
-    act, omega, nstep = fleet.actuator, fleet.omega, fleet.nstep
-    dt = fleet.dt
+    from tspend.loop.metrics import fold_samples, start_figures
+    from tspend.loop.runner import output_error
 
-    def one_env(model, data, u_held, params, d_to_tau, ref, dist, g0):
-        def sample(carry, k):
-            data, u_held, params = carry
-            g = g0 + k
+    act, omega, nstep, steps = fleet.actuator, fleet.omega, fleet.nstep, fleet.steps
+    view, n, dt, max_value = np.asarray(fleet.view_index), fleet.order, fleet.dt, fleet.max_input
+    wraps = fleet.wraps if fleet.wraps.any() else None
+    chunks = -(-steps // chunk)
+
+    def one_env(model, data, params, d_to_tau, lo, hi, u_lo, u_hi, ref, dist):
+        qpos0, qvel0 = data.qpos, data.qvel
+        settings = dataclasses.replace(fold, u_lo=u_lo, u_hi=u_hi)
+
+        def sample(carry, g):
+            data, u_held, params, alive, end = carry
             full = jnp.concatenate((data.qpos, data.qvel))
-            r = jax.lax.dynamic_index_in_dim(ref, k, keepdims=False)
-            d = jax.lax.dynamic_index_in_dim(dist, k, keepdims=False)
+            x, r, d = full[view], ref[g], dist[g]
             # sampled control: a new u every `every` steps, held in between (the runner's);
             # the law's carry (an adaptive controller's state) moves only when it samples
             due = g % every == 0
             u_new, adapted = law(params, g * dt, full, r, dt * every)
-            u = jnp.where(due, u_new.astype(full.dtype), u_held)
+            u = jnp.where(due, u_new.astype(dtype), u_held)
             params = jax.tree_util.tree_map(lambda a, b: jnp.where(due, a, b), adapted, params)
+            check = _ends(jnp, x, u, full, lo, hi, bounds)
+            refused = ~((jnp.abs(u) < max_value) & (jnp.abs(d) < max_value))
             data = data.replace(ctrl=data.ctrl.at[act].set(u),
                                 qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
+            unstable = jnp.zeros((), dtype=bool)
             for _ in range(nstep):
-                data = mjx.step(model, data)
-            return (data, u, params), (full, u)
+                # mj_step's own checks: qpos, qvel before the step, qacc after its forward
+                # (mjx.step's parts: its data's qacc is RK4's last stage, not the checked one)
+                unstable |= _is_bad(jnp, data.qpos, max_value) | _is_bad(jnp, data.qvel, max_value)
+                data = mjx.forward(model, data)
+                unstable |= _is_bad(jnp, data.qacc, max_value)
+                data = _integrator(mjx, model)(model, data)
+            code = jnp.where(check, CHECK, jnp.where(refused, BAD_INPUT,
+                                                     jnp.where(unstable, UNSTABLE, ALIVE)))
+            ends = alive & (g < steps) & (code != ALIVE)
+            # the runner keeps the sample that ends the run unless it is not finite
+            keep = alive & (g < steps) & (~ends | (code != CHECK) |
+                                          (jnp.all(jnp.isfinite(x)) & jnp.isfinite(u)))
+            end = jax.tree_util.tree_map(lambda new, old: jnp.where(ends, new, old),
+                                         (code, g, full, u, d), end)
+            alive = alive & ~ends
+            # an ended run restarts from x0 (masked): its NaN would hold the batch's solver
+            # at its iteration limit
+            data = data.replace(qpos=jnp.where(alive, data.qpos, qpos0),
+                                qvel=jnp.where(alive, data.qvel, qvel0))
+            return (data, u, params, alive, end), (full, u, keep)
 
-        (data, u_held, params), (full, u) = jax.lax.scan(sample, (data, u_held, params),
-                                                         jnp.arange(block))
-        return data, u_held, params, full, u
+        def fold_chunk(carry, c):
+            loop, figures = carry
+            g = c * chunk + jnp.arange(chunk)
+            loop, (full, u, keep) = jax.lax.scan(sample, loop, g)
+            e1 = output_error(jnp, full[:, view], ref[g, :n], wraps)[:, 0]
+            figures = fold_samples(jnp, figures, g * jnp.asarray(dt, dtype), e1, u, full, keep,
+                                   settings)
+            return (loop, figures), None
 
-    batched = jax.vmap(one_env, in_axes=(fleet.in_axes, 0, 0, 0, 0, None, None, None))
-    return jax.jit(batched)
+        full0 = jnp.concatenate((data.qpos, data.qvel))
+        zero = jnp.zeros((), dtype)
+        end = (jnp.asarray(ALIVE), jnp.asarray(0), full0 * 0, zero, zero)
+        loop = (data, zero, params, jnp.asarray(True), end)
+        (loop, figures), _ = jax.lax.scan(fold_chunk, (loop, start_figures(jnp, fold, dtype)),
+                                          jnp.arange(chunks))
+        return figures, loop[4]
+
+    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, None, None)
+    return jax.jit(jax.vmap(one_env, in_axes=axes))
 
 
 def initial_data(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
-    """MJX data of the envs ``index``, at their CPU plants' reset states."""
+    """MJX data of the envs ``index``, at their CPU plants' reset states, on the device."""
     import jax
     import jax.numpy as jnp
     from mujoco import mjx
@@ -184,113 +273,150 @@ def _subset(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
     return jax.tree_util.tree_map(pick, fleet.model, fleet.in_axes, is_leaf=lambda x: x is None)
 
 
-def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
-                     batch: int = MAX_BATCH) -> Iterator[tuple[int, str, str, dict]]:
-    """``(env, status, message, metrics)`` of each env's closed loop under ``controller``
-    (the CPU controller built on the nominal scenario), as the CPU run ends and measures
-    it; batches of at most ``batch`` envs."""
+def _padded_tables(fleet: Any, chunk: int) -> tuple[np.ndarray, np.ndarray]:
+    """The reference and disturbance tables padded to whole chunks (the samples past the
+    run's end are not kept)."""
+    steps, n = fleet.steps, fleet.order
+    size = -(-steps // chunk) * chunk
+    ref = np.zeros((size, n + 1))
+    ref[:steps] = fleet.ref[:steps]
+    dist = np.zeros(size)
+    dist[:steps] = fleet.dist
+    return ref, dist
+
+
+def run_batch(run: Any, inputs: tuple) -> Any:
+    """One batch's whole run: the inputs already on the device, no transfer between host
+    and device inside it (``jax.transfer_guard("disallow")``); the host receives the
+    records (one per env) only when it asks for them."""
+    import jax
+
+    with jax.transfer_guard("disallow"):
+        out = run(*inputs)
+        jax.block_until_ready(out)
+    return out
+
+
+def batch_inputs(fleet: Any, index: np.ndarray, program: Any) -> tuple:
+    """The device arrays of envs ``index`` that ``program``'s run takes
+    (:func:`prepare_program`)."""
     import jax
     import jax.numpy as jnp
 
-    from tspend.loop.metrics import MetricsAccumulator
-    from tspend.loop.runner import BlockBuffer, ClosedLoop, LoopSettings
+    from tspend.mjx.control import seeded_carries
+
+    dtype = program.dtype
+    ref, dist = _padded_tables(fleet, program.chunk)
+    dev = jax.devices()[0]
+
+    def put(a):
+        return jax.device_put(jnp.asarray(a, dtype=dtype), dev)
+
+    # every env's law starts from the state its CPU run's controller is reset to
+    carries = seeded_carries(program.controller, [fleet.seeds[e] for e in index], dtype)
+    return (jax.device_put(_subset(fleet, index, dtype), dev), initial_data(fleet, index, dtype),
+            jax.device_put(carries, dev), put(fleet.d_to_tau[index]),
+            put(fleet.lo[index]), put(fleet.hi[index]), put(fleet.u_lo[index]),
+            put(fleet.u_hi[index]), put(ref), put(dist))
+
+
+def prepare_program(fleet: Any, controller: Any, precision: str = "float64") -> Any:
+    """The jitted program of ``fleet``'s closed loops under ``controller`` (:func:`make_run`)
+    and what reading its records needs: ``run``, ``controller`` (whose resets give each
+    env's carry: :func:`batch_inputs`), ``settings`` (the runner's :class:`~tspend.loop.runner.LoopSettings`), ``ss_start``,
+    ``chunk``, ``dtype``."""
+    import jax.numpy as jnp
+
+    from tspend.loop.metrics import FoldSettings
+    from tspend.loop.runner import LoopSettings
     from tspend.loop.simulation import control_every
-    from tspend.loop.sinks import Block
     from tspend.mjx import set_precision
-    from tspend.mjx.control import jax_law, seeded_carries
+    from tspend.mjx.control import jax_law
 
     set_precision(precision)
     dtype = jnp.float64 if precision == "float64" else jnp.float32
     scn = fleet.scenario
     law, _, _ = jax_law(scn, controller, fleet.view_index, dtype)
     every = control_every(scn.run, controller)
-    batch = samples_batch(len(fleet.names), batch)   # a block's samples within a budget
-    steps, dt, n = fleet.steps, fleet.dt, fleet.order
-    settings = LoopSettings(dt=dt, steps=steps, block_size=BLOCK,
+    steps, dt = fleet.steps, fleet.dt
+    settings = LoopSettings(dt=dt, steps=steps, block_size=steps,
                             state_bound=scn.plant.state_bound,
                             control_bound=scn.run.control_bound, control_every=every)
-    bounded = settings.state_bound > 0.0 or settings.control_bound > 0.0
-    blocks = -(-steps // BLOCK)
-    ref = np.zeros((blocks * BLOCK + 1, n + 1))
-    ref[:steps + 1] = fleet.ref
-    dist = np.zeros(blocks * BLOCK)
-    dist[:steps] = fleet.dist
-    runner = make_block_runner(fleet, law, every)
-    view = fleet.view_index
-    wraps = fleet.wraps
+    ss_start = 0.5 * steps * dt
+    fold = FoldSettings.of(dt, ss_start, fleet.machines[0])
+    chunk = min(CHUNK, steps)
+    run = make_run(fleet, law, every, settings, fold, dtype, chunk)
+    return SimpleNamespace(run=run, controller=controller, settings=settings, ss_start=ss_start,
+                           chunk=chunk, dtype=dtype)
+
+
+def _ending(fleet: Any, e: int, settings: Any, code: int, g: int, full: np.ndarray, u: float,
+            d: float) -> tuple[str, str, int]:
+    """``(status, message, samples done)`` of env ``e``'s run that ended at sample ``g``,
+    by the CPU runner's own words."""
+    from tspend.loop.runner import ClosedLoop
+    from tspend.plants.mujoco_plant import instability_error, refuse_huge_input
+
+    t = g * fleet.dt
+    if code == CHECK:
+        own = SimpleNamespace(s=settings, task=fleet.tasks[e])
+        problem, more, status = ClosedLoop._diagnose(own, full[fleet.view_index], u, t, full)
+        return status, problem, g + more
+    if code == BAD_INPUT:
+        try:
+            refuse_huge_input(fleet.plant.name, u, d, t)
+        except Exception as exc:   # the DivergenceError the CPU plant raises
+            error = exc
+    else:
+        flagged = [SimpleNamespace(number=1)] * 3
+        error = instability_error(fleet.plant.name, flagged, t)
+    return "diverged", f"diverged at t = {t:.4f} s: the plant failed ({error})", g + 1
+
+
+def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",
+                     batch: int = MAX_BATCH) -> Iterator[tuple[int, str, str, dict]]:
+    """``(env, status, message, metrics)`` of each env's closed loop under ``controller``
+    (the CPU controller built on the nominal scenario), as the CPU run ends and measures
+    it; batches of at most ``batch`` envs, each one program on the device."""
+    import jax
+
+    from tspend.loop.metrics import MetricsAccumulator
+    from tspend.loop.runner import ClosedLoop
+
+    program = prepare_program(fleet, controller, precision)
+    steps, dt = fleet.steps, fleet.dt
     for first in range(0, fleet.n_envs, batch):
         index = np.arange(first, min(first + batch, fleet.n_envs))
         started = time.perf_counter()
-        model = _subset(fleet, index, dtype)
-        data = initial_data(fleet, index, dtype)
-        u_held = jax.device_put(jnp.zeros(index.size, dtype=dtype), jax.devices()[0])
-        # every env's law starts from the state its CPU run's controller is reset to
-        params = jax.device_put(seeded_carries(controller, [fleet.seeds[e] for e in index],
-                                               dtype), jax.devices()[0])
-        d_to_tau = jnp.asarray(fleet.d_to_tau[index], dtype=dtype)
-        accs, ends = [], {}
-        for e in index:
-            acc = MetricsAccumulator(dt, ss_start=0.5 * steps * dt, seed=fleet.seeds[e],
-                                     machine=fleet.machines[e])
-            acc.start(SimpleNamespace(diagnostics=()))
-            accs.append(acc)
-        buf = BlockBuffer(BLOCK, n, 0, (), (), len(fleet.names), wraps)
-        alive = np.ones(index.size, dtype=bool)
-        for b in range(blocks):
-            if not alive.any():
-                break
-            g0 = b * BLOCK
-            data, u_held, params, full, u = runner(model, data, u_held, params, d_to_tau,
-                                           jnp.asarray(ref[g0:g0 + BLOCK], dtype=dtype),
-                                           jnp.asarray(dist[g0:g0 + BLOCK], dtype=dtype), g0)
-            full = np.asarray(full, dtype=float)
-            u = np.asarray(u, dtype=float)
-            k = min(BLOCK, steps - g0)
-            t = (g0 + np.arange(k)) * dt
-            r = ref[g0:g0 + k]
-            d = dist[g0:g0 + k]
-            lo, hi = fleet.lo[index][:, None, :], fleet.hi[index][:, None, :]
-            with np.errstate(invalid="ignore"):
-                bad = ~np.isfinite(u[:, :k]) | (full[:, :k] < lo).any(-1) | (full[:, :k] > hi).any(-1)
-                if bounded:
-                    x = full[:, :k][..., view]
-                    if settings.state_bound > 0.0:
-                        bad |= np.abs(x).max(-1) > settings.state_bound
-                    if settings.control_bound > 0.0:
-                        bad |= np.abs(u[:, :k]) > settings.control_bound
-            for j in np.flatnonzero(alive):
-                e = int(index[j])
-                stop = int(np.argmax(bad[j])) if bad[j].any() else k
-                kept = stop
-                if stop < k:
-                    x_s = full[j, stop][view]
-                    own = SimpleNamespace(s=settings, task=fleet.tasks[e])
-                    problem, more, status = ClosedLoop._diagnose(own, x_s, float(u[j, stop]),
-                                                                 float(t[stop]), full[j, stop])
-                    kept = stop + more
-                    ends[j] = (status, problem, g0 + kept)
-                    alive[j] = False
-                if kept > 0:
-                    buf.full[:kept] = full[j, :kept]
-                    buf.x[:kept] = full[j, :kept][:, view]
-                    buf.u[:kept] = u[j, :kept]
-                    accs[j].block(Block(start=g0, data=buf.view(kept, t, r, d)))
+        figures, end = jax.device_get(run_batch(program.run, batch_inputs(fleet, index, program)))
+        figures = {k: np.asarray(v, dtype=float if np.asarray(v).dtype.kind == "f" else None)
+                   for k, v in figures.items()}
+        code, g, full, u, d = (np.asarray(a) for a in end)
         share = (time.perf_counter() - started) / index.size
         for j, e in enumerate(index):
-            status, message, done = ends.get(j, ("completed", "", steps))
+            e = int(e)
+            status, message, done = "completed", "", steps
+            if code[j] != ALIVE:
+                status, message, done = _ending(fleet, e, program.settings, int(code[j]),
+                                                int(g[j]), full[j].astype(float), float(u[j]),
+                                                float(d[j]))
+            acc = MetricsAccumulator(dt, program.ss_start, seed=fleet.seeds[e],
+                                     machine=fleet.machines[e])
+            acc.figures = {k: v[j] for k, v in figures.items()}
             own = SimpleNamespace(controller=controller, plant=_NoContacts(), end=None)
-            end = ClosedLoop._finish(own, [accs[j]], status, message, done,
-                                     time.perf_counter() - share)
-            yield int(e), end.status, end.message, end.metrics
+            end_e = ClosedLoop._finish(own, [acc], status, message, done,
+                                       time.perf_counter() - share)
+            yield e, end_e.status, end_e.message, end_e.metrics
 
 
-def run_jobs(jobs: Iterable[Any], precision: str = "float64",
-             batch: int = MAX_BATCH) -> Iterator[tuple[Any, str, str, dict[str, Any], float]]:
+def run_jobs(jobs: Iterable[Any], precision: str = "float64", batch: int = MAX_BATCH,
+             report: Any = None) -> Iterator[tuple[Any, str, str, dict[str, Any], float]]:
     """How each of a sweep's ``jobs`` (:class:`tspend.sweep.plan.Job`) ended, each scenario
     point and controller kind one batch of its seeds: ``(job, status, message, metrics,
     job_s)``, its share of the time in ``job_s``.  The sweep makes the row and any
     recording of it (:func:`tspend.sweep.worker.finished_row`): this backend knows nothing
-    of the sweep's table."""
+    of the sweep's table.  ``report(line)``, when given, hears how long the machines took
+    to build."""
     from tspend.loop.simulation import prepare
     from tspend.mjx.machines import build_fleet
 
@@ -301,6 +427,10 @@ def run_jobs(jobs: Iterable[Any], precision: str = "float64",
         started = time.perf_counter()
         scenario = group[0].scenario
         fleet = build_fleet(scenario, [job.seed for job in group])
+        built_s = time.perf_counter() - started
+        if report is not None:
+            report(f"mjx: built the machines of {len(group)} seeds of "
+                   f"{scenario.name} in {built_s:.1f} s")
         controller = prepare(fleet.scenario, controller=kind).controller
         built = (time.perf_counter() - started) / len(group)
         for e, status, message, metrics in closed_loop_rows(fleet, controller, precision, batch):

@@ -94,21 +94,31 @@ class MjxVectorEnv(VectorEnv):
         self._u_scale = np.where(np.isfinite(self._u_hi) & (self._u_hi > 0), self._u_hi, 1.0)
         self._n_state = len(first.task.names)
         self._ref = f.ref                          # (horizon + 1, n + 1) on the host
-        self._step = _make_env_step(f, self.frame_skip, self.horizon)
+        self._step = _make_env_step(f, self.frame_skip, self.horizon, first, self.dt)
         self._model = _device_model(f, self._dtype)
         self._data0 = _initial(f, self._dtype)
         self._data = self._data0
         pad = np.zeros(self.horizon + self.frame_skip)
         pad[:self.horizon] = f.dist
-        self._dist = jnp.asarray(pad, dtype=self._dtype)
-        self._d_to_tau = jnp.asarray(f.d_to_tau, dtype=self._dtype)
-        self._lo_s = jnp.asarray(f.lo, dtype=self._dtype)
-        self._hi_s = jnp.asarray(f.hi, dtype=self._dtype)
+        put = self._put
+        #: what every step reads, on the device once
+        self._tables = (put(f.d_to_tau), put(f.lo), put(f.hi), put(pad), put(f.ref),
+                        put(self._u_scale))
         self._clock = np.zeros(num_envs, dtype=np.int64)
+        self._clock_dev = put(self._clock, int)
         size = first.observation_space.shape[0]
         self._obs = np.zeros((num_envs, size))
         self._autoreset = np.zeros(num_envs, dtype=bool)
-        self._u_applied = np.zeros(num_envs)
+        #: envs reset on the host (same-step autoreset) whose device data restarts next step
+        self._restart = np.zeros(num_envs, dtype=bool)
+        self._running = np.full(num_envs, "running", dtype=object)
+        self._no_message = np.full(num_envs, "", dtype=object)
+
+    def _put(self, a: Any, dtype: Any = None) -> Any:
+        import jax
+        import jax.numpy as jnp
+
+        return jax.device_put(jnp.asarray(a, dtype=dtype or self._dtype), jax.devices()[0])
 
     # -- the gymnasium interface ------------------------------------------------------------
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -119,8 +129,9 @@ class MjxVectorEnv(VectorEnv):
                 raise ScenarioError(f"reset seed: {len(list(seed))} seeds for {self.num_envs} envs")
         self._data = self._data0
         self._clock[:] = 0
+        self._clock_dev = self._put(self._clock, int)
         self._autoreset[:] = False
-        self._u_applied[:] = 0.0
+        self._restart[:] = False
         self._obs[:] = self._first_obs()
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"t": np.zeros(self.num_envs), "_t": every, "u": np.zeros(self.num_envs),
@@ -130,46 +141,35 @@ class MjxVectorEnv(VectorEnv):
         return self._out(self._obs), infos
 
     def step(self, actions):
-        import jax.numpy as jnp
+        """One step of every env in one call on the device (physics, endings, the
+        observation, the reward, the autoreset's restart); the host reads back N numbers
+        per quantity and names the endings of the envs that ended."""
+        import jax
 
         u = self._applied(actions)
-        reset = self._autoreset.copy()
-        if reset.any():
-            self._reset_some(reset)
-        data, code, done, full = self._step(
-            self._model, self._data, jnp.asarray(u, dtype=self._dtype),
-            jnp.asarray(self._clock), jnp.asarray(reset), self._d_to_tau, self._lo_s,
-            self._hi_s, self._dist)
-        self._data = data
-        code = np.asarray(code).astype(np.int64)
-        done = np.asarray(done).astype(np.int64)
-        full = np.asarray(full, dtype=float)
-        self._clock += done
-        wrote = (code == envstep.RUNNING) | (code == envstep.ENDED)
-        wrote &= ~reset
-        first = self.template
-        reward = np.zeros(self.num_envs)
-        w = first.reward_weights
-        for i in np.flatnonzero(wrote):
-            self._obs[i, :self._n_state] = full[i]
-            self._obs[i, self._n_state:] = self._ref[min(self._clock[i], self.horizon)]
-            # the CPU env's reward, the same function on the same observation
-            reward[i] = envstep.reward_of(self._obs[i], self._n_state, first._view_index,
-                                          first._tracking, first._wrap_flags, float(w.alive),
-                                          float(w.control), float(self._u_scale[i]), float(u[i]),
-                                          done[i] * self.dt)
-        terminated = (code != envstep.RUNNING) & ~reset
-        truncated = (self._clock >= self.horizon) & ~reset & ~terminated
+        skip = self._autoreset.copy()               # next-step autoreset: this step resets
+        restart = skip | self._restart
+        self._restart[:] = False
+        out = self._step(self._model, self._data, self._data0, self._put(u),
+                         self._clock_dev, self._put(restart, bool), self._put(skip, bool),
+                         *self._tables)
+        self._data, self._clock_dev = out[0], out[1]
+        clock, obs, reward, code, full = jax.device_get(out[1:])
+        self._clock = np.asarray(clock, dtype=np.int64)
+        code = np.asarray(code)
+        # a non-finite state is not observed: the env keeps its last observation (the CPU's)
+        seen = (code != envstep.NOT_FINITE) | skip
+        self._obs = np.where(seen[:, None], np.asarray(obs, dtype=float), self._obs)
+        terminated = (code != envstep.RUNNING) & ~skip
+        truncated = (self._clock >= self.horizon) & ~skip & ~terminated
         ended = terminated | truncated
-        status = np.full(self.num_envs, "running", dtype=object)
-        message = np.full(self.num_envs, "", dtype=object)
+        # copies of ready-made object arrays: no Python object made per env
+        status, message = self._running.copy(), self._no_message.copy()
         status[truncated] = "completed"
-        for i in np.flatnonzero(terminated):
-            if code[i] == envstep.ENDED:
-                status[i], message[i] = self.fleet.tasks[i].termination(
-                    full[i], self._clock[i] * self.dt) or ("diverged", "")
-            else:
-                status[i], message[i] = "diverged", "the state is not finite"
+        for i in np.flatnonzero(terminated):     # the envs that ended now, not every env
+            status[i], message[i] = (self.fleet.tasks[i].termination(
+                np.asarray(full[i], dtype=float), self._clock[i] * self.dt) or ("diverged", "")) \
+                if code[i] == envstep.ENDED else ("diverged", "the state is not finite")
         next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
         if next_step:
             self._autoreset = ended
@@ -177,7 +177,7 @@ class MjxVectorEnv(VectorEnv):
         infos = envstep.vector_step_infos(self._clock * self.dt, u, status, message,
                                           terminated, ended, not next_step,
                                           lambda i: self._out(self._obs[i]), self._reset_some)
-        return self._out(self._obs), reward, terminated, truncated, infos
+        return self._out(self._obs), np.asarray(reward, dtype=float), terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
@@ -190,16 +190,9 @@ class MjxVectorEnv(VectorEnv):
                                                                       self._ref.shape[1]))), axis=1)
 
     def _reset_some(self, which: np.ndarray) -> None:
-        import jax
-        import jax.numpy as jnp
-
-        mask = jnp.asarray(which)
-
-        def pick(fresh, now):
-            m = mask.reshape((-1,) + (1,) * (now.ndim - 1))
-            return jnp.where(m, fresh, now)
-
-        self._data = jax.tree_util.tree_map(pick, self._data0, self._data)
+        """Envs ``which`` back where a run starts: their observation now, their data and
+        clock on the device at the start of the next step."""
+        self._restart |= which
         self._clock[which] = 0
         self._obs[which] = self._first_obs()[which]
 
@@ -233,11 +226,14 @@ def _initial(fleet: Any, dtype: Any) -> Any:
 
 
 def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
-    """One env's step, as a pure function ``one(model, data, u, clock, skip, d_to_tau, lo,
-    hi, dist)``: hold u over ``frame_skip`` physics steps (fewer at the episode's end, none
-    when ``skip``), stopping after the first that crosses the bounds ``lo < s < hi``
-    (ENDED) or is not finite (NOT_FINITE), as :func:`tspend.loop.envstep.env_step` does;
-    returns the data, the code, the physics steps done and the full state after them."""
+    """One env's physics over a step, as a pure function ``one(model, data, u, clock, skip,
+    d_to_tau, lo, hi, dist)``: hold u over ``frame_skip`` physics steps (fewer at the
+    episode's end, none when ``skip``), the ending found after the first that crosses the
+    bounds ``lo < s < hi`` (ENDED) or is not finite (NOT_FINITE), as
+    :func:`tspend.loop.envstep.env_step` does; returns the data, the code, the physics steps
+    done and the full state after them.  The data is stepped on past an ending (an ended
+    env restarts before its next physics): only the code, the count and the state are held,
+    not the whole data at every physics step."""
     import jax
     import jax.numpy as jnp
     from mujoco import mjx
@@ -247,32 +243,58 @@ def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
 
     def one(model, data, u, clock, skip, d_to_tau, lo, hi, dist):
         k = jnp.where(skip, 0, jnp.clip(horizon - clock, 0, frame_skip))
+        full0 = jnp.concatenate((data.qpos, data.qvel))
 
         def body(j, carry):
-            data, code, done = carry
+            data, code, done, held = carry
             active = (j < k) & (code == RUNNING)
             d = jax.lax.dynamic_index_in_dim(dist, clock + j, keepdims=False)
-            new = data.replace(ctrl=data.ctrl.at[act].set(u),
-                               qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
+            data = data.replace(ctrl=data.ctrl.at[act].set(u),
+                                qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
             for _ in range(nstep):
-                new = mjx.step(model, new)
-            full = jnp.concatenate((new.qpos, new.qvel))
+                data = mjx.step(model, data)
+            full = jnp.concatenate((data.qpos, data.qvel))
             finite = jnp.all(jnp.isfinite(full))
             beyond = jnp.any(full < lo) | jnp.any(full > hi)
             now = jnp.where(~finite, NOT_FINITE, jnp.where(beyond, ENDED, RUNNING))
-            data = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, data)
-            return data, jnp.where(active, now, code), done + active.astype(jnp.int32)
+            return (data, jnp.where(active, now, code), done + active.astype(jnp.int32),
+                    jnp.where(active, full, held))
 
-        data, code, done = jax.lax.fori_loop(0, frame_skip, body,
-                                             (data, jnp.int32(RUNNING), jnp.int32(0)))
-        return data, code, done, jnp.concatenate((data.qpos, data.qvel))
+        data, code, done, full = jax.lax.fori_loop(
+            0, frame_skip, body, (data, jnp.int32(RUNNING), jnp.int32(0), full0))
+        return data, code, done, full
 
     return one
 
 
-def _make_env_step(fleet: Any, frame_skip: int, horizon: int) -> Any:
-    """:func:`env_substeps` of every env in one jitted call."""
+def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt: float) -> Any:
+    """Every env's step in one jitted call: the restart of the envs reset, the physics
+    (:func:`env_substeps`), the observation [full state, r .. r^(n) at the new clock] and
+    the CPU env's reward (:func:`tspend.loop.envstep.reward_factory`'s text in JAX);
+    returns the data, the clock (both stay on the device), the observations, rewards,
+    codes and full states."""
     import jax
+    import jax.numpy as jnp
 
-    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, None)
-    return jax.jit(jax.vmap(env_substeps(fleet, frame_skip, horizon), in_axes=axes))
+    reward_of = envstep.reward_factory(jnp.mod)
+    view, tracking = np.asarray(template._view_index), np.asarray(template._tracking)
+    wraps, w = np.asarray(template._wrap_flags), template.reward_weights
+    alive, control = float(w.alive), float(w.control)
+    n_state = len(template.task.names)
+    physics = env_substeps(fleet, frame_skip, horizon)
+
+    def one(model, data, data0, u, clock, restart, skip, d_to_tau, lo, hi, dist, ref, u_scale):
+        data = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), data0, data)
+        clock = jnp.where(restart, 0, clock)
+        data, code, done, full = physics(model, data, u, clock, skip, d_to_tau, lo, hi, dist)
+        # a reset step has no physics: the env stays where a run starts
+        data = jax.tree_util.tree_map(lambda a, b: jnp.where(skip, a, b), data0, data)
+        clock = clock + done
+        obs = jnp.concatenate((full, ref[jnp.minimum(clock, horizon)]))
+        wrote = ((code == envstep.RUNNING) | (code == envstep.ENDED)) & ~skip
+        reward = jnp.where(wrote, reward_of(obs, n_state, view, tracking, wraps, alive,
+                                            control, u_scale, u, done * dt), 0.0)
+        return data, clock, obs, reward, code, full
+
+    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
+    return jax.jit(jax.vmap(one, in_axes=axes))

@@ -69,8 +69,8 @@ from tspend.config.tables import Table
 if TYPE_CHECKING:
     from tspend.config import PlantConfig, Scenario
 
-__all__ = ["Draw", "Drawn", "DISTRIBUTIONS", "STREAM", "draw", "read_randomize",
-           "randomizable", "takes_model_values"]
+__all__ = ["Draw", "Drawn", "DISTRIBUTIONS", "STREAM", "draw", "draw_values", "first_uniforms",
+           "read_randomize", "randomizable", "takes_model_values"]
 
 #: the distributions a ``[randomize]`` entry may name
 DISTRIBUTIONS = ("uniform", "normal")
@@ -97,19 +97,23 @@ class Draw:
     def sample(self, rng: np.random.Generator, nominal: float) -> float:
         """One value: a single uniform number from ``rng``, mapped through the quantile
         function (of the truncated normal for ``normal``), times ``nominal`` if relative."""
+        return float(self.value_at(np.float64(rng.random()), nominal))
+
+    def value_at(self, q: Any, nominal: Any) -> Any:
+        """The value (or values: ``q`` an array) at the uniform number(s) ``q``:
+        :meth:`sample`'s map, one text for one seed and for many (:func:`draw_values`)."""
         from scipy.special import ndtr, ndtri
 
-        q = float(rng.random())
         if self.dist == "uniform":
             width = self.b - self.a
             v = (self.a + q * width if math.isfinite(width)
                  else self.a * (1.0 - q) + self.b * q)  # a range wider than a double
-            v = min(max(v, self.a), self.b)
+            v = np.minimum(np.maximum(v, self.a), self.b)
         else:
             lo = ndtr((self.low - self.a) / self.b)
             hi = ndtr((self.high - self.a) / self.b)
-            v = self.a + self.b * float(ndtri(lo + q * (hi - lo)))
-            v = min(max(v, self.low), self.high)  # the quantile's last rounding
+            v = self.a + self.b * ndtri(lo + q * (hi - lo))
+            v = np.minimum(np.maximum(v, self.low), self.high)  # the quantile's last rounding
         return v * nominal if self.relative else v
 
     def bounds(self, nominal: float) -> tuple[float, float]:
@@ -251,26 +255,20 @@ def _rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng((seed, STREAM, zlib.crc32(name.encode())))
 
 
-def draw(scenario: "Scenario") -> Drawn:
-    """The scenario's ``[randomize]`` drawn with its ``run.seed``, applied to ``[plant]``
-    (the same scenario and ``{}`` when it has none).  A model's number goes to
-    ``plant.model_values``, which the backends write into the MJCF before compiling."""
+def _nominals(scenario: "Scenario") -> list[tuple[Draw, float]]:
+    """Each draw of the scenario's ``[randomize]`` with the nominal a relative draw
+    multiplies (x0's entry, the ``[plant]`` value, or the machine's own where that is 0);
+    ScenarioError for a model's name the model lacks or a relative draw on a 0."""
     from tspend.plants.articulated.model_numbers import check_names
 
     draws = scenario.randomize
-    if not draws:
-        return Drawn(scenario, {})
     cfg = scenario.plant
     fields = {f.name for f in dataclasses.fields(cfg)}
-    x0 = list(cfg.x0)
-    changes: dict[str, Any] = {}
-    model_values: list[tuple[str, float]] = []
-    values: dict[str, float] = {}
     own: dict[str, float] | None = None
+    out = []
     for d in draws:
         if d.name.startswith("x0["):
-            i = int(d.name[3:-1])
-            x0[i] = values[d.name] = d.sample(_rng(scenario.run.seed, d.name), x0[i])
+            out.append((d, cfg.x0[int(d.name[3:-1])]))
             continue
         in_plant = d.name in fields
         nominal = float(getattr(cfg, d.name)) if in_plant else 0.0
@@ -290,12 +288,127 @@ def draw(scenario: "Scenario") -> Drawn:
                     f"{scenario.path}: randomize.{d.name}.relative: the {what} of "
                     f"{d.name} is 0 and so is the machine's own, so a relative draw is always "
                     f"0: give a nominal value or draw it absolute")
-        values[d.name] = d.sample(_rng(scenario.run.seed, d.name), nominal)
-        if in_plant:
-            changes[d.name] = values[d.name]
+        out.append((d, nominal))
+    return out
+
+
+def draw(scenario: "Scenario") -> Drawn:
+    """The scenario's ``[randomize]`` drawn with its ``run.seed``, applied to ``[plant]``
+    (the same scenario and ``{}`` when it has none).  A model's number goes to
+    ``plant.model_values``, which the backends write into the MJCF before compiling."""
+    if not scenario.randomize:
+        return Drawn(scenario, {})
+    cfg = scenario.plant
+    fields = {f.name for f in dataclasses.fields(cfg)}
+    x0 = list(cfg.x0)
+    changes: dict[str, Any] = {}
+    model_values: list[tuple[str, float]] = []
+    values: dict[str, float] = {}
+    for d, nominal in _nominals(scenario):
+        values[d.name] = v = d.sample(_rng(scenario.run.seed, d.name), nominal)
+        if d.name.startswith("x0["):
+            x0[int(d.name[3:-1])] = v
+        elif d.name in fields:
+            changes[d.name] = v
         else:
-            model_values.append((d.name, values[d.name]))
+            model_values.append((d.name, v))
     if model_values:
         changes["model_values"] = tuple(model_values)
     plant = dataclasses.replace(cfg, x0=tuple(x0), **changes)
     return Drawn(dataclasses.replace(scenario, plant=plant), values)
+
+
+def draw_values(scenario: "Scenario", seeds: Any) -> dict[str, np.ndarray]:
+    """What :func:`draw` draws at each of ``seeds`` (name -> one value per seed, equal to
+    ``draw(scenario at that seed).values``) as arrays: each seed's first uniform number of
+    its entry's stream computed for all seeds at once (:func:`first_uniforms`)."""
+    seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+    return {d.name: d.value_at(first_uniforms(seeds, d.name), nominal)
+            for d, nominal in _nominals(scenario)}
+
+
+# -- numpy's Generator seeded by a tuple, for many seeds at once ---------------------------
+# default_rng((seed, STREAM, crc)).random() is SeedSequence's hash of the three words into
+# a PCG64 state, one step of PCG64 (XSL-RR output) and its top 53 bits (numpy's
+# bit_generator.pyx, pcg64.h).  Written over uint64 arrays, so 10^5 seeds take
+# milliseconds, not the seconds 10^5 Generators take; tests/test_randomize.py checks it
+# against numpy's own Generator.
+_M32 = np.uint64(0xFFFFFFFF)
+_HASH_A, _MULT_A, _HASH_B, _MULT_B = 0x43B0D7E5, 0x931E8875, 0x8B51F9DD, 0x58F38DED
+_MIX_L, _MIX_R = 0xCA01F9DD, 0x4973F715
+_PCG_MULT = (np.uint64(2549297995355413924), np.uint64(4865540595714422341))
+
+
+def _xshift(v: np.ndarray) -> np.ndarray:
+    return v ^ (v >> np.uint64(16))
+
+
+def _pool(words: list[np.ndarray]) -> list[np.ndarray]:
+    """SeedSequence's pool of 4 words from the entropy ``words`` (mix_entropy)."""
+    const = _HASH_A
+
+    def hashmix(v: np.ndarray) -> np.ndarray:
+        nonlocal const
+        v = v ^ np.uint64(const)
+        const = (const * _MULT_A) & 0xFFFFFFFF
+        return _xshift((v * np.uint64(const)) & _M32)
+
+    def mix(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return _xshift((((x * np.uint64(_MIX_L)) & _M32) + np.uint64(1 << 32)
+                        - ((y * np.uint64(_MIX_R)) & _M32)) & _M32)
+
+    mixer = [hashmix(words[i] if i < len(words) else np.zeros_like(words[0])) for i in range(4)]
+    for src in range(4):
+        for dst in range(4):
+            if src != dst:
+                mixer[dst] = mix(mixer[dst], hashmix(mixer[src]))
+    for src in range(4, len(words)):
+        for dst in range(4):
+            mixer[dst] = mix(mixer[dst], hashmix(words[src]))
+    return mixer
+
+
+def _state_words(pool: list[np.ndarray]) -> list[np.ndarray]:
+    """SeedSequence.generate_state(4, uint64) from the pool."""
+    const, half = _HASH_B, []
+    for i in range(8):
+        v = pool[i % 4] ^ np.uint64(const)
+        const = (const * _MULT_B) & 0xFFFFFFFF
+        half.append(_xshift((v * np.uint64(const)) & _M32))
+    return [half[2 * k] | (half[2 * k + 1] << np.uint64(32)) for k in range(4)]
+
+
+def _pcg_step(hi: np.ndarray, lo: np.ndarray, inc_hi: np.ndarray,
+              inc_lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """state * multiplier + increment, modulo 2^128, on (high, low) 64-bit halves."""
+    m_hi, m_lo = _PCG_MULT
+    a0, a1, b0, b1 = lo & _M32, lo >> np.uint64(32), m_lo & _M32, m_lo >> np.uint64(32)
+    p00, p01, p10, p11 = a0 * b0, a0 * b1, a1 * b0, a1 * b1
+    mid = (p00 >> np.uint64(32)) + (p01 & _M32) + (p10 & _M32)
+    prod_lo = (p00 & _M32) | (mid << np.uint64(32))
+    prod_hi = (p11 + (p01 >> np.uint64(32)) + (p10 >> np.uint64(32)) + (mid >> np.uint64(32))
+               + hi * m_lo + lo * m_hi)
+    new_lo = prod_lo + inc_lo
+    return prod_hi + inc_hi + (new_lo < prod_lo).astype(np.uint64), new_lo
+
+
+def first_uniforms(seeds: np.ndarray, name: str) -> np.ndarray:
+    """``_rng(seed, name).random()`` for every seed (the first number of each seed's
+    stream for entry ``name``); seeds outside [0, 2^32) one Generator each."""
+    seeds = np.asarray(seeds, dtype=np.int64)
+    if seeds.size and not (seeds.min() >= 0 and seeds.max() < 1 << 32):
+        return np.array([_rng(int(s), name).random() for s in seeds])
+    with np.errstate(over="ignore"):
+        words = [seeds.astype(np.uint64), np.full(seeds.shape, STREAM, dtype=np.uint64),
+                 np.full(seeds.shape, zlib.crc32(name.encode()), dtype=np.uint64)]
+        init_hi, init_lo, seq_hi, seq_lo = _state_words(_pool(words))
+        inc_hi = (seq_hi << np.uint64(1)) | (seq_lo >> np.uint64(63))
+        inc_lo = (seq_lo << np.uint64(1)) | np.uint64(1)
+        zero = np.zeros_like(inc_lo)
+        hi, lo = _pcg_step(zero, zero, inc_hi, inc_lo)          # pcg64 srandom: state 0, step,
+        new_lo = lo + init_lo                                   # add the initial state, step
+        hi, lo = _pcg_step(hi + init_hi + (new_lo < lo).astype(np.uint64), new_lo, inc_hi, inc_lo)
+        hi, lo = _pcg_step(hi, lo, inc_hi, inc_lo)              # the first draw: step, output
+        x, rot = hi ^ lo, hi >> np.uint64(58)
+        out = (x >> rot) | (x << ((np.uint64(64) - rot) & np.uint64(63)))
+    return (out >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)

@@ -202,7 +202,8 @@ class PreparedSweep:
 
                 owned = False
                 shown.start(1, "mjx")
-                for ran in run_jobs(todo, self.precision):
+                for ran in run_jobs(todo, self.precision,
+                                    report=lambda line: print(line, file=sys.stderr)):
                     row = finished_row(*ran)
                     if table is not None:
                         table.append(row)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -124,16 +124,19 @@ class ConstraintSet:
     def constraint_names(self) -> tuple[str, ...]:
         return tuple(c.name for c in self.constraints)
 
-    def margins(self, states: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def margins(self, states: np.ndarray, u: np.ndarray, xp: Any = np) -> np.ndarray:
         """(k, C): every constraint's margin (C1) at each of k samples of full state
-        ``states`` (k, N) and input ``u`` (k,)."""
-        states = np.atleast_2d(np.asarray(states, dtype=float))
-        Z = np.column_stack([states, np.asarray(u, dtype=float).reshape(-1)])
-        slack = self.b[None, :] - Z @ self.A.T                        # (k, R)
-        out = np.full((Z.shape[0], len(self.constraints)), np.inf)
-        if slack.size:
-            np.minimum.at(out.T, self.owner, slack.T)
-        return out
+        ``states`` (k, N) and input ``u`` (k,), in the array namespace ``xp`` (numpy, or
+        jax.numpy on the accelerator: one text for both backends)."""
+        if xp is np:
+            states = np.atleast_2d(np.asarray(states, dtype=float))
+            u = np.asarray(u, dtype=float).reshape(-1)
+        Z = xp.concatenate([states, u[:, None]], axis=1)
+        slack = xp.asarray(self.b)[None, :] - Z @ xp.asarray(self.A).T      # (k, R)
+        # each constraint's margin: the least slack of its rows (+inf: a constraint of none)
+        rows = np.arange(len(self.constraints))[:, None] == self.owner[None, :]  # (C, R)
+        return xp.min(xp.where(xp.asarray(rows)[None, :, :], slack[:, None, :], xp.inf),
+                      axis=2, initial=xp.inf)
 
     def violated(self, state: np.ndarray, u: float) -> tuple[str, ...]:
         """The names of the constraints outside at one sample (beyond the tolerance)."""
