@@ -20,8 +20,13 @@ def _python_files(folder: Path) -> list[Path]:
 
 
 def test_plants_stay_under_their_line_budget():
-    lines = sum(len(p.read_text(encoding="utf-8").splitlines()) for p in _python_files(PACKAGE / "plants"))
-    assert 0 < lines < PLANTS_LINE_BUDGET, f"tspend/plants/ has {lines} lines"
+    # the budget is the physics': the 3-D drawings (plants/drawing/, moved out of the physics
+    # by issue 43) sit under plants/ only to keep tspend/'s top level at 16 entries (issue 52)
+    # and are not counted
+    drawing = PACKAGE / "plants" / "drawing"
+    lines = sum(len(p.read_text(encoding="utf-8").splitlines())
+                for p in _python_files(PACKAGE / "plants") if drawing not in p.parents)
+    assert 0 < lines < PLANTS_LINE_BUDGET, f"tspend/plants/ (without drawing/) has {lines} lines"
 
 
 def _imports_cli_main(path: Path) -> bool:
