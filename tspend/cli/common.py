@@ -104,6 +104,11 @@ EXAMPLES = {
     "tspend identify": ("tspend identify e3.csv --model models/cartpole.xml --params m,l,M "
                         "--out fitted.xml",),
     "tspend plan": ("tspend plan double_cartpole_swingup --nominal --out p.parquet",),
+    "tspend rig": ("tspend rig serve pendulum_mujoco --listen udp://127.0.0.1:9500",),
+    "tspend rig serve": ("tspend rig serve pendulum_mujoco --listen udp://127.0.0.1:9500   "
+                         "# then, in another shell: tspend run pendulum_mujoco --controller "
+                         "lqr --rig udp://127.0.0.1:9500 --duration 20",),
+    "tspend replay": ("tspend replay rig.rrd   # a rig run's commands, recomputed offline",),
 }
 
 

@@ -17,7 +17,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "RUN.rrd) through the velocity estimator and the same controller, built "
                     "from the scenario the recording holds, and compares every command with "
                     "the recorded one, bit for bit. Exit 0: all equal; 1: one differs.",
-        epilog="example:\n  tspend replay rig.rrd", formatter_class=PlainRawDescriptionFormatter)
+        formatter_class=PlainRawDescriptionFormatter)
     r.add_argument("recording", metavar="RUN.rrd", help="a recording of tspend run --rig")
     r.add_argument("--twin", metavar="OUT.rrd",
                    help="also simulate the run's twin (same scenario and controller, from the "

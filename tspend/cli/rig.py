@@ -10,13 +10,9 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from tspend.cli.common import (EXIT_OK, add_scenario_options, bounded_int, finite,
+from tspend.cli.common import (EXIT_OK, add_scenario_options, bounded_int, doc, finite,
                                load_with_overrides, printable, say)
 
-SERVE_EXAMPLE = """example:
-  tspend rig serve pendulum_mujoco --listen udp://127.0.0.1:9500 &
-  tspend run pendulum_mujoco --controller lqr --rig udp://127.0.0.1:9500 --duration 20
-"""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -27,10 +23,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                            help="serve: a simulated rig ('tspend rig serve --help')")
     s = sub.add_parser("serve", help="the scenario's machine as a rig on a UDP port or serial line",
                        description="The scenario's MuJoCo machine, paced to the wall clock, "
-                                   "speaking tspend's rig protocol (docs/rig.md) with an "
+                                   f"speaking tspend's rig protocol (see {doc('docs/rig.md')}) with an "
                                    "encoder, latency, jitter, lost and corrupt frames, an "
                                    "amplifier limit and a watchdog.",
-                       epilog=SERVE_EXAMPLE, formatter_class=PlainRawDescriptionFormatter)
+                       formatter_class=PlainRawDescriptionFormatter)
     s.add_argument("scenario", help="scenario name (see 'tspend list') or path to a .toml file")
     add_scenario_options(s, recording=False)
     s.add_argument("--listen", required=True, metavar="URL",
@@ -84,7 +80,7 @@ def add_rig_options(p: argparse.ArgumentParser) -> None:
                         "serial:///dev/ttyUSB0?baud=230400, or your own interface "
                         "path/to/file.py:MyRig (a tspend.rig.links.RigLink); the period is the "
                         "scenario's control period (run.control_period, else run.dt), raised "
-                        "to the shortest the rig accepts (docs/rig.md)")
+                        f"to the shortest the rig accepts (see {doc('docs/rig.md')})")
     p.add_argument("--miss-policy", choices=("hold", "zero", "stop"), default="hold",
                    help="with --rig, a command ready after its period ended: 'hold' sends the "
                         "previous command, 'zero' sends 0, 'stop' ends the run (default hold)")
