@@ -193,6 +193,11 @@ def build_double(args: argparse.Namespace, scn):
     from tspend.rig.runner import machine_id
 
     plant = build_plant(scn)
+    # one step now, so nothing is compiled or first touched between a host's START and
+    # the first sensor frame (the host waits a bounded time for it)
+    plant.reset(np.asarray(scn.plant.x0, dtype=float))
+    plant.full_state()
+    plant.step(0.0, 0.0, scn.run.dt)
     joints = plant.joints
     if not 0 < len(joints) <= MAX_JOINTS:
         raise ScenarioError(f"{scn.name}: a rig carries 1 to {MAX_JOINTS} joints; this machine "

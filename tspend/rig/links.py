@@ -18,8 +18,12 @@ from tspend.runtime.errors import ScenarioError
 from tspend.rig import protocol
 from tspend.rig.protocol import Command, FrameError, Hello, Sensor
 
-#: how long the host waits for the rig's hello, and for its first sensor frame (s)
+#: how long the host waits for the rig's hello (s)
 ANSWER_TIMEOUT_S = 1.0
+#: how long the host waits for the first sensor frames after START (s): a rig may set
+#: itself up between START and sampling (a real-time class, locked memory, homing its
+#: encoders), and a loaded host stretches that; nothing moves before those frames
+FIRST_FRAME_TIMEOUT_S = 5.0
 #: bits a serial line spends on one byte (start, 8 data, stop)
 BITS_PER_BYTE = 10
 BAUD_RANGE = (300, 12_000_000)

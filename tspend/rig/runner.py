@@ -23,7 +23,7 @@ from tspend.runtime.errors import DivergenceError
 from tspend.plants.base import Plant, velocity_name
 from tspend.rig import protocol
 from tspend.rig.estimator import SensorState, VelocityEstimator
-from tspend.rig.links import ANSWER_TIMEOUT_S, RigLink, RigRefused
+from tspend.rig.links import FIRST_FRAME_TIMEOUT_S, RigLink, RigRefused
 from tspend.rig.protocol import Command, Hello
 from tspend.rig.realtime import wait_until
 from tspend.rig.timing import CycleLog
@@ -158,7 +158,7 @@ class RigPlant(Plant):
         :data:`ALIGN_FRAMES` frames (polled without sleeping, so each arrival is stamped
         when it lands); cycle 0 is the frame after them."""
         self.link.start(self.settings.period_s)
-        until = time.monotonic() + ANSWER_TIMEOUT_S
+        until = time.monotonic() + FIRST_FRAME_TIMEOUT_S
         seen, offset = [], None
         clock = time.perf_counter_ns
         while len(seen) < ALIGN_FRAMES and time.monotonic() < until:
@@ -169,7 +169,7 @@ class RigPlant(Plant):
                 offset = lag if offset is None else min(offset, lag)
         if not seen:
             raise RigRefused(f"{self.link.describe()}: no sensor frame within "
-                             f"{ANSWER_TIMEOUT_S:g} s of the start")
+                             f"{FIRST_FRAME_TIMEOUT_S:g} s of the start")
         last = seen[-1]
         self._first_seq, self._highest_seq = last.seq + 1, last.seq
         self._t0_ns = (offset + last.rig_time_us * 1000 + self._period_ns
