@@ -425,16 +425,16 @@ def _verdict_figures(r) -> dict:
             "wins": num(r.wins)}
 
 
-def headline_claims(comp, comp2, test, confirm) -> dict:
-    """Each of :data:`HEADLINES` on both seed sets: shown when both give the same verdict
-    (significant after Holm, interval excluding 0, not negligible)."""
+def headline_claims(comp, comp2, test, confirm, headlines=HEADLINES) -> dict:
+    """Each of ``headlines`` (scenario, A, B, metric) on both seed sets: shown when both
+    give the same verdict (significant after Holm, interval excluding 0, not negligible)."""
     from tspend.cli.compare import seeds_text
 
     out = {"test_seeds": seeds_text(test), "confirm_seeds": seeds_text(confirm),
            "family_test": comp.settings["correction"],
            "family_confirm": comp2.settings["correction"] if comp2 is not None else "",
            "claims": []}
-    for scn, a, b, metric in HEADLINES:
+    for scn, a, b, metric in headlines:
         sets = []
         for c in (comp, comp2):
             if c is None:
@@ -602,8 +602,8 @@ def claims_figure(claims: dict, png: Path) -> Path:
         ax.axvline(0.0, color="k", lw=0.8)
         ax.set_yticks([0, 1], [claims["test_seeds"], claims["confirm_seeds"]])
         ax.set_ylim(-0.6, 1.6)
-        ax.set_title(f"{c['metric']} ({SHORT_NAMES.get(c['scenario'], c['scenario'])}): "
-                     f"{c['a']} − {c['b']}\n{'shown' if c['shown'] else 'not shown'}",
+        ax.set_title(f"{c['metric']} ({SHORT_NAMES.get(c['scenario'], c['scenario'])})\n"
+                     f"{c['a']} − {c['b']}: {'shown' if c['shown'] else 'not shown'}",
                      fontsize=8)
         ax.tick_params(labelsize=7)
         ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))

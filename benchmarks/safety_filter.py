@@ -139,7 +139,10 @@ def main() -> None:
     from tspend.studies.stats import compare, markdown
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=20, help="how many seeds (1-1000)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="the first seed (0-10^6); a set other than 0 writes its CSV with a "
+                         "_seedsFIRST suffix, e.g. --first-seed 200 for the confirmation set")
     ap.add_argument("--kinds", default="pd,second_type,policy")
     ap.add_argument("--machines", default=",".join(DEFAULT_MACHINES))
     ap.add_argument("--resamples", type=int, default=2999)
@@ -149,6 +152,8 @@ def main() -> None:
                     help="only the filter's compute per sample against mj_step")
     short_defaults(ap, seeds=2, resamples=200)
     args = ap.parse_args()
+    if not (1 <= args.seeds <= 1000 and 0 <= args.first_seed <= 10**6):
+        ap.error(f"--seeds {args.seeds} / --first-seed {args.first_seed}: outside 1-1000 / 0-10^6")
     warnings.simplefilter("ignore")
     kinds = args.kinds.split(",")
     print(compute_ratio(), flush=True)
@@ -156,7 +161,7 @@ def main() -> None:
         return
     for machine in args.machines.split(","):
         t0 = time.perf_counter()
-        table = pd.DataFrame(rows(machine, kinds, args.seeds, args.barrier))
+        table = pd.DataFrame(rows(machine, kinds, args.seeds, args.barrier, args.first_seed))
         print(f"\n## {machine}, barrier {args.barrier} ({time.perf_counter() - t0:.0f} s)\n")
         summary = table.groupby("controller", sort=False).agg(
             ended=("status", lambda s: int((s != "completed").sum())),
@@ -170,10 +175,12 @@ def main() -> None:
         names = [k + s for k in here for s in ("", "+cbf")]
         comp = compare(table, names, ("rmse", "violations"), n_resamples=args.resamples,
                        pairs=[(k, k + "+cbf") for k in here])
-        print(markdown(comp, f"0-{args.seeds - 1}"), flush=True)
+        seeds = f"{args.first_seed}-{args.first_seed + args.seeds - 1}"
+        print(markdown(comp, seeds), flush=True)
         print(tracking_cost(table, here, args.resamples), flush=True)
-        table.to_csv(out_path(f"benchmarks/results/safety_filter_{machine}_{args.barrier}.csv"),
-                     index=False)
+        suffix = f"_seeds{args.first_seed}" if args.first_seed else ""
+        table.to_csv(out_path(f"benchmarks/results/safety_filter_{machine}_{args.barrier}"
+                              f"{suffix}.csv"), index=False)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ Two kinds of claims are checked:
 * **Rendered sections.** The sections of :data:`SECTIONS` (docs/results.md's verdicts
   and tables from ``docs/results/runs.parquet`` through benchmarks/results.py's
   ``statistics_section``, docs/controllers.md's
-  full-state results from ``docs/results/full_state_controllers.csv``, docs/identify.md's
+  full-state results from ``docs/results/full_state_controllers.csv`` and its baselines'
+  verdicts from ``docs/results/runs.parquet`` with ``controllers_confirm.parquet``
+  (benchmarks/controller_evidence.py), docs/identify.md's
   double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``,
   docs/results.md's tuning curves from ``docs/results/fair/tuning_curves.json``) are
   rebuilt by their benchmark's own renderer from the committed data and must equal the
@@ -213,6 +215,13 @@ def _results_statistics_section() -> str:
     return "\n".join(m.statistics_section(table, doc["scenarios"], kinds, seeds)[1])
 
 
+@functools.cache
+def _controller_evidence_section() -> str:
+    import controller_evidence as m
+
+    return m.section(m.claims())
+
+
 #: sections a benchmark renders from its committed data: (document, begin marker, end
 #: marker, the section rebuilt from the data, the data's file)
 SECTIONS = (
@@ -226,6 +235,9 @@ SECTIONS = (
     ("docs/controllers.md", "<!-- full-state results: begin -->",
      "<!-- full-state results: end -->", _full_state_section,
      "docs/results/full_state_controllers.csv"),
+    ("docs/controllers.md", "<!-- benchmarks/controller_evidence.py: begin (generated; rerun "
+     "it, do not edit) -->", "<!-- benchmarks/controller_evidence.py: end -->",
+     _controller_evidence_section, "docs/results/controllers_confirm.parquet"),
     ("docs/identify.md", "<!-- SEEDS -->", "<!-- SEEDS: end -->", _identify_seeds_section,
      "benchmarks/results/identify_seeds_articulated.json"),
     ("docs/results.md", "<!-- benchmarks/tuning_curves.py: begin (generated; rerun it, do not "
