@@ -16,7 +16,9 @@ Two kinds of claims are checked:
   ``statistics_section``, docs/controllers.md's
   full-state results from ``docs/results/full_state_controllers.csv`` and its baselines'
   verdicts from ``docs/results/runs.parquet`` with ``controllers_confirm.parquet``
-  (benchmarks/controller_evidence.py), docs/identify.md's
+  (benchmarks/controller_evidence.py), docs/safety.md's filter verdicts from
+  ``benchmarks/results/safety_filter_*_hocbf*.csv`` (benchmarks/safety_evidence.py),
+  docs/identify.md's
   double cart-pole seeds from ``benchmarks/results/identify_seeds_articulated.json``,
   docs/results.md's tuning curves from ``docs/results/fair/tuning_curves.json``) are
   rebuilt by their benchmark's own renderer from the committed data and must equal the
@@ -222,6 +224,13 @@ def _controller_evidence_section() -> str:
     return m.section(m.claims())
 
 
+@functools.cache
+def _safety_evidence_section() -> str:
+    import safety_evidence as m
+
+    return m.section(m.claims())
+
+
 #: sections a benchmark renders from its committed data: (document, begin marker, end
 #: marker, the section rebuilt from the data, the data's file)
 SECTIONS = (
@@ -238,6 +247,9 @@ SECTIONS = (
     ("docs/controllers.md", "<!-- benchmarks/controller_evidence.py: begin (generated; rerun "
      "it, do not edit) -->", "<!-- benchmarks/controller_evidence.py: end -->",
      _controller_evidence_section, "docs/results/controllers_confirm.parquet"),
+    ("docs/safety.md", "<!-- benchmarks/safety_evidence.py: begin (generated; rerun it, do "
+     "not edit) -->", "<!-- benchmarks/safety_evidence.py: end -->",
+     _safety_evidence_section, "benchmarks/results/safety_filter_cartpole_rail_hocbf_seeds200.csv"),
     ("docs/identify.md", "<!-- SEEDS -->", "<!-- SEEDS: end -->", _identify_seeds_section,
      "benchmarks/results/identify_seeds_articulated.json"),
     ("docs/results.md", "<!-- benchmarks/tuning_curves.py: begin (generated; rerun it, do not "
