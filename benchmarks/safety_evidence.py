@@ -88,9 +88,10 @@ def section(rows: list[dict]) -> str:
 
     fig = Path(os.path.relpath(FIGURE, PAGE.parent)).as_posix()
     names = [s[0] for s in SEED_SETS]
-    lines = ["Runs the task ended, bare → behind the filter (S1) on the same seeds (McNemar, "
-             "Holm-adjusted p over each set's tests), and the samples outside a constraint "
-             "over the filtered runs. Shown only when both seed sets say it.", "",
+    lines = ["Runs the task ended, bare → behind the filter (S1) on the same seeds (McNemar's "
+             "exact test, p Holm-adjusted over each set's family: every pair's outcome, rmse "
+             "and violations tests; n/a: no seed ended differently), and the samples outside "
+             "a constraint over the filtered runs. Shown only when both seed sets say it.", "",
              f"| machine | kind | seeds {names[0]} | seeds {names[1]} | fewer runs ended? | "
              f"0 samples outside? |", "|---|---|---|---|---|---|"]
     for r in rows:
