@@ -1,11 +1,11 @@
 """Each arithmetic kind's law is one text, built for numba and for JAX
-(tspend/controllers/law.py); here both builds are evaluated on the same 1,000 drawn
+(tspend/runtime/law.py); here both builds are evaluated on the same 1,000 drawn
 states, references and adaptive states and must agree within 1e-12 relative (u; an
 adaptive state's arrays relative to their largest entry).
 
 The law both backends call is the ``law`` of the kind's
 :class:`~tspend.controllers.base.CompiledController`, named in :data:`CASES`: the CPU
-loop calls its numba build, the mjx backend its JAX form (:func:`tspend.controllers.law.jax_form`,
+loop calls its numba build, the mjx backend its JAX form (:func:`tspend.runtime.law.jax_form`,
 the same code object with another ``xp``), so a law changed in one backend only cannot
 exist; the test fails if the kind's law is another function or has no JAX form.
 """
@@ -19,7 +19,7 @@ import pytest
 
 jax = pytest.importorskip("jax")
 
-from tspend.controllers.law import jax_form, jax_step  # noqa: E402
+from tspend.runtime.law import jax_form, jax_step  # noqa: E402
 from tspend.loop.simulation import prepare  # noqa: E402
 from tspend.scenario import load_scenario, override  # noqa: E402
 
@@ -36,6 +36,9 @@ CASES = [
      "tspend.controllers.paper.controller.controller_law"),
     ("pendulum_mujoco_randomized", "first_type", {},
      "tspend.controllers.paper.controller.controller_law"),
+    # the MJCF-derived model's generated source, evaluated over jax.numpy
+    ("pendulum_mujoco_randomized", "feedback_linearization", {},
+     "tspend.controllers.feedback_linearization.oracle_law"),
 ]
 DRAWS = 1000
 RTOL = 1e-12
@@ -98,7 +101,8 @@ def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name)
 
 
 
-@pytest.mark.parametrize("kind", ["sliding_mode", "second_type", "first_type"])
+@pytest.mark.parametrize("kind", ["sliding_mode", "second_type", "first_type",
+                                  "feedback_linearization"])
 def test_mjx_sweep_of_an_adaptive_or_switching_kind_is_the_cpu_sweep(kind):
     """The mjx backend runs the kind's JAX law with its state as the scan's carry, each
     env's state drawn as its CPU run draws it: the rows agree (status equal; rmse,

@@ -42,8 +42,8 @@ from numba.experimental import structref
 from tspend.controllers.paper import rules
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import BSplineInput
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.controllers.paper.compensator import (CompensatorSettings, compensator_law,
     compensator_settings, estimate, sets_gradient, switching)
 from tspend.config import ControllerConfig, SetSpec
@@ -286,7 +286,7 @@ def controller_law(settings: Settings, state: State, scratch: Scratch, t: float,
     """``(u, state)``: one sample of the adaptive fuzzy controller at the task's view
     ``x`` (n,) with reference derivatives ``ref`` (n+1,) and sample time ``dt``; writes
     ``diag`` (:func:`diag_layout`).  The one implementation, for numba (``state`` and
-    ``scratch`` updated in place) and JAX (:mod:`tspend.controllers.law`)."""
+    ``scratch`` updated in place) and JAX (:mod:`tspend.runtime.law`)."""
     s, st, w = settings, state, scratch
     n = w.e.size
     e_delta, e = tracking_errors(s.law, x, ref, w.e)

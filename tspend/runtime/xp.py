@@ -1,10 +1,10 @@
-"""The array namespace ``xp`` of the compiled CPU loop: what a law (:mod:`tspend.controllers.law`)
+"""The array namespace ``xp`` of the compiled CPU loop: what a law (:mod:`tspend.runtime.law`)
 names its array operations by, as numba compiles them.
 
 A law writes an array only through :func:`put` and :func:`add` and uses the array they
 return (``e = xp.put(e, j, v)``): here that writes in place and returns the same array,
 so nothing is allocated (the compiled loop runs without numba's runtime, ``_nrt=False``);
-JAX's namespace (:func:`tspend.controllers.law.jax_space`) returns a new array instead.
+JAX's namespace (:func:`tspend.runtime.law.jax_space`) returns a new array instead.
 A choice that depends on data is :func:`where`, which both namespaces evaluate as a
 select of two values already computed.  Scalar functions are ``math``'s, which the JAX
 form replaces with ``jax.numpy``'s.
