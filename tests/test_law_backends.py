@@ -39,6 +39,8 @@ CASES = [
     # the MJCF-derived model's generated source, evaluated over jax.numpy
     ("pendulum_mujoco_randomized", "feedback_linearization", {},
      "tspend.controllers.feedback_linearization.oracle_law"),
+    ("swingup_mujoco", "swingup", {}, "tspend.controllers.swingup.swingup_law"),
+    ("furuta_swingup", "swingup", {}, "tspend.controllers.swingup.swingup_law"),
 ]
 DRAWS = 1000
 RTOL = 1e-12

@@ -69,13 +69,10 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
 from tspend.plants.domain import VIEW_MODEL
 import tspend.runtime.xp as xp
 from tspend.controllers.full_model import wrap_angle
-from tspend.runtime.law import array_law, mark_law
+from tspend.runtime.law import array_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
-
-#: the angle's wrap is arithmetic over ``math``: laws that call it have its own text in JAX
-mark_law(wrap_angle)
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant

@@ -243,6 +243,7 @@ class PlantModel:
         return A, B
 
 
+@mark_law
 @register_jitable
 def wrap_angle(a: float) -> float:
     """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""
