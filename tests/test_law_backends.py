@@ -72,7 +72,29 @@ def _draws(rng, c, full_size: int):
 @pytest.mark.parametrize("scenario, kind, overrides, name", CASES)
 def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name):
     jax.config.update("jax_enable_x64", True)
-    prepared = _built(scenario, kind, overrides)
+    _check_on_draws(_built(scenario, kind, overrides), kind, name)
+
+
+def test_tvlqr_law_agrees_on_drawn_states_following_and_after_a_plan(tmp_path):
+    """tvlqr's law over a given plan (here 0.2 s of made-up rows: the law is table lookup
+    and arithmetic whatever the rows), its clock started at 0 so the 1,000 draws' times
+    fall within the plan and after it (the LQR)."""
+    from tspend.controllers.trajectory import Plan, write_plan
+
+    jax.config.update("jax_enable_x64", True)
+    rng = np.random.default_rng(29)
+    t = np.arange(201) * 1e-3
+    plan = Plan(t, rng.uniform(-1.0, 1.0, (t.size, 4)), rng.uniform(-5.0, 5.0, t.size),
+                ("slider", "hinge", "slider_dot", "hinge_dot"), ("m", "rad", "m/s", "rad/s"),
+                "force", "N", 1e-3, 0.02)
+    write_plan(plan, tmp_path / "plan.parquet")
+    prepared = _built("swingup_mujoco", "tvlqr",
+                      {"controllers.tvlqr.plan": str(tmp_path / "plan.parquet")})
+    prepared.controller.clock[:] = (0.0, 1.0)
+    _check_on_draws(prepared, "tvlqr", "tspend.controllers.tvlqr.tvlqr_law")
+
+
+def _check_on_draws(prepared, kind: str, name: str) -> None:
     c = prepared.controller
     compiled = c.compiled()
     assert f"{compiled.law.__module__}.{compiled.law.__name__}" == name
@@ -100,7 +122,6 @@ def test_cpu_and_jax_laws_agree_on_drawn_states(scenario, kind, overrides, name)
             np.testing.assert_allclose(np.asarray(a), b, rtol=RTOL,
                                        atol=RTOL * float(np.max(np.abs(b), initial=0.0)),
                                        err_msg=f"{kind} state, draw {i}")
-
 
 
 @pytest.mark.parametrize("kind", ["sliding_mode", "second_type", "first_type",

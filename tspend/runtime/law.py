@@ -89,7 +89,7 @@ def jax_space() -> types.SimpleNamespace:
     return types.SimpleNamespace(
         put=lambda a, index, value: _write(a, index, value, False),
         add=lambda a, index, value: _write(a, index, value, True),
-        where=jnp.where)
+        where=jnp.where, rounded_index=lambda v: jnp.round(v).astype(jnp.int64))
 
 
 def _static(i: Any) -> bool:

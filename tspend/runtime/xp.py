@@ -16,7 +16,7 @@ from numba import njit
 
 from tspend.runtime.jit import JIT
 
-__all__ = ["add", "put", "where"]
+__all__ = ["add", "put", "rounded_index", "where"]
 
 
 @njit(**JIT)
@@ -37,3 +37,9 @@ def add(a, index, value):
 def where(condition, if_true, if_false):
     """``if_true`` where ``condition`` holds, else ``if_false`` (scalars)."""
     return if_true if condition else if_false
+
+
+@njit(**JIT)
+def rounded_index(v):
+    """``v`` rounded to the nearest integer (halves to even), as an index."""
+    return int(round(v))
