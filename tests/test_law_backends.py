@@ -143,3 +143,33 @@ def test_mjx_sweep_of_an_adaptive_or_switching_kind_is_the_cpu_sweep(kind):
     for key in ("rmse", "rmse_ss"):
         np.testing.assert_allclose(mjx[key].to_numpy(float), cpu[key].to_numpy(float),
                                    rtol=1e-9, err_msg=key)
+
+
+def test_the_derived_model_in_jax_is_the_generated_source_numba_compiled():
+    """The MJCF-derived model's JAX form (what feedback_linearization's and swingup's
+    laws reach through ``call_rhs``) runs the statements of the generated module numba
+    compiled: its code comes from that module's file, and it gives the numba build's
+    ``s'`` at drawn states, inputs and forces (the double cart-pole: 3 joints)."""
+    import jax.numpy as jnp
+
+    from tspend.loop.simulation import nominal_machine
+    from tspend.plants.articulated.derive import jax_function_at
+    from tspend.plants.articulated.domain import derived_rhs_of
+    from tspend.plants.base import MachinePlant, read_as
+    from tspend.runtime.law import Cells, Slots
+
+    jax.config.update("jax_enable_x64", True)
+    machine = read_as(nominal_machine(load_scenario("double_cartpole_mujoco")),
+                      MachinePlant).machine
+    built = jax_function_at(derived_rhs_of(machine, machine.view_joint).fn)
+    assert built.__code__.co_filename == machine.module.__file__
+    nv, nu = machine.nv, len(machine.tree.actuators)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        s, u, qfrc = rng.uniform(-1.0, 1.0, 2 * nv), rng.uniform(-1.0, 1.0, nu), rng.uniform(-1.0, 1.0, nv)
+        want = np.zeros(2 * nv)
+        machine.module.rhs(s, u, qfrc, machine.p, np.zeros(nv * nv), np.zeros(nv), want)
+        got = Slots.of(jnp.zeros(2 * nv))
+        built(Cells.of(s), Cells.of(u), Cells.of(qfrc), Cells.of(machine.p),
+              Slots.of(jnp.zeros(nv * nv)), Slots.of(jnp.zeros(nv)), got)
+        np.testing.assert_allclose(np.asarray(got.array()), want, rtol=1e-12, atol=1e-12)
