@@ -124,16 +124,19 @@ def _check_on_draws(prepared, kind: str, name: str) -> None:
                                        err_msg=f"{kind} state, draw {i}")
 
 
-@pytest.mark.parametrize("kind", ["sliding_mode", "second_type", "first_type",
-                                  "feedback_linearization"])
-def test_mjx_sweep_of_an_adaptive_or_switching_kind_is_the_cpu_sweep(kind):
+@pytest.mark.parametrize("scenario, kind", [
+    ("pendulum_mujoco_randomized", "sliding_mode"), ("pendulum_mujoco_randomized", "second_type"),
+    ("pendulum_mujoco_randomized", "first_type"),
+    # the derived model's generated source in JAX: the oracle and the energy swing-up
+    ("pendulum_mujoco_randomized", "feedback_linearization"), ("swingup_mujoco", "swingup")])
+def test_mjx_sweep_of_an_adaptive_or_switching_kind_is_the_cpu_sweep(scenario, kind):
     """The mjx backend runs the kind's JAX law with its state as the scan's carry, each
     env's state drawn as its CPU run draws it: the rows agree (status equal; rmse,
     rmse_ss within 1e-9 relative in float64).  2 seeds, the first 2 s."""
     pytest.importorskip("mujoco.mjx")
     import tspend
 
-    scn = override(load_scenario("pendulum_mujoco_randomized"), **{"run.duration": 2.0})
+    scn = override(load_scenario(scenario), **{"run.duration": 2.0})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         cpu = tspend.sweep(scn, seeds="0:2", controllers=kind, jobs=1, record="none")
