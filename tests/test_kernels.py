@@ -14,7 +14,7 @@ from numba import njit
 from oracles.numpy_controller import NumpyController
 
 from tspend.config import ControllerConfig, SetSpec
-from tspend.controllers.paper.controller import AdaptiveFuzzyController, diag_layout
+from tspend.controllers.paper.controller import AdaptiveFuzzyController, diag_layout, make_controller
 
 RTOL, ATOL = 1e-10, 1e-12
 STEPS = 2000
@@ -88,7 +88,7 @@ def _compare(a: NumpyController, b: AdaptiveFuzzyController, k: int) -> None:
 
 def _pair(cfg: ControllerConfig, seed: int):
     a = NumpyController(cfg)
-    b = AdaptiveFuzzyController(cfg)
+    b = make_controller(cfg)
     a.initialise(np.random.default_rng(seed))
     b.reset(np.random.default_rng(seed))
     _compare(a, b, -1)
@@ -151,7 +151,7 @@ def test_non_contiguous_inputs_and_snapshot() -> None:
 def test_last_firing_matches_numpy_reference():
     """Snapshots read the compiled workspace: same memberships and firing as numpy's."""
     cfg = ControllerConfig()
-    a, b = NumpyController(cfg), AdaptiveFuzzyController(cfg)
+    a, b = NumpyController(cfg), make_controller(cfg)
     a.initialise(np.random.default_rng(5))
     b.reset(np.random.default_rng(5))
     rng = np.random.default_rng(6)
@@ -179,7 +179,7 @@ def _closed_loop_samples(step, settings, state, scratch, X, R, dt, diag, out):
 def test_compiled_entry_from_a_numba_loop_matches_step():
     """``controller.compiled()`` called from an @njit loop gives Controller.step's u and state."""
     cfg = CONFIGS["example3_fast_robust"]
-    a, b = AdaptiveFuzzyController(cfg), AdaptiveFuzzyController(cfg)
+    a, b = make_controller(cfg), make_controller(cfg)
     a.reset(np.random.default_rng(11))
     b.reset(np.random.default_rng(11))
     X, R = _signals(cfg, 11, steps=300)
@@ -194,8 +194,8 @@ def test_compiled_entry_from_a_numba_loop_matches_step():
 
 
 def test_configuration_sizes_come_from_the_config():
-    b2 = AdaptiveFuzzyController(ControllerConfig())
-    b3 = AdaptiveFuzzyController(CONFIGS["n3_first_state"])
+    b2 = make_controller(ControllerConfig())
+    b3 = make_controller(CONFIGS["n3_first_state"])
     assert b2.state.P.shape == (75, 3) and b3.state.P.shape == (5 * 3 * 5 * 3, 4)
     assert b3.settings.model.grid.term_index.shape == (225, 4)
     assert b3.scratch.compensator.w.shape == (25,)

@@ -6,7 +6,7 @@ from scipy.signal import find_peaks
 
 from tspend import load_scenario, override, run
 from tspend.config import ControllerConfig
-from tspend.controllers.paper.controller import AdaptiveFuzzyController
+from tspend.controllers.paper.controller import make_controller
 from tspend.controllers.paper.membership_shape import humps, membership_shape
 
 
@@ -22,7 +22,7 @@ def test_humps_agree_with_scipy_find_peaks():
 
 
 def test_initial_sets_are_unimodal_and_ordered():
-    c = AdaptiveFuzzyController(ControllerConfig())
+    c = make_controller(ControllerConfig())
     c.reset(np.random.default_rng(0))
     shape = membership_shape(c)
     assert shape["score"] == 1.0 and shape["unimodal"] == 1.0 and shape["ordered"] == 1.0
@@ -31,7 +31,7 @@ def test_initial_sets_are_unimodal_and_ordered():
 
 
 def test_a_bent_set_and_swapped_sets_are_flagged():
-    c = AdaptiveFuzzyController(ControllerConfig())
+    c = make_controller(ControllerConfig())
     c.reset(np.random.default_rng(0))
     C = c.state.C_model
     C[1, 1] = [0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.9, 0.0, 0.0]     # x_o2 NS: two humps
@@ -63,7 +63,7 @@ def test_the_projection_keeps_every_set_unimodal_and_ordered(duffing_runs):
     shape = membership_shape(r.controller)
     assert shape["score"] == 1.0 and shape["ordered"] == 1.0
     # the control points moved (the sets still adapt) and the run still tracks
-    initial = AdaptiveFuzzyController(r.scenario.controller)
+    initial = make_controller(r.scenario.controller)
     initial.reset(np.random.default_rng(0))
     assert not np.allclose(r.controller.state.C_model, initial.state.C_model)
     assert r.metrics["rmse_ss"] < 1e-2

@@ -156,9 +156,9 @@ class CompiledController(NamedTuple):
     compiled code dispatches on (:mod:`tspend.loop.fastloop`).
 
     ``law``: the kind's law written once over an array namespace
-    (:func:`tspend.controllers.law.array_law`), with the step's arguments and returning
+    (:func:`tspend.runtime.law.array_law`), with the step's arguments and returning
     ``(u, state)``; ``step`` is it behind the compiled loops' signature, and its JAX form
-    (:func:`tspend.controllers.law.jax_form`) is what the mjx backend runs.  None: the
+    (:func:`tspend.runtime.law.jax_form`) is what the mjx backend runs.  None: the
     kind has no JAX form.
     """
 

@@ -44,6 +44,8 @@ from tspend.plants.domain import VIEW_MODEL
 from tspend.controllers.plant_model import PlantModel, plant_model
 from tspend.plants.domain import central_df_du, view_accel
 from tspend.runtime.jit import JIT
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law, mark_law
 from tspend.controllers.settings import POLE_CAP, KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
@@ -83,6 +85,7 @@ def _f_or_inf(model: Any, t: float, x: np.ndarray, u: float) -> float:
         return math.inf
 
 
+@mark_law
 @register_jitable
 def newton_u(model: Any, affine: bool, t: float, x: np.ndarray, v: float, u0: float,
              tol: float, max_iter: int) -> tuple[float, int, float, bool]:
@@ -139,39 +142,37 @@ class OracleLaw(NamedTuple):
     max_iter: int
 
 
-@register_jitable
-def oracle_law(law: OracleLaw, state: np.ndarray, x: np.ndarray, ref: np.ndarray, dt: float,
-               diag: np.ndarray) -> float:
-    """One sample (module docstring); ``state = [k, u_prev]``: the controller's own clock
-    (``t = k dt``) and Newton's starting point.  The one implementation: plain Python in
-    the generic loop, compiled in the compiled ones."""
+@array_law
+def oracle_law(law: OracleLaw, state: np.ndarray, scratch, t: float, full: np.ndarray,
+               x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, state)`` of one sample (module docstring); ``state = [k, u_prev]``: the
+    controller's own clock (``t = k dt``) and Newton's starting point.  The one
+    implementation, for numba and JAX (:mod:`tspend.runtime.law`; JAX traces the closed
+    form of an ``affine`` model only: Newton's loop branches on data)."""
     n = law.lam.size
-    t = state[0] * dt
-    state[0] += 1.0
+    t_own = state[0] * dt
+    state = xp.add(state, 0, 1.0)
     lam_e = 0.0
     for j in range(n):
         lam_e += law.lam[j] * (x[j] - ref[j])
     v = ref[n] - lam_e
-    u, its, res, found = newton_u(law.model, law.affine, t, x, v, state[1], law.tol,
+    u, its, res, found = newton_u(law.model, law.affine, t_own, x, v, state[1], law.tol,
                                   law.max_iter)
-    if not found:
-        u, its, res = math.nan, law.max_iter, math.nan
-    diag[0] = v
-    diag[2] = its
-    diag[3] = res
-    if math.isfinite(u):
-        diag[1] = central_df_du(law.model, t, x, u)
-        state[1] = u
-    else:
-        diag[1] = math.nan
-    return u
+    u = xp.where(found, u, math.nan)
+    diag = xp.put(diag, 0, v)
+    diag = xp.put(diag, 2, xp.where(found, its, law.max_iter))
+    diag = xp.put(diag, 3, xp.where(found, res, math.nan))
+    finite = math.isfinite(u)
+    diag = xp.put(diag, 1, xp.where(finite, central_df_du(law.model, t_own, x, u), math.nan))
+    state = xp.put(state, 1, xp.where(finite, u, state[1]))
+    return u, state
 
 
 @njit(**JIT)
 def oracle_step(law: OracleLaw, state: np.ndarray, scratch, t: float, full: np.ndarray,
                 x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`oracle_law` behind the compiled controllers' common signature."""
-    return oracle_law(law, state, x, ref, dt, diag)
+    return oracle_law(law, state, scratch, t, full, x, ref, dt, diag)[0]
 
 
 class FeedbackLinearizationController(Controller):
@@ -224,14 +225,17 @@ class FeedbackLinearizationController(Controller):
         if self.model.compiled is not None:   # the compiled law from Python too
             return oracle_step(self.law, self.state, None, obs.t, obs.state, obs.x, obs.ref,
                                dt, self.diag)
-        return oracle_law(self.law, self.state, obs.x, obs.ref, dt, self.diag)
+        return oracle_law.py_func(self.law, self.state, None, obs.t, obs.state, obs.x, obs.ref,
+                                  dt, self.diag)[0]
 
     def compiled(self) -> CompiledController | None:
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`), when the
         plant's domain offers its model to compiled code (``PlantModel.compiled``)."""
         if self.model.compiled is None:
             return None
-        return CompiledController(oracle_step, self.law, self.state, None)
+        # JAX traces the closed form only (Newton's loop branches on data)
+        return CompiledController(oracle_step, self.law, self.state, None,
+                                  oracle_law if self.law.affine else None)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}

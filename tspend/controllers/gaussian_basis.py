@@ -27,8 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 
 __all__ = ["GaussianGrid", "GaussianTable", "basis", "basis_into", "gaussian_grid",
            "memberships"]
@@ -109,7 +109,7 @@ def basis_into(table: GaussianTable, x: np.ndarray, mu: np.ndarray, xi: np.ndarr
     """``xi(x)`` into ``xi``: every rule's product of memberships (row-major grid order: the
     last input's set varies fastest), normalised to sum 1; ``mu`` is scratch of one entry
     per set; returns ``(xi,)``.  The one implementation, for numba and JAX
-    (:mod:`tspend.controllers.law`)."""
+    (:mod:`tspend.runtime.law`)."""
     mu, = memberships_into(table, x, mu)
     inputs = table.terms.size
     total = 0.0

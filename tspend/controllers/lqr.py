@@ -67,15 +67,12 @@ from numba import njit
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
     diagnostics)
 from tspend.plants.domain import VIEW_MODEL
-import tspend.controllers.xp as xp
+import tspend.runtime.xp as xp
 from tspend.controllers.full_model import wrap_angle
-from tspend.controllers.law import array_law, mark_law
+from tspend.runtime.law import array_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import KindSettings, setting, settings_for
-
-#: the angle's wrap is arithmetic over ``math``: laws that call it have its own text in JAX
-mark_law(wrap_angle)
 
 if TYPE_CHECKING:
     from tspend.plants.base import Plant
@@ -156,7 +153,7 @@ def view_lqr_law(law: ViewLQRLaw, state, scratch, t: float, full: np.ndarray, x:
                  ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
     """``(u, state)``, ``u = u* + (r^(n) - a^T (r - x*)) / b - K e`` (module docstring),
     diagnostics into ``diag``; the one implementation, for numba and JAX
-    (:mod:`tspend.controllers.law`)."""
+    (:mod:`tspend.runtime.law`)."""
     e = law.e
     n = e.size
     ar = 0.0
@@ -281,7 +278,7 @@ class FullLQRLaw(NamedTuple):
 @array_law
 def full_lqr_law(law: FullLQRLaw, full: np.ndarray, ref: np.ndarray, diag: np.ndarray) -> float:
     """``u = u_r - K (s - s_r)`` (module docstring), diagnostics into ``diag``; the one
-    implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
+    implementation, for numba and JAX (:mod:`tspend.runtime.law`)."""
     s_r, e = law.s_r, law.e
     r, rd, rdd = ref[0], ref[1], ref[2]
     for j in range(s_r.size):

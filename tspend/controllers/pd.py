@@ -29,8 +29,8 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
 
@@ -76,7 +76,7 @@ class PDLaw(NamedTuple):
 def pd_law(law: PDLaw, state, scratch, t: float, full: np.ndarray, x: np.ndarray,
            ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
     """``(u, state)``, ``u = (r^(n) - k^T e) / b0`` (module docstring), its parts into
-    ``diag``; the one implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
+    ``diag``; the one implementation, for numba and JAX (:mod:`tspend.runtime.law`)."""
     n = law.k.size
     ke = 0.0
     for j in range(n):

@@ -45,8 +45,8 @@ from tspend.controllers.base import (CompiledController, Controller, Observation
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
 from tspend.runtime.jit import JIT
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.controllers.pd import gains_from_poles
 from tspend.controllers.plant_model import plant_model
 from tspend.controllers.settings import POLE_CAP, KindSettings, finite_or, setting, settings_for
@@ -108,7 +108,7 @@ def sliding_law(law: SlidingLaw, state, scratch, t: float, full: np.ndarray, x: 
                 ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
     """``(u, state)``, ``u = u* + (r^(n) - f_hat(x) - sum_{i<n} c_i e_{i+1} - k sat(s /
     phi)) / b_hat`` (module docstring), its parts into ``diag``; the one implementation,
-    for numba and JAX (:mod:`tspend.controllers.law`)."""
+    for numba and JAX (:mod:`tspend.runtime.law`)."""
     n = law.c.size
     s = 0.0
     f_hat = 0.0

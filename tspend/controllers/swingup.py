@@ -48,6 +48,8 @@ from tspend.plants.articulated.domain import derived_full_accel, derived_pole_en
 from tspend.plants.domain import FULL_STATE, PUMPED_ENERGY, FullModel, wrap_angle
 from tspend.controllers.lqr import FullLQRLaw, full_lqr_law
 from tspend.runtime.jit import JIT
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law, mark_law
 from tspend.controllers.settings import KindSettings, setting, settings_for
 
 if TYPE_CHECKING:
@@ -103,6 +105,7 @@ class SwingLaw(NamedTuple):
     dof: int
     u_lo: float
     u_hi: float
+    bounded: bool           # whether the driven joint's range is finite
     limit: float            # the driven joint's range, symmetric (inf: free)
     energy_gain: float
     accel_max: float
@@ -115,6 +118,14 @@ class SwingLaw(NamedTuple):
     lqr_diag: np.ndarray    # the catching LQR's own diagnostics (not recorded)
 
 
+@array_law
+def clipped(v: float, lo: float, hi: float) -> float:
+    """``min(hi, max(lo, v))`` with Python's (and numba's) choice, NaN included."""
+    above = xp.where(v > lo, v, lo)
+    return xp.where(above < hi, above, hi)
+
+
+@mark_law
 @register_jitable
 def swing(law: SwingLaw, state: np.ndarray) -> tuple[float, float]:
     """``(u, a)``: the energy law's force and the acceleration it asks for (module
@@ -126,51 +137,74 @@ def swing(law: SwingLaw, state: np.ndarray) -> tuple[float, float]:
     # dE'/du = J theta' dtheta''/du (J > 0), times the sign of da/du: the sign of
     # dE'/da, i.e. A-F's sign(theta' cos theta)
     slope = state[dof + pole] * du_pole * math.copysign(1.0, du_act)
-    sign = 1.0 if slope >= 0.0 else -1.0
+    sign = xp.where(slope >= 0.0, 1.0, -1.0)
     energy = derived_pole_energy(law.machine, state)
-    a = min(law.accel_max, max(-law.accel_max, law.energy_gain * (0.0 - energy) * sign))
+    a = clipped(law.energy_gain * (0.0 - energy) * sign, -law.accel_max, law.accel_max)
     x, v = state[act], state[dof + act]
     a_c = -law.k_x * x - law.k_v * v
-    if a_c * sign >= 0.0:   # centring that also pumps energy in
-        a += a_c
-    if math.isfinite(law.limit):
-        # stopping distance at full braking; brake before the range's end
+    a = xp.where(a_c * sign >= 0.0, a + a_c, a)   # centring that also pumps energy in
+    if law.bounded:
+        # stopping distance at full braking; brake before the range's end: heading out,
+        # brake at full; at rest near the end, centre only
         stop = x + v * abs(v) / (2.0 * law.accel_max)
-        if abs(stop) > law.limit - law.range_margin:
-            # heading out: brake at full; at rest near the end: centre only
-            a = -math.copysign(law.accel_max, v) if x * v > 0.0 else a_c
+        brake = xp.where(x * v > 0.0, -math.copysign(law.accel_max, v), a_c)
+        a = xp.where(abs(stop) > law.limit - law.range_margin, brake, a)
     u = (a - a0[act]) / du_act
-    return min(law.u_hi, max(law.u_lo, u)), a
+    return clipped(u, law.u_lo, law.u_hi), a
 
 
-@register_jitable
-def swingup_law(law: SwingLaw, mode: np.ndarray, state: np.ndarray, ref: np.ndarray,
-                diag: np.ndarray) -> float:
-    """One sample: switch between swinging and catching (hysteresis), then that mode's u;
-    ``mode[0]`` is :data:`SWING` or :data:`CATCH`.  The one implementation: plain Python in
-    the generic loop, compiled in the compiled ones."""
-    theta = wrap_angle(state[law.pole])
-    if mode[0] == SWING and abs(theta) < law.catch_angle:
-        mode[0] = CATCH
-    elif mode[0] == CATCH and abs(theta) > law.release_angle:
-        mode[0] = SWING
-    if mode[0] == CATCH:
-        u = min(law.u_hi, max(law.u_lo, full_lqr_law(law.lqr, state, ref, law.lqr_diag)))
-        a = 0.0
-    else:
-        u, a = swing(law, state)
-    diag[0] = derived_pole_energy(law.machine, state)
-    diag[1] = mode[0]
-    diag[2] = theta
-    diag[3] = a
-    return u
+@array_law
+def swingup_law(law: SwingLaw, mode: np.ndarray, scratch, t: float, full: np.ndarray,
+                x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, mode)`` of one sample: switch between swinging and catching (hysteresis),
+    then that mode's u; ``mode[0]`` is :data:`SWING` or :data:`CATCH`.  Both modes' u
+    are computed and one chosen by data (``xp.where``).  The one implementation, for
+    numba and JAX (:mod:`tspend.runtime.law`)."""
+    theta = wrap_angle(full[law.pole])
+    now = mode[0]
+    now = xp.where((now == SWING) & (abs(theta) < law.catch_angle), CATCH,
+                   xp.where((now == CATCH) & (abs(theta) > law.release_angle), SWING, now))
+    mode = xp.put(mode, 0, now)
+    u_catch = clipped(full_lqr_law(law.lqr, full, ref, law.lqr_diag), law.u_lo, law.u_hi)
+    u_swing, a_swing = swing(law, full)
+    caught = now == CATCH
+    a = xp.where(caught, 0.0, a_swing)
+    diag = xp.put(diag, 0, derived_pole_energy(law.machine, full))
+    diag = xp.put(diag, 1, now)
+    diag = xp.put(diag, 2, theta)
+    diag = xp.put(diag, 3, a)
+    return xp.where(caught, u_catch, u_swing), mode
 
 
 @njit(**JIT)
 def swingup_step(law: SwingLaw, mode: np.ndarray, scratch, t: float, full: np.ndarray,
                  x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
     """:func:`swingup_law` behind the compiled controllers' common signature."""
-    return swingup_law(law, mode, full, ref, diag)
+    return swingup_law(law, mode, scratch, t, full, x, ref, dt, diag)[0]
+
+
+@dataclass(frozen=True)
+class SwingUpDesign:
+    """The swing-up's design (:func:`design`): the full-state model it pumps, its
+    settings, the catching LQR and the law's numbers."""
+
+    model: FullModel
+    settings: SwingUpSettings
+    catch: "FullStateLQR"
+    law: SwingLaw
+
+
+def design(model: FullModel, settings: SwingUpSettings, catch: "FullStateLQR") -> SwingUpDesign:
+    """The law's numbers of the swing-up on ``model`` (its bounds, its derived machine)
+    with ``settings``, caught by ``catch``: pure."""
+    k_x, k_v = settings.centring
+    limit = min(model.q_hi[model.actuated], -model.q_lo[model.actuated])
+    law = SwingLaw(model.machine, model.pole, model.actuated, model.dof, float(model.u_lo),
+                   float(model.u_hi), math.isfinite(limit), float(limit),
+                   settings.energy_gain, settings.accel_max, settings.catch_angle,
+                   settings.release_angle, float(k_x), float(k_v), settings.range_margin,
+                   catch.law, catch.diag)
+    return SwingUpDesign(model, settings, catch, law)
 
 
 class SwingUpController(Controller):
@@ -187,20 +221,13 @@ class SwingUpController(Controller):
                   "the driven joint's range respected by braking, the input clipped to its "
                   "range; LQR's local guarantee once caught (hysteresis)")
 
-    def __init__(self, model: FullModel, settings: SwingUpSettings, catch: "FullStateLQR",
-                 order: int) -> None:
-        self.model, self.s, self.lqr = model, settings, catch
-        self.order = order
+    def __init__(self, design: SwingUpDesign, order: int) -> None:
+        self.design, self.order = design, order
+        self.model, self.s, self.lqr, self.law = (design.model, design.settings, design.catch,
+                                                  design.law)
+        model = design.model
         #: [SWING or CATCH]
         self.modes = np.array([SWING])
-        m = model
-        k_x, k_v = settings.centring
-        limit = min(m.q_hi[m.actuated], -m.q_lo[m.actuated])
-        self.law = SwingLaw(m.machine, m.pole, m.actuated, m.dof, float(m.u_lo), float(m.u_hi),
-                            float(limit),
-                            settings.energy_gain, settings.accel_max, settings.catch_angle,
-                            settings.release_angle, float(k_x), float(k_v),
-                            settings.range_margin, catch.law, catch.diag)
         self.diagnostics = diagnostics(
             ("energy", 1, {"panel": "energy", "unit": "J",
                            "description": "the pendulum's energy about its pivot, 0 upright"}),
@@ -226,7 +253,9 @@ class SwingUpController(Controller):
         return swing(self.law, np.asarray(state, dtype=float))
 
     def act(self, state: np.ndarray, ref: np.ndarray) -> float:
-        return swingup_law(self.law, self.modes, np.asarray(state, dtype=float), ref, self.diag)
+        state = np.asarray(state, dtype=float)
+        return swingup_law.py_func(self.law, self.modes, None, 0.0, state, state, ref, 0.0,
+                                   self.diag)[0]
 
     def step(self, obs: Observation, dt: float) -> float:
         if self.model.machine is not None:   # the compiled law from Python too
@@ -238,7 +267,7 @@ class SwingUpController(Controller):
         """The same law in the compiled loops (:mod:`tspend.loop.fastloop`)."""
         if self.model.machine is None:
             return None
-        return CompiledController(swingup_step, self.law, self.modes, None)
+        return CompiledController(swingup_step, self.law, self.modes, None, swingup_law)
 
     def parameters(self) -> dict[str, np.ndarray]:
         return {}
@@ -251,5 +280,5 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> SwingUpContro
     s: SwingUpSettings = settings_for(scenario, SwingUpSettings)
     lqr_settings: LQRSettings = settings_for(scenario, LQRSettings)
     model = full_model(scenario, machine)
-    return SwingUpController(model, s, build_full(scenario, lqr_settings, machine),
+    return SwingUpController(design(model, s, build_full(scenario, lqr_settings, machine)),
                              order=len(scenario.plant.x0))

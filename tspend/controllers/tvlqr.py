@@ -30,11 +30,19 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from numba import njit
 
-from tspend.controllers.base import Controller, Observation, diag_width, diagnostics
+import tspend.runtime.xp as xp
+from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
+                                     diagnostics)
+from tspend.controllers.lqr import FullLQRLaw, full_lqr_law
+from tspend.controllers.swingup import clipped
+from tspend.plants.domain import wrap_angle
+from tspend.runtime.jit import JIT
+from tspend.runtime.law import array_law
 from tspend.controllers.settings import KindSettings, setting, settings_for
 from tspend.controllers.trajectory import Plan, PlanFailed, plan_swingup, read_plan
 from tspend.runtime.errors import ScenarioError
@@ -140,6 +148,103 @@ def discrete_terminal(model: "FullModel", lqr: "FullStateLQR", dt: float) -> np.
     return solve_discrete_are(E[:nx, :nx], E[:nx, nx:], lqr.Q * dt, np.array([[lqr.R * dt]]))
 
 
+class TVLQRLaw(NamedTuple):
+    """A plan's numbers as compiled code reads them (:func:`tvlqr_law`)."""
+
+    states: np.ndarray      # (n + 1, nx) s*_k
+    u: np.ndarray           # (n + 1,) u*_k
+    K: np.ndarray           # (n, nx) K_k of (V2)
+    angles: np.ndarray      # (nx,) bool: errors wrapped to (-pi, pi]
+    dt: float
+    u_lo: float
+    u_hi: float
+    lqr: FullLQRLaw         # the LQR after the plan
+    lqr_diag: np.ndarray    # its own diagnostics (not recorded)
+    e: np.ndarray           # (nx,) scratch: the error
+
+
+@array_law
+def tvlqr_law(law: TVLQRLaw, clock: np.ndarray, scratch, t: float, full: np.ndarray,
+              x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> tuple:
+    """``(u, clock)``: ``u = u*_k - K_k e_k`` while the plan lasts, the LQR after it, clipped
+    to the input's range (module docstring); ``clock = [t0, started]``, the plan's start
+    (the first sample's time).  The one implementation, for numba and JAX
+    (:mod:`tspend.runtime.law`)."""
+    t0 = xp.where(clock[1] > 0.0, clock[0], t)
+    clock = xp.put(clock, 0, t0)
+    clock = xp.put(clock, 1, 1.0)
+    n = law.K.shape[0]
+    k = xp.rounded_index((t - t0) / law.dt)
+    follow = k < n
+    row = xp.where(follow, k, n)        # the plan's last row after it
+    gain_row = xp.where(follow, k, n - 1)
+    e = law.e
+    u_fb = 0.0
+    norm2 = 0.0
+    for j in range(e.size):
+        d = full[j] - law.states[row, j]
+        e = xp.put(e, j, xp.where(law.angles[j], wrap_angle(d), d))
+        u_fb += law.K[gain_row, j] * e[j]
+        norm2 += e[j] * e[j]
+    u_plan = law.u[row]
+    u_lqr = full_lqr_law(law.lqr, full, ref, law.lqr_diag)
+    diag = xp.put(diag, 0, xp.where(follow, FOLLOW, BALANCE))
+    diag = xp.put(diag, 1, xp.where(follow, u_plan, 0.0))
+    diag = xp.put(diag, 2, math.sqrt(norm2))
+    u = xp.where(follow, u_plan - u_fb, u_lqr)
+    return clipped(u, law.u_lo, law.u_hi), clock
+
+
+@njit(**JIT)
+def tvlqr_step(law: TVLQRLaw, clock: np.ndarray, scratch, t: float, full: np.ndarray,
+               x: np.ndarray, ref: np.ndarray, dt: float, diag: np.ndarray) -> float:
+    """:func:`tvlqr_law` behind the compiled controllers' common signature."""
+    return tvlqr_law(law, clock, scratch, t, full, x, ref, dt, diag)[0]
+
+
+@dataclass(frozen=True)
+class TVLQRDesign:
+    """The kind's design (:func:`design`): the model, settings and LQR it follows a plan
+    with, the run's step, the terminal cost ``P_n`` and, when a plan is given, its law."""
+
+    model: "FullModel"
+    settings: TVLQRSettings
+    lqr: "FullStateLQR"
+    dt: float
+    P_end: np.ndarray
+    where: str
+    units: tuple[tuple[str, ...], str, str]
+    law: TVLQRLaw | None
+
+
+def plan_law(model: "FullModel", lqr: "FullStateLQR", plan: Plan, P_end: np.ndarray,
+             dt: float, where: str) -> TVLQRLaw:
+    """The law's numbers of following ``plan``: its gains by (V1)-(V2).  Pure;
+    ScenarioError when the plan is not of this plant or this step."""
+    if tuple(plan.state_names) != tuple(model.state_names):
+        raise ScenarioError(f"{where}.plan: its states {', '.join(plan.state_names)} are "
+                            f"not the plant's {', '.join(model.state_names)}")
+    if abs(plan.dt - dt) > 1e-12 * max(1.0, dt):
+        raise ScenarioError(f"{where}.plan: made on a step of {plan.dt:g} s, the run's "
+                            f"is run.dt = {dt:g} s")
+    K = tvlqr_gains(model, plan, lqr.Q, lqr.R, P_end)
+    return TVLQRLaw(np.ascontiguousarray(plan.states, dtype=float),
+                    np.ascontiguousarray(plan.u, dtype=float), K,
+                    np.array(model.angles[:model.size], dtype=bool), float(dt),
+                    float(model.u_lo), float(model.u_hi), lqr.law, np.zeros_like(lqr.diag),
+                    np.zeros(model.size))
+
+
+def design(model: "FullModel", settings: TVLQRSettings, lqr: "FullStateLQR", dt: float,
+           plan: Plan | None, where: str,
+           units: tuple[tuple[str, ...], str, str]) -> TVLQRDesign:
+    """The kind's design (:class:`TVLQRDesign`): pure; a plan made at the first sample
+    gets its law then (:meth:`TVLQRController.act`)."""
+    P_end = discrete_terminal(model, lqr, float(dt))
+    law = plan_law(model, lqr, plan, P_end, float(dt), where) if plan is not None else None
+    return TVLQRDesign(model, settings, lqr, float(dt), P_end, where, units, law)
+
+
 class TVLQRController(Controller):
     """The ``tvlqr`` kind (module docstring)."""
 
@@ -154,13 +259,10 @@ class TVLQRController(Controller):
                   "planner's model); local tracking of it on the linearisation about it; "
                   "LQR's local guarantee after it; the input clipped to its range")
 
-    def __init__(self, model: "FullModel", settings: TVLQRSettings, lqr: "FullStateLQR",
-                 dt: float, order: int, plan: Plan | None, where: str,
-                 units: tuple[tuple[str, ...], str, str]) -> None:
-        self.model, self.s, self.lqr, self.dt = model, settings, lqr, float(dt)
-        self.order, self.where, self.units = order, where, units
-        self.P_end = discrete_terminal(model, lqr, self.dt)
-        self.given = plan
+    def __init__(self, design: TVLQRDesign, order: int) -> None:
+        self.design, self.order = design, order
+        self.model, self.s, self.lqr, self.dt = design.model, design.settings, design.lqr, design.dt
+        self.where, self.units, self.P_end = design.where, design.units, design.P_end
         self.diagnostics = diagnostics(
             ("mode", 1, {"panel": "mode", "description": "0 following the plan, 1 LQR"}),
             ("u_plan", 1, {"panel": "control", "description": "the plan's input u*_k"}),
@@ -170,21 +272,15 @@ class TVLQRController(Controller):
                            "description": "wall time of the plan made at the first sample "
                                           "(0: read from a file)"}))
         self.diag = np.zeros(diag_width(self.diagnostics))
-        self.plan: Plan | None = None
-        self.K = np.zeros((0, model.size))
-        if plan is not None:
-            self._adopt(plan)
+        #: [t0, started]: the plan's start, the first sample's time
+        self.clock = np.zeros(2)
+        self.law = design.law
         self.reset(None)
 
-    def _adopt(self, plan: Plan) -> None:
-        if tuple(plan.state_names) != tuple(self.model.state_names):
-            raise ScenarioError(f"{self.where}.plan: its states {', '.join(plan.state_names)} are "
-                                f"not the plant's {', '.join(self.model.state_names)}")
-        if abs(plan.dt - self.dt) > 1e-12 * max(1.0, self.dt):
-            raise ScenarioError(f"{self.where}.plan: made on a step of {plan.dt:g} s, the run's "
-                                f"is run.dt = {self.dt:g} s")
-        self.plan = plan
-        self.K = tvlqr_gains(self.model, plan, self.lqr.Q, self.lqr.R, self.P_end)
+    @property
+    def K(self) -> np.ndarray:
+        """The plan's gains ``K_k`` (none before a plan)."""
+        return self.law.K if self.law is not None else np.zeros((0, self.model.size))
 
     def make_plan(self, s0: np.ndarray) -> Plan:
         """A plan from ``s0`` with this kind's settings (:func:`.trajectory.plan_swingup`)."""
@@ -194,37 +290,31 @@ class TVLQRController(Controller):
                             where=self.where, units=self.units)
 
     def reset(self, rng: np.random.Generator | None) -> None:
-        self.t0: float | None = None
-        if self.given is None:
-            self.plan = None
+        self.clock[:] = 0.0
+        self.law = self.design.law
         self.diag[:] = 0.0
 
     def act(self, t: float, state: np.ndarray, ref: np.ndarray) -> float:
         state = np.asarray(state, dtype=float)
-        if self.t0 is None:
-            self.t0 = t
-            if self.plan is None:
-                started = time.perf_counter()
-                try:
-                    self._adopt(self.make_plan(state))
-                except PlanFailed as exc:
-                    raise RuntimeError(str(exc)) from None
-                self.diag[3] = time.perf_counter() - started
-        plan, m, d = self.plan, self.model, self.diag
-        k = int(round((t - self.t0) / self.dt))
-        if k < self.K.shape[0]:
-            e = m.error(state, plan.states[k])
-            u = float(plan.u[k] - self.K[k] @ e)
-            d[0], d[1] = FOLLOW, plan.u[k]
-        else:
-            e = m.error(state, plan.states[-1])
-            u = self.lqr.act(state, ref)
-            d[0], d[1] = BALANCE, 0.0
-        d[2] = float(np.linalg.norm(e))
-        return min(m.u_hi, max(m.u_lo, u))
+        if self.law is None:     # the plan made at the first sample
+            started = time.perf_counter()
+            try:
+                plan = self.make_plan(state)
+            except PlanFailed as exc:
+                raise RuntimeError(str(exc)) from None
+            self.law = plan_law(self.model, self.lqr, plan, self.P_end, self.dt, self.where)
+            self.diag[3] = time.perf_counter() - started
+        return tvlqr_step(self.law, self.clock, None, t, state, state, ref, self.dt, self.diag)
 
     def step(self, obs: Observation, dt: float) -> float:
         return self.act(obs.t, obs.state, obs.ref)
+
+    def compiled(self) -> CompiledController | None:
+        """The law in the compiled loops when the plan is given (one made at the first
+        sample runs here, in Python, IPOPT first)."""
+        if self.design.law is None:
+            return None
+        return CompiledController(tvlqr_step, self.design.law, self.clock, None, tvlqr_law)
 
 
 def plan_of(scenario: "Scenario", machine: "Plant") -> tuple["FullModel", TVLQRSettings, tuple]:
@@ -256,5 +346,5 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> TVLQRControll
 
         check_plan_input(model, np.zeros(model.size), s.horizon, s.interval, scenario.run.dt,
                          s.margin, where, s.step)
-    return TVLQRController(model, s, lqr, scenario.run.dt, len(scenario.plant.x0), plan, where,
-                           units)
+    return TVLQRController(design(model, s, lqr, scenario.run.dt, plan, where, units),
+                           len(scenario.plant.x0))

@@ -65,8 +65,8 @@ from tspend.runtime.errors import ScenarioError
 from tspend.controllers.base import (CompiledController, Controller, Observation, diag_width,
                                      diagnostics)
 from tspend.plants.domain import VIEW_MODEL
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.controllers.gaussian_basis import GaussianGrid, GaussianTable, basis_into, gaussian_grid
 from tspend.runtime.jit import JIT
 from tspend.controllers.plant_model import plant_model
@@ -216,7 +216,7 @@ def wang_law(law: WangLaw, state: WangState, scratch: WangScratch, t: float,
              diag: np.ndarray) -> tuple:
     """``(u, state)``: one sample of the scheme (module docstring), ``u = u_c + u_s``,
     diagnostics into ``diag``, the laws integrated by forward Euler over ``dt`` and
-    projected.  The one implementation, for numba and JAX (:mod:`tspend.controllers.law`)."""
+    projected.  The one implementation, for numba and JAX (:mod:`tspend.runtime.law`)."""
     e = scratch.e
     theta_f, theta_g = state.theta_f, state.theta_g
     n = e.size

@@ -11,7 +11,7 @@ tested).  This package gives tspend's machines, tasks and controllers that form
   ``mjx.Model`` whose differing fields carry a leading env axis; the task's bounds, the
   reference and disturbance tables;
 * :mod:`tspend.mjx.control`: the controller kinds that have a JAX form (those whose law
-  is written once over an array namespace, :mod:`tspend.controllers.law`, and
+  is written once over an array namespace, :mod:`tspend.runtime.law`, and
   ``policy``), designed on the CPU as the CPU backend designs them;
 * :mod:`tspend.mjx.sweep`: ``tspend sweep --backend mjx``: the closed loops in one
   ``jax.lax.scan``, each run's samples folded into the CPU's own metrics

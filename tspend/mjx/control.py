@@ -1,7 +1,7 @@
 """A controller kind in JAX: its law's JAX form, designed on the CPU as the CPU backend
 designs it.
 
-Every arithmetic kind's law is written once (:mod:`tspend.controllers.law`) and offered
+Every arithmetic kind's law is written once (:mod:`tspend.runtime.law`) and offered
 by the CPU controller's :meth:`~tspend.controllers.base.Controller.compiled` (the
 ``law`` of :class:`~tspend.controllers.base.CompiledController`): its numbers are the
 controller's design (made on the nominal machine: the LQR gain, the PD gains, the rule
@@ -36,7 +36,7 @@ def jax_law(scenario: Any, controller: Any, view_index: np.ndarray,
     nominal scenario and reset): ``u, carry = law(carry, t, full, ref, dt)``, pure, for
     ``jax.jit``/``jax.vmap``; ``carry`` its start (the controller's state now, in
     ``dtype``'s floats); ``view_index``: the task's view in the full state."""
-    from tspend.controllers.law import jax_step
+    from tspend.runtime.law import jax_step
 
     period = float(getattr(controller, "sample_period", 0.0) or 0.0)
     if controller.kind == "policy":

@@ -29,6 +29,7 @@ from tspend.config import PlantConfig
 from tspend.runtime.errors import ScenarioError
 from tspend.plants.base import Plant, TaskDefaults  # TaskDefaults: re-exported
 from tspend.runtime.jit import JIT
+from tspend.runtime.law import jax_form, mark_law, with_jax_form
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -155,10 +156,17 @@ class PlantLabels(NamedTuple):
 COMPILED_VIEW_ACCEL: dict[type, Callable] = {}
 
 
+def _view_accel_jax(model: Any, t: Any, x: Any, u: Any, d: Any) -> Any:
+    """:func:`view_accel`'s JAX form: the JAX form of the law the model's domain registered."""
+    return jax_form(COMPILED_VIEW_ACCEL[type(model)])(model, t, x, u, d)
+
+
+@with_jax_form(_view_accel_jax)
 def view_accel(model: Any, t: float, x: np.ndarray, u: float, d: float) -> float:
     """``x_n' = f(t, x, u, d)`` of a view model: from Python its ``accel`` (a
-    :class:`PlantModel` or a compiled view model); in compiled code the function its
-    domain registered in :data:`COMPILED_VIEW_ACCEL` for the model's type."""
+    :class:`PlantModel` or a compiled view model); in compiled code, and in a law's JAX
+    form (:mod:`tspend.runtime.law`), the law its domain registered in
+    :data:`COMPILED_VIEW_ACCEL` for the model's type."""
     return model.accel(t, x, u, d)
 
 
@@ -175,6 +183,7 @@ def _view_accel(model, t, x, u, d):
     return impl
 
 
+@mark_law
 @register_jitable
 def central_df_du(model: Any, t: float, x: np.ndarray, u: float) -> float:
     """``df/du`` by central differences of step ``FD_STEP (1 + |u|)`` (``d = 0``); the one
@@ -234,6 +243,7 @@ class PlantModel:
         return A, B
 
 
+@mark_law
 @register_jitable
 def wrap_angle(a: float) -> float:
     """``a`` wrapped to (-pi, pi]: the error of an angle that may have turned over."""

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.runtime.jit import JIT
 
 #: linguistic term names by number of sets
@@ -122,7 +122,7 @@ def basis_values(z: float, knots: np.ndarray, points: int, order: int,
     """``(s, out)``: the knot span s and the ``d`` basis functions (3)-(4) that can be
     nonzero at ``z`` in ``out[:d]`` (``out[l]`` is ``N_{s-d+1+l, d}(z)``); terms of (4)
     with a zero-length support (0/0) are zero.  Written without a branch on ``z``
-    (:mod:`tspend.controllers.law`): the span is the one half-open span holding z."""
+    (:mod:`tspend.runtime.law`): the span is the one half-open span holding z."""
     d = order
     lo = knots[0]
     hi = knots[points + d - 1]

@@ -31,8 +31,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.config import ControllerConfig
 from tspend.controllers.paper.rules import (Firing, Grid, membership_gradient, move_control_points,
     weighted_output)

@@ -21,8 +21,8 @@ from numba import njit
 
 # Lambda of (18) and its Hurwitz test live with the settings they validate (tspend.config)
 from tspend.config import companion, is_hurwitz  # noqa: F401 - re-exported
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.runtime.jit import JIT
 
 

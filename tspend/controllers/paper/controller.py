@@ -29,7 +29,7 @@ hands them to other compiled code (a closed loop in numba calls
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -42,8 +42,8 @@ from numba.experimental import structref
 from tspend.controllers.paper import rules
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import BSplineInput
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.controllers.paper.compensator import (CompensatorSettings, compensator_law,
     compensator_settings, estimate, sets_gradient, switching)
 from tspend.config import ControllerConfig, SetSpec
@@ -286,7 +286,7 @@ def controller_law(settings: Settings, state: State, scratch: Scratch, t: float,
     """``(u, state)``: one sample of the adaptive fuzzy controller at the task's view
     ``x`` (n,) with reference derivatives ``ref`` (n+1,) and sample time ``dt``; writes
     ``diag`` (:func:`diag_layout`).  The one implementation, for numba (``state`` and
-    ``scratch`` updated in place) and JAX (:mod:`tspend.controllers.law`)."""
+    ``scratch`` updated in place) and JAX (:mod:`tspend.runtime.law`)."""
     s, st, w = settings, state, scratch
     n = w.e.size
     e_delta, e = tracking_errors(s.law, x, ref, w.e)
@@ -395,6 +395,23 @@ class FiringView(NamedTuple):
     w: np.ndarray
 
 
+@dataclass(frozen=True)
+class PaperDesign:
+    """The paper controller's design (:func:`design`): the configuration, the law's frozen
+    numbers (:func:`settings_of`: rule bases, grids, gains) and the two rule bases'
+    antecedent inputs."""
+
+    cfg: ControllerConfig
+    settings: Settings
+    inputs: dict
+
+
+def design(cfg: ControllerConfig) -> PaperDesign:
+    """The design of the controller ``cfg`` configures: pure (it needs no model)."""
+    return PaperDesign(cfg, settings_of(cfg),
+                       {"model": model_inputs(cfg), "compensator": compensator_inputs(cfg)})
+
+
 class AdaptiveFuzzyController(Controller):
     """The controller of Theorem 1: a :class:`tspend.controllers.base.Controller`.
 
@@ -425,17 +442,17 @@ class AdaptiveFuzzyController(Controller):
         ``machine``."""
         return make_controller(cls.settings_in(scenario))
 
-    def __init__(self, cfg: ControllerConfig) -> None:
-        self.cfg = cfg
+    def __init__(self, design: PaperDesign) -> None:
+        self.design = design
+        self.cfg = cfg = design.cfg
         self.kind = "first_type" if cfg.adaptation == "first" else "second_type"
         self.n = self.order = n = cfg.order
-        self.settings = settings_of(cfg)
+        self.settings, self.inputs = design.settings, design.inputs
         self.state = state_of(self.settings)
         self.scratch = scratch_of(self.settings)
         self.diag = np.zeros(diag_size(n))
         self.layout = diag_layout(n)
         self.diagnostics = paper_diagnostics(n)
-        self.inputs = {"model": model_inputs(cfg), "compensator": compensator_inputs(cfg)}
         self.sample = self._compiled_sample()
         sample = self.sample
 
@@ -575,5 +592,6 @@ class FirstTypeController(AdaptiveFuzzyController):
 
 
 def make_controller(cfg: ControllerConfig) -> AdaptiveFuzzyController:
-    """The paper controller for ``cfg``, reset to zero parameters (call ``reset(rng)``)."""
-    return AdaptiveFuzzyController(cfg)
+    """The paper controller for ``cfg`` (:func:`design`), its parameters zero (call
+    ``reset(rng)``)."""
+    return AdaptiveFuzzyController(design(cfg))

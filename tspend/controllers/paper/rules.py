@@ -30,8 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-import tspend.controllers.xp as xp
-from tspend.controllers.law import array_law
+import tspend.runtime.xp as xp
+from tspend.runtime.law import array_law
 from tspend.runtime.jit import JIT
 from tspend.controllers.paper.bspline import (BSplineInput, basis_values, membership_curves,
     membership_values, peak_windows, project_unimodal, unsaturated)

@@ -43,7 +43,7 @@ import numpy as np
 from tspend.plants.articulated.tree import Tree
 
 __all__ = ["Derivation", "derive", "parameter_table", "python_source", "cache_dir",
-           "compiled_module", "GENERATOR_VERSION"]
+           "compiled_module", "jax_functions", "jax_function_at", "GENERATOR_VERSION"]
 
 #: bumped whenever the generated code changes shape (part of the cache key)
 GENERATOR_VERSION = "4"
@@ -395,3 +395,55 @@ def compiled_module(tree: Tree, derivation: Callable[[], Derivation]) -> Any:
     spec.loader.exec_module(module)
     _LOADED[key] = module
     return module
+
+
+#: the generated functions a JAX form runs (:func:`jax_functions`), by their C entry's name
+_C_ENTRIES = {"rhs_c": "rhs", "energy_c": "energy"}
+#: :func:`jax_functions` of each loaded module, by the module's name
+_JAX_BUILDS: dict[str, dict[str, Callable]] = {}
+
+
+def jax_functions(module: Any) -> dict[str, Callable]:
+    """The generated ``module``'s functions built over ``jax.numpy`` from its own source
+    file: the very statements numba compiled (:func:`module_source`), decorators dropped,
+    ``math`` bound to ``jax.numpy``'s functions and ``min``/``max`` to selects with
+    Python's (and numba's) choice.  They write their outputs in place, so they are called
+    on :class:`~tspend.runtime.law.Slots`."""
+    import ast
+
+    import jax.numpy as jnp
+
+    from tspend.runtime.law import jax_math
+
+    if module.__name__ in _JAX_BUILDS:
+        return _JAX_BUILDS[module.__name__]
+    tree = ast.parse(Path(module.__file__).read_text(encoding="utf-8"))
+    kept = []
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef) and not node.name.endswith("_c"):
+            node.decorator_list = []
+            kept.append(node)
+        elif isinstance(node, ast.Assign) and all(isinstance(t, ast.Name) and t.id.isupper()
+                                                  and not t.id.startswith("_")
+                                                  for t in node.targets):
+            kept.append(node)           # NV, NU, NP
+    scope: dict[str, Any] = {"math": jax_math(),
+                             "min": lambda a, b: jnp.where(b < a, b, a),
+                             "max": lambda a, b: jnp.where(b > a, b, a)}
+    exec(compile(ast.Module(body=kept, type_ignores=[]), module.__file__, "exec"), scope)
+    built = {name: scope[name] for name in ("dynamics", "dynamics_free", "energy", "rhs")}
+    _JAX_BUILDS[module.__name__] = built
+    return built
+
+
+def jax_function_at(fn: Any) -> Callable:
+    """The JAX build (:func:`jax_functions`) of the generated function whose numba C entry
+    (``rhs_c``, ``energy_c`` of a loaded module) the ctypes function ``fn`` calls."""
+    import ctypes
+
+    address = ctypes.cast(fn, ctypes.c_void_p).value
+    for module in _LOADED.values():
+        for entry, name in _C_ENTRIES.items():
+            if getattr(module, entry).address == address:
+                return jax_functions(module)[name]
+    raise LookupError(f"no loaded derivation has a C entry at {address:#x}")

@@ -33,6 +33,9 @@ from tspend.plants.base import InputInfo, JointInfo, MachinePlant, Plant, TaskDe
 from tspend.plants.domain import (COMPILED_VIEW_ACCEL, FULL_STATE, SYMBOLIC, VIEW_MODEL, Backend,
     Domain, FullModel, PlantLabels, PlantModel, Quantity)
 from tspend.plants.mujoco_plant import MujocoPlant
+from tspend.plants.articulated.derive import jax_function_at
+import tspend.runtime.xp as xp
+from tspend.runtime.law import Slots, mark_law, with_jax_form
 
 if TYPE_CHECKING:
     from tspend.config import Scenario
@@ -171,32 +174,73 @@ class DerivedRHS(NamedTuple):
     dry: np.ndarray
 
 
+def _generated_rhs_jax(fn: Any, s: Any, u: Any, qfrc: Any, p: Any, M: Any, r: Any,
+                       sdot: Any) -> Any:
+    """:func:`call_rhs`'s JAX form: the same generated ``rhs`` source built over
+    ``jax.numpy`` (:func:`.derive.jax_function_at`), on arrays it writes in place."""
+    out = Slots.of(sdot)
+    jax_function_at(fn)(s, u, qfrc, p, Slots.of(M), Slots.of(r), out)
+    return out.frozen(),
+
+
+@with_jax_form(_generated_rhs_jax)
+@register_jitable
+def call_rhs(fn: Any, s: np.ndarray, u: np.ndarray, qfrc: np.ndarray, p: np.ndarray,
+             M: np.ndarray, r: np.ndarray, sdot: np.ndarray) -> tuple:
+    """``(sdot,)``, ``sdot`` written by the generated ``rhs`` (equations (3) of :mod:`.derive`): its
+    numba build called by the C address ``fn``; its JAX form evaluates the same source."""
+    fn(s.ctypes.data, u.ctypes.data, qfrc.ctypes.data, p.ctypes.data, M.ctypes.data,
+       r.ctypes.data, sdot.ctypes.data)
+    return sdot,
+
+
+def _generated_energy_jax(fn: Any, q: Any, qd: Any, p: Any, T: Any, V: Any) -> Any:
+    """:func:`call_energy`'s JAX form (as :func:`_generated_rhs_jax`)."""
+    T, V = Slots.of(T), Slots.of(V)
+    jax_function_at(fn)(q, qd, p, T, V)
+    return T[0] + V[0]
+
+
+@with_jax_form(_generated_energy_jax)
+@register_jitable
+def call_energy(fn: Any, q: np.ndarray, qd: np.ndarray, p: np.ndarray, T: np.ndarray,
+                V: np.ndarray) -> float:
+    """``T + V`` of the generated ``energy`` ((1)-(2) of :mod:`.derive`), as :func:`call_rhs`."""
+    fn(q.ctypes.data, qd.ctypes.data, p.ctypes.data, T.ctypes.data, V.ctypes.data)
+    return T[0] + V[0]
+
+
+@mark_law
 @register_jitable
 def applied_forces(qfrc: np.ndarray, s: np.ndarray, d_joint: int, d_scale: float, d: float,
-                   dry: np.ndarray) -> None:
+                   dry: np.ndarray) -> tuple:
     """The generalised forces a derived ODE applies besides its equations, into ``qfrc``:
     ``d_scale d`` on joint ``d_joint``, and on each joint ``j`` with ``dry[j] > 0`` the
     smooth dry friction ``-dry[j] tanh(q'_j / v_s)`` (the cart-pole's ODE twin: MuJoCo's
     ``frictionloss`` is a soft constraint, this its smooth stand-in, as the hand-written
     cart-pole has it; every other machine leaves dry friction out, a named departure).
-    One function for the generic and the compiled loop, so they agree bit for bit."""
+    One law (:mod:`tspend.runtime.law`) for the generic, the compiled loop and JAX;
+    returns ``(qfrc,)`` (compiled code without numba's runtime returns an array it was
+    given only inside a tuple)."""
     nv = qfrc.size
-    qfrc[:] = 0.0
-    qfrc[d_joint] = d_scale * d
     for j in range(nv):
-        if dry[j] > 0.0:
-            qfrc[j] -= dry[j] * math.tanh(s[nv + j] / DRY_FRICTION_SLIP)
+        f = d_scale * d if j == d_joint else 0.0
+        qfrc = xp.put(qfrc, j, xp.where(dry[j] > 0.0,
+                                        f - dry[j] * math.tanh(s[nv + j] / DRY_FRICTION_SLIP), f))
+    return qfrc,
 
 
+@mark_law
 @register_jitable
 def derived_rhs(m: DerivedRHS, t: float, s: np.ndarray, u: float, d: float,
-                sdot: np.ndarray) -> None:
-    """``s' = f(s, u)`` of the derived equations into ``sdot`` (as :meth:`Machine.rhs_into`)."""
-    m.u[:] = 0.0
-    m.u[m.actuator] = u
-    applied_forces(m.qfrc, s, m.d_joint, m.d_scale, d, m.dry)
-    m.fn(s.ctypes.data, m.u.ctypes.data, m.qfrc.ctypes.data, m.p.ctypes.data,
-         m.M.ctypes.data, m.r.ctypes.data, sdot.ctypes.data)
+                sdot: np.ndarray) -> tuple:
+    """``(sdot,)``: ``s' = f(s, u)`` of the derived equations into ``sdot`` (as
+    :meth:`Machine.rhs_into`)."""
+    inputs = m.u
+    for k in range(inputs.size):
+        inputs = xp.put(inputs, k, u if k == m.actuator else 0.0)
+    qfrc, = applied_forces(m.qfrc, s, m.d_joint, m.d_scale, d, m.dry)
+    return call_rhs(m.fn, s, inputs, qfrc, m.p, m.M, m.r, sdot)
 
 
 COMPILED_RHS[DerivedRHS] = derived_rhs
@@ -320,27 +364,27 @@ class DerivedFull(NamedTuple):
     V0: float
 
 
+@mark_law
 @register_jitable
 def derived_full_accel(m: DerivedFull, s: np.ndarray, u: float) -> tuple:
     """``q''(s, u)`` padded with zeros to 6 entries (the derivation's most joints): a
     tuple, as compiled code without allocation can return one."""
-    derived_rhs(m.rhs, 0.0, s, u, 0.0, m.sdot)
-    q = m.sdot[m.s.size // 2:]
+    sdot, = derived_rhs(m.rhs, 0.0, s, u, 0.0, m.sdot)
+    nv = m.s.size // 2
     a = m.pad
     for i in range(6):
-        a[i] = q[i] if i < q.size else 0.0
+        a = xp.put(a, i, sdot[nv + i] if i < nv else 0.0)
     return a[0], a[1], a[2], a[3], a[4], a[5]
 
 
+@mark_law
 @register_jitable
 def derived_pole_energy(m: DerivedFull, s: np.ndarray) -> float:
     nv = m.s.size // 2
-    m.s[:] = 0.0
-    m.s[m.pole] = s[m.pole]
-    m.s[nv + m.pole] = s[nv + m.pole]
-    m.energy_fn(m.s.ctypes.data, m.s[nv:].ctypes.data, m.rhs.p.ctypes.data,
-                m.T.ctypes.data, m.V.ctypes.data)
-    return m.T[0] + m.V[0] - m.V0
+    at = m.s
+    for k in range(2 * nv):
+        at = xp.put(at, k, s[k] if k == m.pole or k == nv + m.pole else 0.0)
+    return call_energy(m.energy_fn, at, at[nv:], m.rhs.p, m.T, m.V) - m.V0
 
 
 def derived_full_of(machine: Machine, pole: int) -> DerivedFull:
@@ -395,14 +439,17 @@ class DerivedView(NamedTuple):
         return derived_view_accel(self, t, x, u, d)
 
 
+@mark_law
 @register_jitable
 def derived_view_accel(v: DerivedView, t: float, x: np.ndarray, u: float, d: float) -> float:
     nv = v.s.size // 2
-    v.s[:] = 0.0
-    v.s[v.joint] = x[0]
-    v.s[nv + v.joint] = x[1]
-    derived_rhs(v.rhs, t, v.s, u, d, v.sdot)
-    return v.sdot[nv + v.joint]
+    at = v.s
+    for k in range(2 * nv):
+        at = xp.put(at, k, 0.0)
+    at = xp.put(at, v.joint, x[0])
+    at = xp.put(at, nv + v.joint, x[1])
+    sdot, = derived_rhs(v.rhs, t, at, u, d, v.sdot)
+    return sdot[nv + v.joint]
 
 
 COMPILED_VIEW_ACCEL[DerivedView] = derived_view_accel

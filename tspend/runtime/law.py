@@ -1,7 +1,7 @@
 """Laws written once, over an array namespace, and built for numba and for JAX from that text.
 
 A *law* is a plain function whose array operations all go through the module-level name
-``xp`` (:mod:`tspend.controllers.xp`) and its scalar functions through ``math``: it reads its numbers from NamedTuples of arrays
+``xp`` (:mod:`tspend.runtime.xp`) and its scalar functions through ``math``: it reads its numbers from NamedTuples of arrays
 (the kind's design), writes arrays only through ``xp.put``/``xp.add`` and uses what they
 return, chooses by data only with ``xp.where``, and loops over ranges that are sizes of
 its design.  :func:`array_law` compiles it with numba for the CPU loops (``xp`` there writes
@@ -30,8 +30,8 @@ from numba import njit
 
 from tspend.runtime.jit import JIT
 
-__all__ = ["Cells", "array_law", "as_arrays", "as_cells", "is_law", "jax_design", "jax_form",
-           "jax_math", "jax_space", "jax_step", "mark_law"]
+__all__ = ["Cells", "Slots", "array_law", "as_arrays", "as_cells", "is_law", "jax_design",
+           "jax_form", "jax_math", "jax_space", "jax_step", "mark_law", "with_jax_form"]
 
 #: the Python functions written as laws (their numba builds' ``py_func``)
 _LAWS: set[Callable] = set()
@@ -61,6 +61,20 @@ def mark_law(fn: Callable) -> Callable:
     return fn
 
 
+def with_jax_form(jax_fn: Callable) -> Callable[[Callable], Callable]:
+    """Mark ``fn`` as a law whose JAX form is ``jax_fn``: for the few functions where the
+    backends must differ in *how* they reach one text, not in what it computes (a
+    generated model's numba build is called by its C address, its JAX build is the
+    same generated source evaluated over ``jax.numpy``: :mod:`tspend.plants.articulated.derive`)."""
+    def mark(fn: Callable) -> Callable:
+        py = getattr(fn, "py_func", fn)
+        _LAWS.add(py)
+        _JAX_FORMS[py] = jax_fn
+        return fn
+
+    return mark
+
+
 def _write(a: Any, index: Any, value: Any, accumulate: bool) -> Any:
     if isinstance(a, Cells):
         return a.write(index, value, accumulate)
@@ -69,13 +83,13 @@ def _write(a: Any, index: Any, value: Any, accumulate: bool) -> Any:
 
 def jax_space() -> types.SimpleNamespace:
     """The namespace ``xp`` of a law's JAX form: the names of
-    :mod:`tspend.controllers.xp`, over ``jax.numpy``, writes returning new arrays."""
+    :mod:`tspend.runtime.xp`, over ``jax.numpy``, writes returning new arrays."""
     import jax.numpy as jnp
 
     return types.SimpleNamespace(
         put=lambda a, index, value: _write(a, index, value, False),
         add=lambda a, index, value: _write(a, index, value, True),
-        where=jnp.where)
+        where=jnp.where, rounded_index=lambda v: jnp.round(v).astype(jnp.int64))
 
 
 def _static(i: Any) -> bool:
@@ -168,6 +182,30 @@ class Cells:
         return Cells.of(a.at[index].add(value) if accumulate else a.at[index].set(value))
 
 
+class Slots(Cells):
+    """A :class:`Cells` that generated straight-line code writes in place (``a[k] = v``,
+    static ``k``), as its numba build writes a numpy array: the JAX form of a generated
+    model (:func:`tspend.plants.articulated.derive.jax_functions`) runs on these."""
+
+    @classmethod
+    def of(cls, a: Any) -> "Slots":
+        cells = a if isinstance(a, Cells) else Cells.of(a)
+        slots = cls(cells.base, dict(cells.written))
+        slots.shape = cells.shape
+        return slots
+
+    def __setitem__(self, index: Any, value: Any) -> None:
+        index = index if isinstance(index, tuple) else (index,)
+        self.written[int(self._positions(index))] = value
+        self._array = None
+
+    def frozen(self) -> Cells:
+        """What was written, as a value (a :class:`Cells` no one writes again)."""
+        cells = Cells(self.base, dict(self.written))
+        cells.shape = self.shape
+        return cells
+
+
 def as_cells(tree: Any) -> Any:
     """Every JAX array of ``tree`` as :class:`Cells` (numpy arrays stay: static)."""
     import jax
@@ -209,7 +247,7 @@ def jax_math() -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         sqrt=jnp.sqrt, ceil=jnp.ceil, floor=jnp.floor, exp=jnp.exp, sin=jnp.sin,
-        cos=jnp.cos, tanh=jnp.tanh, fabs=jnp.abs, copysign=jnp.copysign, isnan=jnp.isnan, isfinite=jnp.isfinite,
+        cos=jnp.cos, tan=jnp.tan, tanh=jnp.tanh, log=jnp.log, atan2=jnp.arctan2, fabs=jnp.abs, copysign=jnp.copysign, isnan=jnp.isnan, isfinite=jnp.isfinite,
         pi=math.pi, inf=math.inf, nan=math.nan)
 
 
@@ -218,7 +256,7 @@ def jax_form(fn: Any) -> Callable:
     JAX namespaces and every law named in its globals replaced by that law's JAX form."""
     py = getattr(fn, "py_func", fn)
     if py not in _LAWS:
-        raise TypeError(f"{py.__qualname__} is not a law (tspend.controllers.law.array_law)")
+        raise TypeError(f"{py.__qualname__} is not a law (tspend.runtime.law.array_law)")
     if py in _JAX_FORMS:
         return _JAX_FORMS[py]
     scope = dict(py.__globals__)
