@@ -389,3 +389,58 @@ def test_a_period_the_baud_rate_cannot_carry_is_refused_before_any_frame(tmp_pat
     # 44 + 28 bytes of 10 bits at 115200 baud: 6.25 ms, longer than the 1 ms period
     assert "6.25 ms of line time, longer than the period 1 ms" in r.one_error_line()
     assert written == b""
+
+
+def _relay(master_a: int, master_b: int, done) -> None:
+    """Bytes between two pseudo-terminals, both ways: a null-modem cable."""
+    import select
+
+    while not done.is_set():
+        ready, _, _ = select.select([master_a, master_b], [], [], 0.05)
+        for fd in ready:
+            try:
+                data = os.read(fd, 4096)
+            except OSError:  # the other end closed
+                return
+            os.write(master_b if fd == master_a else master_a, data)
+
+
+def test_the_double_serves_a_serial_line(tmp_path):
+    """``rig serve --listen serial://`` end to end: the double on one pseudo-terminal, the
+    runner on another, the test's relay between them as the cable."""
+    pytest.importorskip("serial")
+    import threading
+
+    (rig_master, rig_slave), (host_master, host_slave) = pty.openpty(), pty.openpty()
+    for fd in (rig_slave, host_slave):
+        tty.setraw(fd)
+    done = threading.Event()
+    relay = threading.Thread(target=_relay, args=(rig_master, host_master, done), daemon=True)
+    relay.start()
+    log = tmp_path / "double.npz"
+    baud = "?baud=1000000"
+    try:
+        double = spawn("rig", "serve", SCENARIO, "--listen",
+                       f"serial://{os.ttyname(rig_slave)}{baud}", "--log", str(log),
+                       "--wait-s", "60", "--max-session-s", "90", cwd=tmp_path)
+        line = double.stdout.readline()
+        assert line.startswith("rig serve:"), line + double.stderr.read()
+        r = tspend("run", SCENARIO, "--controller", "lqr", "--rig",
+                   f"serial://{os.ttyname(host_slave)}{baud}", "--duration", "1",
+                   "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path,
+                   timeout=PROCESS_TIMEOUT_S)
+        out, _ = finish(double)
+    finally:
+        done.set()
+        relay.join(timeout=5)
+        for fd in (rig_slave, host_slave, rig_master, host_master):
+            os.close(fd)
+    assert r.status == 0, r.err
+    assert "completed: 500 steps" in r.out and "ended (stop frame)" in out
+    # what the controller saw is what the double measured, frame by frame, over the line
+    truth = np.load(log)
+    seq = rig_series(tmp_path / "rig.rrd", "sensor_seq").astype(int)
+    counts = rig_series(tmp_path / "rig.rrd", "counts").reshape(500, -1).astype(int)
+    sent = dict(zip(truth["sensor_seq"], map(tuple, truth["sensor_counts"])))
+    assert all(tuple(counts[k]) == sent[seq[k]] for k in range(500))
+    assert json.loads((tmp_path / "m.json").read_text())["timing"]["frames"]["corrupt"] == 0
