@@ -145,10 +145,11 @@ def warm_up(prepared, settings) -> None:
 def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[Sink] = (),
                stop=None, rec=None, notes: dict | None = None, fifo: bool = True):
     """Run ``prepared``'s controller on the rig; a :class:`~tspend.loop.simulation.RunResult`
-    without history.  The real-time settings granted go into the timing block."""
+    with its history (what the host saw and sent: the twin's reference).  The real-time
+    settings granted go into the timing block."""
     from tspend.loop.metrics import MetricsAccumulator
     from tspend.loop.runner import ClosedLoop, LoopSettings
-    from tspend.loop.simulation import RunResult, machine_info, run_info
+    from tspend.loop.simulation import History, RunResult, machine_info, run_info
     from tspend.rig.realtime import real_time
 
     scenario, ctrl, task = prepared.scenario, prepared.controller, prepared.task
@@ -170,5 +171,6 @@ def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[S
         timing = TimingSink(plant, session, rec, notes)
         for sink in sinks:  # the first block comes at the end now: no "compiling" notice
             getattr(sink, "cancel", lambda: None)()
-        end = loop.run(info, [DeferredSinks([metrics, timing, *sinks], session.close)])
-    return RunResult(scenario, end, {}, ctrl, plant, info)
+        history = History()
+        end = loop.run(info, [DeferredSinks([metrics, timing, history, *sinks], session.close)])
+    return RunResult(scenario, end, history.arrays(), ctrl, plant, info)

@@ -50,8 +50,7 @@ def replay(path) -> ReplayResult:
     """Every recorded command of the rig run at ``path`` recomputed from its sensor frames."""
     from tspend.controllers.base import Observation
     from tspend.loop.simulation import prepare
-    from tspend.plants.base import velocity_name
-    from tspend.rig.estimator import SensorState, VelocityEstimator
+    from tspend.rig.estimator import VelocityEstimator, sensor_state
     from tspend.rig.runner import model_not_stepped
     from tspend.scenario import parse_scenario
 
@@ -63,15 +62,12 @@ def replay(path) -> ReplayResult:
     with model_not_stepped():
         prepared = prepare(scenario, controller=notes["controller"])
     plant, ctrl, task = prepared.plant, prepared.controller, prepared.task
-    names = plant.state_names
     counts = _series(path, "counts").reshape(len(_series(path, "fresh")), -1)
     rig_time_us, fresh = _series(path, "rig_time_us"), _series(path, "fresh")
     ref, recorded_u = _series(path, "ref"), _series(path, "u")
     ref = ref.reshape(len(recorded_u), -1)
-    sensors = SensorState(np.asarray(notes["counts_per_unit"], dtype=float),
-                          np.array([names.index(j.name) for j in plant.joints]),
-                          np.array([names.index(velocity_name(j.name)) for j in plant.joints]),
-                          len(names), VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
+    sensors = sensor_state(plant, notes["counts_per_unit"],
+                           VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
     dt, view = scenario.run.dt, task.view_index
     equal, first, first_replayed = 0, None, None
     for k in range(len(recorded_u)):

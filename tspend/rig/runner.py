@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tspend.runtime.errors import DivergenceError
-from tspend.plants.base import Plant, velocity_name
+from tspend.plants.base import Plant
 from tspend.rig import protocol
-from tspend.rig.estimator import SensorState, VelocityEstimator
+from tspend.rig.estimator import ModelFacade, VelocityEstimator, sensor_state
 from tspend.rig.links import FIRST_FRAME_TIMEOUT_S, RigLink, RigRefused
 from tspend.rig.protocol import Command, Hello
 from tspend.rig.realtime import wait_until
@@ -96,7 +96,7 @@ class RigSettings:
     estimator: VelocityEstimator = VelocityEstimator()
 
 
-class RigPlant(Plant):
+class RigPlant(ModelFacade):
     """The rig as the closed loop's plant; the model plant answers what the rig does not
     (names, units, joints, inputs, the task's defaults)."""
 
@@ -104,12 +104,7 @@ class RigPlant(Plant):
         self.machine, self.link, self.hello, self.settings = machine, link, hello, settings
         self.order, self.domain, self.name = machine.order, machine.domain, f"rig:{machine.name}"
         self.log = CycleLog(settings.cycles, len(machine.joints))
-        names = machine.state_names
-        self.sensors = SensorState(
-            np.asarray(hello.counts_per_unit, dtype=float),
-            np.array([names.index(j.name) for j in machine.joints]),
-            np.array([names.index(velocity_name(j.name)) for j in machine.joints]),
-            len(names), settings.estimator)
+        self.sensors = sensor_state(machine, hello.counts_per_unit, settings.estimator)
         self._period_ns = round(settings.period_s * 1e9)
         self._t0_ns = 0
         self._cycle = 0
@@ -120,33 +115,6 @@ class RigPlant(Plant):
         self._lost = self._late = 0
         self._last_sent = 0.0
         self._silent = ""  # why the rig counts as gone ("" while it is not)
-
-    # what the model plant knows
-    @property
-    def state_names(self):
-        return self.machine.state_names
-
-    @property
-    def state_units(self):
-        return self.machine.state_units
-
-    @property
-    def joints(self):
-        return self.machine.joints
-
-    @property
-    def inputs(self):
-        return self.machine.inputs
-
-    def parameters(self) -> dict[str, float]:
-        return self.machine.parameters()
-
-    def default_task(self):
-        return self.machine.default_task()
-
-    @property
-    def gain_sign(self) -> int:
-        return self.machine.gain_sign
 
     def reset(self, x0: np.ndarray) -> None:
         """The rig is where it is: its first frame, not x0, is the initial state."""
@@ -248,9 +216,6 @@ class RigPlant(Plant):
         log.sent[k] = time.perf_counter_ns()
         log.u_sent[k] = self._last_sent = sent
         self._cycle = k + 1
-
-    def extras(self) -> dict[str, float]:
-        return {}
 
 
 class RigSession:

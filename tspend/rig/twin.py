@@ -1,0 +1,73 @@
+"""The simulated twin of a rig run and the gap between them.
+
+The twin is the rig run's scenario (at the rig's period) and controller on the model
+machine, from the rig's first measured state, its controller fed through the same encoders
+and velocity estimator the rig run used (:class:`~tspend.rig.estimator.SensedPlant`): the
+one difference left is the machine itself.  ``tspend run --rig ... --twin`` streams it into
+the rig run's own recording under ``twin/`` (every time-series view draws both) and writes
+the gap into the metrics' ``twin_gap`` block; ``tspend replay RUN.rrd --twin OUT.rrd`` makes
+it afterwards from a recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+#: the recording's prefix of the twin's run (beside the rig run's own entities)
+TWIN_PREFIX = "twin/"
+
+
+def simulate_twin(scenario, controller: str | None, start_view: np.ndarray, samples: int,
+                  counts_per_unit, tau_s: float, sinks: Sequence = ()):
+    """The twin's run, with its history: ``samples`` samples of ``scenario`` (already at the
+    rig's period) from ``start_view`` (the task's view of the rig's first state)."""
+    from tspend.loop.simulation import prepare, run
+    from tspend.rig.estimator import SensedPlant, VelocityEstimator
+    from tspend.rig.runner import model_not_stepped
+    from tspend.scenario import override
+
+    twin_scn = override(scenario, **{"plant.x0": [float(v) for v in start_view],
+                                     "run.duration": samples * scenario.run.dt})
+    with model_not_stepped():
+        prepared = prepare(twin_scn, controller=controller)
+    sensed = SensedPlant(prepared.plant, tuple(counts_per_unit), VelocityEstimator(tau_s))
+    return run(prepared.scenario, sinks=sinks, keep_history=True,
+               prepared=replace(prepared, plant=sensed))
+
+
+def twin_gap(rig_state: np.ndarray, rig_u: np.ndarray, twin, state_units: Sequence[str],
+             u_unit: str) -> dict:
+    """The metrics' ``twin_gap`` block: per state entry and for the command, the rms and the
+    largest |twin - rig| over the samples both have, in the entry's unit."""
+    names = twin.info.state_names
+    steps = min(len(twin.history.get("u", ())), len(rig_u))
+    block = {"samples": steps, "twin_status": twin.status, "states": {}}
+    if steps == 0:
+        return block
+    gap = twin.history["state"][:steps] - rig_state[:steps]
+    for i, name in enumerate(names):
+        block["states"][name] = _stats(gap[:, i], state_units[i])
+    block["u"] = _stats(twin.history["u"][:steps] - rig_u[:steps], u_unit)
+    return block
+
+
+def _stats(gap: np.ndarray, unit: str) -> dict:
+    return {"unit": unit, "rms": float(np.sqrt(np.mean(gap ** 2))),
+            "max_abs": float(np.abs(gap).max())}
+
+
+def twin_of_run(prepared, rig_history: dict, counts_per_unit, tau_s: float,
+                controller: str | None, sinks: Sequence = ()) -> dict:
+    """The twin of the rig run just made (``rig_history``: its recorded samples), streamed
+    into ``sinks``; the ``twin_gap`` block."""
+    rig_state, rig_u = rig_history.get("state"), rig_history.get("u")
+    if rig_state is None or len(rig_u) == 0:
+        return {"samples": 0, "twin_status": "not run: the rig run recorded no sample"}
+    view = prepared.task.view_index
+    twin = simulate_twin(prepared.scenario, controller, rig_state[0][view], len(rig_u),
+                         counts_per_unit, tau_s, sinks)
+    plant = prepared.plant
+    return twin_gap(rig_state, rig_u, twin, plant.state_units, plant.inputs[0].unit)
