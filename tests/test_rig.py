@@ -124,6 +124,8 @@ def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp
         assert q["p50"] <= q["p99"] <= q["p99_9"] <= q["max"]
     assert set(timing["frames"]) >= {"lost", "late", "corrupt"}
     assert "velocity_estimator" in timing and "realtime" in timing
+    # the double's clock is the host's: no drift to speak of (the minima of 11 windows)
+    assert timing["clock"]["windows"] >= 10 and abs(timing["clock"]["rig_gain_us_per_s"]) < 50
     # the timing panels are in the recording, one value per cycle
     assert len(rig_series(tmp_path / "rig.rrd", "lateness_us")) == 1500
     # what the controller saw is what the double measured, frame by frame
@@ -136,6 +138,25 @@ def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp
     again = tspend("replay", "rig.rrd", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
     assert again.status == 0, again.err
     assert "1500 commands equal bit for bit, 0 differ" in again.out
+
+
+def test_a_drifting_rig_clock_is_measured_followed_and_said(tmp_path):
+    """A double whose clock runs 300 ppm slow: the timing block states the drift, the
+    schedule re-aligns on the rig's clock and one line says so.  Without re-alignment each
+    frame would reach the host after its deadline from 0.7 s on (the 0.2 ms lead at 2 ms
+    periods, lost at 300 us per s): two thirds of the cycles stale."""
+    double, url, _ = start_double(tmp_path, "--clock-ppm", "-300")
+    r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
+               "--metrics", "m.json", "--no-record", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    finish(double)
+    assert r.status == 0, r.err
+    timing = json.loads((tmp_path / "m.json").read_text())["timing"]
+    clock = timing["clock"]
+    assert -330 < clock["rig_gain_us_per_s"] < -270, clock
+    # 3 s at 300 ppm: 900 us, re-aligned in steps of at most a window's drift past the bound
+    assert clock["realigned"] >= 4 and 700 < clock["schedule_shift_us"] < 1000, clock
+    assert timing["frames"]["stale_cycles"] < 0.01 * timing["cycles"]
+    assert "the rig's clock loses 3" in r.out and "us per s on the host's" in r.out
 
 
 def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):

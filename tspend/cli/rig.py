@@ -152,6 +152,9 @@ class RigRun:
             raise
         finally:
             self.session.close()  # the stop frame at once, before the outputs are completed
+        drift = plant.clock.warning() if plant.clock is not None else ""
+        if drift:
+            print(f"rig: {drift}", flush=True)
         if self.args.twin:
             from tspend.rig.twin import twin_of_run
 

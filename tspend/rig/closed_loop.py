@@ -113,8 +113,10 @@ class TimingSink:
         pass
 
     def finish(self, end: RunEnd) -> None:
+        clock = getattr(self.plant, "clock", None)  # none when no frame ever came
         end.metrics["timing"] = {**self.plant.log.block(self.session.period_s,
                                                        self.plant.settings.miss_policy),
+                                 "clock": clock.block() if clock is not None else {},
                                  **self.notes.get("timing_notes", {})}
 
 

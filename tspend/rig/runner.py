@@ -25,8 +25,8 @@ from tspend.rig import protocol
 from tspend.rig.estimator import ModelFacade, VelocityEstimator, sensor_state
 from tspend.rig.links import FIRST_FRAME_TIMEOUT_S, RigLink, RigRefused
 from tspend.rig.protocol import Command, Hello
-from tspend.rig.realtime import wait_until
-from tspend.rig.timing import CycleLog
+from tspend.rig.realtime import SPIN_NS, wait_until
+from tspend.rig.timing import ClockTracker, CycleLog
 
 MISS_POLICIES = ("hold", "zero", "stop")
 #: the first deadline comes this share of a period after the first sensor frame arrived:
@@ -36,6 +36,12 @@ MISS_POLICIES = ("hold", "zero", "stop")
 ALIGN_SHARE = 0.1
 #: frames whose arrival aligns the schedule on the rig's clock
 ALIGN_FRAMES = 5
+#: the host polls for frames from this share of a period before each deadline on, stamping
+#: each arrival (the clock's drift is measured on them): twice the expected arrival's lead
+LISTEN_SHARE = 2 * ALIGN_SHARE
+#: the schedule re-aligns on the rig's clock when the offset moved by this share of a
+#: period: arrivals then stay inside the listening window and before their deadline
+REALIGN_SHARE = ALIGN_SHARE / 4
 #: the rig's watchdog must outlast this many periods (a command a period late is not a
 #: lost host)
 WATCHDOG_PERIODS = 2
@@ -115,6 +121,7 @@ class RigPlant(ModelFacade):
         self._lost = self._late = 0
         self._last_sent = 0.0
         self._silent = ""  # why the rig counts as gone ("" while it is not)
+        self.clock: ClockTracker | None = None  # from the first frames on (begin)
 
     def reset(self, x0: np.ndarray) -> None:
         """The rig is where it is: its first frame, not x0, is the initial state."""
@@ -143,6 +150,8 @@ class RigPlant(ModelFacade):
         self._t0_ns = (offset + last.rig_time_us * 1000 + self._period_ns
                        + round(ALIGN_SHARE * self._period_ns))
         self._last_fresh_ns = self._t0_ns
+        self.clock = ClockTracker(offset, self._period_ns,
+                                  round(REALIGN_SHARE * self._period_ns))
 
     def full_state(self) -> np.ndarray:
         k = self._cycle
@@ -152,8 +161,8 @@ class RigPlant(ModelFacade):
             self.begin()
         log = self.log
         log.deadline[k] = deadline = self._t0_ns + k * self._period_ns
-        log.wake[k] = wait_until(deadline)
-        newest = self._take_frames(k)
+        frames, log.wake[k] = self._listen(deadline)
+        newest = self._take_frames(k, frames)
         fresh_frame = newest is not None and newest.seq > self._used_seq
         if fresh_frame:
             self._last_fresh_ns = log.wake[k]
@@ -177,14 +186,31 @@ class RigPlant(ModelFacade):
         log.lost[k] = max(self._lost - self.link.rejected, 0)
         log.late[k], log.rejected[k] = self._late, self.link.rejected
         log.read[k] = time.perf_counter_ns()
+        self._t0_ns += self.clock.end_of_cycle(k, log.read[k])
         self._read_cycle = k
         log.cycles = k + 1
         return self.sensors.state.copy()
 
-    def _take_frames(self, k: int):
-        """The newest frame, counting lost (gaps in the sequence) and late ones (arrived
-        after their own cycle's deadline)."""
-        frames = self.link.poll()
+    def _listen(self, deadline: int) -> tuple[list, int]:
+        """Sleep to the listening window before ``deadline``, then poll until it (and once
+        at it), each frame's arrival stamped for the clock tracker; the frames and the
+        wake-up time."""
+        clock, link, frames = time.perf_counter_ns, self.link, []
+        wait_until(deadline - max(SPIN_NS, round(LISTEN_SHARE * self._period_ns)))
+        while True:
+            now = clock()
+            got = link.poll()
+            if got:
+                arrived = clock()
+                for frame in got:
+                    self.clock.arrived(arrived, frame.rig_time_us)
+                frames += got
+            if now >= deadline:
+                return frames, now
+
+    def _take_frames(self, k: int, frames: list):
+        """The newest of ``frames``, counting lost (gaps in the sequence) and late ones
+        (arrived after their own cycle's deadline)."""
         newest = None
         for frame in frames:
             if frame.seq > self._highest_seq:
