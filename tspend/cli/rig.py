@@ -162,7 +162,7 @@ class RigRun:
                   flush=True)
             result.end.metrics["twin_gap"] = twin_of_run(
                 prepared, result.history, hello.counts_per_unit, estimator.tau_s, controller,
-                twin_sinks)
+                twin_sinks)[0]
         return result
 
 

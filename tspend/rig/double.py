@@ -242,7 +242,9 @@ class SimulatedRig:
         if i % s.every == 0:
             counts = tuple(int(round(v)) for v in s.state[self.joint_index] * self.hello.counts_per_unit)
             flags = protocol.WATCHDOG_TRIPPED if s.tripped else 0
-            rig_us = int((now - s.t0) * (1.0 + f.clock_ppm * 1e-6)) // 1000  # the rig's own clock
+            # the sampling instant on the rig's own clock, as a rig's timer stamps it: the
+            # tick's time (a fast or slow clock shows in when the ticks come on the host's)
+            rig_us = round(i * self.dt * 1e6)
             frame = protocol.sensor(Sensor(s.seq, rig_us, s.command_seq, flags, counts))
             dropped = f.drop > 0 and self.rng.random() < f.drop
             corrupted = f.corrupt > 0 and self.rng.random() < f.corrupt

@@ -59,15 +59,33 @@ def _stats(gap: np.ndarray, unit: str) -> dict:
             "max_abs": float(np.abs(gap).max())}
 
 
+def twin_start(plant, scenario_x0, rig_first_state: np.ndarray, view: np.ndarray,
+               counts_per_unit) -> tuple[np.ndarray, str]:
+    """Where the twin starts, and which: the scenario's x0 when it reads as the rig's first
+    frame's counts (the rig was set there, and its encoders cannot tell the two apart: x0
+    is the better estimate inside the count), else the rig's first measured state (the
+    task's view of it; velocities as the estimator had them, 0)."""
+    from tspend.rig.estimator import VelocityEstimator, sensor_state
+
+    sensors = sensor_state(plant, counts_per_unit, VelocityEstimator())
+    plant.reset(np.asarray(scenario_x0, dtype=float))
+    at_x0 = np.round(plant.full_state()[sensors.position_index] * sensors.counts_per_unit)
+    measured = np.round(rig_first_state[sensors.position_index] * sensors.counts_per_unit)
+    if np.array_equal(at_x0, measured):
+        return np.asarray(scenario_x0, dtype=float), "x0"
+    return rig_first_state[view], "measured"
+
+
 def twin_of_run(prepared, rig_history: dict, counts_per_unit, tau_s: float,
-                controller: str | None, sinks: Sequence = ()) -> dict:
-    """The twin of the rig run just made (``rig_history``: its recorded samples), streamed
-    into ``sinks``; the ``twin_gap`` block."""
+                controller: str | None, sinks: Sequence = ()) -> tuple[dict, object]:
+    """The twin of a rig run (``rig_history``: its samples, ``state`` and ``u``), streamed
+    into ``sinks``: the ``twin_gap`` block and the twin's run (None when not run)."""
     rig_state, rig_u = rig_history.get("state"), rig_history.get("u")
     if rig_state is None or len(rig_u) == 0:
-        return {"samples": 0, "twin_status": "not run: the rig run recorded no sample"}
-    view = prepared.task.view_index
-    twin = simulate_twin(prepared.scenario, controller, rig_state[0][view], len(rig_u),
-                         counts_per_unit, tau_s, sinks)
-    plant = prepared.plant
-    return twin_gap(rig_state, rig_u, twin, plant.state_units, plant.inputs[0].unit)
+        return {"samples": 0, "twin_status": "not run: the rig run recorded no sample"}, None
+    plant, scenario = prepared.plant, prepared.scenario
+    start, which = twin_start(plant, scenario.plant.x0, rig_state[0], prepared.task.view_index,
+                              counts_per_unit)
+    twin = simulate_twin(scenario, controller, start, len(rig_u), counts_per_unit, tau_s, sinks)
+    gap = twin_gap(rig_state, rig_u, twin, plant.state_units, plant.inputs[0].unit)
+    return {**gap, "start": which}, twin
