@@ -192,6 +192,18 @@ def sensed_scenario(args, scn):
     return rig_scenario(scn, scn.run.control_period or scn.run.dt)
 
 
+def encoder_counts(args, joints) -> tuple[float, ...]:
+    """``--counts-per-unit``, one per joint, or the simulated rig's default encoders."""
+    from tspend.runtime.errors import ScenarioError
+    from tspend.rig.estimator import default_counts_per_unit
+
+    counts = args.counts_per_unit or default_counts_per_unit(joints)
+    if len(counts) != len(joints):
+        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
+                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    return tuple(counts)
+
+
 def sensed_plant(args, prepared):
     """With ``--estimator`` (no ``--rig``): ``prepared`` with its plant seen through a rig's
     encoders and velocity estimator (:class:`tspend.rig.estimator.SensedPlant`)."""
@@ -200,16 +212,13 @@ def sensed_plant(args, prepared):
     from dataclasses import replace
 
     from tspend.runtime.errors import ScenarioError
-    from tspend.rig.estimator import SensedPlant, VelocityEstimator, default_counts_per_unit
+    from tspend.rig.estimator import SensedPlant, VelocityEstimator
 
     joints = prepared.plant.joints
     if not joints:
         raise ScenarioError(f"--estimator: the plant ({prepared.scenario.plant.kind}) has no "
                             f"joints to read encoders from")
-    counts = args.counts_per_unit or default_counts_per_unit(joints)
-    if len(counts) != len(joints):
-        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
-                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    counts = encoder_counts(args, joints)
     estimator = VelocityEstimator(args.velocity_tau_ms * 1e-3)
     print(f"sensors: encoders of {', '.join(f'{c:g}' for c in counts)} counts per unit; "
           f"velocities: {estimator.describe()}", flush=True)
@@ -277,7 +286,6 @@ def build_double(args: argparse.Namespace, scn):
     from tspend.runtime.errors import ScenarioError
     from tspend.loop.simulation import build_plant
     from tspend.rig.double import Faults, SimulatedRig, u_limit_of
-    from tspend.rig.estimator import default_counts_per_unit
     from tspend.rig.protocol import MAX_JOINTS, Hello
     from tspend.rig.runner import machine_id
 
@@ -291,10 +299,7 @@ def build_double(args: argparse.Namespace, scn):
     if not 0 < len(joints) <= MAX_JOINTS:
         raise ScenarioError(f"{scn.name}: a rig carries 1 to {MAX_JOINTS} joints; this machine "
                             f"has {len(joints)}")
-    counts = args.counts_per_unit or default_counts_per_unit(joints)
-    if len(counts) != len(joints):
-        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
-                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    counts = encoder_counts(args, joints)
     dt = scn.run.dt
     for option in ("min_period_ms", "max_period_ms"):
         period = getattr(args, option) * 1e-3
