@@ -188,6 +188,12 @@ def test_the_twin_is_drawn_in_the_rig_runs_recording_and_its_gap_is_in_the_metri
         assert len(t_rig) > 50 and np.array_equal(t_rig, t_twin)
         # the recorded samples are a subset of those the metrics' gap covers
         assert np.abs(twin - rig).max() <= gap["states"]["hinge"]["max_abs"] + 1e-12
+    # export keeps the rig run's own column names (identify reads them) beside the twin's
+    r = tspend("export", "rig.rrd", "--out", "e.csv", cwd=tmp_path / "exact",
+               timeout=PROCESS_TIMEOUT_S)
+    assert r.status == 0, r.err
+    header = (tmp_path / "exact" / "e.csv").read_text().splitlines()[0].split(",")
+    assert {"hinge_rad", "u_N", "twin_hinge_rad", "twin_u_N"} <= set(header), header
     exact, heavy = gaps["exact"]["states"], gaps["heavy"]["states"]
     assert gaps["exact"]["start"] == gaps["heavy"]["start"] == "x0"
     # on the exact double: within the encoders' counts (it parts from the rig only where a
