@@ -47,23 +47,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "long (default 50)")
     s.add_argument("--amp-limit", type=finite(), metavar="U",
                    help="the amplifier's limit on |u| (default: the machine's input range)")
-    for name, what in (("drop", "share of sensor frames dropped"),
-                       ("corrupt", "share of frames with one bit flipped (sensor frames sent, "
-                                   "commands received)")):
-        s.add_argument(f"--{name}", type=finite(0.0, 0.5, strict=False), default=0.0,
-                       metavar="P", help=f"{what}, 0 to 0.5 (default 0)")
-    for name, what in (("sensor-latency-ms", "added to every sensor frame"),
-                       ("command-latency-ms", "before a received command acts"),
-                       ("jitter-ms", "uniform extra latency, 0 to this, on each frame")):
-        s.add_argument(f"--{name}", type=finite(0.0, 1000.0, strict=False), default=0.0,
-                       metavar="MS", help=f"latency {what} (ms, default 0)")
-    s.add_argument("--clock-ppm", type=finite(-10_000.0, 10_000.0, strict=False), default=0.0,
-                   metavar="PPM",
-                   help="the rig's clock error against the host's, parts per million, "
-                        "-10000 to 10000 (positive: it runs fast; default 0); a crystal is "
-                        "typically within 50 (e.g. --clock-ppm 1000: 1 ms gained per second)")
-    s.add_argument("--fault-seed", type=bounded_int(0, 2**32 - 1), default=0, metavar="N",
-                   help="seed of the drawn faults (default 0)")
+    _add_fault_options(s)
     s.add_argument("--log", metavar="PATH.npz",
                    help="write the double's true state, commands, frames and events (one file "
                         "per session: PATH.npz, then PATH-2.npz ...); never replaces a file")
@@ -76,6 +60,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the longest session (default 600)")
     s.set_defaults(handler=cmd)
     return r
+
+
+def _add_fault_options(s: argparse.ArgumentParser) -> None:
+    """``rig serve``'s faults: what the double does to the frames and its clock."""
+    for name, what in (("drop", "share of sensor frames dropped"),
+                       ("corrupt", "share of frames with one bit flipped (sensor frames sent, "
+                                   "commands received)")):
+        s.add_argument(f"--{name}", type=finite(0.0, 0.5, strict=False), default=0.0,
+                       metavar="P", help=f"{what}, 0 to 0.5 (default 0)")
+    for name, what in (("sensor-latency-ms", "added to every sensor frame"),
+                       ("command-latency-ms", "before a received command acts"),
+                       ("jitter-ms", "uniform extra latency, 0 to this, on each frame")):
+        s.add_argument(f"--{name}", type=finite(0.0, 1000.0, strict=False), default=0.0,
+                       metavar="MS", help=f"latency {what} (ms, default 0)")
+    s.add_argument("--clock-ppm", type=finite(-2000.0, 2000.0, strict=False), default=0.0,
+                   metavar="PPM",
+                   help="the rig's clock error against the host's, parts per million, "
+                        "-2000 to 2000 (positive: it runs fast; default 0); a crystal is "
+                        "typically within 50 (e.g. --clock-ppm 300: 0.3 ms gained per second)")
+    s.add_argument("--fault-seed", type=bounded_int(0, 2**32 - 1), default=0, metavar="N",
+                   help="seed of the drawn faults (default 0)")
 
 
 def add_rig_options(p: argparse.ArgumentParser) -> None:
