@@ -144,7 +144,7 @@ def test_a_drifting_rig_clock_is_measured_followed_and_said(tmp_path):
     """A double whose clock runs 300 ppm slow: the timing block states the drift, the
     schedule re-aligns on the rig's clock and one line says so.  Without re-alignment each
     frame would reach the host after its deadline from 0.7 s on (the 0.2 ms lead at 2 ms
-    periods, lost at 300 us per s): two thirds of the cycles stale."""
+    periods, lost at 300 us per s): three quarters of the cycles stale."""
     double, url, _ = start_double(tmp_path, "--clock-ppm", "-300")
     r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
                "--metrics", "m.json", "--no-record", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
