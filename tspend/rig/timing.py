@@ -105,6 +105,8 @@ class ClockTracker:
         self.realigned = 0
         self.shift_ns = 0
         self._min: int | None = None
+        self._calibrated = False
+        self._pending = 0  # the previous window's excess past the bound (0: none)
 
     def arrived(self, host_ns: int, rig_time_us: int) -> None:
         lag = host_ns - rig_time_us * 1000
@@ -112,18 +114,30 @@ class ClockTracker:
             self._min = lag
 
     def end_of_cycle(self, cycle: int, host_ns: int) -> int:
-        """The shift (ns) to add to the schedule after ``cycle``: 0 but at the end of a
-        window whose minimum left the reference by more than the bound."""
+        """The shift (ns) to add to the schedule after ``cycle``: 0 but at the end of the
+        second window in a row whose minimum left the reference by more than the bound on
+        the same side (one window's outlier on a jittery link moves nothing); then the
+        smaller of the two excesses.  The first window's minimum is the reference (the
+        start's few frames would set it higher than a window of them)."""
         if (cycle + 1) % self.window_cycles or self._min is None:
             return 0
         self.windows.append((host_ns, self._min))
         excess, self._min = self._min - self.reference_ns, None
-        if abs(excess) <= self.bound_ns:
+        if not self._calibrated:
+            self._calibrated, self.reference_ns = True, self.reference_ns + excess
             return 0
-        self.reference_ns += excess
+        if abs(excess) <= self.bound_ns:
+            self._pending = 0
+            return 0
+        previous, self._pending = self._pending, excess
+        if previous == 0 or (previous > 0) != (excess > 0):
+            return 0
+        shift = min(previous, excess, key=abs)
+        self._pending = 0
+        self.reference_ns += shift
         self.realigned += 1
-        self.shift_ns += excess
-        return excess
+        self.shift_ns += shift
+        return shift
 
     def gain_us_per_s(self) -> float | None:
         """How fast the rig's clock gains on the host's (us per s; negative: it loses); None
