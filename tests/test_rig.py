@@ -106,6 +106,34 @@ def test_a_byte_stream_resynchronises_after_garbage_and_a_corrupt_frame():
     assert parser.rejected == 1
 
 
+def test_the_clock_tracker_measures_a_known_drift_and_ignores_one_outlier_window():
+    """Arrivals of frames from a rig clock 200 ppm slow, each delayed by a random queueing
+    of 0-300 us (one frame in a window at the floor): the minima's slope is the drift; the
+    schedule follows in steps past the bound; a window whose frames all queue 1 ms (one
+    outlier) moves nothing."""
+    from tspend.rig.timing import ClockTracker
+
+    period_ns, rng = 2_000_000, np.random.default_rng(0)
+    tracker = ClockTracker(0, period_ns, 50_000)
+    followed, host_ns = 0, 0
+    for k in range(3000):  # 6 s
+        rig_us = k * 2000
+        host_ns = round(rig_us * 1000 * (1 + 200e-6))  # a slow clock: later on the host's
+        queued = 0 if k % 10 == 0 else int(rng.integers(0, 300_000))
+        outlier = 1_000_000 if 1000 <= k < 1050 else 0  # window 20: every frame 1 ms late
+        tracker.arrived(host_ns + queued + outlier, rig_us)
+        followed += tracker.end_of_cycle(k, host_ns)
+    assert abs(tracker.gain_us_per_s() + 200) < 2  # loses 200 us per s
+    # 6 s at 200 us/s: 1.2 ms, followed to within the bound and a window's drift
+    assert abs(followed - 1_200_000) < 50_000 + 20_000 and tracker.realigned >= 10
+    assert tracker.shift_ns == followed
+    single = ClockTracker(0, period_ns, 50_000)
+    for k in range(200):  # 4 windows, the second 1 ms late: no shift
+        single.arrived(k * 2_000_000 + (1_000_000 if 50 <= k < 100 else 0), k * 2000)
+        assert single.end_of_cycle(k, k * 2_000_000) == 0
+    assert single.realigned == 0
+
+
 # -- the UDP double and the runner ------------------------------------------------------
 def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp_path):
     double, url, log = start_double(tmp_path)

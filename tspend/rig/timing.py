@@ -86,6 +86,8 @@ CLOCK_WINDOW_CYCLES = 20
 #: a rig clock gaining or losing more than this on the host's (us per s, i.e. ppm) is said
 #: in one line: twice a common crystal's tolerance
 CLOCK_WARN_US_PER_S = 100.0
+#: the most windows the drift's fit takes (evenly spread over the run)
+DRIFT_FIT_WINDOWS = 400
 
 
 class ClockTracker:
@@ -94,7 +96,7 @@ class ClockTracker:
     Each sensor frame's arrival (host ns, stamped as it is read) minus its rig timestamp is
     a lag: the clocks' offset plus the frame's transit and queueing.  Its minimum over a
     window of :data:`CLOCK_WINDOW_S` drops the queueing, so the minima follow the offset
-    alone; their slope against the host's time is the drift.  When a window's minimum has
+    alone; their slope against the host's time (a Theil-Sen fit) is the drift.  When a window's minimum has
     moved from the schedule's reference by more than ``bound_ns``, the schedule moves with
     it (:meth:`end_of_cycle` returns the shift): the deadlines stay on the rig's clock."""
 
@@ -144,9 +146,15 @@ class ClockTracker:
         before two windows."""
         if len(self.windows) < 2:
             return None
-        host_s = np.array([w[0] for w in self.windows], dtype=float) * 1e-9
-        lag_us = np.array([w[1] for w in self.windows], dtype=float) * 1e-3
-        return float(-np.polyfit(host_s - host_s[0], lag_us - lag_us[0], 1)[0])
+        from scipy.stats import theilslopes
+
+        # Theil-Sen (the median of the pairwise slopes): a window whose every frame
+        # queued (a load spike) does not tilt it; its cost is quadratic, so a long run's
+        # windows are thinned to an even subset
+        picked = np.unique(np.linspace(0, len(self.windows) - 1, DRIFT_FIT_WINDOWS).astype(int))
+        host_s = np.array([self.windows[i][0] for i in picked], dtype=float) * 1e-9
+        lag_us = np.array([self.windows[i][1] for i in picked], dtype=float) * 1e-3
+        return float(-theilslopes(lag_us - lag_us[0], host_s - host_s[0])[0])
 
     def block(self) -> dict:
         """The timing block's ``clock`` entry."""
