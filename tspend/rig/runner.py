@@ -41,7 +41,7 @@ ALIGN_FRAMES = 5
 LISTEN_SHARE = 2 * ALIGN_SHARE
 #: the schedule re-aligns on the rig's clock when the offset moved by this share of a
 #: period: arrivals then stay inside the listening window and before their deadline
-REALIGN_SHARE = ALIGN_SHARE / 4
+REALIGN_SHARE = ALIGN_SHARE / 2
 #: the rig's watchdog must outlast this many periods (a command a period late is not a
 #: lost host)
 WATCHDOG_PERIODS = 2
