@@ -229,7 +229,8 @@ class RigPlant(ModelFacade):
         log.ready[k] = ready = time.perf_counter_ns()
         if self._silent:
             raise RigSilent(self._silent)
-        sent = u
+        # before the first sensor frame the state is no measurement: the command stays 0
+        sent = u if self._used_seq >= 0 else 0.0
         if ready > log.deadline[k] + self._period_ns:
             log.missed[k] = True
             policy = self.settings.miss_policy
