@@ -317,7 +317,7 @@ def unchecked_figures(path: Path, text: str, sections=SECTIONS,
 #: 56; raised to 4495 by the merge of issues 51, 53, 54 and 55, whose new pages and tables
 #: (docs/rig.md 69 lines, docs/accelerator.md 16, docs/reliability.md 13, docs/safety.md 7)
 #: are listed by this tool but not yet marked: the next change lowers it again
-UNCHECKED_AT_MOST = 4495
+UNCHECKED_AT_MOST = 4373
 
 
 def check_unchecked(paths: list[Path], root: Path = ROOT,

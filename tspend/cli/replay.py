@@ -20,9 +20,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         formatter_class=PlainRawDescriptionFormatter)
     r.add_argument("recording", metavar="RUN.rrd", help="a recording of tspend run --rig")
     r.add_argument("--twin", metavar="OUT.rrd",
-                   help="also simulate the run's twin (same scenario and controller, from the "
-                        "rig's first measured state), write both trajectories to OUT.rrd and "
-                        "print the gap (never replaces a file)")
+                   help="also simulate the run's twin (same scenario, controller, encoders "
+                        "and velocity estimator on the model machine, from x0 where the rig's "
+                        "first frame reads as x0, else from that frame), write both "
+                        "trajectories to OUT.rrd and print the gap, twin - rig per state and "
+                        "for u (never replaces a file; tspend run --rig URL --twin puts the "
+                        "twin into the run's own recording instead)")
     r.add_argument("--debug", action="store_true", help="show tracebacks")
     return r
 

@@ -47,18 +47,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "long (default 50)")
     s.add_argument("--amp-limit", type=finite(), metavar="U",
                    help="the amplifier's limit on |u| (default: the machine's input range)")
-    for name, what in (("drop", "share of sensor frames dropped"),
-                       ("corrupt", "share of frames with one bit flipped (sensor frames sent, "
-                                   "commands received)")):
-        s.add_argument(f"--{name}", type=finite(0.0, 0.5, strict=False), default=0.0,
-                       metavar="P", help=f"{what}, 0 to 0.5 (default 0)")
-    for name, what in (("sensor-latency-ms", "added to every sensor frame"),
-                       ("command-latency-ms", "before a received command acts"),
-                       ("jitter-ms", "uniform extra latency, 0 to this, on each frame")):
-        s.add_argument(f"--{name}", type=finite(0.0, 1000.0, strict=False), default=0.0,
-                       metavar="MS", help=f"latency {what} (ms, default 0)")
-    s.add_argument("--fault-seed", type=bounded_int(0, 2**32 - 1), default=0, metavar="N",
-                   help="seed of the drawn faults (default 0)")
+    _add_fault_options(s)
     s.add_argument("--log", metavar="PATH.npz",
                    help="write the double's true state, commands, frames and events (one file "
                         "per session: PATH.npz, then PATH-2.npz ...); never replaces a file")
@@ -71,6 +60,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the longest session (default 600)")
     s.set_defaults(handler=cmd)
     return r
+
+
+def _add_fault_options(s: argparse.ArgumentParser) -> None:
+    """``rig serve``'s faults: what the double does to the frames and its clock."""
+    for name, what in (("drop", "share of sensor frames dropped"),
+                       ("corrupt", "share of frames with one bit flipped (sensor frames sent, "
+                                   "commands received)")):
+        s.add_argument(f"--{name}", type=finite(0.0, 0.5, strict=False), default=0.0,
+                       metavar="P", help=f"{what}, 0 to 0.5 (default 0)")
+    for name, what in (("sensor-latency-ms", "added to every sensor frame"),
+                       ("command-latency-ms", "before a received command acts"),
+                       ("jitter-ms", "uniform extra latency, 0 to this, on each frame")):
+        s.add_argument(f"--{name}", type=finite(0.0, 1000.0, strict=False), default=0.0,
+                       metavar="MS", help=f"latency {what} (ms, default 0)")
+    s.add_argument("--clock-ppm", type=finite(-2000.0, 2000.0, strict=False), default=0.0,
+                   metavar="PPM",
+                   help="the rig's clock error against the host's, parts per million, "
+                        "-2000 to 2000 (positive: it runs fast; default 0); a crystal is "
+                        "typically within 50 (e.g. --clock-ppm 300: 0.3 ms gained per second)")
+    s.add_argument("--fault-seed", type=bounded_int(0, 2**32 - 1), default=0, metavar="N",
+                   help="seed of the drawn faults (default 0)")
 
 
 def add_rig_options(p: argparse.ArgumentParser) -> None:
@@ -86,8 +96,28 @@ def add_rig_options(p: argparse.ArgumentParser) -> None:
                         "previous command, 'zero' sends 0, 'stop' ends the run (default hold)")
     p.add_argument("--velocity-tau-ms", type=finite(0.0, 1000.0, strict=False), default=5.0,
                    metavar="MS",
-                   help="with --rig, the low-pass time constant of the velocity estimate "
-                        "from the rig's positions (default 5; 0: the bare backward difference)")
+                   help="with --rig or --estimator, the low-pass time constant of the velocity "
+                        "estimate from the positions (default 5; 0: the bare backward "
+                        "difference)")
+    p.add_argument("--twin", action="store_true",
+                   help="with --rig, after the run: simulate its twin (the same scenario and "
+                        "controller on the model machine, from the rig's first measured "
+                        "state, through the same encoders and velocity estimator), draw it "
+                        "over the rig's trajectories in the same recording (under twin/) and "
+                        "put the gap, twin - rig per state and for u, into the metrics "
+                        "(twin_gap)")
+    p.add_argument("--estimator", choices=("lowpass",),
+                   help="without --rig: feed the simulated controller what a rig's sensors "
+                        "give, so a simulation and a rig run compare on equal terms: the "
+                        "loop samples at the control period, positions are rounded to whole "
+                        "encoder counts (--counts-per-unit) and velocities come from the rig "
+                        "runner's estimator, 'lowpass' (the backward difference through a "
+                        "first-order low-pass, --velocity-tau-ms); the recorded state is the "
+                        "sensed one, as on a rig (e.g. --estimator lowpass)")
+    p.add_argument("--counts-per-unit", type=finite(), nargs="+", metavar="N",
+                   help="with --estimator, the encoders' counts per metre (slide) or per "
+                        "radian (hinge), one per joint in the model's order (default: the "
+                        "simulated rig's, 100000 per metre, 20000 per revolution)")
 
 
 class RigRun:
@@ -116,14 +146,88 @@ class RigRun:
                  "timing_notes": {"link": self.args.rig, "machine": hello.machine,
                                   "velocity_estimator": estimator.describe(),
                                   "velocity_tau_s": estimator.tau_s}}
+        from tspend.rig.twin import TWIN_PREFIX
+
+        twin_sinks = [s for s in sinks if getattr(s, "prefix", "") == TWIN_PREFIX.strip("/")]
+        rig_sinks = [s for s in sinks if s not in twin_sinks]
         try:
-            result = run_on_rig(prepared, self.session, plant, sinks, stop, rec, notes)
+            result = run_on_rig(prepared, self.session, plant, rig_sinks, stop, rec, notes)
         except BaseException:
             self.session.stop_reason = protocol.STOP_SIGNAL
             raise
         finally:
             self.session.close()  # the stop frame at once, before the outputs are completed
+        drift = plant.clock.warning() if plant.clock is not None else ""
+        if drift:
+            print(f"rig: {drift}", flush=True)
+        if self.args.twin:
+            from tspend.rig.twin import twin_of_run
+
+            print("twin: simulating the run's twin (the model machine, the same sensors)",
+                  flush=True)
+            result.end.metrics["twin_gap"] = twin_of_run(
+                prepared, result.history, hello.counts_per_unit, estimator.tau_s, controller,
+                twin_sinks)[0]
         return result
+
+
+def twin_prefixes(args) -> tuple[str, ...]:
+    """The recording's run prefixes: the rig run's own, and with ``--twin`` its twin's."""
+    if not getattr(args, "twin", False):
+        return ("",)
+    from tspend.rig.twin import TWIN_PREFIX
+
+    return ("", TWIN_PREFIX)
+
+
+def sensed_scenario(args, scn):
+    """With ``--estimator``: the scenario sampled at its control period, as a rig run
+    samples it; else unchanged.  Called only without ``--rig``."""
+    from tspend.runtime.errors import ScenarioError
+
+    if getattr(args, "twin", False):
+        raise ScenarioError("--twin: only with --rig (the twin of a rig run)")
+    if getattr(args, "estimator", None) is None:
+        if getattr(args, "counts_per_unit", None) is not None:
+            raise ScenarioError("--counts-per-unit: only with --estimator (a rig states its "
+                                "encoders in its hello)")
+        return scn
+    from tspend.rig.runner import rig_scenario
+
+    return rig_scenario(scn, scn.run.control_period or scn.run.dt)
+
+
+def encoder_counts(args, joints) -> tuple[float, ...]:
+    """``--counts-per-unit``, one per joint, or the simulated rig's default encoders."""
+    from tspend.runtime.errors import ScenarioError
+    from tspend.rig.estimator import default_counts_per_unit
+
+    counts = args.counts_per_unit or default_counts_per_unit(joints)
+    if len(counts) != len(joints):
+        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
+                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    return tuple(counts)
+
+
+def sensed_plant(args, prepared):
+    """With ``--estimator`` (no ``--rig``): ``prepared`` with its plant seen through a rig's
+    encoders and velocity estimator (:class:`tspend.rig.estimator.SensedPlant`)."""
+    if getattr(args, "estimator", None) is None or args.rig is not None:
+        return prepared
+    from dataclasses import replace
+
+    from tspend.runtime.errors import ScenarioError
+    from tspend.rig.estimator import SensedPlant, VelocityEstimator
+
+    joints = prepared.plant.joints
+    if not joints:
+        raise ScenarioError(f"--estimator: the plant ({prepared.scenario.plant.kind}) has no "
+                            f"joints to read encoders from")
+    counts = encoder_counts(args, joints)
+    estimator = VelocityEstimator(args.velocity_tau_ms * 1e-3)
+    print(f"sensors: encoders of {', '.join(f'{c:g}' for c in counts)} counts per unit; "
+          f"velocities: {estimator.describe()}", flush=True)
+    return replace(prepared, plant=SensedPlant(prepared.plant, tuple(counts), estimator))
 
 
 @contextmanager
@@ -182,8 +286,6 @@ def _listen(url: str):
 
 def build_double(args: argparse.Namespace, scn):
     """The simulated rig the options describe (checked before it listens)."""
-    import math
-
     import numpy as np
 
     from tspend.runtime.errors import ScenarioError
@@ -202,11 +304,7 @@ def build_double(args: argparse.Namespace, scn):
     if not 0 < len(joints) <= MAX_JOINTS:
         raise ScenarioError(f"{scn.name}: a rig carries 1 to {MAX_JOINTS} joints; this machine "
                             f"has {len(joints)}")
-    counts = args.counts_per_unit or [1e5 if j.kind == "slide" else 2e4 / (2 * math.pi)
-                                      for j in joints]
-    if len(counts) != len(joints):
-        raise ScenarioError(f"--counts-per-unit: {len(counts)} given, the machine has "
-                            f"{len(joints)} joints ({', '.join(j.name for j in joints)})")
+    counts = encoder_counts(args, joints)
     dt = scn.run.dt
     for option in ("min_period_ms", "max_period_ms"):
         period = getattr(args, option) * 1e-3
@@ -221,7 +319,7 @@ def build_double(args: argparse.Namespace, scn):
                   args.max_period_ms * 1e-3, args.watchdog_ms * 1e-3,
                   args.amp_limit if args.amp_limit is not None else u_limit_of(plant, scn))
     faults = Faults(args.drop, args.corrupt, args.sensor_latency_ms * 1e-3,
-                    args.command_latency_ms * 1e-3, args.jitter_ms * 1e-3)
+                    args.command_latency_ms * 1e-3, args.jitter_ms * 1e-3, args.clock_ppm)
     joint_index = np.array([plant.state_names.index(j.name) for j in joints])
     return SimulatedRig(plant, scn, hello, faults, _listen(args.listen),
                         np.random.default_rng(args.fault_seed), joint_index)

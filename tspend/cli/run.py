@@ -88,16 +88,16 @@ def cmd(args: argparse.Namespace) -> int:
                   OutputRequest("--metrics", "metrics", ".json", args.metrics)
                   if args.metrics is not None else None],
                  scenario_inputs(scn))
-    from tspend.cli.rig import rig_for_run
+    from tspend.cli.rig import rig_for_run, sensed_plant, sensed_scenario
 
     # --rig: the link checked (refused in one line) before anything is written or moves
     with mujoco_warnings_in_errors(reads_mjcf(scn)), rig_for_run(args, scn) as rig:
         from tspend.loop.simulation import prepare, run
         from tspend.runtime.progress import SlowStep
 
-        scn = rig.scenario if rig is not None else scn
+        scn = rig.scenario if rig is not None else sensed_scenario(args, scn)
         with SlowStep(PREPARE_STEP, PREPARE_ESTIMATE, after=PREPARE_NOTICE_S):
-            prepared = prepare(scn, controller=args.controller)
+            prepared = sensed_plant(args, prepare(scn, controller=args.controller))
         with args.guard.deferred() as stop, Claimed(plans, scn.run.seed) as outs:
             return _run(args, scn, prepared, stop, outs, rig.run if rig is not None else run)
 
@@ -107,8 +107,11 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     from tspend.loop.runner import CONTROLLER_ERROR, NOT_REACHED, RunInterrupted
     from tspend.task import TERMINATIONS
 
+    from tspend.cli.rig import twin_prefixes
+
     recording, metrics_out = outs["--out"], outs["--metrics"]
-    rec, sinks = open_sinks(args, scn.name, recording.partial if recording else None)
+    rec, sinks = open_sinks(args, scn.name, recording.partial if recording else None,
+                            twin_prefixes(args))
     release_warnings(args)
     print(f"tspend {__version__}: {printable(scn.name)} ({scn.plant.kind}), "
           f"{scn.run.duration:g} s at dt = {scn.run.dt:g} s, seed {scn.run.seed}"

@@ -150,7 +150,8 @@ def recording_table(path: str | os.PathLike[str]):
     plant's domain with the unit at the end (``theta_rad``, ``theta_dot_rad_s``,
     ``ref_rad``, ``u_N``, ``cart_x_m``), each value as recorded; a time a series lacks
     is NaN.  With several runs in one recording (a cross-check) each column starts with
-    its run's prefix (``mujoco_theta_rad``).  ``metadata``: each run's scenario, seed,
+    its run's prefix (``mujoco_theta_rad``), but for the run without one (a rig run's own,
+    beside its ``twin/``).  ``metadata``: each run's scenario, seed,
     controller, plant kind, version, dt and duration (by prefix, "" for a single run).
     Raises ValueError for a recording that lists no columns (made before they were
     listed, or not a run's).
@@ -172,7 +173,8 @@ def recording_table(path: str | os.PathLike[str]):
         spec = listed[prefix]
         for column, entity, instance in zip(spec.get("columns", []), spec.get("entities", []),
                                             spec.get("instances", [])):
-            name = f"{prefix.replace('/', '_')}_{column}" if several else column
+            # a run without a prefix (a rig run beside its twin/) keeps its own names
+            name = f"{prefix.replace('/', '_')}_{column}" if several and prefix else column
             names.append(name)
             if entity not in cache:
                 try:

@@ -113,8 +113,10 @@ class TimingSink:
         pass
 
     def finish(self, end: RunEnd) -> None:
+        clock = getattr(self.plant, "clock", None)  # none when no frame ever came
         end.metrics["timing"] = {**self.plant.log.block(self.session.period_s,
                                                        self.plant.settings.miss_policy),
+                                 "clock": clock.block() if clock is not None else {},
                                  **self.notes.get("timing_notes", {})}
 
 
@@ -145,10 +147,11 @@ def warm_up(prepared, settings) -> None:
 def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[Sink] = (),
                stop=None, rec=None, notes: dict | None = None, fifo: bool = True):
     """Run ``prepared``'s controller on the rig; a :class:`~tspend.loop.simulation.RunResult`
-    without history.  The real-time settings granted go into the timing block."""
+    with its history (what the host saw and sent: the twin's reference).  The real-time
+    settings granted go into the timing block."""
     from tspend.loop.metrics import MetricsAccumulator
     from tspend.loop.runner import ClosedLoop, LoopSettings
-    from tspend.loop.simulation import RunResult, machine_info, run_info
+    from tspend.loop.simulation import History, RunResult, machine_info, run_info
     from tspend.rig.realtime import real_time
 
     scenario, ctrl, task = prepared.scenario, prepared.controller, prepared.task
@@ -170,5 +173,6 @@ def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[S
         timing = TimingSink(plant, session, rec, notes)
         for sink in sinks:  # the first block comes at the end now: no "compiling" notice
             getattr(sink, "cancel", lambda: None)()
-        end = loop.run(info, [DeferredSinks([metrics, timing, *sinks], session.close)])
-    return RunResult(scenario, end, {}, ctrl, plant, info)
+        history = History()
+        end = loop.run(info, [DeferredSinks([metrics, timing, history, *sinks], session.close)])
+    return RunResult(scenario, end, history.arrays(), ctrl, plant, info)

@@ -50,13 +50,16 @@ class _Tick:
 class Faults:
     """What the double does to the frames: shares of sensor frames dropped and of frames
     corrupted (one bit flipped; sensor frames sent and commands received), latencies (s)
-    and a uniform jitter added to each."""
+    and a uniform jitter added to each; and its clock's error against the host's, in parts
+    per million (positive: the rig's clock runs fast, so its ticks come sooner and its
+    timestamps gain on the host's clock, as a crystal off its nominal frequency does)."""
 
     drop: float = 0.0
     corrupt: float = 0.0
     sensor_latency_s: float = 0.0
     command_latency_s: float = 0.0
     jitter_s: float = 0.0
+    clock_ppm: float = 0.0
 
 
 class TruthLog:
@@ -214,10 +217,11 @@ class SimulatedRig:
         plant.reset(np.asarray(self.scenario.plant.x0, dtype=float))
         s = _Tick(t0=time.perf_counter_ns(), every=round(period_s / dt))
         s.last_valid = s.last_heard = s.t0
-        dt_ns = round(dt * 1e9)
+        rate = 1.0 + self.faults.clock_ppm * 1e-6  # rig seconds per host second
+        tick_ns = dt * 1e9 / rate
         for i in range(int(max_s / dt)):
-            self._sample(i, wait_until(s.t0 + i * dt_ns), s, log)
-            now = wait_until(s.t0 + (i + 1) * dt_ns - STEP_MARGIN_NS)
+            self._sample(i, wait_until(s.t0 + round(i * tick_ns)), s, log)
+            now = wait_until(s.t0 + round((i + 1) * tick_ns) - STEP_MARGIN_NS)
             ended = self._receive(now, s, log)
             if ended:
                 return ended
@@ -225,7 +229,10 @@ class SimulatedRig:
             d = float(self.scenario.disturbance(np.array([i * dt]))[0])
             log.row(((now - s.t0) * 1e-9, i * dt, s.u, applied, float(s.tripped), s.command_seq),
                     s.state)
-            plant.step(applied, d, dt)
+            if s.command_seq >= 0:
+                # the machine rests at x0 until the controller's first command (a pole held
+                # by hand or on its stop): the run starts where the scenario says
+                plant.step(applied, d, dt)
         return "session time limit"
 
     def _sample(self, i: int, now: int, s: "_Tick", log: TruthLog) -> None:
@@ -235,10 +242,13 @@ class SimulatedRig:
         if i % s.every == 0:
             counts = tuple(int(round(v)) for v in s.state[self.joint_index] * self.hello.counts_per_unit)
             flags = protocol.WATCHDOG_TRIPPED if s.tripped else 0
-            frame = protocol.sensor(Sensor(s.seq, (now - s.t0) // 1000, s.command_seq, flags, counts))
+            # the sampling instant on the rig's own clock, as a rig's timer stamps it: the
+            # tick's time (a fast or slow clock shows in when the ticks come on the host's)
+            rig_us = round(i * self.dt * 1e6)
+            frame = protocol.sensor(Sensor(s.seq, rig_us, s.command_seq, flags, counts))
             dropped = f.drop > 0 and self.rng.random() < f.drop
             corrupted = f.corrupt > 0 and self.rng.random() < f.corrupt
-            log.sensors.append((s.seq, (now - s.t0) // 1000, counts, dropped, corrupted))
+            log.sensors.append((s.seq, rig_us, counts, dropped, corrupted))
             if not dropped:
                 s.outgoing.append((now + self._latency(f.sensor_latency_s),
                                    _flip_bit(frame, self.rng) if corrupted else frame))

@@ -50,8 +50,7 @@ def replay(path) -> ReplayResult:
     """Every recorded command of the rig run at ``path`` recomputed from its sensor frames."""
     from tspend.controllers.base import Observation
     from tspend.loop.simulation import prepare
-    from tspend.plants.base import velocity_name
-    from tspend.rig.estimator import SensorState, VelocityEstimator
+    from tspend.rig.estimator import VelocityEstimator, sensor_state
     from tspend.rig.runner import model_not_stepped
     from tspend.scenario import parse_scenario
 
@@ -63,15 +62,12 @@ def replay(path) -> ReplayResult:
     with model_not_stepped():
         prepared = prepare(scenario, controller=notes["controller"])
     plant, ctrl, task = prepared.plant, prepared.controller, prepared.task
-    names = plant.state_names
     counts = _series(path, "counts").reshape(len(_series(path, "fresh")), -1)
     rig_time_us, fresh = _series(path, "rig_time_us"), _series(path, "fresh")
     ref, recorded_u = _series(path, "ref"), _series(path, "u")
     ref = ref.reshape(len(recorded_u), -1)
-    sensors = SensorState(np.asarray(notes["counts_per_unit"], dtype=float),
-                          np.array([names.index(j.name) for j in plant.joints]),
-                          np.array([names.index(velocity_name(j.name)) for j in plant.joints]),
-                          len(names), VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
+    sensors = sensor_state(plant, notes["counts_per_unit"],
+                           VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
     dt, view = scenario.run.dt, task.view_index
     equal, first, first_replayed = 0, None, None
     for k in range(len(recorded_u)):
@@ -91,52 +87,40 @@ def replay(path) -> ReplayResult:
 
 
 def twin(path, out) -> dict:
-    """The simulated twin of the rig run at ``path``: the same scenario and controller at
-    the rig's period, from the rig's first measured state, simulated; both trajectories
-    written to the recording ``out`` (``sim_vs_rig/<state>/rig`` and ``.../twin``) and the
-    gap returned as metrics (per state: rms and largest |twin - rig|; the commands' rms gap)."""
+    """The simulated twin of the rig run at ``path`` (:func:`tspend.rig.twin.twin_of_run`:
+    the same scenario, controller, encoders and velocity estimator), both trajectories
+    written to the recording ``out`` (``sim_vs_rig/<state>/rig`` and ``.../twin``); the
+    ``twin_gap`` block."""
     import rerun as rr
 
-    from tspend.loop.simulation import run
+    from tspend.loop.simulation import prepare
     from tspend.recorder.arrow import time_column
     from tspend.recorder.stream import close_recording, open_recording
     from tspend.rig.runner import model_not_stepped
-    from tspend.scenario import override, parse_scenario
+    from tspend.rig.twin import twin_of_run
+    from tspend.scenario import parse_scenario
 
     notes = session_notes(path)
     scenario = parse_scenario(notes["scenario_toml"], path=str(path))
     rig_u = _series(path, "u")
     rig_state = _series(path, "state").reshape(len(rig_u), -1)
     with model_not_stepped():
-        prepared_view = _view_of(scenario, notes["controller"])
-        start = rig_state[0][prepared_view]
-        twin_scn = override(scenario, **{"plant.x0": [float(v) for v in start],
-                                         "run.duration": len(rig_u) * scenario.run.dt})
-        result = run(twin_scn, controller=notes["controller"])
-    names = result.info.state_names
-    steps = min(len(result.history["u"]), len(rig_u))
-    sim_state, t = result.history["state"][:steps], result.history["t"][:steps]
-    gap = sim_state - rig_state[:steps]
+        prepared = prepare(scenario, controller=notes["controller"])
+    gap, result = twin_of_run(prepared, {"state": rig_state, "u": rig_u},
+                              notes["counts_per_unit"], notes["timing_notes"]["velocity_tau_s"],
+                              notes["controller"])
+    if result is None:
+        return gap
+    steps = gap["samples"]
     rec = open_recording("tspend_sim_vs_rig", mode="save", path=out)
-    times = time_column(t)
-    for i, name in enumerate(names):
-        for who, values in (("rig", rig_state[:steps, i]), ("twin", sim_state[:, i])):
+    times = time_column(result.history["t"][:steps])
+    pairs = [(name, rig_state[:steps, i], result.history["state"][:steps, i])
+             for i, name in enumerate(result.info.state_names)]
+    for name, rig_values, twin_values in pairs + [("u", rig_u[:steps], result.history["u"][:steps])]:
+        for who, values in (("rig", rig_values), ("twin", twin_values)):
             rec.send_columns(f"sim_vs_rig/{name}/{who}", indexes=[times],
                              columns=rr.Scalars.columns(scalars=values))
-    for who, values in (("rig", rig_u[:steps]), ("twin", result.history["u"][:steps])):
-        rec.send_columns(f"sim_vs_rig/u/{who}", indexes=[times],
-                         columns=rr.Scalars.columns(scalars=values))
     problem = close_recording(rec, out)
     if problem:
         raise ScenarioError(f"{out}: {problem}")
-    return {"samples": steps, "twin_status": result.status,
-            "rms_gap": {n: float(np.sqrt(np.mean(gap[:, i] ** 2))) for i, n in enumerate(names)},
-            "max_abs_gap": {n: float(np.abs(gap[:, i]).max()) for i, n in enumerate(names)},
-            "u_rms_gap": float(np.sqrt(np.mean((result.history["u"][:steps] - rig_u[:steps]) ** 2)))}
-
-
-def _view_of(scenario, controller) -> np.ndarray:
-    """Where the task's view sits in the full state (the twin starts from the view)."""
-    from tspend.loop.simulation import prepare
-
-    return prepare(scenario, controller=controller).task.view_index
+    return gap

@@ -20,13 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from tspend.runtime.errors import DivergenceError
-from tspend.plants.base import Plant, velocity_name
+from tspend.plants.base import Plant
 from tspend.rig import protocol
-from tspend.rig.estimator import SensorState, VelocityEstimator
+from tspend.rig.estimator import ModelFacade, VelocityEstimator, sensor_state
 from tspend.rig.links import FIRST_FRAME_TIMEOUT_S, RigLink, RigRefused
 from tspend.rig.protocol import Command, Hello
-from tspend.rig.realtime import wait_until
-from tspend.rig.timing import CycleLog
+from tspend.rig.realtime import SPIN_NS, wait_until
+from tspend.rig.timing import ClockTracker, CycleLog
 
 MISS_POLICIES = ("hold", "zero", "stop")
 #: the first deadline comes this share of a period after the first sensor frame arrived:
@@ -36,6 +36,12 @@ MISS_POLICIES = ("hold", "zero", "stop")
 ALIGN_SHARE = 0.1
 #: frames whose arrival aligns the schedule on the rig's clock
 ALIGN_FRAMES = 5
+#: the host polls for frames from this share of a period before each deadline on, stamping
+#: each arrival (the clock's drift is measured on them): twice the expected arrival's lead
+LISTEN_SHARE = 2 * ALIGN_SHARE
+#: the schedule re-aligns on the rig's clock when the offset moved by this share of a
+#: period: arrivals then stay inside the listening window and before their deadline
+REALIGN_SHARE = ALIGN_SHARE / 2
 #: the rig's watchdog must outlast this many periods (a command a period late is not a
 #: lost host)
 WATCHDOG_PERIODS = 2
@@ -96,7 +102,7 @@ class RigSettings:
     estimator: VelocityEstimator = VelocityEstimator()
 
 
-class RigPlant(Plant):
+class RigPlant(ModelFacade):
     """The rig as the closed loop's plant; the model plant answers what the rig does not
     (names, units, joints, inputs, the task's defaults)."""
 
@@ -104,12 +110,7 @@ class RigPlant(Plant):
         self.machine, self.link, self.hello, self.settings = machine, link, hello, settings
         self.order, self.domain, self.name = machine.order, machine.domain, f"rig:{machine.name}"
         self.log = CycleLog(settings.cycles, len(machine.joints))
-        names = machine.state_names
-        self.sensors = SensorState(
-            np.asarray(hello.counts_per_unit, dtype=float),
-            np.array([names.index(j.name) for j in machine.joints]),
-            np.array([names.index(velocity_name(j.name)) for j in machine.joints]),
-            len(names), settings.estimator)
+        self.sensors = sensor_state(machine, hello.counts_per_unit, settings.estimator)
         self._period_ns = round(settings.period_s * 1e9)
         self._t0_ns = 0
         self._cycle = 0
@@ -120,33 +121,7 @@ class RigPlant(Plant):
         self._lost = self._late = 0
         self._last_sent = 0.0
         self._silent = ""  # why the rig counts as gone ("" while it is not)
-
-    # what the model plant knows
-    @property
-    def state_names(self):
-        return self.machine.state_names
-
-    @property
-    def state_units(self):
-        return self.machine.state_units
-
-    @property
-    def joints(self):
-        return self.machine.joints
-
-    @property
-    def inputs(self):
-        return self.machine.inputs
-
-    def parameters(self) -> dict[str, float]:
-        return self.machine.parameters()
-
-    def default_task(self):
-        return self.machine.default_task()
-
-    @property
-    def gain_sign(self) -> int:
-        return self.machine.gain_sign
+        self.clock: ClockTracker | None = None  # from the first frames on (begin)
 
     def reset(self, x0: np.ndarray) -> None:
         """The rig is where it is: its first frame, not x0, is the initial state."""
@@ -175,6 +150,8 @@ class RigPlant(Plant):
         self._t0_ns = (offset + last.rig_time_us * 1000 + self._period_ns
                        + round(ALIGN_SHARE * self._period_ns))
         self._last_fresh_ns = self._t0_ns
+        self.clock = ClockTracker(offset, self._period_ns,
+                                  round(REALIGN_SHARE * self._period_ns))
 
     def full_state(self) -> np.ndarray:
         k = self._cycle
@@ -184,8 +161,8 @@ class RigPlant(Plant):
             self.begin()
         log = self.log
         log.deadline[k] = deadline = self._t0_ns + k * self._period_ns
-        log.wake[k] = wait_until(deadline)
-        newest = self._take_frames(k)
+        frames, log.wake[k] = self._listen(deadline)
+        newest = self._take_frames(k, frames)
         fresh_frame = newest is not None and newest.seq > self._used_seq
         if fresh_frame:
             self._last_fresh_ns = log.wake[k]
@@ -209,14 +186,31 @@ class RigPlant(Plant):
         log.lost[k] = max(self._lost - self.link.rejected, 0)
         log.late[k], log.rejected[k] = self._late, self.link.rejected
         log.read[k] = time.perf_counter_ns()
+        self._t0_ns += self.clock.end_of_cycle(k, log.read[k])
         self._read_cycle = k
         log.cycles = k + 1
         return self.sensors.state.copy()
 
-    def _take_frames(self, k: int):
-        """The newest frame, counting lost (gaps in the sequence) and late ones (arrived
-        after their own cycle's deadline)."""
-        frames = self.link.poll()
+    def _listen(self, deadline: int) -> tuple[list, int]:
+        """Sleep to the listening window before ``deadline``, then poll until it (and once
+        at it), each frame's arrival stamped for the clock tracker; the frames and the
+        wake-up time."""
+        clock, link, frames = time.perf_counter_ns, self.link, []
+        wait_until(deadline - max(SPIN_NS, round(LISTEN_SHARE * self._period_ns)))
+        while True:
+            now = clock()
+            got = link.poll()
+            if got:
+                arrived = clock()
+                for frame in got:
+                    self.clock.arrived(arrived, frame.rig_time_us)
+                frames += got
+            if now >= deadline:
+                return frames, now
+
+    def _take_frames(self, k: int, frames: list):
+        """The newest of ``frames``, counting lost (gaps in the sequence) and late ones
+        (arrived after their own cycle's deadline)."""
         newest = None
         for frame in frames:
             if frame.seq > self._highest_seq:
@@ -235,7 +229,8 @@ class RigPlant(Plant):
         log.ready[k] = ready = time.perf_counter_ns()
         if self._silent:
             raise RigSilent(self._silent)
-        sent = u
+        # before the first sensor frame the state is no measurement: the command stays 0
+        sent = u if self._used_seq >= 0 else 0.0
         if ready > log.deadline[k] + self._period_ns:
             log.missed[k] = True
             policy = self.settings.miss_policy
@@ -248,9 +243,6 @@ class RigPlant(Plant):
         log.sent[k] = time.perf_counter_ns()
         log.u_sent[k] = self._last_sent = sent
         self._cycle = k + 1
-
-    def extras(self) -> dict[str, float]:
-        return {}
 
 
 class RigSession:

@@ -75,3 +75,99 @@ def _stats(values_us: np.ndarray) -> dict:
     out = {name: float(np.percentile(values_us, q)) for name, q in QUANTILES}
     out["max"] = float(values_us.max())
     return out
+
+
+#: the span of one window of the clock offset's minimum (s): long enough to hold arrivals
+#: without queueing delay (50 frames at 2 ms), short enough that a crystal's drift (50
+#: ppm) moves the offset by 5 us within it
+CLOCK_WINDOW_S = 0.1
+#: the fewest cycles a window holds
+CLOCK_WINDOW_CYCLES = 20
+#: a rig clock gaining or losing more than this on the host's (us per s, i.e. ppm) is said
+#: in one line: twice a common crystal's tolerance
+CLOCK_WARN_US_PER_S = 100.0
+#: the most windows the drift's fit takes (evenly spread over the run)
+DRIFT_FIT_WINDOWS = 400
+
+
+class ClockTracker:
+    """The offset between the host's clock and the rig's timestamps over a run.
+
+    Each sensor frame's arrival (host ns, stamped as it is read) minus its rig timestamp is
+    a lag: the clocks' offset plus the frame's transit and queueing.  Its minimum over a
+    window of :data:`CLOCK_WINDOW_S` drops the queueing, so the minima follow the offset
+    alone; their slope against the host's time (a Theil-Sen fit) is the drift.  When a window's minimum has
+    moved from the schedule's reference by more than ``bound_ns``, the schedule moves with
+    it (:meth:`end_of_cycle` returns the shift): the deadlines stay on the rig's clock."""
+
+    def __init__(self, reference_ns: int, period_ns: int, bound_ns: int) -> None:
+        self.reference_ns, self.bound_ns = reference_ns, bound_ns
+        self.window_cycles = max(CLOCK_WINDOW_CYCLES, round(CLOCK_WINDOW_S * 1e9 / period_ns))
+        self.windows: list[tuple[int, int]] = []  # (host ns at the window's end, min lag ns)
+        self.realigned = 0
+        self.shift_ns = 0
+        self._min: int | None = None
+        self._calibrated = False
+        self._pending = 0  # the previous window's excess past the bound (0: none)
+
+    def arrived(self, host_ns: int, rig_time_us: int) -> None:
+        lag = host_ns - rig_time_us * 1000
+        if self._min is None or lag < self._min:
+            self._min = lag
+
+    def end_of_cycle(self, cycle: int, host_ns: int) -> int:
+        """The shift (ns) to add to the schedule after ``cycle``: 0 but at the end of the
+        second window in a row whose minimum left the reference by more than the bound on
+        the same side (one window's outlier on a jittery link moves nothing); then the
+        smaller of the two excesses.  The first window's minimum is the reference (the
+        start's few frames would set it higher than a window of them)."""
+        if (cycle + 1) % self.window_cycles or self._min is None:
+            return 0
+        self.windows.append((host_ns, self._min))
+        excess, self._min = self._min - self.reference_ns, None
+        if not self._calibrated:
+            self._calibrated, self.reference_ns = True, self.reference_ns + excess
+            return 0
+        if abs(excess) <= self.bound_ns:
+            self._pending = 0
+            return 0
+        previous, self._pending = self._pending, excess
+        if previous == 0 or (previous > 0) != (excess > 0):
+            return 0
+        shift = min(previous, excess, key=abs)
+        self._pending = 0
+        self.reference_ns += shift
+        self.realigned += 1
+        self.shift_ns += shift
+        return shift
+
+    def gain_us_per_s(self) -> float | None:
+        """How fast the rig's clock gains on the host's (us per s; negative: it loses); None
+        before two windows."""
+        if len(self.windows) < 2:
+            return None
+        from scipy.stats import theilslopes
+
+        # Theil-Sen (the median of the pairwise slopes): a window whose every frame
+        # queued (a load spike) does not tilt it; its cost is quadratic, so a long run's
+        # windows are thinned to an even subset
+        picked = np.unique(np.linspace(0, len(self.windows) - 1, DRIFT_FIT_WINDOWS).astype(int))
+        host_s = np.array([self.windows[i][0] for i in picked], dtype=float) * 1e-9
+        lag_us = np.array([self.windows[i][1] for i in picked], dtype=float) * 1e-3
+        return float(-theilslopes(lag_us - lag_us[0], host_s - host_s[0])[0])
+
+    def block(self) -> dict:
+        """The timing block's ``clock`` entry."""
+        return {"rig_gain_us_per_s": self.gain_us_per_s(), "windows": len(self.windows),
+                "window_cycles": self.window_cycles, "realigned": self.realigned,
+                "realign_bound_us": self.bound_ns * 1e-3, "schedule_shift_us": self.shift_ns * 1e-3}
+
+    def warning(self) -> str:
+        """One line when the drift is past :data:`CLOCK_WARN_US_PER_S`; "" otherwise."""
+        gain = self.gain_us_per_s()
+        if gain is None or abs(gain) <= CLOCK_WARN_US_PER_S:
+            return ""
+        return (f"the rig's clock {'gains' if gain > 0 else 'loses'} {abs(gain):.0f} us per s "
+                f"on the host's (more than {CLOCK_WARN_US_PER_S:g}): the schedule followed it "
+                f"({self.realigned} re-alignments, {self.shift_ns * 1e-3:.0f} us in all); "
+                f"check the rig's oscillator")
