@@ -170,22 +170,57 @@ def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: An
     are the env's), the ending's code, sample ``g``, full state, u and d."""
     import jax
     import jax.numpy as jnp
-    from mujoco import mjx
 
-    from tspend.loop.endings import jax_checks
     from tspend.loop.metrics import fold_samples, start_figures
     from tspend.loop.runner import output_error
 
-    act, omega, nstep, steps = fleet.actuator, fleet.omega, fleet.nstep, fleet.steps
-    view, n, dt, max_value = np.asarray(fleet.view_index), fleet.order, fleet.dt, fleet.max_input
+    view, n, dt = np.asarray(fleet.view_index), fleet.order, fleet.dt
     wraps = fleet.wraps if fleet.wraps.any() else None
-    chunks = -(-steps // chunk)
-    checks = jax_checks()       # the CPU loop's endings (tspend.loop.endings), in JAX
+    chunks = -(-fleet.steps // chunk)
+    sample_of = _sample_step(fleet, law, every, bounds, dtype)
 
     def one_env(model, data, params, d_to_tau, lo, hi, u_lo, u_hi, ref, dist):
-        qpos0, qvel0 = data.qpos, data.qvel
         settings = dataclasses.replace(fold, u_lo=u_lo, u_hi=u_hi)
+        sample = sample_of(model, (data.qpos, data.qvel), d_to_tau, lo, hi, ref, dist)
 
+        def fold_chunk(carry, c):
+            loop, figures = carry
+            g = c * chunk + jnp.arange(chunk)
+            loop, (full, u, keep) = jax.lax.scan(sample, loop, g)
+            e1 = output_error(jnp, full[:, view], ref[g, :n], wraps)[:, 0]
+            figures = fold_samples(jnp, figures, g * jnp.asarray(dt, dtype), e1, u, full, keep,
+                                   settings)
+            return (loop, figures), None
+
+        full0 = jnp.concatenate((data.qpos, data.qvel))
+        zero = jnp.zeros((), dtype)
+        end = (jnp.asarray(ALIVE), jnp.asarray(0), full0 * 0, zero, zero)
+        loop = (data, zero, params, jnp.asarray(True), end)
+        (loop, figures), _ = jax.lax.scan(fold_chunk, (loop, start_figures(jnp, fold, dtype)),
+                                          jnp.arange(chunks))
+        return figures, loop[4]
+
+    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, None, None)
+    return jax.jit(jax.vmap(one_env, in_axes=axes))
+
+
+def _sample_step(fleet: Any, law: Any, every: int, bounds: Any, dtype: Any) -> Any:
+    """``sample_of(model, start, d_to_tau, lo, hi, ref, dist)``: one env's sample as a scan
+    step ``(data, u_held, params, alive, end), g -> carry, (full, u, keep)``: the law
+    (sampled every ``every`` steps, held in between), the ending's checks
+    (:mod:`tspend.loop.endings`, the CPU loop's text), MuJoCo's steps and the record of
+    the first ending; ``start`` the env's (qpos, qvel) at x0."""
+    import jax
+    import jax.numpy as jnp
+    from mujoco import mjx
+
+    from tspend.loop.endings import jax_checks
+
+    act, omega, nstep, steps = fleet.actuator, fleet.omega, fleet.nstep, fleet.steps
+    view, dt, max_value = np.asarray(fleet.view_index), fleet.dt, fleet.max_input
+    checks = jax_checks()
+
+    def sample_of(model, start, d_to_tau, lo, hi, ref, dist):
         def sample(carry, g):
             data, u_held, params, alive, end = carry
             full = jnp.concatenate((data.qpos, data.qvel))
@@ -213,29 +248,13 @@ def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: An
             alive = alive & ~ends
             # an ended run restarts from x0 (masked): its NaN would hold the batch's solver
             # at its iteration limit
-            data = data.replace(qpos=jnp.where(alive, data.qpos, qpos0),
-                                qvel=jnp.where(alive, data.qvel, qvel0))
+            data = data.replace(qpos=jnp.where(alive, data.qpos, start[0]),
+                                qvel=jnp.where(alive, data.qvel, start[1]))
             return (data, u, params, alive, end), (full, u, keep)
 
-        def fold_chunk(carry, c):
-            loop, figures = carry
-            g = c * chunk + jnp.arange(chunk)
-            loop, (full, u, keep) = jax.lax.scan(sample, loop, g)
-            e1 = output_error(jnp, full[:, view], ref[g, :n], wraps)[:, 0]
-            figures = fold_samples(jnp, figures, g * jnp.asarray(dt, dtype), e1, u, full, keep,
-                                   settings)
-            return (loop, figures), None
+        return sample
 
-        full0 = jnp.concatenate((data.qpos, data.qvel))
-        zero = jnp.zeros((), dtype)
-        end = (jnp.asarray(ALIVE), jnp.asarray(0), full0 * 0, zero, zero)
-        loop = (data, zero, params, jnp.asarray(True), end)
-        (loop, figures), _ = jax.lax.scan(fold_chunk, (loop, start_figures(jnp, fold, dtype)),
-                                          jnp.arange(chunks))
-        return figures, loop[4]
-
-    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, None, None)
-    return jax.jit(jax.vmap(one_env, in_axes=axes))
+    return sample_of
 
 
 def initial_data(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
