@@ -51,9 +51,10 @@ ALIVE, CHECK, BAD_INPUT, UNSTABLE = 0, 1, 2, 3
 
 def memory_need(scenario: Any, n_envs: int) -> tuple[float, float, float, int] | None:
     """``(need, per_env, tables, steps)``: the bytes that ``n_envs`` machines of ``scenario`` take on
-    the device (None: no MuJoCo model).  Per env: its MJX model (measured: about 2.2 x
-    MuJoCo's model buffer on the cart-pole) and data, the :data:`CHUNK` samples it folds
-    at once (full state, u, keep) and its figures; the samples never leave the device, so
+    the device (None: no MuJoCo model).  Per env: its MJX model and data three times (the
+    step's inputs, outputs and intermediates; :func:`_mjx_bytes`), the :data:`CHUNK`
+    samples it folds at once (full state, u, keep) and its figures; the samples never
+    leave the device, so
     nothing grows with the run's length but the reference and disturbance tables, held
     whole (padded to whole chunks)."""
     from tspend.loop import simulation
@@ -65,9 +66,23 @@ def memory_need(scenario: Any, n_envs: int) -> tuple[float, float, float, int] |
     steps = simulation.steps_of(scenario)
     n_full = int(model.nq + model.nv)
     samples = CHUNK * (n_full + 2) * 8 * 2          # a chunk's samples, and the fold's copy
-    per_env = 3 * model.nbuffer + getattr(plant, "data").nbuffer + samples + (64 << 10)
+    per_env = 3 * _mjx_bytes(model) + samples + (64 << 10)
     tables = (steps + CHUNK) * (plant.order + 2) * 8 * 4   # r .. r^(n), d, t; four copies
     return n_envs * per_env + tables, per_env, tables, steps
+
+
+def _mjx_bytes(model: Any) -> int:
+    """The bytes of ``model`` in MJX and of its data, as if every field were the env's own
+    (an upper bound: fields equal across envs are held once).  Not MuJoCo's ``nbuffer``:
+    that counts what MJX does not hold (a model's textures and meshes for drawing, the
+    data's arena), 800 kB against MJX's 3 kB for the randomised cart-pole."""
+    import jax
+    from mujoco import mjx
+
+    on_cpu = mjx.put_model(model, device=jax.devices("cpu")[0])
+    trees = (on_cpu, mjx.make_data(on_cpu))
+    return int(sum(getattr(leaf, "nbytes", 0) for tree in trees
+                   for leaf in jax.tree_util.tree_leaves(tree)))
 
 
 def check_memory(scenario: Any, n_envs: int) -> None:
