@@ -6,9 +6,10 @@ machines (:func:`tspend.mjx.machines.build_fleet`), the kind's JAX law
 between as the CPU runner does.  The whole run of a batch is one jitted program
 (:func:`make_run`, a ``jax.lax.scan`` over the run's samples under ``jax.vmap``): each
 env's ending is decided on the device and frozen at its sample, by the CPU loop's own
-text (:mod:`tspend.loop.endings`, built for JAX: u not finite or beyond ``run.control_bound``, the view
-beyond ``plant.state_bound``, the full state outside the task's bounds; an input MuJoCo
-would refuse; MuJoCo's own instability check, NaN or beyond 1e10 in qpos, qvel, qacc),
+text (:mod:`tspend.loop.endings`, built for JAX: u not finite or beyond
+``run.control_bound``, the view beyond ``plant.state_bound``, the full state outside the
+task's bounds; an input MuJoCo would refuse) and MuJoCo's own instability check (NaN or
+beyond 1e10 in qpos, qvel, qacc: :func:`mujoco_steps`),
 and every figure of its row is folded on the device by the CPU's own text
 (:func:`tspend.loop.metrics.fold_samples`, the error by
 :func:`tspend.loop.runner.output_error`).  The host receives one small record per env

@@ -3,13 +3,17 @@
 The CPU vector env (:class:`tspend.gym.vector.TspendVectorEnv`) with its physics stepped
 by MJX: env ``i`` is the machine the scenario's ``[randomize]`` draws at ``seed + i``
 (:func:`tspend.mjx.machines.build_fleet`, the CPU plant's own model), each step holds the
-action over ``frame_skip`` physics steps and stops an env at the first physics step that
-crosses the task's bounds or leaves the finite numbers, all envs in one jitted call.
-Everything else is the CPU env's own: the spaces, the action's clipping and scaling, the
-reward (:func:`tspend.loop.envstep.reward_of`, the function the CPU env calls, on the
-observation the step returns), the statuses and messages (the task's), the truncation at
-the scenario's duration and the autoreset (``NEXT_STEP`` or ``SAME_STEP``).  A template
-:class:`tspend.gym.TspendEnv` gives the layout, so the two backends cannot drift apart.
+action over ``frame_skip`` physics steps and stops an env where the CPU env stops it (an
+input MuJoCo refuses, MuJoCo's instability check, a state not finite, the task's bounds:
+:mod:`tspend.loop.endings`, the CPU env's text in JAX), all envs in one jitted call that
+also makes the observations, the rewards (:func:`tspend.loop.envstep.reward_factory`'s
+text), the terminations, the truncations at the scenario's duration and the restart of
+the envs that ended (autoreset ``NEXT_STEP`` or ``SAME_STEP``).  Each env's data, clock and
+last observation stay on the device between steps: the host sends the actions, reads
+back N numbers per quantity and words the endings of the envs that ended only (the
+task's statuses and messages).  A template :class:`tspend.gym.TspendEnv` gives the
+spaces, the action's clipping and scaling and the reward's weights, so the two backends
+cannot drift apart.
 
 The observation of env i is that of the CPU vector env within about 1e-12 after 100 steps
 in float64 (tests/test_mjx.py holds it to 1e-9), its rewards within rounding and its
