@@ -62,6 +62,7 @@ def test_mjx_sweep_rows_agree_with_the_cpu_sweep(scenario, seeds, duration):
 #: 1e-16 round-off by some 10^10 in the three samples before u reaches 10^10: measured
 #: 3e-6 on seed 2, 6e-9 on seeds 0 and 1)
 ENDINGS = [
+    ("pendulum_mujoco_randomized", "0:4", 0.3, {}, {"completed"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:8", 0.3, {"effects.rail": 0.002, "task.fall_angle": 0.1},
      {"fell", "rail_end"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:3", 0.05, {"randomize.gear.low": 1e7,
