@@ -275,7 +275,9 @@ def test_mjx_vector_env_equals_the_cpu_one_through_an_ending_of_every_env():
 
 
 @pytest.mark.parametrize("autoreset_mode", ["NextStep", "SameStep"])
-def test_mjx_vector_env_ends_a_diverged_env_as_the_cpu_one(autoreset_mode):
+def test_mjx_vector_env_ends_a_diverged_env_as_the_cpu_one(autoreset_mode, tmp_path,
+                                                          monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the CPU env's MuJoCo logs its warning to ./MUJOCO_LOG.TXT
     # gears of 10^11-10^12: the first push makes qacc huge, which MuJoCo's check finds (on
     # the CPU it resets the data; MJX's state would leave the finite numbers): every env
     # ends "diverged" with the plant's words, keeps its first observation, earns nothing
