@@ -62,6 +62,7 @@ def test_mjx_sweep_rows_agree_with_the_cpu_sweep(scenario, seeds, duration):
 #: 1e-16 round-off by some 10^10 in the three samples before u reaches 10^10: measured
 #: 3e-6 on seed 2, 6e-9 on seeds 0 and 1)
 ENDINGS = [
+    ("pendulum_mujoco_randomized", "0:4", 0.3, {}, {"completed"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:8", 0.3, {"effects.rail": 0.002, "task.fall_angle": 0.1},
      {"fell", "rail_end"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:3", 0.05, {"randomize.gear.low": 1e7,
@@ -194,6 +195,8 @@ def _same_step(cpu, mjx, actions):
     np.testing.assert_array_equal(m[2], c[2])
     np.testing.assert_array_equal(m[3], c[3])
     assert list(m[4]["status"]) == list(c[4]["status"])
+    ended = np.asarray(c[2], dtype=bool)
+    assert list(m[4]["message"][ended]) == list(c[4]["message"][ended])
     return c
 
 
@@ -267,6 +270,33 @@ def test_mjx_vector_env_equals_the_cpu_one_through_an_ending_of_every_env():
         c = _same_step(cpu, mjx, rng.uniform(-1.0, 1.0, size=(6, 1)) * hi)
         ended += c[2] | c[3]
     assert (ended >= 1).all(), ended          # every env ended at least once
+    cpu.close()
+    mjx.close()
+
+
+@pytest.mark.parametrize("autoreset_mode", ["NextStep", "SameStep"])
+def test_mjx_vector_env_ends_a_diverged_env_as_the_cpu_one(autoreset_mode, tmp_path,
+                                                          monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the CPU env's MuJoCo logs its warning to ./MUJOCO_LOG.TXT
+    # gears of 10^11-10^12: the first push makes qacc huge, which MuJoCo's check finds (on
+    # the CPU it resets the data; MJX's state would leave the finite numbers): every env
+    # ends "diverged" with the plant's words, keeps its first observation, earns nothing
+    # and starts again, on both backends alike (_same_step: messages too)
+    over = {"randomize.gear.low": 1e11, "randomize.gear.high": 1e12, "task.fall_angle": 0.0}
+    cpu, mjx = _vector_envs("pendulum_mujoco_randomized", 4, overrides=over,
+                            autoreset_mode=autoreset_mode)
+    first, _ = cpu.reset(seed=0)
+    mjx.reset(seed=0)
+    a = np.full((4, 1), 0.5) * cpu.single_action_space.high
+    endings = 0
+    for _ in range(3):                       # an ending, the autoreset, an ending again
+        c = _same_step(cpu, mjx, a)
+        if c[2].any():
+            endings += 1
+            assert c[2].all() and (c[1] == 0.0).all() and (c[4]["status"] == "diverged").all()
+            assert all("MuJoCo found NaN, Inf or huge values" in w for w in c[4]["message"])
+            np.testing.assert_array_equal(c[0], first)     # the last finite observation
+    assert endings >= 2
     cpu.close()
     mjx.close()
 

@@ -33,23 +33,19 @@ step, checked there too).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from numba import carray, njit, types
 from numba.extending import intrinsic
 
-from tspend.loop.fastloop import _beyond  # the task's termination check, one definition
+# the endings' one text (:mod:`tspend.loop.endings`) and its codes
+from tspend.loop.endings import (BAD_INPUT, ENDED, NOT_FINITE, REFILL, RUNNING, UNSTABLE,
+                                 physics_ending, refuses_input)
 from tspend.runtime.jit import JIT
 
 __all__ = ["BAD_INPUT", "ENDED", "NOT_FINITE", "REFILL", "RUNNING", "UNSTABLE", "Frame",
            "env_step", "env_steps", "reward_factory", "reward_of"]
-
-#: what a step reports: ran every physics step; the task's bounds crossed; the state not
-#: finite; an input MuJoCo would ignore (not stepped); MuJoCo reset an unstable
-#: simulation; nothing done, the step needs the tables' next window (``BASE``)
-RUNNING, ENDED, NOT_FINITE, BAD_INPUT, UNSTABLE, REFILL = 0, 1, 2, 3, 4, 5
 
 # the int64 slots of a frame: addresses (of mjModel, mjData, arrays) and counts
 (STEP_FN, MODEL, DATA, QPOS, NQ, QVEL, NV, CTRL, ACTUATOR, QFRC, OMEGA, WARN_QPOS, WARN_QVEL,
@@ -202,14 +198,6 @@ def _read_state(qpos: np.ndarray, qvel: np.ndarray, full: np.ndarray) -> None:
 
 
 @njit(**_JIT)
-def _finite(full: np.ndarray) -> bool:
-    for v in full:
-        if not math.isfinite(v):
-            return False
-    return True
-
-
-@njit(**_JIT)
 def env_step(ints: np.ndarray, floats: np.ndarray, u: float) -> tuple[int, int, float]:
     """Hold ``u`` over the env's ``FRAME_SKIP`` physics steps (fewer at the episode's
     end), stopping after the first that crosses the task's bounds or is not finite.
@@ -239,7 +227,7 @@ def env_step(ints: np.ndarray, floats: np.ndarray, u: float) -> tuple[int, int, 
     code, done = RUNNING, 0
     for j in range(k):
         d = dist[at + j]
-        if not (abs(u) < max_input and abs(d) < max_input):
+        if refuses_input(u, d, max_input):
             code = BAD_INPUT
             break
         ctrl[actuator] = u
@@ -251,11 +239,8 @@ def env_step(ints: np.ndarray, floats: np.ndarray, u: float) -> tuple[int, int, 
             break
         done += 1
         _read_state(qpos, qvel, full)
-        if not _finite(full):
-            code = NOT_FINITE
-            break
-        if _beyond(full, lo, hi):
-            code = ENDED
+        code = physics_ending(full, lo, hi)
+        if code != RUNNING:
             break
     ints[CLOCK] = i0 + done
     if code != RUNNING and code != ENDED:

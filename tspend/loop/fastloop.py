@@ -39,13 +39,13 @@ kept are the same.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable, NamedTuple, Protocol
 
 import numpy as np
 from numba import njit
 from numba.extending import overload
 
+from tspend.loop.endings import refuses_input, sample_ends  # the endings' one text
 from tspend.runtime.jit import JIT
 from tspend.plants.analytic import rk4_step
 
@@ -171,30 +171,6 @@ def _controller_sample(settings, state, scratch, t, full, x, ref, dt, diag):
 
 
 @njit(**JIT)
-def _out_of_bounds(x: np.ndarray, u: float, bounds: Bounds) -> bool:
-    if not math.isfinite(u):
-        return True
-    if bounds.control > 0.0 and abs(u) > bounds.control:
-        return True
-    if bounds.state > 0.0:
-        for j in range(x.size):
-            # NaN compares False: a non-finite state reaches u first (the runner's rule)
-            if abs(x[j]) > bounds.state:
-                return True
-    return False
-
-
-@njit(**JIT)
-def _beyond(full: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
-    """The task's termination check: any ``s[j]`` outside ``(lo[j], hi[j])`` (NaN: none)."""
-    for j in range(full.size):
-        v = full[j]
-        if v < lo[j] or v > hi[j]:
-            return True
-    return False
-
-
-@njit(**JIT)
 def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading: Reading,
                  i: int, t: np.ndarray, ref: np.ndarray, dt: float,
                  bounds: Bounds, hold: Hold) -> tuple[float, bool]:
@@ -214,7 +190,7 @@ def _take_sample(settings, state, scratch, full, x, diag, buf: Buffers, reading:
         buf.E[i, j] = full[extra[j]]
     for j in range(min(full.size, buf.F.shape[1])):
         buf.F[i, j] = full[j]
-    return u, _out_of_bounds(x, u, bounds) or _beyond(full, reading.lo, reading.hi)
+    return u, sample_ends(x, u, full, reading.lo, reading.hi, bounds.state, bounds.control)
 
 
 @njit(**JIT)
@@ -281,7 +257,7 @@ def _mujoco_samples(settings, state, scratch, mj_step, link, full, x, diag, buf:
         if check:
             return i, CHECK
         d = dist[i]
-        if not (abs(u) < link.max_input and abs(d) < link.max_input):
+        if refuses_input(u, d, link.max_input):
             return i, BAD_INPUT
         link.ctrl[link.actuator] = u
         link.qfrc[link.omega] = link.d_to_tau * d

@@ -17,9 +17,10 @@ each reset's ``rng`` (default: 256 when the scenario has a ``[randomize]``, so e
 a vmapped batch trains on its own machine; :func:`tspend.mjx.machines.build_fleet`, the
 CPU's machines at those seeds); the
 observation is that env's ([full state, r .. r^(n)]), the step holds the action over
-``frame_skip`` physics steps and stops at the first that crosses the task's bounds
-(:func:`tspend.mjx.vector_env.env_substeps`); ``done`` is 1 when the task ended the run,
-the state stopped being finite, or the scenario's duration was reached
+``frame_skip`` physics steps and stops where the CPU env stops (an input MuJoCo refuses,
+MuJoCo's instability check, a state not finite, the task's bounds:
+:func:`tspend.mjx.vector_env.env_substeps`); ``done`` is 1 when the task ended the run,
+the step diverged, or the scenario's duration was reached
 (``info["truncation"]``).
 
 Actions are in [-1, 1] (what brax's policies output), mapped linearly onto

@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from tspend.plants.randomize import draw_values
 
-__all__ = ["array_form", "drawn_fleet"]
+__all__ = ["DrawnMachines", "array_form", "drawn_fleet"]
 
 #: the cart-pole keys with an array form, and a model's quantities
 CARTPOLE_KEYS = ("M", "m", "l", "gear")
@@ -196,23 +197,33 @@ def _batched_model(first: Any, per_env: dict) -> tuple[Any, Any]:
     return model, axes
 
 
-def _machines(first: Any, values: dict, table: dict, n: int) -> list:
-    """Each env's MachineInfo: the first seed's with the env's parameters and draw."""
-    m0 = first.machines[0]
-    keys, names = list(m0.parameters), list(values)
-    params = np.stack([np.broadcast_to(np.asarray(table.get(k, m0.parameters[k]), dtype=float),
-                                       (n,)) for k in keys], axis=1).tolist()
-    drawn = np.stack([values[k] for k in names], axis=1).tolist() if names else [[]] * n
-    # a copy of the frozen record with two fields replaced (dataclasses.replace would run
-    # the constructor and copy.copy the reduce protocol: a tenth of a millisecond per env)
-    kind, fields = type(m0), dict(m0.__dict__)
-    out = []
-    for e in range(n):
-        m = object.__new__(kind)
-        m.__dict__.update(fields, parameters=dict(zip(keys, params[e])),
-                          drawn=dict(zip(names, drawn[e])))
-        out.append(m)
-    return out
+class DrawnMachines(Sequence):
+    """Each env's MachineInfo: the first seed's with the env's parameters and draw, made
+    when a row asks for it (a row is written per env anyway; made here, 10^5 records
+    took 10 s of the machines' build)."""
+
+    def __init__(self, first: Any, values: dict, table: dict, n: int) -> None:
+        m0 = first.machines[0]
+        self._kind, self._fields = type(m0), dict(m0.__dict__)
+        self._keys, self._names = list(m0.parameters), list(values)
+        self._params = np.stack([np.broadcast_to(np.asarray(table.get(k, m0.parameters[k]),
+                                                            dtype=float), (n,))
+                                 for k in self._keys], axis=1)
+        self._drawn = np.stack([values[k] for k in self._names], axis=1) if self._names \
+            else np.zeros((n, 0))
+
+    def __len__(self) -> int:
+        return self._params.shape[0]
+
+    def __getitem__(self, e: Any) -> Any:
+        if isinstance(e, slice):
+            return [self[i] for i in range(*e.indices(len(self)))]
+        # a copy of the frozen record with two fields replaced (dataclasses.replace would
+        # run the constructor and copy.copy the reduce protocol: a tenth of a millisecond)
+        m = object.__new__(self._kind)
+        m.__dict__.update(self._fields, parameters=dict(zip(self._keys, self._params[e].tolist())),
+                          drawn=dict(zip(self._names, self._drawn[e].tolist())))
+        return m
 
 
 def drawn_fleet(scenario: Any, seeds: tuple[int, ...], first: Any) -> Any:
@@ -236,5 +247,5 @@ def drawn_fleet(scenario: Any, seeds: tuple[int, ...], first: Any) -> Any:
     return dataclasses.replace(
         first, seeds=seeds, model=model, in_axes=in_axes, qpos0=qpos0, qvel0=qvel0,
         d_to_tau=np.asarray(d_to_tau, dtype=float), lo=tile(first.lo), hi=tile(first.hi),
-        tasks=first.tasks * n, machines=_machines(first, values, extra["parameters"], n),
+        tasks=first.tasks * n, machines=DrawnMachines(first, values, extra["parameters"], n),
         u_lo=tile(first.u_lo), u_hi=tile(first.u_hi))

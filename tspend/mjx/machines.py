@@ -135,13 +135,9 @@ def build_fleet_per_seed(scenario: Any, seeds: Sequence[int], *,
                          steps: int | None = None) -> Fleet:
     """:func:`build_fleet` by the CPU backend's build of every seed (the reference the
     array form is tested against, and the form of draws it does not know)."""
-    from mujoco import mjx
-
     import jax
 
     from tspend.loop import simulation
-    from tspend.plants import randomize
-    from tspend.task.feasibility import check_task
 
     # the models go into MJX in float64 whatever the run's precision (a float32 run casts
     # them later): put_model under JAX's default float32 would round them here
@@ -153,61 +149,69 @@ def build_fleet_per_seed(scenario: Any, seeds: Sequence[int], *,
     if why:
         raise ScenarioError(why)
     steps = simulation.steps_of(scenario) if steps is None else int(steps)
-    cpu = jax.devices("cpu")[0]
-    models, qpos, qvel, d_to_tau, tasks, machines, lo, hi = [], [], [], [], [], [], [], []
-    u_lo, u_hi = [], []
-    first = None
-    ref = dist = None
-    link0 = None
+    built: list[Any] = []
     for seed in seeds:
-        scn = _seeded(scenario, seed)
-        with warnings.catch_warnings():
-            if first is not None:   # the model's departures were warned about once
-                warnings.simplefilter("ignore")
-            plant = simulation.build_plant(scn)
-        link = plant.compiled_mujoco(scn.run.dt) if hasattr(plant, "compiled_mujoco") else None
-        if link is None:
-            raise ScenarioError(f"{scn.path or scn.name}: plant {plant.name} offers no MuJoCo "
-                                f"model to step (the mjx backend needs one)")
-        task = simulation.scenario_task(scn, plant)
-        if first is None:
-            check_task(plant, task, scn)
-            first, link0 = (scn, plant, task), link
-            ref, dist = _tables(scn, steps, len(task.view))
-        else:
-            if (link.actuator, link.omega, link.nstep) != (link0.actuator, link0.omega, link0.nstep):
-                raise ScenarioError(f"{scn.path or scn.name}: seed {seed} draws a machine of "
-                                    f"another layout (actuator, disturbed dof, substeps) than "
-                                    f"seed {seeds[0]}: one batch cannot hold both")
-            r, d = _tables(scn, steps, len(task.view))
-            if not (np.array_equal(r, ref) and np.array_equal(d, dist)):
-                raise ScenarioError(f"{scn.path or scn.name}: the reference or disturbance "
-                                    f"differs between seeds; the mjx backend shares one table")
-        drawn = randomize.draw(scn).values
-        machines.append(simulation.machine_info(plant, task, scn, drawn))
-        tasks.append(task)
-        lo.append(task.lo)
-        hi.append(task.hi)
-        lo_u, hi_u = simulation.input_range(plant, scn)
-        u_lo.append(lo_u)
-        u_hi.append(hi_u)
-        qpos.append(np.array(plant.data.qpos, dtype=float))
-        qvel.append(np.array(plant.data.qvel, dtype=float))
-        d_to_tau.append(float(link.d_to_tau))
-        models.append(mjx.put_model(plant.model, device=cpu))
-    scn0, plant0, task0 = first
-    model, in_axes = _batched(models)
-    hinges = {j.name for j in plant0.joints if j.kind == "hinge"}
+        built.append(_seed_build(scenario, seed, steps, built[0] if built else None, seeds[0]))
+    b0 = built[0]
+    model, in_axes = _batched([b.model for b in built])
+    hinges = {j.name for j in b0.plant.joints if j.kind == "hinge"}
+    link0, task0 = b0.link, b0.task
     return Fleet(
-        scenario=simulation.with_gain_sign(scn0, plant0), seeds=seeds, model=model,
-        in_axes=in_axes, qpos0=np.stack(qpos), qvel0=np.stack(qvel),
-        actuator=int(link0.actuator), omega=int(link0.omega), d_to_tau=np.array(d_to_tau),
-        nstep=int(link0.nstep), max_input=float(link0.max_input), dt=float(scn0.run.dt),
+        scenario=simulation.with_gain_sign(b0.scn, b0.plant), seeds=seeds, model=model,
+        in_axes=in_axes, qpos0=np.stack([b.qpos for b in built]),
+        qvel0=np.stack([b.qvel for b in built]), actuator=int(link0.actuator),
+        omega=int(link0.omega), d_to_tau=np.array([float(b.link.d_to_tau) for b in built]),
+        nstep=int(link0.nstep), max_input=float(link0.max_input), dt=float(b0.scn.run.dt),
         steps=steps, names=tuple(task0.names),
         view_index=np.asarray(task0.view_index, dtype=np.int64),
         wraps=np.array([v in hinges for v in task0.view], dtype=bool),
-        lo=np.stack(lo), hi=np.stack(hi), ref=ref, dist=dist, tasks=tasks, machines=machines,
-        u_lo=np.array(u_lo), u_hi=np.array(u_hi), plant=plant0)
+        lo=np.stack([b.task.lo for b in built]), hi=np.stack([b.task.hi for b in built]),
+        ref=b0.ref, dist=b0.dist, tasks=[b.task for b in built],
+        machines=[b.machine for b in built], u_lo=np.array([b.u_range[0] for b in built]),
+        u_hi=np.array([b.u_range[1] for b in built]), plant=b0.plant)
+
+
+def _seed_build(scenario: Any, seed: int, steps: int, first: Any, first_seed: int) -> Any:
+    """The CPU backend's build of ``seed``'s machine, its task, tables, start state and
+    MJX model; ScenarioError where it cannot share a batch with ``first`` (the first
+    seed's build, None for the first)."""
+    from types import SimpleNamespace
+
+    import jax
+    from mujoco import mjx
+
+    from tspend.loop import simulation
+    from tspend.plants import randomize
+    from tspend.task.feasibility import check_task
+
+    scn = _seeded(scenario, seed)
+    with warnings.catch_warnings():
+        if first is not None:   # the model's departures were warned about once
+            warnings.simplefilter("ignore")
+        plant = simulation.build_plant(scn)
+    link = plant.compiled_mujoco(scn.run.dt) if hasattr(plant, "compiled_mujoco") else None
+    if link is None:
+        raise ScenarioError(f"{scn.path or scn.name}: plant {plant.name} offers no MuJoCo "
+                            f"model to step (the mjx backend needs one)")
+    task = simulation.scenario_task(scn, plant)
+    ref, dist = _tables(scn, steps, len(task.view))
+    if first is None:
+        check_task(plant, task, scn)
+    elif (link.actuator, link.omega, link.nstep) != (first.link.actuator, first.link.omega,
+                                                     first.link.nstep):
+        raise ScenarioError(f"{scn.path or scn.name}: seed {seed} draws a machine of "
+                            f"another layout (actuator, disturbed dof, substeps) than "
+                            f"seed {first_seed}: one batch cannot hold both")
+    elif not (np.array_equal(ref, first.ref) and np.array_equal(dist, first.dist)):
+        raise ScenarioError(f"{scn.path or scn.name}: the reference or disturbance "
+                            f"differs between seeds; the mjx backend shares one table")
+    drawn = randomize.draw(scn).values
+    return SimpleNamespace(
+        scn=scn, plant=plant, link=link, task=task, ref=ref, dist=dist,
+        machine=simulation.machine_info(plant, task, scn, drawn),
+        u_range=simulation.input_range(plant, scn),
+        qpos=np.array(plant.data.qpos, dtype=float), qvel=np.array(plant.data.qvel, dtype=float),
+        model=mjx.put_model(plant.model, device=jax.devices("cpu")[0]))
 
 
 def _batched(models: list) -> tuple[Any, Any]:

@@ -5,10 +5,11 @@ machines (:func:`tspend.mjx.machines.build_fleet`), the kind's JAX law
 (:mod:`tspend.mjx.control`), sampled every ``control_every`` physics steps and held in
 between as the CPU runner does.  The whole run of a batch is one jitted program
 (:func:`make_run`, a ``jax.lax.scan`` over the run's samples under ``jax.vmap``): each
-env's ending is decided on the device and frozen at its sample, by the CPU loop's rules
-(:mod:`tspend.loop.fastloop`: u not finite or beyond ``run.control_bound``, the view
-beyond ``plant.state_bound``, the full state outside the task's bounds; an input MuJoCo
-would refuse; MuJoCo's own instability check, NaN or beyond 1e10 in qpos, qvel, qacc),
+env's ending is decided on the device and frozen at its sample, by the CPU loop's own
+text (:mod:`tspend.loop.endings`, built for JAX: u not finite or beyond
+``run.control_bound``, the view beyond ``plant.state_bound``, the full state outside the
+task's bounds; an input MuJoCo would refuse) and MuJoCo's own instability check (NaN or
+beyond 1e10 in qpos, qvel, qacc: :func:`mujoco_steps`),
 and every figure of its row is folded on the device by the CPU's own text
 (:func:`tspend.loop.metrics.fold_samples`, the error by
 :func:`tspend.loop.runner.output_error`).  The host receives one small record per env
@@ -38,7 +39,7 @@ import numpy as np
 from tspend.runtime.errors import ScenarioError
 
 __all__ = ["CHUNK", "MAX_BATCH", "batch_inputs", "check_memory", "closed_loop_rows", "make_run",
-           "memory_need", "prepare_program", "run_batch", "run_jobs"]
+           "memory_need", "mujoco_steps", "plant_error", "prepare_program", "run_batch", "run_jobs"]
 
 #: samples folded into the figures at once on the device (memory: CHUNK full states per env)
 CHUNK = 100
@@ -51,9 +52,10 @@ ALIVE, CHECK, BAD_INPUT, UNSTABLE = 0, 1, 2, 3
 
 def memory_need(scenario: Any, n_envs: int) -> tuple[float, float, float, int] | None:
     """``(need, per_env, tables, steps)``: the bytes that ``n_envs`` machines of ``scenario`` take on
-    the device (None: no MuJoCo model).  Per env: its MJX model (measured: about 2.2 x
-    MuJoCo's model buffer on the cart-pole) and data, the :data:`CHUNK` samples it folds
-    at once (full state, u, keep) and its figures; the samples never leave the device, so
+    the device (None: no MuJoCo model).  Per env: its MJX model and data three times (the
+    step's inputs, outputs and intermediates; :func:`_mjx_bytes`), the :data:`CHUNK`
+    samples it folds at once (full state, u, keep) and its figures; the samples never
+    leave the device, so
     nothing grows with the run's length but the reference and disturbance tables, held
     whole (padded to whole chunks)."""
     from tspend.loop import simulation
@@ -65,9 +67,23 @@ def memory_need(scenario: Any, n_envs: int) -> tuple[float, float, float, int] |
     steps = simulation.steps_of(scenario)
     n_full = int(model.nq + model.nv)
     samples = CHUNK * (n_full + 2) * 8 * 2          # a chunk's samples, and the fold's copy
-    per_env = 3 * model.nbuffer + getattr(plant, "data").nbuffer + samples + (64 << 10)
+    per_env = 3 * _mjx_bytes(model) + samples + (64 << 10)
     tables = (steps + CHUNK) * (plant.order + 2) * 8 * 4   # r .. r^(n), d, t; four copies
     return n_envs * per_env + tables, per_env, tables, steps
+
+
+def _mjx_bytes(model: Any) -> int:
+    """The bytes of ``model`` in MJX and of its data, as if every field were the env's own
+    (an upper bound: fields equal across envs are held once).  Not MuJoCo's ``nbuffer``:
+    that counts what MJX does not hold (a model's textures and meshes for drawing, the
+    data's arena), 800 kB against MJX's 3 kB for the randomised cart-pole."""
+    import jax
+    from mujoco import mjx
+
+    on_cpu = mjx.put_model(model, device=jax.devices("cpu")[0])
+    trees = (on_cpu, mjx.make_data(on_cpu))
+    return int(sum(getattr(leaf, "nbytes", 0) for tree in trees
+                   for leaf in jax.tree_util.tree_leaves(tree)))
 
 
 def check_memory(scenario: Any, n_envs: int) -> None:
@@ -142,16 +158,22 @@ def _integrator(mjx: Any, model: Any) -> Any:
     return by_kind[kind]
 
 
-def _ends(jnp: Any, x: Any, u: Any, full: Any, lo: Any, hi: Any, bounds: Any) -> Any:
-    """Whether the runner looks at this sample (tspend.loop.fastloop's ``_take_sample``):
-    u not finite or beyond the control bound, the view beyond the state bound (NaN
-    compares False: a non-finite state reaches u first), the task's bounds crossed."""
-    out = ~jnp.isfinite(u) | jnp.any(full < lo) | jnp.any(full > hi)
-    if bounds.control_bound > 0.0:
-        out |= jnp.abs(u) > bounds.control_bound
-    if bounds.state_bound > 0.0:
-        out |= jnp.any(jnp.abs(x) > bounds.state_bound)
-    return out
+def mujoco_steps(mjx: Any, model: Any, data: Any, nstep: int, max_value: float) -> Any:
+    """``(data, unstable)``: ``nstep`` of MuJoCo's ``mj_step`` in MJX with mj_step's own
+    instability check (qpos, qvel before each step, qacc after its forward: NaN or beyond
+    ``max_value``), which ``mjx.step`` does not make; an unstable run is not reset here, the
+    caller ends it.  mjx.step's parts, since its data's qacc is RK4's last stage, not the
+    checked one."""
+    import jax.numpy as jnp
+
+    integrate = _integrator(mjx, model)
+    unstable = jnp.zeros((), dtype=bool)
+    for _ in range(nstep):
+        unstable |= _is_bad(jnp, data.qpos, max_value) | _is_bad(jnp, data.qvel, max_value)
+        data = mjx.forward(model, data)
+        unstable |= _is_bad(jnp, data.qacc, max_value)
+        data = integrate(model, data)
+    return data, unstable
 
 
 def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: Any,
@@ -164,56 +186,18 @@ def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: An
     are the env's), the ending's code, sample ``g``, full state, u and d."""
     import jax
     import jax.numpy as jnp
-    from mujoco import mjx
 
     from tspend.loop.metrics import fold_samples, start_figures
     from tspend.loop.runner import output_error
 
-    act, omega, nstep, steps = fleet.actuator, fleet.omega, fleet.nstep, fleet.steps
-    view, n, dt, max_value = np.asarray(fleet.view_index), fleet.order, fleet.dt, fleet.max_input
+    view, n, dt = np.asarray(fleet.view_index), fleet.order, fleet.dt
     wraps = fleet.wraps if fleet.wraps.any() else None
-    chunks = -(-steps // chunk)
+    chunks = -(-fleet.steps // chunk)
+    sample_of = _sample_step(fleet, law, every, bounds, dtype)
 
     def one_env(model, data, params, d_to_tau, lo, hi, u_lo, u_hi, ref, dist):
-        qpos0, qvel0 = data.qpos, data.qvel
         settings = dataclasses.replace(fold, u_lo=u_lo, u_hi=u_hi)
-
-        def sample(carry, g):
-            data, u_held, params, alive, end = carry
-            full = jnp.concatenate((data.qpos, data.qvel))
-            x, r, d = full[view], ref[g], dist[g]
-            # sampled control: a new u every `every` steps, held in between (the runner's);
-            # the law's carry (an adaptive controller's state) moves only when it samples
-            due = g % every == 0
-            u_new, adapted = law(params, g * dt, full, r, dt * every)
-            u = jnp.where(due, u_new.astype(dtype), u_held)
-            params = jax.tree_util.tree_map(lambda a, b: jnp.where(due, a, b), adapted, params)
-            check = _ends(jnp, x, u, full, lo, hi, bounds)
-            refused = ~((jnp.abs(u) < max_value) & (jnp.abs(d) < max_value))
-            data = data.replace(ctrl=data.ctrl.at[act].set(u),
-                                qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
-            unstable = jnp.zeros((), dtype=bool)
-            for _ in range(nstep):
-                # mj_step's own checks: qpos, qvel before the step, qacc after its forward
-                # (mjx.step's parts: its data's qacc is RK4's last stage, not the checked one)
-                unstable |= _is_bad(jnp, data.qpos, max_value) | _is_bad(jnp, data.qvel, max_value)
-                data = mjx.forward(model, data)
-                unstable |= _is_bad(jnp, data.qacc, max_value)
-                data = _integrator(mjx, model)(model, data)
-            code = jnp.where(check, CHECK, jnp.where(refused, BAD_INPUT,
-                                                     jnp.where(unstable, UNSTABLE, ALIVE)))
-            ends = alive & (g < steps) & (code != ALIVE)
-            # the runner keeps the sample that ends the run unless it is not finite
-            keep = alive & (g < steps) & (~ends | (code != CHECK) |
-                                          (jnp.all(jnp.isfinite(x)) & jnp.isfinite(u)))
-            end = jax.tree_util.tree_map(lambda new, old: jnp.where(ends, new, old),
-                                         (code, g, full, u, d), end)
-            alive = alive & ~ends
-            # an ended run restarts from x0 (masked): its NaN would hold the batch's solver
-            # at its iteration limit
-            data = data.replace(qpos=jnp.where(alive, data.qpos, qpos0),
-                                qvel=jnp.where(alive, data.qvel, qvel0))
-            return (data, u, params, alive, end), (full, u, keep)
+        sample = sample_of(model, (data.qpos, data.qvel), d_to_tau, lo, hi, ref, dist)
 
         def fold_chunk(carry, c):
             loop, figures = carry
@@ -234,6 +218,59 @@ def make_run(fleet: Any, law: Any, every: int, bounds: Any, fold: Any, dtype: An
 
     axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, None, None)
     return jax.jit(jax.vmap(one_env, in_axes=axes))
+
+
+def _sample_step(fleet: Any, law: Any, every: int, bounds: Any, dtype: Any) -> Any:
+    """``sample_of(model, start, d_to_tau, lo, hi, ref, dist)``: one env's sample as a scan
+    step ``(data, u_held, params, alive, end), g -> carry, (full, u, keep)``: the law
+    (sampled every ``every`` steps, held in between), the ending's checks
+    (:mod:`tspend.loop.endings`, the CPU loop's text), MuJoCo's steps and the record of
+    the first ending; ``start`` the env's (qpos, qvel) at x0."""
+    import jax
+    import jax.numpy as jnp
+    from mujoco import mjx
+
+    from tspend.loop.endings import jax_checks
+
+    act, omega, nstep, steps = fleet.actuator, fleet.omega, fleet.nstep, fleet.steps
+    view, dt, max_value = np.asarray(fleet.view_index), fleet.dt, fleet.max_input
+    checks = jax_checks()
+
+    def sample_of(model, start, d_to_tau, lo, hi, ref, dist):
+        def sample(carry, g):
+            data, u_held, params, alive, end = carry
+            full = jnp.concatenate((data.qpos, data.qvel))
+            x, r, d = full[view], ref[g], dist[g]
+            # sampled control: a new u every `every` steps, held in between (the runner's);
+            # the law's carry (an adaptive controller's state) moves only when it samples
+            due = g % every == 0
+            u_new, adapted = law(params, g * dt, full, r, dt * every)
+            u = jnp.where(due, u_new.astype(dtype), u_held)
+            params = jax.tree_util.tree_map(lambda a, b: jnp.where(due, a, b), adapted, params)
+            check = checks.sample_ends(x, u, full, lo, hi, bounds.state_bound,
+                                       bounds.control_bound)
+            refused = checks.refuses_input(u, d, max_value)
+            data = data.replace(ctrl=data.ctrl.at[act].set(u),
+                                qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
+            data, unstable = mujoco_steps(mjx, model, data, nstep, max_value)
+            code = jnp.where(check, CHECK, jnp.where(refused, BAD_INPUT,
+                                                     jnp.where(unstable, UNSTABLE, ALIVE)))
+            ends = alive & (g < steps) & (code != ALIVE)
+            # the runner keeps the sample that ends the run unless it is not finite
+            keep = alive & (g < steps) & (~ends | (code != CHECK) |
+                                          (checks.all_finite(x) & jnp.isfinite(u)))
+            end = jax.tree_util.tree_map(lambda new, old: jnp.where(ends, new, old),
+                                         (code, g, full, u, d), end)
+            alive = alive & ~ends
+            # an ended run restarts from x0 (masked): its NaN would hold the batch's solver
+            # at its iteration limit
+            data = data.replace(qpos=jnp.where(alive, data.qpos, start[0]),
+                                qvel=jnp.where(alive, data.qvel, start[1]))
+            return (data, u, params, alive, end), (full, u, keep)
+
+        return sample
+
+    return sample_of
 
 
 def initial_data(fleet: Any, index: np.ndarray, dtype: Any) -> Any:
@@ -355,22 +392,29 @@ def _ending(fleet: Any, e: int, settings: Any, code: int, g: int, full: np.ndarr
     """``(status, message, samples done)`` of env ``e``'s run that ended at sample ``g``,
     by the CPU runner's own words."""
     from tspend.loop.runner import ClosedLoop
-    from tspend.plants.mujoco_plant import instability_error, refuse_huge_input
 
     t = g * fleet.dt
     if code == CHECK:
         own = SimpleNamespace(s=settings, task=fleet.tasks[e])
         problem, more, status = ClosedLoop._diagnose(own, full[fleet.view_index], u, t, full)
         return status, problem, g + more
-    if code == BAD_INPUT:
+    error = plant_error(fleet, code == BAD_INPUT, u, d, t)
+    return "diverged", f"diverged at t = {t:.4f} s: the plant failed ({error})", g + 1
+
+
+def plant_error(fleet: Any, refused: bool, u: float, d: float, t: float) -> Exception:
+    """The error the CPU plant raises at time ``t`` for an input MuJoCo refuses
+    (``refused``) or a step MuJoCo found unstable: the words of a run's or an env's
+    "the plant failed" on both backends."""
+    from tspend.plants.mujoco_plant import instability_error, refuse_huge_input
+
+    if refused:
         try:
             refuse_huge_input(fleet.plant.name, u, d, t)
         except Exception as exc:   # the DivergenceError the CPU plant raises
-            error = exc
-    else:
-        flagged = [SimpleNamespace(number=1)] * 3
-        error = instability_error(fleet.plant.name, flagged, t)
-    return "diverged", f"diverged at t = {t:.4f} s: the plant failed ({error})", g + 1
+            return exc
+    flagged = [SimpleNamespace(number=1)] * 3
+    return instability_error(fleet.plant.name, flagged, t)
 
 
 def closed_loop_rows(fleet: Any, controller: Any, precision: str = "float64",

@@ -3,13 +3,17 @@
 The CPU vector env (:class:`tspend.gym.vector.TspendVectorEnv`) with its physics stepped
 by MJX: env ``i`` is the machine the scenario's ``[randomize]`` draws at ``seed + i``
 (:func:`tspend.mjx.machines.build_fleet`, the CPU plant's own model), each step holds the
-action over ``frame_skip`` physics steps and stops an env at the first physics step that
-crosses the task's bounds or leaves the finite numbers, all envs in one jitted call.
-Everything else is the CPU env's own: the spaces, the action's clipping and scaling, the
-reward (:func:`tspend.loop.envstep.reward_of`, the function the CPU env calls, on the
-observation the step returns), the statuses and messages (the task's), the truncation at
-the scenario's duration and the autoreset (``NEXT_STEP`` or ``SAME_STEP``).  A template
-:class:`tspend.gym.TspendEnv` gives the layout, so the two backends cannot drift apart.
+action over ``frame_skip`` physics steps and stops an env where the CPU env stops it (an
+input MuJoCo refuses, MuJoCo's instability check, a state not finite, the task's bounds:
+:mod:`tspend.loop.endings`, the CPU env's text in JAX), all envs in one jitted call that
+also makes the observations, the rewards (:func:`tspend.loop.envstep.reward_factory`'s
+text), the terminations, the truncations at the scenario's duration and the restart of
+the envs that ended (autoreset ``NEXT_STEP`` or ``SAME_STEP``).  Each env's data, clock and
+last observation stay on the device between steps: the host sends the actions, reads
+back N numbers per quantity and words the endings of the envs that ended only (the
+task's statuses and messages).  A template :class:`tspend.gym.TspendEnv` gives the
+spaces, the action's clipping and scaling and the reward's weights, so the two backends
+cannot drift apart.
 
 The observation of env i is that of the CPU vector env within about 1e-12 after 100 steps
 in float64 (tests/test_mjx.py holds it to 1e-9), its rewards within rounding and its
@@ -44,40 +48,18 @@ class MjxVectorEnv(VectorEnv):
                  overrides: dict | None = None, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  precision: str = "float64", **options: Any) -> None:
-        import jax.numpy as jnp
-
-        from tspend.gym import TspendEnv
-        from tspend.mjx import set_precision
-        from tspend.mjx.machines import build_fleet
-        from tspend.scenario import load_scenario, override
-
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or not 1 <= num_envs <= 1 << 20:
-            raise ScenarioError(f"num_envs {num_envs!r}: must be an integer from 1 to {1 << 20}")
-        options.pop("max_episode_steps", None)
-        if render_mode is not None:
-            raise ScenarioError("backend='mjx': no render_mode (render env 0 on the CPU backend)")
-        noise = options.get("init_noise", 0.0)
-        if np.any(np.asarray(noise, dtype=float) != 0.0):
-            raise ScenarioError("backend='mjx': init_noise is not supported (every episode "
-                                "starts where a run starts)")
         from tspend.gym import autoreset_mode_of
+        from tspend.mjx import set_precision
 
+        _check_options(num_envs, render_mode, options)
         mode = autoreset_mode_of(autoreset_mode)
         self.precision = set_precision(precision)
-        self._dtype = jnp.float64 if precision == "float64" else jnp.float32
-        scn = load_scenario(scenario)
-        overrides = dict(overrides or {})
-        if overrides:
-            scn = override(scn, **overrides)
-        base = scn.run.seed if seed is None else int(seed)
-        #: the CPU env of env 0: the layout, spaces and reward weights every env shares
-        self.template = TspendEnv(scenario, overrides={**overrides, "run.seed": base}, **options)
+        #: the CPU env of env 0 (the layout, spaces and reward weights every env shares)
+        #: and the envs' machines
+        self.template, self.fleet = _template_and_fleet(scenario, num_envs, seed, overrides,
+                                                        options)
         first = self.template
-        self.fleet = build_fleet(override(scn, **{"run.seed": base}),
-                                 [base + i for i in range(num_envs)], steps=first.horizon)
-        self.num_envs = num_envs
-        self.render_mode = None
-        self.autoreset_mode = mode
+        self.num_envs, self.render_mode, self.autoreset_mode = num_envs, None, mode
         self.metadata = {**self.metadata, "render_fps": first.metadata["render_fps"],
                          "autoreset_mode": mode}
         self.single_observation_space = first.observation_space
@@ -87,38 +69,18 @@ class MjxVectorEnv(VectorEnv):
         self.dt, self.frame_skip, self.horizon = first.dt, first.frame_skip, first.horizon
         f = self.fleet
         self._u_lo, self._u_hi = f.u_lo.copy(), f.u_hi.copy()
-        if first.normalize:
-            self._lo, self._hi = np.full(num_envs, -1.0), np.full(num_envs, 1.0)
-        else:
-            self._lo, self._hi = self._u_lo, self._u_hi
+        unit = np.ones(num_envs)
+        self._lo, self._hi = (-unit, unit) if first.normalize else (self._u_lo, self._u_hi)
         self._u_scale = np.where(np.isfinite(self._u_hi) & (self._u_hi > 0), self._u_hi, 1.0)
-        self._n_state = len(first.task.names)
-        self._ref = f.ref                          # (horizon + 1, n + 1) on the host
-        self._step = _make_env_step(f, self.frame_skip, self.horizon, first, self.dt)
-        self._model = _device_model(f, self._dtype)
-        self._data0 = _initial(f, self._dtype)
-        self._data = self._data0
-        pad = np.zeros(self.horizon + self.frame_skip)
-        pad[:self.horizon] = f.dist
-        put = self._put
-        #: what every step reads, on the device once
-        self._tables = (put(f.d_to_tau), put(f.lo), put(f.hi), put(pad), put(f.ref),
-                        put(self._u_scale))
-        self._clock = np.zeros(num_envs, dtype=np.int64)
-        self._clock_dev = put(self._clock, int)
-        size = first.observation_space.shape[0]
-        self._obs = np.zeros((num_envs, size))
-        self._autoreset = np.zeros(num_envs, dtype=bool)
-        #: envs reset on the host (same-step autoreset) whose device data restarts next step
-        self._restart = np.zeros(num_envs, dtype=bool)
+        self._u_dtype = np.float64 if precision == "float64" else np.float32
+        self._obs_dtype = first.observation_space.dtype
+        self._first = _first_obs(f)
+        self._device = _DeviceEnvs(f, first, self._u_scale, self._first, precision,
+                                   mode == AutoresetMode.NEXT_STEP)
+        self._obs = self._first.copy()
         self._running = np.full(num_envs, "running", dtype=object)
+        self._labels = np.array(["running", "completed"], dtype=object)
         self._no_message = np.full(num_envs, "", dtype=object)
-
-    def _put(self, a: Any, dtype: Any = None) -> Any:
-        import jax
-        import jax.numpy as jnp
-
-        return jax.device_put(jnp.asarray(a, dtype=dtype or self._dtype), jax.devices()[0])
 
     # -- the gymnasium interface ------------------------------------------------------------
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -127,74 +89,63 @@ class MjxVectorEnv(VectorEnv):
         if seed is not None and not isinstance(seed, (int, np.integer)):
             if len(list(seed)) != self.num_envs:
                 raise ScenarioError(f"reset seed: {len(list(seed))} seeds for {self.num_envs} envs")
-        self._data = self._data0
-        self._clock[:] = 0
-        self._clock_dev = self._put(self._clock, int)
-        self._autoreset[:] = False
-        self._restart[:] = False
-        self._obs[:] = self._first_obs()
+        self._device.reset()
+        self._obs = self._first.copy()
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"t": np.zeros(self.num_envs), "_t": every, "u": np.zeros(self.num_envs),
-                 "_u": every, "status": np.full(self.num_envs, "running", dtype=object),
-                 "_status": every, "message": np.full(self.num_envs, "", dtype=object),
-                 "_message": every}
+                 "_u": every, "status": self._running.copy(), "_status": every,
+                 "message": self._no_message.copy(), "_message": every}
         return self._out(self._obs), infos
 
     def step(self, actions):
-        """One step of every env in one call on the device (physics, endings, the
-        observation, the reward, the autoreset's restart); the host reads back N numbers
-        per quantity and names the endings of the envs that ended."""
-        import jax
-
+        """One step of every env in one call on the device: the restart of the envs ended
+        at the last step, the physics, the endings, the observation, the reward, the
+        terminations and truncations.  The host sends N actions, reads back N numbers
+        per quantity, and looks further only at the envs that ended (their status and
+        message, by the task's words): nothing of it loops over the envs."""
         u = self._applied(actions)
-        skip = self._autoreset.copy()               # next-step autoreset: this step resets
-        restart = skip | self._restart
-        self._restart[:] = False
-        out = self._step(self._model, self._data, self._data0, self._put(u),
-                         self._clock_dev, self._put(restart, bool), self._put(skip, bool),
-                         *self._tables)
-        self._data, self._clock_dev = out[0], out[1]
-        clock, obs, reward, code, full = jax.device_get(out[1:])
-        self._clock = np.asarray(clock, dtype=np.int64)
-        code = np.asarray(code)
-        # a non-finite state is not observed: the env keeps its last observation (the CPU's)
-        seen = (code != envstep.NOT_FINITE) | skip
-        self._obs = np.where(seen[:, None], np.asarray(obs, dtype=float), self._obs)
-        terminated = (code != envstep.RUNNING) & ~skip
-        truncated = (self._clock >= self.horizon) & ~skip & ~terminated
+        obs, reward, terminated, truncated, clock = self._device.step(u.astype(self._u_dtype))
+        self._obs = obs
         ended = terminated | truncated
-        # copies of ready-made object arrays: no Python object made per env
-        status, message = self._running.copy(), self._no_message.copy()
-        status[truncated] = "completed"
-        for i in np.flatnonzero(terminated):     # the envs that ended now, not every env
-            status[i], message[i] = (self.fleet.tasks[i].termination(
-                np.asarray(full[i], dtype=float), self._clock[i] * self.dt) or ("diverged", "")) \
-                if code[i] == envstep.ENDED else ("diverged", "the state is not finite")
-        next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
-        if next_step:
-            self._autoreset = ended
+        # one gather from ready-made labels: no Python object made per env
+        status, message = self._labels[truncated.view(np.int8)], self._no_message.copy()
+        if terminated.any():
+            self._name_endings(terminated, clock, u, status, message)
         # t before the reset: the clock of an env reset here restarts at 0
-        infos = envstep.vector_step_infos(self._clock * self.dt, u, status, message,
-                                          terminated, ended, not next_step,
+        infos = envstep.vector_step_infos(clock * self.dt, u, status, message, terminated,
+                                          ended, self.autoreset_mode != AutoresetMode.NEXT_STEP,
                                           lambda i: self._out(self._obs[i]), self._reset_some)
-        return self._out(self._obs), np.asarray(reward, dtype=float), terminated, truncated, infos
+        return self._out(self._obs), reward.astype(float), terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
 
     # -- internals --------------------------------------------------------------------------
-    def _first_obs(self) -> np.ndarray:
-        f = self.fleet
-        full = np.concatenate((f.qpos0, f.qvel0), axis=1)
-        return np.concatenate((full, np.broadcast_to(self._ref[0], (self.num_envs,
-                                                                      self._ref.shape[1]))), axis=1)
+    def _name_endings(self, terminated: np.ndarray, clock: np.ndarray, u: np.ndarray,
+                      status: np.ndarray, message: np.ndarray) -> None:
+        """The status and message of each env that ended now, as the CPU env words them."""
+        from tspend.mjx.sweep import plant_error
+
+        which = np.flatnonzero(terminated)
+        code, full = self._device.endings(which)
+        for i, c, s in zip(which, code, full):
+            t = clock[i] * self.dt
+            if c == envstep.ENDED:
+                status[i], message[i] = (self.fleet.tasks[i].termination(
+                    np.asarray(s, dtype=float), t) or ("diverged", ""))
+            elif c == envstep.NOT_FINITE:
+                status[i], message[i] = "diverged", "the state is not finite"
+            else:     # BAD_INPUT, UNSTABLE: the plant's own words
+                d = float(self._device.dist[min(clock[i], self.horizon - 1)])
+                error = plant_error(self.fleet, c == envstep.BAD_INPUT, float(u[i]), d, t)
+                status[i], message[i] = "diverged", f"the plant failed ({error})"
 
     def _reset_some(self, which: np.ndarray) -> None:
-        """Envs ``which`` back where a run starts: their observation now, their data and
-        clock on the device at the start of the next step."""
-        self._restart |= which
-        self._clock[which] = 0
-        self._obs[which] = self._first_obs()[which]
+        """Envs ``which`` (ended at this step) where a run starts: their observation now;
+        their data and clock restart on the device at the next step."""
+        if not self._obs.flags.writeable:      # as read back from the device
+            self._obs = self._obs.copy()
+        self._obs[which] = self._first[which]
 
     def _applied(self, actions: Any) -> np.ndarray:
         try:
@@ -210,7 +161,112 @@ class MjxVectorEnv(VectorEnv):
         return np.ascontiguousarray(a)
 
     def _out(self, obs: np.ndarray) -> np.ndarray:
-        return obs.astype(self.single_observation_space.dtype)
+        return obs.astype(self._obs_dtype)
+
+
+def _check_options(num_envs: Any, render_mode: Any, options: dict) -> None:
+    """ScenarioError (one line) for what this backend cannot do; drops the CPU env's
+    ``max_episode_steps`` (the horizon is the scenario's)."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or not 1 <= num_envs <= 1 << 20:
+        raise ScenarioError(f"num_envs {num_envs!r}: must be an integer from 1 to {1 << 20}")
+    options.pop("max_episode_steps", None)
+    if render_mode is not None:
+        raise ScenarioError("backend='mjx': no render_mode (render env 0 on the CPU backend)")
+    noise = options.get("init_noise", 0.0)
+    if np.any(np.asarray(noise, dtype=float) != 0.0):
+        raise ScenarioError("backend='mjx': init_noise is not supported (every episode "
+                            "starts where a run starts)")
+
+
+def _template_and_fleet(scenario: Any, num_envs: int, seed: int | None, overrides: dict | None,
+                        options: dict) -> tuple[Any, Any]:
+    """The CPU env at the first seed (the layout every env shares) and the machines of
+    seeds ``seed .. seed + num_envs - 1`` (the scenario's run.seed when ``seed`` is None)."""
+    from tspend.gym import TspendEnv
+    from tspend.mjx.machines import build_fleet
+    from tspend.scenario import load_scenario, override
+
+    scn = load_scenario(scenario)
+    overrides = dict(overrides or {})
+    if overrides:
+        scn = override(scn, **overrides)
+    base = scn.run.seed if seed is None else int(seed)
+    template = TspendEnv(scenario, overrides={**overrides, "run.seed": base}, **options)
+    fleet = build_fleet(override(scn, **{"run.seed": base}),
+                        [base + i for i in range(num_envs)], steps=template.horizon)
+    return template, fleet
+
+
+def _first_obs(fleet: Any) -> np.ndarray:
+    """Every env's observation where a run starts: [its reset state, r .. r^(n) at 0]."""
+    full = np.concatenate((fleet.qpos0, fleet.qvel0), axis=1)
+    ref0 = np.broadcast_to(fleet.ref[0], (full.shape[0], fleet.ref.shape[1]))
+    return np.concatenate((full, ref0), axis=1)
+
+
+class _DeviceEnvs:
+    """What the envs keep on the device between steps (each env's MJX data, clock, last
+    observation and whether it restarts at the next step) and the one jitted call that
+    steps them (:func:`_make_env_step`); the host sends the actions and reads back the
+    observations, rewards, terminations, truncations and clocks."""
+
+    def __init__(self, fleet: Any, template: Any, u_scale: np.ndarray, first_obs: np.ndarray,
+                 precision: str, next_step: bool) -> None:
+        import jax
+        import jax.numpy as jnp
+
+        self.dtype = jnp.float64 if precision == "float64" else jnp.float32
+        self.device = jax.devices()[0]
+        horizon, frame_skip = template.horizon, template.frame_skip
+        self.dist = np.asarray(fleet.dist, dtype=float)
+        pad = np.zeros(horizon + frame_skip)
+        pad[:horizon] = fleet.dist
+        put = self.put
+        self.model, self.data0 = _device_model(fleet, self.dtype), _initial(fleet, self.dtype)
+        self.first_obs = put(first_obs)
+        #: what every step reads
+        self.tables = (put(fleet.d_to_tau), put(fleet.lo), put(fleet.hi), put(pad),
+                       put(fleet.ref), put(u_scale))
+        self.call = _make_env_step(fleet, frame_skip, horizon, template, template.dt, next_step)
+        self.reset()
+
+    def put(self, a: Any, dtype: Any = None) -> Any:
+        import jax
+        import jax.numpy as jnp
+
+        return jax.device_put(jnp.asarray(a, dtype=dtype or self.dtype), self.device)
+
+    def reset(self) -> None:
+        import jax
+        import jax.numpy as jnp
+
+        n = self.first_obs.shape[0]
+        # copies: the step takes over (donates) the buffers of what it replaces
+        self.data = jax.tree_util.tree_map(jnp.copy, self.data0)
+        self.obs = jnp.copy(self.first_obs)
+        self.clock = self.put(np.zeros(n, dtype=np.int64), int)
+        self.pending = self.put(np.zeros(n, dtype=bool), bool)
+        self.code = self.full = None
+
+    def step(self, u: np.ndarray) -> tuple:
+        """``(obs, reward, terminated, truncated, clock)`` on the host after one step."""
+        import jax
+
+        # u as numpy: the jitted call's own argument handling puts it on the device,
+        # cheaper than a device_put before it
+        out = self.call(self.model, self.data, self.data0, self.obs, self.first_obs,
+                        u, self.clock, self.pending, *self.tables)
+        self.data, self.clock, self.obs, self.pending = out[:4]
+        self.code, self.full = out[4], out[5]
+        reward, terminated, truncated = out[6:]
+        return jax.device_get((self.obs, reward, terminated, truncated, self.clock))
+
+    def endings(self, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ending's code and the full state it stopped at, of the envs ``which``."""
+        import jax
+
+        code, full = jax.device_get((self.code, self.full))
+        return code[which], full[which]
 
 
 def _device_model(fleet: Any, dtype: Any) -> Any:
@@ -228,18 +284,24 @@ def _initial(fleet: Any, dtype: Any) -> Any:
 def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
     """One env's physics over a step, as a pure function ``one(model, data, u, clock, skip,
     d_to_tau, lo, hi, dist)``: hold u over ``frame_skip`` physics steps (fewer at the
-    episode's end, none when ``skip``), the ending found after the first that crosses the
-    bounds ``lo < s < hi`` (ENDED) or is not finite (NOT_FINITE), as
-    :func:`tspend.loop.envstep.env_step` does; returns the data, the code, the physics steps
-    done and the full state after them.  The data is stepped on past an ending (an ended
-    env restarts before its next physics): only the code, the count and the state are held,
+    episode's end, none when ``skip``), stopping at the first input MuJoCo refuses
+    (BAD_INPUT, not stepped), the first step MuJoCo finds unstable (UNSTABLE) or the first
+    that leaves the finite numbers (NOT_FINITE) or crosses the bounds ``lo < s < hi``
+    (ENDED), as :func:`tspend.loop.envstep.env_step` does, by the same text
+    (:mod:`tspend.loop.endings`); returns the data, the code, the physics steps done and
+    the full state after them.  The data is stepped on past an ending (an ended env
+    restarts before its next physics): only the code, the count and the state are held,
     not the whole data at every physics step."""
     import jax
     import jax.numpy as jnp
     from mujoco import mjx
 
-    act, omega, nstep = fleet.actuator, fleet.omega, fleet.nstep
-    RUNNING, ENDED, NOT_FINITE = envstep.RUNNING, envstep.ENDED, envstep.NOT_FINITE
+    from tspend.loop.endings import jax_checks
+    from tspend.mjx.sweep import mujoco_steps
+
+    act, omega, nstep, max_input = fleet.actuator, fleet.omega, fleet.nstep, fleet.max_input
+    RUNNING, BAD_INPUT, UNSTABLE = envstep.RUNNING, envstep.BAD_INPUT, envstep.UNSTABLE
+    checks = jax_checks()
 
     def one(model, data, u, clock, skip, d_to_tau, lo, hi, dist):
         k = jnp.where(skip, 0, jnp.clip(horizon - clock, 0, frame_skip))
@@ -249,16 +311,17 @@ def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
             data, code, done, held = carry
             active = (j < k) & (code == RUNNING)
             d = jax.lax.dynamic_index_in_dim(dist, clock + j, keepdims=False)
+            refused = checks.refuses_input(u, d, max_input)
             data = data.replace(ctrl=data.ctrl.at[act].set(u),
                                 qfrc_applied=data.qfrc_applied.at[omega].set(d_to_tau * d))
-            for _ in range(nstep):
-                data = mjx.step(model, data)
+            data, unstable = mujoco_steps(mjx, model, data, nstep, max_input)
             full = jnp.concatenate((data.qpos, data.qvel))
-            finite = jnp.all(jnp.isfinite(full))
-            beyond = jnp.any(full < lo) | jnp.any(full > hi)
-            now = jnp.where(~finite, NOT_FINITE, jnp.where(beyond, ENDED, RUNNING))
-            return (data, jnp.where(active, now, code), done + active.astype(jnp.int32),
-                    jnp.where(active, full, held))
+            now = jnp.where(refused, BAD_INPUT, jnp.where(unstable, UNSTABLE,
+                                                          checks.physics_ending(full, lo, hi)))
+            # a refused or unstable step is not done (the CPU env's count)
+            did = active & (now != BAD_INPUT) & (now != UNSTABLE)
+            return (data, jnp.where(active, now, code), done + did.astype(jnp.int32),
+                    jnp.where(did, full, held))
 
         data, code, done, full = jax.lax.fori_loop(
             0, frame_skip, body, (data, jnp.int32(RUNNING), jnp.int32(0), full0))
@@ -267,12 +330,16 @@ def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
     return one
 
 
-def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt: float) -> Any:
-    """Every env's step in one jitted call: the restart of the envs reset, the physics
-    (:func:`env_substeps`), the observation [full state, r .. r^(n) at the new clock] and
-    the CPU env's reward (:func:`tspend.loop.envstep.reward_factory`'s text in JAX);
-    returns the data, the clock (both stay on the device), the observations, rewards,
-    codes and full states."""
+def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt: float,
+                   next_step: bool) -> Any:
+    """Every env's step in one jitted call: the restart of the envs that ended at the last
+    step (``pending``; with ``next_step`` autoreset that step is the reset, with no
+    physics), the physics (:func:`env_substeps`), the observation [full state, r .. r^(n)
+    at the new clock] (the last one kept where the step diverged, as the CPU env keeps
+    it), the CPU env's reward (:func:`tspend.loop.envstep.reward_factory`'s text in JAX),
+    the terminations and truncations.  Returns what stays on the device (data, clock,
+    observation, pending), the codes and full states the host reads for the envs that
+    ended, and the rewards, terminations and truncations."""
     import jax
     import jax.numpy as jnp
 
@@ -282,19 +349,29 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
     alive, control = float(w.alive), float(w.control)
     n_state = len(template.task.names)
     physics = env_substeps(fleet, frame_skip, horizon)
+    RUNNING, ENDED = envstep.RUNNING, envstep.ENDED
 
-    def one(model, data, data0, u, clock, restart, skip, d_to_tau, lo, hi, dist, ref, u_scale):
-        data = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), data0, data)
-        clock = jnp.where(restart, 0, clock)
+    def one(model, data, data0, obs, obs0, u, clock, pending, d_to_tau, lo, hi, dist, ref,
+            u_scale):
+        skip = pending if next_step else jnp.zeros((), dtype=bool)
+        data = jax.tree_util.tree_map(lambda a, b: jnp.where(pending, a, b), data0, data)
+        clock, obs = jnp.where(pending, 0, clock), jnp.where(pending, obs0, obs)
         data, code, done, full = physics(model, data, u, clock, skip, d_to_tau, lo, hi, dist)
         # a reset step has no physics: the env stays where a run starts
         data = jax.tree_util.tree_map(lambda a, b: jnp.where(skip, a, b), data0, data)
         clock = clock + done
-        obs = jnp.concatenate((full, ref[jnp.minimum(clock, horizon)]))
-        wrote = ((code == envstep.RUNNING) | (code == envstep.ENDED)) & ~skip
-        reward = jnp.where(wrote, reward_of(obs, n_state, view, tracking, wraps, alive,
+        wrote = ((code == RUNNING) | (code == ENDED)) & ~skip
+        new = jnp.concatenate((full, ref[jnp.minimum(clock, horizon)])).astype(obs.dtype)
+        obs = jnp.where(wrote | skip, new, obs)
+        reward = jnp.where(wrote, reward_of(new, n_state, view, tracking, wraps, alive,
                                             control, u_scale, u, done * dt), 0.0)
-        return data, clock, obs, reward, code, full
+        terminated = (code != RUNNING) & ~skip
+        truncated = (clock >= horizon) & ~skip & ~terminated
+        return (data, clock, obs, terminated | truncated, code, full, reward, terminated,
+                truncated)
 
-    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
-    return jax.jit(jax.vmap(one, in_axes=axes))
+    axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
+    # the data, observation, clock and restart flags a step replaces are donated: their
+    # buffers are reused, not freed and taken anew each step (on the CPU the free alone
+    # grew with the number of envs)
+    return jax.jit(jax.vmap(one, in_axes=axes), donate_argnums=(1, 3, 6, 7))
