@@ -11,8 +11,10 @@ import tspend
 
 PACKAGE = Path(tspend.__file__).resolve().parent
 
-#: lines of Python the plant side may take (docs/articulated.md: what went where)
-PLANTS_LINE_BUDGET = 5400
+#: lines of Python the plant side may take (docs/articulated.md: what went where); 5400
+#: until issue 52 gave the derived model its JAX form from the same generated text (the
+#: laws over an array namespace and the two calls into the generated code: +110 lines)
+PLANTS_LINE_BUDGET = 5500
 
 
 def _python_files(folder: Path) -> list[Path]:
