@@ -118,6 +118,8 @@ MAX_VERTEX_PARAMETERS = 6
 #: (P9): the default budget, a share of the control period (the rest is the inner
 #: controller's and the loop's)
 BUDGET_SHARE = 0.8
+#: (P10): the Nelder-Mead search for a Lyapunov function common to the vertex models
+LYAPUNOV_EVALUATIONS = 800
 #: (P9): a step's cost estimate is the moving average of its CPU time with this weight
 #: on the latest (a step dearer than the budget, the QP at 1 kHz, is then never started)
 COST_AVERAGE = 0.2
@@ -130,6 +132,40 @@ def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float
     return min((b * b / float(a @ P_inv @ a) for a, b in rows if b > 0.0), default=math.inf)
 
 
+def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(P, rate)``: a quadratic Lyapunov function common to every closed loop ``A_i - B_i K``
+    (the vertex models' linearisations, (P10)) and its proven decay rate, ``rate = max_i
+    lambda_max(P^-1/2 (A_i^T P + P A_i) P^-1/2)`` (``V' <= rate V`` on each: the set
+    ``{s^T P s <= c}`` is invariant on all of them when ``rate < 0``).  The search (Nelder-Mead
+    over ``P``'s Cholesky factor from ``start``, the nominal Riccati matrix) only proposes;
+    the rate is the eigenvalue check of the ``P`` it returns.  Why not the Riccati ``P``:
+    its decrease fails on the corners whose ``A - B K`` is not the nominal's."""
+    from scipy.optimize import minimize
+
+    n = start.shape[0]
+    lower = np.tril_indices(n)
+
+    def unpack(p: np.ndarray) -> np.ndarray:
+        L = np.zeros((n, n))
+        L[lower] = p
+        return L @ L.T
+
+    def rate(p: np.ndarray) -> float:
+        P = unpack(p)
+        w, V = np.linalg.eigh(P)
+        if w.min() <= 1e-12 * max(w.max(), 1e-300):
+            return math.inf
+        root = V @ np.diag(w ** -0.5) @ V.T
+        return max(float(np.linalg.eigvalsh(root @ (A.T @ P + P @ A) @ root).max())
+                   for A in closed_loops)
+
+    p0 = np.linalg.cholesky(start / np.trace(start))[lower]
+    found = minimize(rate, p0, method="Nelder-Mead",
+                     options={"maxfev": LYAPUNOV_EVALUATIONS})
+    best = found.x if found.fun < rate(p0) else p0
+    return unpack(best), rate(best)
+
+
 def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: float,
                     lo: np.ndarray, hi: np.ndarray, u_lo: float, u_hi: float, T: float,
                     rng: np.random.Generator) -> float:
@@ -137,9 +173,8 @@ def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: 
     ``u = clip(-K s)`` from :data:`BOUNDARY_POINTS` sampled points of the ellipsoid's
     boundary keeps every bound ``lo <= s <= hi`` at every 20 ms step for ``T`` seconds and
     ends back inside the ellipsoid (a sampled check, not a proof); 0 when 15 shrinks do
-    not reach it.  A Lyapunov decrease of the nominal ``P`` would be the classic test, but
-    it fails at every level on the drawn machines (their ``A - B K`` is not the nominal's):
-    what is checked is that the set is recurrent and safe under the LQR."""
+    not reach it.  (P10) proves the decrease on the vertex models' linearisations; this is
+    the nonlinear models' part: the set recurrent and safe under the LQR, sampled."""
     import casadi as ca
 
     n, dt = P.shape[0], 0.02
@@ -305,8 +340,13 @@ class Certificate:
     R: float
     #: (P9): seconds per sample
     budget_s: float
-    #: how X_f's recurrence was shown: "sampled" (boundary points on every model)
+    #: how X_f's invariance was shown (P10): "vertex_lyapunov" (a Lyapunov decrease common
+    #: to every vertex model's linearisation, the nonlinear models sampled), else "sampled"
     terminal: str = "sampled"
+    #: the balancing LQR's Riccati matrix (the QP's cost to go; ``P`` is X_f's)
+    P_cost: np.ndarray | None = None
+    #: (P10)'s proven decay rate of ``s^T P s`` on the vertex linearisations (1/s; < 0: shown)
+    decay_rate: float = math.nan
 
 
 def hard_bounds(scenario: "Scenario", machine: Any, model: "FullModel",
@@ -367,21 +407,44 @@ def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
     half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
     bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
               lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
+    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
+    P_set, level, rate = terminal_set([model] + list(corners), P, K, bounds, u_lo, u_hi,
+                                      horizon * h)
     if not math.isfinite(level):
         raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": no bound limits the "
                             f"terminal set (no position bound, fall angle or input range)")
-    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
-    level = recurrent_level([model] + list(corners), P, K, level, bounds[0], bounds[1],
-                            u_lo, u_hi, horizon * h, np.random.default_rng(0))
     if level <= 0.0:
         raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": the LQR's ellipsoid "
                             f"shrank to nothing without the LQR keeping it safe on the "
                             f"machine and its [randomize] corners")
     budget = cfg.budget_ms * 1e-3 if cfg.budget_ms > 0.0 else BUDGET_SHARE * sample_s
     return Certificate(model, tuple(corners), tuple(names), float(sample_s), h, horizon + 1,
-                       substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K, P,
-                       level, Q, b_pole ** 2, budget)
+                       substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K,
+                       P_set, level, Q, b_pole ** 2, budget,
+                       terminal="vertex_lyapunov" if rate < 0.0 else "sampled",
+                       P_cost=P, decay_rate=rate)
+
+
+def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bounds: tuple,
+                 u_lo: float, u_hi: float, T: float) -> tuple[np.ndarray, float, float]:
+    """(P3) and (P10): ``(P, c, rate)``.  ``P`` a Lyapunov function common to every model's
+    linearised closed loop under the LQR (:func:`common_lyapunov`; the Riccati ``P_lqr``
+    when none is found, ``rate >= 0``), ``c`` the largest level inside every tightened bound
+    and ``|K s| <= `` the input's reach (so the LQR does not saturate in the set: on each
+    vertex linearisation the set is invariant, ``V' <= rate V``), then shrunk until the
+    sampled check on the nonlinear models holds (:func:`recurrent_level`)."""
+    closed = []
+    for m in models:
+        A, B = m.linearisation()
+        closed.append(A - np.outer(B[:, 0], K))
+    P, rate = common_lyapunov(closed, P_lqr)
+    if rate >= 0.0:
+        P = P_lqr
+    level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
+    if math.isfinite(level):
+        level = recurrent_level(models, P, K, level, bounds[0], bounds[1], u_lo, u_hi, T,
+                                np.random.default_rng(0))
+    return P, level, rate
 
 
 def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: float,
@@ -516,7 +579,7 @@ def plan_qp(cert: Certificate, cfg: "SafetyConfig", compiled: bool) -> Any:
     stages[:, nx, nx] = 2.0 * PROXIMAL
     stages[0, nx, nx] = 2.0
     stages[:, nx + 1:, nx + 1:] = 2.0 * scale ** 2 * np.eye(ns)
-    terminal = (2.0 * PROXIMAL * cert.P / cert.R
+    terminal = (2.0 * PROXIMAL * (cert.P if cert.P_cost is None else cert.P_cost) / cert.R
                 + 2.0 * (TERMINAL_WEIGHT * scale) ** 2 * cert.P / cert.level)
     free = np.full(nx, np.inf)
     z_lo = np.concatenate([np.tile(np.concatenate([-free, [cert.u_lo], np.zeros(ns)]), N), -free])
@@ -794,13 +857,14 @@ class PredictiveSafetyFilter(SafetyFilter):
         cert = self.cert
         return f"corner {m} of {len(cert.corners)} ({', '.join(cert.corner_names)})"
 
-    def stage_at(self, tau: float) -> int | None:
-        """The plan's interval ``tau`` seconds after it was made (None: past its end)."""
+    def stage_at(self, tau: float) -> int:
+        """The plan's interval ``tau`` seconds after it was made; ``N`` past its end: the
+        plan ended in X_f, where the LQR goes on (X_f invariant under it, (P10))."""
         dt0 = self.cert.sample_s
         if tau < dt0 - 1e-12:
             return 0
         k = 1 + int(math.floor((tau - dt0) / self.cert.h + 1e-9))
-        return k if k < self.cert.N else None
+        return min(k, self.cert.N)
 
     def shifted(self, plan: tuple | None, age: int, s: np.ndarray) -> tuple | None:
         """``plan = (U, R)`` made ``age`` samples ago, on this sample's grid from state
@@ -847,6 +911,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         cert = self.cert
         if k == 0:
             return float(U[0])
+        if k >= cert.N:
+            return self.terminal_input(s)
         start = cert.sample_s + (k - 1) * cert.h
         a = min(max((tau - start) / cert.h, 0.0), 1.0)
         ref = R[:, k] if k + 1 >= cert.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
@@ -1042,6 +1108,10 @@ class PredictiveSafetyFilter(SafetyFilter):
                                        "max": 1e3 * self.time_max if n else None},
                 "over_budget_samples": self.over_budget, "budget_skipped_samples": self.skipped,
                 "certified_samples": certified, "certified_share": certified / n if n else None,
+                # steps 1-3: certified at this sample, or the plan certified at an earlier one
+                # going on (its rest, then X_f under the LQR: [3]'s recursive feasibility)
+                "on_certified_plan_samples": certified + self.fallbacks,
+                "on_certified_plan_share": (certified + self.fallbacks) / n if n else None,
                 "fast_path_samples": self.fast, "bisected_samples": self.bisected,
                 "qp_certified_samples": self.qp_certified, "fallbacks": self.fallbacks,
                 "fallback_share": self.fallbacks / n if n else None,
@@ -1053,6 +1123,7 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "certificate": {"models": self.roll.models,
                                 "corner_parameters": list(cert.corner_names),
                                 "terminal_set": cert.terminal, "terminal_level": cert.level,
+                                "terminal_decay_rate": cert.decay_rate,
                                 # every margin the certificate keeps, per bounded state
                                 "bounds": {names[i]: [float(cert.lo_check[i]),
                                                       float(cert.hi_check[i])]
