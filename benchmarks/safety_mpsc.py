@@ -70,6 +70,8 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.fast_path": sf.get("fast_path_samples"),
                         "safety.uncertified": sf.get("uncertified_samples"),
                         "safety.certified": sf.get("certified_samples"),
+                        "safety.on_plan": sf.get("on_certified_plan_samples"),
+                        "safety.terminal_set": (sf.get("certificate") or {}).get("terminal_set"),
                         "safety.admitted": sf.get("start_admitted"),
                         "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
                         "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
@@ -148,6 +150,10 @@ def summary(table) -> dict:
                 # issue 54's columns: certified share over all samples, uncertified samples,
                 # time per sample (median of run medians, largest p99, largest max)
                 "certified_share": float(g["safety.certified"].sum() / n.sum()),
+                # steps 1-3: certified at the sample or the earlier certified plan going on
+                **({"on_certified_plan_share": float(g["safety.on_plan"].sum() / n.sum()),
+                    "on_certified_plan_share_min_run": float((g["safety.on_plan"] / n).min())}
+                   if "safety.on_plan" in g and g["safety.on_plan"].notna().all() else {}),
                 "fallback_share": float(g["safety.fallbacks"].sum() / n.sum()),
                 "uncertified_samples": int(g["safety.uncertified"].sum()),
                 "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
@@ -312,6 +318,7 @@ def randomized_timing(machine: str, seeds: int) -> dict:
                      "mpsc_ms_max": per["max"], "budget_ms": sf["budget_ms"],
                      "over_budget_samples": sf["over_budget_samples"],
                      "certified_share": sf["certified_share"],
+                     "on_certified_plan_share": sf.get("on_certified_plan_share"),
                      "bare_pd_ms_median": bare["median"], "bare_pd_ms_max": bare["max"],
                      "ratio_median_over_bare": per["median"] / bare["median"],
                      "load_average_1min": os.getloadavg()[0]})

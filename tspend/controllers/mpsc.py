@@ -42,11 +42,18 @@ time); a step that does not fit is skipped, never started:
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
    its plan applied only when certified on every model;
-3. else the last certified plan goes on, tracked by the LQR (a **fallback**: certified at
-   an earlier sample, on the models);
-4. without any certified plan: **uncertified**, counted: the recovery plan (P8) made at
-   admission (IPOPT on the nominal model, tracked by the LQR), else the QP's own plan,
-   else the saturated LQR.
+3. else the last certified plan goes on, tracked by the LQR, and past its end the LQR in
+   X_f (a **fallback**: certified at an earlier sample, on the models; X_f is invariant
+   under the LQR (P10), so the plan never runs out: the recursive feasibility of MPSC);
+4. without any certified plan yet (a start not admitted): **uncertified**, counted: the
+   recovery plan (P8) made at admission (IPOPT on the nominal model, tracked by the LQR),
+   else the QP's own plan, else the saturated LQR.
+
+The terminal set X_f is invariant on every vertex model's linearisation:
+
+    (A_i - B_i K)^T P + P (A_i - B_i K) <= r P,  r < 0,  |K s| <= u_max in X_f      (P10)
+
+(:func:`terminal_set`; its nonlinear recurrence sampled).
 
 **Admission** (before the first sample is filtered, outside the budget: a rig's
 pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
@@ -132,6 +139,17 @@ def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float
     return min((b * b / float(a @ P_inv @ a) for a, b in rows if b > 0.0), default=math.inf)
 
 
+def decay_rate(closed_loops: list[np.ndarray], P: np.ndarray) -> float:
+    """``max_i lambda_max(P^-1/2 (A_i^T P + P A_i) P^-1/2)``: ``V' <= rate V`` for ``V = s^T P
+    s`` on every closed loop ``A_i`` (inf when ``P`` is not positive definite)."""
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        return math.inf
+    root = V @ np.diag(w ** -0.5) @ V.T
+    return max(float(np.linalg.eigvalsh(root @ (A.T @ P + P @ A) @ root).max())
+               for A in closed_loops)
+
+
 def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray) -> tuple[np.ndarray, float]:
     """``(P, rate)``: a quadratic Lyapunov function common to every closed loop ``A_i - B_i K``
     (the vertex models' linearisations, (P10)) and its proven decay rate, ``rate = max_i
@@ -151,13 +169,7 @@ def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray) -> tuple[
         return L @ L.T
 
     def rate(p: np.ndarray) -> float:
-        P = unpack(p)
-        w, V = np.linalg.eigh(P)
-        if w.min() <= 1e-12 * max(w.max(), 1e-300):
-            return math.inf
-        root = V @ np.diag(w ** -0.5) @ V.T
-        return max(float(np.linalg.eigvalsh(root @ (A.T @ P + P @ A) @ root).max())
-                   for A in closed_loops)
+        return decay_rate(closed_loops, unpack(p))
 
     p0 = np.linalg.cholesky(start / np.trace(start))[lower]
     found = minimize(rate, p0, method="Nelder-Mead",
@@ -437,9 +449,12 @@ def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bo
     for m in models:
         A, B = m.linearisation()
         closed.append(A - np.outer(B[:, 0], K))
-    P, rate = common_lyapunov(closed, P_lqr)
+    P, rate = P_lqr, decay_rate(closed, P_lqr)
     if rate >= 0.0:
-        P = P_lqr
+        # the Riccati P decreases on the nominal loop, not always on the corners'
+        P, rate = common_lyapunov(closed, P_lqr)
+        if rate >= 0.0:
+            P = P_lqr
     level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
     if math.isfinite(level):
         level = recurrent_level(models, P, K, level, bounds[0], bounds[1], u_lo, u_hi, T,
