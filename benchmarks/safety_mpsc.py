@@ -28,6 +28,7 @@ benchmarks/results/safety_mpsc_timing.json.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -189,6 +190,51 @@ def markdown_rows(table, machine: str) -> str:
     return "\n".join(lines)
 
 
+#: docs/safety.md's mpsc table: (machine key in safety_mpsc.json, its label)
+DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
+            ("cartpole_rail_seeds200", "cart-pole, rail 1 m (200-219)"),
+            ("furuta_arm", "Furuta, arm stop (0-19)"),
+            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"))
+
+
+def doc_table(data: dict, kinds: list[str]) -> str:
+    """docs/safety.md's mpsc table, every figure marked against ``safety_mpsc.json``
+    (tools/check_claims.py checks them): ``--doc-table`` prints it."""
+    def mark(key: str, digits: str, scale: float = 1.0) -> str:
+        value = functools.reduce(lambda d, k: d[k], key.split("/"), data)
+        tail = f" x{scale:g}" if scale != 1.0 else ""
+        shown = int(round(value)) if digits == "d" else scale * value
+        return (f"{format(shown, digits)}<!-- data: benchmarks/results/safety_mpsc.json "
+                f"{key}{tail} -->")
+
+    lines = ["| machine (seeds) | kind | bare | `cbf` (S1) | `mpsc` | on a certified plan "
+             "(steps 1-3) | certified at the sample (steps 1-2) | uncertified samples (in runs) "
+             "| starts admitted | time per sample: median of run medians / largest p99 / "
+             "largest max | samples over the 0.8 ms budget | load average |",
+             "|---" * 12 + "|"]
+    for machine, label in DOC_ROWS:
+        if machine not in data:
+            continue
+        for kind in kinds:
+            s = f"{machine}/summary/{kind}"
+            cells = [f"{mark(f'{s}{x}/completed', 'd')}/{mark(f'{s}{x}/runs', 'd')}, outside in "
+                     f"{mark(f'{s}{x}/runs_with_samples_outside', 'd')}"
+                     for x in ("", "+cbf", "+mpsc")]
+            m = f"{s}+mpsc"
+            cells += [mark(f"{m}/on_certified_plan_share", ".1f", 100) + " %",
+                      mark(f"{m}/certified_share", ".0f", 100) + " %",
+                      f"{mark(f'{m}/uncertified_samples', 'd')} in "
+                      f"{mark(f'{m}/runs_with_uncertified', 'd')}",
+                      mark(f"{m}/starts_admitted", "d"),
+                      f"{mark(f'{m}/time_per_sample_ms_median', '.2f')} / "
+                      f"{mark(f'{m}/time_per_sample_ms_p99_max', '.1f')} / "
+                      f"{mark(f'{m}/time_per_sample_ms_max', '.0f')} ms",
+                      mark(f"{m}/over_budget_samples", "d"),
+                      mark(f"{m}/load_average_1min_median", ".0f")]
+            lines.append(f"| {label} | `{kind}` | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def paired(table, kinds: list[str], resamples: int) -> dict:
     """McNemar on ended runs and Wilcoxon on rmse / violations (a run the task ended
     scores +inf), Holm over every comparison of the machine (tspend.studies.stats)."""
@@ -341,6 +387,8 @@ def main() -> None:
     ap.add_argument("--timing-only", action="store_true")
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
+    ap.add_argument("--doc-table", action="store_true",
+                    help="print docs/safety.md's mpsc table from safety_mpsc.json, run nothing")
     ap.add_argument("--samples", type=int, default=5000)
     ap.add_argument("--timing-machine", default="",
                     help="with --timing-only: the closed loops of this machine of "
@@ -359,6 +407,10 @@ def main() -> None:
     warnings.simplefilter("ignore")
     out_path = OUT / "safety_mpsc.json"
     data: dict = {}
+    if args.doc_table:
+        print(doc_table(json.loads((RESULTS / "safety_mpsc.json").read_text()),
+                        args.kinds.split(",")))
+        return
     if args.timing_only and args.timing_machine:
         tim = randomized_timing(args.timing_machine, args.seeds)
         path = OUT / "safety_mpsc_timing.json"
