@@ -126,7 +126,9 @@ MAX_VERTEX_PARAMETERS = 6
 #: controller's and the loop's)
 BUDGET_SHARE = 0.8
 #: (P10): the Nelder-Mead search for a Lyapunov function common to the vertex models
-LYAPUNOV_EVALUATIONS = 800
+LYAPUNOV_EVALUATIONS = 2000
+#: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
+DECAY_MARGIN = 0.05
 #: (P9): a step's cost estimate is the moving average of its CPU time with this weight
 #: on the latest (a step dearer than the budget, the QP at 1 kHz, is then never started)
 COST_AVERAGE = 0.2
@@ -150,14 +152,15 @@ def decay_rate(closed_loops: list[np.ndarray], P: np.ndarray) -> float:
                for A in closed_loops)
 
 
-def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray) -> tuple[np.ndarray, float]:
+def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray,
+                    rows: list) -> tuple[np.ndarray, float]:
     """``(P, rate)``: a quadratic Lyapunov function common to every closed loop ``A_i - B_i K``
-    (the vertex models' linearisations, (P10)) and its proven decay rate, ``rate = max_i
-    lambda_max(P^-1/2 (A_i^T P + P A_i) P^-1/2)`` (``V' <= rate V`` on each: the set
-    ``{s^T P s <= c}`` is invariant on all of them when ``rate < 0``).  The search (Nelder-Mead
-    over ``P``'s Cholesky factor from ``start``, the nominal Riccati matrix) only proposes;
-    the rate is the eigenvalue check of the ``P`` it returns.  Why not the Riccati ``P``:
-    its decrease fails on the corners whose ``A - B K`` is not the nominal's."""
+    (the vertex models' linearisations, (P10)) and its decay rate (:func:`decay_rate`).
+    The search (Nelder-Mead over ``P``'s Cholesky factor from ``start``, the nominal Riccati
+    matrix) maximises the volume of ``{s^T P s <= c}`` at its level inside ``rows``
+    (:func:`terminal_level`) while ``rate <= -``:data:`DECAY_MARGIN`; it only proposes: the
+    rate is the eigenvalue check of the ``P`` it returns.  Why not the Riccati ``P``: its
+    decrease fails on the corners whose ``A - B K`` is not the nominal's."""
     from scipy.optimize import minimize
 
     n = start.shape[0]
@@ -168,14 +171,18 @@ def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray) -> tuple[
         L[lower] = p
         return L @ L.T
 
-    def rate(p: np.ndarray) -> float:
-        return decay_rate(closed_loops, unpack(p))
+    def cost(p: np.ndarray) -> float:
+        P = unpack(p)
+        rate = decay_rate(closed_loops, P)
+        if not math.isfinite(rate):
+            return math.inf
+        log_volume = 0.5 * n * math.log(terminal_level(P, rows)) - 0.5 * np.linalg.slogdet(P)[1]
+        return -log_volume + 1e3 * max(rate + DECAY_MARGIN, 0.0)
 
     p0 = np.linalg.cholesky(start / np.trace(start))[lower]
-    found = minimize(rate, p0, method="Nelder-Mead",
-                     options={"maxfev": LYAPUNOV_EVALUATIONS})
-    best = found.x if found.fun < rate(p0) else p0
-    return unpack(best), rate(best)
+    found = minimize(cost, p0, method="Nelder-Mead", options={"maxfev": LYAPUNOV_EVALUATIONS})
+    P = unpack(found.x)
+    return P, decay_rate(closed_loops, P)
 
 
 def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: float,
@@ -449,13 +456,14 @@ def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bo
     for m in models:
         A, B = m.linearisation()
         closed.append(A - np.outer(B[:, 0], K))
+    rows = ellipsoid_rows(bounds, K, u_lo, u_hi)
     P, rate = P_lqr, decay_rate(closed, P_lqr)
     if rate >= 0.0:
         # the Riccati P decreases on the nominal loop, not always on the corners'
-        P, rate = common_lyapunov(closed, P_lqr)
+        P, rate = common_lyapunov(closed, P_lqr, rows)
         if rate >= 0.0:
-            P = P_lqr
-    level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
+            P, rate = P_lqr, decay_rate(closed, P_lqr)
+    level = terminal_level(P, rows)
     if math.isfinite(level):
         level = recurrent_level(models, P, K, level, bounds[0], bounds[1], u_lo, u_hi, T,
                                 np.random.default_rng(0))
