@@ -157,8 +157,9 @@ def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray,
     """``(P, rate)``: a quadratic Lyapunov function common to every closed loop ``A_i - B_i K``
     (the vertex models' linearisations, (P10)) and its decay rate (:func:`decay_rate`).
     The search (Nelder-Mead over ``P``'s Cholesky factor from ``start``, the nominal Riccati
-    matrix) maximises the volume of ``{s^T P s <= c}`` at its level inside ``rows``
-    (:func:`terminal_level`) while ``rate <= -``:data:`DECAY_MARGIN`; it only proposes: the
+    matrix) maximises the least share of the Riccati set's reach along each state kept by
+    ``{s^T P s <= c}`` at its level inside ``rows`` (:func:`terminal_level`) while ``rate <=
+    -``:data:`DECAY_MARGIN`; it only proposes: the
     rate is the eigenvalue check of the ``P`` it returns.  Why not the Riccati ``P``: its
     decrease fails on the corners whose ``A - B K`` is not the nominal's."""
     from scipy.optimize import minimize
@@ -171,13 +172,16 @@ def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray,
         L[lower] = p
         return L @ L.T
 
+    # the Riccati set's reach along each state: the search keeps as much of it as it can
+    reach_lqr = np.sqrt(terminal_level(start, rows) * np.diag(np.linalg.inv(start)))
+
     def cost(p: np.ndarray) -> float:
         P = unpack(p)
         rate = decay_rate(closed_loops, P)
         if not math.isfinite(rate):
             return math.inf
-        log_volume = 0.5 * n * math.log(terminal_level(P, rows)) - 0.5 * np.linalg.slogdet(P)[1]
-        return -log_volume + 1e3 * max(rate + DECAY_MARGIN, 0.0)
+        reach = np.sqrt(terminal_level(P, rows) * np.diag(np.linalg.inv(P)))
+        return -float(np.min(reach / reach_lqr)) + 1e3 * max(rate + DECAY_MARGIN, 0.0)
 
     p0 = np.linalg.cholesky(start / np.trace(start))[lower]
     found = minimize(cost, p0, method="Nelder-Mead", options={"maxfev": LYAPUNOV_EVALUATIONS})
@@ -803,7 +807,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
         #: samples where a step was skipped for the budget, and samples over it
         self.skipped = self.over_budget = 0
-        self._skipped_now = False
+        self._skipped_now = self._rolled_now = False
         self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
         #: admission (before the first sample): None until made, then whether a plan was
@@ -847,7 +851,13 @@ class PredictiveSafetyFilter(SafetyFilter):
         keeps the certificate's bounds at every RK4 step and ends in (P3); if so it
         becomes the certified plan.  None: not tried, the budget has no room for it."""
         if not self._affords("roll"):
+            if not self._rolled_now:
+                # no rollout at all this sample: an estimate inflated once (a page fault,
+                # a first call) would otherwise never be measured again and no plan ever
+                # certified; it decays until a rollout is tried
+                self._cost["roll"] *= 1.0 - COST_AVERAGE
             return None
+        self._rolled_now = True
         t0 = time.thread_time()
         V = self.roll.run(s, U, R)
         ok = self.verdict(V) is None
@@ -950,7 +960,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         t0 = time.perf_counter()
         if self.admitted is not None:
             self._deadline = t0 + self.cert.budget_s
-        self._skipped_now = False
+        self._skipped_now = self._rolled_now = False
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
