@@ -28,6 +28,7 @@ benchmarks/results/safety_mpsc_timing.json.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -70,6 +71,8 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.fast_path": sf.get("fast_path_samples"),
                         "safety.uncertified": sf.get("uncertified_samples"),
                         "safety.certified": sf.get("certified_samples"),
+                        "safety.on_plan": sf.get("on_certified_plan_samples"),
+                        "safety.terminal_set": (sf.get("certificate") or {}).get("terminal_set"),
                         "safety.admitted": sf.get("start_admitted"),
                         "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
                         "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
@@ -148,6 +151,10 @@ def summary(table) -> dict:
                 # issue 54's columns: certified share over all samples, uncertified samples,
                 # time per sample (median of run medians, largest p99, largest max)
                 "certified_share": float(g["safety.certified"].sum() / n.sum()),
+                # steps 1-3: certified at the sample or the earlier certified plan going on
+                **({"on_certified_plan_share": float(g["safety.on_plan"].sum() / n.sum()),
+                    "on_certified_plan_share_min_run": float((g["safety.on_plan"] / n).min())}
+                   if "safety.on_plan" in g and g["safety.on_plan"].notna().all() else {}),
                 "fallback_share": float(g["safety.fallbacks"].sum() / n.sum()),
                 "uncertified_samples": int(g["safety.uncertified"].sum()),
                 "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
@@ -180,6 +187,51 @@ def markdown_rows(table, machine: str) -> str:
                      f" | {100 * g['safety.intervention_share'].median():.0f} % | "
                      f"{100 * ((g['safety.fallbacks'] + g['safety.no_plan']) / n).median():.0f} % | "
                      f"{g['safety.qp_ms'].median():.2f} ms |")
+    return "\n".join(lines)
+
+
+#: docs/safety.md's mpsc table: (machine key in safety_mpsc.json, its label)
+DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
+            ("cartpole_rail_seeds200", "cart-pole, rail 1 m (200-219)"),
+            ("furuta_arm", "Furuta, arm stop (0-19)"),
+            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"))
+
+
+def doc_table(data: dict, kinds: list[str]) -> str:
+    """docs/safety.md's mpsc table, every figure marked against ``safety_mpsc.json``
+    (tools/check_claims.py checks them): ``--doc-table`` prints it."""
+    def mark(key: str, digits: str, scale: float = 1.0) -> str:
+        value = functools.reduce(lambda d, k: d[k], key.split("/"), data)
+        tail = f" x{scale:g}" if scale != 1.0 else ""
+        shown = int(round(value)) if digits == "d" else scale * value
+        return (f"{format(shown, digits)}<!-- data: benchmarks/results/safety_mpsc.json "
+                f"{key}{tail} -->")
+
+    lines = ["| machine (seeds) | kind | bare | `cbf` (S1) | `mpsc` | on a certified plan "
+             "(steps 1-3) | certified at the sample (steps 1-2) | uncertified samples (in runs) "
+             "| starts admitted | time per sample: median of run medians / largest p99 / "
+             "largest max | samples over the 0.8 ms budget | load average |",
+             "|---" * 12 + "|"]
+    for machine, label in DOC_ROWS:
+        if machine not in data:
+            continue
+        for kind in kinds:
+            s = f"{machine}/summary/{kind}"
+            cells = [f"{mark(f'{s}{x}/completed', 'd')}/{mark(f'{s}{x}/runs', 'd')}, outside in "
+                     f"{mark(f'{s}{x}/runs_with_samples_outside', 'd')}"
+                     for x in ("", "+cbf", "+mpsc")]
+            m = f"{s}+mpsc"
+            cells += [mark(f"{m}/on_certified_plan_share", ".1f", 100) + " %",
+                      mark(f"{m}/certified_share", ".0f", 100) + " %",
+                      f"{mark(f'{m}/uncertified_samples', 'd')} in "
+                      f"{mark(f'{m}/runs_with_uncertified', 'd')}",
+                      mark(f"{m}/starts_admitted", "d"),
+                      f"{mark(f'{m}/time_per_sample_ms_median', '.2f')} / "
+                      f"{mark(f'{m}/time_per_sample_ms_p99_max', '.1f')} / "
+                      f"{mark(f'{m}/time_per_sample_ms_max', '.0f')} ms",
+                      mark(f"{m}/over_budget_samples", "d"),
+                      mark(f"{m}/load_average_1min_median", ".0f")]
+            lines.append(f"| {label} | `{kind}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -312,6 +364,7 @@ def randomized_timing(machine: str, seeds: int) -> dict:
                      "mpsc_ms_max": per["max"], "budget_ms": sf["budget_ms"],
                      "over_budget_samples": sf["over_budget_samples"],
                      "certified_share": sf["certified_share"],
+                     "on_certified_plan_share": sf.get("on_certified_plan_share"),
                      "bare_pd_ms_median": bare["median"], "bare_pd_ms_max": bare["max"],
                      "ratio_median_over_bare": per["median"] / bare["median"],
                      "load_average_1min": os.getloadavg()[0]})
@@ -334,6 +387,8 @@ def main() -> None:
     ap.add_argument("--timing-only", action="store_true")
     ap.add_argument("--summarize", action="store_true",
                     help="only the summary and the paired tests from the CSVs already written")
+    ap.add_argument("--doc-table", action="store_true",
+                    help="print docs/safety.md's mpsc table from safety_mpsc.json, run nothing")
     ap.add_argument("--samples", type=int, default=5000)
     ap.add_argument("--timing-machine", default="",
                     help="with --timing-only: the closed loops of this machine of "
@@ -352,6 +407,10 @@ def main() -> None:
     warnings.simplefilter("ignore")
     out_path = OUT / "safety_mpsc.json"
     data: dict = {}
+    if args.doc_table:
+        print(doc_table(json.loads((RESULTS / "safety_mpsc.json").read_text()),
+                        args.kinds.split(",")))
+        return
     if args.timing_only and args.timing_machine:
         tim = randomized_timing(args.timing_machine, args.seeds)
         path = OUT / "safety_mpsc_timing.json"

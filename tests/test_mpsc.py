@@ -323,3 +323,44 @@ def test_no_step_starts_past_the_budget():
     sf = f.more_metrics()
     assert sf["budget_ms"] == pytest.approx(1e-3) and sf["budget_skipped_samples"] == 5
     assert sf["certified_samples"] == 0 and sf["uncertified_samples"] == 0
+
+
+def test_the_terminal_set_is_invariant_on_every_vertex_model_by_scipy():
+    """(P10) on the randomised cart-pole: the design's decay rate is scipy's generalised
+    eigenvalue of ``(A_i - B_i K)^T P + P (A_i - B_i K)`` against ``P`` on every vertex
+    linearisation (an independent computation of the same bound), and starts on the
+    boundary of X_f, integrated by solve_ivp on each nonlinear vertex model under the
+    saturated LQR, stay inside X_f and every certified bound."""
+    from scipy.integrate import solve_ivp
+    from scipy.linalg import eigh
+
+    from tspend.controllers import mpsc
+    from tspend.loop.simulation import nominal_machine
+
+    scn = override(load_scenario("pendulum_mujoco_randomized"),
+                   **{"effects.rail": 1.0, "safety.filter": "mpsc"})
+    corners, names = mpsc.vertex_models(scn)
+    c = mpsc.design(scn, nominal_machine(scn), corners, names, scn.run.dt)
+    assert c.terminal == "vertex_lyapunov" and c.decay_rate < 0.0
+    models = [c.model, *corners]
+    rates, riccati = [], []
+    for m in models:
+        A, B = m.linearisation()
+        Acl = A - np.outer(B[:, 0], c.K)
+        rates.append(eigh(Acl.T @ c.P + c.P @ Acl, c.P, eigvals_only=True).max())
+        riccati.append(eigh(Acl.T @ c.P_cost + c.P_cost @ Acl, c.P_cost, eigvals_only=True).max())
+    assert max(rates) == pytest.approx(c.decay_rate, rel=1e-6)
+    # the Riccati matrix alone is no such function on these corners (why (P10) searches)
+    assert max(riccati) > 0.0
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(6, c.model.size))
+    starts = math.sqrt(c.level) * d / np.sqrt(np.einsum("ij,jk,ik->i", d, c.P, d))[:, None]
+    bounded = np.isfinite(c.lo_check)
+    for m in models:
+        for s in starts:
+            sol = solve_ivp(lambda t, y: m.rhs(y, mpsc.lqr_input(c, y)), (0.0, 2.0), s,
+                            rtol=1e-9, atol=1e-11, max_step=5e-3)
+            V = np.einsum("it,ij,jt->t", sol.y, c.P, sol.y)
+            assert V.max() <= c.level * (1 + 1e-6)
+            assert np.all(sol.y[bounded] >= c.lo_check[bounded, None])
+            assert np.all(sol.y[bounded] <= c.hi_check[bounded, None])

@@ -42,11 +42,18 @@ time); a step that does not fit is skipped, never started:
        min (u_0 - u_c)^2 + eps / R J_LQR(s_1.., u_1..) + slack penalties          (P4)
 
    its plan applied only when certified on every model;
-3. else the last certified plan goes on, tracked by the LQR (a **fallback**: certified at
-   an earlier sample, on the models);
-4. without any certified plan: **uncertified**, counted: the recovery plan (P8) made at
-   admission (IPOPT on the nominal model, tracked by the LQR), else the QP's own plan,
-   else the saturated LQR.
+3. else the last certified plan goes on, tracked by the LQR, and past its end the LQR in
+   X_f (a **fallback**: certified at an earlier sample, on the models; X_f is invariant
+   under the LQR (P10), so the plan never runs out: the recursive feasibility of MPSC);
+4. without any certified plan yet (a start not admitted): **uncertified**, counted: the
+   recovery plan (P8) made at admission (IPOPT on the nominal model, tracked by the LQR),
+   else the QP's own plan, else the saturated LQR.
+
+The terminal set X_f is invariant on every vertex model's linearisation:
+
+    (A_i - B_i K)^T P + P (A_i - B_i K) <= r P,  r < 0,  |K s| <= u_max in X_f      (P10)
+
+(:func:`terminal_set`; its nonlinear recurrence sampled).
 
 **Admission** (before the first sample is filtered, outside the budget: a rig's
 pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
@@ -118,6 +125,10 @@ MAX_VERTEX_PARAMETERS = 6
 #: (P9): the default budget, a share of the control period (the rest is the inner
 #: controller's and the loop's)
 BUDGET_SHARE = 0.8
+#: (P10): the Nelder-Mead search for a Lyapunov function common to the vertex models
+LYAPUNOV_EVALUATIONS = 2000
+#: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
+DECAY_MARGIN = 0.05
 #: (P9): a step's cost estimate is the moving average of its CPU time with this weight
 #: on the latest (a step dearer than the budget, the QP at 1 kHz, is then never started)
 COST_AVERAGE = 0.2
@@ -130,6 +141,54 @@ def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float
     return min((b * b / float(a @ P_inv @ a) for a, b in rows if b > 0.0), default=math.inf)
 
 
+def decay_rate(closed_loops: list[np.ndarray], P: np.ndarray) -> float:
+    """``max_i lambda_max(P^-1/2 (A_i^T P + P A_i) P^-1/2)``: ``V' <= rate V`` for ``V = s^T P
+    s`` on every closed loop ``A_i`` (inf when ``P`` is not positive definite)."""
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        return math.inf
+    root = V @ np.diag(w ** -0.5) @ V.T
+    return max(float(np.linalg.eigvalsh(root @ (A.T @ P + P @ A) @ root).max())
+               for A in closed_loops)
+
+
+def common_lyapunov(closed_loops: list[np.ndarray], start: np.ndarray,
+                    rows: list) -> tuple[np.ndarray, float]:
+    """``(P, rate)``: a quadratic Lyapunov function common to every closed loop ``A_i - B_i K``
+    (the vertex models' linearisations, (P10)) and its decay rate (:func:`decay_rate`).
+    The search (Nelder-Mead over ``P``'s Cholesky factor from ``start``, the nominal Riccati
+    matrix) maximises the least share of the Riccati set's reach along each state kept by
+    ``{s^T P s <= c}`` at its level inside ``rows`` (:func:`terminal_level`) while ``rate <=
+    -``:data:`DECAY_MARGIN`; it only proposes: the
+    rate is the eigenvalue check of the ``P`` it returns.  Why not the Riccati ``P``: its
+    decrease fails on the corners whose ``A - B K`` is not the nominal's."""
+    from scipy.optimize import minimize
+
+    n = start.shape[0]
+    lower = np.tril_indices(n)
+
+    def unpack(p: np.ndarray) -> np.ndarray:
+        L = np.zeros((n, n))
+        L[lower] = p
+        return L @ L.T
+
+    # the Riccati set's reach along each state: the search keeps as much of it as it can
+    reach_lqr = np.sqrt(terminal_level(start, rows) * np.diag(np.linalg.inv(start)))
+
+    def cost(p: np.ndarray) -> float:
+        P = unpack(p)
+        rate = decay_rate(closed_loops, P)
+        if not math.isfinite(rate):
+            return math.inf
+        reach = np.sqrt(terminal_level(P, rows) * np.diag(np.linalg.inv(P)))
+        return -float(np.min(reach / reach_lqr)) + 1e3 * max(rate + DECAY_MARGIN, 0.0)
+
+    p0 = np.linalg.cholesky(start / np.trace(start))[lower]
+    found = minimize(cost, p0, method="Nelder-Mead", options={"maxfev": LYAPUNOV_EVALUATIONS})
+    P = unpack(found.x)
+    return P, decay_rate(closed_loops, P)
+
+
 def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: float,
                     lo: np.ndarray, hi: np.ndarray, u_lo: float, u_hi: float, T: float,
                     rng: np.random.Generator) -> float:
@@ -137,9 +196,8 @@ def recurrent_level(models: list["FullModel"], P: np.ndarray, K: np.ndarray, c: 
     ``u = clip(-K s)`` from :data:`BOUNDARY_POINTS` sampled points of the ellipsoid's
     boundary keeps every bound ``lo <= s <= hi`` at every 20 ms step for ``T`` seconds and
     ends back inside the ellipsoid (a sampled check, not a proof); 0 when 15 shrinks do
-    not reach it.  A Lyapunov decrease of the nominal ``P`` would be the classic test, but
-    it fails at every level on the drawn machines (their ``A - B K`` is not the nominal's):
-    what is checked is that the set is recurrent and safe under the LQR."""
+    not reach it.  (P10) proves the decrease on the vertex models' linearisations; this is
+    the nonlinear models' part: the set recurrent and safe under the LQR, sampled."""
     import casadi as ca
 
     n, dt = P.shape[0], 0.02
@@ -305,8 +363,13 @@ class Certificate:
     R: float
     #: (P9): seconds per sample
     budget_s: float
-    #: how X_f's recurrence was shown: "sampled" (boundary points on every model)
+    #: how X_f's invariance was shown (P10): "vertex_lyapunov" (a Lyapunov decrease common
+    #: to every vertex model's linearisation, the nonlinear models sampled), else "sampled"
     terminal: str = "sampled"
+    #: the balancing LQR's Riccati matrix (the QP's cost to go; ``P`` is X_f's)
+    P_cost: np.ndarray | None = None
+    #: (P10)'s proven decay rate of ``s^T P s`` on the vertex linearisations (1/s; < 0: shown)
+    decay_rate: float = math.nan
 
 
 def hard_bounds(scenario: "Scenario", machine: Any, model: "FullModel",
@@ -367,21 +430,48 @@ def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
     half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
     bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
               lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    level = terminal_level(P, ellipsoid_rows(bounds, K, u_lo, u_hi))
+    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
+    P_set, level, rate = terminal_set([model] + list(corners), P, K, bounds, u_lo, u_hi,
+                                      horizon * h)
     if not math.isfinite(level):
         raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": no bound limits the "
                             f"terminal set (no position bound, fall angle or input range)")
-    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
-    level = recurrent_level([model] + list(corners), P, K, level, bounds[0], bounds[1],
-                            u_lo, u_hi, horizon * h, np.random.default_rng(0))
     if level <= 0.0:
         raise ScenarioError(f"{scenario.path}: safety.filter = \"mpsc\": the LQR's ellipsoid "
                             f"shrank to nothing without the LQR keeping it safe on the "
                             f"machine and its [randomize] corners")
     budget = cfg.budget_ms * 1e-3 if cfg.budget_ms > 0.0 else BUDGET_SHARE * sample_s
     return Certificate(model, tuple(corners), tuple(names), float(sample_s), h, horizon + 1,
-                       substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K, P,
-                       level, Q, b_pole ** 2, budget)
+                       substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K,
+                       P_set, level, Q, b_pole ** 2, budget,
+                       terminal="vertex_lyapunov" if rate < 0.0 else "sampled",
+                       P_cost=P, decay_rate=rate)
+
+
+def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bounds: tuple,
+                 u_lo: float, u_hi: float, T: float) -> tuple[np.ndarray, float, float]:
+    """(P3) and (P10): ``(P, c, rate)``.  ``P`` a Lyapunov function common to every model's
+    linearised closed loop under the LQR (:func:`common_lyapunov`; the Riccati ``P_lqr``
+    when none is found, ``rate >= 0``), ``c`` the largest level inside every tightened bound
+    and ``|K s| <= `` the input's reach (so the LQR does not saturate in the set: on each
+    vertex linearisation the set is invariant, ``V' <= rate V``), then shrunk until the
+    sampled check on the nonlinear models holds (:func:`recurrent_level`)."""
+    closed = []
+    for m in models:
+        A, B = m.linearisation()
+        closed.append(A - np.outer(B[:, 0], K))
+    rows = ellipsoid_rows(bounds, K, u_lo, u_hi)
+    P, rate = P_lqr, decay_rate(closed, P_lqr)
+    if rate >= 0.0:
+        # the Riccati P decreases on the nominal loop, not always on the corners'
+        P, rate = common_lyapunov(closed, P_lqr, rows)
+        if rate >= 0.0:
+            P, rate = P_lqr, decay_rate(closed, P_lqr)
+    level = terminal_level(P, rows)
+    if math.isfinite(level):
+        level = recurrent_level(models, P, K, level, bounds[0], bounds[1], u_lo, u_hi, T,
+                                np.random.default_rng(0))
+    return P, level, rate
 
 
 def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: float,
@@ -516,7 +606,7 @@ def plan_qp(cert: Certificate, cfg: "SafetyConfig", compiled: bool) -> Any:
     stages[:, nx, nx] = 2.0 * PROXIMAL
     stages[0, nx, nx] = 2.0
     stages[:, nx + 1:, nx + 1:] = 2.0 * scale ** 2 * np.eye(ns)
-    terminal = (2.0 * PROXIMAL * cert.P / cert.R
+    terminal = (2.0 * PROXIMAL * (cert.P if cert.P_cost is None else cert.P_cost) / cert.R
                 + 2.0 * (TERMINAL_WEIGHT * scale) ** 2 * cert.P / cert.level)
     free = np.full(nx, np.inf)
     z_lo = np.concatenate([np.tile(np.concatenate([-free, [cert.u_lo], np.zeros(ns)]), N), -free])
@@ -717,7 +807,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
         #: samples where a step was skipped for the budget, and samples over it
         self.skipped = self.over_budget = 0
-        self._skipped_now = False
+        self._skipped_now = self._rolled_now = False
         self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
         #: admission (before the first sample): None until made, then whether a plan was
@@ -761,7 +851,13 @@ class PredictiveSafetyFilter(SafetyFilter):
         keeps the certificate's bounds at every RK4 step and ends in (P3); if so it
         becomes the certified plan.  None: not tried, the budget has no room for it."""
         if not self._affords("roll"):
+            if not self._rolled_now:
+                # no rollout at all this sample: an estimate inflated once (a page fault,
+                # a first call) would otherwise never be measured again and no plan ever
+                # certified; it decays until a rollout is tried
+                self._cost["roll"] *= 1.0 - COST_AVERAGE
             return None
+        self._rolled_now = True
         t0 = time.thread_time()
         V = self.roll.run(s, U, R)
         ok = self.verdict(V) is None
@@ -794,13 +890,14 @@ class PredictiveSafetyFilter(SafetyFilter):
         cert = self.cert
         return f"corner {m} of {len(cert.corners)} ({', '.join(cert.corner_names)})"
 
-    def stage_at(self, tau: float) -> int | None:
-        """The plan's interval ``tau`` seconds after it was made (None: past its end)."""
+    def stage_at(self, tau: float) -> int:
+        """The plan's interval ``tau`` seconds after it was made; ``N`` past its end: the
+        plan ended in X_f, where the LQR goes on (X_f invariant under it, (P10))."""
         dt0 = self.cert.sample_s
         if tau < dt0 - 1e-12:
             return 0
         k = 1 + int(math.floor((tau - dt0) / self.cert.h + 1e-9))
-        return k if k < self.cert.N else None
+        return min(k, self.cert.N)
 
     def shifted(self, plan: tuple | None, age: int, s: np.ndarray) -> tuple | None:
         """``plan = (U, R)`` made ``age`` samples ago, on this sample's grid from state
@@ -847,6 +944,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         cert = self.cert
         if k == 0:
             return float(U[0])
+        if k >= cert.N:
+            return self.terminal_input(s)
         start = cert.sample_s + (k - 1) * cert.h
         a = min(max((tau - start) / cert.h, 0.0), 1.0)
         ref = R[:, k] if k + 1 >= cert.N else (1.0 - a) * R[:, k] + a * R[:, k + 1]
@@ -861,7 +960,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         t0 = time.perf_counter()
         if self.admitted is not None:
             self._deadline = t0 + self.cert.budget_s
-        self._skipped_now = False
+        self._skipped_now = self._rolled_now = False
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
@@ -1042,6 +1141,10 @@ class PredictiveSafetyFilter(SafetyFilter):
                                        "max": 1e3 * self.time_max if n else None},
                 "over_budget_samples": self.over_budget, "budget_skipped_samples": self.skipped,
                 "certified_samples": certified, "certified_share": certified / n if n else None,
+                # steps 1-3: certified at this sample, or the plan certified at an earlier one
+                # going on (its rest, then X_f under the LQR: [3]'s recursive feasibility)
+                "on_certified_plan_samples": certified + self.fallbacks,
+                "on_certified_plan_share": (certified + self.fallbacks) / n if n else None,
                 "fast_path_samples": self.fast, "bisected_samples": self.bisected,
                 "qp_certified_samples": self.qp_certified, "fallbacks": self.fallbacks,
                 "fallback_share": self.fallbacks / n if n else None,
@@ -1053,6 +1156,7 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "certificate": {"models": self.roll.models,
                                 "corner_parameters": list(cert.corner_names),
                                 "terminal_set": cert.terminal, "terminal_level": cert.level,
+                                "terminal_decay_rate": cert.decay_rate,
                                 # every margin the certificate keeps, per bounded state
                                 "bounds": {names[i]: [float(cert.lo_check[i]),
                                                       float(cert.hi_check[i])]
