@@ -31,10 +31,10 @@ def test_the_signal_guard_is_installed_before_any_heavy_import():
         import sys
         from tspend.runtime import interrupts
         real_install = interrupts.SignalGuard.install
-        def install(self):
+        def install(self, *args, **kwargs):
             loaded = sorted(m for m in sys.modules if m.startswith({HEAVY!r}))
             print("LOADED", loaded, file=sys.stderr, flush=True)
-            return real_install(self)
+            return real_install(self, *args, **kwargs)
         interrupts.SignalGuard.install = install
         from tspend.cli.main import main
         sys.argv = ["tspend", *{argv!r}]
@@ -398,3 +398,23 @@ def test_an_interrupted_sweep_says_no_table_was_written_when_none_was(tmp_path, 
     assert _kept("s.parquet", read_table) == "no run finished, s.parquet not written"
     assert _kept(None, read_table) == "nothing kept (no --out)"
     assert not (tmp_path / "s.parquet").exists()
+
+
+def test_a_guard_installed_held_records_a_signal_and_raises_it_only_when_armed():
+    """The program's early guard: a signal landing while its handlers are being installed
+    (during tspend's imports) must not raise there, where nothing turns it into an exit
+    status (CI saw exit 1 and a traceback instead of 143); it raises once armed."""
+    import os
+    import signal
+
+    from tspend.runtime.interrupts import Interrupted, SignalGuard
+
+    guard = SignalGuard().install(held=True)
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)  # delivered at the next bytecode: no raise
+        assert guard.stop.signal_name == "SIGTERM"
+        with pytest.raises(Interrupted) as caught:
+            guard.arm()
+        assert caught.value.exit_status == 143
+    finally:
+        guard.restore()

@@ -97,7 +97,7 @@ SHELL_LANGS = ("", "sh", "bash", "shell", "console")
 PROGRAMS = ("tspend", "python", "python3", "nice", "rerun", "pip", "cd", "source", "mkdir",
             "cp", "mv", "cat", "ls", "export", "PYTHONPATH=", "TSPEND_", ".venv/", "sudo",
             "git", "curl", "wget", "jupyter", "./", "for ", "echo", "timeout", "time",
-            "apt-get")
+            "apt-get", "cc ", "gcc ")
 #: (regular expression on a command, why it is not run here)
 SKIP_RULES = (
     (r"^rerun\b|\brerun\s+\S+\.rrd", "opens Rerun's viewer (a window or a web server)"),

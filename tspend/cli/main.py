@@ -39,9 +39,7 @@ def _run_as_the_program() -> bool:
 #: the program's guard, installed as soon as the interrupts module is loaded (before the
 #: rest of this module's imports: a signal in the first half second of a loaded machine
 #: has its status too) and held, recording a signal until :func:`main` takes it over
-_EARLY_GUARD = SignalGuard().install() if _run_as_the_program() else None
-if _EARLY_GUARD is not None:
-    _EARLY_GUARD.hold()
+_EARLY_GUARD = SignalGuard().install(held=True) if _run_as_the_program() else None
 
 from tspend import __version__  # noqa: E402 - after the guard, on purpose
 from tspend.cli.common import (EXIT_INTERNAL, Parser, PlainRawDescriptionFormatter,  # noqa: E402

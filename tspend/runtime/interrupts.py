@@ -67,7 +67,12 @@ class SignalGuard:
         self._immediate = True
         self._previous: dict[int, object] = {}
 
-    def install(self) -> "SignalGuard":
+    def install(self, held: bool = False) -> "SignalGuard":
+        """Install the handlers; ``held``: recording only from the first handler on (as
+        :meth:`hold`), so a signal that lands while the rest are installed does not raise
+        there, outside any code that could turn it into an exit status."""
+        if held:
+            self._immediate = False
         try:
             for signum in HANDLED:
                 self._previous[signum] = signal.signal(signum, self._on_signal)
