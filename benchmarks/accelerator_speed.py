@@ -266,9 +266,11 @@ def sweep_rate(scenario: str, n: int, steps: int, precision: str) -> tuple[float
     return first, n * fleet.steps / (time.perf_counter() - t0)
 
 
-def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, float]:
-    """(env-steps/s, host ms per step) of the MJX vector env at n envs: the host's share is
-    a step's wall time less the time in its device call (waited for), the median step's."""
+def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
+    """The MJX vector env at n envs, reset and compiled, and ``step()`` that steps it with
+    zero actions and returns (wall s, host s) of that step: the host's share is the step's
+    wall time less the time in its device call (waited for), both by one clock
+    (``time.perf_counter``)."""
     import warnings
 
     import gymnasium
@@ -294,17 +296,25 @@ def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, 
     envs.reset(seed=0)
     a = np.zeros((n, 1))
     envs.step(a)                                   # compiles
-    host_s = []
-    t0 = time.perf_counter()
-    for _ in range(steps):
+
+    def step() -> tuple[float, float]:
         device_s[0] = 0.0
         t = time.perf_counter()
         envs.step(a)
-        host_s.append(time.perf_counter() - t - device_s[0])
-    wall = time.perf_counter() - t0
+        wall = time.perf_counter() - t
+        return wall, wall - device_s[0]
+
+    return envs, step
+
+
+def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, float]:
+    """(env-steps/s, host ms per step) of the MJX vector env at n envs (:func:`timed_env`),
+    the median step's host time: on a shared machine a step now and then waits for
+    another process."""
+    envs, step = timed_env(scenario, n, precision)
+    wall, host = np.array([step() for _ in range(steps)]).T
     envs.close()
-    # the median step: on a shared machine a step now and then waits for another process
-    return n * steps / wall, 1e3 * float(np.median(host_s))
+    return n * steps / wall.sum(), 1e3 * float(np.median(host))
 
 
 def tspend_rows(plan: dict, machines: list[str], sizes: list[int], args: Any,

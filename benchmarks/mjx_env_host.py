@@ -1,11 +1,15 @@
 """The MJX vector env's host time per step at two batch sizes, in one run.
 
-    python benchmarks/mjx_env_host.py                 # 64 and 4096 envs, 50 steps each
+    python benchmarks/mjx_env_host.py                 # 64 and 4096 envs, 200 steps each
 
-Prints, per N, env-steps/s and the host's milliseconds per step (the median step's wall
-time less its device call, waited for: :func:`accelerator_speed.env_host`), and the ratio
-of the larger N's to the smaller's, both measured in this run: what the host does per step
-should not grow with N (docs/accelerator.md).
+Both envs are built first, then stepped (zero actions) in alternating blocks of
+``--block`` steps, so a change of the machine's load falls on both sizes alike.  A step's
+host time is its wall time less its device call (waited for), both by one clock
+(:func:`accelerator_speed.timed_env`).  Prints, per N, env-steps/s and the host's
+milliseconds per step as the median with the 25th-75th percentiles beside it (the spread
+shows the noise), the ratio of the larger N's median to the smaller's, both measured in
+this run (what the host does per step should not grow with N: docs/accelerator.md), and
+the 1-minute load average before and after.
 """
 
 from __future__ import annotations
@@ -14,32 +18,49 @@ import argparse
 import os
 import sys
 
+import numpy as np
+
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from accelerator_speed import env_host  # noqa: E402
+from accelerator_speed import timed_env  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="the MJX vector env's host time per step at two "
                                             "batch sizes (docs/accelerator.md)")
     p.add_argument("--envs", default="64,4096", help="two batch sizes (default 64,4096)")
-    p.add_argument("--steps", type=int, default=50,
-                   help="steps timed per size, their median reported (default 50)")
+    p.add_argument("--steps", type=int, default=200,
+                   help="steps timed per size, their median reported (default 200)")
+    p.add_argument("--block", type=int, default=20,
+                   help="steps of one size before the other's turn (default 20)")
     p.add_argument("--scenario", default="pendulum_mujoco", help="(default pendulum_mujoco)")
     args = p.parse_args(argv)
     try:
         small, large = (int(v) for v in args.envs.split(","))
     except ValueError:
         raise SystemExit(f"mjx_env_host: --envs {args.envs!r}: two integers, e.g. 64,4096")
-    if not (1 <= small <= 1 << 20 and 1 <= large <= 1 << 20 and 1 <= args.steps <= 1000):
-        raise SystemExit("mjx_env_host: --envs each from 1 to 1048576, --steps from 1 to 1000")
+    if not (1 <= small <= 1 << 20 and 1 <= large <= 1 << 20 and 1 <= args.steps <= 1000
+            and 1 <= args.block <= args.steps):
+        raise SystemExit("mjx_env_host: --envs each from 1 to 1048576, --steps from 1 to "
+                         "1000, --block from 1 to --steps")
+    print(f"load average (1 min) before: {os.getloadavg()[0]:.2f}", flush=True)
+    envs = {n: timed_env(args.scenario, n, "float64") for n in (small, large)}
+    times = {n: [] for n in envs}                  # (wall s, host s) per step
+    while len(times[large]) < args.steps:
+        for n, (_, step) in envs.items():
+            k = min(args.block, args.steps - len(times[n]))
+            times[n] += [step() for _ in range(k)]
     host = {}
-    for n in (small, large):
-        rate, host[n] = env_host(args.scenario, n, args.steps, "float64")
-        print(f"{args.scenario} N {n} env-steps/s {rate:.3g} host ms/step {host[n]:.3g}",
-              flush=True)
+    for n, (env, _) in envs.items():
+        env.close()
+        wall, host_s = np.array(times[n]).T
+        p25, host[n], p75 = 1e3 * np.percentile(host_s, [25, 50, 75])
+        print(f"{args.scenario} N {n} env-steps/s {n * len(wall) / wall.sum():.3g} "
+              f"host ms/step {host[n]:.3g} p25-p75 {p25:.3g}-{p75:.3g}", flush=True)
     print(f"host time per step at {large} over {small}: {host[large] / host[small]:.2f} "
-          f"(baseline: {host[small]:.3g} ms at {small} envs, same run)")
+          f"(baseline: {host[small]:.3g} ms at {small} envs, same run; medians of "
+          f"{args.steps} steps each)")
+    print(f"load average (1 min) after: {os.getloadavg()[0]:.2f}")
     return 0
 
 

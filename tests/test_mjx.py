@@ -9,6 +9,7 @@ actions.  Small batches and short horizons: each distinct loop costs one XLA com
 
 from __future__ import annotations
 
+import copy
 import warnings
 
 import numpy as np
@@ -223,6 +224,29 @@ def test_mjx_vector_env_steps_as_the_cpu_vector_env(name, overrides):
     if overrides:
         assert ended > 0   # the autoreset was exercised
     cpu.close()
+    mjx.close()
+
+
+def test_mjx_vector_env_leaves_what_a_step_returned_as_it_was():
+    # the step reads one packed array back and reuses its input buffer: what it handed
+    # out (observations, rewards, endings, infos) must stay the caller's own, through
+    # endings and restarts (SameStep writes the restarted envs' observations)
+    # (gears of 10^11-10^12: every env ends at its first push, as in the diverged test)
+    over = {"randomize.gear.low": 1e11, "randomize.gear.high": 1e12, "task.fall_angle": 0.0}
+    _, mjx = _vector_envs("pendulum_mujoco_randomized", 4, overrides=over,
+                          autoreset_mode="SameStep")
+    mjx.reset(seed=0)
+    rng = np.random.default_rng(3)
+    kept = []
+    for _ in range(6):
+        out = mjx.step(rng.uniform(-1.0, 1.0, size=(4, 1)) * mjx.single_action_space.high)
+        kept.append((out, copy.deepcopy(out)))
+    assert any(o[2].any() for o, _ in kept)          # envs ended and restarted
+    for out, then in kept:
+        for now, was in zip(out[:4], then[:4]):
+            np.testing.assert_array_equal(now, was)
+        for key in ("u", "t", "status", "message"):
+            assert list(out[4][key]) == list(then[4][key])
     mjx.close()
 
 

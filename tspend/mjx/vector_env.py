@@ -10,7 +10,8 @@ also makes the observations, the rewards (:func:`tspend.loop.envstep.reward_fact
 text), the terminations, the truncations at the scenario's duration and the restart of
 the envs that ended (autoreset ``NEXT_STEP`` or ``SAME_STEP``).  Each env's data, clock and
 last observation stay on the device between steps: the host sends the actions, reads
-back N numbers per quantity and words the endings of the envs that ended only (the
+back one packed array (observation, reward, termination, truncation, clock and ending
+code per env) in one transfer and words the endings of the envs that ended only (the
 task's statuses and messages).  A template :class:`tspend.gym.TspendEnv` gives the
 spaces, the action's clipping and scaling and the reward's weights, so the two backends
 cannot drift apart.
@@ -24,7 +25,7 @@ terminations the same.  Not on this backend (refused in one line): ``init_noise`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -72,14 +73,18 @@ class MjxVectorEnv(VectorEnv):
         unit = np.ones(num_envs)
         self._lo, self._hi = (-unit, unit) if first.normalize else (self._u_lo, self._u_hi)
         self._u_scale = np.where(np.isfinite(self._u_hi) & (self._u_hi > 0), self._u_hi, 1.0)
+        self._u_half_span = 0.5 * (self._u_hi - self._u_lo)
+        #: the applied input, written in place each step (no N-sized temporaries)
+        self._u = np.empty(num_envs)
         self._u_dtype = np.float64 if precision == "float64" else np.float32
         self._obs_dtype = first.observation_space.dtype
         self._first = _first_obs(f)
         self._device = _DeviceEnvs(f, first, self._u_scale, self._first, precision,
                                    mode == AutoresetMode.NEXT_STEP)
         self._obs = self._first.copy()
+        # the statuses and messages a step copies (a copy of an object array takes a
+        # reference per element; a gather from labels took ten times as long at 4096 envs)
         self._running = np.full(num_envs, "running", dtype=object)
-        self._labels = np.array(["running", "completed"], dtype=object)
         self._no_message = np.full(num_envs, "", dtype=object)
 
     # -- the gymnasium interface ------------------------------------------------------------
@@ -100,34 +105,46 @@ class MjxVectorEnv(VectorEnv):
     def step(self, actions):
         """One step of every env in one call on the device: the restart of the envs ended
         at the last step, the physics, the endings, the observation, the reward, the
-        terminations and truncations.  The host sends N actions, reads back N numbers
-        per quantity, and looks further only at the envs that ended (their status and
-        message, by the task's words): nothing of it loops over the envs."""
+        terminations and truncations.  The host sends N actions, reads back one packed
+        array, and looks further only at the envs that ended (their status and message,
+        by the task's words): nothing of it loops over the envs.  What it returns is the
+        caller's own (copies out of the packed array), never overwritten by a later step."""
         u = self._applied(actions)
-        obs, reward, terminated, truncated, clock = self._device.step(u.astype(self._u_dtype))
-        self._obs = obs
-        ended = terminated | truncated
-        # one gather from ready-made labels: no Python object made per env
-        status, message = self._labels[truncated.view(np.int8)], self._no_message.copy()
+        packed = self._device.step(u if self._u_dtype is np.float64 else
+                                   u.astype(self._u_dtype))
+        columns = self._device.columns
+        self._obs = self._out(packed[:, columns.obs])
+        terminated = packed[:, columns.terminated] != 0.0
+        truncated = packed[:, columns.truncated] != 0.0
+        clock = packed[:, columns.clock].astype(np.int64)
+        status, message = self._running.copy(), self._no_message.copy()
+        status[truncated] = "completed"
+        u = u.copy()          # the infos' own: self._u is rewritten at the next step
         if terminated.any():
-            self._name_endings(terminated, clock, u, status, message)
+            self._name_endings(terminated, clock, u, status, message, packed)
         # t before the reset: the clock of an env reset here restarts at 0
         infos = envstep.vector_step_infos(clock * self.dt, u, status, message, terminated,
-                                          ended, self.autoreset_mode != AutoresetMode.NEXT_STEP,
-                                          lambda i: self._out(self._obs[i]), self._reset_some)
-        return self._out(self._obs), reward.astype(float), terminated, truncated, infos
+                                          terminated | truncated,
+                                          self.autoreset_mode != AutoresetMode.NEXT_STEP,
+                                          lambda i: self._obs[i].copy(), self._reset_some)
+        return (self._obs, packed[:, columns.reward].astype(float), terminated, truncated,
+                infos)
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
 
     # -- internals --------------------------------------------------------------------------
     def _name_endings(self, terminated: np.ndarray, clock: np.ndarray, u: np.ndarray,
-                      status: np.ndarray, message: np.ndarray) -> None:
-        """The status and message of each env that ended now, as the CPU env words them."""
+                      status: np.ndarray, message: np.ndarray, packed: np.ndarray) -> None:
+        """The status and message of each env that ended now, as the CPU env words them
+        (from the step's packed array: its code, and for a task's ending the full state it
+        stopped at, the observation's first columns)."""
         from tspend.mjx.sweep import plant_error
 
+        columns = self._device.columns
         which = np.flatnonzero(terminated)
-        code, full = self._device.endings(which)
+        code = packed[which, columns.code].astype(np.int64)
+        full = packed[which, :columns.n_full]
         for i, c, s in zip(which, code, full):
             t = clock[i] * self.dt
             if c == envstep.ENDED:
@@ -143,8 +160,6 @@ class MjxVectorEnv(VectorEnv):
     def _reset_some(self, which: np.ndarray) -> None:
         """Envs ``which`` (ended at this step) where a run starts: their observation now;
         their data and clock restart on the device at the next step."""
-        if not self._obs.flags.writeable:      # as read back from the device
-            self._obs = self._obs.copy()
         self._obs[which] = self._first[which]
 
     def _applied(self, actions: Any) -> np.ndarray:
@@ -155,10 +170,13 @@ class MjxVectorEnv(VectorEnv):
         if a.size != self.num_envs or not np.isfinite(a).all():
             raise ScenarioError(f"actions {actions!r:.80}: expected {self.num_envs} finite "
                                 f"numbers (the action space is {self.action_space})")
-        a = np.minimum(np.maximum(a.reshape(-1), self._lo), self._hi)
-        if self.template.normalize:
-            a = self._u_lo + 0.5 * (a + 1.0) * (self._u_hi - self._u_lo)
-        return np.ascontiguousarray(a)
+        u = self._u
+        np.clip(a.reshape(-1), self._lo, self._hi, out=u)
+        if self.template.normalize:     # u_lo + (a + 1) (u_hi - u_lo) / 2, in place
+            u += 1.0
+            u *= self._u_half_span
+            u += self._u_lo
+        return u
 
     def _out(self, obs: np.ndarray) -> np.ndarray:
         return obs.astype(self._obs_dtype)
@@ -204,11 +222,28 @@ def _first_obs(fleet: Any) -> np.ndarray:
     return np.concatenate((full, ref0), axis=1)
 
 
+class _Columns(NamedTuple):
+    """Where each quantity lies in a row of the step's packed array (one row per env)."""
+
+    obs: slice
+    reward: int
+    terminated: int
+    truncated: int
+    clock: int
+    code: int
+    #: the full state (positions, velocities) is the observation's first n_full columns
+    n_full: int
+
+    @classmethod
+    def of(cls, n_obs: int, n_full: int) -> "_Columns":
+        return cls(slice(0, n_obs), n_obs, n_obs + 1, n_obs + 2, n_obs + 3, n_obs + 4, n_full)
+
+
 class _DeviceEnvs:
     """What the envs keep on the device between steps (each env's MJX data, clock, last
     observation and whether it restarts at the next step) and the one jitted call that
-    steps them (:func:`_make_env_step`); the host sends the actions and reads back the
-    observations, rewards, terminations, truncations and clocks."""
+    steps them (:func:`_make_env_step`); the host sends the actions and reads back one
+    packed array (:class:`_Columns`)."""
 
     def __init__(self, fleet: Any, template: Any, u_scale: np.ndarray, first_obs: np.ndarray,
                  precision: str, next_step: bool) -> None:
@@ -221,6 +256,11 @@ class _DeviceEnvs:
         self.dist = np.asarray(fleet.dist, dtype=float)
         pad = np.zeros(horizon + frame_skip)
         pad[:horizon] = fleet.dist
+        # the clock travels in the packed array's float type: exact below 2^24 in float32
+        if self.dtype == jnp.float32 and horizon >= 1 << 24:
+            raise ScenarioError(f"precision float32: {horizon} steps in an episode, at most "
+                                f"{(1 << 24) - 1} (float64 has no such bound)")
+        self.columns = _Columns.of(first_obs.shape[1], fleet.qpos0.shape[1] + fleet.qvel0.shape[1])
         put = self.put
         self.model, self.data0 = _device_model(fleet, self.dtype), _initial(fleet, self.dtype)
         self.first_obs = put(first_obs)
@@ -246,27 +286,15 @@ class _DeviceEnvs:
         self.obs = jnp.copy(self.first_obs)
         self.clock = self.put(np.zeros(n, dtype=np.int64), int)
         self.pending = self.put(np.zeros(n, dtype=bool), bool)
-        self.code = self.full = None
 
-    def step(self, u: np.ndarray) -> tuple:
-        """``(obs, reward, terminated, truncated, clock)`` on the host after one step."""
-        import jax
-
+    def step(self, u: np.ndarray) -> np.ndarray:
+        """The packed array of one step (:class:`_Columns`), on the host, read-only."""
         # u as numpy: the jitted call's own argument handling puts it on the device,
         # cheaper than a device_put before it
-        out = self.call(self.model, self.data, self.data0, self.obs, self.first_obs,
-                        u, self.clock, self.pending, *self.tables)
-        self.data, self.clock, self.obs, self.pending = out[:4]
-        self.code, self.full = out[4], out[5]
-        reward, terminated, truncated = out[6:]
-        return jax.device_get((self.obs, reward, terminated, truncated, self.clock))
-
-    def endings(self, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The ending's code and the full state it stopped at, of the envs ``which``."""
-        import jax
-
-        code, full = jax.device_get((self.code, self.full))
-        return code[which], full[which]
+        self.data, self.clock, self.obs, self.pending, packed = self.call(
+            self.model, self.data, self.data0, self.obs, self.first_obs, u, self.clock,
+            self.pending, *self.tables)
+        return np.asarray(packed)     # one transfer
 
 
 def _device_model(fleet: Any, dtype: Any) -> Any:
@@ -338,8 +366,10 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
     at the new clock] (the last one kept where the step diverged, as the CPU env keeps
     it), the CPU env's reward (:func:`tspend.loop.envstep.reward_factory`'s text in JAX),
     the terminations and truncations.  Returns what stays on the device (data, clock,
-    observation, pending), the codes and full states the host reads for the envs that
-    ended, and the rewards, terminations and truncations."""
+    observation, pending) and one packed array for the host, a row per env laid out as
+    :class:`_Columns` says (one output buffer, one transfer).  The full state a task's
+    ending stopped at is the observation's first columns (the observation is written at
+    an ``ENDED`` step, in the data's own float type)."""
     import jax
     import jax.numpy as jnp
 
@@ -367,8 +397,9 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
                                             control, u_scale, u, done * dt), 0.0)
         terminated = (code != RUNNING) & ~skip
         truncated = (clock >= horizon) & ~skip & ~terminated
-        return (data, clock, obs, terminated | truncated, code, full, reward, terminated,
-                truncated)
+        packed = jnp.concatenate((obs, jnp.stack((reward, terminated, truncated, clock,
+                                                   code)).astype(obs.dtype)))
+        return data, clock, obs, terminated | truncated, packed
 
     axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
     # the data, observation, clock and restart flags a step replaces are donated: their
