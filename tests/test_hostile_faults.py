@@ -371,11 +371,11 @@ def test_the_program_installs_its_guard_before_the_cli_loads():
         import runpy, sys
         from tspend.runtime import interrupts
         real_install = interrupts.SignalGuard.install
-        def install(self):
+        def install(self, *args, **kwargs):
             if not getattr(interrupts, "FIRST", None):
                 interrupts.FIRST = sorted(m for m in sys.modules if m.startswith("tspend.cli"))
                 print("FIRST", interrupts.FIRST, file=sys.stderr, flush=True)
-            return real_install(self)
+            return real_install(self, *args, **kwargs)
         interrupts.SignalGuard.install = install
         sys.argv = ["tspend", "show", "ex3_pendulum_ode"]
         runpy.run_module("tspend.cli", run_name="__main__", alter_sys=True)
