@@ -302,11 +302,19 @@ def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):
     # what the rig (the double) did
     gap = replay_module.twin(tmp_path / "rig.rrd", tmp_path / "twin.rrd")
     assert gap["samples"] == 250 and gap["start"] == "x0"
-    assert gap["states"]["hinge"]["rms"] < 2 * np.pi / 2e4
     from tspend.recorder.readback import read_scalar_series
 
-    assert np.array_equal(read_scalar_series(tmp_path / "twin.rrd", "sim_vs_rig/hinge/rig")[1],
+    rig_hinge = read_scalar_series(tmp_path / "twin.rrd", "sim_vs_rig/hinge/rig")[1]
+    twin_hinge = read_scalar_series(tmp_path / "twin.rrd", "sim_vs_rig/hinge/twin")[1]
+    assert np.array_equal(rig_hinge,
                           rig_series(tmp_path / "rig.rrd", "state").reshape(250, -1)[:, 1])
+    # the twin is the rig run itself until a frame came late (under load the estimator
+    # holds there and the runs part); with every frame on time, within a count (rms)
+    fresh = rig_series(tmp_path / "rig.rrd", "fresh").astype(bool)
+    first_stale = int(np.argmin(fresh)) if not fresh.all() else len(fresh)
+    assert np.array_equal(twin_hinge[:first_stale], rig_hinge[:first_stale])
+    if fresh.all():
+        assert gap["states"]["hinge"]["rms"] < 2 * np.pi / 2e4
     notes["timing_notes"]["velocity_tau_s"] *= 2
     monkeypatch.setattr(replay_module, "session_notes", lambda path: notes)
     assert replay_module.replay(tmp_path / "rig.rrd").equal < 250
