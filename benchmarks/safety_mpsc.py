@@ -74,6 +74,9 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.on_plan": sf.get("on_certified_plan_samples"),
                         "safety.terminal_set": (sf.get("certificate") or {}).get("terminal_set"),
                         "safety.admitted": sf.get("start_admitted"),
+                        "safety.admitted_by_robust": sf.get("start_admitted_by_robust_plan"),
+                        "safety.refusal": sf.get("start_refusal"),
+                        "safety.admission_ms": sf.get("admission_ms"),
                         "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
                         "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
                         "safety.over_budget": sf.get("over_budget_samples"),
@@ -159,6 +162,11 @@ def summary(table) -> dict:
                 "uncertified_samples": int(g["safety.uncertified"].sum()),
                 "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
                 "starts_admitted": int(g["safety.admitted"].astype(bool).sum()),
+                **({"starts_admitted_by_robust_plan":
+                    int(g["safety.admitted_by_robust"].astype(bool).sum()),
+                    "admission_ms_max": float(g["safety.admission_ms"].max())}
+                   if "safety.admitted_by_robust" in g
+                   and g["safety.admitted_by_robust"].notna().all() else {}),
                 "time_per_sample_ms_p99_max": float(g["safety.time_p99_ms"].max()),
                 "time_per_sample_ms_max": float(g["safety.time_max_ms"].max()),
                 "over_budget_samples": int(g["safety.over_budget"].sum()),
