@@ -339,6 +339,7 @@ def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
     from it on the nominal model indeed leaves that bound."""
     f, s = _randomized_filter(15)
     f.recovery.plan = lambda state: None
+    f.robust = None  # (P11): its own test below
     f.admit(s)
     assert f.admitted is False and f.plan is None
     assert "slider's certified bound" in f.refusal and "nominal model" in f.refusal
@@ -346,6 +347,27 @@ def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
     U[0] = f.terminal_input(s)
     states, _ = _solve_plan(f, s, (U, R))
     assert np.abs(states[:, 0]).max() > f.cert.hi_check[0]
+
+
+def test_the_robust_plan_admits_a_start_the_lqr_and_the_qp_do_not_and_scipy_agrees():
+    """(P11) from seed 18's start (docs/safety.md): no tail and no QP plan is certified;
+    the robust plan is, and scipy's integration of it on the nominal model and on three
+    corner machines keeps the cart within the certified bound and ends in X_f (to the
+    integrators' difference)."""
+    f, s = _randomized_filter(18)
+    robust = f.robust
+    f.robust = None
+    f.admit(s)
+    assert f.admitted is False
+    f.reset_plan()
+    f.robust = robust
+    f.admit(s)
+    assert f.admitted is True and f.robust_admitted and f.plan is not None
+    c = f.cert
+    for m in (0, 1, 8, 16):
+        states, end = _solve_plan(f, s, f.plan, model=c.model if m == 0 else c.corners[m - 1])
+        assert np.abs(states[:, 0]).max() <= c.hi_check[0] + 2e-3
+        assert end @ c.P @ end <= c.level * (1 + 1e-2)
 
 
 def test_no_step_starts_past_the_budget():
