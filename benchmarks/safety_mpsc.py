@@ -45,12 +45,14 @@ RESULTS = Path(__file__).resolve().parent / "results"
 OUT = Path(".") if short() else RESULTS
 
 
-def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> list[dict]:
+def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
+              refuse: bool = False) -> list[dict]:
     from safety_filter import MACHINES, kinds_of
     from tspend import load_scenario, override, run
 
     name, changes = MACHINES[machine]
-    base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc"})
+    base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc",
+                                                       "safety.refuse_unadmitted": refuse})
     out = []
     for kind in kinds_of(machine, kinds):
         for seed in range(first, first + seeds):
@@ -88,14 +90,15 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
             # written as it goes: an interrupted benchmark keeps the runs it made
             import pandas as pd
 
-            pd.DataFrame(out).to_csv(OUT / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
-                                     index=False)
+            partial = OUT / f"safety_mpsc_{machine}{tag(first, refuse)}.partial.csv"
+            pd.DataFrame(out).to_csv(partial, index=False)
     return out
 
 
-def tag(first: int) -> str:
-    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200."""
-    return f"_seeds{first}" if first else ""
+def tag(first: int, refuse: bool = False) -> str:
+    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200;
+    ``_refuse`` after it for runs with safety.refuse_unadmitted."""
+    return (f"_seeds{first}" if first else "") + ("_refuse" if refuse else "")
 
 
 def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
@@ -397,6 +400,10 @@ def main() -> None:
                     help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--doc-table", action="store_true",
                     help="print docs/safety.md's mpsc table from safety_mpsc.json, run nothing")
+    ap.add_argument("--refuse-unadmitted", action="store_true",
+                    help="run with safety.refuse_unadmitted = true: a start no plan is "
+                         "certified from ends 'refused' before its first input (the rows "
+                         "and the summary under <machine>[_seeds<F>]_refuse)")
     ap.add_argument("--samples", type=int, default=5000)
     ap.add_argument("--timing-machine", default="",
                     help="with --timing-only: the closed loops of this machine of "
@@ -411,7 +418,7 @@ def main() -> None:
 
     if args.timing_machine and args.timing_machine not in MACHINES:
         ap.error(f"--timing-machine: one of {', '.join(MACHINES)}")
-    first, suffix = args.first_seed, tag(args.first_seed)
+    first, suffix = args.first_seed, tag(args.first_seed, args.refuse_unadmitted)
     warnings.simplefilter("ignore")
     out_path = OUT / "safety_mpsc.json"
     data: dict = {}
@@ -447,7 +454,8 @@ def main() -> None:
                 # only the kinds asked (an interrupted run may hold a few of another)
                 mine = mine[mine.controller.isin([k + "+mpsc" for k in kinds])]
             else:
-                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first,
+                                              args.refuse_unadmitted))
                 mine.to_csv(OUT / f"safety_mpsc_{machine}{suffix}.csv", index=False)
                 (OUT / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
             # the baselines on the seeds the filter ran (an interrupted run: fewer)
@@ -466,7 +474,7 @@ def main() -> None:
             print(comp["text"], flush=True)
             data[machine + suffix] = {
                 "seeds": seeds, "first_seed": first, "summary": s, "paired": comp,
-                "baselines": (f"safety_mpsc_{machine}{suffix}_baselines.csv" if first else
+                "baselines": (f"safety_mpsc_{machine}{tag(first)}_baselines.csv" if first else
                               "rerun" if args.baselines else f"safety_filter_{machine}_hocbf.csv")}
     # another process may have written its machine meanwhile: merge only this run's
     # machines into what is there now, then replace
