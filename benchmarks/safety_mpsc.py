@@ -205,7 +205,10 @@ def markdown_rows(table, machine: str) -> str:
 DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
             ("cartpole_rail_seeds200", "cart-pole, rail 1 m (200-219)"),
             ("furuta_arm", "Furuta, arm stop (0-19)"),
-            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"))
+            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"),
+            # --refuse-unadmitted: a start no plan is certified from is refused before the run
+            ("double_rail_refuse", "double cart-pole, box 0.5 m (0-19), refusing"),
+            ("double_rail_seeds200_refuse", "double cart-pole, box 0.5 m (200-219), refusing"))
 
 
 def doc_table(data: dict, kinds: list[str]) -> str:
@@ -226,12 +229,14 @@ def doc_table(data: dict, kinds: list[str]) -> str:
     for machine, label in DOC_ROWS:
         if machine not in data:
             continue
-        for kind in kinds:
+        for kind in [k for k in kinds if f"{k}+mpsc" in data[machine]["summary"]]:
             s = f"{machine}/summary/{kind}"
             cells = [f"{mark(f'{s}{x}/completed', 'd')}/{mark(f'{s}{x}/runs', 'd')}, outside in "
                      f"{mark(f'{s}{x}/runs_with_samples_outside', 'd')}"
                      for x in ("", "+cbf", "+mpsc")]
             m = f"{s}+mpsc"
+            if "refused" in data[machine]["summary"][f"{kind}+mpsc"]["statuses"]:
+                cells[-1] += f", refused {mark(f'{m}/statuses/refused', 'd')}"
             cells += [mark(f"{m}/on_certified_plan_share", ".1f", 100) + " %",
                       mark(f"{m}/certified_share", ".0f", 100) + " %",
                       f"{mark(f'{m}/uncertified_samples', 'd')} in "
