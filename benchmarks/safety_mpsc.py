@@ -207,8 +207,8 @@ DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
             ("furuta_arm", "Furuta, arm stop (0-19)"),
             ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"),
             # --refuse-unadmitted: a start no plan is certified from is refused before the run
-            ("double_rail_refuse", "double cart-pole, box 0.5 m (0-19), refusing"),
-            ("double_rail_seeds200_refuse", "double cart-pole, box 0.5 m (200-219), refusing"))
+            ("double_rail_refuse", "double cart-pole, box (0-19), refusing"),
+            ("double_rail_seeds200_refuse", "double cart-pole, box (200-219), refusing"))
 
 
 def doc_table(data: dict, kinds: list[str]) -> str:
