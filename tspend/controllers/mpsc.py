@@ -56,8 +56,15 @@ The terminal set X_f is invariant on every vertex model's linearisation:
 (:func:`terminal_set`; its nonlinear recurrence sampled).
 
 **Admission** (before the first sample is filtered, outside the budget: a rig's
-pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
-say whether the start was admitted (a certified plan from it) and why not.  So at every
+pre-flight check at its start): steps 1-2 with the QP iterated, then the robust plan
+
+    min eps |W (z - z_w)|^2 over z = (U, R),  (P5) on every model keeps the bounds at
+    every RK4 step and ends in (P3)                                             (P11)
+
+(:class:`RobustAdmission`: the certificate's own rollouts as IPOPT's constraints, warm
+from (P8)), then (P8) alone; the metrics say whether the start was admitted (a certified
+plan from it) and why not.  With ``safety.refuse_unadmitted`` a start not admitted is
+refused before its first input (:class:`~tspend.runtime.errors.RunRefused`).  So at every
 sample of steps 1-2 the applied input starts a plan certified from
 this state on the nominal model and every corner; at step 3 from an earlier state.
 Nothing is claimed for machines between the corners, for MuJoCo's integrator against the
