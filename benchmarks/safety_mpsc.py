@@ -45,12 +45,14 @@ RESULTS = Path(__file__).resolve().parent / "results"
 OUT = Path(".") if short() else RESULTS
 
 
-def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> list[dict]:
+def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
+              refuse: bool = False) -> list[dict]:
     from safety_filter import MACHINES, kinds_of
     from tspend import load_scenario, override, run
 
     name, changes = MACHINES[machine]
-    base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc"})
+    base = override(load_scenario(name), **changes, **{"safety.filter": "mpsc",
+                                                       "safety.refuse_unadmitted": refuse})
     out = []
     for kind in kinds_of(machine, kinds):
         for seed in range(first, first + seeds):
@@ -74,6 +76,9 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
                         "safety.on_plan": sf.get("on_certified_plan_samples"),
                         "safety.terminal_set": (sf.get("certificate") or {}).get("terminal_set"),
                         "safety.admitted": sf.get("start_admitted"),
+                        "safety.admitted_by_robust": sf.get("start_admitted_by_robust_plan"),
+                        "safety.refusal": sf.get("start_refusal"),
+                        "safety.admission_ms": sf.get("admission_ms"),
                         "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
                         "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
                         "safety.over_budget": sf.get("over_budget_samples"),
@@ -85,14 +90,15 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0) -> lis
             # written as it goes: an interrupted benchmark keeps the runs it made
             import pandas as pd
 
-            pd.DataFrame(out).to_csv(OUT / f"safety_mpsc_{machine}{tag(first)}.partial.csv",
-                                     index=False)
+            partial = OUT / f"safety_mpsc_{machine}{tag(first, refuse)}.partial.csv"
+            pd.DataFrame(out).to_csv(partial, index=False)
     return out
 
 
-def tag(first: int) -> str:
-    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200."""
-    return f"_seeds{first}" if first else ""
+def tag(first: int, refuse: bool = False) -> str:
+    """The file-name suffix of a seed set: none for seeds from 0, ``_seeds200`` from 200;
+    ``_refuse`` after it for runs with safety.refuse_unadmitted."""
+    return (f"_seeds{first}" if first else "") + ("_refuse" if refuse else "")
 
 
 def baseline_rows(machine: str, kinds: list[str], seeds: int, rerun: bool,
@@ -159,6 +165,11 @@ def summary(table) -> dict:
                 "uncertified_samples": int(g["safety.uncertified"].sum()),
                 "runs_with_uncertified": int((g["safety.uncertified"] > 0).sum()),
                 "starts_admitted": int(g["safety.admitted"].astype(bool).sum()),
+                **({"starts_admitted_by_robust_plan":
+                    int(g["safety.admitted_by_robust"].astype(bool).sum()),
+                    "admission_ms_max": float(g["safety.admission_ms"].max())}
+                   if "safety.admitted_by_robust" in g
+                   and g["safety.admitted_by_robust"].notna().all() else {}),
                 "time_per_sample_ms_p99_max": float(g["safety.time_p99_ms"].max()),
                 "time_per_sample_ms_max": float(g["safety.time_max_ms"].max()),
                 "over_budget_samples": int(g["safety.over_budget"].sum()),
@@ -194,7 +205,10 @@ def markdown_rows(table, machine: str) -> str:
 DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
             ("cartpole_rail_seeds200", "cart-pole, rail 1 m (200-219)"),
             ("furuta_arm", "Furuta, arm stop (0-19)"),
-            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"))
+            ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"),
+            # --refuse-unadmitted: a start no plan is certified from is refused before the run
+            ("double_rail_refuse", "double cart-pole, box (0-19), refusing"),
+            ("double_rail_seeds200_refuse", "double cart-pole, box (200-219), refusing"))
 
 
 def doc_table(data: dict, kinds: list[str]) -> str:
@@ -215,12 +229,14 @@ def doc_table(data: dict, kinds: list[str]) -> str:
     for machine, label in DOC_ROWS:
         if machine not in data:
             continue
-        for kind in kinds:
+        for kind in [k for k in kinds if f"{k}+mpsc" in data[machine]["summary"]]:
             s = f"{machine}/summary/{kind}"
             cells = [f"{mark(f'{s}{x}/completed', 'd')}/{mark(f'{s}{x}/runs', 'd')}, outside in "
                      f"{mark(f'{s}{x}/runs_with_samples_outside', 'd')}"
                      for x in ("", "+cbf", "+mpsc")]
             m = f"{s}+mpsc"
+            if "refused" in data[machine]["summary"][f"{kind}+mpsc"]["statuses"]:
+                cells[-1] += f", refused {mark(f'{m}/statuses/refused', 'd')}"
             cells += [mark(f"{m}/on_certified_plan_share", ".1f", 100) + " %",
                       mark(f"{m}/certified_share", ".0f", 100) + " %",
                       f"{mark(f'{m}/uncertified_samples', 'd')} in "
@@ -389,6 +405,10 @@ def main() -> None:
                     help="only the summary and the paired tests from the CSVs already written")
     ap.add_argument("--doc-table", action="store_true",
                     help="print docs/safety.md's mpsc table from safety_mpsc.json, run nothing")
+    ap.add_argument("--refuse-unadmitted", action="store_true",
+                    help="run with safety.refuse_unadmitted = true: a start no plan is "
+                         "certified from ends 'refused' before its first input (the rows "
+                         "and the summary under <machine>[_seeds<F>]_refuse)")
     ap.add_argument("--samples", type=int, default=5000)
     ap.add_argument("--timing-machine", default="",
                     help="with --timing-only: the closed loops of this machine of "
@@ -403,7 +423,7 @@ def main() -> None:
 
     if args.timing_machine and args.timing_machine not in MACHINES:
         ap.error(f"--timing-machine: one of {', '.join(MACHINES)}")
-    first, suffix = args.first_seed, tag(args.first_seed)
+    first, suffix = args.first_seed, tag(args.first_seed, args.refuse_unadmitted)
     warnings.simplefilter("ignore")
     out_path = OUT / "safety_mpsc.json"
     data: dict = {}
@@ -439,7 +459,8 @@ def main() -> None:
                 # only the kinds asked (an interrupted run may hold a few of another)
                 mine = mine[mine.controller.isin([k + "+mpsc" for k in kinds])]
             else:
-                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first))
+                mine = pd.DataFrame(mpsc_rows(machine, kinds, args.seeds, first,
+                                              args.refuse_unadmitted))
                 mine.to_csv(OUT / f"safety_mpsc_{machine}{suffix}.csv", index=False)
                 (OUT / f"safety_mpsc_{machine}{suffix}.partial.csv").unlink(missing_ok=True)
             # the baselines on the seeds the filter ran (an interrupted run: fewer)
@@ -458,7 +479,7 @@ def main() -> None:
             print(comp["text"], flush=True)
             data[machine + suffix] = {
                 "seeds": seeds, "first_seed": first, "summary": s, "paired": comp,
-                "baselines": (f"safety_mpsc_{machine}{suffix}_baselines.csv" if first else
+                "baselines": (f"safety_mpsc_{machine}{tag(first)}_baselines.csv" if first else
                               "rerun" if args.baselines else f"safety_filter_{machine}_hocbf.csv")}
     # another process may have written its machine meanwhile: merge only this run's
     # machines into what is there now, then replace

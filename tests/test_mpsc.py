@@ -121,6 +121,49 @@ def test_plan_sizes_are_bounded(key, value):
         override(load_scenario("pendulum_finite_rail"), **{f"safety.{key}": value})
 
 
+def test_refuse_unadmitted_takes_true_or_false_only():
+    with pytest.raises(ScenarioError, match="safety.refuse_unadmitted"):
+        override(load_scenario("pendulum_finite_rail"), **{"safety.refuse_unadmitted": "yes"})
+
+
+def test_a_start_no_plan_can_certify_is_refused_before_its_first_input(tmp_path, capsys):
+    """safety.refuse_unadmitted: the pole 1.3 rad from upright and falling at 2 rad/s on
+    a 1 m rail.  scipy's integration of the model from it, under either end of the
+    input's range held and under none, passes the certificate's pole bound within 0.2 s
+    (no plan keeps it); the run ends "refused" before its first input, exit 4, with the
+    certificate's reason on stderr and in m.json."""
+    import json
+
+    from scipy.integrate import solve_ivp
+
+    from tspend.cli.main import main
+
+    start = [1.3, 2.0]
+    c = _filter(**{"plant.x0": start}).cert
+    s = np.array([0.0, start[0], 0.0, start[1]])
+    for u in (c.u_lo, 0.0, c.u_hi):
+        sol = solve_ivp(lambda t, y, u=u: c.model.rhs(y, u), (0.0, 0.2), s, max_step=1e-3,
+                        rtol=1e-9)
+        assert np.abs(sol.y[1]).max() > c.hi_check[1]
+    metrics = tmp_path / "m.json"
+    status = main(["run", "pendulum_finite_rail", "--controller", "pd", "--no-record",
+                   "--set", "effects.rail=1.0", "--set", 'safety.filter="mpsc"',
+                   "--set", f"plant.x0={start}", "--set", "safety.refuse_unadmitted=true",
+                   "--metrics", str(metrics)])
+    err = capsys.readouterr().err
+    assert status == 4
+    assert "refused at t = 0.0000 s" in err and "no plan certified from the start" in err
+    m = json.loads(metrics.read_text())
+    sf = m["safety_filter"]
+    assert m["steps"] == 0 and sf["samples"] == 0
+    assert sf["start_admitted"] is False and "robust plan (P11)" in sf["start_refusal"]
+    # without the setting the same start runs (its samples counted uncertified)
+    main(["run", "pendulum_finite_rail", "--controller", "pd", "--no-record", "--duration",
+          "0.05", "--set", "effects.rail=1.0", "--set", 'safety.filter="mpsc"',
+          "--set", f"plant.x0={start}"])
+    assert "refused" not in capsys.readouterr().err
+
+
 def test_the_fast_path_passes_a_certifiable_command_without_the_qp():
     f = _filter()
 
@@ -296,6 +339,7 @@ def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
     from it on the nominal model indeed leaves that bound."""
     f, s = _randomized_filter(15)
     f.recovery.plan = lambda state: None
+    f.robust = None  # (P11): its own test below
     f.admit(s)
     assert f.admitted is False and f.plan is None
     assert "slider's certified bound" in f.refusal and "nominal model" in f.refusal
@@ -303,6 +347,27 @@ def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
     U[0] = f.terminal_input(s)
     states, _ = _solve_plan(f, s, (U, R))
     assert np.abs(states[:, 0]).max() > f.cert.hi_check[0]
+
+
+def test_the_robust_plan_admits_a_start_the_lqr_and_the_qp_do_not_and_scipy_agrees():
+    """(P11) from seed 18's start (docs/safety.md): no tail and no QP plan is certified;
+    the robust plan is, and scipy's integration of it on the nominal model and on three
+    corner machines keeps the cart within the certified bound and ends in X_f (to the
+    integrators' difference)."""
+    f, s = _randomized_filter(18)
+    robust = f.robust
+    f.robust = None
+    f.admit(s)
+    assert f.admitted is False
+    f.reset_plan()
+    f.robust = robust
+    f.admit(s)
+    assert f.admitted is True and f.robust_admitted and f.plan is not None
+    c = f.cert
+    for m in (0, 1, 8, 16):
+        states, end = _solve_plan(f, s, f.plan, model=c.model if m == 0 else c.corners[m - 1])
+        assert np.abs(states[:, 0]).max() <= c.hi_check[0] + 2e-3
+        assert end @ c.P @ end <= c.level * (1 + 1e-2)
 
 
 def test_no_step_starts_past_the_budget():

@@ -74,7 +74,8 @@ EXIT_STATUSES = """exit status:
        is written
   3    the closed loop diverged (recording and metrics kept up to the divergence)
   4    the task ended the run: fell, rail_end, joint_limit, state_bound or not_reached
-       (outputs kept up to the end)
+       (outputs kept up to the end); or refused: the safety filter could not certify
+       the start (safety.refuse_unadmitted), nothing applied
   5    an output could not be completed (disk full, I/O error); the file it would have
        replaced is untouched
   6    the controller failed (controller_error); outputs kept up to that sample

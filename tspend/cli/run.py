@@ -104,7 +104,7 @@ def cmd(args: argparse.Namespace) -> int:
 
 def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     from tspend.runtime.progress import RunProgress  # a bar on a terminal once the run takes a few seconds
-    from tspend.loop.runner import CONTROLLER_ERROR, NOT_REACHED, RunInterrupted
+    from tspend.loop.runner import CONTROLLER_ERROR, NOT_REACHED, REFUSED, RunInterrupted
     from tspend.task import TERMINATIONS
 
     from tspend.cli.rig import twin_prefixes
@@ -160,6 +160,9 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
         say(end.message)
         return EXIT_TERMINATED
     if end.status == NOT_REACHED:  # the task's goal (task.goal_angle by task.goal_by) missed
+        say(end.message)
+        return EXIT_TERMINATED
+    if end.status == REFUSED:  # a safety filter refused to start (safety.refuse_unadmitted)
         say(end.message)
         return EXIT_TERMINATED
     if end.status == CONTROLLER_ERROR:  # the controller's code failed, not tspend's

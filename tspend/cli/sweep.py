@@ -118,7 +118,7 @@ def summary(frame, grid_keys: list[str]):
     from tspend.task import TERMINATIONS
 
     out = groups["status"].value_counts().unstack(fill_value=0)
-    for status in ("completed", "diverged", "failed", "controller_error", "timeout",
+    for status in ("completed", "diverged", "failed", "controller_error", "timeout", "refused",
                    *TERMINATIONS):
         if status not in out.columns:
             out[status] = 0
@@ -126,7 +126,8 @@ def summary(frame, grid_keys: list[str]):
     # rail's end), not as a divergence: a column for each termination that occurred; a
     # controller's error and a run killed past --run-timeout too, when there were any
     ended = [s for s in TERMINATIONS if out[s].any()]
-    rare = [s for s in ("controller_error", "timeout") if out[s].any()]
+    # (refused: safety.refuse_unadmitted's start no plan was certified from)
+    rare = [s for s in ("controller_error", "timeout", "refused") if out[s].any()]
     out = out[["completed", *ended, "diverged", "failed", *rare]]
     ss = groups["rmse_ss"]
     out["rmse_ss median"] = ss.median()

@@ -351,6 +351,10 @@ class SafetyConfig:
     #: plan it has when a better one is not certified in time (0: 0.8 x the control
     #: period; at most 1000)
     budget_ms: float = field(default=0.0, metadata=_at_least_zero())
+    #: mpsc: end the run before its first input when no plan is certified from its start
+    #: (status "refused", exit 4, with the certificate's reason: a rig's pre-flight check);
+    #: false: such a start runs on the recovery plan, its samples counted uncertified
+    refuse_unadmitted: bool = False
 
 
 @dataclass(frozen=True)

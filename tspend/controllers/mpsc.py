@@ -56,8 +56,15 @@ The terminal set X_f is invariant on every vertex model's linearisation:
 (:func:`terminal_set`; its nonlinear recurrence sampled).
 
 **Admission** (before the first sample is filtered, outside the budget: a rig's
-pre-flight check at its start): steps 1-2 with the QP iterated, then (P8); the metrics
-say whether the start was admitted (a certified plan from it) and why not.  So at every
+pre-flight check at its start): steps 1-2 with the QP iterated, then the robust plan
+
+    min eps |W (z - z_w)|^2 over z = (U, R),  (P5) on every model keeps the bounds at
+    every RK4 step and ends in (P3)                                             (P11)
+
+(:class:`RobustAdmission`: the certificate's own rollouts as IPOPT's constraints, warm
+from (P8)), then (P8) alone; the metrics say whether the start was admitted (a certified
+plan from it) and why not.  With ``safety.refuse_unadmitted`` a start not admitted is
+refused before its first input (:class:`~tspend.runtime.errors.RunRefused`).  So at every
 sample of steps 1-2 the applied input starts a plan certified from
 this state on the nominal model and every corner; at step 3 from an earlier state.
 Nothing is claimed for machines between the corners, for MuJoCo's integrator against the
@@ -76,7 +83,7 @@ import numpy as np
 
 from tspend.controllers.base import Controller, Observation
 from tspend.controllers.safety import SafetyFilter
-from tspend.runtime.errors import ScenarioError
+from tspend.runtime.errors import RunRefused, ScenarioError
 
 if TYPE_CHECKING:
     from tspend.config import SafetyConfig, Scenario
@@ -118,6 +125,17 @@ RECOVERY_REFINE = 5
 RECOVERY_MAX_ITER = 200
 #: (P8)'s weight on the input's energy (in shares of its range, per interval) beside t
 RECOVERY_EFFORT = 1e-3
+#: (P11), the robust admission plan: IPOPT's iterations at most (it stops at the first
+#: iterate whose rollouts keep every bound on every model: about 10 on the cart-pole)
+ADMISSION_MAX_ITER = 40
+#: (P11) keeps this share of each checked bound's half-width to spare and aims its end at
+#: ADMISSION_AIM of (P3)'s level: room for IPOPT's tolerance (the certificate, which
+#: checks the whole bounds, then decides)
+ADMISSION_SPARE = 0.01
+ADMISSION_AIM = 0.9
+#: (P11)'s weight on the plan's distance from its warm start (in the input's range and the
+#: bounds' half-widths): a feasibility problem, regularised so that IPOPT's steps are small
+ADMISSION_PROXIMAL = 1e-2
 #: the disturbance's samples read for its bound (P7)
 MAX_DISTURBANCE_SAMPLES = 10 ** 6
 #: at most this many [randomize] parameters spanned by corners (2^6 = 64 models)
@@ -650,6 +668,7 @@ class Solvers:
     rollout: Rollout
     qp: Any
     recovery: "Recovery"
+    admission: "RobustAdmission | None" = None
 
 
 def build_solvers(cert: Certificate, cfg: "SafetyConfig", compiled: bool = True) -> Solvers:
@@ -659,7 +678,41 @@ def build_solvers(cert: Certificate, cfg: "SafetyConfig", compiled: bool = True)
 
     fn = certificate_rollout(cert)
     return Solvers(Rollout(compiled_function(fn) if compiled else fn, cert),
-                   plan_qp(cert, cfg, compiled), Recovery(cert))
+                   plan_qp(cert, cfg, compiled), Recovery(cert), RobustAdmission(cert))
+
+
+def first_feasible_stop(nz: int, ng: int, n_p: int, lbg: np.ndarray, ubg: np.ndarray) -> Any:
+    """IPOPT's iteration callback that stops it at the first iterate keeping every
+    constraint ``lbg <= g <= ubg`` (a feasibility problem needs no more)."""
+    import casadi as ca
+
+    sizes = {"x": nz, "lam_x": nz, "g": ng, "lam_g": ng, "f": 1, "lam_p": n_p}
+
+    class FirstFeasible(ca.Callback):
+        def __init__(self) -> None:
+            ca.Callback.__init__(self)
+            self.construct("mpsc_first_feasible", {})
+
+        def get_n_in(self) -> int:
+            return ca.nlpsol_n_out()
+
+        def get_n_out(self) -> int:
+            return 1
+
+        def get_name_in(self, i: int) -> str:
+            return ca.nlpsol_out(i)
+
+        def get_name_out(self, i: int) -> str:
+            return "stop"
+
+        def get_sparsity_in(self, i: int) -> Any:
+            return ca.Sparsity.dense(sizes[ca.nlpsol_out(i)], 1)
+
+        def eval(self, arg: list) -> list:
+            g = np.asarray(arg[2], dtype=float).ravel()
+            return [1.0 if np.all((g >= lbg) & (g <= ubg)) else 0.0]
+
+    return FirstFeasible()
 
 
 class Recovery:
@@ -761,6 +814,83 @@ class Recovery:
         return clip_input(self.cert, float(U[k] - self.cert.K @ (s - ref)))
 
 
+class RobustAdmission:
+    """(P11), a plan certified by construction from a start no tail and no QP plan covers:
+
+        min eps |W (z - z_w)|^2   over the plan z = (U, R) of (P5),
+        s.t. (P5) on every model (P6) keeps each checked bound, less a share of its
+             half-width, at every RK4 step and ends in (P3) (a share of its level)     (P11)
+
+    (``z_w`` the warm start, the recovery plan (P8) put on the plan's grid; ``W`` the
+    input's range and the bounds' half-widths): its constraints are the certificate's own
+    rollouts (:func:`model_paths`), so what IPOPT finds is what the certificate checks
+    (again, before it is used).  IPOPT stops at the first iterate keeping them.  Built on
+    first use: most starts never need it."""
+
+    def __init__(self, cert: Certificate) -> None:
+        self.cert = cert
+        self._nlp: tuple | None = None
+
+    def nlp(self) -> tuple:
+        """(P11) as a CasADi nlpsol (single shooting over the plan) and its bounds."""
+        import casadi as ca
+
+        if self._nlp is not None:
+            return self._nlp
+        cert, nx, N = self.cert, self.cert.model.size, self.cert.N
+        s0, Un, Rn = ca.MX.sym("s0", nx), ca.MX.sym("U", N), ca.MX.sym("R", nx, N - 1)
+        checked = np.flatnonzero(np.isfinite(cert.lo_check) | np.isfinite(cert.hi_check))
+        half = 0.5 * (cert.hi_check - cert.lo_check)
+        spare = np.where(np.isfinite(half), ADMISSION_SPARE * half, 0.0)
+        g, lbg, ubg = [], [], []
+        for path, _ in model_paths(cert, s0, Un, ca.horzcat(s0, Rn)):
+            for i in checked:
+                g.append(path[int(i), :].T)
+                lbg.append(np.full(path.shape[1], cert.lo_check[i] + spare[i]))
+                ubg.append(np.full(path.shape[1], cert.hi_check[i] - spare[i]))
+            g.append(ca.bilin(ca.DM(cert.P), path[:, -1], path[:, -1]))
+            lbg.append([-np.inf])
+            ubg.append([ADMISSION_AIM * cert.level])
+        z, warm = ca.vertcat(Un, ca.vec(Rn)), ca.MX.sym("warm", N + nx * (N - 1))
+        scale = max([abs(v) for v in (cert.u_lo, cert.u_hi) if math.isfinite(v)], default=1.0)
+        width = np.where(np.isfinite(half) & (half > 0.0), half, 1.0)
+        W = ca.DM(np.concatenate([np.full(N, 1.0 / scale), np.tile(1.0 / width, N - 1)]))
+        lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
+        stop = first_feasible_stop(z.shape[0], lbg.size, nx + z.shape[0], lbg, ubg)
+        solver = ca.nlpsol("mpsc_admission", "ipopt", {
+            "x": z, "p": ca.vertcat(s0, warm), "g": ca.vertcat(*g),
+            "f": ADMISSION_PROXIMAL * ca.sumsqr((z - warm) * W) / N},
+            {"print_time": False, "iteration_callback": stop, "ipopt": {
+                "print_level": 0, "sb": "yes", "max_iter": ADMISSION_MAX_ITER,
+                "hessian_approximation": "limited-memory"}})
+        self._nlp = (solver, lbg, ubg, stop)
+        return self._nlp
+
+    def plan(self, s: np.ndarray, warm: tuple) -> tuple:
+        """(P11) from ``s``, warm started from ``warm = (U (N,), R (nx, N))``: the plan
+        ``(U, R)`` IPOPT ended on (the caller certifies it)."""
+        solver, lbg, ubg, _ = self.nlp()
+        cert, N = self.cert, self.cert.N
+        z0 = np.concatenate([warm[0], np.asarray(warm[1])[:, 1:].ravel(order="F")])
+        lbx = np.concatenate([np.full(N, cert.u_lo), np.full(z0.size - N, -np.inf)])
+        ubx = np.concatenate([np.full(N, cert.u_hi), np.full(z0.size - N, np.inf)])
+        sol = solver(x0=np.clip(z0, lbx, ubx), p=np.concatenate([s, z0]), lbx=lbx, ubx=ubx,
+                     lbg=lbg, ubg=ubg)
+        z = np.asarray(sol["x"], dtype=float).ravel()
+        R = np.hstack([s[:, None], z[N:].reshape(-1, N - 1, order="F")])
+        return z[:N], R
+
+    def warm_start(self, recovery: tuple) -> tuple:
+        """The recovery plan (P8) ``(U, X, t)`` on the certificate's grid: its first input,
+        then per interval the mean of its inputs there and its state at the start (its
+        intervals divide the plan's, :data:`RECOVERY_REFINE`)."""
+        U, X, _ = recovery
+        N, refine = self.cert.N, RECOVERY_REFINE
+        starts = 1 + refine * np.arange(N - 1)
+        U2 = np.concatenate([[U[0]], U[1:1 + refine * (N - 1)].reshape(N - 1, refine).mean(1)])
+        return U2, np.hstack([X[:, :1], X[:, starts]])
+
+
 def clip_input(cert: Certificate, u: float) -> float:
     return min(max(u, cert.u_lo), cert.u_hi)
 
@@ -780,7 +910,7 @@ class PredictiveSafetyFilter(SafetyFilter):
                  cfg: "SafetyConfig") -> None:
         super().__init__(inner, cert.model, cfg)
         self.cert, self.roll = cert, solvers.rollout
-        self.sqp, self.recovery = solvers.qp, solvers.recovery
+        self.sqp, self.recovery, self.robust = solvers.qp, solvers.recovery, solvers.admission
         self.u_lo, self.u_hi = cert.u_lo, cert.u_hi
         self._checked = np.flatnonzero(np.isfinite(cert.lo_check) | np.isfinite(cert.hi_check))
         #: the certificate's bounds on every state (+/-inf: none), for one comparison each
@@ -814,6 +944,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: certified from the start, why not, and its time
         self.admitted: bool | None = None
         self.refusal = ""
+        #: whether the start was admitted by the robust plan (P11)
+        self.robust_admitted = False
         self.admission_ms = 0.0
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -829,6 +961,9 @@ class PredictiveSafetyFilter(SafetyFilter):
             if self._rows is None:
                 self._prepare(obs)
             self.admit(np.asarray(obs.state, dtype=float)[self._rows[0]])
+            if not self.admitted and self.cfg.refuse_unadmitted:
+                # a rig's pre-flight check: a start no certified plan leaves is not started
+                raise RunRefused(f"safety.refuse_unadmitted: {self.refusal}")
         return super().step(obs, dt)
 
     # -- the certificate ------------------------------------------------------------------
@@ -1118,17 +1253,37 @@ class PredictiveSafetyFilter(SafetyFilter):
         else:
             # the QP's cost, measured once for the budget, its plan not used
             self.solve_qp(s, math.nan, None)
+        if self.plan is None:
+            self.rescue_input(s)
+            self.rescue_age = 0
+            robust = self.robust_plan(s)
         self.admitted = self.plan is not None
         if not self.admitted:
             lqr[0][0] = self.terminal_input(s)
             why = self.verdict(self.roll.run(s, *lqr))
             self.refusal = (f"no plan certified from the start on the {self.roll.models} "
-                            f"models: the saturated LQR {why}, the QP's plan too")
-            self.rescue_input(s)
-            self.rescue_age = 0
+                            f"models: the saturated LQR {why}, the QP's plan too, and the "
+                            f"robust plan (P11) {robust}")
         self.plan_age = 0
         self.bisected = self.qp_certified = self.rejected = self.uncertified = 0
         self.admission_ms = 1e3 * (time.perf_counter() - t0)
+
+    def robust_plan(self, s: np.ndarray) -> str:
+        """(P11) at admission, warm from the recovery plan (P8) made there (else the LQR's
+        tail): certified, it is the plan the filter starts on (and the recovery plan is
+        dropped); else what it breaks first and on which model."""
+        if self.robust is None:
+            return "was not tried"
+        warm = self.robust.warm_start(self.rescue) if self.rescue else self.lqr_tail(s)
+        try:
+            U, R = self.robust.plan(s, warm)
+        except RuntimeError as exc:  # IPOPT's own failure (a non-finite rollout)
+            return f"failed ({exc})"
+        why = self.verdict(self.roll.run(s, U, R))
+        if why is None and self.certifies(s, U, R):
+            self.robust_admitted = True
+            return "is certified"
+        return why or "was not certified"
 
     def more_metrics(self) -> dict[str, Any]:
         n, cert = self.samples, self.cert
@@ -1152,6 +1307,7 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "rejected_samples": self.rejected,
                 "infeasible_samples": self.infeasible_qp,
                 "start_admitted": self.admitted, "start_refusal": self.refusal or None,
+                "start_admitted_by_robust_plan": self.robust_admitted,
                 "admission_ms": self.admission_ms,
                 "certificate": {"models": self.roll.models,
                                 "corner_parameters": list(cert.corner_names),

@@ -31,7 +31,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tspend.controllers.base import Controller, Diagnostic, Observation, check_diagnostics
-from tspend.runtime.errors import DivergenceError
+from tspend.runtime.errors import DivergenceError, RunRefused
 from tspend.loop.fastloop import CHECK, Bounds, Buffers, SampleFailed, Segment, segment_runner
 from tspend.runtime.interrupts import Interrupted, StopRequest
 from tspend.runtime.plugins import own_failure
@@ -131,6 +131,9 @@ class BlockBuffer:
 CONTROLLER_ERROR = "controller_error"
 #: the status of a run that kept every bound but did not reach the task's goal
 NOT_REACHED = "not_reached"
+#: the status of a run a check refused at its first sample, before any input was applied
+#: (:class:`~tspend.runtime.errors.RunRefused`: a safety filter that cannot certify its start)
+REFUSED = "refused"
 
 
 def _control_value(u: object) -> float:
@@ -338,6 +341,11 @@ class ClosedLoop:
                                 # the signal's exception, turned into another by the code it
                                 # interrupted (IPOPT's "no plan" for a solve cut short)
                                 raise RunInterrupted(stop.signal_name, stop.exit_status) from None
+                            if isinstance(exc, RunRefused):
+                                # refused before its first input: nothing of it applied
+                                return self._diverged(sinks, start, buf, t, ref, dist, i,
+                                                      f"{REFUSED} at t = {float(t[i]):.4f} s: "
+                                                      f"{exc}", REFUSED)
                             # the controller's own failure (a plug-in's bug, a wrong return,
                             # sys.exit, a BaseException of its own: GeneratorExit,
                             # CancelledError): the run ends as it, what came before kept

@@ -32,6 +32,15 @@ class ControllerError(TspendError):
     exit_status = 6
 
 
+class RunRefused(TspendError):
+    """A check made at the run's first sample, before any input is applied, refused to
+    start it (a safety filter that cannot certify a plan from the start, with
+    ``safety.refuse_unadmitted``): the run ends ``refused`` with the reason, no sample
+    applied; exit status 4, as a run the task ended."""
+
+    exit_status = 4
+
+
 class OutputError(TspendError):
     """An output file could not be completed (disk full, I/O error, size limit).
 
