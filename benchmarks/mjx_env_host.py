@@ -4,8 +4,11 @@
 
 Both envs are built first, then stepped (zero actions) in alternating blocks of
 ``--block`` steps, so a change of the machine's load falls on both sizes alike.  A step's
-host time is its wall time less its device call (waited for), both by one clock
-(:func:`accelerator_speed.timed_env`).  Prints, per N, env-steps/s and the host's
+host time is the time the host spends on it outside the device's computation: this
+thread's CPU time over the step less its CPU time waiting for the device's result, the
+jitted call's dispatch counted as the host's (:func:`accelerator_speed.timed_env`; on
+JAX's CPU backend the device's computation runs on other threads, and a wall clock would
+count it whenever they share a core with this one).  Prints, per N, env-steps/s and the host's
 milliseconds per step as the median with the 25th-75th percentiles beside it (the spread
 shows the noise), the ratio of the larger N's median to the smaller's, both measured in
 this run (what the host does per step should not grow with N: docs/accelerator.md), and

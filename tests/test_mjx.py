@@ -227,6 +227,39 @@ def test_mjx_vector_env_steps_as_the_cpu_vector_env(name, overrides):
     mjx.close()
 
 
+def test_mjx_vector_env_in_float32_steps_as_the_cpu_vector_env():
+    # float32 data met MJX's RK4 tableau in float64 (the fleet's build had turned JAX's
+    # float64 on): the first step failed.  A float64 env built after it turns float64
+    # on again; the float32 env still steps, within float32 rounding of the CPU env,
+    # and ends where the CPU env ends
+    gymnasium = pytest.importorskip("gymnasium")
+    over = {"task.fall_angle": 0.12}
+    cpu, f32 = _vector_envs("pendulum_mujoco", 4, overrides=over)
+    f32.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f32 = gymnasium.make_vec("tspend/pendulum_mujoco-v0", num_envs=4, overrides=over,
+                                 vectorization_mode="vector_entry_point", backend="mjx",
+                                 precision="float32")
+        gymnasium.make_vec("tspend/pendulum_mujoco-v0", num_envs=2, backend="mjx",
+                           vectorization_mode="vector_entry_point").close()
+    np.testing.assert_array_equal(f32.reset(seed=3)[0], cpu.reset(seed=3)[0])
+    rng = np.random.default_rng(0)
+    ended = 0
+    for _ in range(100):
+        a = rng.uniform(-1.0, 1.0, size=(4, 1)) * cpu.single_action_space.high
+        c, m = cpu.step(a), f32.step(a)
+        np.testing.assert_allclose(m[0], c[0], rtol=0, atol=1e-5)
+        np.testing.assert_allclose(m[1], c[1], rtol=1e-5, atol=1e-8)
+        np.testing.assert_array_equal(m[2], c[2])
+        np.testing.assert_array_equal(m[3], c[3])
+        assert list(m[4]["status"]) == list(c[4]["status"])
+        ended += int(c[2].sum())
+    assert ended > 0
+    cpu.close()
+    f32.close()
+
+
 def test_mjx_vector_env_leaves_what_a_step_returned_as_it_was():
     # the step reads one packed array back and reuses its input buffer: what it handed
     # out (observations, rewards, endings, infos) must stay the caller's own, through
