@@ -1,6 +1,7 @@
 """The MJX vector env's host time per step at two batch sizes, in one run.
 
     python benchmarks/mjx_env_host.py                 # 64 and 4096 envs, 200 steps each
+    python benchmarks/mjx_env_host.py --pin           # the device's threads on a core of their own
 
 Both envs are built first, then stepped (zero actions) in alternating blocks of
 ``--block`` steps, so a change of the machine's load falls on both sizes alike.  A step's
@@ -8,7 +9,9 @@ host time is the time the host spends on it outside the device's computation: th
 thread's CPU time over the step less its CPU time waiting for the device's result, the
 jitted call's dispatch counted as the host's (:func:`accelerator_speed.timed_env`; on
 JAX's CPU backend the device's computation runs on other threads, and a wall clock would
-count it whenever they share a core with this one).  Prints, per N, env-steps/s and the host's
+count it whenever they share a core with this one).  They still share this thread's
+caches; ``--pin`` puts JAX's threads on the last core and this thread on the first (as an
+accelerator has its own silicon; Linux, two cores or more).  Prints, per N, env-steps/s and the host's
 milliseconds per step as the median with the 25th-75th percentiles beside it (the spread
 shows the noise), the ratio of the larger N's median to the smaller's, both measured in
 this run (what the host does per step should not grow with N: docs/accelerator.md), and
@@ -37,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--block", type=int, default=20,
                    help="steps of one size before the other's turn (default 20)")
     p.add_argument("--scenario", default="pendulum_mujoco", help="(default pendulum_mujoco)")
+    p.add_argument("--pin", action="store_true",
+                   help="JAX's threads (the device's computation on the CPU backend) on the "
+                        "last core, this thread on the first (default: both anywhere)")
     args = p.parse_args(argv)
     try:
         small, large = (int(v) for v in args.envs.split(","))
@@ -47,7 +53,15 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("mjx_env_host: --envs each from 1 to 1048576, --steps from 1 to "
                          "1000, --block from 1 to --steps")
     print(f"load average (1 min) before: {os.getloadavg()[0]:.2f}", flush=True)
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if args.pin and len(cores) < 2:
+        raise SystemExit("mjx_env_host: --pin needs Linux and two cores or more")
+    if args.pin:       # JAX's threads, made while the envs are built, inherit this core
+        os.sched_setaffinity(0, {cores[-1]})
     envs = {n: timed_env(args.scenario, n, "float64") for n in (small, large)}
+    if args.pin:       # this thread only (0: the calling thread)
+        os.sched_setaffinity(0, {cores[0]})
+        print(f"pinned: JAX's threads on core {cores[-1]}, this thread on core {cores[0]}")
     times = {n: [] for n in envs}                  # (wall s, host s) per step
     while len(times[large]) < args.steps:
         for n, (_, step) in envs.items():
