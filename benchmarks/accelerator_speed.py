@@ -269,11 +269,12 @@ def sweep_rate(scenario: str, n: int, steps: int, precision: str) -> tuple[float
 
 def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
     """The MJX vector env at n envs, reset and compiled, and ``step(probe=None)`` that steps
-    it with zero actions and returns (wall s, host s, probe s) of that step.  The host's time is what this
+    it with zero actions and returns (wall s, host s, probe s, dispatch s) of that step.  The host's time is what this
     thread spends computing per step outside the device's computation: its CPU time over
     the step (``time.thread_time``) less its CPU time while it waits for the device's
     result.  The jitted call's dispatch (its arguments, the launch) is the host's work and
-    counted; the wait is not, nor is time this thread is off the CPU (another process's,
+    counted (and returned on its own as dispatch s); the wait is not, nor is time this
+    thread is off the CPU (another process's,
     or the device's own threads on JAX's CPU backend).  ``probe``, a callable, runs right
     after the wait; its CPU time is returned as probe s and not counted as the host's (a
     step with a probe warms the caches for its own host work: time one or the other)."""
@@ -289,12 +290,14 @@ def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
         envs = gymnasium.make_vec(f"tspend/{scenario}-v0", num_envs=n, precision=precision,
                                   vectorization_mode="vector_entry_point", backend="mjx")
     device = envs.unwrapped._device          # what the envs keep on the device
-    waited_cpu_s, probe_cpu_s, probes = [0.0], [0.0], [None]
+    waited_cpu_s, probe_cpu_s, probes, dispatch_s = [0.0], [0.0], [None], [0.0]
     call = device.call
 
     def timed(*args):
+        d = time.thread_time()
         out = call(*args)                      # dispatched: the host's work
         c = time.thread_time()
+        dispatch_s[0] = c - d
         jax.block_until_ready(out)
         p = time.thread_time()
         if probes[0] is not None:
@@ -308,12 +311,12 @@ def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
     a = np.zeros((n, 1))
     envs.step(a)                                   # compiles
 
-    def step(probe: Any = None) -> tuple[float, float, float]:
+    def step(probe: Any = None) -> tuple[float, float, float, float]:
         waited_cpu_s[0], probes[0] = 0.0, probe
         t, c = time.perf_counter(), time.thread_time()
         envs.step(a)
         wall, cpu = time.perf_counter() - t, time.thread_time() - c
-        return wall, cpu - waited_cpu_s[0], probe_cpu_s[0]
+        return wall, cpu - waited_cpu_s[0], probe_cpu_s[0], dispatch_s[0]
 
     return envs, step
 
@@ -323,7 +326,7 @@ def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, 
     the median step's host time: on a shared machine a step now and then waits for
     another process."""
     envs, step = timed_env(scenario, n, precision)
-    wall, host, _ = np.array([step() for _ in range(steps)]).T
+    wall, host, _, _ = np.array([step() for _ in range(steps)]).T
     envs.close()
     return n * steps / wall.sum(), 1e3 * float(np.median(host))
 
