@@ -24,7 +24,8 @@ and prints the ratios mjx loop / batch and mjx / cpu env.  Then tspend's own pat
   machines the scenario's ``[randomize]`` draws, ``--steps`` samples: physics steps/s of
   the second call, and its ratio to the bare loop's;
 * ``mjx env``: ``backend="mjx"``'s vector env at N: env-steps/s and the host's time per
-  step (the step's wall time less the device call's, so what grows with N on the host).
+  step (this thread's CPU time over the step outside its wait for the device's result,
+  the call's dispatch included: :func:`timed_env`), so what grows with N on the host.
 
 ``--prepare DIR`` writes what the device part needs (each model as MuJoCo's binary .mjb,
 the gain, the start state, and the scenarios tspend's rows run) and stops; ``--plan DIR``
@@ -267,10 +268,16 @@ def sweep_rate(scenario: str, n: int, steps: int, precision: str) -> tuple[float
 
 
 def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
-    """The MJX vector env at n envs, reset and compiled, and ``step()`` that steps it with
-    zero actions and returns (wall s, host s) of that step: the host's share is the step's
-    wall time less the time in its device call (waited for), both by one clock
-    (``time.perf_counter``)."""
+    """The MJX vector env at n envs, reset and compiled, and ``step(probe=None)`` that steps
+    it with zero actions and returns (wall s, host s, probe s, dispatch s) of that step.  The host's time is what this
+    thread spends computing per step outside the device's computation: its CPU time over
+    the step (``time.thread_time``) less its CPU time while it waits for the device's
+    result.  The jitted call's dispatch (its arguments, the launch) is the host's work and
+    counted (and returned on its own as dispatch s); the wait is not, nor is time this
+    thread is off the CPU (another process's,
+    or the device's own threads on JAX's CPU backend).  ``probe``, a callable, runs right
+    after the wait; its CPU time is returned as probe s and not counted as the host's (a
+    step with a probe warms the caches for its own host work: time one or the other)."""
     import warnings
 
     import gymnasium
@@ -283,13 +290,20 @@ def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
         envs = gymnasium.make_vec(f"tspend/{scenario}-v0", num_envs=n, precision=precision,
                                   vectorization_mode="vector_entry_point", backend="mjx")
     device = envs.unwrapped._device          # what the envs keep on the device
-    device_s = [0.0]
+    waited_cpu_s, probe_cpu_s, probes, dispatch_s = [0.0], [0.0], [None], [0.0]
     call = device.call
 
     def timed(*args):
-        t = time.perf_counter()
-        out = jax.block_until_ready(call(*args))
-        device_s[0] += time.perf_counter() - t
+        d = time.thread_time()
+        out = call(*args)                      # dispatched: the host's work
+        c = time.thread_time()
+        dispatch_s[0] = c - d
+        jax.block_until_ready(out)
+        p = time.thread_time()
+        if probes[0] is not None:
+            probes[0]()
+        probe_cpu_s[0] = time.thread_time() - p
+        waited_cpu_s[0] += time.thread_time() - c
         return out
 
     device.call = timed
@@ -297,12 +311,12 @@ def timed_env(scenario: str, n: int, precision: str) -> tuple[Any, Any]:
     a = np.zeros((n, 1))
     envs.step(a)                                   # compiles
 
-    def step() -> tuple[float, float]:
-        device_s[0] = 0.0
-        t = time.perf_counter()
+    def step(probe: Any = None) -> tuple[float, float, float, float]:
+        waited_cpu_s[0], probes[0] = 0.0, probe
+        t, c = time.perf_counter(), time.thread_time()
         envs.step(a)
-        wall = time.perf_counter() - t
-        return wall, wall - device_s[0]
+        wall, cpu = time.perf_counter() - t, time.thread_time() - c
+        return wall, cpu - waited_cpu_s[0], probe_cpu_s[0], dispatch_s[0]
 
     return envs, step
 
@@ -312,7 +326,7 @@ def env_host(scenario: str, n: int, steps: int, precision: str) -> tuple[float, 
     the median step's host time: on a shared machine a step now and then waits for
     another process."""
     envs, step = timed_env(scenario, n, precision)
-    wall, host = np.array([step() for _ in range(steps)]).T
+    wall, host, _, _ = np.array([step() for _ in range(steps)]).T
     envs.close()
     return n * steps / wall.sum(), 1e3 * float(np.median(host))
 

@@ -1,13 +1,23 @@
 """The MJX vector env's host time per step at two batch sizes, in one run.
 
     python benchmarks/mjx_env_host.py                 # 64 and 4096 envs, 200 steps each
+    python benchmarks/mjx_env_host.py --pin           # the device's threads on a core of their own
 
 Both envs are built first, then stepped (zero actions) in alternating blocks of
 ``--block`` steps, so a change of the machine's load falls on both sizes alike.  A step's
-host time is its wall time less its device call (waited for), both by one clock
-(:func:`accelerator_speed.timed_env`).  Prints, per N, env-steps/s and the host's
+host time is the time the host spends on it outside the device's computation: this
+thread's CPU time over the step less its CPU time waiting for the device's result, the
+jitted call's dispatch counted as the host's (:func:`accelerator_speed.timed_env`; on
+JAX's CPU backend the device's computation runs on other threads, and a wall clock would
+count it whenever they share a core with this one).  They still share this thread's
+caches; ``--pin`` puts JAX's threads on the last core and this thread on the first (as an
+accelerator has its own silicon; Linux, two cores or more).  The baseline for that: a
+fixed piece of host work, the same at every N (:func:`fixed_host_work`), timed right after
+the device's result at every other step (those steps' host times are not used): its
+ratio between the sizes is what the device's computation alone does to the host's time
+on this machine.  Prints, per N, env-steps/s and the host's
 milliseconds per step as the median with the 25th-75th percentiles beside it (the spread
-shows the noise), the ratio of the larger N's median to the smaller's, both measured in
+shows the noise) and the median of its part in the jitted call's dispatch, the ratio of the larger N's median to the smaller's, both measured in
 this run (what the host does per step should not grow with N: docs/accelerator.md), and
 the 1-minute load average before and after.
 """
@@ -25,6 +35,21 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from accelerator_speed import timed_env  # noqa: E402
 
 
+def fixed_host_work(x: np.ndarray = np.zeros(64)) -> None:
+    """Host work that does not depend on N: the numpy calls of a step at 64 envs (clip,
+    copies, comparisons, a dict), twenty times over."""
+    for _ in range(20):
+        u = np.clip(x, -1.0, 1.0)
+        ended = u != 0.0
+        _ = {"u": u.copy(), "t": u * 0.02, "_u": ended.copy(), "any": ended.any()}
+
+
+def _bad(message: str) -> int:
+    """Bad input: one line on stderr, exit status 2."""
+    print(f"mjx_env_host: {message}", file=sys.stderr)
+    return 2
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="the MJX vector env's host time per step at two "
                                             "batch sizes (docs/accelerator.md)")
@@ -34,32 +59,51 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--block", type=int, default=20,
                    help="steps of one size before the other's turn (default 20)")
     p.add_argument("--scenario", default="pendulum_mujoco", help="(default pendulum_mujoco)")
+    p.add_argument("--pin", action="store_true",
+                   help="JAX's threads (the device's computation on the CPU backend) on the "
+                        "last core, this thread on the first (default: both anywhere)")
     args = p.parse_args(argv)
     try:
         small, large = (int(v) for v in args.envs.split(","))
     except ValueError:
-        raise SystemExit(f"mjx_env_host: --envs {args.envs!r}: two integers, e.g. 64,4096")
+        return _bad(f"--envs {args.envs!r}: two integers, e.g. 64,4096")
     if not (1 <= small <= 1 << 20 and 1 <= large <= 1 << 20 and 1 <= args.steps <= 1000
             and 1 <= args.block <= args.steps):
-        raise SystemExit("mjx_env_host: --envs each from 1 to 1048576, --steps from 1 to "
-                         "1000, --block from 1 to --steps")
+        return _bad("--envs each from 1 to 1048576, --steps from 1 to 1000, --block from 1 "
+                    "to --steps")
     print(f"load average (1 min) before: {os.getloadavg()[0]:.2f}", flush=True)
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if args.pin and len(cores) < 2:
+        return _bad("--pin needs Linux and two cores or more")
+    if args.pin:       # JAX's threads, made while the envs are built, inherit this core
+        os.sched_setaffinity(0, {cores[-1]})
     envs = {n: timed_env(args.scenario, n, "float64") for n in (small, large)}
-    times = {n: [] for n in envs}                  # (wall s, host s) per step
+    if args.pin:       # this thread only (0: the calling thread)
+        os.sched_setaffinity(0, {cores[0]})
+        print(f"pinned: JAX's threads on core {cores[-1]}, this thread on core {cores[0]}")
+    times = {n: [] for n in envs}          # (wall s, host s, probe s, dispatch s) per step
+    probed = {n: [] for n in envs}                 # the same, steps with the fixed work
     while len(times[large]) < args.steps:
         for n, (_, step) in envs.items():
-            k = min(args.block, args.steps - len(times[n]))
-            times[n] += [step() for _ in range(k)]
-    host = {}
+            for _ in range(min(args.block, args.steps - len(times[n]))):
+                times[n].append(step())
+                probed[n].append(step(fixed_host_work))
+    host, fixed = {}, {}
     for n, (env, _) in envs.items():
         env.close()
-        wall, host_s = np.array(times[n]).T
+        wall, host_s, _, dispatch_s = np.array(times[n]).T
         p25, host[n], p75 = 1e3 * np.percentile(host_s, [25, 50, 75])
+        fixed[n] = 1e3 * float(np.median(np.array(probed[n])[:, 2]))
         print(f"{args.scenario} N {n} env-steps/s {n * len(wall) / wall.sum():.3g} "
-              f"host ms/step {host[n]:.3g} p25-p75 {p25:.3g}-{p75:.3g}", flush=True)
+              f"host ms/step {host[n]:.3g} p25-p75 {p25:.3g}-{p75:.3g} "
+              f"of it dispatch ms {1e3 * np.median(dispatch_s):.3g} "
+              f"fixed host work ms {fixed[n]:.3g}", flush=True)
     print(f"host time per step at {large} over {small}: {host[large] / host[small]:.2f} "
           f"(baseline: {host[small]:.3g} ms at {small} envs, same run; medians of "
           f"{args.steps} steps each)")
+    print(f"fixed host work at {large} over {small}: {fixed[large] / fixed[small]:.2f} "
+          f"(the same work at both sizes, right after the device's result: what the "
+          f"device's computation does to the host's time here)")
     print(f"load average (1 min) after: {os.getloadavg()[0]:.2f}")
     return 0
 

@@ -95,7 +95,12 @@ def set_precision(precision: str = "float64") -> str:
         raise ScenarioError(f"precision {precision!r}: allowed: {', '.join(PRECISIONS)}")
     import jax
 
-    jax.config.update("jax_enable_x64", precision == "float64")
+    x64 = precision == "float64"
+    if jax.config.jax_enable_x64 != x64:
+        # what JAX traced under the other width stays in its caches, and a program traced
+        # now would call into it with the wrong types (MJX's RK4 did)
+        jax.clear_caches()
+        jax.config.update("jax_enable_x64", x64)
     _persistent_cache(jax)
     return precision
 

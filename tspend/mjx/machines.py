@@ -135,13 +135,12 @@ def build_fleet_per_seed(scenario: Any, seeds: Sequence[int], *,
                          steps: int | None = None) -> Fleet:
     """:func:`build_fleet` by the CPU backend's build of every seed (the reference the
     array form is tested against, and the form of draws it does not know)."""
-    import jax
-
     from tspend.loop import simulation
+    from tspend.mjx import set_precision
 
     # the models go into MJX in float64 whatever the run's precision (a float32 run casts
     # them later): put_model under JAX's default float32 would round them here
-    jax.config.update("jax_enable_x64", True)
+    set_precision("float64")
     seeds = tuple(int(s) for s in seeds)
     if not seeds:
         raise ScenarioError("the mjx backend: no seeds to run")

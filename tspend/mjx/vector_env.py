@@ -59,6 +59,10 @@ class MjxVectorEnv(VectorEnv):
         #: and the envs' machines
         self.template, self.fleet = _template_and_fleet(scenario, num_envs, seed, overrides,
                                                         options)
+        # again: the fleet's build turns float64 on (its models go to MJX unrounded), and
+        # float32 data stepped under it met MJX's float64 RK4 tableau (a scan carry's types
+        # then differ)
+        set_precision(precision)
         first = self.template
         self.num_envs, self.render_mode, self.autoreset_mode = num_envs, None, mode
         self.metadata = {**self.metadata, "render_fps": first.metadata["render_fps"],
@@ -86,6 +90,8 @@ class MjxVectorEnv(VectorEnv):
         # reference per element; a gather from labels took ten times as long at 4096 envs)
         self._running = np.full(num_envs, "running", dtype=object)
         self._no_message = np.full(num_envs, "", dtype=object)
+        self._running.setflags(write=False)
+        self._no_message.setflags(write=False)
 
     # -- the gymnasium interface ------------------------------------------------------------
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -108,44 +114,46 @@ class MjxVectorEnv(VectorEnv):
         terminations and truncations.  The host sends N actions, reads back one packed
         array, and looks further only at the envs that ended (their status and message,
         by the task's words): nothing of it loops over the envs.  What it returns is the
-        caller's own (copies out of the packed array), never overwritten by a later step."""
+        caller's own (copies out of the packed array), never overwritten by a later step;
+        at a step where no env ended the infos' status and message are one shared read-only
+        array each (a copy of an object array takes a reference per env)."""
         u = self._applied(actions)
         packed = self._device.step(u if self._u_dtype is np.float64 else
                                    u.astype(self._u_dtype))
-        columns = self._device.columns
-        self._obs = self._out(packed[:, columns.obs])
-        terminated = packed[:, columns.terminated] != 0.0
-        truncated = packed[:, columns.truncated] != 0.0
-        clock = packed[:, columns.clock].astype(np.int64)
-        status, message = self._running.copy(), self._no_message.copy()
-        status[truncated] = "completed"
+        obs, (reward, terminated, truncated, clock, code) = self._device.layout.parts(packed)
+        self._obs = self._out(obs)
+        terminated, truncated = terminated != 0.0, truncated != 0.0
+        clock = clock.astype(np.int64)
         u = u.copy()          # the infos' own: self._u is rewritten at the next step
+        status, message = self._running, self._no_message    # shared, read-only
+        if truncated.any() or terminated.any():
+            status, message = self._running.copy(), self._no_message.copy()
+            status[truncated] = "completed"
         if terminated.any():
-            self._name_endings(terminated, clock, u, status, message, packed)
+            self._name_endings(terminated, clock, u, status, message, code, obs)
         # t before the reset: the clock of an env reset here restarts at 0
         infos = envstep.vector_step_infos(clock * self.dt, u, status, message, terminated,
                                           terminated | truncated,
                                           self.autoreset_mode != AutoresetMode.NEXT_STEP,
                                           lambda i: self._obs[i].copy(), self._reset_some)
-        return (self._obs, packed[:, columns.reward].astype(float), terminated, truncated,
-                infos)
+        return self._obs, reward.astype(float), terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
 
     # -- internals --------------------------------------------------------------------------
     def _name_endings(self, terminated: np.ndarray, clock: np.ndarray, u: np.ndarray,
-                      status: np.ndarray, message: np.ndarray, packed: np.ndarray) -> None:
+                      status: np.ndarray, message: np.ndarray, code: np.ndarray,
+                      obs: np.ndarray) -> None:
         """The status and message of each env that ended now, as the CPU env words them
-        (from the step's packed array: its code, and for a task's ending the full state it
-        stopped at, the observation's first columns)."""
+        (from the step's ending codes, and for a task's ending the full state it stopped
+        at: the first columns of ``obs``, the packed observations in the data's float
+        type)."""
         from tspend.mjx.sweep import plant_error
 
-        columns = self._device.columns
         which = np.flatnonzero(terminated)
-        code = packed[which, columns.code].astype(np.int64)
-        full = packed[which, :columns.n_full]
-        for i, c, s in zip(which, code, full):
+        full = obs[which, :self._device.layout.n_full]
+        for i, c, s in zip(which, code[which].astype(np.int64), full):
             t = clock[i] * self.dt
             if c == envstep.ENDED:
                 status[i], message[i] = (self.fleet.tasks[i].termination(
@@ -222,28 +230,31 @@ def _first_obs(fleet: Any) -> np.ndarray:
     return np.concatenate((full, ref0), axis=1)
 
 
-class _Columns(NamedTuple):
-    """Where each quantity lies in a row of the step's packed array (one row per env)."""
+class _Layout(NamedTuple):
+    """Where each quantity lies in the step's packed array, one flat buffer: the
+    observations (n_envs x n_obs, row-major), then a row of n_envs for each of reward,
+    termination, truncation, clock and ending code, so that what the host copies out is
+    contiguous (a strided copy of the observations took ten times a contiguous one at
+    4096 envs)."""
 
-    obs: slice
-    reward: int
-    terminated: int
-    truncated: int
-    clock: int
-    code: int
+    n_envs: int
+    n_obs: int
     #: the full state (positions, velocities) is the observation's first n_full columns
     n_full: int
 
-    @classmethod
-    def of(cls, n_obs: int, n_full: int) -> "_Columns":
-        return cls(slice(0, n_obs), n_obs, n_obs + 1, n_obs + 2, n_obs + 3, n_obs + 4, n_full)
+    def parts(self, packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Views of ``packed``: the observations and the five rows (reward, terminated,
+        truncated, clock, code)."""
+        split = self.n_envs * self.n_obs
+        return (packed[:split].reshape(self.n_envs, self.n_obs),
+                packed[split:].reshape(5, self.n_envs))
 
 
 class _DeviceEnvs:
     """What the envs keep on the device between steps (each env's MJX data, clock, last
     observation and whether it restarts at the next step) and the one jitted call that
     steps them (:func:`_make_env_step`); the host sends the actions and reads back one
-    packed array (:class:`_Columns`)."""
+    packed array (:class:`_Layout`)."""
 
     def __init__(self, fleet: Any, template: Any, u_scale: np.ndarray, first_obs: np.ndarray,
                  precision: str, next_step: bool) -> None:
@@ -260,14 +271,21 @@ class _DeviceEnvs:
         if self.dtype == jnp.float32 and horizon >= 1 << 24:
             raise ScenarioError(f"precision float32: {horizon} steps in an episode, at most "
                                 f"{(1 << 24) - 1} (float64 has no such bound)")
-        self.columns = _Columns.of(first_obs.shape[1], fleet.qpos0.shape[1] + fleet.qvel0.shape[1])
+        self.layout = _Layout(*first_obs.shape, fleet.qpos0.shape[1] + fleet.qvel0.shape[1])
         put = self.put
-        self.model, self.data0 = _device_model(fleet, self.dtype), _initial(fleet, self.dtype)
+        # the model and data travel as flat tuples of arrays: flattening an MJX dataclass
+        # in Python took about 0.6 ms per model on every call (a tuple is flattened in C++)
+        model, data0 = _device_model(fleet, self.dtype), _initial(fleet, self.dtype)
+        self.model, model_tree = jax.tree_util.tree_flatten(model)
+        self.data0, data_tree = jax.tree_util.tree_flatten(data0)
         self.first_obs = put(first_obs)
         #: what every step reads
         self.tables = (put(fleet.d_to_tau), put(fleet.lo), put(fleet.hi), put(pad),
                        put(fleet.ref), put(u_scale))
-        self.call = _make_env_step(fleet, frame_skip, horizon, template, template.dt, next_step)
+        self.call = _make_env_step(fleet, frame_skip, horizon, template, template.dt, next_step,
+                                   (model_tree, data_tree))
+        self._config, self._x64 = jax.config, precision == "float64"
+        self._precision = precision
         self.reset()
 
     def put(self, a: Any, dtype: Any = None) -> Any:
@@ -282,13 +300,19 @@ class _DeviceEnvs:
 
         n = self.first_obs.shape[0]
         # copies: the step takes over (donates) the buffers of what it replaces
-        self.data = jax.tree_util.tree_map(jnp.copy, self.data0)
+        self.data = [jnp.copy(a) for a in self.data0]
         self.obs = jnp.copy(self.first_obs)
         self.clock = self.put(np.zeros(n, dtype=np.int64), int)
         self.pending = self.put(np.zeros(n, dtype=bool), bool)
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        """The packed array of one step (:class:`_Columns`), on the host, read-only."""
+        """The packed array of one step (:class:`_Layout`), on the host, read-only."""
+        # JAX's float width is per process, and the call compiles at its first use: an
+        # object built since with the other precision has changed it
+        if self._config.jax_enable_x64 != self._x64:
+            from tspend.mjx import set_precision
+
+            set_precision(self._precision)
         # u as numpy: the jitted call's own argument handling puts it on the device,
         # cheaper than a device_put before it
         self.data, self.clock, self.obs, self.pending, packed = self.call(
@@ -359,17 +383,18 @@ def env_substeps(fleet: Any, frame_skip: int, horizon: int) -> Any:
 
 
 def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt: float,
-                   next_step: bool) -> Any:
+                   next_step: bool, trees: tuple) -> Any:
     """Every env's step in one jitted call: the restart of the envs that ended at the last
     step (``pending``; with ``next_step`` autoreset that step is the reset, with no
     physics), the physics (:func:`env_substeps`), the observation [full state, r .. r^(n)
     at the new clock] (the last one kept where the step diverged, as the CPU env keeps
     it), the CPU env's reward (:func:`tspend.loop.envstep.reward_factory`'s text in JAX),
     the terminations and truncations.  Returns what stays on the device (data, clock,
-    observation, pending) and one packed array for the host, a row per env laid out as
-    :class:`_Columns` says (one output buffer, one transfer).  The full state a task's
+    observation, pending) and one packed array for the host, laid out as :class:`_Layout`
+    says (one output buffer, one transfer).  The full state a task's
     ending stopped at is the observation's first columns (the observation is written at
-    an ``ENDED`` step, in the data's own float type)."""
+    an ``ENDED`` step, in the data's own float type).  The model and the data come and go
+    as flat lists of arrays (``trees``: their tree structures)."""
     import jax
     import jax.numpy as jnp
 
@@ -397,12 +422,21 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
                                             control, u_scale, u, done * dt), 0.0)
         terminated = (code != RUNNING) & ~skip
         truncated = (clock >= horizon) & ~skip & ~terminated
-        packed = jnp.concatenate((obs, jnp.stack((reward, terminated, truncated, clock,
-                                                   code)).astype(obs.dtype)))
-        return data, clock, obs, terminated | truncated, packed
+        rows = jnp.stack((reward, terminated, truncated, clock, code)).astype(obs.dtype)
+        return data, clock, obs, terminated | truncated, rows
 
     axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
+    every = jax.vmap(one, in_axes=axes)
+    model_tree, data_tree = trees
+
+    def flat(model, data, data0, *rest):
+        data, clock, obs, pending, rows = every(model_tree.unflatten(model),
+                                                data_tree.unflatten(data),
+                                                data_tree.unflatten(data0), *rest)
+        packed = jnp.concatenate((obs.reshape(-1), rows.T.reshape(-1)))
+        return data_tree.flatten_up_to(data), clock, obs, pending, packed
+
     # the data, observation, clock and restart flags a step replaces are donated: their
     # buffers are reused, not freed and taken anew each step (on the CPU the free alone
     # grew with the number of envs)
-    return jax.jit(jax.vmap(one, in_axes=axes), donate_argnums=(1, 3, 6, 7))
+    return jax.jit(flat, donate_argnums=(1, 3, 6, 7))
