@@ -148,18 +148,22 @@ DECAY_MARGIN = 0.05
 #: (P9): a step's estimate is the largest of its last COST_WINDOW times (about the 98th
 #: percentile of them)
 COST_WINDOW = 64
-#: (P9): a sample in which a step did not fit forgets its largest time (a step is measured
-#: only when it runs: one slow call, a collection or a page fault inside it, would
-#: otherwise block it for good); its last time is lowered by this share instead, down to
-#: its cheapest call (a step whose cheapest call does not fit, the QP at 1 kHz, never runs)
-BLOCKED_DECAY = 0.2
+#: (P9): after a sample in which a step did not fit, its largest time is forgotten when it
+#: is more than OUTLIER times the next largest (one slow call: a collection or a page
+#: fault inside it); else every time is lowered by BLOCKED_DECAY, down to the cheapest
+#: call.  A step is measured only when it runs: without these one slow call, or a spell
+#: of them on a loaded machine, would block it for good; with them a spell costs one
+#: call started on a lowered estimate per about 10 samples (a step whose cheapest call
+#: does not fit, the QP at 1 kHz, never runs)
+OUTLIER = 1.5
+BLOCKED_DECAY = 0.02
 
 
 class StepCost:
     """(P9): an upper estimate of one step's time (s): the largest of its last
-    :data:`COST_WINDOW` times; after a sample where the step did not fit, the largest is
-    forgotten (the last one lowered by :data:`BLOCKED_DECAY`, never below the cheapest
-    call).  Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
+    :data:`COST_WINDOW` times; after a sample where the step did not fit, a lone largest
+    forgotten, else all lowered (:data:`OUTLIER`, :data:`BLOCKED_DECAY`).  Unmeasured:
+    infinite (only admission's unbounded deadline starts the step)."""
 
     __slots__ = ("estimate", "least", "times", "tried", "forget")
 
@@ -180,12 +184,16 @@ class StepCost:
         self.forget = not self.tried
 
     def new_sample(self) -> None:
-        """A new sample: the largest time forgotten if the last sample blocked the step."""
+        """A new sample, after one that blocked the step: a lone largest time forgotten,
+        else every time lowered."""
         if self.forget and self.times:
-            if len(self.times) > 1:
-                self.times.remove(self.estimate)
+            times = sorted(self.times)
+            if len(times) > 1 and times[-1] > OUTLIER * times[-2]:
+                self.times.remove(times[-1])
             else:
-                self.times[0] = max(self.least, (1.0 - BLOCKED_DECAY) * self.times[0])
+                lowered = [max(self.least, (1.0 - BLOCKED_DECAY) * t) for t in self.times]
+                self.times.clear()
+                self.times.extend(lowered)
             self.estimate = max(self.times)
         self.tried = self.forget = False
 
@@ -853,6 +861,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: CPU, s); when the running step started, and the sample's last step ended (CPU)
         self._clock, self._cpu_clock = time.perf_counter, time.thread_time
         self._started = self._step_end = 0.0
+        self._stepped = False
         self.reset_plan()
 
     # -- state ----------------------------------------------------------------------------
@@ -903,6 +912,9 @@ class PredictiveSafetyFilter(SafetyFilter):
             return True
         cost.blocked()
         self._skipped_now = True
+        if not self._stepped:
+            # no step yet this sample: the reserve counts from here
+            self._step_end = self._cpu_clock()
         return False
 
     def _measured(self, what: str, setup_s: float = 0.0, repeats: int = 1) -> None:
@@ -910,7 +922,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         of it once and the rest shared by ``repeats`` calls (admission's SQP iterations)."""
         end = self._cpu_clock()
         self._cost[what].measured(setup_s + (end - self._started - setup_s) / repeats)
-        self._step_end = end
+        self._step_end, self._stepped = end, True
 
     def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool | None:
         """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on every model (P6),
@@ -1024,7 +1036,7 @@ class PredictiveSafetyFilter(SafetyFilter):
             self._deadline = t0 + (self.cert.budget_s - reserve if math.isfinite(reserve) else 0.0)
         for cost in self._cost.values():
             cost.new_sample()
-        self._skipped_now = False
+        self._skipped_now = self._stepped = False
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
@@ -1047,7 +1059,7 @@ class PredictiveSafetyFilter(SafetyFilter):
             answer = self.fallback(s, k, qp_plan, ready)
         self.skipped += self._skipped_now
         if self.admitted is not None:
-            # the work after the last step (after none: the whole sample), for the reserve
+            # the work after the last step (after none: after the last one refused)
             self._reserve.measured(self._cpu_clock() - self._step_end)
         self.over_budget += (clock() - t0) > self.cert.budget_s
         return answer
