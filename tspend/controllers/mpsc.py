@@ -152,9 +152,9 @@ COST_WINDOW = 64
 #: is more than OUTLIER times the next largest (one slow call: a collection or a page
 #: fault inside it); else every time is lowered by BLOCKED_DECAY, down to the cheapest
 #: call.  A step is measured only when it runs: without these one slow call, or a spell
-#: of them on a loaded machine, would block it for good; with them a spell costs one
-#: call started on a lowered estimate per about 10 samples (a step whose cheapest call
-#: does not fit, the QP at 1 kHz, never runs)
+#: of them on a loaded machine, would block it for good; with them a spell costs a call
+#: started on a lowered estimate now and then (after 9 blocked samples for an estimate
+#: 20 % too dear; a step whose cheapest call does not fit, the QP at 1 kHz, never runs)
 OUTLIER = 1.5
 BLOCKED_DECAY = 0.02
 
@@ -852,8 +852,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: (shifted's grid per plan age: the old intervals the new ones start in)
         self._shift_grid: dict[int, tuple] = {}
         self._angles = np.flatnonzero(cert.model.angles)
-        #: (P9): each step's wall-time estimate (the QP's and (P8)'s measured at admission),
-        #: and the reserve for the work after a sample's last step
+        #: (P9): each step's time estimate (the QP's and (P8)'s measured at admission), and
+        #: the reserve for the work after a sample's last step
         self._cost = {"roll": StepCost(), "qp": StepCost(), "recovery": StepCost()}
         self._reserve = StepCost()
         self._deadline = math.inf
@@ -1024,7 +1024,7 @@ class PredictiveSafetyFilter(SafetyFilter):
     def terminal_input(self, s: np.ndarray) -> float:
         return lqr_input(self.cert, s)
 
-    # -- per sample (module docstring, steps 0-4) -------------------------------------------
+    # -- per sample (module docstring, steps 1-4) -------------------------------------------
     def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
         """``(u, slack)``: steps 1-4 at full state ``s`` within the budget (P9): step 3's
         answer first, then each step only if it fits before the deadline less the reserve."""
