@@ -401,6 +401,36 @@ def test_a_rollout_dearer_than_the_last_ones_is_not_started_late():
     assert blocked[1] <= 1e-3 and after[1] <= 1e-3 and f._cost["roll"].estimate < 1e-3
 
 
+def test_a_blocked_estimate_forgets_a_lone_slow_call_and_lowers_a_spell_slowly():
+    """(P9)'s estimate after samples in which its step did not fit: a lone slow call
+    (more than OUTLIER times the next) is forgotten at once; a spell of slow calls is
+    lowered by BLOCKED_DECAY a sample, never below the cheapest call; a sample in which the
+    step ran (and later did not fit again) lowers nothing."""
+    from tspend.controllers.mpsc import BLOCKED_DECAY, OUTLIER, StepCost
+
+    lone = StepCost()
+    for t in [0.4e-3] * 10 + [OUTLIER * 0.4e-3 * 1.01]:
+        lone.measured(t)
+    lone.new_sample()
+    lone.blocked()
+    lone.new_sample()
+    assert lone.estimate == pytest.approx(0.4e-3)
+
+    spell = StepCost()
+    for t in [0.4e-3] * 10 + [0.8e-3] * 5:
+        spell.measured(t)
+    spell.new_sample()
+    spell.measured(0.5e-3)
+    spell.blocked()
+    spell.new_sample()
+    assert spell.estimate == 0.8e-3
+    for n in range(1, 200):
+        spell.blocked()
+        spell.new_sample()
+        assert spell.estimate == pytest.approx(max(0.4e-3, 0.8e-3 * (1 - BLOCKED_DECAY) ** n))
+    assert spell.estimate == pytest.approx(0.4e-3)
+
+
 def test_the_terminal_set_is_invariant_on_every_vertex_model_by_scipy():
     """(P10) on the randomised cart-pole: the design's decay rate is scipy's generalised
     eigenvalue of ``(A_i - B_i K)^T P + P (A_i - B_i K)`` against ``P`` on every vertex
