@@ -37,16 +37,18 @@ step below (a rollout, an SQP step, a recovery plan) is started only when
 
 (``now`` the wall clock, read at each start: the Python between steps is on it), else
 skipped, never started (a skipped solve is dropped, not continued off the loop).  A step's
-estimate is the largest of its recent times (:class:`StepCost`), not an average: a step
-dearer than its average ran past.  The reserve is the same estimate of the work that always
-follows the last step (from its end to the answer: the fallback's bookkeeping), measured
-at every sample.  The times are this thread's time on the CPU, which is the wall time of a
-call not preempted: a wait for a core, on a shared machine, is not the step's cost, no
-estimate predicts it, and an estimate that took it in (wall times) blocked every rollout
-for tens of samples after each preemption.  A step once started cannot be interrupted (a
-compiled call, in Python): the budget holds while no step takes longer than its
-estimate, as on a quiet machine or under ``SCHED_FIFO`` (a rig's loop); a thread preempted
-mid-step runs past, and ``over_budget_samples`` counts it.
+estimate is a high quantile of its recent times (about the 95th percentile:
+:class:`StepCost`), not an average: a step dearer than its average ran past.  The reserve
+is the same estimate of the work that always follows the last step (from its end to the
+answer: the fallback's bookkeeping), measured at every sample.  The times are this
+thread's time on the CPU, which is the wall time of a call not preempted: a wait for a
+core, on a shared machine, is not the step's cost, no estimate predicts it, and an
+estimate that took it in (wall times) blocked every rollout for tens of samples after
+each preemption.  A step once started cannot be interrupted (a compiled call, in
+Python): the budget holds while no step takes longer than its estimate, as on a quiet
+machine or under ``SCHED_FIFO`` (a rig's loop), with the slack the first step usually
+has; a call slower than the quantile started late, or a thread preempted mid-step, runs
+past, and ``over_budget_samples`` counts it.
 
 1. on each certified tail in turn (the last certified plan's rest, tracked; the saturated
    LQR): ``[u_c, tail]`` (the fast path: a certified rollout passes ``u_c`` unchanged),
@@ -145,56 +147,58 @@ BUDGET_SHARE = 0.8
 LYAPUNOV_EVALUATIONS = 2000
 #: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
 DECAY_MARGIN = 0.05
-#: (P9): a step's estimate is the largest of its last COST_WINDOW times (about the 98th
-#: percentile of them)
+#: (P9): a step's estimate is the COST_RANK-th largest of its last COST_WINDOW times (about
+#: their 95th percentile: the largest, on the shared machine, was a call slowed by another
+#: process's use of the caches often enough to block every rollout for good)
 COST_WINDOW = 64
-#: (P9): after a sample in which a step did not fit, its largest time is forgotten when it
-#: is more than OUTLIER times the next largest (one slow call: a collection or a page
-#: fault inside it); else every time is lowered by BLOCKED_DECAY, down to the cheapest
-#: call.  A step is measured only when it runs: without these one slow call, or a spell
-#: of them on a loaded machine, would block it for good; with them a spell costs a call
-#: started on a lowered estimate now and then (after 9 blocked samples for an estimate
-#: 20 % too dear; a step whose cheapest call does not fit, the QP at 1 kHz, never runs)
-OUTLIER = 1.5
-BLOCKED_DECAY = 0.02
+COST_RANK = 4
+#: (P9): a step is measured only when it runs: after STALE_SAMPLES samples in a row in
+#: which it did not fit, its largest time is forgotten, one per further such sample, so a
+#: spell of slow calls (or admission's first, cold calls) does not block it for good.  The
+#: rollout's last time is then forgotten too (one probing call, which may run past: the
+#: rollout is the only way to certify again); the QP's and the recovery plan's are kept
+#: (measured whole at admission; the QP at 1 kHz never runs)
+STALE_SAMPLES = 64
 
 
 class StepCost:
-    """(P9): an upper estimate of one step's time (s): the largest of its last
-    :data:`COST_WINDOW` times; after a sample where the step did not fit, a lone largest
-    forgotten, else all lowered (:data:`OUTLIER`, :data:`BLOCKED_DECAY`).  Unmeasured:
-    infinite (only admission's unbounded deadline starts the step)."""
+    """(P9): an upper estimate of one step's time (s): the :data:`COST_RANK`-th largest of
+    its last :data:`COST_WINDOW` times (of all, while fewer), the largest forgotten when the
+    step has not fitted for :data:`STALE_SAMPLES` samples (the last too when ``probe``).
+    Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
 
-    __slots__ = ("estimate", "least", "times", "tried", "forget")
+    __slots__ = ("estimate", "probe", "times", "tried", "forget", "idle")
 
-    def __init__(self) -> None:
+    def __init__(self, probe: bool = False) -> None:
         self.times: collections.deque = collections.deque(maxlen=COST_WINDOW)
         self.estimate = math.inf
-        self.least = math.inf
-        #: measured in this sample; did not fit in it (and was not measured)
+        self.probe = probe
+        #: measured in this sample; did not fit in it (and was not measured); samples in a
+        #: row that it did not fit
         self.tried = self.forget = False
+        self.idle = 0
+
+    def _rank(self) -> None:
+        times = sorted(self.times)
+        # all forgotten (a probe): 0, the next call is tried and measured
+        self.estimate = times[-min(COST_RANK, len(times))] if times else 0.0
 
     def measured(self, time_s: float) -> None:
         self.times.append(time_s)
-        self.estimate = max(self.times)
-        self.least = min(self.least, time_s)
-        self.tried, self.forget = True, False
+        self._rank()
+        self.tried, self.forget, self.idle = True, False, 0
 
     def blocked(self) -> None:
         self.forget = not self.tried
 
     def new_sample(self) -> None:
-        """A new sample, after one that blocked the step: a lone largest time forgotten,
-        else every time lowered."""
+        """A new sample, after one that blocked the step: past STALE_SAMPLES such samples
+        in a row, the largest time forgotten."""
         if self.forget and self.times:
-            times = sorted(self.times)
-            if len(times) > 1 and times[-1] > OUTLIER * times[-2]:
-                self.times.remove(times[-1])
-            else:
-                lowered = [max(self.least, (1.0 - BLOCKED_DECAY) * t) for t in self.times]
-                self.times.clear()
-                self.times.extend(lowered)
-            self.estimate = max(self.times)
+            self.idle += 1
+            if self.idle > STALE_SAMPLES and (len(self.times) > 1 or self.probe):
+                self.times.remove(max(self.times))
+                self._rank()
         self.tried = self.forget = False
 
 
@@ -854,7 +858,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         self._angles = np.flatnonzero(cert.model.angles)
         #: (P9): each step's time estimate (the QP's and (P8)'s measured at admission), and
         #: the reserve for the work after a sample's last step
-        self._cost = {"roll": StepCost(), "qp": StepCost(), "recovery": StepCost()}
+        self._cost = {"roll": StepCost(probe=True), "qp": StepCost(), "recovery": StepCost()}
         self._reserve = StepCost()
         self._deadline = math.inf
         #: (P9): the deadline's clock (wall, s) and the steps' (this thread's time on the
