@@ -400,46 +400,35 @@ def test_a_rollout_dearer_than_the_last_ones_is_not_started_late():
     assert sample(s, 5.0)[1] <= 1e-3 and len(started[-1]) >= 1
 
 
-def test_a_blocked_estimate_forgets_a_spell_of_slow_calls_only_when_stale():
+def test_the_estimate_is_a_high_quantile_of_the_last_samples_calls():
     """(P9)'s estimate: a lone slow call does not move it (the COST_RANK-th largest); a
-    spell of slow calls stays the estimate until the step has been blocked STALE_SAMPLES
-    samples in a row, then one time is forgotten per blocked sample, the last one too for
-    a rollout (a probe: estimate 0), never for another step (the QP); a sample in which
-    the step ran (and later did not fit again) forgets nothing."""
-    from tspend.controllers.mpsc import COST_RANK, STALE_SAMPLES, StepCost
+    spell of slow calls is the estimate until COST_WINDOW samples have passed, with or
+    without calls meanwhile; then, with fewer than COST_RANK calls left, the rollout's is 0
+    for one call a sample (a probe) and another step's (the QP's) its last time."""
+    from tspend.controllers.mpsc import COST_RANK, COST_WINDOW, StepCost
 
-    def blocked_sample(cost):
-        cost.blocked()
-        cost.new_sample()
-
-    spell = StepCost(probe=True)
+    roll = StepCost(probe=True)
     for t in [0.4e-3] * 10 + [3e-3]:
-        spell.measured(t)
-    assert spell.estimate == 0.4e-3
+        roll.measured(t)
+    assert roll.estimate == 0.4e-3
+    roll.new_sample()
     for t in [0.8e-3] * COST_RANK:
-        spell.measured(t)
-    spell.new_sample()
-    spell.measured(0.5e-3)
-    blocked_sample(spell)
-    assert spell.estimate == 0.8e-3
-    for _ in range(STALE_SAMPLES):
-        blocked_sample(spell)
-        assert spell.estimate == 0.8e-3
+        roll.measured(t)
     estimates = []
-    for _ in range(16):
-        blocked_sample(spell)
-        estimates.append(spell.estimate)
-    # the 3 ms call forgotten, then the 0.8 ms ones, one a sample, ... then the last: 0
-    assert estimates[:2] == [0.8e-3, 0.5e-3]
-    assert estimates[5:15] == pytest.approx([0.4e-3] * 10)
-    assert estimates[15] == 0.0 and not spell.times
-    spell.new_sample()
-    spell.measured(0.9e-3)
-    assert spell.idle == 0 and spell.estimate == 0.9e-3
+    for _ in range(COST_WINDOW + 2):
+        roll.new_sample()
+        estimates.append(roll.estimate)
+    assert estimates[:COST_WINDOW - 1] == [0.8e-3] * (COST_WINDOW - 1)
+    assert estimates[-1] == 0.0 and not roll.times
+    # fewer than COST_RANK times: one probe a sample, then their largest
+    roll.measured(0.5e-3)
+    assert roll.estimate == 0.5e-3
+    roll.new_sample()
+    assert roll.estimate == 0.0
     qp = StepCost()
     qp.measured(4e-3)
-    for _ in range(3 * STALE_SAMPLES):
-        blocked_sample(qp)
+    for _ in range(3 * COST_WINDOW):
+        qp.new_sample()
     assert qp.estimate == 4e-3
 
 

@@ -147,59 +147,59 @@ BUDGET_SHARE = 0.8
 LYAPUNOV_EVALUATIONS = 2000
 #: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
 DECAY_MARGIN = 0.05
-#: (P9): a step's estimate is the COST_RANK-th largest of its last COST_WINDOW times (about
-#: their 95th percentile: the largest, on the shared machine, was a call slowed by another
-#: process's use of the caches often enough to block every rollout for good)
+#: (P9): a step's estimate is the COST_RANK-th largest of its times in the last
+#: COST_WINDOW samples (about their 95th percentile: the largest, on the shared machine, was
+#: a call slowed by another process's use of the caches often enough to block most
+#: rollouts).  The window is counted in samples, not calls: a spell of slow calls (or
+#: admission's first, cold ones) leaves it after COST_WINDOW samples even when the step
+#: was blocked meanwhile (a window of calls was refilled only by the rare calls that fit,
+#: and blocked the rollout for thousands of samples).  With fewer than COST_RANK times in
+#: it the rollout's estimate is 0 for one call a sample (a probe, which may run past: the
+#: rollout is the only way to certify again, and its first call after a pause is slow
+#: with cold caches), else their largest; the QP's and the recovery plan's keep their
+#: last time (measured whole at admission; the QP at 1 kHz never runs)
 COST_WINDOW = 64
 COST_RANK = 4
-#: (P9): a step is measured only when it runs: after STALE_SAMPLES samples in a row in
-#: which it did not fit, its largest time is forgotten, one per further such sample, so a
-#: spell of slow calls (or admission's first, cold calls) does not block it for good.  The
-#: rollout's last time is then forgotten too (one probing call, which may run past: the
-#: rollout is the only way to certify again); the QP's and the recovery plan's are kept
-#: (measured whole at admission; the QP at 1 kHz never runs)
-STALE_SAMPLES = 64
 
 
 class StepCost:
     """(P9): an upper estimate of one step's time (s): the :data:`COST_RANK`-th largest of
-    its last :data:`COST_WINDOW` times (of all, while fewer), the largest forgotten when the
-    step has not fitted for :data:`STALE_SAMPLES` samples (the last too when ``probe``).
-    Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
+    its times in the last :data:`COST_WINDOW` samples; with fewer, their largest, or 0 for
+    a ``probe`` step not yet run in this sample; a step that is not a probe keeps its last
+    time.  Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
 
-    __slots__ = ("estimate", "probe", "times", "tried", "forget", "idle")
+    __slots__ = ("estimate", "probe", "times", "sample")
 
     def __init__(self, probe: bool = False) -> None:
-        self.times: collections.deque = collections.deque(maxlen=COST_WINDOW)
+        #: (sample, time) of its calls
+        self.times: collections.deque = collections.deque()
         self.estimate = math.inf
         self.probe = probe
-        #: measured in this sample; did not fit in it (and was not measured); samples in a
-        #: row that it did not fit
-        self.tried = self.forget = False
-        self.idle = 0
+        self.sample = 0
 
     def _rank(self) -> None:
-        times = sorted(self.times)
-        # all forgotten (a probe): 0, the next call is tried and measured
-        self.estimate = times[-min(COST_RANK, len(times))] if times else 0.0
+        times = sorted(t for _, t in self.times)
+        if len(times) >= COST_RANK:
+            self.estimate = times[-COST_RANK]
+        elif self.probe and not (times and self.times[-1][0] == self.sample):
+            self.estimate = 0.0
+        else:
+            self.estimate = times[-1]
 
     def measured(self, time_s: float) -> None:
-        self.times.append(time_s)
+        self.times.append((self.sample, time_s))
         self._rank()
-        self.tried, self.forget, self.idle = True, False, 0
-
-    def blocked(self) -> None:
-        self.forget = not self.tried
 
     def new_sample(self) -> None:
-        """A new sample, after one that blocked the step: past STALE_SAMPLES such samples
-        in a row, the largest time forgotten."""
-        if self.forget and self.times:
-            self.idle += 1
-            if self.idle > STALE_SAMPLES and (len(self.times) > 1 or self.probe):
-                self.times.remove(max(self.times))
-                self._rank()
-        self.tried = self.forget = False
+        """A new sample: the times older than the window forgotten."""
+        self.sample += 1
+        times, oldest = self.times, self.sample - COST_WINDOW
+        expired = False
+        while times and times[0][0] < oldest and (self.probe or len(times) > 1):
+            times.popleft()
+            expired = True
+        if expired or (self.probe and len(times) < COST_RANK):
+            self._rank()
 
 
 def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float:
@@ -909,12 +909,10 @@ class PredictiveSafetyFilter(SafetyFilter):
     # -- the certificate ------------------------------------------------------------------
     def _affords(self, what: str) -> bool:
         """(P9): whether ``what``, by its estimate, ends before the deadline if started now
-        (else it is skipped, and its estimate lowered after this sample: :class:`StepCost`)."""
-        cost = self._cost[what]
-        if self._clock() + cost.estimate <= self._deadline:
+        (else it is skipped)."""
+        if self._clock() + self._cost[what].estimate <= self._deadline:
             self._started = self._cpu_clock()
             return True
-        cost.blocked()
         self._skipped_now = True
         if not self._stepped:
             # no step yet this sample: the reserve counts from here
@@ -1038,7 +1036,7 @@ class PredictiveSafetyFilter(SafetyFilter):
             # the reserve unmeasured (the first sample): no step, step 3 answers
             reserve = self._reserve.estimate
             self._deadline = t0 + (self.cert.budget_s - reserve if math.isfinite(reserve) else 0.0)
-        for cost in self._cost.values():
+        for cost in (*self._cost.values(), self._reserve):
             cost.new_sample()
         self._skipped_now = self._stepped = False
         s = np.array(s, dtype=float)
