@@ -37,7 +37,7 @@ step below (a rollout, an SQP step, a recovery plan) is started only when
 
 (``now`` the wall clock, read at each start: the Python between steps is on it), else
 skipped, never started (a skipped solve is dropped, not continued off the loop).  A step's
-estimate is a high quantile of its recent times (about the 97th percentile:
+estimate is a high quantile of its recent times (about the 95th percentile:
 :class:`StepCost`), not an average: a step dearer than its average ran past.  The reserve
 is the same estimate of the work that always follows the last step (from its end to the
 answer: the fallback's bookkeeping), measured at every sample.  The times are this
@@ -148,9 +148,9 @@ LYAPUNOV_EVALUATIONS = 2000
 #: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
 DECAY_MARGIN = 0.05
 #: (P9): a step's estimate is the COST_RANK-th largest of its times in the last
-#: COST_WINDOW samples (about their 97th percentile: the largest, on the shared machine, was
-#: a call slowed by another process's use of the caches often enough to block many
-#: rollouts; the 4th largest let twice as many samples run past at load 1.2).  The window is counted in samples, not calls: a spell of slow calls (or
+#: COST_WINDOW samples (about their 95th percentile: the largest, on the shared machine, was
+#: a call slowed by another process's use of the caches often enough to block most
+#: rollouts).  The window is counted in samples, not calls: a spell of slow calls (or
 #: admission's first, cold ones) leaves it after COST_WINDOW samples even when the step
 #: was blocked meanwhile (a window of calls was refilled only by the rare calls that fit,
 #: and blocked the rollout for thousands of samples).  With fewer than COST_RANK times in
@@ -159,7 +159,7 @@ DECAY_MARGIN = 0.05
 #: with cold caches), else their largest; the QP's and the recovery plan's keep their
 #: last time (measured whole at admission; the QP at 1 kHz never runs)
 COST_WINDOW = 64
-COST_RANK = 2
+COST_RANK = 4
 
 
 class StepCost:
