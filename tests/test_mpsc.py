@@ -376,7 +376,7 @@ def test_no_step_starts_past_the_budget():
     f = _filter(**{"safety.budget_ms": 1e-3})
     s = np.array([0.05, 0.01, 0.0, 0.0])
     f.admit(s)
-    assert f.admitted and f.plan is not None and f._cost["roll"] > 1e-6
+    assert f.admitted and f.plan is not None and f._cost["roll"].estimate > 1e-6
     runs = []
     original = f.roll.run
     f.roll.run = lambda *a: runs.append(1) or original(*a)
@@ -388,6 +388,113 @@ def test_no_step_starts_past_the_budget():
     sf = f.more_metrics()
     assert sf["budget_ms"] == pytest.approx(1e-3) and sf["budget_skipped_samples"] == 5
     assert sf["certified_samples"] == 0 and sf["uncertified_samples"] == 0
+
+
+def _on_a_fake_clock(f, roll_costs_s, finish_s):
+    """``f`` on a fake clock that only the rollouts (``roll_costs_s`` in turn, repeated)
+    and the fallback's bookkeeping (``finish_s``) advance, every rollout refused (so every
+    tail and bisection is wanted): ``(run, rollouts started per sample)``."""
+    from tspend.controllers.mpsc import StepCost
+
+    now, costs, started = [0.0], list(roll_costs_s), []
+    clock = lambda: now[0]  # noqa: E731
+    f._clock = f._cpu_clock = clock
+    # the QP unmeasured: never started (its real time is not on this clock)
+    f._cost["roll"], f._cost["qp"], f._reserve = StepCost(), StepCost(), StepCost()
+    for cost in costs:
+        f._cost["roll"].measured(cost)
+    run_rollout, fallback = f.roll.run, f.fallback
+
+    def rollout(*args):
+        started[-1].append(now[0])
+        now[0] += costs[sum(map(len, started)) % len(costs)]
+        return run_rollout(*args)
+
+    def bookkeeping(*args):
+        now[0] += finish_s
+        return fallback(*args)
+
+    f.roll.run, f.fallback = rollout, bookkeeping
+    f.verdict = lambda V: "refused"
+
+    def sample(s, u_c):
+        started.append([])
+        t0 = now[0]
+        u, _ = f.filter(s, u_c)
+        return u, now[0] - t0
+
+    return sample, started
+
+
+@pytest.mark.parametrize("finish_ms,fits", [(0.125, 3), (0.3, 2), (0.6, 1)])
+def test_the_reserve_for_the_work_after_the_last_step_is_honoured(finish_ms, fits):
+    """(P9) on a fake clock: rollouts of 0.25 ms, a budget of 1 ms, bookkeeping after the
+    last step of ``finish_ms``: the first sample (reserve unmeasured) starts no step; then
+    every sample starts exactly the rollouts that end by 1 ms less the reserve (0, 0.25,
+    0.5 ms ...), and no sample, bookkeeping included, runs past the budget."""
+    f = _filter(**{"safety.budget_ms": 1.0})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    assert f.admitted
+    sample, started = _on_a_fake_clock(f, [0.25e-3], finish_ms * 1e-3)
+    for i in range(5):
+        u, elapsed = sample(s, 5.0)
+        assert elapsed <= 1e-3
+        assert u == pytest.approx(f.tracking_input(s, f.stage_at(i * f.cert.sample_s),
+                                                   i * f.cert.sample_s))
+    assert [len(x) for x in started] == [0] + [fits] * 4
+    assert started[1] == pytest.approx([0.25e-3 * j + started[1][0] for j in range(fits)])
+    assert f.over_budget == 0 and f.fallbacks == 5
+
+
+def test_a_rollout_dearer_than_the_last_ones_is_not_started_late():
+    """(P9): the estimate is a high quantile of the recent times, not the average: with
+    rollouts of 0.1 and 0.4 ms in turn (average 0.25), none starts later than 0.4 ms before
+    the deadline, so no sample runs past 1 ms; one 3 ms call (a collection inside it) does
+    not move the estimate."""
+    f = _filter(**{"safety.budget_ms": 1.0})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    sample, started = _on_a_fake_clock(f, [0.1e-3, 0.4e-3] * 8, 0.05e-3)
+    for _ in range(6):
+        assert sample(s, 5.0)[1] <= 1e-3
+    assert f.over_budget == 0 and max(map(len, started)) >= 2
+    assert all(t - x[0] <= 0.95e-3 - 0.4e-3 + 1e-12 for x in started for t in x)
+    f._cost["roll"].measured(3e-3)
+    assert f._cost["roll"].estimate == pytest.approx(0.4e-3)
+    assert sample(s, 5.0)[1] <= 1e-3 and len(started[-1]) >= 1
+
+
+def test_the_estimate_is_a_high_quantile_of_the_last_samples_calls():
+    """(P9)'s estimate: a lone slow call does not move it (the COST_RANK-th largest); a
+    spell of slow calls is the estimate until COST_WINDOW samples have passed, with or
+    without calls meanwhile; then, with fewer than COST_RANK calls left, the rollout's is 0
+    for one call a sample (a probe) and another step's (the QP's) its last time."""
+    from tspend.controllers.mpsc import COST_RANK, COST_WINDOW, StepCost
+
+    roll = StepCost(probe=True)
+    for t in [0.4e-3] * 10 + [3e-3]:
+        roll.measured(t)
+    assert roll.estimate == 0.4e-3
+    roll.new_sample()
+    for t in [0.8e-3] * COST_RANK:
+        roll.measured(t)
+    estimates = []
+    for _ in range(COST_WINDOW + 2):
+        roll.new_sample()
+        estimates.append(roll.estimate)
+    assert estimates[:COST_WINDOW - 1] == [0.8e-3] * (COST_WINDOW - 1)
+    assert estimates[-1] == 0.0 and not roll.times
+    # fewer than COST_RANK times: one probe a sample, then their largest
+    roll.measured(0.5e-3)
+    assert roll.estimate == 0.5e-3
+    roll.new_sample()
+    assert roll.estimate == 0.0
+    qp = StepCost()
+    qp.measured(4e-3)
+    for _ in range(3 * COST_WINDOW):
+        qp.new_sample()
+    assert qp.estimate == 4e-3
 
 
 def test_the_terminal_set_is_invariant_on_every_vertex_model_by_scipy():

@@ -29,9 +29,26 @@ models the caller built) is made once by :func:`design`; :func:`build_solvers` c
 the rollout and the QP (cached by their C source's hash); the filter that runs per sample
 only reads them.
 
-Per sample, within ``safety.budget_ms`` (P9): every step below is started only while the
-time left before the deadline exceeds its measured cost (a moving average of its CPU
-time); a step that does not fit is skipped, never started:
+Per sample, within ``safety.budget_ms`` (P9): the answer of step 3 (the certified plan's
+input, tracked) is computed first, so a cheap certified answer is always ready; then every
+step below (a rollout, an SQP step, a recovery plan) is started only when
+
+    now + (an upper estimate of its time) <= sample start + budget - reserve         (P9)
+
+(``now`` the wall clock, read at each start: the Python between steps is on it), else
+skipped, never started (a skipped solve is dropped, not continued off the loop).  A step's
+estimate is a high quantile of its recent times (about the 95th percentile:
+:class:`StepCost`), not an average: a step dearer than its average ran past.  The reserve
+is the same estimate of the work that always follows the last step (from its end to the
+answer: the fallback's bookkeeping), measured at every sample.  The times are this
+thread's time on the CPU, which is the wall time of a call not preempted: a wait for a
+core, on a shared machine, is not the step's cost, no estimate predicts it, and an
+estimate that took it in (wall times) blocked every rollout for tens of samples after
+each preemption.  A step once started cannot be interrupted (a compiled call, in
+Python): the budget holds while no step takes longer than its estimate, as on a quiet
+machine or under ``SCHED_FIFO`` (a rig's loop), with the slack the first step usually
+has; a call slower than the quantile started late, or a thread preempted mid-step, runs
+past, and ``over_budget_samples`` counts it.
 
 1. on each certified tail in turn (the last certified plan's rest, tracked; the saturated
    LQR): ``[u_c, tail]`` (the fast path: a certified rollout passes ``u_c`` unchanged),
@@ -73,6 +90,7 @@ ODE beyond the margins stated in the metrics, or at step 4.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import math
 import time
@@ -89,7 +107,7 @@ if TYPE_CHECKING:
     from tspend.config import SafetyConfig, Scenario
     from tspend.plants.domain import FullModel
 
-__all__ = ["Certificate", "PredictiveSafetyFilter", "build_solvers", "design",
+__all__ = ["Certificate", "PredictiveSafetyFilter", "StepCost", "build_solvers", "design",
            "terminal_level", "vertex_models", "wrap"]
 
 #: eps of (P4): the weight of the backup plan's own LQR cost against the first input's
@@ -147,9 +165,59 @@ BUDGET_SHARE = 0.8
 LYAPUNOV_EVALUATIONS = 2000
 #: (P10): the decay rate (1/s) the search asks of the common Lyapunov function
 DECAY_MARGIN = 0.05
-#: (P9): a step's cost estimate is the moving average of its CPU time with this weight
-#: on the latest (a step dearer than the budget, the QP at 1 kHz, is then never started)
-COST_AVERAGE = 0.2
+#: (P9): a step's estimate is the COST_RANK-th largest of its times in the last
+#: COST_WINDOW samples (about their 95th percentile: the largest, on the shared machine, was
+#: a call slowed by another process's use of the caches often enough to block most
+#: rollouts).  The window is counted in samples, not calls: a spell of slow calls (or
+#: admission's first, cold ones) leaves it after COST_WINDOW samples even when the step
+#: was blocked meanwhile (a window of calls was refilled only by the rare calls that fit,
+#: and blocked the rollout for thousands of samples).  With fewer than COST_RANK times in
+#: it the rollout's estimate is 0 for one call a sample (a probe, which may run past: the
+#: rollout is the only way to certify again, and its first call after a pause is slow
+#: with cold caches), else their largest; the QP's and the recovery plan's keep their
+#: last time (measured whole at admission; the QP at 1 kHz never runs)
+COST_WINDOW = 64
+COST_RANK = 4
+
+
+class StepCost:
+    """(P9): an upper estimate of one step's time (s): the :data:`COST_RANK`-th largest of
+    its times in the last :data:`COST_WINDOW` samples; with fewer, their largest, or 0 for
+    a ``probe`` step not yet run in this sample; a step that is not a probe keeps its last
+    time.  Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
+
+    __slots__ = ("estimate", "probe", "times", "sample")
+
+    def __init__(self, probe: bool = False) -> None:
+        #: (sample, time) of its calls
+        self.times: collections.deque = collections.deque()
+        self.estimate = math.inf
+        self.probe = probe
+        self.sample = 0
+
+    def _rank(self) -> None:
+        times = sorted(t for _, t in self.times)
+        if len(times) >= COST_RANK:
+            self.estimate = times[-COST_RANK]
+        elif self.probe and not (times and self.times[-1][0] == self.sample):
+            self.estimate = 0.0
+        else:
+            self.estimate = times[-1]
+
+    def measured(self, time_s: float) -> None:
+        self.times.append((self.sample, time_s))
+        self._rank()
+
+    def new_sample(self) -> None:
+        """A new sample: the times older than the window forgotten."""
+        self.sample += 1
+        times, oldest = self.times, self.sample - COST_WINDOW
+        expired = False
+        while times and times[0][0] < oldest and (self.probe or len(times) > 1):
+            times.popleft()
+            expired = True
+        if expired or (self.probe and len(times) < COST_RANK):
+            self._rank()
 
 
 def terminal_level(P: np.ndarray, rows: list[tuple[np.ndarray, float]]) -> float:
@@ -918,9 +986,16 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: (shifted's grid per plan age: the old intervals the new ones start in)
         self._shift_grid: dict[int, tuple] = {}
         self._angles = np.flatnonzero(cert.model.angles)
-        #: (P9): each step's cost estimate (s); the QP's and (P8)'s measured at admission
-        self._cost = {"roll": 0.0, "qp": math.inf, "recovery": math.inf}
+        #: (P9): each step's time estimate (the QP's and (P8)'s measured at admission), and
+        #: the reserve for the work after a sample's last step
+        self._cost = {"roll": StepCost(probe=True), "qp": StepCost(), "recovery": StepCost()}
+        self._reserve = StepCost()
         self._deadline = math.inf
+        #: (P9): the deadline's clock (wall, s) and the steps' (this thread's time on the
+        #: CPU, s); when the running step started, and the sample's last step ended (CPU)
+        self._clock, self._cpu_clock = time.perf_counter, time.thread_time
+        self._started = self._step_end = 0.0
+        self._stepped = False
         self.reset_plan()
 
     # -- state ----------------------------------------------------------------------------
@@ -937,7 +1012,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
         #: samples where a step was skipped for the budget, and samples over it
         self.skipped = self.over_budget = 0
-        self._skipped_now = self._rolled_now = False
+        self._skipped_now = False
         self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
         #: admission (before the first sample): None until made, then whether a plan was
@@ -968,39 +1043,36 @@ class PredictiveSafetyFilter(SafetyFilter):
 
     # -- the certificate ------------------------------------------------------------------
     def _affords(self, what: str) -> bool:
-        """(P9): whether ``what`` (its cost estimate) still fits before the deadline."""
-        if time.perf_counter() + self._cost[what] <= self._deadline:
+        """(P9): whether ``what``, by its estimate, ends before the deadline if started now
+        (else it is skipped)."""
+        if self._clock() + self._cost[what].estimate <= self._deadline:
+            self._started = self._cpu_clock()
             return True
         self._skipped_now = True
+        if not self._stepped:
+            # no step yet this sample: the reserve counts from here
+            self._step_end = self._cpu_clock()
         return False
 
-    def _measured(self, what: str, cpu_s: float) -> None:
-        """A step's cost: this thread's CPU time (a wait for a core, on a shared machine,
-        is not the step's cost and no estimate predicts it)."""
-        cost = self._cost[what]
-        self._cost[what] = (COST_AVERAGE * cpu_s + (1.0 - COST_AVERAGE) * cost
-                            if math.isfinite(cost) else cpu_s)
+    def _measured(self, what: str, setup_s: float = 0.0, repeats: int = 1) -> None:
+        """The step started by :meth:`_affords` ended now: its time on the CPU, ``setup_s``
+        of it once and the rest shared by ``repeats`` calls (admission's SQP iterations)."""
+        end = self._cpu_clock()
+        self._cost[what].measured(setup_s + (end - self._started - setup_s) / repeats)
+        self._step_end, self._stepped = end, True
 
     def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool | None:
         """Whether the plan ``(U, R)`` from ``s``, rolled out by (P5) on every model (P6),
         keeps the certificate's bounds at every RK4 step and ends in (P3); if so it
         becomes the certified plan.  None: not tried, the budget has no room for it."""
         if not self._affords("roll"):
-            if not self._rolled_now:
-                # no rollout at all this sample: an estimate inflated once (a page fault,
-                # a first call) would otherwise never be measured again and no plan ever
-                # certified; it decays until a rollout is tried
-                self._cost["roll"] *= 1.0 - COST_AVERAGE
             return None
-        self._rolled_now = True
-        t0 = time.thread_time()
-        V = self.roll.run(s, U, R)
-        ok = self.verdict(V) is None
-        self._measured("roll", time.thread_time() - t0)
+        ok = self.verdict(self.roll.run(s, U, R)) is None
         if ok:
             R = np.array(R, dtype=float)
             R[:, 0] = s
             self.plan, self.plan_age, self.rescue = (np.array(U, dtype=float), R), 1, None
+        self._measured("roll")
         return ok
 
     def verdict(self, V: np.ndarray) -> str | None:
@@ -1008,12 +1080,12 @@ class PredictiveSafetyFilter(SafetyFilter):
         keeps every bound and ends in (P3) on every model, else what it breaks first and
         on which model."""
         cert, nx = self.cert, self.roll.nx
-        end = V[:, 2 * nx:]
-        levels = np.einsum("mi,ij,mj->m", end, cert.P, end)
         below, above = V[:, :nx] < self._lo, V[:, nx:2 * nx] > self._hi
         if not (below.any() or above.any()):
+            end = V[:, 2 * nx:]
+            levels = ((end @ cert.P) * end).sum(axis=1)
             # a non-finite state anywhere reaches the end (RK4 carries it)
-            return None if np.all(levels <= cert.level) else \
+            return None if (levels <= cert.level).all() else \
                 f"ends outside the terminal set on {self.model_name(int(np.argmax(levels)))}"
         m, i = np.argwhere(below | above)[0]
         return (f"leaves {cert.model.state_names[i]}'s certified bound "
@@ -1089,41 +1161,61 @@ class PredictiveSafetyFilter(SafetyFilter):
     def terminal_input(self, s: np.ndarray) -> float:
         return lqr_input(self.cert, s)
 
-    # -- per sample (module docstring, steps 0-4) -------------------------------------------
+    # -- per sample (module docstring, steps 1-4) -------------------------------------------
     def filter(self, s: np.ndarray, u_c: float) -> tuple[float, float]:
-        """``(u, slack)``: steps 0-4 at full state ``s`` within the budget (P9)."""
-        t0 = time.perf_counter()
+        """``(u, slack)``: steps 1-4 at full state ``s`` within the budget (P9): step 3's
+        answer first, then each step only if it fits before the deadline less the reserve."""
+        clock = self._clock
+        t0, self._step_end = clock(), self._cpu_clock()
         if self.admitted is not None:
-            self._deadline = t0 + self.cert.budget_s
-        self._skipped_now = self._rolled_now = False
+            # the reserve unmeasured (the first sample): no step, step 3 answers
+            reserve = self._reserve.estimate
+            self._deadline = t0 + (self.cert.budget_s - reserve if math.isfinite(reserve) else 0.0)
+        for cost in (*self._cost.values(), self._reserve):
+            cost.new_sample()
+        self._skipped_now = self._stepped = False
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
-        going_on = self.shifted(self.plan, self.plan_age, s)
-        k = self.stage_at(self.plan_age * self.cert.sample_s) if self.plan is not None else None
-        answer = self.on_tails(s, u_c, going_on, k)
+        k = ready = going_on = None
+        if self.plan is not None:
+            # step 3's answer, ready before any step starts
+            tau = self.plan_age * self.cert.sample_s
+            k = self.stage_at(tau)
+            ready = self.tracking_input(s, k, tau)
+            # the plan's rest on this sample's grid, built only when a rollout fits
+            if self._affords("roll"):
+                going_on = self.shifted(self.plan, self.plan_age, s)
+        answer = self.on_tails(s, u_c, going_on, k, ready)
         if answer is None and k is None:
             answer = self.rescue_input(s)
         qp_plan = None
         if answer is None:
             answer, qp_plan = self.solve_qp(s, u_c, going_on)
         if answer is None:
-            answer = self.fallback(s, k, qp_plan)
+            answer = self.fallback(s, k, qp_plan, ready)
         self.skipped += self._skipped_now
-        self.over_budget += (time.perf_counter() - t0) > self.cert.budget_s
+        if self.admitted is not None:
+            # the work after the last step (after none: after the last one refused)
+            self._reserve.measured(self._cpu_clock() - self._step_end)
+        self.over_budget += (clock() - t0) > self.cert.budget_s
         return answer
 
     def on_tails(self, s: np.ndarray, u_c: float, going_on: tuple | None,
-                 k: int | None) -> tuple | None:
-        """0-1 on each certified tail in turn (the last plan's rest, tracked; the saturated
-        LQR): ``[u_c, tail]`` (the fast path: ``u_c`` passes unchanged), else the tail's own
-        input now, then the closest to ``u_c`` between them by bisection, halving while the
-        budget allows."""
-        tails = []
-        if going_on is not None and k is not None:
-            tails.append((going_on, self.tracking_input(s, k, self.plan_age * self.cert.sample_s)))
-        tails.append((self.lqr_tail(s), self.terminal_input(s)))
-        for tail, own in tails:
+                 k: int | None, ready: float | None = None) -> tuple | None:
+        """1 on each certified tail in turn (the last plan's rest, tracked: its input now
+        ``ready`` when given; the saturated LQR): ``[u_c, tail]`` (the fast path: ``u_c``
+        passes unchanged), else the tail's own input now, then the closest to ``u_c``
+        between them by bisection, halving while the budget allows."""
+
+        def tails():
+            if going_on is not None and k is not None:
+                yield going_on, (self.tracking_input(s, k, self.plan_age * self.cert.sample_s)
+                                 if ready is None else ready)
+            if self._affords("roll"):  # the LQR's tail built only when its rollout fits
+                yield self.lqr_tail(s), self.terminal_input(s)
+
+        for tail, own in tails():
             candidate = tail[0].copy()
             if math.isfinite(u_c):
                 candidate[0] = u_c
@@ -1153,13 +1245,12 @@ class PredictiveSafetyFilter(SafetyFilter):
         (after ``u_c``, else its own) applied when certified.  ``(answer, the QP's plan)``."""
         if not self._affords("qp"):
             return None, None
-        t0 = time.thread_time()
         warm = self.shifted(self.iterate_plan, 1, s) or going_on
         S0, U0 = self.roll.nominal(s, *(warm or self.lqr_tail(s)))
         if warm is None:
             U0[0] = self.terminal_input(s)
             S0, U0 = self.roll.nominal(s, U0, self.lqr_tail(s)[1])
-        t1 = time.thread_time()
+        setup_s = self._cpu_clock() - self._started
         cert, nx, N = self.cert, self.roll.nx, self.cert.N
         nz = self.sqp.nz
         z = np.zeros(N * nz + nx)
@@ -1181,7 +1272,7 @@ class PredictiveSafetyFilter(SafetyFilter):
         except RuntimeError:
             self.infeasible_qp += 1
             self.sqp.reset()
-        self._measured("qp", t1 - t0 + (time.thread_time() - t1) / steps)
+        self._measured("qp", setup_s, steps)
         self.iterate_plan = plan
         return self.certified_qp(s, u_c, plan, slack), plan
 
@@ -1203,13 +1294,17 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.rejected += 1
         return None
 
-    def fallback(self, s: np.ndarray, k: int | None, qp_plan: tuple | None) -> tuple:
-        """3: the last certified plan goes on, tracked by the LQR; 4 without one:
-        uncertified (counted), the QP's own plan, else the saturated LQR."""
+    def fallback(self, s: np.ndarray, k: int | None, qp_plan: tuple | None,
+                 ready: float | None = None) -> tuple:
+        """3: the last certified plan goes on, tracked by the LQR (its input ``ready`` when
+        given); 4 without one: uncertified (counted), the QP's own plan, else the saturated
+        LQR."""
         self.plan_age += 1
         if k is not None:
             self.fallbacks += 1
-            return self.tracking_input(s, k, (self.plan_age - 1) * self.cert.sample_s), 0.0
+            if ready is None:
+                ready = self.tracking_input(s, k, (self.plan_age - 1) * self.cert.sample_s)
+            return ready, 0.0
         self.uncertified += 1
         if qp_plan is not None:
             return float(qp_plan[0][0]), 0.0
@@ -1221,9 +1316,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         dt0 = self.cert.sample_s
         u = self.recovery.input(self.rescue, s, self.rescue_age * dt0) if self.rescue else None
         if u is None and self._affords("recovery"):
-            t0 = time.thread_time()
             found = self.recovery.plan(s)
-            self._measured("recovery", time.thread_time() - t0)
+            self._measured("recovery")
             if found is not None:
                 self.rescue, self.rescue_age = found, 0
                 self.recoveries += 1
