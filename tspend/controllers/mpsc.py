@@ -1186,14 +1186,14 @@ class PredictiveSafetyFilter(SafetyFilter):
             # the plan's rest on this sample's grid, built only when a rollout fits
             if self._affords("roll"):
                 going_on = self.shifted(self.plan, self.plan_age, s)
-        answer = self.on_tails(s, u_c, going_on, k, ready)
+        answer = self.on_tails(s, u_c, going_on, ready)
         if answer is None and k is None:
             answer = self.rescue_input(s)
         qp_plan = None
         if answer is None:
             answer, qp_plan = self.solve_qp(s, u_c, going_on)
         if answer is None:
-            answer = self.fallback(s, k, qp_plan, ready)
+            answer = self.fallback(s, qp_plan, ready)
         self.skipped += self._skipped_now
         if self.admitted is not None:
             # the work after the last step (after none: after the last one refused)
@@ -1202,16 +1202,15 @@ class PredictiveSafetyFilter(SafetyFilter):
         return answer
 
     def on_tails(self, s: np.ndarray, u_c: float, going_on: tuple | None,
-                 k: int | None, ready: float | None = None) -> tuple | None:
+                 ready: float | None) -> tuple | None:
         """1 on each certified tail in turn (the last plan's rest, tracked: its input now
-        ``ready`` when given; the saturated LQR): ``[u_c, tail]`` (the fast path: ``u_c``
+        ``ready``; the saturated LQR): ``[u_c, tail]`` (the fast path: ``u_c``
         passes unchanged), else the tail's own input now, then the closest to ``u_c``
         between them by bisection, halving while the budget allows."""
 
         def tails():
-            if going_on is not None and k is not None:
-                yield going_on, (self.tracking_input(s, k, self.plan_age * self.cert.sample_s)
-                                 if ready is None else ready)
+            if going_on is not None and ready is not None:
+                yield going_on, ready
             if self._affords("roll"):  # the LQR's tail built only when its rollout fits
                 yield self.lqr_tail(s), self.terminal_input(s)
 
@@ -1294,16 +1293,13 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.rejected += 1
         return None
 
-    def fallback(self, s: np.ndarray, k: int | None, qp_plan: tuple | None,
-                 ready: float | None = None) -> tuple:
-        """3: the last certified plan goes on, tracked by the LQR (its input ``ready`` when
-        given); 4 without one: uncertified (counted), the QP's own plan, else the saturated
-        LQR."""
+    def fallback(self, s: np.ndarray, qp_plan: tuple | None, ready: float | None) -> tuple:
+        """3: the last certified plan goes on, tracked by the LQR (its input now ``ready``,
+        computed before any step); 4 without one (``ready`` None): uncertified (counted),
+        the QP's own plan, else the saturated LQR."""
         self.plan_age += 1
-        if k is not None:
+        if ready is not None:
             self.fallbacks += 1
-            if ready is None:
-                ready = self.tracking_input(s, k, (self.plan_age - 1) * self.cert.sample_s)
             return ready, 0.0
         self.uncertified += 1
         if qp_plan is not None:
