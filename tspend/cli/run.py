@@ -159,10 +159,9 @@ def _run(args, scn, prepared, stop, outs: Claimed, run) -> int:
     if end.status in TERMINATIONS:  # fell, rail_end, joint_limit, state_bound
         say(end.message)
         return EXIT_TERMINATED
-    if end.status == NOT_REACHED:  # the task's goal (task.goal_angle by task.goal_by) missed
-        say(end.message)
-        return EXIT_TERMINATED
-    if end.status == REFUSED:  # a safety filter refused to start (safety.refuse_unadmitted)
+    # the task's goal (task.goal_angle by task.goal_by) missed, or a safety filter refused
+    # to start (safety.refuse_unadmitted): ended by the task's rules, as a termination is
+    if end.status in (NOT_REACHED, REFUSED):
         say(end.message)
         return EXIT_TERMINATED
     if end.status == CONTROLLER_ERROR:  # the controller's code failed, not tspend's
