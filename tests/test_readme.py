@@ -39,14 +39,28 @@ def blocks(path: Path, language: str = "") -> list[str]:
 
 
 def tspend_lines(path: Path) -> list[list[str]]:
-    """Every ``tspend ...`` line of the plain code blocks, as argv (comments dropped; a
-    ``> FILE`` redirection kept at the end, :func:`redirected` takes it off)."""
+    """Every ``tspend ...`` command of the plain code blocks, as argv (comments dropped; a
+    ``> FILE`` redirection kept at the end, :func:`redirected` takes it off).  A line
+    ``tspend A && tspend B`` gives both commands."""
     out = []
     for block in blocks(path):
         for line in block.splitlines():
             if line.startswith("tspend "):
-                out.append(shlex.split(line, comments=True)[1:])
+                out.extend(chained(shlex.split(line, comments=True)))
     return out
+
+
+def chained(words: list[str]) -> list[list[str]]:
+    """The argv of each ``tspend`` command in ``words`` split at ``&&``."""
+    commands, current = [], []
+    for word in words + ["&&"]:
+        if word != "&&":
+            current.append(word)
+            continue
+        if current and current[0] == "tspend":
+            commands.append(current[1:])
+        current = []
+    return commands
 
 
 def redirected(argv: list[str]) -> tuple[list[str], str | None]:
