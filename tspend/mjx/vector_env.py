@@ -114,7 +114,8 @@ class MjxVectorEnv(VectorEnv):
         terminations and truncations.  The host sends N actions, reads back one packed
         array, and looks further only at the envs that ended (their status and message,
         by the task's words): nothing of it loops over the envs.  What it returns is the
-        caller's own (copies out of the packed array), never overwritten by a later step;
+        caller's own (copies, or read-only views of the step's own packed array), never
+        overwritten by a later step;
         at a step where no env ended the infos' status and message are one shared read-only
         array each (a copy of an object array takes a reference per env)."""
         u = self._applied(actions)
@@ -123,7 +124,6 @@ class MjxVectorEnv(VectorEnv):
         obs, (reward, terminated, truncated, clock, code) = self._device.layout.parts(packed)
         self._obs = self._out(obs)
         terminated, truncated = terminated != 0.0, truncated != 0.0
-        clock = clock.astype(np.int64)
         u = u.copy()          # the infos' own: self._u is rewritten at the next step
         status, message = self._running, self._no_message    # shared, read-only
         if truncated.any() or terminated.any():
@@ -132,11 +132,14 @@ class MjxVectorEnv(VectorEnv):
         if terminated.any():
             self._name_endings(terminated, clock, u, status, message, code, obs)
         # t before the reset: the clock of an env reset here restarts at 0
-        infos = envstep.vector_step_infos(clock * self.dt, u, status, message, terminated,
+        t = np.multiply(clock, self.dt, dtype=float)
+        infos = envstep.vector_step_infos(t, u, status, message, terminated,
                                           terminated | truncated,
                                           self.autoreset_mode != AutoresetMode.NEXT_STEP,
                                           lambda i: self._obs[i].copy(), self._reset_some)
-        return self._obs, reward.astype(float), terminated, truncated, infos
+        # the rewards (float64) and the clock (whole steps, exact in the float type) are
+        # read where they lie: ``packed`` is this step's own buffer, never written again
+        return self._obs, reward.astype(float, copy=False), terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
@@ -154,14 +157,14 @@ class MjxVectorEnv(VectorEnv):
         which = np.flatnonzero(terminated)
         full = obs[which, :self._device.layout.n_full]
         for i, c, s in zip(which, code[which].astype(np.int64), full):
-            t = clock[i] * self.dt
+            t = float(clock[i]) * self.dt
             if c == envstep.ENDED:
                 status[i], message[i] = (self.fleet.tasks[i].termination(
                     np.asarray(s, dtype=float), t) or ("diverged", ""))
             elif c == envstep.NOT_FINITE:
                 status[i], message[i] = "diverged", "the state is not finite"
             else:     # BAD_INPUT, UNSTABLE: the plant's own words
-                d = float(self._device.dist[min(clock[i], self.horizon - 1)])
+                d = float(self._device.dist[min(int(clock[i]), self.horizon - 1)])
                 error = plant_error(self.fleet, c == envstep.BAD_INPUT, float(u[i]), d, t)
                 status[i], message[i] = "diverged", f"the plant failed ({error})"
 
@@ -273,17 +276,21 @@ class _DeviceEnvs:
                                 f"{(1 << 24) - 1} (float64 has no such bound)")
         self.layout = _Layout(*first_obs.shape, fleet.qpos0.shape[1] + fleet.qvel0.shape[1])
         put = self.put
-        # the model and data travel as flat tuples of arrays: flattening an MJX dataclass
-        # in Python took about 0.6 ms per model on every call (a tuple is flattened in C++)
+        # the model and data travel as a few flat buffers (one per dtype): flattening an
+        # MJX dataclass in Python took about 0.6 ms per model on every call, and each of
+        # the 290 arrays of a flat list cost the call's dispatch some microseconds more
         model, data0 = _device_model(fleet, self.dtype), _initial(fleet, self.dtype)
-        self.model, model_tree = jax.tree_util.tree_flatten(model)
-        self.data0, data_tree = jax.tree_util.tree_flatten(data0)
+        model_leaves, model_tree = jax.tree_util.tree_flatten(model)
+        data_leaves, data_tree = jax.tree_util.tree_flatten(data0)
+        model_buffers, data_buffers = Buffers(model_leaves), Buffers(data_leaves)
+        self.model = model_buffers.pack(model_leaves, self.device)
+        self.data0 = data_buffers.pack(data_leaves, self.device)
         self.first_obs = put(first_obs)
         #: what every step reads
         self.tables = (put(fleet.d_to_tau), put(fleet.lo), put(fleet.hi), put(pad),
                        put(fleet.ref), put(u_scale))
         self.call = _make_env_step(fleet, frame_skip, horizon, template, template.dt, next_step,
-                                   (model_tree, data_tree))
+                                   ((model_tree, model_buffers), (data_tree, data_buffers)))
         self._config, self._x64 = jax.config, precision == "float64"
         self._precision = precision
         self.reset()
@@ -300,7 +307,7 @@ class _DeviceEnvs:
 
         n = self.first_obs.shape[0]
         # copies: the step takes over (donates) the buffers of what it replaces
-        self.data = [jnp.copy(a) for a in self.data0]
+        self.data = tuple(jnp.copy(a) for a in self.data0)
         self.obs = jnp.copy(self.first_obs)
         self.clock = self.put(np.zeros(n, dtype=np.int64), int)
         self.pending = self.put(np.zeros(n, dtype=bool), bool)
@@ -319,6 +326,36 @@ class _DeviceEnvs:
             self.model, self.data, self.data0, self.obs, self.first_obs, u, self.clock,
             self.pending, *self.tables)
         return np.asarray(packed)     # one transfer
+
+
+class Buffers:
+    """Where each of a list of arrays lies in one flat buffer per dtype: a jitted call then
+    takes a few arguments, not one per array.  :meth:`pack` and :meth:`unpack` trace
+    under ``jax.jit`` (slices and reshapes there, no copy the compiler keeps)."""
+
+    def __init__(self, leaves: list) -> None:
+        self.dtypes = sorted({np.dtype(a.dtype) for a in leaves}, key=str)
+        ends = [0] * len(self.dtypes)
+        self.where: list[tuple[int, int, tuple[int, ...]]] = []    # (buffer, start, shape)
+        for a in leaves:
+            group = self.dtypes.index(np.dtype(a.dtype))
+            self.where.append((group, ends[group], tuple(a.shape)))
+            ends[group] += int(np.prod(a.shape, dtype=np.int64))
+
+    def pack(self, leaves: list, device: Any = None) -> tuple:
+        """The buffers of ``leaves`` (laid out as at construction), on ``device`` if given."""
+        import jax
+        import jax.numpy as jnp
+
+        parts: list[list] = [[] for _ in self.dtypes]
+        for a, (group, _, _) in zip(leaves, self.where):
+            parts[group].append(jnp.ravel(jnp.asarray(a, dtype=self.dtypes[group])))
+        buffers = tuple(jnp.concatenate(p) for p in parts)
+        return buffers if device is None else tuple(jax.device_put(b, device) for b in buffers)
+
+    def unpack(self, buffers: tuple) -> list:
+        return [buffers[group][start:start + int(np.prod(shape, dtype=np.int64))].reshape(shape)
+                for group, start, shape in self.where]
 
 
 def _device_model(fleet: Any, dtype: Any) -> Any:
@@ -394,7 +431,7 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
     says (one output buffer, one transfer).  The full state a task's
     ending stopped at is the observation's first columns (the observation is written at
     an ``ENDED`` step, in the data's own float type).  The model and the data come and go
-    as flat lists of arrays (``trees``: their tree structures)."""
+    as flat buffers (``trees``: each one's tree structure and :class:`Buffers`)."""
     import jax
     import jax.numpy as jnp
 
@@ -427,14 +464,15 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
 
     axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
     every = jax.vmap(one, in_axes=axes)
-    model_tree, data_tree = trees
+    (model_tree, model_buffers), (data_tree, data_buffers) = trees
 
     def flat(model, data, data0, *rest):
-        data, clock, obs, pending, rows = every(model_tree.unflatten(model),
-                                                data_tree.unflatten(data),
-                                                data_tree.unflatten(data0), *rest)
+        data, clock, obs, pending, rows = every(
+            model_tree.unflatten(model_buffers.unpack(model)),
+            data_tree.unflatten(data_buffers.unpack(data)),
+            data_tree.unflatten(data_buffers.unpack(data0)), *rest)
         packed = jnp.concatenate((obs.reshape(-1), rows.T.reshape(-1)))
-        return data_tree.flatten_up_to(data), clock, obs, pending, packed
+        return data_buffers.pack(data_tree.flatten_up_to(data)), clock, obs, pending, packed
 
     # the data, observation, clock and restart flags a step replaces are donated: their
     # buffers are reused, not freed and taken anew each step (on the CPU the free alone
