@@ -87,3 +87,17 @@ def test_mutated_scenarios_give_only_documented_errors(case):
     for key in ("rmse", "iae"):
         v = result.metrics[key]
         assert v is None or math.isfinite(v)
+
+
+def test_a_key_holding_a_line_break_is_named_on_one_line():
+    """TOML's quoted keys may hold anything: the error line shows such a key quoted
+    (hypothesis found ``run = {"\\n" = 0.0}`` printed over two lines)."""
+    for table, key in (("run", "\n"), ("run", " m"), ("run", "a\tb")):
+        try:
+            parse_scenario(TEXTS["pendulum_mujoco"], "scenarios/pendulum_mujoco.toml",
+                           "pendulum_mujoco", ((table, {key: 0.0}),))
+        except ScenarioError as exc:
+            msg = str(exc)
+            assert "\n" not in msg and "\t" not in msg and f"{table}.{key!r}: unknown key" in msg
+        else:
+            raise AssertionError(f"{table}.{key!r} accepted")

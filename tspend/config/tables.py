@@ -31,6 +31,12 @@ __all__ = ["Table", "read_fields", "SET_KEYS"]
 SET_KEYS = ("terms", "lo", "hi")
 
 
+def shown_key(key: str) -> str:
+    """A key as an error line shows it: quoted as Python would when TOML's quoted keys
+    let it hold a line break, a control character or outer spaces (one line stays one)."""
+    return key if key and key.isprintable() and key.strip() == key else repr(key)
+
+
 class Table:
     """Reads keys of one table, each error naming the file and the dotted key."""
 
@@ -38,7 +44,7 @@ class Table:
         self.path, self.table, self.prefix = path, table, prefix
 
     def error(self, key: str, problem: str) -> ScenarioError:
-        return ScenarioError(f"{self.path}: {self.prefix}{key}: {problem}")
+        return ScenarioError(f"{self.path}: {self.prefix}{shown_key(key)}: {problem}")
 
     def check_keys(self, allowed: tuple[str, ...], context: str = "") -> None:
         for key in self.table:
@@ -175,7 +181,7 @@ class Table:
         t = self.table[key]
         if not isinstance(t, dict):
             raise self.error(key, f"must be a table {{terms = .., lo = .., hi = ..}}, got {t!r}")
-        return Table(self.path, t, f"{self.prefix}{key}.").as_set_spec(min_terms)
+        return Table(self.path, t, f"{self.prefix}{shown_key(key)}.").as_set_spec(min_terms)
 
     def as_set_spec(self, min_terms: int = 1) -> SetSpec:
         """This table as ``{terms, lo, hi}``."""
@@ -192,7 +198,7 @@ class Table:
         if not isinstance(v, list) or len(v) != n or not all(isinstance(t, dict) for t in v):
             raise self.error(key, f"must be a list of {n} tables {{terms, lo, hi}} (one per "
                                   f"state), got {v!r}")
-        return tuple(Table(self.path, t, f"{self.prefix}{key}[{i}].").as_set_spec(min_terms)
+        return tuple(Table(self.path, t, f"{self.prefix}{shown_key(key)}[{i}].").as_set_spec(min_terms)
                      for i, t in enumerate(v))
 
     def table_of(self, key: str, required: bool = False) -> "Table":
@@ -203,7 +209,7 @@ class Table:
             v = {}
         if not isinstance(v, dict):
             raise self.error(key, f"must be a table, got {type(v).__name__}")
-        return Table(self.path, v, f"{self.prefix}{key}.")
+        return Table(self.path, v, f"{self.prefix}{shown_key(key)}.")
 
 
 def read_fields(r: Table, cls: type, context: str, skip: tuple[str, ...] = ()) -> dict[str, Any]:

@@ -50,6 +50,7 @@ import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 from gymnasium import spaces  # noqa: E402
 
+from tspend.config.tables import shown_key
 from tspend.controllers.base import Observation
 from tspend.loop import envstep
 from tspend.runtime.errors import DivergenceError, ScenarioError, TspendError
@@ -122,7 +123,7 @@ def reward_weights(reward: Any) -> RewardWeights:
     unknown = sorted(set(reward or {}) - set(RewardWeights.__dataclass_fields__)) \
         if isinstance(reward, dict) else []
     if unknown:
-        raise ScenarioError(f"reward: unknown key(s) {', '.join(map(str, unknown))}; allowed: "
+        raise ScenarioError(f"reward: unknown key(s) {', '.join(shown_key(str(k)) for k in unknown)}; allowed: "
                             f"{', '.join(RewardWeights.__dataclass_fields__)}")
     return reward if isinstance(reward, RewardWeights) else RewardWeights(**dict(reward or {}))
 
