@@ -2,6 +2,7 @@
 
     python benchmarks/mjx_env_host.py                 # 64 and 4096 envs, 200 steps each
     python benchmarks/mjx_env_host.py --pin           # the device's threads on a core of their own
+    python benchmarks/mjx_env_host.py --host-alone    # the host's own work, the device stubbed
 
 Both envs are built first, then stepped (zero actions) in alternating blocks of
 ``--block`` steps, so a change of the machine's load falls on both sizes alike.  A step's
@@ -20,6 +21,11 @@ milliseconds per step as the median with the 25th-75th percentiles beside it (th
 shows the noise) and the median of its part in the jitted call's dispatch, the ratio of the larger N's median to the smaller's, both measured in
 this run (what the host does per step should not grow with N: docs/accelerator.md), and
 the 1-minute load average before and after.
+
+``--host-alone`` times the host's own work with no device computation beside it: each
+env's jitted step is replaced by a copy of one packed result it returned (the copy stands
+in for reading the result back), so neither JAX's threads nor the caches they fill share
+the machine with the host's work: what an accelerator with its own memory would leave.
 """
 
 from __future__ import annotations
@@ -44,6 +50,13 @@ def fixed_host_work(x: np.ndarray = np.zeros(64)) -> None:
         _ = {"u": u.copy(), "t": u * 0.02, "_u": ended.copy(), "any": ended.any()}
 
 
+def stub_device(device, n: int) -> None:
+    """``device.step`` replaced by a copy of the packed result of one real step; the timed
+    call (``device.call``) is not reached, so its dispatch and wait read 0."""
+    packed = device.step(np.zeros(n))
+    device.step = lambda u: packed.copy()
+
+
 def _bad(message: str) -> int:
     """Bad input: one line on stderr, exit status 2."""
     print(f"mjx_env_host: {message}", file=sys.stderr)
@@ -62,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pin", action="store_true",
                    help="JAX's threads (the device's computation on the CPU backend) on the "
                         "last core, this thread on the first (default: both anywhere)")
+    p.add_argument("--host-alone", action="store_true",
+                   help="stub the device: each step returns a copy of one packed result, so "
+                        "only the host's own work is timed (default: the real step)")
     args = p.parse_args(argv)
     try:
         small, large = (int(v) for v in args.envs.split(","))
@@ -78,6 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.pin:       # JAX's threads, made while the envs are built, inherit this core
         os.sched_setaffinity(0, {cores[-1]})
     envs = {n: timed_env(args.scenario, n, "float64") for n in (small, large)}
+    if args.host_alone:
+        for n, (env, _) in envs.items():
+            stub_device(env.unwrapped._device, n)
+        print("host alone: the device's step stubbed by a copy of one packed result")
     if args.pin:       # this thread only (0: the calling thread)
         os.sched_setaffinity(0, {cores[0]})
         print(f"pinned: JAX's threads on core {cores[-1]}, this thread on core {cores[0]}")
@@ -101,9 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"host time per step at {large} over {small}: {host[large] / host[small]:.2f} "
           f"(baseline: {host[small]:.3g} ms at {small} envs, same run; medians of "
           f"{args.steps} steps each)")
-    print(f"fixed host work at {large} over {small}: {fixed[large] / fixed[small]:.2f} "
-          f"(the same work at both sizes, right after the device's result: what the "
-          f"device's computation does to the host's time here)")
+    if not args.host_alone:    # (no device result to follow)
+        print(f"fixed host work at {large} over {small}: {fixed[large] / fixed[small]:.2f} "
+              f"(the same work at both sizes, right after the device's result: what the "
+              f"device's computation does to the host's time here)")
     print(f"load average (1 min) after: {os.getloadavg()[0]:.2f}")
     return 0
 
