@@ -39,6 +39,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from accelerator_speed import timed_env  # noqa: E402
+from short_mode import short_defaults  # noqa: E402
 
 
 def fixed_host_work(x: np.ndarray = np.zeros(64)) -> None:
@@ -78,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--host-alone", action="store_true",
                    help="stub the device: each step returns a copy of one packed result, so "
                         "only the host's own work is timed (default: the real step)")
+    short_defaults(p, envs="4,16", steps=4, block=2)
     args = p.parse_args(argv)
     try:
         small, large = (int(v) for v in args.envs.split(","))
