@@ -63,47 +63,30 @@ def finish(proc: subprocess.Popen) -> tuple[str, str]:
     return out, err
 
 
-def first_off_sequence(rrd: Path) -> int:
-    """The first cycle of a rig run that did not use the frame after the previous cycle's:
-    no fresh frame (one late) or one skipped (the host late: it takes the newest); the
-    number of cycles if none.  From there the run parts from a simulation's."""
+def off_sequence(rrd: Path) -> np.ndarray:
+    """Per cycle of a rig run: it did not use the frame after the previous cycle's (no
+    fresh frame: one late; or one skipped: the host late, it takes the newest).  From the
+    first such cycle the run parts from a simulation's."""
     fresh = rig_series(rrd, "fresh").astype(bool)
     sensor_seq = rig_series(rrd, "sensor_seq").astype(int)
-    off = ~fresh | (np.diff(sensor_seq, prepend=sensor_seq[0] - 1) != 1)
-    return int(np.argmax(off)) if off.any() else len(fresh)
+    return ~fresh | (np.diff(sensor_seq, prepend=sensor_seq[0] - 1) != 1)
 
 
-def steps_per_frame(truth) -> int:
-    """The double's physics steps between two sensor frames (its log)."""
+def late_commands(rrd: Path, truth) -> np.ndarray:
+    """Per cycle of a rig run: the double applied its command after the first physics
+    step of the period the command was computed for (the double's own log: the command in
+    force at each step; the frame each cycle used)."""
     frame_us = truth["sensor_rig_time_us"][1] - truth["sensor_rig_time_us"][0]
-    return round(frame_us * 1e-6 / (truth["t"][1] - truth["t"][0]))
-
-
-def first_late_command(truth, sensor_seq: np.ndarray, cycles: int) -> int:
-    """The first of the host's ``cycles`` whose command the double applied after the first
-    physics step of the period it was computed for (the double's own log: the command in
-    force at each step, the sample a cycle used); ``cycles`` if none."""
+    steps_per_frame = round(frame_us * 1e-6 / (truth["t"][1] - truth["t"][0]))
     in_force = truth["command_seq"].astype(int)
-    steps_per_period = steps_per_frame(truth)
-    for k in range(cycles):
-        first_step = sensor_seq[k] * steps_per_period
-        if first_step >= len(in_force) or in_force[first_step] < k:
-            return k
-    return cycles
-
-
-def late_share(rrd: Path, truth) -> float:
-    """The share of a rig run's cycles that used no fresh frame, skipped one, or whose
-    command the double applied after the first physics step of its period (its log)."""
-    fresh = rig_series(rrd, "fresh").astype(bool)
-    sensor_seq = rig_series(rrd, "sensor_seq").astype(int)
-    in_force = truth["command_seq"].astype(int)
-    steps_per_period = steps_per_frame(truth)
-    first_step = sensor_seq * steps_per_period
-    late = np.array([step >= len(in_force) or in_force[step] < k
+    first_step = rig_series(rrd, "sensor_seq").astype(int) * steps_per_frame
+    return np.array([step >= len(in_force) or in_force[step] < k
                      for k, step in enumerate(first_step)])
-    off = ~fresh | (np.diff(sensor_seq, prepend=sensor_seq[0] - 1) != 1) | late
-    return float(off.mean())
+
+
+def first_of(flags: np.ndarray) -> int:
+    """The first index set in ``flags``; their number if none is."""
+    return int(np.argmax(flags)) if flags.any() else len(flags)
 
 
 def rig_series(path: Path, name: str) -> np.ndarray:
@@ -272,7 +255,7 @@ def test_the_twin_is_drawn_in_the_rig_runs_recording_and_its_gap_is_in_the_metri
             # up to the first cycle without a fresh frame (a frame late under load: the
             # estimator holds there, and the runs part)
             fresh = rig_series(folder / "rig.rrd", "fresh").astype(bool)
-            first_stale.append(first_off_sequence(folder / "rig.rrd"))
+            first_stale.append(first_of(off_sequence(folder / "rig.rrd")))
             early = t_rig < first_stale[-1] * 0.002
             if early.sum() >= 2:
                 break
@@ -326,11 +309,10 @@ def test_a_simulation_with_the_rigs_estimator_gives_the_rig_runs_commands(tmp_pa
                    "--out", "rig.rrd", cwd=folder, timeout=PROCESS_TIMEOUT_S)
         finish(double)
         assert r.status == 0, r.err
-        first_stale = first_off_sequence(folder / "rig.rrd")
-        sensor_seq = rig_series(folder / "rig.rrd", "sensor_seq").astype(int)
+        rrd = folder / "rig.rrd"
         # a command applied late moves the rig's next sample: commands part from there
-        on_time.append(min(first_stale,
-                           first_late_command(np.load(log), sensor_seq, first_stale) + 1))
+        on_time.append(min(first_of(off_sequence(rrd)),
+                           first_of(late_commands(rrd, np.load(log))) + 1))
         if on_time[-1] >= 10:
             break
     assert on_time[-1] >= 10, f"cycles before a late frame or command: {on_time} in 3 runs"
@@ -574,7 +556,8 @@ def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path
                    timeout=PROCESS_TIMEOUT_S)
         finish(double)
         assert r.status == 0, r.err
-        shares.append(late_share(folder / "e.rrd", np.load(log)))
+        rrd = folder / "e.rrd"
+        shares.append(float((off_sequence(rrd) | late_commands(rrd, np.load(log))).mean()))
         if shares[-1] <= 0.05:
             break
     assert shares[-1] <= 0.05, f"cycles with a late frame or command: {shares} in 3 runs"
