@@ -31,6 +31,10 @@ if str(ROOT) not in sys.path:
 from tspend.config import ControllerConfig, SetSpec  # noqa: E402
 from tspend.controllers.paper.controller import make_controller  # noqa: E402
 from short_mode import judged, short_defaults  # noqa: E402
+from tspend.runtime.jit import drop_stale_kernels  # noqa: E402
+
+# this folder's cached kernels call tspend's: compiled afresh when tspend changed
+drop_stale_kernels(Path(__file__).resolve().parent)
 
 #: the target of the benchmark: a controller step costs at most this many mj_steps
 TARGET_RATIO = 0.6

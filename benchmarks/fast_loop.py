@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -24,7 +25,11 @@ from numba import njit
 
 from tspend import load_scenario, override, run
 from tspend.loop.simulation import build_controller, build_plant, with_gain_sign
+from tspend.runtime.jit import drop_stale_kernels
 from short_mode import short_defaults
+
+# this folder's cached kernels call tspend's: compiled afresh when tspend changed
+drop_stale_kernels(Path(__file__).resolve().parent)
 
 STEPS = 20_000
 

@@ -55,7 +55,11 @@ from tspend.config import ControllerConfig  # noqa: E402
 from tspend.controllers.paper.controller import make_controller  # noqa: E402
 from tspend.controllers.paper.rules import VARPI_EPS, fire  # noqa: E402
 from tspend.controllers.paper.ts_model import model_output  # noqa: E402
-from short_mode import sized
+from tspend.runtime.jit import drop_stale_kernels  # noqa: E402
+from short_mode import sized  # noqa: E402
+
+# this folder's cached kernels call tspend's: compiled afresh when tspend changed
+drop_stale_kernels(Path(__file__).resolve().parent)
 
 OUTPUTS = ("p1", "p2", "p3")
 

@@ -50,3 +50,18 @@ def test_the_installed_package_is_stamped() -> None:
     pkg = Path(tspend.__file__).resolve().parent
     stamp = pkg / "__pycache__" / STAMP
     assert stamp.is_file() and stamp.read_text().strip() == sources_digest(pkg)
+
+
+def test_a_script_folders_kernels_are_dropped_when_the_package_changes(tmp_path: Path) -> None:
+    # a benchmark's cached kernel whose index names a module the package has since moved:
+    # numba keys it on the script alone, so only the package's digest can drop it
+    pkg, scripts = _package(tmp_path), tmp_path / "scripts"
+    (scripts / "__pycache__").mkdir(parents=True)
+    invalidate_stale_cache(pkg, cached=scripts)
+    kernel = scripts / "__pycache__" / "bench.loop-9.py311.nbi"
+    kernel.write_bytes(pickle.dumps("index") * 2)
+    assert invalidate_stale_cache(pkg, cached=scripts) is False and kernel.is_file()
+    (pkg / "a.py").write_text("x = 4\n")
+    assert invalidate_stale_cache(pkg, cached=scripts) is True and not kernel.exists()
+    assert (scripts / "__pycache__" / STAMP).read_text().strip() == sources_digest(pkg)
+    assert not (pkg / "__pycache__" / STAMP).exists()     # the package's own stamp untouched

@@ -32,25 +32,30 @@ def sources_digest(package_dir: Path) -> str:
     return digest.hexdigest()
 
 
-def invalidate_stale_cache(package_dir: Path) -> bool:
-    """Drop the package's numba cache files if its sources changed since they were written.
+def invalidate_stale_cache(package_dir: Path, cached: Path | None = None) -> bool:
+    """Drop the numba cache files below ``cached`` (default: the package itself) if the
+    package's sources changed since they were written.
 
-    Returns True when files were dropped.  A read-only install (no writable
-    ``__pycache__``) is left alone: nobody edits it.
+    ``cached`` is another folder whose compiled functions call the package's (the
+    benchmark scripts'): numba keys them on their own file only, and an index written
+    before a package function moved names a module that no longer exists, so loading it
+    fails instead of compiling afresh.  Returns True when files were dropped.  A read-only
+    install (no writable ``__pycache__``) is left alone: nobody edits it.
     """
+    cached = package_dir if cached is None else cached
     try:
         current = sources_digest(package_dir)
-        stamp = package_dir / "__pycache__" / STAMP
+        stamp = cached / "__pycache__" / STAMP
         if stamp.is_file() and stamp.read_text().strip() == current:
             # the sources are the same: each cached function is checked against the
             # manifest of what numba wrote (a truncated file is removed and recompiled)
             from tspend.runtime.cache import check_numba_files
 
-            for cache_dir in package_dir.rglob("__pycache__"):
+            for cache_dir in cached.rglob("__pycache__"):
                 check_numba_files(cache_dir, "", "compiled code", echo=True)
             return False
         dropped = False
-        for cache_dir in package_dir.rglob("__pycache__"):
+        for cache_dir in cached.rglob("__pycache__"):
             for pattern in ("*.nbi", "*.nbc"):
                 for path in cache_dir.glob(pattern):
                     path.unlink(missing_ok=True)
@@ -62,6 +67,13 @@ def invalidate_stale_cache(package_dir: Path) -> bool:
         return dropped
     except OSError:
         return False
+
+
+def drop_stale_kernels(folder: Path) -> bool:
+    """For a script folder with ``cache=True`` kernels over tspend's compiled functions:
+    drop its numba cache when tspend's sources changed (:func:`invalidate_stale_cache`).
+    Call it before the first kernel compiles or loads."""
+    return invalidate_stale_cache(Path(__file__).resolve().parents[1], cached=folder)
 
 
 #: free space a cache folder must have to be used (bytes): an articulated machine's numba
