@@ -22,6 +22,13 @@ shows the noise) and the median of its part in the jitted call's dispatch, the r
 this run (what the host does per step should not grow with N: docs/accelerator.md), and
 the 1-minute load average before and after.
 
+A second baseline, MJX's own step alone (:func:`timed_bare`): the same models and data
+stepped by one jitted call of MJX's physics with nothing of tspend's (no endings,
+observations, rewards or restarts), its dispatch and the read-back of one number per env
+timed the same way, in a block of its own after each of the env's.  Its ratio between the sizes is what JAX's backend
+charges any MJX program's host as N grows (on the CPU backend the call's dispatch grows
+with the buffers its kernels partition); the env's ratio is compared with it.
+
 ``--host-alone`` times the host's own work with no device computation beside it: each
 env's jitted step is replaced by a copy of one packed result it returned (the copy stands
 in for reading the result back), so neither JAX's threads nor the caches they fill share
@@ -33,6 +40,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
+from typing import Any, Callable
 
 import numpy as np
 
@@ -56,6 +65,52 @@ def stub_device(device, n: int) -> None:
     call (``device.call``) is not reached, so its dispatch and wait read 0."""
     packed = device.step(np.zeros(n))
     device.step = lambda u: packed.copy()
+
+
+def timed_bare(env: Any) -> Callable[[], float]:
+    """``step()`` of MJX's own physics for the env's models and data, jitted alone (no
+    endings, observations, rewards or restarts: what any MJX program pays), returning
+    the host's seconds for it, counted as :func:`accelerator_speed.timed_env` counts the
+    env's: the call's dispatch and the read-back of one number per env, not the wait for
+    the device."""
+    import jax
+    import jax.numpy as jnp
+    from mujoco import mjx
+
+    from tspend.mjx.sweep import mujoco_steps
+
+    venv = env.unwrapped
+    device, fleet = venv._device, venv.fleet
+    (model_tree, model_buffers), (data_tree, data_buffers) = device.trees
+    act, nstep, skip, cap = fleet.actuator, fleet.nstep, venv.frame_skip, fleet.max_input
+
+    def one(model, data, u):
+        data = data.replace(ctrl=data.ctrl.at[act].set(u))
+        return jax.lax.fori_loop(
+            0, skip, lambda _, d: mujoco_steps(mjx, model, d, nstep, cap)[0], data)
+
+    every = jax.vmap(one, in_axes=(fleet.in_axes, 0, 0))
+
+    def flat(model, data, u):
+        data = every(model_tree.unflatten(model_buffers.unpack(model)),
+                     data_tree.unflatten(data_buffers.unpack(data)), u)
+        return data_buffers.pack(data_tree.flatten_up_to(data)), data.qpos[:, 0]
+
+    call = jax.jit(flat, donate_argnums=(1,))
+    held, u = [tuple(jnp.copy(a) for a in device.data0)], np.zeros(fleet.n_envs)
+
+    def step() -> float:
+        c = time.thread_time()
+        out = call(device.model, held[0], u)
+        dispatched = time.thread_time()
+        jax.block_until_ready(out)
+        waited = time.thread_time() - dispatched
+        held[0] = out[0]
+        np.asarray(out[1])
+        return time.thread_time() - c - waited
+
+    step()                                          # compiles
+    return step
 
 
 def _bad(message: str) -> int:
@@ -103,13 +158,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.pin:       # this thread only (0: the calling thread)
         os.sched_setaffinity(0, {cores[0]})
         print(f"pinned: JAX's threads on core {cores[-1]}, this thread on core {cores[0]}")
+    bare = {} if args.host_alone else {n: timed_bare(env) for n, (env, _) in envs.items()}
     times = {n: [] for n in envs}          # (wall s, host s, probe s, dispatch s) per step
     probed = {n: [] for n in envs}                 # the same, steps with the fixed work
+    bare_s = {n: [] for n in envs}                 # host s of MJX's own step alone
     while len(times[large]) < args.steps:
         for n, (_, step) in envs.items():
-            for _ in range(min(args.block, args.steps - len(times[n]))):
+            block = min(args.block, args.steps - len(times[n]))
+            for _ in range(block):
                 times[n].append(step())
                 probed[n].append(step(fixed_host_work))
+            # a block of its own: a bare step between the env's would change what the
+            # env's step finds in the caches
+            for _ in range(block if bare else 0):
+                bare_s[n].append(bare[n]())
     host, fixed = {}, {}
     for n, (env, _) in envs.items():
         env.close()
@@ -123,6 +185,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"host time per step at {large} over {small}: {host[large] / host[small]:.2f} "
           f"(baseline: {host[small]:.3g} ms at {small} envs, same run; medians of "
           f"{args.steps} steps each)")
+    if bare:
+        mjx_ms = {n: 1e3 * float(np.median(v)) for n, v in bare_s.items()}
+        print(f"MJX's own step alone, host ms/step: {mjx_ms[small]:.3g} at {small}, "
+              f"{mjx_ms[large]:.3g} at {large}: {mjx_ms[large] / mjx_ms[small]:.2f} "
+              f"(the same dispatch and read-back, no tspend: what JAX's backend charges "
+              f"the host as N grows)")
+        print(f"tspend's env over MJX's own step: {host[small] / mjx_ms[small]:.2f} at "
+              f"{small}, {host[large] / mjx_ms[large]:.2f} at {large}")
     if not args.host_alone:    # (no device result to follow)
         print(f"fixed host work at {large} over {small}: {fixed[large] / fixed[small]:.2f} "
               f"(the same work at both sizes, right after the device's result: what the "

@@ -289,8 +289,10 @@ class _DeviceEnvs:
         #: what every step reads
         self.tables = (put(fleet.d_to_tau), put(fleet.lo), put(fleet.hi), put(pad),
                        put(fleet.ref), put(u_scale))
+        #: each flat buffer's tree structure and layout (:class:`Buffers`), model then data
+        self.trees = ((model_tree, model_buffers), (data_tree, data_buffers))
         self.call = _make_env_step(fleet, frame_skip, horizon, template, template.dt, next_step,
-                                   ((model_tree, model_buffers), (data_tree, data_buffers)))
+                                   self.trees)
         self._config, self._x64 = jax.config, precision == "float64"
         self._precision = precision
         self.reset()
