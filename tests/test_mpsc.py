@@ -42,11 +42,12 @@ def test_terminal_level_is_the_largest_ellipsoid_inside_the_rows():
     assert max(r / b for r, (_, b) in zip(reach, rows)) == pytest.approx(1.0, abs=2e-3)
 
 
-def _solve_plan(f, s, plan, model=None):
+def _solve_plan(f, s, plan, model=None, nodes=None):
     """The certified plan (P5) integrated by scipy: the first sample's input held, then
     each interval with the LQR correction towards the reference interpolated between the
-    nodes, evaluated continuously (the runner tracks at every sample); the states every
-    millisecond."""
+    nodes, evaluated continuously (the runner tracks at every sample) or, where the
+    certificate holds it, at each sample's start and held over the sample; the states
+    every millisecond (and, into ``nodes``, at the plan's nodes after the first)."""
     from scipy.integrate import solve_ivp
 
     U, R = plan
@@ -61,13 +62,21 @@ def _solve_plan(f, s, plan, model=None):
         out.append(sol.y.T)
         return sol.y[:, -1]
 
+    def law(t, y, k):
+        a = 0.0 if k + 1 >= c.N else t / c.h
+        ref = (1 - a) * R[:, k] + a * R[:, min(k + 1, c.N - 1)]
+        return min(max(float(U[k] - c.K @ (y - ref)), c.u_lo), c.u_hi)
+
     x = follow(lambda t, y: U[0], c.sample_s, x)
+    nodes = [] if nodes is None else nodes
+    nodes.append(x)
     for k in range(1, c.N):
-        def law(t, y, k=k):
-            a = 0.0 if k + 1 >= c.N else t / c.h
-            ref = (1 - a) * R[:, k] + a * R[:, min(k + 1, c.N - 1)]
-            return min(max(float(U[k] - c.K @ (y - ref)), c.u_lo), c.u_hi)
-        x = follow(law, c.h, x)
+        if not c.held:
+            x = follow(lambda t, y, k=k: law(t, y, k), c.h, x)
+        for j in range(c.substeps if c.held else 0):   # u from each sample's start, held
+            u = law(j * c.sample_s, x, k)
+            x = follow(lambda t, y, u=u: u, c.sample_s, x)
+        nodes.append(x)
     return np.vstack(out[1:]), x
 
 
@@ -85,6 +94,26 @@ def test_the_certified_plan_keeps_the_rail_and_ends_in_the_ellipsoid_by_scipy(u_
     c = f.cert
     assert np.abs(states[:, 0]).max() <= c.hi_check[0] + 1e-3
     assert np.abs(states[:, 1]).max() < c.hi[1]
+    assert end @ c.P @ end <= c.level * (1 + 1e-3)
+
+
+def test_a_plan_sampled_every_20_ms_is_certified_as_the_runner_holds_it_by_scipy():
+    # run.control_period 20 ms: the runner holds u over each sample, so (P5) does too,
+    # on a plan grid of whole samples (5 per plan period here)
+    f = _filter(**{"run.control_period": 0.02})
+    c = f.cert
+    assert c.sample_s == 0.02 and c.held and c.substeps == 5
+    assert c.h == pytest.approx(5 * 0.02)
+    s = np.array([0.3, 0.0, 0.5, 0.0])
+    f.filter(s, 0.0)
+    assert f.plan is not None
+    rollout, _ = f.roll.nominal(s, *f.plan)
+    nodes: list = []
+    states, end = _solve_plan(f, s, f.plan, nodes=nodes)
+    # the certificate's own nominal rollout against scipy's at the plan's nodes (RK4 at
+    # 20 ms against a tight integration of the same held inputs)
+    assert np.abs(np.array(nodes) - rollout[:, 1:].T).max() < 2e-3
+    assert np.abs(states[:, 0]).max() <= c.hi_check[0] + 1e-3
     assert end @ c.P @ end <= c.level * (1 + 1e-3)
 
 

@@ -14,9 +14,12 @@ clipped to the input's range, the filter asks for a backup plan ``u_0 .. u_{N-1}
     u(t) = U_k - K (x(t) - R(t))   (k >= 1; R the plan's states, x the rollout's)   (P5)
 
 ``F_0`` one control sample (RK4), ``F`` one ``plan_period``; (P5) is the plan as it is
-followed (the LQR ``K`` towards the plan's states, evaluated at every RK4 stage: the
-runner tracks at every sample, so the certificate's rollout does not hold the
-correction over a step).  **The
+followed (the LQR ``K`` towards the plan's states).  Where a plan period spans at most
+:data:`MAX_HELD_SAMPLES` control samples, the plan's grid is put on the samples (the
+period a whole number of samples, one RK4 step per sample) and ``u`` is evaluated at each
+step's start and held over it, as the runner holds it over a sample; with shorter samples
+than that (the cart-pole's 1 ms against 50 ms steps) it is evaluated at every RK4 stage,
+the runner's sampling taken as continuous.  **The
 certificate** (P6): a plan is certified when (P5) rolled out on the nominal model *and on
 every corner model* keeps (P2) at every RK4 step and ends in (P3).  Every candidate the
 filter may apply is such a rollout (one compiled CasADi function over all models:
@@ -130,6 +133,11 @@ TERMINAL_WEIGHT = 0.1
 BISECTIONS = 8
 #: the longest plan (intervals) chosen automatically
 MAX_AUTO_HORIZON = 40
+#: (P5) holds u over each control sample, as the runner does, where a plan period spans
+#: at most this many samples (one RK4 step each: a controller held for 10 ms against a
+#: 19 ms RK4 step, tracked at every stage, left the double cart-pole's box); with shorter
+#: samples the rollout tracks at every RK4 stage
+MAX_HELD_SAMPLES = 8
 #: HPIPM's options for the QP: "speed_abs" stops at the absolute residuals (1e-7)
 QP_OPTIONS = {"mode": "speed_abs"}
 #: the largest constraint residual of a QP's answer taken as a step (the certificate
@@ -404,7 +412,8 @@ def plan_grid(K: np.ndarray, model: "FullModel", cfg: "SafetyConfig") -> tuple[f
     """``(plan_period, horizon, substeps)``: the settings, or where 0, from the nominal
     machine's balancing LQR ``A - B K`` at the upright: 0.5 / its fastest pole's modulus
     (0.005 to 0.1 s), 3 time constants of its slowest (10 to :data:`MAX_AUTO_HORIZON`
-    intervals), and RK4 steps of at most 0.25 / the fastest pole of ``A`` or ``A - B K``."""
+    intervals), and RK4 steps of at most 0.25 / the fastest pole of ``A`` or ``A - B K``
+    (:func:`held_grid` may then put it on the control samples)."""
     A, B = model.linearisation()
     poles = np.linalg.eigvals(A - B @ K)
     h = cfg.plan_period or min(0.1, max(0.005, 0.5 / float(np.abs(poles).max())))
@@ -413,6 +422,19 @@ def plan_grid(K: np.ndarray, model: "FullModel", cfg: "SafetyConfig") -> tuple[f
     fastest = max(float(np.abs(poles).max()), float(np.abs(np.linalg.eigvals(A)).max()))
     substeps = cfg.substeps or max(1, math.ceil(h * fastest / 0.25))
     return h, horizon, substeps
+
+
+def held_grid(h: float, horizon: int, substeps: int,
+              sample_s: float) -> tuple[float, int, int, bool]:
+    """``(plan_period, horizon, substeps, held)``: where ``h`` spans at most
+    :data:`MAX_HELD_SAMPLES` samples, the period rounded to a whole number ``k`` of
+    samples, ``k`` RK4 steps of one sample each and the horizon keeping its length in
+    time, held (P5); else the grid as it was, not held."""
+    k = max(1, round(h / sample_s))
+    if k > MAX_HELD_SAMPLES:
+        return h, horizon, substeps, False
+    held_h = k * sample_s
+    return held_h, max(1, math.ceil(horizon * h / held_h - 1e-9)), k, True
 
 
 @dataclass(frozen=True)
@@ -454,6 +476,8 @@ class Certificate:
     terminal: str = "sampled"
     #: the balancing LQR's Riccati matrix (the QP's cost to go; ``P`` is X_f's)
     P_cost: np.ndarray | None = None
+    #: (P5): u held over each RK4 step (one control sample), else tracked at every stage
+    held: bool = False
     #: (P10)'s proven decay rate of ``s^T P s`` on the vertex linearisations (1/s; < 0: shown)
     decay_rate: float = math.nan
 
@@ -516,7 +540,8 @@ def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
     half = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (hi - lo), 0.0)
     bounds = (lo + cfg.margin * half, hi - cfg.margin * half,
               lo + CHECK_MARGIN * cfg.margin * half, hi - CHECK_MARGIN * cfg.margin * half)
-    h, horizon, substeps = plan_grid(K.reshape(1, -1), model, cfg)
+    h, horizon, substeps, held = held_grid(*plan_grid(K.reshape(1, -1), model, cfg),
+                                           sample_s)
     P_set, level, rate = terminal_set([model] + list(corners), P, K, bounds, u_lo, u_hi,
                                       horizon * h)
     if not math.isfinite(level):
@@ -531,7 +556,7 @@ def design(scenario: "Scenario", machine: Any, corners: list, names: list[str],
                        substeps, *bounds, limits, tube, float(u_lo), float(u_hi), rows, K,
                        P_set, level, Q, b_pole ** 2, budget,
                        terminal="vertex_lyapunov" if rate < 0.0 else "sampled",
-                       P_cost=P, decay_rate=rate)
+                       P_cost=P, decay_rate=rate, held=held)
 
 
 def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bounds: tuple,
@@ -561,11 +586,12 @@ def terminal_set(models: list["FullModel"], P_lqr: np.ndarray, K: np.ndarray, bo
 
 
 def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: float,
-                 name: str) -> Any:
-    """One RK4 step of (P5) on ``m`` with the LQR's correction evaluated at every stage
-    (``u = clip(U_k - K (x - ref))``, ``ref`` moving linearly from ``ref_0`` to ``ref_1``
-    over the step): the tracking the runner applies at every sample, not a hold over the
-    step; ``(x, U_k, ref_0, ref_1) -> (x_next, u at the step's start)``."""
+                 name: str, held: bool = False) -> Any:
+    """One RK4 step of (P5) on ``m``: ``u = clip(U_k - K (x - ref))``, ``ref`` moving
+    linearly from ``ref_0`` to ``ref_1`` over the step, evaluated at every stage (the
+    runner's sampling taken as continuous) or, ``held``, at the step's start and held
+    over it (a step is one control sample); ``(x, U_k, ref_0, ref_1) -> (x_next, u at
+    the step's start)``."""
     import casadi as ca
 
     x, Uk = ca.SX.sym("x", m.size), ca.SX.sym("u")
@@ -576,13 +602,19 @@ def tracked_step(m: "FullModel", dt: float, K: np.ndarray, u_lo: float, u_hi: fl
     def law(y, ref):
         return ca.fmin(ca.fmax(Uk - ca.dot(gain, y - ref), lo), hi)
 
-    mid = 0.5 * (r0 + r1)
-    k1 = f(x, law(x, r0))
-    k2 = f(x + dt / 2 * k1, law(x + dt / 2 * k1, mid))
-    k3 = f(x + dt / 2 * k2, law(x + dt / 2 * k2, mid))
-    k4 = f(x + dt * k3, law(x + dt * k3, r1))
+    mid, u0 = 0.5 * (r0 + r1), law(x, r0)
+    if held:
+        k1 = f(x, u0)
+        k2 = f(x + dt / 2 * k1, u0)
+        k3 = f(x + dt / 2 * k2, u0)
+        k4 = f(x + dt * k3, u0)
+    else:
+        k1 = f(x, u0)
+        k2 = f(x + dt / 2 * k1, law(x + dt / 2 * k1, mid))
+        k3 = f(x + dt / 2 * k2, law(x + dt / 2 * k2, mid))
+        k4 = f(x + dt * k3, law(x + dt * k3, r1))
     return ca.Function(name, [x, Uk, r0, r1],
-                       [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), law(x, r0)])
+                       [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), u0])
 
 
 def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
@@ -609,7 +641,8 @@ def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
     out = []
     for i, m in enumerate((cert.model, *cert.corners)):
         x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, Un[0])
-        step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}")
+        step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}",
+                            cert.held)
         X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, start, end)
         out.append((ca.horzcat(x1, X), ca.horzcat(Un[0], used)))
     return out
@@ -1400,6 +1433,10 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "start_admitted_by_robust_plan": self.robust_admitted,
                 "admission_ms": self.admission_ms,
                 "certificate": {"models": self.roll.models,
+                                # (P5): u held over each control sample, or tracked at
+                                # every RK4 stage; the sample and the plan's interval
+                                "held": cert.held, "sample_s": cert.sample_s,
+                                "plan_period_s": cert.h, "substeps": cert.substeps,
                                 "corner_parameters": list(cert.corner_names),
                                 "terminal_set": cert.terminal, "terminal_level": cert.level,
                                 "terminal_decay_rate": cert.decay_rate,
@@ -1430,7 +1467,9 @@ def wrap(scenario: "Scenario", inner: Controller, machine: Any) -> PredictiveSaf
     problem = missing_extra("casadi", "safety.filter = \"mpsc\"")
     if problem:
         raise ScenarioError(problem)
-    sample = inner.sample_period or scenario.run.dt
+    # the period the runner holds u over (tspend.loop.simulation's rule): run.control_period,
+    # else the controller's own, else every step
+    sample = scenario.run.control_period or inner.sample_period or scenario.run.dt
     cfg = scenario.safety
     if cfg.plan_period and cfg.plan_period < sample:  # the scenario checked run's period only
         raise ScenarioError(f"{scenario.path}: safety.plan_period = {cfg.plan_period:g} s is "
