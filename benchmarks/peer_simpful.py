@@ -143,17 +143,20 @@ def simpful_p(fs: sf.FuzzySystem, names, z: np.ndarray, outputs=OUTPUTS) -> np.n
 
 from numba import njit  # noqa: E402
 
+from tspend.runtime.jit import JIT  # noqa: E402
 
-@njit(cache=True, nogil=True)
+
+@njit(**JIT)
 def compiled_p(z, grid, C, P, scratch, out):
     """p = w @ P (9) at z with tspend's compiled firing (12)."""
-    scratch.z[:] = z
+    for i in range(z.size):     # (no slice assignment: tspend's options leave out NRT)
+        scratch.z[i] = z[i]
     varpi = fire(grid, C, scratch)
     model_output(scratch.w, P, out)
     return varpi
 
 
-@njit(cache=True, nogil=True)
+@njit(**JIT)
 def compiled_p_each(Z, grid, C, P, scratch, out):
     """compiled_p at every row of Z, in one compiled call (no Python call per evaluation)."""
     for k in range(Z.shape[0]):
