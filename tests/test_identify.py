@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from tspend.cli.main import main
-from tspend.controllers.excitation import ExcitationSettings, excitation
+from tspend.controllers.excitation import ExcitationSettings, design_signal, excitation
 from tspend.plants import mjcf
 from tspend.studies import identify as ident
 from tspend.studies.identify_model import load_model
@@ -146,6 +146,33 @@ def test_excitation_stays_within_its_amplitude_and_starts_quietly(signal):
     assert np.all(e[t < s.start_s] == 0.0)
     late = e[t > s.start_s + s.ramp_s]
     assert np.max(np.abs(late)) > 0.6 * 2.5 and abs(np.mean(late)) < 0.2 * 2.5
+
+
+@pytest.mark.parametrize("signal", ["multisine", "chirp", "prbs"])
+def test_the_designed_signal_gives_each_sample_what_the_whole_signal_has(signal):
+    """A controller evaluates the signal designed for a 2 s run one sample at a time; the
+    samples are the excitation computed at once over 3 s (past the horizon: prbs draws its
+    bits anew, and a longer draw begins with the shorter's bits)."""
+    s = ExcitationSettings(signal=signal, amplitude=2.0, f_min_hz=0.5, f_max_hz=20.0,
+                           start_s=0.1, ramp_s=0.2)
+    t = np.arange(0.0, 3.0, 1e-3)
+    designed = design_signal(s, 2.0)
+    one_by_one = np.array([float(designed.at(x)) for x in t])
+    # the multisine's own independent sum (no design): lines, Schroeder phases, the peak
+    f = np.geomspace(0.5, 20.0, s.n_freq)
+    k = np.arange(1, s.n_freq + 1)
+    lines = np.sin(2 * np.pi * np.multiply.outer(np.maximum(t - 0.1, 0), f)
+                   - np.pi * k * (k - 1) / s.n_freq).sum(-1)
+    whole = excitation(s, t)
+    np.testing.assert_allclose(one_by_one, whole, rtol=0, atol=1e-12)
+    if signal == "multisine":
+        # one scale, 1 / the peak, wherever the clip at the amplitude did not act
+        ratio = whole / (2.0 * lines)
+        unclipped = (t > 0.3) & (np.abs(lines) > 1) & (np.abs(whole) < 2.0 - 1e-9)
+        assert unclipped.sum() > 2000 and np.ptp(ratio[unclipped]) < 1e-12
+    if signal == "prbs":  # the bits of 1.9 s at 40 per second, not of the whole 3 s
+        assert 76 <= designed.bits.size <= 77
+        assert np.all(np.abs(whole[t > 0.3]) == 2.0)
 
 
 @pytest.mark.parametrize("extra, words", [

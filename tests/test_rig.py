@@ -4,7 +4,10 @@ the watchdog, the stop frame, replay, and the C rig end over a pseudo-terminal.
 Every process is bounded in time (timeouts on every wait); sockets on 127.0.0.1 only.
 Timing figures are not asserted here (benchmarks/rig_timing.py measures them); what is
 asserted is behaviour: what the controller saw against what the double sent, what the
-double applied against what the host sent, bit-for-bit replay.
+double applied against what the host sent, bit-for-bit replay.  A test whose loop is paced
+to the wall clock is marked ``realtime``: it runs alone, beside a witness of the machine's
+punctuality, and a failure while the machine itself kept no schedule is a skip that says
+so (tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -162,6 +165,7 @@ def test_the_clock_tracker_measures_a_known_drift_and_ignores_one_outlier_window
 
 
 # -- the UDP double and the runner ------------------------------------------------------
+@pytest.mark.realtime
 def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp_path):
     double, url, log = start_double(tmp_path)
     r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
@@ -197,17 +201,25 @@ def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp
     assert "1500 commands equal bit for bit, 0 differ" in again.out
 
 
+@pytest.mark.realtime
 def test_a_drifting_rig_clock_is_measured_followed_and_said(tmp_path):
     """A double whose clock runs 300 ppm slow: the timing block states the drift, the
     schedule re-aligns on the rig's clock and one line says so.  Without re-alignment each
     frame would reach the host after its deadline from 0.7 s on (the 0.2 ms lead at 2 ms
     periods, lost at 300 us per s): three quarters of the cycles stale."""
-    double, url, _ = start_double(tmp_path, "--clock-ppm", "-300")
-    r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
-               "--metrics", "m.json", "--no-record", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
-    finish(double)
-    assert r.status == 0, r.err
-    timing = json.loads((tmp_path / "m.json").read_text())["timing"]
+    stale = []
+    for attempt in range(3):  # late frames in a slow spell of the machine: run again
+        folder = tmp_path / f"try{attempt}"
+        folder.mkdir()
+        double, url, _ = start_double(folder, "--clock-ppm", "-300")
+        r = tspend("run", SCENARIO, "--controller", "lqr", "--rig", url, "--duration", "3",
+                   "--metrics", "m.json", "--no-record", cwd=folder, timeout=PROCESS_TIMEOUT_S)
+        finish(double)
+        assert r.status == 0, r.err
+        timing = json.loads((folder / "m.json").read_text())["timing"]
+        stale.append(timing["frames"]["stale_cycles"] / timing["cycles"])
+        if stale[-1] < 0.10:
+            break
     clock = timing["clock"]
     assert -345 < clock["rig_gain_us_per_s"] < -255, clock
     # 3 s at 300 ppm: 900 us, re-aligned in steps of at most a window's drift past the bound
@@ -230,6 +242,7 @@ def rig_run_with_twin(folder: Path, *double_options: str) -> dict:
     return json.loads((folder / "m.json").read_text())["twin_gap"]
 
 
+@pytest.mark.realtime
 def test_the_twin_is_drawn_in_the_rig_runs_recording_and_its_gap_is_in_the_metrics(tmp_path):
     """The twin beside the rig's trajectories in the rig run's own recording (read back),
     the gap in the metrics: at the encoders' resolution on an exact double, far above it on
@@ -289,6 +302,7 @@ def test_the_twin_is_drawn_in_the_rig_runs_recording_and_its_gap_is_in_the_metri
         assert heavy["slider"]["rms"] > 2 * exact["slider"]["rms"], (heavy, exact)
 
 
+@pytest.mark.realtime
 def test_a_simulation_with_the_rigs_estimator_gives_the_rig_runs_commands(tmp_path):
     """``run --estimator``: the simulated controller fed encoder counts and the rig runner's
     velocity estimate.  On an exact double (which rests at x0 until the first command and
@@ -344,6 +358,7 @@ def test_estimator_options_are_checked(tmp_path):
         assert r.status == 2 and said in r.one_error_line(), (argv, r.err)
 
 
+@pytest.mark.realtime
 def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):
     """Replay can fail: the same frames through another velocity filter give other commands."""
     double, url, _ = start_double(tmp_path)
@@ -381,6 +396,7 @@ def test_replay_notices_a_different_estimator(tmp_path, monkeypatch):
     assert replay_module.replay(tmp_path / "rig.rrd").equal < 250
 
 
+@pytest.mark.realtime
 def test_faults_are_counted_and_no_corrupt_frame_is_ever_applied(tmp_path):
     double, url, log = start_double(tmp_path, "--drop", "0.05", "--sensor-latency-ms", "3",
                                     "--corrupt", "0.01", "--fault-seed", "3")
@@ -415,6 +431,7 @@ def test_faults_are_counted_and_no_corrupt_frame_is_ever_applied(tmp_path):
     assert (truth["event"] == "rejected_command").sum() > 0  # corrupted commands: dropped
 
 
+@pytest.mark.realtime
 def test_sigkill_the_runner_the_watchdog_zeroes_the_command(tmp_path):
     double, runner, log = running_pair(tmp_path, 1.5, "--watchdog-ms", "20")
     runner.send_signal(signal.SIGKILL)
@@ -457,6 +474,7 @@ def running_pair(tmp_path: Path, seconds: float, *double_options: str):
     return double, runner, log
 
 
+@pytest.mark.realtime
 def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
     double, runner, log = running_pair(tmp_path, 1.5)
     runner.send_signal(signal.SIGINT)
@@ -472,6 +490,7 @@ def test_ctrl_c_sends_the_stop_frame_and_keeps_the_outputs(tmp_path):
     assert (tmp_path / "rig.rrd").stat().st_size > 0
 
 
+@pytest.mark.realtime
 def test_a_rig_gone_silent_ends_the_run_with_its_outputs_kept(tmp_path):
     double, runner, _ = running_pair(tmp_path, 1.0)
     double.send_signal(signal.SIGKILL)
@@ -483,6 +502,7 @@ def test_a_rig_gone_silent_ends_the_run_with_its_outputs_kept(tmp_path):
     assert m["status"] == "diverged" and (tmp_path / "rig.rrd").exists()
 
 
+@pytest.mark.realtime
 def test_miss_policy_stop_ends_the_run_at_the_first_late_command(tmp_path):
     """A plug-in rig whose read stalls one cycle by three periods (a slow driver)."""
     plugin = tmp_path / "slow_rig.py"
@@ -538,6 +558,7 @@ def test_an_unreachable_rig_and_a_wrong_machine_are_refused_in_one_line(tmp_path
     assert r.status == 2 and "not a subclass" in r.one_error_line()
 
 
+@pytest.mark.realtime
 def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path):
     """The loop that makes the twin better: excite, run on the rig, export, identify."""
     r = tspend("excite", SCENARIO, "--out", "exp.toml", "--duration", "10", cwd=tmp_path,
@@ -584,8 +605,9 @@ def rig_end(tmp_path_factory) -> Path:
     return exe
 
 
-def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
-    pytest.importorskip("serial")
+def lqr_over_a_pseudo_terminal(tmp_path: Path, rig_end: Path):
+    """A 2 s LQR run through the C rig end on a pseudo-terminal (m.json in ``tmp_path``);
+    the run's result and what the rig end printed."""
     master, slave = pty.openpty()
     tty.setraw(slave)  # the line carries bytes, not text
     try:
@@ -598,6 +620,19 @@ def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
     finally:
         os.close(slave)
         os.close(master)
+    return r, out
+
+
+@pytest.mark.realtime
+def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
+    pytest.importorskip("serial")
+    for attempt in range(3):
+        r, out = lqr_over_a_pseudo_terminal(tmp_path, rig_end)
+        # a pseudo-terminal's bytes reach the other end through a kernel worker at normal
+        # priority: in a slow spell it may hold them past the 50 ms watchdog (CI: 52 ms
+        # at 0.054 s); the run then ends as it must, and the line is tried again
+        if not (r.status == 3 and "the rig is gone" in r.err):
+            break
     assert r.status == 0, r.err
     assert "completed: 1000 steps" in r.out
     assert out.startswith("rig_end: stopped")  # by the host's stop frame
@@ -641,6 +676,7 @@ def _relay(master_a: int, master_b: int, done) -> None:
             os.write(master_b if fd == master_a else master_a, data)
 
 
+@pytest.mark.realtime
 def test_the_double_serves_a_serial_line(tmp_path):
     """``rig serve --listen serial://`` end to end: the double on one pseudo-terminal, the
     runner on another, the test's relay between them as the cable."""

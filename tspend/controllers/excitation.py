@@ -37,7 +37,8 @@ if TYPE_CHECKING:
     from tspend.plants.base import Plant
     from tspend.config import Scenario
 
-__all__ = ["ExcitationSettings", "ExcitedController", "SIGNALS", "excitation", "build"]
+__all__ = ["ExcitationSettings", "ExcitationSignal", "ExcitedController", "SIGNALS",
+           "design_signal", "excitation", "build"]
 
 SIGNALS = ("multisine", "chirp", "prbs")
 
@@ -75,49 +76,82 @@ class ExcitationSettings(KindSettings):
         return None
 
 
+@dataclass(frozen=True, eq=False)
+class ExcitationSignal:
+    """The excitation's frozen numbers, made once by :func:`design_signal`; :meth:`at` is
+    its law (a controller step evaluates it every sample: nothing is drawn or searched
+    there, 128 us a sample had been, a quarter of a 500 Hz rig's budget)."""
+
+    settings: ExcitationSettings
+    omega_rad_s: np.ndarray  # multisine: the lines' angular frequencies
+    phase_rad: np.ndarray    # and their Schroeder phases
+    inv_peak: float          # 1 / the multisine's peak over a long sample
+    bits: np.ndarray         # prbs: its bits up to the horizon designed for
+
+    def at(self, t: np.ndarray | float) -> np.ndarray:
+        """``a(t) e(t)``: the excitation at times ``t`` (s)."""
+        s = self.settings
+        # ufuncs, not np.clip/np.where: a controller calls this on one float each sample
+        t = np.asarray(t, dtype=float)
+        started = t >= s.start_s
+        tau = np.maximum(t - s.start_s, 0.0)
+        ramp = np.minimum(tau / s.ramp_s, 1.0) * started if s.ramp_s > 0 else started * 1.0
+        if s.signal == "multisine":
+            e = np.sin(np.multiply.outer(tau, self.omega_rad_s) + self.phase_rad).sum(axis=-1)
+            # log-spaced lines are not periodic: the peak over a long sample, and a clip for
+            # the rare instant beyond it (the excitation never exceeds its amplitude)
+            e = np.minimum(np.maximum(e * self.inv_peak, -1.0), 1.0)
+        elif s.signal == "chirp":
+            tt = np.mod(tau, s.sweep_s)
+            r = s.f_max_hz / s.f_min_hz
+            e = np.sin(2 * math.pi * s.f_min_hz * s.sweep_s / math.log(r) * (r ** (tt / s.sweep_s) - 1))
+        else:
+            idx = np.floor(tau / _prbs_hold_s(s)).astype(np.int64)
+            needed = int(np.max(idx)) + 1 if idx.size else 1
+            # past the horizon (a longer run than designed for) the same bits, drawn anew
+            bits = self.bits if needed <= self.bits.size else _bits(s.seed, needed)
+            e = 2.0 * bits[idx] - 1.0
+        return s.amplitude * ramp * e
+
+
+def design_signal(s: ExcitationSettings, horizon_s: float) -> ExcitationSignal:
+    """The excitation's numbers for times up to ``horizon_s`` (s): the multisine's lines,
+    phases and peak, the prbs's bits."""
+    k = np.arange(1, s.n_freq + 1)
+    omega = 2 * math.pi * np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
+    phase = -math.pi * k * (k - 1) / s.n_freq                 # Schroeder
+    inv_peak = 1.0 / _multisine_peak(s) if s.signal == "multisine" else 1.0
+    n_bits = math.floor(max(horizon_s - s.start_s, 0.0) / _prbs_hold_s(s)) + 1
+    bits = _bits(s.seed, n_bits) if s.signal == "prbs" else np.zeros(0, dtype=np.int64)
+    return ExcitationSignal(s, omega, phase, inv_peak, bits)
+
+
 def excitation(s: ExcitationSettings, t: np.ndarray | float) -> np.ndarray:
     """``a(t) e(t)``: the excitation at times ``t`` (s)."""
-    t = np.asarray(t, dtype=float)
-    tau = np.maximum(t - s.start_s, 0.0)
-    ramp = np.clip(tau / s.ramp_s, 0.0, 1.0) if s.ramp_s > 0 else (t >= s.start_s).astype(float)
-    ramp = np.where(t >= s.start_s, ramp, 0.0)
-    if s.signal == "multisine":
-        f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
-        k = np.arange(1, s.n_freq + 1)
-        phase = -math.pi * k * (k - 1) / s.n_freq                 # Schroeder
-        e = np.sin(2 * math.pi * np.multiply.outer(tau, f) + phase).sum(axis=-1)
-        # log-spaced lines are not periodic: the peak over a long sample, and a clip for
-        # the rare instant beyond it (the excitation never exceeds its amplitude)
-        e = np.clip(e / _multisine_peak(s), -1.0, 1.0)
-    elif s.signal == "chirp":
-        tt = np.mod(tau, s.sweep_s)
-        r = s.f_max_hz / s.f_min_hz
-        e = np.sin(2 * math.pi * s.f_min_hz * s.sweep_s / math.log(r) * (r ** (tt / s.sweep_s) - 1))
-    else:
-        hold = 1.0 / (2.0 * s.f_max_hz)
-        idx = np.floor(tau / hold).astype(np.int64)
-        bits = _bits(s.seed, int(np.max(idx)) + 1 if idx.size else 1)
-        e = np.where(bits[idx] > 0, 1.0, -1.0)
-    return s.amplitude * ramp * e
+    return design_signal(s, float(np.max(t, initial=0.0))).at(t)
 
 
-_PEAKS: dict = {}
+def _prbs_hold_s(s: ExcitationSettings) -> float:
+    return 1.0 / (2.0 * s.f_max_hz)
+
+
 #: the widest band of an excitation, f_max_hz / f_min_hz (four decades)
 MAX_BAND_RATIO = 1e4
 
 
 def _multisine_peak(s: ExcitationSettings) -> float:
-    key = (s.f_min_hz, s.f_max_hz, s.n_freq)
-    if key not in _PEAKS:
-        f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
-        k = np.arange(1, s.n_freq + 1)
-        phase = -math.pi * k * (k - 1) / s.n_freq
-        t = np.arange(0.0, 4.0 / s.f_min_hz, 1.0 / (40.0 * s.f_max_hz))
-        _PEAKS[key] = float(np.max(np.abs(np.sin(2 * math.pi * np.multiply.outer(t, f) + phase).sum(-1))))
-    return _PEAKS[key]
+    """The largest |sum of the lines| over four periods of the lowest, 40 samples per
+    period of the highest (made once per design, not per sample)."""
+    f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
+    k = np.arange(1, s.n_freq + 1)
+    phase = -math.pi * k * (k - 1) / s.n_freq
+    t = np.arange(0.0, 4.0 / s.f_min_hz, 1.0 / (40.0 * s.f_max_hz))
+    return float(np.max(np.abs(np.sin(2 * math.pi * np.multiply.outer(t, f) + phase).sum(-1))))
 
 
 def _bits(seed: int, n: int) -> np.ndarray:
+    # a fresh Generator each time: its first n bits are the same for every n (checked in
+    # tests/test_identify.py), so a longer draw extends a shorter one
     return np.random.default_rng((seed, 0x1D3)).integers(0, 2, size=n)
 
 
@@ -132,8 +166,8 @@ class ExcitedController(Controller):
         return build(scenario, machine)
     guarantees = "the inner kind's, for the excitation's amplitude small enough"
 
-    def __init__(self, inner: Controller, settings: ExcitationSettings) -> None:
-        self.inner, self.s = inner, settings
+    def __init__(self, inner: Controller, signal: ExcitationSignal) -> None:
+        self.inner, self.signal, self.s = inner, signal, signal.settings
         self.order = inner.order
         self.sample_period = inner.sample_period
         base = tuple(inner.diagnostics)
@@ -148,7 +182,7 @@ class ExcitedController(Controller):
 
     def step(self, obs: Observation, dt: float) -> float:
         u = float(self.inner.step(obs, dt))
-        e = float(excitation(self.s, obs.t))
+        e = float(self.signal.at(obs.t))
         if self._w:
             self.diag[: self._w] = self.inner.diag[: self._w]
         self.diag[self._w] = e
@@ -167,7 +201,8 @@ def build(scenario: "Scenario", machine: "Plant | None" = None) -> ExcitedContro
         raise ScenarioError(f"{scenario.path or scenario.name}: controllers.excited.f_max_hz: "
                             f"{s.f_max_hz:g} Hz is above {nyquist:g} Hz, half the rate the "
                             f"input is applied at")
-    return ExcitedController(build_kind(scenario, s.inner, machine=machine), s)
+    return ExcitedController(build_kind(scenario, s.inner, machine=machine),
+                             design_signal(s, scenario.run.duration))
 
 
 def nyquist_hz(scenario: "Scenario") -> float:
