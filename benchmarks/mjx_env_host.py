@@ -78,10 +78,11 @@ def timed_bare(env: Any) -> Callable[[], float]:
     from mujoco import mjx
 
     from tspend.mjx.sweep import mujoco_steps
+    from tspend.mjx.vector_env import flat_io
 
     venv = env.unwrapped
     device, fleet = venv._device, venv.fleet
-    (model_tree, model_buffers), (data_tree, data_buffers) = device.trees
+    model_of, data_of, buffers_of = flat_io(device.trees)
     act, nstep, skip, cap = fleet.actuator, fleet.nstep, venv.frame_skip, fleet.max_input
 
     def one(model, data, u):
@@ -92,9 +93,8 @@ def timed_bare(env: Any) -> Callable[[], float]:
     every = jax.vmap(one, in_axes=(fleet.in_axes, 0, 0))
 
     def flat(model, data, u):
-        data = every(model_tree.unflatten(model_buffers.unpack(model)),
-                     data_tree.unflatten(data_buffers.unpack(data)), u)
-        return data_buffers.pack(data_tree.flatten_up_to(data)), data.qpos[:, 0]
+        data = every(model_of(model), data_of(data), u)
+        return buffers_of(data), data.qpos[:, 0]
 
     call = jax.jit(flat, donate_argnums=(1,))
     held, u = [tuple(jnp.copy(a) for a in device.data0)], np.zeros(fleet.n_envs)

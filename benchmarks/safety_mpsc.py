@@ -90,6 +90,8 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
                         "safety.time_p99_ms": (sf.get("time_per_sample_ms") or {}).get("p99"),
                         "safety.time_max_ms": (sf.get("time_per_sample_ms") or {}).get("max"),
                         "safety.over_budget": sf.get("over_budget_samples"),
+                        **{f"safety.over_budget.{cause}": n
+                           for cause, n in (sf.get("over_budget_by_cause") or {}).items()},
                         "safety.budget_ms": sf.get("budget_ms"),
                         "load_average_1min": os.getloadavg()[0],
                         "samples": sf.get("samples")})
@@ -181,6 +183,10 @@ def summary(table) -> dict:
                 "time_per_sample_ms_p99_max": float(g["safety.time_p99_ms"].max()),
                 "time_per_sample_ms_max": float(g["safety.time_max_ms"].max()),
                 "over_budget_samples": int(g["safety.over_budget"].sum()),
+                **({"over_budget_by_cause": {
+                    c.rsplit(".", 1)[1]: int(g[c].sum())
+                    for c in g.columns if c.startswith("safety.over_budget.")}}
+                   if any(c.startswith("safety.over_budget.") for c in g.columns) else {}),
                 "budget_ms": float(g["safety.budget_ms"].iloc[0]),
                 "load_average_1min_median": float(g["load_average_1min"].median())})
         out[ctrl] = row
@@ -392,6 +398,7 @@ def paced_replay(scn, history) -> dict:
     per = sf["time_per_sample_ms"]
     return {"paced_ms_median": per["median"], "paced_ms_p99": per["p99"],
             "paced_ms_max": per["max"], "paced_over_budget_samples": sf["over_budget_samples"],
+            "paced_over_budget_by_cause": sf["over_budget_by_cause"],
             "paced_certified_share": sf["certified_share"],
             "paced_on_certified_plan_share": sf["on_certified_plan_share"],
             "paced_sched_fifo": granted.sched_fifo, "paced_gc_paused": granted.gc_paused,
@@ -422,6 +429,7 @@ def randomized_timing(machine: str, seeds: int) -> dict:
                      "mpsc_ms_median": per["median"], "mpsc_ms_p99": per["p99"],
                      "mpsc_ms_max": per["max"], "budget_ms": sf["budget_ms"],
                      "over_budget_samples": sf["over_budget_samples"],
+                     "over_budget_by_cause": sf["over_budget_by_cause"],
                      "certified_share": sf["certified_share"],
                      "on_certified_plan_share": sf.get("on_certified_plan_share"),
                      "bare_pd_ms_median": bare["median"], "bare_pd_ms_max": bare["max"],

@@ -47,23 +47,27 @@ STALL_MS = 20.0
 
 @pytest.fixture(autouse=True)
 def machine_share(request, tmp_path_factory):
-    """A ``realtime`` test runs alone, with a witness of the machine's punctuality beside
-    it; every other test shares the machine.
+    """A ``realtime`` test runs with a witness of the machine's punctuality beside it;
+    one marked ``realtime(alone=True)`` runs alone as well; every other test shares the
+    machine.
 
     The suite runs on every core (pytest-xdist), and a rig test's loop, paced at 500 Hz,
     came late on a third of its cycles beside another worker's compiles on two cores: what
     it asserts (commands in force on time, frames fresh) measured the suite's load, not the
-    code.  Two locks in the session's shared temporary folder, one per machine: every test
-    holds ``share`` shared; a realtime test holds it alone.  ``turn`` is taken first by
-    both, so a realtime test waiting for the others is not overtaken by the next test."""
+    code.  Alone is dear (the other workers wait: the cold suite took 43 min, not 28, with
+    every rig test alone), so only the tests whose assertions are most sensitive to it are.
+    Two locks in the session's shared temporary folder, one per machine: every test holds
+    ``share`` shared; a test alone holds it alone.  ``turn`` is taken first by both, so a
+    test waiting to be alone is not overtaken by the next test."""
     folder = _session_folder(tmp_path_factory)
-    alone = request.node.get_closest_marker("realtime") is not None
+    marker = request.node.get_closest_marker("realtime")
+    alone = marker is not None and marker.kwargs.get("alone", False)
     with open(folder / "turn.lock", "a") as turn, open(folder / "share.lock", "a") as share:
         fcntl.flock(turn, fcntl.LOCK_EX)
         fcntl.flock(share, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
         if not alone:
             fcntl.flock(turn, fcntl.LOCK_UN)
-        else:
+        if marker is not None:
             request.node.stash[WITNESS] = subprocess.Popen(
                 [sys.executable, str(Path(__file__).with_name("punctuality.py"))],
                 stdout=subprocess.PIPE, text=True)

@@ -494,6 +494,40 @@ def test_a_rollout_dearer_than_the_last_ones_is_not_started_late():
     assert sample(s, 5.0)[1] <= 1e-3 and len(started[-1]) >= 1
 
 
+def test_a_sample_past_the_budget_is_counted_by_its_cause():
+    """(P9) on a fake clock, a 1 ms budget: a rollout started as a probe (no recent times:
+    estimate 0) that takes 2 ms; a 2 ms rollout started on an estimate of 0.1 ms; a sample
+    whose steps fit but whose thread waited 2 ms for a core (the wall clock moves, the CPU
+    clock does not).  Each is one sample over the budget, counted under its cause."""
+    from tspend.controllers.mpsc import StepCost
+
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    causes = {}
+    for case in ("probe", "step_over_its_estimate", "waited_for_a_core"):
+        f = _filter(**{"safety.budget_ms": 1.0})
+        f.admit(s)
+        costs = {"probe": [2e-3], "step_over_its_estimate": [0.1e-3] * 4 + [2e-3],
+                 "waited_for_a_core": [0.1e-3]}[case]
+        sample, _ = _on_a_fake_clock(f, costs, 0.05e-3)
+        if case == "probe":
+            f._cost["roll"] = StepCost(probe=True)  # no times: a probe's zero estimate
+        if case == "waited_for_a_core":
+            cpu, waited = f._cpu_clock, [0.0]
+            f._clock = lambda: cpu() + waited[0]
+            real_fallback = f.fallback
+
+            def preempted(*args):
+                waited[0] += 2e-3  # off the CPU: the wall clock moves on, the CPU's not
+                return real_fallback(*args)
+
+            f.fallback = preempted
+        for _ in range(3):
+            sample(s, 5.0)
+        causes[case] = dict(f.more_metrics()["over_budget_by_cause"])
+        assert f.over_budget == sum(causes[case].values()) >= 1, (case, causes[case])
+    assert all(set(k for k, n in c.items() if n) == {case} for case, c in causes.items()), causes
+
+
 def test_the_estimate_is_a_high_quantile_of_the_last_samples_calls():
     """(P9)'s estimate: a lone slow call does not move it (the COST_RANK-th largest); a
     spell of slow calls is the estimate until COST_WINDOW samples have passed, with or

@@ -5,9 +5,9 @@ Every process is bounded in time (timeouts on every wait); sockets on 127.0.0.1 
 Timing figures are not asserted here (benchmarks/rig_timing.py measures them); what is
 asserted is behaviour: what the controller saw against what the double sent, what the
 double applied against what the host sent, bit-for-bit replay.  A test whose loop is paced
-to the wall clock is marked ``realtime``: it runs alone, beside a witness of the machine's
+to the wall clock is marked ``realtime``: it runs beside a witness of the machine's
 punctuality, and a failure while the machine itself kept no schedule is a skip that says
-so (tests/conftest.py).
+so; the four most sensitive to the suite's load run alone (tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -201,7 +201,7 @@ def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp
     assert "1500 commands equal bit for bit, 0 differ" in again.out
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=True)
 def test_a_drifting_rig_clock_is_measured_followed_and_said(tmp_path):
     """A double whose clock runs 300 ppm slow: the timing block states the drift, the
     schedule re-aligns on the rig's clock and one line says so.  Without re-alignment each
@@ -558,7 +558,7 @@ def test_an_unreachable_rig_and_a_wrong_machine_are_refused_in_one_line(tmp_path
     assert r.status == 2 and "not a subclass" in r.one_error_line()
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=True)
 def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path):
     """The loop that makes the twin better: excite, run on the rig, export, identify."""
     r = tspend("excite", SCENARIO, "--out", "exp.toml", "--duration", "10", cwd=tmp_path,
@@ -623,7 +623,7 @@ def lqr_over_a_pseudo_terminal(tmp_path: Path, rig_end: Path):
     return r, out
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=True)
 def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
     pytest.importorskip("serial")
     for attempt in range(3):
@@ -676,7 +676,7 @@ def _relay(master_a: int, master_b: int, done) -> None:
             os.write(master_b if fd == master_a else master_a, data)
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=True)
 def test_the_double_serves_a_serial_line(tmp_path):
     """``rig serve --listen serial://`` end to end: the double on one pseudo-terminal, the
     runner on another, the test's relay between them as the cable."""

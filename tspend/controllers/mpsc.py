@@ -186,6 +186,10 @@ DECAY_MARGIN = 0.05
 #: last time (measured whole at admission; the QP at 1 kHz never runs)
 COST_WINDOW = 64
 COST_RANK = 4
+#: why a sample ran past the budget (the metrics' ``over_budget_by_cause``): its CPU time
+#: fits the budget (the thread waited for a core: no estimate predicts it), a rollout
+#: started as a probe, or a step that took longer than its estimate
+OVER_BUDGET_CAUSES = ("waited_for_a_core", "probe", "step_over_its_estimate")
 
 
 class StepCost:
@@ -1045,7 +1049,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
         #: samples where a step was skipped for the budget, and samples over it
         self.skipped = self.over_budget = 0
-        self._skipped_now = False
+        self.over_budget_by_cause = dict.fromkeys(OVER_BUDGET_CAUSES, 0)
+        self._skipped_now = self._probed_now = False
         self.rescue_relaxation = -math.inf
         self.max_slack = 0.0
         #: admission (before the first sample): None until made, then whether a plan was
@@ -1078,8 +1083,10 @@ class PredictiveSafetyFilter(SafetyFilter):
     def _affords(self, what: str) -> bool:
         """(P9): whether ``what``, by its estimate, ends before the deadline if started now
         (else it is skipped)."""
-        if self._clock() + self._cost[what].estimate <= self._deadline:
+        cost = self._cost[what]
+        if self._clock() + cost.estimate <= self._deadline:
             self._started = self._cpu_clock()
+            self._probed_now |= cost.probe and cost.estimate == 0.0
             return True
         self._skipped_now = True
         if not self._stepped:
@@ -1206,7 +1213,8 @@ class PredictiveSafetyFilter(SafetyFilter):
             self._deadline = t0 + (self.cert.budget_s - reserve if math.isfinite(reserve) else 0.0)
         for cost in (*self._cost.values(), self._reserve):
             cost.new_sample()
-        self._skipped_now = self._stepped = False
+        self._skipped_now = self._stepped = self._probed_now = False
+        cpu0 = self._step_end
         s = np.array(s, dtype=float)
         s[self._angles] = (s[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
         u_c = clip_input(self.cert, u_c) if math.isfinite(u_c) else math.nan
@@ -1231,8 +1239,18 @@ class PredictiveSafetyFilter(SafetyFilter):
         if self.admitted is not None:
             # the work after the last step (after none: after the last one refused)
             self._reserve.measured(self._cpu_clock() - self._step_end)
-        self.over_budget += (clock() - t0) > self.cert.budget_s
+        if clock() - t0 > self.cert.budget_s:
+            self.over_budget += 1
+            self.over_budget_by_cause[self._over_budget_cause(self._cpu_clock() - cpu0)] += 1
         return answer
+
+    def _over_budget_cause(self, cpu_s: float) -> str:
+        """Why a sample ran past the budget: its CPU time within it (the thread waited for
+        a core), else a rollout started on a probe's zero estimate, else a step that took
+        longer than its estimate."""
+        if cpu_s <= self.cert.budget_s:
+            return "waited_for_a_core"
+        return "probe" if self._probed_now else "step_over_its_estimate"
 
     def on_tails(self, s: np.ndarray, u_c: float, going_on: tuple | None,
                  ready: float | None) -> tuple | None:
@@ -1417,7 +1435,9 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "time_per_sample_ms": {"median": self.time_quantile_ms(0.5),
                                        "p99": self.time_quantile_ms(0.99),
                                        "max": 1e3 * self.time_max if n else None},
-                "over_budget_samples": self.over_budget, "budget_skipped_samples": self.skipped,
+                "over_budget_samples": self.over_budget,
+                "over_budget_by_cause": dict(self.over_budget_by_cause),
+                "budget_skipped_samples": self.skipped,
                 "certified_samples": certified, "certified_share": certified / n if n else None,
                 # steps 1-3: certified at this sample, or the plan certified at an earlier one
                 # going on (its rest, then X_f under the LQR: [3]'s recursive feasibility)

@@ -34,7 +34,7 @@ from gymnasium.vector.utils import batch_space
 from tspend.runtime.errors import ScenarioError
 from tspend.loop import envstep
 
-__all__ = ["MjxVectorEnv"]
+__all__ = ["MjxVectorEnv", "flat_io"]
 
 
 class MjxVectorEnv(VectorEnv):
@@ -360,6 +360,16 @@ class Buffers:
                 for group, start, shape in self.where]
 
 
+def flat_io(trees: tuple) -> tuple[Any, Any, Any]:
+    """The way a jitted call over flat buffers goes in and out, from ``trees`` (each of the
+    model's and the data's tree structure and :class:`Buffers`): the model from its
+    buffers, the data from its buffers, and the data's buffers from the data."""
+    (model_tree, model_buffers), (data_tree, data_buffers) = trees
+    return (lambda buffers: model_tree.unflatten(model_buffers.unpack(buffers)),
+            lambda buffers: data_tree.unflatten(data_buffers.unpack(buffers)),
+            lambda data: data_buffers.pack(data_tree.flatten_up_to(data)))
+
+
 def _device_model(fleet: Any, dtype: Any) -> Any:
     from tspend.mjx.sweep import _subset
 
@@ -466,15 +476,13 @@ def _make_env_step(fleet: Any, frame_skip: int, horizon: int, template: Any, dt:
 
     axes = (fleet.in_axes, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, None, None, 0)
     every = jax.vmap(one, in_axes=axes)
-    (model_tree, model_buffers), (data_tree, data_buffers) = trees
+    model_of, data_of, buffers_of = flat_io(trees)
 
     def flat(model, data, data0, *rest):
-        data, clock, obs, pending, rows = every(
-            model_tree.unflatten(model_buffers.unpack(model)),
-            data_tree.unflatten(data_buffers.unpack(data)),
-            data_tree.unflatten(data_buffers.unpack(data0)), *rest)
+        data, clock, obs, pending, rows = every(model_of(model), data_of(data), data_of(data0),
+                                                *rest)
         packed = jnp.concatenate((obs.reshape(-1), rows.T.reshape(-1)))
-        return data_buffers.pack(data_tree.flatten_up_to(data)), clock, obs, pending, packed
+        return buffers_of(data), clock, obs, pending, packed
 
     # the data, observation, clock and restart flags a step replaces are donated: their
     # buffers are reused, not freed and taken anew each step (on the CPU the free alone
