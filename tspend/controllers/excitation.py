@@ -120,7 +120,7 @@ def design_signal(s: ExcitationSettings, horizon_s: float) -> ExcitationSignal:
     k = np.arange(1, s.n_freq + 1)
     omega = 2 * math.pi * np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
     phase = -math.pi * k * (k - 1) / s.n_freq                 # Schroeder
-    inv_peak = 1.0 / _multisine_peak(s) if s.signal == "multisine" else 1.0
+    inv_peak = 1.0 / _multisine_peak(s, omega, phase) if s.signal == "multisine" else 1.0
     n_bits = math.floor(max(horizon_s - s.start_s, 0.0) / _prbs_hold_s(s)) + 1
     bits = _bits(s.seed, n_bits) if s.signal == "prbs" else np.zeros(0, dtype=np.int64)
     return ExcitationSignal(s, omega, phase, inv_peak, bits)
@@ -139,14 +139,11 @@ def _prbs_hold_s(s: ExcitationSettings) -> float:
 MAX_BAND_RATIO = 1e4
 
 
-def _multisine_peak(s: ExcitationSettings) -> float:
-    """The largest |sum of the lines| over four periods of the lowest, 40 samples per
-    period of the highest (made once per design, not per sample)."""
-    f = np.geomspace(s.f_min_hz, s.f_max_hz, s.n_freq)
-    k = np.arange(1, s.n_freq + 1)
-    phase = -math.pi * k * (k - 1) / s.n_freq
+def _multisine_peak(s: ExcitationSettings, omega: np.ndarray, phase: np.ndarray) -> float:
+    """The largest |sum of the lines| (``omega``, ``phase``) over four periods of the
+    lowest, 40 samples per period of the highest (made once per design, not per sample)."""
     t = np.arange(0.0, 4.0 / s.f_min_hz, 1.0 / (40.0 * s.f_max_hz))
-    return float(np.max(np.abs(np.sin(2 * math.pi * np.multiply.outer(t, f) + phase).sum(-1))))
+    return float(np.max(np.abs(np.sin(np.multiply.outer(t, omega) + phase).sum(-1))))
 
 
 def _bits(seed: int, n: int) -> np.ndarray:
