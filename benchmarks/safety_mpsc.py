@@ -399,6 +399,7 @@ def paced_replay(scn, history) -> dict:
     return {"paced_ms_median": per["median"], "paced_ms_p99": per["p99"],
             "paced_ms_max": per["max"], "paced_over_budget_samples": sf["over_budget_samples"],
             "paced_over_budget_by_cause": sf["over_budget_by_cause"],
+            "paced_rollouts_cut_short": sf["rollouts_cut_short"],
             "paced_certified_share": sf["certified_share"],
             "paced_on_certified_plan_share": sf["on_certified_plan_share"],
             "paced_sched_fifo": granted.sched_fifo, "paced_gc_paused": granted.gc_paused,
@@ -435,6 +436,7 @@ def randomized_timing(machine: str, seeds: int) -> dict:
                      "bare_pd_ms_median": bare["median"], "bare_pd_ms_max": bare["max"],
                      "ratio_median_over_bare": per["median"] / bare["median"],
                      "budget_skipped_samples": sf["budget_skipped_samples"],
+                     "rollouts_cut_short": sf["rollouts_cut_short"],
                      "load_average_1min": os.getloadavg()[0]})
         kept.append((scn, result.history))
     # the paced replays after every closed loop (one left this process's next closed

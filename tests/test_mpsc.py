@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -345,7 +347,7 @@ def _randomized_filter(seed):
 
 
 def test_the_rollout_on_every_corner_is_what_scipy_integrates():
-    """The certificate's one compiled rollout (mapaccum over one RK4 step per model)
+    """The certificate's compiled rollouts (mapaccum over one RK4 step, one per model)
     against scipy's integration of (P5) on the corner machines themselves: the least and
     largest cart position and the last state of each."""
     f, s = _randomized_filter(3)
@@ -360,6 +362,75 @@ def test_the_rollout_on_every_corner_is_what_scipy_integrates():
         assert summary[m, 0] == pytest.approx(states[:, 0].min(), abs=2e-3)
         assert summary[m, nx] == pytest.approx(states[:, 0].max(), abs=2e-3)
         assert summary[m, 2 * nx:] == pytest.approx(end, abs=2e-3)
+
+
+def test_the_compiled_check_is_the_rollout_model_by_model():
+    """The compiled check (one C call, ``mpsc_check.c``) and the same check in CasADi's
+    virtual machine against the whole rollout: the same summary when every model keeps
+    its bounds; a plan that leaves the rail stopped at the first model that breaks a
+    bound, which is then checked first; and no model after the first once the deadline
+    is gone (a check stopped between models, its verdict unknown)."""
+    import time
+
+    from tspend.controllers.mpsc import Rollout, certificate_rollout
+
+    f, s = _randomized_filter(3)
+    compiled = f.roll
+    assert compiled._compiled is not None
+    virtual = Rollout(certificate_rollout(f.cert), f.cert)
+    U, R = f.lqr_tail(s)
+    U[0] = f.terminal_input(s)
+    whole = virtual.run(s, U, R).copy()
+    assert f.verdict(whole) is None
+    far = time.perf_counter() + 60.0
+    for roll in (compiled, virtual):
+        summary, run, cpu_s = roll.check(s, U, R, far, 1e-6)
+        assert run == 17 and cpu_s > 0.0
+        np.testing.assert_allclose(summary, whole, rtol=1e-12, atol=1e-12)
+        # pushed towards the rail's end at speed: some model breaks a bound
+        away = s.copy()
+        away[0], away[2] = 0.9, 3.0
+        broken, run, _ = roll.check(away, U, R, far, 1e-6)
+        first = int(roll.order[0])
+        assert broken is False and 1 <= run <= 17
+        assert roll.excess[first] > 0.0 and f.verdict(roll.run(away, U, R)) is not None
+        # the model that broke a bound is tried first: the next check stops at once
+        assert roll.check(away, U, R, far, 1e-6)[:2] == (False, 1)
+        gone, run, _ = roll.check(s, U, R, time.perf_counter() - 1.0, 1e-6)
+        assert gone is None and run == 1
+
+
+def test_a_check_ends_before_the_deadline_less_its_verdict():
+    """(P9) per model: with a budget for half a rollout, a check started as a probe runs
+    the models that fit (each given MODEL_GUARD times its share of the rollout's
+    estimate), stops between two, and the sample ends within the budget; it is counted as
+    cut short."""
+    from tspend.controllers.mpsc import MODEL_GUARD, StepCost
+
+    f, s = _randomized_filter(3)
+    f.admit(s)
+    assert f.admitted and f.roll.models == 17
+    whole = f._cost["roll"].estimate
+    assert MODEL_GUARD * whole / f.roll.models < 0.25 * whole
+    f.cert = replace(f.cert, budget_s=0.5 * whole)
+    # a probe: started whatever the budget, stopped by the guard before each model
+    f._cost["roll"] = StepCost(probe=True)
+    f._cost["roll"].last = whole
+    started = []
+    check = f.roll.check
+    f.roll.check = lambda *a: started.append(a[3]) or check(*a)
+    # the reserve measured after a check stopped short first (the work after it, the
+    # other tails refused, is longer than after a sample with no step)
+    for _ in range(2):
+        f.filter(s, 5.0)
+    f.over_budget_by_cause = dict.fromkeys(f.over_budget_by_cause, 0)
+    cut, tried = f.cut_short, len(started)
+    for _ in range(4):
+        f.filter(s, 5.0)
+    # each check stopped short adds a whole rollout's time: after COST_RANK of them the
+    # estimate no longer fits and none starts
+    assert len(started) > tried and f.cut_short - cut == len(started) - tried
+    assert f.over_budget == 0, f.over_budget_by_cause
 
 
 def test_a_start_no_plan_covers_is_not_admitted_and_says_why():
@@ -407,8 +478,8 @@ def test_no_step_starts_past_the_budget():
     f.admit(s)
     assert f.admitted and f.plan is not None and f._cost["roll"].estimate > 1e-6
     runs = []
-    original = f.roll.run
-    f.roll.run = lambda *a: runs.append(1) or original(*a)
+    original = f.roll.check
+    f.roll.check = lambda *a: runs.append(1) or original(*a)
     for _ in range(5):
         u, _ = f.filter(s, 5.0)
     assert runs == [] and f.fallbacks == 5 and f.fast == 0 and f.skipped == 5
@@ -434,16 +505,18 @@ def _on_a_fake_clock(f, roll_costs_s, finish_s):
         f._cost["roll"].measured(cost)
     run_rollout, fallback = f.roll.run, f.fallback
 
-    def rollout(*args):
+    def rollout(s, U, R, until_s, guard_s):
+        # every model, whatever the (real) clock: the fake one moves by the rollout's cost
         started[-1].append(now[0])
+        out = run_rollout(s, U, R), f.roll.models, 0.0
         now[0] += costs[sum(map(len, started)) % len(costs)]
-        return run_rollout(*args)
+        return out
 
     def bookkeeping(*args):
         now[0] += finish_s
         return fallback(*args)
 
-    f.roll.run, f.fallback = rollout, bookkeeping
+    f.roll.check, f.fallback = rollout, bookkeeping
     f.verdict = lambda V: "refused"
 
     def sample(s, u_c):

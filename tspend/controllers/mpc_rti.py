@@ -103,18 +103,40 @@ def compiled_function(fn: Any) -> Any:
     or the compilation fails (the same numbers, slower)."""
     import casadi
 
+    library = compiled_casadi([fn], fn.name())
+    return fn if library is None else casadi.external(fn.name(), str(library))
+
+
+def compiled_casadi(fns: list, name: str, extra: bytes = b"") -> Path | None:
+    """The shared object of the CasADi Functions ``fns`` generated as C into one source
+    named ``name``, with ``extra`` C appended (:func:`compiled_library`; each loaded back
+    by ``casadi.external(its name, the object)``); None without a compiler or when the
+    compilation fails."""
+    import casadi
+
+    with tempfile.TemporaryDirectory(prefix="tspend-mpc-") as tmp:
+        c_name = f"{name}.c"
+        generator = casadi.CodeGenerator(c_name, {"with_header": False})
+        for fn in fns:
+            generator.add(fn)
+        generator.generate(tmp + os.sep)
+        return compiled_library(name, (Path(tmp) / c_name).read_bytes() + extra)
+
+
+def compiled_library(name: str, source: bytes, libraries: tuple[str, ...] = ("-lm",)
+                     ) -> Path | None:
+    """``source`` (C) compiled with ``cc``/``gcc`` into a shared object, cached by the
+    source's hash (a second process pays nothing) and checked before it is used; None
+    without a compiler or when the compilation fails."""
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
-        return fn
+        return None
     with tempfile.TemporaryDirectory(prefix="tspend-mpc-") as tmp:
-        c_name = f"{fn.name()}.c"
-        generator = casadi.CodeGenerator(c_name, {"with_header": False})
-        generator.add(fn)
-        generator.generate(tmp + os.sep)
-        source = (Path(tmp) / c_name).read_bytes()
+        c_path = Path(tmp) / f"{name}.c"
+        c_path.write_bytes(source)
         key = hashlib.sha256(source).hexdigest()[:20]
         folder = cache_dir() or Path(tmp)
-        so = folder / f"{fn.name()}_{key}.so"
+        so = folder / f"{name}_{key}.so"
         # checked before it is loaded (a damaged or foreign shared object could crash the
         # process): the sidecar's key, machine and checksum (tspend.runtime.cache)
         problem = cache.binary_problem(so, key)
@@ -123,16 +145,21 @@ def compiled_function(fn: Any) -> Any:
                 cache.rebuilt("compiled MPC function", so, problem)
                 cache.discard_binary(so)
             part = Path(tmp) / f"{so.name}.part"
-            done = subprocess.run([compiler, optimisation(len(source)), "-fPIC", "-shared", "-o", str(part),
-                                   str(Path(tmp) / c_name), "-lm"],
+            done = subprocess.run([compiler, optimisation(len(source)), "-fPIC", "-shared",
+                                   "-o", str(part), str(c_path), *libraries],
                                   capture_output=True, text=True)
             if done.returncode != 0:
-                return fn
+                return None
             # built in the private folder, then moved: a concurrent process sees all of it
             # or none (a copy first when the cache is on another file system)
             staged = part if folder == Path(tmp) else _stage(part, folder)
             cache.write_binary(so, staged, key)
-        return casadi.external(fn.name(), str(so))
+        if folder == Path(tmp):
+            # no cache folder: the object must outlive this temporary folder
+            kept = Path(tempfile.mkdtemp(prefix="tspend-mpc-so-")) / so.name
+            shutil.copyfile(so, kept)
+            return kept
+        return so
 
 
 def _stage(part: Path, folder: Path) -> Path:

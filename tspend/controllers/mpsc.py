@@ -22,7 +22,7 @@ than that (the cart-pole's 1 ms against 50 ms steps) it is evaluated at every RK
 the runner's sampling taken as continuous.  **The
 certificate** (P6): a plan is certified when (P5) rolled out on the nominal model *and on
 every corner model* keeps (P2) at every RK4 step and ends in (P3).  Every candidate the
-filter may apply is such a rollout (one compiled CasADi function over all models:
+filter may apply is such a rollout (compiled CasADi functions, one per model, in one source:
 :func:`certificate_rollout`), so an input is applied as certified only when its plan was
 checked on all of them: what is solved is what is certified.  (P7) tightens (P2) by the
 declared disturbance's tube; :func:`design` states every margin.
@@ -47,11 +47,14 @@ answer: the fallback's bookkeeping), measured at every sample.  The times are th
 thread's time on the CPU, which is the wall time of a call not preempted: a wait for a
 core, on a shared machine, is not the step's cost, no estimate predicts it, and an
 estimate that took it in (wall times) blocked every rollout for tens of samples after
-each preemption.  A step once started cannot be interrupted (a compiled call, in
-Python): the budget holds while no step takes longer than its estimate, as on a quiet
-machine or under ``SCHED_FIFO`` (a rig's loop), with the slack the first step usually
-has; a call slower than the quantile started late, or a thread preempted mid-step, runs
-past, and ``over_budget_samples`` counts it.
+each preemption.  A rollout is checked model by model (:meth:`Rollout.check`, one
+compiled call): each model starts only when :data:`MODEL_GUARD` times its share of the
+rollout's estimate fits before the deadline less the estimate of the check's verdict, so
+a rollout slower than its estimate (or a probe) stops between two models, its verdict
+unknown (``rollouts_cut_short``), rather than run past; it also stops at the first model
+that breaks a bound (checked first next time).  A model's rollout, like the QP's step,
+cannot be interrupted once started (a compiled call, in Python): a thread preempted in
+it, or work slower than its estimate, runs past, and ``over_budget_samples`` counts it.
 
 1. on each certified tail in turn (the last certified plan's rest, tracked; the saturated
    LQR): ``[u_c, tail]`` (the fast path: a certified rollout passes ``u_c`` unchanged),
@@ -186,6 +189,15 @@ DECAY_MARGIN = 0.05
 #: last time (measured whole at admission; the QP at 1 kHz never runs)
 COST_WINDOW = 64
 COST_RANK = 4
+#: (P9): the work of fixed size a sample always does after a step (the reserve, a
+#: check's verdict) is estimated by the second largest of its times in the window: a
+#: sample over the budget by a few tens of microseconds was that work at its 95th
+#: percentile; the largest would let one collection block the rollouts for a window
+FIXED_COST_RANK = 2
+#: (P9): a rollout's next model starts only when this many times its share of the
+#: rollout's estimate fits before the deadline (a model slower than its share by up to
+#: this factor still ends in time)
+MODEL_GUARD = 1.5
 #: why a sample ran past the budget (the metrics' ``over_budget_by_cause``): its CPU time
 #: fits the budget (the thread waited for a core: no estimate predicts it), a rollout
 #: started as a probe, or a step that took longer than its estimate
@@ -198,25 +210,30 @@ class StepCost:
     a ``probe`` step not yet run in this sample; a step that is not a probe keeps its last
     time.  Unmeasured: infinite (only admission's unbounded deadline starts the step)."""
 
-    __slots__ = ("estimate", "probe", "times", "sample")
+    __slots__ = ("estimate", "probe", "times", "sample", "last", "rank")
 
-    def __init__(self, probe: bool = False) -> None:
+    def __init__(self, probe: bool = False, rank: int = COST_RANK) -> None:
         #: (sample, time) of its calls
         self.times: collections.deque = collections.deque()
         self.estimate = math.inf
         self.probe = probe
         self.sample = 0
+        #: the estimate is the rank-th largest time in the window
+        self.rank = rank
+        #: the last time measured (a probe's zero estimate says nothing of its length)
+        self.last = math.inf
 
     def _rank(self) -> None:
         times = sorted(t for _, t in self.times)
-        if len(times) >= COST_RANK:
-            self.estimate = times[-COST_RANK]
+        if len(times) >= self.rank:
+            self.estimate = times[-self.rank]
         elif self.probe and not (times and self.times[-1][0] == self.sample):
             self.estimate = 0.0
         else:
             self.estimate = times[-1]
 
     def measured(self, time_s: float) -> None:
+        self.last = time_s
         self.times.append((self.sample, time_s))
         self._rank()
 
@@ -228,7 +245,7 @@ class StepCost:
         while times and times[0][0] < oldest and (self.probe or len(times) > 1):
             times.popleft()
             expired = True
-        if expired or (self.probe and len(times) < COST_RANK):
+        if expired or (self.probe and len(times) < self.rank):
             self._rank()
 
 
@@ -625,15 +642,21 @@ def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
     """(P5) from ``s0`` for the plan ``(Un (N,), Rn (nx, N))`` (CasADi MX) on the nominal
     model and every corner (P6): per model ``(path, used)``, its states after the first
     sample and after every RK4 step ``(nx, 1 + steps)`` and the inputs it applied."""
+    steps = plan_steps(cert, Un, Rn)
+    return [model_path(cert, i, s0, Un[0], *steps) for i in range(1 + len(cert.corners))]
+
+
+def plan_steps(cert: Certificate, Un: Any, Rn: Any) -> tuple:
+    """The plan on (P5)'s RK4 steps after the first sample: each step's ``U_k`` (1, steps)
+    and its reference at the step's start and end (nx, steps): interval k's RK4 step j
+    goes towards ``R_k + a (R_{k+1} - R_k)`` with a from j/sub to (j+1)/sub over the step
+    (``R_k`` throughout the last interval).  The same for every model."""
     import casadi as ca
 
     nx, N, sub = cert.model.size, cert.N, cert.substeps
-    # interval k's RK4 step j: U_k, towards R_k + a (R_{k+1} - R_k) with a from j/sub to
-    # (j+1)/sub over the step (R_k throughout the last interval)
     k = np.repeat(np.arange(1, N), sub)
     last = k + 1 >= N
     j = np.tile(np.arange(sub), N - 1)
-    U = Un[[int(i) for i in k]].T
     nxt = [int(i) for i in np.where(last, k, k + 1)]
 
     def ref(a: np.ndarray) -> Any:
@@ -641,73 +664,200 @@ def model_paths(cert: Certificate, s0: Any, Un: Any, Rn: Any) -> list:
         return (Rn[:, [int(i) for i in k]] * ca.repmat(1.0 - a, nx, 1)
                 + Rn[:, nxt] * ca.repmat(a, nx, 1))
 
-    start, end = ref(j / sub), ref((j + 1) / sub)
-    out = []
-    for i, m in enumerate((cert.model, *cert.corners)):
-        x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, Un[0])
-        step = tracked_step(m, cert.h / sub, cert.K, cert.u_lo, cert.u_hi, f"mpsc_step_{i}",
-                            cert.held)
-        X, used = step.mapaccum(f"mpsc_plan_{i}", len(k))(x1, U, start, end)
-        out.append((ca.horzcat(x1, X), ca.horzcat(Un[0], used)))
-    return out
+    return Un[[int(i) for i in k]].T, ref(j / sub), ref((j + 1) / sub)
 
 
-def certificate_rollout(cert: Certificate) -> Any:
-    """(P5) on the nominal model and every corner (P6) as one CasADi function ``(s, U (N,),
-    R (nx, N)) -> (nominal, summary)``: the nominal model's states (``s``, after the first
-    sample, after every RK4 step) over the inputs it applied ``(nx + 1, 2 + steps)``, and
-    per model ``(3 nx, models)`` the least and the largest value of each state after
-    ``s`` and the last state (what the certificate reads).  One RK4 step per model,
-    iterated by ``mapaccum``: the C source grows with the models, not with the horizon
-    (the unrolled rollout for 17 models was 9.3 MB, 453 s of gcc)."""
+def model_path(cert: Certificate, i: int, s0: Any, U0: Any, U: Any, start: Any,
+               end: Any) -> tuple:
+    """(P5) on model ``i`` (0 the nominal, then the corners) from ``s0``: ``U0`` over the
+    first sample, then the RK4 steps of :func:`plan_steps`; ``(path, used)``."""
+    import casadi as ca
+
+    m = (cert.model, *cert.corners)[i]
+    x1 = m.rk4_map(cert.sample_s, 1, name=f"mpsc_first_{i}")(s0, U0)
+    step = tracked_step(m, cert.h / cert.substeps, cert.K, cert.u_lo, cert.u_hi,
+                        f"mpsc_step_{i}", cert.held)
+    X, used = step.mapaccum(f"mpsc_plan_{i}", U.shape[1])(x1, U, start, end)
+    return ca.horzcat(x1, X), ca.horzcat(U0, used)
+
+
+def certificate_rollout(cert: Certificate) -> list:
+    """(P5) on the nominal model and every corner (P6) as CasADi functions: first
+    ``tspend_mpsc_plan_steps`` ``(U (N,), R (nx, N)) -> (`` :func:`plan_steps` ``)``,
+    shared by all, then one per model ``(s, U, the plan's steps) -> (summary, excess[,
+    nominal])``: the least and the largest value of each state after ``s`` and the last
+    state ``(3 nx,)`` (what the certificate reads), the most the rollout breaks a
+    certified bound or (P3) by (> 0: broken; a non-finite state is left to the full
+    check), and for the nominal model its states (``s``, after the first sample, after
+    every RK4 step) over the inputs it applied ``(nx + 1, 2 + steps)``.  One function per
+    model, so that a check stops at the first model that breaks a bound and at the
+    budget's end (:meth:`Rollout.check`).  One RK4 step per model, iterated by
+    ``mapaccum``: the C source grows with the models, not with the horizon (the unrolled
+    rollout for 17 models was 9.3 MB, 453 s of gcc)."""
     import casadi as ca
 
     nx, N = cert.model.size, cert.N
-    s0, Un, Rn = ca.MX.sym("s0", nx), ca.MX.sym("U", N), ca.MX.sym("R", nx, N)
-    paths = model_paths(cert, s0, Un, Rn)
-    summary = [ca.vertcat(*[ca.mmin(path[j, :]) for j in range(nx)],
-                          *[ca.mmax(path[j, :]) for j in range(nx)], path[:, -1])
-               for path, _ in paths]
-    path, used = paths[0]
-    nominal = ca.vertcat(ca.horzcat(s0, path), ca.horzcat(Un[0], used))
-    return ca.Function("tspend_mpsc_rollout", [s0, Un, Rn], [nominal, ca.horzcat(*summary)])
+    Un, Rn = ca.MX.sym("U", N), ca.MX.sym("R", nx, N)
+    steps = plan_steps(cert, Un, Rn)
+    fns = [ca.Function("tspend_mpsc_plan_steps", [Un, Rn], list(steps))]
+    s0 = ca.MX.sym("s0", nx)
+    symbols = [ca.MX.sym(f"steps_{j}", *x.shape) for j, x in enumerate(steps)]
+    for i in range(1 + len(cert.corners)):
+        path, used = model_path(cert, i, s0, Un[0], *symbols)
+        least = [ca.mmin(path[j, :]) for j in range(nx)]
+        most = [ca.mmax(path[j, :]) for j in range(nx)]
+        last = path[:, -1]
+        excess = [last.T @ ca.DM(cert.P) @ last - cert.level]
+        excess += [cert.lo_check[j] - least[j] for j in range(nx) if np.isfinite(cert.lo_check[j])]
+        excess += [most[j] - cert.hi_check[j] for j in range(nx) if np.isfinite(cert.hi_check[j])]
+        outputs = [ca.vertcat(*least, *most, last), ca.mmax(ca.vertcat(*excess))]
+        if i == 0:
+            outputs.append(ca.vertcat(ca.horzcat(s0, path), ca.horzcat(Un[0], used)))
+        fns.append(ca.Function(f"tspend_mpsc_model_{i}", [s0, Un, *symbols], outputs))
+    return fns
 
 
 class Rollout:
-    """:func:`certificate_rollout` evaluated in place: CasADi's buffer interface on
-    persistent arrays (a Python call with its conversions costs several times the
+    """:func:`certificate_rollout` evaluated in place, one model after another: compiled,
+    one call of ``mpsc_check.c`` per check (:meth:`check`); else CasADi's buffer interface
+    on persistent arrays (a Python call with its conversions costs several times the
     compiled rollout)."""
 
-    def __init__(self, fn: Any, cert: Certificate) -> None:
+    def __init__(self, fns: list, cert: Certificate, library: Any = None) -> None:
         nx, N, sub = cert.model.size, cert.N, cert.substeps
-        self.fn, self.nx, self.N, self.sub = fn, nx, N, sub
-        self.models, self.cols = 1 + len(cert.corners), 2 + (N - 1) * sub
+        self.fns, self.nx, self.N, self.sub = fns, nx, N, sub
+        self.models, self.cols = len(fns) - 1, 2 + (N - 1) * sub
         self._in = (np.zeros(nx), np.zeros(N), np.zeros((N, nx)))
-        # column-major outputs: [step, state..., u] of the nominal model, [model, summary]
-        self._nominal = np.zeros((self.cols, nx + 1))
+        # column-major outputs: [model, summary], each model's excess, [step, state..., u]
+        # of the nominal model; the plan on the RK4 steps (plan_steps), made once a check
         self._summary = np.zeros((self.models, 3 * nx))
-        self._buffer, self._eval = fn.buffer()
-        for i, array in enumerate(self._in):
-            self._buffer.set_arg(i, memoryview(array.reshape(-1)))
-        self._buffer.set_res(0, memoryview(self._nominal.reshape(-1)))
-        self._buffer.set_res(1, memoryview(self._summary.reshape(-1)))
+        self.excess = np.zeros(self.models)
+        self._nominal = np.zeros((self.cols, nx + 1))
+        steps = self.cols - 2
+        self._steps = (np.zeros(steps), np.zeros((steps, nx)), np.zeros((steps, nx)))
+        self._buffers, self._evals = [], []
+        for m, fn in enumerate(fns):
+            buffer, evaluate = fn.buffer()
+            for i, array in enumerate(self._arguments(m)):
+                buffer.set_arg(i, memoryview(array.reshape(-1)))
+            for i, array in enumerate(self._results(m)):
+                buffer.set_res(i, memoryview(array.reshape(-1)))
+            self._buffers.append(buffer)
+            self._evals.append(evaluate)
+        #: the order the models are checked in: the last that broke a bound first
+        self.order = np.arange(self.models, dtype=np.int32)
+        self._compiled = None if library is None else compiled_check(library, self)
+
+    def _arguments(self, f: int) -> tuple:
+        """Function ``f``'s inputs (0 :func:`plan_steps`, then the models)."""
+        return self._in[1:] if f == 0 else self._in[:2] + self._steps
+
+    def _results(self, f: int) -> tuple:
+        m = f - 1
+        if f == 0:
+            return self._steps
+        return (self._summary[m], self.excess[m:m + 1]) + ((self._nominal,) if m == 0 else ())
+
+    def load(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> None:
+        s_in, U_in, R_in = self._in
+        s_in[:], U_in[:], R_in[:] = s, U, R.T
 
     def run(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> np.ndarray:
         """(P5) from ``s`` on every model: per model ``[least state, largest state, last
         state]`` (a view, valid until the next call)."""
-        s_in, U_in, R_in = self._in
-        s_in[:], U_in[:], R_in[:] = s, U, R.T
-        self._eval()
+        self.load(s, U, R)
+        for evaluate in self._evals:
+            evaluate()
         return self._summary
+
+    def check(self, s: np.ndarray, U: np.ndarray, R: np.ndarray, until_s: float,
+              guard_s: float) -> tuple[np.ndarray | bool | None, int, float]:
+        """(P5) from ``s``, model after model (:attr:`order`), each started only when
+        ``guard_s`` fits before ``until_s`` (``time.perf_counter``'s clock): ``(the summary
+        of every model, models run, their CPU time)`` when no model broke a bound by its
+        excess (the caller's full check decides), ``(False, ...)`` at the first that did
+        (it moves to the front), ``(None, ...)`` when the next did not fit."""
+        self.load(s, U, R)
+        if self._compiled is not None:
+            return self._compiled(until_s, guard_s)
+        self._evals[0]()
+        order, excess, evals, clock = self.order, self.excess, self._evals, time.perf_counter
+        started = time.thread_time()
+        for n, m in enumerate(order):
+            if n and clock() + guard_s > until_s:
+                return None, n, time.thread_time() - started
+            evals[m + 1]()
+            if excess[m] > 0.0:
+                order[1:n + 1] = order[:n].copy()
+                order[0] = m
+                return False, n + 1, time.thread_time() - started
+        return self._summary, self.models, time.thread_time() - started
 
     def nominal(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The nominal model's states at the plan's nodes (nx, N + 1) and the inputs it
         applied at each interval's start (N,)."""
-        self.run(s, U, R)
+        self.load(s, U, R)
+        self._evals[0]()
+        self._evals[1]()
         V = self._nominal
         every = V[:, :self.nx].T
         nodes = np.hstack([every[:, :2], every[:, 1 + self.sub::self.sub]])
         return nodes.copy(), V[1::self.sub, self.nx][:self.N].copy()
+
+
+#: a time beyond any deadline, in ns (half of C's long long: sums of two stay in range)
+_FAR_NS = 2 ** 62
+
+
+def compiled_check(library: Any, roll: Rollout) -> Any:
+    """``mpsc_check.c`` in ``library`` bound to ``roll``'s arrays: ``check(until_s,
+    guard_s)`` as :meth:`Rollout.check` returns it."""
+    import ctypes
+
+    lib = ctypes.CDLL(str(library))
+    ptr, n_fns = ctypes.c_void_p, roll.models + 1
+    names = [fn.name() for fn in roll.fns]
+    sizes = np.zeros((n_fns, 4), dtype=np.int64)
+    for f, name in enumerate(names):
+        size = [ctypes.c_longlong() for _ in range(4)]
+        getattr(lib, name + "_work")(*map(ctypes.byref, size))
+        sizes[f] = [v.value for v in size]
+    n_arg, n_res, n_iw, n_w = (int(x) + 1 for x in sizes.max(axis=0))
+
+    def pointers(arrays: tuple, n: int) -> Any:
+        return (ptr * n)(*[a.ctypes.data for a in arrays])
+
+    prepare_arg, prepare_res = pointers(roll._arguments(0), n_arg), pointers(roll._results(0), n_res)
+    arg = pointers(roll._arguments(1), n_arg)
+    res = [pointers(roll._results(f), n_res) for f in range(1, n_fns)]
+    res_of = (ptr * roll.models)(*[ctypes.addressof(r) for r in res])
+    fns = (ptr * n_fns)(*[ctypes.cast(getattr(lib, name), ptr).value for name in names])
+    iw, w = np.zeros(n_iw, dtype=np.int64), np.zeros(n_w)
+    status, cpu_s = ctypes.c_int(), ctypes.c_double()
+    check = lib.tspend_mpsc_check
+    check.restype = ctypes.c_int
+    check.argtypes = [ptr] * 3 + [ctypes.c_int] + [ptr] * 7 + [ctypes.c_longlong] * 2 + [ptr] * 2
+    at = ctypes.addressof
+    fixed = (fns[0], at(prepare_arg), at(prepare_res), roll.models, at(fns) + ctypes.sizeof(ptr),
+             at(arg), at(res_of), iw.ctypes.data, w.ctypes.data, roll.excess.ctypes.data,
+             roll.order.ctypes.data)
+    # what the addresses point into, alive as long as the check
+    keep = (lib, prepare_arg, prepare_res, arg, res, res_of, fns, iw, w)
+    outcome = {0: lambda: roll._summary, 1: lambda: False, 2: lambda: None}
+
+    def run(until_s: float, guard_s: float) -> tuple:
+        # no deadline (admission): every model; an unmeasured guard or a deadline gone:
+        # none after the first
+        until_ns = (int(until_s * 1e9) if math.isfinite(until_s) else
+                    _FAR_NS if until_s > 0 else -_FAR_NS)
+        guard_ns = (0 if until_ns == _FAR_NS else
+                    int(guard_s * 1e9) if math.isfinite(guard_s) else _FAR_NS)
+        n = check(*fixed, until_ns, guard_ns, ctypes.byref(status), ctypes.byref(cpu_s))
+        if status.value == 3:
+            raise RuntimeError(f"the compiled rollout failed ({keep[0]._name})")
+        return outcome[status.value](), n, cpu_s.value
+
+    return run
 
 
 def plan_qp(cert: Certificate, cfg: "SafetyConfig", compiled: bool) -> Any:
@@ -777,12 +927,20 @@ class Solvers:
 
 
 def build_solvers(cert: Certificate, cfg: "SafetyConfig", compiled: bool = True) -> Solvers:
-    """The rollout (one C function over every model) and the QP, compiled (cached by
-    their C source's hash: :func:`~.mpc_rti.compiled_function`), and (P8)'s NLP."""
-    from tspend.controllers.mpc_rti import compiled_function
+    """The rollout (one C function per model, in one source) and the QP, compiled (cached
+    by their C source's hash: :func:`~.mpc_rti.compiled_casadi`), and (P8)'s NLP."""
+    import casadi
 
-    fn = certificate_rollout(cert)
-    return Solvers(Rollout(compiled_function(fn) if compiled else fn, cert),
+    from tspend.controllers.mpc_rti import compiled_casadi
+
+    from importlib import resources
+
+    fns = certificate_rollout(cert)
+    check = (resources.files("tspend.controllers") / "mpsc_check.c").read_bytes()
+    library = compiled_casadi(fns, "tspend_mpsc_rollout", check) if compiled else None
+    if library is not None:
+        fns = [casadi.external(fn.name(), str(library)) for fn in fns]
+    return Solvers(Rollout(fns, cert, library),
                    plan_qp(cert, cfg, compiled), Recovery(cert), RobustAdmission(cert))
 
 
@@ -1025,8 +1183,14 @@ class PredictiveSafetyFilter(SafetyFilter):
         self._angles = np.flatnonzero(cert.model.angles)
         #: (P9): each step's time estimate (the QP's and (P8)'s measured at admission), and
         #: the reserve for the work after a sample's last step
-        self._cost = {"roll": StepCost(probe=True), "qp": StepCost(), "recovery": StepCost()}
-        self._reserve = StepCost()
+        self._cost = {"roll": StepCost(probe=True), "qp": StepCost(), "recovery": StepCost(),
+                      # a check's work after its models when every model passed (the full
+                      # check of the summary, the plan kept): its last model leaves room
+                      "verdict": StepCost(rank=FIXED_COST_RANK)}
+        # none measured yet (a start not admitted has no whole check before its first
+        # sample): none, until the first
+        self._cost["verdict"].measured(0.0)
+        self._reserve = StepCost(rank=FIXED_COST_RANK)
         self._deadline = math.inf
         #: (P9): the deadline's clock (wall, s) and the steps' (this thread's time on the
         #: CPU, s); when the running step started, and the sample's last step ended (CPU)
@@ -1049,6 +1213,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         self.uncertified = self.rejected = self.infeasible_qp = self.recoveries = 0
         #: samples where a step was skipped for the budget, and samples over it
         self.skipped = 0
+        #: rollouts stopped between two models at the budget's end (their verdict unknown)
+        self.cut_short = 0
         self.over_budget_by_cause = dict.fromkeys(OVER_BUDGET_CAUSES, 0)
         self._skipped_now = self._probed_now = False
         self.rescue_relaxation = -math.inf
@@ -1094,11 +1260,13 @@ class PredictiveSafetyFilter(SafetyFilter):
             self._step_end = self._cpu_clock()
         return False
 
-    def _measured(self, what: str, setup_s: float = 0.0, repeats: int = 1) -> None:
+    def _measured(self, what: str, setup_s: float = 0.0, repeats: int = 1,
+                  unrun_s: float = 0.0) -> None:
         """The step started by :meth:`_affords` ended now: its time on the CPU, ``setup_s``
-        of it once and the rest shared by ``repeats`` calls (admission's SQP iterations)."""
+        of it once and the rest shared by ``repeats`` calls (admission's SQP iterations),
+        and ``unrun_s`` for the part of it not run (a check stopped early)."""
         end = self._cpu_clock()
-        self._cost[what].measured(setup_s + (end - self._started - setup_s) / repeats)
+        self._cost[what].measured(setup_s + (end - self._started - setup_s) / repeats + unrun_s)
         self._step_end, self._stepped = end, True
 
     def certifies(self, s: np.ndarray, U: np.ndarray, R: np.ndarray) -> bool | None:
@@ -1107,12 +1275,28 @@ class PredictiveSafetyFilter(SafetyFilter):
         becomes the certified plan.  None: not tried, the budget has no room for it."""
         if not self._affords("roll"):
             return None
-        ok = self.verdict(self.roll.run(s, U, R)) is None
+        cost = self._cost["roll"]
+        # the guard before each model: a share of a whole rollout's estimate (a probe's:
+        # its last time), with room for a model slower than its share
+        per_model = MODEL_GUARD * max(cost.estimate, cost.last) / self.roll.models
+        verdict = self._cost["verdict"]
+        V, run, models_s = self.roll.check(s, U, R, self._deadline - verdict.estimate,
+                                           per_model)
+        checked = self._cpu_clock()
+        ok = V is not None and V is not False and self.verdict(V) is None
         if ok:
             R = np.array(R, dtype=float)
             R[:, 0] = s
             self.plan, self.plan_age, self.rescue = (np.array(U, dtype=float), R), 1, None
-        self._measured("roll")
+        # a whole rollout's time, from the models run (the models not run as long each),
+        # so every check measures it
+        self._measured("roll", unrun_s=models_s * (self.roll.models / run - 1.0))
+        if V is not None and V is not False:
+            verdict.measured(self._step_end - checked)
+        if V is None:
+            self.cut_short += 1
+            self._skipped_now = True
+            return None
         return ok
 
     def verdict(self, V: np.ndarray) -> str | None:
@@ -1442,6 +1626,7 @@ class PredictiveSafetyFilter(SafetyFilter):
                 "over_budget_samples": self.over_budget,
                 "over_budget_by_cause": dict(self.over_budget_by_cause),
                 "budget_skipped_samples": self.skipped,
+                "rollouts_cut_short": self.cut_short,
                 "certified_samples": certified, "certified_share": certified / n if n else None,
                 # steps 1-3: certified at this sample, or the plan certified at an earlier one
                 # going on (its rest, then X_f under the LQR: [3]'s recursive feasibility)
