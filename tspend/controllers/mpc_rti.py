@@ -46,7 +46,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -103,15 +103,16 @@ def compiled_function(fn: Any) -> Any:
     or the compilation fails (the same numbers, slower)."""
     import casadi
 
-    library = compiled_casadi([fn], fn.name())
-    return fn if library is None else casadi.external(fn.name(), str(library))
+    loaded = compiled_casadi([fn], fn.name(), lambda so: casadi.external(fn.name(), str(so)))
+    return fn if loaded is None else loaded
 
 
-def compiled_casadi(fns: list, name: str, extra: bytes = b"") -> Path | None:
-    """The shared object of the CasADi Functions ``fns`` generated as C into one source
-    named ``name``, with ``extra`` C appended (:func:`compiled_library`; each loaded back
-    by ``casadi.external(its name, the object)``); None without a compiler or when the
-    compilation fails."""
+def compiled_casadi(fns: list, name: str, load: Callable[[Path], Any],
+                    extra: bytes = b"") -> Any:
+    """``load(the shared object)`` of the CasADi Functions ``fns`` generated as C into one
+    source named ``name``, with ``extra`` C appended (:func:`compiled_library`; ``load``
+    maps each back, e.g. by ``casadi.external(its name, the object)``); None without a
+    compiler or when the compilation fails."""
     import casadi
 
     with tempfile.TemporaryDirectory(prefix="tspend-mpc-") as tmp:
@@ -120,14 +121,14 @@ def compiled_casadi(fns: list, name: str, extra: bytes = b"") -> Path | None:
         for fn in fns:
             generator.add(fn)
         generator.generate(tmp + os.sep)
-        return compiled_library(name, (Path(tmp) / c_name).read_bytes() + extra)
+        return compiled_library(name, (Path(tmp) / c_name).read_bytes() + extra, load)
 
 
-def compiled_library(name: str, source: bytes, libraries: tuple[str, ...] = ("-lm",)
-                     ) -> Path | None:
-    """``source`` (C) compiled with ``cc``/``gcc`` into a shared object, cached by the
-    source's hash (a second process pays nothing) and checked before it is used; None
-    without a compiler or when the compilation fails."""
+def compiled_library(name: str, source: bytes, load: Callable[[Path], Any]) -> Any:
+    """``load(the shared object)`` of ``source`` (C) compiled with ``cc``/``gcc``, cached
+    by the source's hash (a second process pays nothing) and checked before it is loaded
+    (without a cache folder, loaded before its temporary folder goes); None without a
+    compiler or when the compilation fails."""
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         return None
@@ -146,7 +147,7 @@ def compiled_library(name: str, source: bytes, libraries: tuple[str, ...] = ("-l
                 cache.discard_binary(so)
             part = Path(tmp) / f"{so.name}.part"
             done = subprocess.run([compiler, optimisation(len(source)), "-fPIC", "-shared",
-                                   "-o", str(part), str(c_path), *libraries],
+                                   "-o", str(part), str(c_path), "-lm"],
                                   capture_output=True, text=True)
             if done.returncode != 0:
                 return None
@@ -154,12 +155,7 @@ def compiled_library(name: str, source: bytes, libraries: tuple[str, ...] = ("-l
             # or none (a copy first when the cache is on another file system)
             staged = part if folder == Path(tmp) else _stage(part, folder)
             cache.write_binary(so, staged, key)
-        if folder == Path(tmp):
-            # no cache folder: the object must outlive this temporary folder
-            kept = Path(tempfile.mkdtemp(prefix="tspend-mpc-so-")) / so.name
-            shutil.copyfile(so, kept)
-            return kept
-        return so
+        return load(so)
 
 
 def _stage(part: Path, folder: Path) -> Path:

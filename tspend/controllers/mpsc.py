@@ -937,10 +937,12 @@ def build_solvers(cert: Certificate, cfg: "SafetyConfig", compiled: bool = True)
 
     fns = certificate_rollout(cert)
     check = (resources.files("tspend.controllers") / "mpsc_check.c").read_bytes()
-    library = compiled_casadi(fns, "tspend_mpsc_rollout", check) if compiled else None
-    if library is not None:
-        fns = [casadi.external(fn.name(), str(library)) for fn in fns]
-    return Solvers(Rollout(fns, cert, library),
+
+    def load(library: Any) -> Rollout:
+        return Rollout([casadi.external(fn.name(), str(library)) for fn in fns], cert, library)
+
+    rollout = compiled_casadi(fns, "tspend_mpsc_rollout", load, check) if compiled else None
+    return Solvers(rollout or Rollout(fns, cert),
                    plan_qp(cert, cfg, compiled), Recovery(cert), RobustAdmission(cert))
 
 
