@@ -16,6 +16,7 @@ import json
 import os
 import shutil
 import pty
+import select
 import signal
 import socket
 import subprocess
@@ -115,12 +116,17 @@ def test_crc_is_ieee_802_3_and_every_single_bit_error_is_rejected():
 def test_frames_round_trip_with_their_documented_sizes():
     hello = Hello("cartpole:slider,hinge", (1e5, 3183.1), 0.002, 0.1, 0.02, 2000.0)
     back = protocol.as_hello(protocol.decode(protocol.hello(hello))[2])
-    assert back == hello
+    assert back == hello and not back.answers_query
+    asks = Hello("cartpole:slider,hinge", (1e5, 3183.1), 0.002, 0.1, 0.02, 2000.0,
+                 protocol.ANSWERS_QUERY)
+    assert protocol.as_hello(protocol.decode(protocol.hello(asks))[2]).answers_query
+    assert protocol.decode(protocol.query(5))[:2] == (protocol.QUERY, 5)
     u = 0.1 + 0.2  # not a short binary fraction: the command travels as binary64
     c = protocol.as_command(9, protocol.decode(protocol.command(Command(9, u, 8)))[2])
     assert c.u == u and c.sensor_seq == 8
     # docs/rig.md's table
-    assert protocol.SIZES == {b"H": 16, b"h": 100, b"G": 20, b"S": 44, b"C": 28, b"X": 16}
+    assert protocol.SIZES == {b"H": 16, b"h": 100, b"G": 20, b"S": 44, b"C": 28, b"X": 16,
+                              b"Q": 16}
 
 
 def test_a_byte_stream_resynchronises_after_garbage_and_a_corrupt_frame():
@@ -595,6 +601,73 @@ def test_identify_recovers_the_mass_of_the_doubles_pole_through_the_rig(tmp_path
     assert abs(fitted / 1.2 - 1) < 0.05 and abs(fitted / 1.0 - 1) > 0.1, fitted
 
 
+# -- the start checked before START ----------------------------------------------------------
+#: a pendulum_finite_rail start no plan is certified from (docs/safety.md's refusal example)
+FAR_START = ("--set", "plant.x0=[1.3, 2.0]")
+MPSC = ("--set", "effects.rail=1.0", "--set", 'safety.filter="mpsc"')
+
+
+def test_a_start_the_filter_refuses_is_refused_before_the_rig_starts(tmp_path):
+    """mpsc with safety.refuse_unadmitted on the double: the runner queries the rig's state
+    before START, the filter's admission refuses it, and START is never sent (the double
+    saw a stop and no session; exit 4, the reason in the metrics); from a start it admits
+    the same check lets the rig start, and the filter starts on the plan certified there."""
+    double, url, log = start_double(tmp_path, *MPSC, *FAR_START, "--sessions", "2",
+                                    scenario="pendulum_finite_rail")
+    refused = tspend("run", "pendulum_finite_rail", "--controller", "pd", *MPSC,
+                     "--set", "safety.refuse_unadmitted=true", "--rig", url, "--duration", "1",
+                     "--metrics", "refused.json", "--no-record", cwd=tmp_path,
+                     timeout=PROCESS_TIMEOUT_S)
+    assert refused.status == 4, refused.err
+    assert "rig: the start is refused before START: safety.refuse_unadmitted" in refused.out
+    m = json.loads((tmp_path / "refused.json").read_text())
+    check = m["timing"]["start_check"]
+    assert check["before_start"] and check["refused"].startswith("safety.refuse_unadmitted")
+    # the state read before the start: the double's x0, its hinge to the encoder's count
+    assert abs(check["state"]["hinge"] - 1.3) < 2 * np.pi / 2e4
+    assert m["timing"]["cycles"] == 0 and m["safety_filter"]["start_admitted"] is False
+    # the double serves on; without the filter nothing checks the start, nothing is
+    # queried, and the rig starts from it
+    plain = tspend("run", "pendulum_finite_rail", "--controller", "pd", "--set",
+                   "effects.rail=1.0", "--rig", url, "--duration", "0.1", "--no-record",
+                   "--metrics", "plain.json", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
+    out, _ = finish(double)
+    assert "session 1: the host stopped before START (reason 0); nothing moved" in out
+    assert "session 2: period 2 ms" in out
+    assert "start_check" not in json.loads((tmp_path / "plain.json").read_text())["timing"]
+    assert plain.status == 0 and "completed: 50 steps" in plain.out, plain.err
+
+
+@pytest.mark.realtime
+def test_an_admitted_start_is_checked_before_start_or_at_the_first_cycle(tmp_path):
+    from tspend.rig.replay import session_notes
+
+    """From the scenario's own start the check before START admits it and the run
+    completes on it; a rig that answers no query (--no-query) is started, said in one
+    line, and the filter admits at its first cycle as in a simulation."""
+    for options, before in (((), True), (("--no-query",), False)):
+        folder = tmp_path / ("query" if before else "no_query")
+        folder.mkdir()
+        double, url, _ = start_double(folder, *MPSC, *options, scenario="pendulum_finite_rail")
+        r = tspend("run", "pendulum_finite_rail", "--controller", "pd", *MPSC, "--rig", url,
+                   "--duration", "0.5", "--metrics", "m.json", "--out", "rig.rrd", cwd=folder,
+                   timeout=PROCESS_TIMEOUT_S)
+        out, _ = finish(double)
+        assert r.status == 0, r.err
+        assert ("rig: the rig reads no state before START" in r.out) is not before
+        m = json.loads((folder / "m.json").read_text())
+        assert m["timing"]["start_check"]["before_start"] is before
+        assert m["safety_filter"]["start_admitted"] is True
+        assert m["timing"]["cycles"] == 250 and "ended (stop frame)" in out
+        # the recording's session document keeps the check, for replay to make it again
+        notes = session_notes(folder / "rig.rrd")
+        assert notes["timing_notes"]["start_check"] == m["timing"]["start_check"]
+        if before:
+            state = m["timing"]["start_check"]["state"]
+            assert state["slider"] == 0.0 and state["slider_dot"] == 0.0
+            assert abs(state["hinge"] - np.pi / 30) < 2 * np.pi / 2e4
+
+
 # -- the C rig end over a serial line -------------------------------------------------------
 @pytest.fixture(scope="module")
 def rig_end(tmp_path_factory) -> Path:
@@ -638,6 +711,44 @@ def test_lqr_over_a_serial_line_to_the_compiled_c_rig_end(tmp_path, rig_end):
     assert out.startswith("rig_end: stopped")  # by the host's stop frame
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["timing"]["frames"]["corrupt"] == 0 and m["joints"]["hinge"]["max_abs"] < 0.2
+
+
+def test_the_c_rig_end_answers_a_query_before_start_and_ignores_it_after(tmp_path, rig_end):
+    """The C rig end's hello says it answers a query; before START it answers with its
+    state (the query's seq, no command applied, its x0's counts, nothing moved); a STOP
+    before START ends it with the cart where it was."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    parser = protocol.StreamParser()
+
+    def exchange(frame: bytes, kind: bytes) -> tuple:
+        os.write(slave, frame)
+        until = time.monotonic() + 5.0
+        while time.monotonic() < until:
+            ready = select.select([slave], [], [], 0.05)[0]
+            for found in parser.feed(os.read(slave, 4096)) if ready else ():
+                if found[0] == kind:
+                    return found
+        pytest.fail(f"no {kind!r} frame from the rig end")
+
+    try:
+        rig = subprocess.Popen([str(rig_end), str(master), "20"], pass_fds=[master],
+                               stdout=subprocess.PIPE, text=True)
+        hello = protocol.as_hello(exchange(protocol.hello_request(1), protocol.HELLO)[2])
+        assert hello.answers_query
+        answers = [exchange(protocol.query(seq), protocol.SENSOR) for seq in (7, 8)]
+        os.write(slave, protocol.stop(protocol.STOP_DONE))
+        out, _ = rig.communicate(timeout=PROCESS_TIMEOUT_S)
+    finally:
+        os.close(slave)
+        os.close(master)
+    first, second = (protocol.as_sensor(seq, fields) for _, seq, fields in answers)
+    assert (first.seq, second.seq) == (7, 8)
+    assert first.command_seq == second.command_seq == protocol.NO_COMMAND
+    # x0 = (0, pi/30) at the rig end's encoders, unchanged between the queries
+    assert first.counts == second.counts == (0, round(np.pi / 30 * 2e4 / (2 * np.pi)))
+    assert second.rig_time_us >= first.rig_time_us
+    assert out.startswith("rig_end: stopped; slider 0.000000 m, hinge 0.104720 rad")
 
 
 def test_a_period_the_baud_rate_cannot_carry_is_refused_before_any_frame(tmp_path):

@@ -47,6 +47,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "long (default 50)")
     s.add_argument("--amp-limit", type=finite(), metavar="U",
                    help="the amplifier's limit on |u| (default: the machine's input range)")
+    s.add_argument("--no-query", action="store_true",
+                   help="answer no query before the start, as a rig whose firmware reads its "
+                        "sensors only once started (the host then checks its start at the "
+                        "first cycle; e.g. --no-query)")
     _add_fault_options(s)
     s.add_argument("--log", metavar="PATH.npz",
                    help="write the double's true state, commands, frames and events (one file "
@@ -291,7 +295,7 @@ def build_double(args: argparse.Namespace, scn):
     from tspend.runtime.errors import ScenarioError
     from tspend.loop.simulation import build_plant
     from tspend.rig.double import Faults, SimulatedRig, u_limit_of
-    from tspend.rig.protocol import MAX_JOINTS, Hello
+    from tspend.rig.protocol import ANSWERS_QUERY, MAX_JOINTS, Hello
     from tspend.rig.runner import machine_id
 
     plant = build_plant(scn)
@@ -317,7 +321,8 @@ def build_double(args: argparse.Namespace, scn):
         raise ScenarioError(f"--log {printable(args.log)}: expected a .npz path")
     hello = Hello(machine_id(plant), tuple(float(c) for c in counts), args.min_period_ms * 1e-3,
                   args.max_period_ms * 1e-3, args.watchdog_ms * 1e-3,
-                  args.amp_limit if args.amp_limit is not None else u_limit_of(plant, scn))
+                  args.amp_limit if args.amp_limit is not None else u_limit_of(plant, scn),
+                  0 if args.no_query else ANSWERS_QUERY)
     faults = Faults(args.drop, args.corrupt, args.sensor_latency_ms * 1e-3,
                     args.command_latency_ms * 1e-3, args.jitter_ms * 1e-3, args.clock_ppm)
     joint_index = np.array([plant.state_names.index(j.name) for j in joints])
@@ -352,6 +357,9 @@ def cmd(args: argparse.Namespace) -> int:
             if period is None:
                 say(f"rig serve: no host started a session within {args.wait_s:g} s")
                 return 2
+            if isinstance(period, str):
+                print(f"session {number}: {period}; nothing moved", flush=True)
+                continue
             print(f"session {number}: period {period * 1e3:g} ms", flush=True)
             with real_time() as granted:
                 reason = double.session(period, args.max_session_s, log)

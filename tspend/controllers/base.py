@@ -203,6 +203,9 @@ class Controller(ABC):
     domains: tuple[str, ...] = ()
     #: what the kind guarantees, in one line (docs/controllers.md's table)
     guarantees: str = ""
+    #: True when :meth:`before_start` checks the start (a predictive safety filter's
+    #: admission): a rig then reads its state before START to check it there
+    checks_start: bool = False
     #: the kind's settings dataclass, read from the scenario's ``[controllers.KIND]`` table
     #: (:mod:`tspend.controllers.settings`; the paper's kinds: ``[controller]``); None:
     #: the kind has no settings
@@ -252,6 +255,12 @@ class Controller(ABC):
     @abstractmethod
     def step(self, obs: Observation, dt: float) -> float:
         """One sample: the control u for the observation ``obs`` over sample time ``dt``."""
+
+    def before_start(self, obs: Observation) -> str | None:
+        """The start checked before any input, from ``obs`` (a rig calls it before START
+        with the state it read then; else the first :meth:`step` may): why it is refused,
+        or None.  By default nothing is checked."""
+        return None
 
     def parameters(self) -> dict[str, np.ndarray]:
         """Copies of every adapted parameter (empty for a fixed controller)."""

@@ -4,6 +4,7 @@ plus :class:`TimingSink`, which adds the timing panels and the ``timing`` block.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import Sequence
 
@@ -83,13 +84,7 @@ class TimingSink:
         self.notes = notes or {}
 
     def start(self, info: RunInfo) -> None:
-        if self.rec is not None:
-            import json
-
-            import rerun as rr
-
-            self.rec.log(f"{RIG_ENTITY}/session", rr.TextDocument(
-                json.dumps(self.notes, indent=2), media_type="text/plain"), static=True)
+        pass
 
     def block(self, block: Block) -> None:
         if self.rec is None:
@@ -113,6 +108,14 @@ class TimingSink:
         pass
 
     def finish(self, end: RunEnd) -> None:
+        if self.rec is not None:
+            import json
+
+            import rerun as rr
+
+            # at the end: the notes hold what the run found on its way (the start's check)
+            self.rec.log(f"{RIG_ENTITY}/session", rr.TextDocument(
+                json.dumps(self.notes, indent=2), media_type="text/plain"), static=True)
         clock = getattr(self.plant, "clock", None)  # none when no frame ever came
         end.metrics["timing"] = {**self.plant.log.block(self.session.period_s,
                                                        self.plant.settings.miss_policy),
@@ -144,6 +147,37 @@ def warm_up(prepared, settings) -> None:
     plant.reset(np.asarray(scenario.plant.x0, dtype=float))
 
 
+def start_check(prepared, timing_notes: dict):
+    """The rig's check of its start before START (:meth:`RigPlant.check_start`): the
+    controller's :meth:`~tspend.controllers.base.Controller.before_start` on the state
+    read then, at the run's first reference; what it found goes into ``timing_notes``
+    (``start_check``).  None for a controller that checks nothing."""
+    from tspend.controllers.base import Observation
+
+    scenario, ctrl, task = prepared.scenario, prepared.controller, prepared.task
+    if not ctrl.checks_start:
+        return None
+
+    def check(state: np.ndarray | None) -> bool:
+        if state is None:
+            timing_notes["start_check"] = {"before_start": False}
+            print("rig: the rig reads no state before START (its hello): the start is "
+                  "checked at the first cycle, the rig started", flush=True)
+            return True
+        t0 = time.perf_counter()
+        ref = scenario.reference.derivatives(np.zeros(1), ctrl.order)[0]
+        refusal = ctrl.before_start(Observation(0.0, state, state[task.view_index], ref,
+                                                task.names, task.constraints))
+        timing_notes["start_check"] = {
+            "before_start": True, "state": dict(zip(task.names, map(float, state))),
+            "refused": refusal, "ms": 1e3 * (time.perf_counter() - t0)}
+        if refusal:
+            print(f"rig: the start is refused before START: {refusal}", flush=True)
+        return refusal is None
+
+    return check
+
+
 def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[Sink] = (),
                stop=None, rec=None, notes: dict | None = None, fifo: bool = True):
     """Run ``prepared``'s controller on the rig; a :class:`~tspend.loop.simulation.RunResult`
@@ -166,8 +200,13 @@ def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[S
     info = replace(run_info(scenario, prepared.plant, steps, None, ctrl, task), extras=())
     warm_up(prepared, settings)
     notes = dict(notes or {})
+    notes["timing_notes"] = timing_notes = dict(notes.get("timing_notes", {}))
+    check = start_check(prepared, timing_notes)
+    if check is not None:
+        # before START and the real-time settings: an admission may take seconds
+        plant.check_start(check)
     with real_time(fifo=fifo) as granted:
-        notes["timing_notes"] = {"realtime": granted.as_dict(), **notes.get("timing_notes", {})}
+        timing_notes["realtime"] = granted.as_dict()
         for line in granted.notes:
             print(f"real time: {line}", flush=True)
         timing = TimingSink(plant, session, rec, notes)

@@ -187,12 +187,21 @@ class SimulatedRig:
                 log.events.append((now_ns * 1e-9, "rejected_command"))
         return found
 
-    def wait_for_start(self, until: float, log: TruthLog) -> float | None:
-        """Answer hellos until a START with an accepted period; its period (None: timed out)."""
+    def wait_for_start(self, until: float, log: TruthLog) -> float | str | None:
+        """Answer hellos and queries (the machine at rest where the session will start)
+        until a START with an accepted period: its period; a STOP before it (the host
+        refused its start): why; None: timed out."""
+        self.plant.reset(np.asarray(self.scenario.plant.x0, dtype=float))
         while time.monotonic() < until:
-            for kind, _seq, fields in self._frames(time.perf_counter_ns(), log):
+            for kind, seq, fields in self._frames(time.perf_counter_ns(), log):
                 if kind == protocol.HELLO_REQUEST:
                     self.transport.send(protocol.hello(self.hello))
+                elif kind == protocol.QUERY and self.hello.answers_query:
+                    self.transport.send(protocol.sensor(Sensor(
+                        seq, time.perf_counter_ns() // 1000, protocol.NO_COMMAND, 0,
+                        self.counts(self.plant.full_state()))))
+                elif kind == protocol.STOP:
+                    return f"the host stopped before START (reason {fields[0]})"
                 elif kind == protocol.START:
                     period = fields[0] * 1e-6
                     steps = round(period / self.dt)
@@ -235,12 +244,16 @@ class SimulatedRig:
                 plant.step(applied, d, dt)
         return "session time limit"
 
+    def counts(self, state: np.ndarray) -> tuple[int, ...]:
+        """The encoders' counts of the full ``state``."""
+        return tuple(int(round(v)) for v in state[self.joint_index] * self.hello.counts_per_unit)
+
     def _sample(self, i: int, now: int, s: "_Tick", log: TruthLog) -> None:
         """The tick's start: the state read, a sensor frame every period (faults drawn)."""
         f = self.faults
         s.state = self.plant.full_state()
         if i % s.every == 0:
-            counts = tuple(int(round(v)) for v in s.state[self.joint_index] * self.hello.counts_per_unit)
+            counts = self.counts(s.state)
             flags = protocol.WATCHDOG_TRIPPED if s.tripped else 0
             # the sampling instant on the rig's own clock, as a rig's timer stamps it: the
             # tick's time (a fast or slow clock shows in when the ticks come on the host's)

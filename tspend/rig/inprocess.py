@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from tspend.rig.links import RigLink
-from tspend.rig.protocol import Command, Hello, Sensor
+from tspend.rig.protocol import NO_COMMAND, Command, Hello, Sensor
 
 #: encoders of the simulated machine: 10 um on the slider, 20,000 counts per revolution
 COUNTS_PER_UNIT = (1e5, 2e4 / (2 * np.pi))
@@ -35,6 +35,16 @@ class InProcessCartPole(RigLink):
         self.plant = build_plant(self.scenario)
         return Hello(machine_id(self.plant), COUNTS_PER_UNIT, 0.001, 0.02, 0.05, 2000.0)
 
+    def query(self) -> Sensor:
+        """The machine at rest before the start (optional: a link without it returns None
+        and the runner checks its start at the first cycle)."""
+        index = [self.plant.state_names.index(j.name) for j in self.plant.joints]
+        return Sensor(0, round(time.perf_counter() * 1e6), NO_COMMAND, 0,
+                      self._counts(self.plant.full_state()[index]))
+
+    def _counts(self, positions) -> tuple[int, ...]:
+        return tuple(int(round(v * c)) for v, c in zip(positions, COUNTS_PER_UNIT))
+
     def start(self, period_s: float) -> None:
         self.period_s, self._seq = period_s, 0
         self._steps = round(period_s / self.scenario.run.dt)
@@ -48,8 +58,8 @@ class InProcessCartPole(RigLink):
             for _ in range(self._steps):
                 self.plant.step(self._u, 0.0, self.scenario.run.dt)
         state = self.plant.full_state()[self._index]
-        counts = tuple(int(round(v * c)) for v, c in zip(state, COUNTS_PER_UNIT))
-        frame = Sensor(self._seq, round(self._seq * self.period_s * 1e6), 0, 0, counts)
+        frame = Sensor(self._seq, round(self._seq * self.period_s * 1e6), 0, 0,
+                       self._counts(state))
         self._seq += 1
         return [frame]
 

@@ -38,9 +38,11 @@ class RigLink(ABC):
     (a DAQ card, a QUARC server, ros2_control): :meth:`hello` states the machine,
     :meth:`start` begins sampling at the period, :meth:`poll` returns the sensor frames
     that arrived since the last call without waiting, :meth:`send` applies a command,
-    :meth:`stop` brings the motor to zero, :meth:`close` releases the hardware.  The
-    constructor takes no arguments and only stores; the runner calls the rest in order
-    and calls :meth:`stop` on every exit path."""
+    :meth:`stop` brings the motor to zero, :meth:`close` releases the hardware;
+    :meth:`query`, optional, reads the sensors before :meth:`start` (the runner then
+    checks the start it would run from before any motion).  The constructor takes no
+    arguments and only stores; the runner calls the rest in order and calls :meth:`stop`
+    on every exit path."""
 
     #: frames that failed their check (CRC, size, type) and were dropped
     rejected: int = 0
@@ -63,6 +65,13 @@ class RigLink(ABC):
     def close(self) -> None:
         pass
 
+    def query(self) -> Sensor | None:
+        """One sensor frame read before :meth:`start`, the motor off (its ``rig_time_us``
+        on any clock of the rig's, the same for every query); None: this link reads no
+        state before the start (the runner says so and checks its start at the first
+        cycle instead)."""
+        return None
+
     def shortest_period_s(self) -> float:
         """The shortest period the link itself can carry (0: no limit of its own)."""
         return 0.0
@@ -77,6 +86,7 @@ class _FramedLink(RigLink):
     def __init__(self) -> None:
         self.rejected = 0
         self._seq = 0
+        self._answers_query = False
 
     @abstractmethod
     def _write(self, frame: bytes) -> None: ...
@@ -98,9 +108,11 @@ class _FramedLink(RigLink):
                 for kind, _seq, fields in self._frames():
                     if kind == protocol.HELLO:
                         try:
-                            return protocol.as_hello(fields)
+                            hello = protocol.as_hello(fields)
                         except FrameError as exc:
                             raise RigRefused(f"{self.describe()}: a malformed hello ({exc})")
+                        self._answers_query = hello.answers_query
+                        return hello
                 time.sleep(0.001)
         if getattr(self, "refused", False):
             raise RigRefused(f"{self.describe()}: unreachable (nothing listens on that port)")
@@ -109,6 +121,22 @@ class _FramedLink(RigLink):
 
     def start(self, period_s: float) -> None:
         self._write(protocol.start(period_s, self._next_seq()))
+
+    def query(self) -> Sensor | None:
+        """The rig's answer to a QUERY (the sensor frame echoing its seq), where its hello
+        says it answers one; RigRefused when it says so and stays silent."""
+        if not self._answers_query:
+            return None
+        seq = self._next_seq()
+        self._write(protocol.query(seq))
+        until = time.monotonic() + ANSWER_TIMEOUT_S
+        while time.monotonic() < until:
+            for frame in self.poll():
+                if frame.seq == seq and frame.command_seq == protocol.NO_COMMAND:
+                    return frame
+            time.sleep(0.0002)
+        raise RigRefused(f"{self.describe()}: its hello says it answers a query before the "
+                         f"start, and no answer came within {ANSWER_TIMEOUT_S:g} s")
 
     def poll(self) -> list[Sensor]:
         found = []

@@ -22,6 +22,8 @@ MAGIC = b"TS"
 MAX_JOINTS = 4
 
 HELLO_REQUEST, HELLO, START, SENSOR, COMMAND, STOP = b"H", b"h", b"G", b"S", b"C", b"X"
+#: the host's request, before START, for one sensor frame (the rig's state, its motor off)
+QUERY = b"Q"
 
 _HEADER = struct.Struct("<2sBcI")          # magic, version, type, seq
 _CRC = struct.Struct("<I")
@@ -33,10 +35,16 @@ _PAYLOADS = {
     SENSOR: struct.Struct("<QIHBB4i"),                         # rig time us, command seq applied, flags, n, pad, counts
     COMMAND: struct.Struct("<dII"),                            # u, sensor seq answered, flags
     STOP: struct.Struct("<I"),                                 # reason
+    QUERY: struct.Struct("<I"),                                # reserved
 }
 SIZES = {kind: _HEADER.size + p.size + _CRC.size for kind, p in _PAYLOADS.items()}
 LONGEST = max(SIZES.values())
 
+#: HELLO flags: the rig answers a QUERY before START with one sensor frame (the host
+#: checks the start it would run from before any motion: a safety filter's admission)
+ANSWERS_QUERY = 1
+#: the command seq a sensor frame states when no command was applied (an answer to QUERY)
+NO_COMMAND = 0xFFFFFFFF
 #: SENSOR flags
 WATCHDOG_TRIPPED, AMPLIFIER_CLIPPED = 1, 2
 #: STOP reasons
@@ -53,6 +61,11 @@ class Hello:
     max_period_s: float
     watchdog_s: float
     u_limit: float                   # the amplifier's limit on |u| (inf: none stated)
+    flags: int = 0                   # ANSWERS_QUERY: it reads its state before START
+
+    @property
+    def answers_query(self) -> bool:
+        return bool(self.flags & ANSWERS_QUERY)
 
 
 @dataclass(frozen=True)
@@ -87,9 +100,13 @@ def hello_request(seq: int = 0) -> bytes:
 
 def hello(h: Hello, seq: int = 0) -> bytes:
     counts = tuple(h.counts_per_unit) + (0.0,) * (MAX_JOINTS - len(h.counts_per_unit))
-    return _frame(HELLO, seq, h.machine.encode("ascii")[:32], len(h.counts_per_unit), 0, 0,
+    return _frame(HELLO, seq, h.machine.encode("ascii")[:32], len(h.counts_per_unit), h.flags, 0,
                   round(h.min_period_s * 1e6), round(h.max_period_s * 1e6),
                   round(h.watchdog_s * 1e6), h.u_limit, *counts)
+
+
+def query(seq: int = 0) -> bytes:
+    return _frame(QUERY, seq, 0)
 
 
 def start(period_s: float, seq: int = 0) -> bytes:
@@ -130,11 +147,12 @@ def decode(frame: bytes) -> tuple[bytes, int, tuple]:
 
 
 def as_hello(fields: tuple) -> Hello:
-    machine, n, _flags, _pad, lo_us, hi_us, dog_us, u_limit, *counts = fields
+    machine, n, flags, _pad, lo_us, hi_us, dog_us, u_limit, *counts = fields
     if not 0 < n <= MAX_JOINTS:
         raise FrameError(f"a hello stating {n} joints (1 to {MAX_JOINTS})")
     return Hello(machine.rstrip(b"\0").decode("ascii", "replace"), tuple(counts[:n]),
-                 lo_us / 1e6, hi_us / 1e6, dog_us / 1e6, u_limit)  # / 1e6: 100000 us is 0.1 s
+                 lo_us / 1e6, hi_us / 1e6, dog_us / 1e6, u_limit,  # / 1e6: 100000 us is 0.1 s
+                 flags)
 
 
 def as_sensor(seq: int, fields: tuple) -> Sensor:

@@ -69,6 +69,12 @@ def replay(path) -> ReplayResult:
     sensors = sensor_state(plant, notes["counts_per_unit"],
                            VelocityEstimator(notes["timing_notes"]["velocity_tau_s"]))
     dt, view = scenario.run.dt, task.view_index
+    checked = notes["timing_notes"].get("start_check", {})
+    if checked.get("before_start") and len(recorded_u):
+        # the start checked before START from the state read then (the filter's admission)
+        start = np.array([checked["state"][n] for n in task.names])
+        ctrl.before_start(Observation(0.0, start, start[view], ref[0], task.names,
+                                      task.constraints))
     equal, first, first_replayed = 0, None, None
     for k in range(len(recorded_u)):
         if fresh[k]:

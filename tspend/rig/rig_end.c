@@ -33,7 +33,8 @@ static const double counts_per_unit[RIG_JOINTS] = {100000.0, 20000.0 / (2.0 * RI
 
 enum { HEADER = 8, CRC = 4 };
 enum { SIZE_HELLO_REQUEST = 16, SIZE_HELLO = 100, SIZE_START = 20, SIZE_SENSOR = 44,
-       SIZE_COMMAND = 28, SIZE_STOP = 16 };
+       SIZE_COMMAND = 28, SIZE_STOP = 16, SIZE_QUERY = 16 };
+#define HELLO_ANSWERS_QUERY 1u           /* hello flag: a query before START is answered */
 
 /* ---- the hardware: supplied by the port ------------------------------------------ */
 static void hw_read_counts(int32_t counts[RIG_JOINTS]);
@@ -81,6 +82,7 @@ static void send_hello(void) {
     memset(out, 0, sizeof out);
     memcpy(out + HEADER, RIG_MACHINE, sizeof RIG_MACHINE - 1);
     out[HEADER + 32] = RIG_JOINTS;
+    out[HEADER + 33] = HELLO_ANSWERS_QUERY;
     put_u32(out + HEADER + 36, RIG_MIN_PERIOD_US);
     put_u32(out + HEADER + 40, RIG_MAX_PERIOD_US);
     put_u32(out + HEADER + 44, RIG_WATCHDOG_US);
@@ -99,16 +101,21 @@ static struct {
     int tripped;
 } rig = {0, 0, 1, 0, 0, -1, 0.0, 0, 0, 0, 0};
 
-static void send_sensor(uint64_t now) {
+/* a sensor frame: the time stamp, the last command applied (0xFFFFFFFF: none) */
+static void send_counts(uint32_t seq, uint64_t time_us, uint32_t command_seq) {
     int32_t counts[RIG_JOINTS];
     hw_read_counts(counts);
     memset(out, 0, SIZE_SENSOR);
-    put_u64(out + HEADER, now - rig.start_us);
-    put_u32(out + HEADER + 8, (uint32_t)rig.command_seq);
+    put_u64(out + HEADER, time_us);
+    put_u32(out + HEADER + 8, command_seq);
     put_u16(out + HEADER + 12, (uint16_t)(rig.tripped ? 1 : 0));
     out[HEADER + 14] = RIG_JOINTS;
     for (int j = 0; j < RIG_JOINTS; j++) put_u32(out + HEADER + 16 + 4 * j, (uint32_t)counts[j]);
-    send_frame('S', rig.sensor_seq++, SIZE_SENSOR);
+    send_frame('S', seq, SIZE_SENSOR);
+}
+
+static void send_sensor(uint64_t now) {
+    send_counts(rig.sensor_seq++, now - rig.start_us, (uint32_t)rig.command_seq);
 }
 
 static void on_frame(const uint8_t *f, uint64_t now) {
@@ -117,6 +124,10 @@ static void on_frame(const uint8_t *f, uint64_t now) {
     switch (f[3]) {
     case 'H':
         send_hello();
+        break;
+    case 'Q':
+        /* before START only: the state read with the motor off, the query's seq echoed */
+        if (!rig.running) send_counts(seq, now, 0xFFFFFFFFu);
         break;
     case 'G': {
         uint32_t period = get_u32(f + HEADER);
@@ -157,6 +168,7 @@ static int frame_size(uint8_t type) {
     case 'G': return SIZE_START;
     case 'C': return SIZE_COMMAND;
     case 'X': return SIZE_STOP;
+    case 'Q': return SIZE_QUERY;
     default: return 0;                            /* not a frame a rig receives */
     }
 }

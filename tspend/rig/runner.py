@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 import warnings
 from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +46,9 @@ REALIGN_SHARE = ALIGN_SHARE / 2
 #: the rig's watchdog must outlast this many periods (a command a period late is not a
 #: lost host)
 WATCHDOG_PERIODS = 2
+#: sensor frames queried before START, a period apart, for the state the start is checked
+#: from (the velocity estimator's filter settles over them: 20 ms at 2 ms against its 5 ms)
+PRE_START_FRAMES = 10
 
 
 class DeadlineMissed(DivergenceError):
@@ -122,16 +126,46 @@ class RigPlant(ModelFacade):
         self._last_sent = 0.0
         self._silent = ""  # why the rig counts as gone ("" while it is not)
         self.clock: ClockTracker | None = None  # from the first frames on (begin)
+        #: the state read before START for its check (:meth:`check_start`; None: none)
+        self.start_state: np.ndarray | None = None
+        self._held_back = False  # the check refused the start: START is never sent
 
     def reset(self, x0: np.ndarray) -> None:
         """The rig is where it is: its first frame, not x0, is the initial state."""
 
+    # before the start
+    def state_before_start(self) -> np.ndarray | None:
+        """The full state from :data:`PRE_START_FRAMES` queried frames a period apart
+        (the motor off; velocities from the run's own estimator); None where the link
+        reads no state before START."""
+        sensors = sensor_state(self.machine, self.hello.counts_per_unit, self.settings.estimator)
+        for i in range(PRE_START_FRAMES):
+            if i:
+                wait_until(time.perf_counter_ns() + self._period_ns)
+            frame = self.link.query()
+            if frame is None:
+                return None
+            sensors.fresh(np.asarray(frame.counts, dtype=np.int64), frame.rig_time_us)
+        return sensors.state.copy()
+
+    def check_start(self, check: Callable[[np.ndarray | None], bool]) -> None:
+        """Before START: ``check`` given the state read then (None where the link reads
+        none) says whether to start; refused, START is never sent and the loop's first
+        read is that state."""
+        self.start_state = self.state_before_start()
+        if not check(self.start_state):
+            self._held_back = True
+            self.sensors.state[:] = self.start_state
+
     # the cycle
-    def begin(self) -> None:
+    def begin(self) -> bool:
         """Start sampling and align the schedule on the rig's clock: the offset between
         the host's clock and the rig's timestamps is the smallest seen over the first
         :data:`ALIGN_FRAMES` frames (polled without sleeping, so each arrival is stamped
-        when it lands); cycle 0 is the frame after them."""
+        when it lands); cycle 0 is the frame after them.  False, nothing started, when the
+        check before the start refused it (:meth:`check_start`)."""
+        if self._held_back:
+            return False
         self.link.start(self.settings.period_s)
         until = time.monotonic() + FIRST_FRAME_TIMEOUT_S
         seen, offset = [], None
@@ -152,13 +186,16 @@ class RigPlant(ModelFacade):
         self._last_fresh_ns = self._t0_ns
         self.clock = ClockTracker(offset, self._period_ns,
                                   round(REALIGN_SHARE * self._period_ns))
+        return True
 
     def full_state(self) -> np.ndarray:
         k = self._cycle
         if self._read_cycle == k:
             return self.sensors.state.copy()
-        if not self._t0_ns:  # the first read: here, so nothing before it delays cycle 0
-            self.begin()
+        if self._held_back or (not self._t0_ns and not self.begin()):
+            # the first read starts the rig (here, so nothing before it delays cycle 0),
+            # unless the check refused its start: the state it refused, nothing sampled
+            return self.sensors.state.copy()
         log = self.log
         log.deadline[k] = deadline = self._t0_ns + k * self._period_ns
         frames, log.wake[k] = self._listen(deadline)
@@ -229,6 +266,8 @@ class RigPlant(ModelFacade):
         log.ready[k] = ready = time.perf_counter_ns()
         if self._silent:
             raise RigSilent(self._silent)
+        if self._held_back:  # the loop ends a refused start before any input: a guard
+            raise RigRefused(f"{self.link.describe()}: its start was refused before START")
         # before the first sensor frame the state is no measurement: the command stays 0
         sent = u if self._used_seq >= 0 else 0.0
         if ready > log.deadline[k] + self._period_ns:
