@@ -603,6 +603,36 @@ def test_a_sample_past_the_budget_is_counted_by_its_cause():
     assert all(set(k for k, n in c.items() if n) == {case} for case, c in causes.items()), causes
 
 
+def test_a_check_cut_short_prices_the_models_not_run_at_a_whole_checks_pace():
+    """(P9): a check stopped between two models measures a whole rollout as the models it
+    ran plus the rest at the last whole check's time per model (here 10 at 40 us and 7 at
+    20 us: 540 us), not at its own pace (680 us): a check is cut short when it runs slow,
+    and pricing the rest at that pace blocked every rollout after a slow spell."""
+    from tspend.controllers.mpsc import StepCost
+
+    f = _filter(**{"safety.budget_ms": 1.0})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    now = [0.0]
+    f._clock = f._cpu_clock = lambda: now[0]
+    f._cost["roll"], f._deadline = StepCost(probe=True), 1.0
+    f._cost["roll"].new_sample()  # no times yet: a probe's zero estimate
+    n = f.roll.models
+    outcomes = [(f.roll._summary, n, n * 20e-6), (None, 10, 10 * 40e-6)]
+
+    def check(*args):
+        V, run, cpu_s = outcomes.pop(0)
+        now[0] += cpu_s  # the fake clocks move by the models' time only
+        return V, run, cpu_s
+
+    f.roll.check, f.verdict = check, lambda V: "refused"
+    U, R = f.lqr_tail(s)
+    assert f.certifies(s, U, R) is False
+    assert f._cost["roll"].last == pytest.approx(n * 20e-6)
+    assert f.certifies(s, U, R) is None and f.cut_short == 1
+    assert f._cost["roll"].last == pytest.approx(10 * 40e-6 + (n - 10) * 20e-6)
+
+
 def test_the_estimate_is_a_high_quantile_of_the_last_samples_calls():
     """(P9)'s estimate: a lone slow call does not move it (the COST_RANK-th largest); a
     spell of slow calls is the estimate until COST_WINDOW samples have passed, with or
