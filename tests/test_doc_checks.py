@@ -225,13 +225,13 @@ def test_marked_figures_are_checked_against_their_data(tmp_path: Path) -> None:
 def test_marked_figures_are_checked_against_raw_text_output(tmp_path: Path) -> None:
     (tmp_path / "r.txt").write_text("rk4  median 12.34 ms\neuler median 3.21 ms\ntotal 1,234 runs\n")
     doc = tmp_path / "doc.md"
-    doc.write_text("RK4 takes 12.3 ms <!-- data: r.txt rk4\s+median\s+([\d.]+) --> over "
-                   "1,234 runs <!-- data: r.txt total\s+([\d,]+) -->\n")
+    doc.write_text("RK4 takes 12.3 ms <!-- data: r.txt rk4\\s+median\\s+([\\d.]+) --> over "
+                   "1,234 runs <!-- data: r.txt total\\s+([\\d,]+) -->\n")
     assert check_claims.check_markers([doc], root=tmp_path) == (2, [])
-    doc.write_text("RK4 takes 12.4 ms <!-- data: r.txt rk4\s+median\s+([\d.]+) -->\n")
+    doc.write_text("RK4 takes 12.4 ms <!-- data: r.txt rk4\\s+median\\s+([\\d.]+) -->\n")
     n, problems = check_claims.check_markers([doc], root=tmp_path)
     assert n == 1 and "prints 12.4" in problems[0]
-    doc.write_text("3.2 ms <!-- data: r.txt median\s+([\d.]+) -->\n")  # two matches: ambiguous
+    doc.write_text("3.2 ms <!-- data: r.txt median\\s+([\\d.]+) -->\n")  # two matches: ambiguous
     n, problems = check_claims.check_markers([doc], root=tmp_path)
     assert n == 0 and "matches 2 times" in problems[0]
 

@@ -59,16 +59,18 @@ def test_mjx_sweep_rows_agree_with_the_cpu_sweep(scenario, seeds, duration):
 #: completed, fell, rail_end, and a state MuJoCo finds non-finite or huge ("the plant
 #: failed": a gain of 10^12 or a push of 5e9 makes qacc huge in the first step; a gain of
 #: 10^7 makes u huge a few samples in, which MuJoCo would refuse).  The last number: the
-#: rows' relative tolerance (1e-9; 1e-5 where the gain of 10^7 multiplies the backends'
-#: 1e-16 round-off by some 10^10 in the three samples before u reaches 10^10: measured
-#: 3e-6 on seed 2, 6e-9 on seeds 0 and 1)
+#: rows' relative tolerance (1e-9; 1e-4 where the gain of 10^7 multiplies the backends'
+#: 1e-16 round-off by some 10^10 in the three samples before u reaches 10^10: seed 2's ise
+#: differed by 3e-6 on the machine this was written on and by 1.7e-5 on an AMD EPYC with the
+#: same code and wheels, where XLA's and MuJoCo's builds pick other vector instructions; seeds
+#: 0 and 1 by 1e-9.  The status and the step of the ending are compared exactly all the same)
 ENDINGS = [
     ("pendulum_mujoco_randomized", "0:4", 0.3, {}, {"completed"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:8", 0.3, {"effects.rail": 0.002, "task.fall_angle": 0.1},
      {"fell", "rail_end"}, 1e-9),
     ("pendulum_mujoco_randomized", "0:3", 0.05, {"randomize.gear.low": 1e7,
                                                  "randomize.gear.high": 2e7,
-                                                 "task.fall_angle": 0.0}, {"diverged"}, 1e-5),
+                                                 "task.fall_angle": 0.0}, {"diverged"}, 1e-4),
     ("pendulum_mujoco_randomized", "3:5", 0.05, {"randomize.gear.low": 1e12,
                                                  "randomize.gear.high": 2e12,
                                                  "task.fall_angle": 0.0}, {"diverged"}, 1e-9),
