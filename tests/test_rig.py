@@ -632,10 +632,36 @@ def test_a_start_the_filter_refuses_is_refused_before_the_rig_starts(tmp_path):
                    "effects.rail=1.0", "--rig", url, "--duration", "0.1", "--no-record",
                    "--metrics", "plain.json", cwd=tmp_path, timeout=PROCESS_TIMEOUT_S)
     out, _ = finish(double)
-    assert "session 1: the host stopped before START (reason 0); nothing moved" in out
+    assert "session 1: the host stopped before START (reason 1: task); nothing moved" in out
     assert "session 2: period 2 ms" in out
     assert "start_check" not in json.loads((tmp_path / "plain.json").read_text())["timing"]
     assert plain.status == 0 and "completed: 50 steps" in plain.out, plain.err
+
+
+def test_ctrl_c_during_the_check_before_start_sends_no_start(tmp_path):
+    """Ctrl-C while the filter's admission runs (IPOPT, about a second from this start):
+    the check is cut short, its cut answer is no verdict (no refusal claimed), START is
+    never sent, and the stop frame says why (reason 2: signal); the outputs are kept."""
+    double, url, log = start_double(tmp_path, *MPSC, *FAR_START, scenario="pendulum_finite_rail")
+    host = spawn("run", "pendulum_finite_rail", "--controller", "pd", *MPSC,
+                 "--set", "safety.refuse_unadmitted=true", "--rig", url, "--duration", "1",
+                 "--metrics", "m.json", "--out", "rig.rrd", cwd=tmp_path)
+    _wait_for_line(host, "rig: the start checked before START")
+    host.send_signal(signal.SIGINT)
+    out, err = finish(host)
+    double_out, _ = finish(double)
+    assert host.returncode == 130, out + err
+    assert "rig: the check of the start cut short by SIGINT; START not sent" in out
+    assert "the start is refused" not in out
+    assert "session 1: the host stopped before START (reason 2: signal); nothing moved" in double_out
+    assert not log.exists()  # the double logs a session only once START came
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["status"] == "interrupted" and m["timing"]["cycles"] == 0
+    assert m["timing"]["start_check"]["interrupted"] == "SIGINT"
+    assert "refused" not in m["timing"]["start_check"]
+    assert m["safety_filter"]["start_admitted"] is None
+    assert m["safety_filter"]["start_refusal"] is None
+    assert (tmp_path / "rig.rrd").stat().st_size > 0
 
 
 @pytest.mark.realtime

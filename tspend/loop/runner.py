@@ -250,6 +250,9 @@ class ClosedLoop:
     def _finish(self, sinks: list[Sink], status: str, message: str, done: int,
                 started: float) -> RunEnd:
         wall = time.perf_counter() - started
+        for sink in sinks:  # optional: a sink that acts on how the run ended (a rig's stop)
+            if hasattr(sink, "ending"):
+                sink.ending(status)
         metrics = {}
         for sink in sinks:
             if hasattr(sink, "result"):

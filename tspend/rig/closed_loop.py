@@ -11,6 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from tspend.loop.sinks import Block, RunEnd, RunInfo, Sink
+from tspend.rig import protocol
 from tspend.rig.runner import RigPlant, RigSession
 
 #: samples per block handed to the sinks: small, so the recording's work is spread over
@@ -35,6 +36,7 @@ class DeferredSinks:
         #: called once the loop is over, before any held block is delivered (the rig's
         #: stop frame goes out then, not after the recording's work)
         self.on_loop_end = on_loop_end
+        self.status: str | None = None
         self._held: list[Block] = []
         self._samples = 0
 
@@ -58,10 +60,13 @@ class DeferredSinks:
     def inner(self, snap) -> None:
         pass
 
+    def ending(self, status: str) -> None:
+        self.status = status
+
     def result(self, wall_s: float) -> dict:
         """The metrics of every block: the held ones delivered first."""
         if self.on_loop_end is not None:
-            self.on_loop_end()
+            self.on_loop_end(self.status)
         self.deliver()
         metrics = {}
         for sink in self.sinks:
@@ -147,12 +152,15 @@ def warm_up(prepared, settings) -> None:
     plant.reset(np.asarray(scenario.plant.x0, dtype=float))
 
 
-def start_check(prepared, timing_notes: dict):
+def start_check(prepared, timing_notes: dict, stop=None):
     """The rig's check of its start before START (:meth:`RigPlant.check_start`): the
     controller's :meth:`~tspend.controllers.base.Controller.before_start` on the state
     read then, at the run's first reference; what it found goes into ``timing_notes``
-    (``start_check``).  None for a controller that checks nothing."""
+    (``start_check``).  None for a controller that checks nothing.  A signal during the
+    check (``stop``, the CLI's) cuts it short: the start is held back, and the loop ends
+    interrupted at its first sample, START never sent."""
     from tspend.controllers.base import Observation
+    from tspend.runtime.interrupts import Interrupted
 
     scenario, ctrl, task = prepared.scenario, prepared.controller, prepared.task
     if not ctrl.checks_start:
@@ -164,18 +172,56 @@ def start_check(prepared, timing_notes: dict):
             print("rig: the rig reads no state before START (its hello): the start is "
                   "checked at the first cycle, the rig started", flush=True)
             return True
+        # an admission may take seconds: said, so a quiet rig is not taken for a hung host
+        print(f"rig: the start checked before START ({type(ctrl).__name__})", flush=True)
         t0 = time.perf_counter()
         ref = scenario.reference.derivatives(np.zeros(1), ctrl.order)[0]
-        refusal = ctrl.before_start(Observation(0.0, state, state[task.view_index], ref,
-                                                task.names, task.constraints))
-        timing_notes["start_check"] = {
-            "before_start": True, "state": dict(zip(task.names, map(float, state))),
-            "refused": refusal, "ms": 1e3 * (time.perf_counter() - t0)}
+        found = {"before_start": True, "state": dict(zip(task.names, map(float, state)))}
+        timing_notes["start_check"] = found
+        try:
+            if stop is not None:
+                stop.in_controller = True  # a signal raises into the check, as into a step
+            refusal = ctrl.before_start(Observation(0.0, state, state[task.view_index], ref,
+                                                    task.names, task.constraints))
+        except Interrupted:
+            pass  # the signal is recorded in stop: said below
+        finally:
+            if stop is not None:
+                stop.in_controller = False
+        if stop is not None and stop.signal_name is not None:
+            # also where the code it cut turned the signal into an answer of its own
+            # (IPOPT's failed solve, so "no plan"): that answer is not a verdict
+            found.update(interrupted=stop.signal_name, ms=1e3 * (time.perf_counter() - t0))
+            # what the check found before the cut is dropped: the metrics claim no verdict
+            ctrl.reset(np.random.default_rng(scenario.run.seed))
+            print(f"rig: the check of the start cut short by {stop.signal_name}; START not "
+                  "sent", flush=True)
+            return False
+        found.update(refused=refusal, ms=1e3 * (time.perf_counter() - t0))
         if refusal:
             print(f"rig: the start is refused before START: {refusal}", flush=True)
         return refusal is None
 
     return check
+
+
+def stop_reason(status: str | None) -> int:
+    """The stop frame's reason for a run that ended ``status`` (docs/rig.md's ``X``)."""
+    from tspend.loop.runner import CONTROLLER_ERROR, NOT_REACHED
+
+    if status in (None, "completed", NOT_REACHED):
+        return protocol.STOP_DONE
+    if status == "interrupted":
+        return protocol.STOP_SIGNAL
+    if status in (CONTROLLER_ERROR, "failed", "diverged"):
+        return protocol.STOP_ERROR
+    return protocol.STOP_TASK  # the task ended it: a bound, a fall, a refused start
+
+
+def end_session(session: RigSession, status: str | None) -> None:
+    """The stop frame at the loop's end, its reason how the run ended."""
+    session.stop_reason = stop_reason(status)
+    session.close()
 
 
 def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[Sink] = (),
@@ -201,7 +247,7 @@ def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[S
     warm_up(prepared, settings)
     notes = dict(notes or {})
     notes["timing_notes"] = timing_notes = dict(notes.get("timing_notes", {}))
-    check = start_check(prepared, timing_notes)
+    check = start_check(prepared, timing_notes, stop)
     if check is not None:
         # before START and the real-time settings: an admission may take seconds
         plant.check_start(check)
@@ -213,5 +259,6 @@ def run_on_rig(prepared, session: RigSession, plant: RigPlant, sinks: Sequence[S
         for sink in sinks:  # the first block comes at the end now: no "compiling" notice
             getattr(sink, "cancel", lambda: None)()
         history = History()
-        end = loop.run(info, [DeferredSinks([metrics, timing, history, *sinks], session.close)])
+        end = loop.run(info, [DeferredSinks([metrics, timing, history, *sinks],
+                                            lambda status: end_session(session, status))])
     return RunResult(scenario, end, history.arrays(), ctrl, plant, info)

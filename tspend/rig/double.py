@@ -22,8 +22,6 @@ from tspend.rig.realtime import wait_until
 
 #: a session ends when the watchdog has tripped and nothing came from the host this long (s)
 HOST_LOST_S = 1.0
-#: STOP reason the double sends when it refuses a START (docs/rig.md)
-STOP_REFUSED_PERIOD = 4
 _LOG_CHUNK = 10_000
 #: a tick's physics step starts this long before the next tick (ns): time for the step
 STEP_MARGIN_NS = 150_000
@@ -201,14 +199,15 @@ class SimulatedRig:
                         seq, time.perf_counter_ns() // 1000, protocol.NO_COMMAND, 0,
                         self.counts(self.plant.full_state()))))
                 elif kind == protocol.STOP:
-                    return f"the host stopped before START (reason {fields[0]})"
+                    why = protocol.STOP_NAMES.get(fields[0], "unknown")
+                    return f"the host stopped before START (reason {fields[0]}: {why})"
                 elif kind == protocol.START:
                     period = fields[0] * 1e-6
                     steps = round(period / self.dt)
                     if (self.hello.min_period_s - 1e-9 <= period <= self.hello.max_period_s + 1e-9
                             and steps >= 1 and abs(steps * self.dt - period) < 1e-7):
                         return period
-                    self.transport.send(protocol.stop(STOP_REFUSED_PERIOD))
+                    self.transport.send(protocol.stop(protocol.STOP_REFUSED_PERIOD))
             time.sleep(0.0005)
         return None
 

@@ -49,6 +49,11 @@ NO_COMMAND = 0xFFFFFFFF
 WATCHDOG_TRIPPED, AMPLIFIER_CLIPPED = 1, 2
 #: STOP reasons
 STOP_DONE, STOP_TASK, STOP_SIGNAL, STOP_ERROR = 0, 1, 2, 3
+#: STOP from the rig: it refused the period START asked for
+STOP_REFUSED_PERIOD = 4
+#: what each STOP reason says
+STOP_NAMES = {STOP_DONE: "done", STOP_TASK: "task", STOP_SIGNAL: "signal",
+              STOP_ERROR: "error", STOP_REFUSED_PERIOD: "period refused"}
 
 
 @dataclass(frozen=True)
