@@ -170,6 +170,34 @@ def test_the_clock_tracker_measures_a_known_drift_and_ignores_one_outlier_window
     assert single.realigned == 0
 
 
+def test_a_spell_of_queued_frames_moves_the_schedule_a_step_at_most_and_not_the_drift():
+    """Two windows whose frames all queue 1 ms (a spell of the link or of the rig's
+    sender) look like the offset moving: the schedule moves by at most two bounds (not the
+    1 ms), and back within the bound once the frames come on time again.  While it is late
+    the frames are already waiting when the host wakes to listen, stamped at the wake (their
+    lag then follows the schedule): those windows stay out of the drift's fit, which finds
+    no drift (before: 1 ms moved, and 143 ppm read from a clock that keeps the host's)."""
+    from tspend.rig.runner import ALIGN_SHARE, LISTEN_SHARE
+    from tspend.rig.timing import REALIGN_STEP_BOUNDS, ClockTracker
+
+    period_ns, transit_ns = 2_000_000, 50_000
+    bound_ns, listen_ns = 100_000, round(LISTEN_SHARE * period_ns)
+    aligned_ns = round(ALIGN_SHARE * period_ns)  # the deadline's place after the frame
+    tracker = ClockTracker(transit_ns, period_ns, bound_ns)
+    late_ns, most_late_ns = 0, 0  # the schedule's error
+    for k in range(1500):  # 3 s
+        arrival = k * period_ns + transit_ns + (1_000_000 if 50 <= k < 150 else 0)
+        wake = k * period_ns + transit_ns + aligned_ns + late_ns - listen_ns
+        waiting = arrival <= wake
+        stamp = wake if waiting else arrival
+        tracker.arrived(stamp, k * period_ns // 1000, waiting)
+        late_ns += tracker.end_of_cycle(k, stamp)
+        most_late_ns = max(most_late_ns, late_ns)
+    assert most_late_ns == REALIGN_STEP_BOUNDS * bound_ns
+    assert abs(late_ns) <= bound_ns, (late_ns, tracker.block())
+    assert abs(tracker.gain_us_per_s()) < 5
+
+
 # -- the UDP double and the runner ------------------------------------------------------
 @pytest.mark.realtime
 def test_lqr_on_the_udp_double_completes_with_timing_and_replays_bit_for_bit(tmp_path):
@@ -229,8 +257,10 @@ def test_a_drifting_rig_clock_is_measured_followed_and_said(tmp_path):
     clock = timing["clock"]
     assert -345 < clock["rig_gain_us_per_s"] < -255, clock
     # 3 s at 300 ppm: 900 us, re-aligned in steps of at most a window's drift past the bound
-    # (it trails the drift by up to two steps under load: 691 us seen at load 4)
-    assert clock["realigned"] >= 4 and 600 < clock["schedule_shift_us"] < 1000, clock
+    # (it trails the drift by up to two steps under load: 691 us seen at load 4), or ahead
+    # by one capped step after a spell of queued frames near the end (REALIGN_STEP_BOUNDS
+    # bounds: 200 us; before the cap, 1867 us in all was seen in a cold CI run)
+    assert clock["realigned"] >= 4 and 600 < clock["schedule_shift_us"] < 1100, clock
     # three quarters stale without re-alignment; a few per cent with it (late frames under
     # load: 3.5 % seen with the suite's other rig tests beside it)
     assert timing["frames"]["stale_cycles"] < 0.10 * timing["cycles"], timing["frames"]

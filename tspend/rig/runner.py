@@ -234,14 +234,16 @@ class RigPlant(ModelFacade):
         wake-up time."""
         clock, link, frames = time.perf_counter_ns, self.link, []
         wait_until(deadline - max(SPIN_NS, round(LISTEN_SHARE * self._period_ns)))
+        waiting = True  # the first poll reads what came while the host slept
         while True:
             now = clock()
             got = link.poll()
             if got:
                 arrived = clock()
                 for frame in got:
-                    self.clock.arrived(arrived, frame.rig_time_us)
+                    self.clock.arrived(arrived, frame.rig_time_us, waiting)
                 frames += got
+            waiting = False
             if now >= deadline:
                 return frames, now
 

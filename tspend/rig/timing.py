@@ -86,6 +86,9 @@ CLOCK_WINDOW_CYCLES = 20
 #: a rig clock gaining or losing more than this on the host's (us per s, i.e. ppm) is said
 #: in one line: twice a common crystal's tolerance
 CLOCK_WARN_US_PER_S = 100.0
+#: a re-alignment moves the schedule by at most this many bounds: a crystal's drift (up to
+#: 1000 ppm) moves the offset less in two windows, a spell of queued frames more
+REALIGN_STEP_BOUNDS = 2
 #: the most windows the drift's fit takes (evenly spread over the run)
 DRIFT_FIT_WINDOWS = 400
 
@@ -98,7 +101,14 @@ class ClockTracker:
     window of :data:`CLOCK_WINDOW_S` drops the queueing, so the minima follow the offset
     alone; their slope against the host's time (a Theil-Sen fit) is the drift.  When a window's minimum has
     moved from the schedule's reference by more than ``bound_ns``, the schedule moves with
-    it (:meth:`end_of_cycle` returns the shift): the deadlines stay on the rig's clock."""
+    it (:meth:`end_of_cycle` returns the shift): the deadlines stay on the rig's clock.
+
+    A spell of queued frames two windows long looks like the offset moving: a shift is at
+    most :data:`REALIGN_STEP_BOUNDS` bounds, so such a spell moves the schedule that much at
+    most, and the windows after it move it back.  A frame already waiting when the host
+    woke to listen is stamped at the wake: its lag follows the schedule, not the link, so a
+    window whose every frame was waiting is kept out of the drift's fit (a schedule late
+    by a spell would tilt it)."""
 
     def __init__(self, reference_ns: int, period_ns: int, bound_ns: int) -> None:
         self.reference_ns, self.bound_ns = reference_ns, bound_ns
@@ -107,11 +117,14 @@ class ClockTracker:
         self.realigned = 0
         self.shift_ns = 0
         self._min: int | None = None
+        self._heard = 0  # frames of this window that arrived while the host listened
         self._calibrated = False
         self._pending = 0  # the previous window's excess past the bound (0: none)
 
-    def arrived(self, host_ns: int, rig_time_us: int) -> None:
+    def arrived(self, host_ns: int, rig_time_us: int, waiting: bool = False) -> None:
+        """A frame read at ``host_ns``; ``waiting``: it was there when the host woke."""
         lag = host_ns - rig_time_us * 1000
+        self._heard += not waiting
         if self._min is None or lag < self._min:
             self._min = lag
 
@@ -123,8 +136,9 @@ class ClockTracker:
         start's few frames would set it higher than a window of them)."""
         if (cycle + 1) % self.window_cycles or self._min is None:
             return 0
-        self.windows.append((host_ns, self._min))
-        excess, self._min = self._min - self.reference_ns, None
+        if self._heard:
+            self.windows.append((host_ns, self._min))
+        excess, self._min, self._heard = self._min - self.reference_ns, None, 0
         if not self._calibrated:
             self._calibrated, self.reference_ns = True, self.reference_ns + excess
             return 0
@@ -134,7 +148,8 @@ class ClockTracker:
         previous, self._pending = self._pending, excess
         if previous == 0 or (previous > 0) != (excess > 0):
             return 0
-        shift = min(previous, excess, key=abs)
+        most = REALIGN_STEP_BOUNDS * self.bound_ns
+        shift = max(-most, min(most, min(previous, excess, key=abs)))
         self._pending = 0
         self.reference_ns += shift
         self.realigned += 1
