@@ -368,8 +368,9 @@ def test_the_compiled_check_is_the_rollout_model_by_model():
     """The compiled check (one C call, ``mpsc_check.c``) and the same check in CasADi's
     virtual machine against the whole rollout: the same summary when every model keeps
     its bounds; a plan that leaves the rail stopped at the first model that breaks a
-    bound, which is then checked first; and no model after the first once the deadline
-    is gone (a check stopped between models, its verdict unknown)."""
+    bound, which is then checked first; and no model once the deadline is gone (but the
+    first of a check whose guard is not measured yet: a check stopped between models, its
+    verdict unknown)."""
     import time
 
     from tspend.controllers.mpsc import Rollout, certificate_rollout
@@ -397,6 +398,9 @@ def test_the_compiled_check_is_the_rollout_model_by_model():
         # the model that broke a bound is tried first: the next check stops at once
         assert roll.check(away, U, R, far, 1e-6)[:2] == (False, 1)
         gone, run, _ = roll.check(s, U, R, time.perf_counter() - 1.0, 1e-6)
+        assert gone is None and run == 0
+        # an unmeasured guard (a first probe): the first model runs, none after it
+        gone, run, _ = roll.check(s, U, R, time.perf_counter() - 1.0, math.inf)
         assert gone is None and run == 1
 
 

@@ -773,7 +773,8 @@ class Rollout:
     def check(self, s: np.ndarray, U: np.ndarray, R: np.ndarray, until_s: float,
               guard_s: float) -> tuple[np.ndarray | bool | None, int, float]:
         """(P5) from ``s``, model after model (:attr:`order`), each started only when
-        ``guard_s`` fits before ``until_s`` (``time.perf_counter``'s clock): ``(the summary
+        ``guard_s`` fits before ``until_s`` (``time.perf_counter``'s clock; the first model
+        regardless while ``guard_s`` is infinite, unmeasured): ``(the summary
         of every model, models run, their CPU time)`` when no model broke a bound by its
         excess (the caller's full check decides), ``(False, ...)`` at the first that did
         (it moves to the front), ``(None, ...)`` when the next did not fit."""
@@ -784,7 +785,8 @@ class Rollout:
         order, excess, evals, clock = self.order, self.excess, self._evals, time.perf_counter
         started = time.thread_time()
         for n, m in enumerate(order):
-            if n and clock() + guard_s > until_s:
+            # the first model too, unless its guard is unmeasured (a first probe runs one)
+            if (n or math.isfinite(guard_s)) and clock() + guard_s > until_s:
                 return None, n, time.thread_time() - started
             evals[m + 1]()
             if excess[m] > 0.0:
@@ -846,8 +848,8 @@ def compiled_check(library: Any, roll: Rollout) -> Any:
     outcome = {0: lambda: roll._summary, 1: lambda: False, 2: lambda: None}
 
     def run(until_s: float, guard_s: float) -> tuple:
-        # no deadline (admission): every model; an unmeasured guard or a deadline gone:
-        # none after the first
+        # no deadline (admission): every model; an unmeasured guard: the first model only;
+        # a deadline gone: none (the first too once its guard is measured)
         until_ns = (int(until_s * 1e9) if math.isfinite(until_s) else
                     _FAR_NS if until_s > 0 else -_FAR_NS)
         guard_ns = (0 if until_ns == _FAR_NS else

@@ -2,13 +2,17 @@
    to the CasADi source of the rollouts (one function per model) and compiled with it.
 
    The plan on the RK4 steps is made once (`prepare`), then the models' rollouts run in
-   `order`, each started only when `guard_ns` still fits before `deadline_ns` (both on
+   `order`, each (the first too, once its guard is measured) started only when `guard_ns`
+   still fits before `deadline_ns` (both on
    CLOCK_MONOTONIC, Python's time.perf_counter), stopping at the first model whose excess
    is positive (it moves to the front of `order`: the model that broke a bound last is
    tried first next time).  One call from Python for the whole check: a Python call per
    model cost 3-4 us each, a tenth of a model's rollout. */
 
 #include <time.h>
+
+/* a guard this long or longer is unmeasured (mpsc.py's _FAR_NS) */
+#define TSPEND_UNMEASURED_NS (1LL << 62)
 
 typedef int (*tspend_casadi_fn)(const casadi_real **arg, casadi_real **res, casadi_int *iw,
                                 casadi_real *w, int mem);
@@ -37,7 +41,9 @@ CASADI_SYMBOL_EXPORT int tspend_mpsc_check(
   long long cpu0 = tspend_check_ns(CLOCK_THREAD_CPUTIME_ID);
   for (; n < models; ++n) {
     int m = order[n];
-    if (n && tspend_check_ns(CLOCK_MONOTONIC) + guard_ns > deadline_ns) {
+    /* the first model too, unless its guard is unmeasured (a first probe runs one) */
+    if ((n || guard_ns < TSPEND_UNMEASURED_NS) &&
+        tspend_check_ns(CLOCK_MONOTONIC) + guard_ns > deadline_ns) {
       *status = 2;
       break;
     }
