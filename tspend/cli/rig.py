@@ -156,8 +156,10 @@ class RigRun:
         rig_sinks = [s for s in sinks if s not in twin_sinks]
         try:
             result = run_on_rig(prepared, self.session, plant, rig_sinks, stop, rec, notes)
-        except BaseException:
-            self.session.stop_reason = protocol.STOP_SIGNAL
+        except BaseException as exc:
+            # before or after the loop (its own end sets the reason): a signal, else an error
+            signalled = isinstance(exc, KeyboardInterrupt) or getattr(stop, "signal_name", None)
+            self.session.stop_reason = protocol.STOP_SIGNAL if signalled else protocol.STOP_ERROR
             raise
         finally:
             self.session.close()  # the stop frame at once, before the outputs are completed
