@@ -13,8 +13,8 @@ input's range, and the state at rest upright at the end.  A vertex whose least p
 above the certificate's bound (hi_check of the rail) is evidence that no plan is
 certified from that start, whatever the QP does: not a proof, since a certified plan
 ends in the terminal set X_f, not at rest (asking rest within 3 s may cost a longer
-excursion), and its tracked inputs are not held on this grid.  The drawn machine's own least peak below 1 m says the start was
-recoverable by an input that knew the machine.  Writes
+excursion), and its tracked inputs are not held on this grid.  The drawn machine's own
+least peak below 1 m says the start was recoverable by an input that knew the machine.  Writes
 benchmarks/results/safety_mpsc_reach.json.
 """
 

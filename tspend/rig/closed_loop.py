@@ -33,10 +33,9 @@ class DeferredSinks:
 
     def __init__(self, sinks: Sequence[Sink], on_loop_end=None) -> None:
         self.sinks = list(sinks)
-        #: called once the loop is over, before any held block is delivered (the rig's
-        #: stop frame goes out then, not after the recording's work)
+        #: called with the run's ending once the loop is over, before any held block is
+        #: delivered (the rig's stop frame goes out then, not after the recording's work)
         self.on_loop_end = on_loop_end
-        self.status: str | None = None
         self._held: list[Block] = []
         self._samples = 0
 
@@ -61,12 +60,12 @@ class DeferredSinks:
         pass
 
     def ending(self, status: str) -> None:
-        self.status = status
+        """The loop is over (the loop calls it just before :meth:`result`)."""
+        if self.on_loop_end is not None:
+            self.on_loop_end(status)
 
     def result(self, wall_s: float) -> dict:
         """The metrics of every block: the held ones delivered first."""
-        if self.on_loop_end is not None:
-            self.on_loop_end(self.status)
         self.deliver()
         metrics = {}
         for sink in self.sinks:
