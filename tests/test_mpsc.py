@@ -496,6 +496,31 @@ def test_no_step_starts_past_the_budget():
     assert sf["certified_samples"] == 0 and sf["uncertified_samples"] == 0
 
 
+def test_admission_prices_a_samples_qp_step_by_its_slowest_sqp_step():
+    """(P9): admission runs several SQP steps of (P4) and a sample runs one, which may cost
+    what admission's first, cold one did: on a fake clock where the first step takes 3 ms
+    and the others 0.2 ms, the QP's estimate is 3 ms (their average per admission step had
+    priced it at 0.5 ms or less, and a sample's QP then ran to 3.5 ms), so a 1 ms budget
+    never starts it."""
+    f = _filter(**{"safety.budget_ms": 1.0})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    now, steps = [0.0], []
+    f._clock = f._cpu_clock = lambda: now[0]
+    real_iterate = f.sqp.iterate
+
+    def iterate(*args):
+        now[0] += 0.2e-3 if steps else 3e-3
+        steps.append(args[3])
+        return real_iterate(*args)
+
+    f.sqp.iterate = iterate
+    f.admit(s)
+    assert len(steps) >= 2 and set(steps) == {1}
+    assert f._cost["qp"].estimate == pytest.approx(3e-3)
+    f._deadline = now[0] + 1e-3
+    assert f._affords("qp") is False
+
+
 def _on_a_fake_clock(f, roll_costs_s, finish_s):
     """``f`` on a fake clock that only the rollouts (``roll_costs_s`` in turn, repeated)
     and the fallback's bookkeeping (``finish_s``) advance, every rollout refused (so every
