@@ -195,6 +195,45 @@ def test_a_start_no_plan_can_certify_is_refused_before_its_first_input(tmp_path,
     assert "refused" not in capsys.readouterr().err
 
 
+def test_ctrl_c_during_a_simulated_runs_admission_claims_no_verdict(tmp_path, capsys):
+    """A SIGINT 0.1 s into the robust plan's IPOPT (P11) at the admission of the start
+    above (about 0.4 s of IPOPT here): the run ends interrupted (130) before its first
+    input, and the filter's block claims neither an admission nor a refusal.  CasADi turns
+    a signal inside IPOPT's callback into a failed solve: the run had gone on to apply its
+    first sample, and its block had said "no plan certified from the start"."""
+    import json
+    import os
+    import signal
+    import threading
+
+    from tspend.cli.main import main
+    from tspend.controllers import mpsc
+
+    real_plan, timers = mpsc.RobustAdmission.plan, []
+
+    def plan(self, s, warm):
+        timers.append(threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT)))
+        timers[-1].start()
+        return real_plan(self, s, warm)
+
+    metrics = tmp_path / "m.json"
+    mpsc.RobustAdmission.plan = plan
+    try:
+        status = main(["run", "pendulum_finite_rail", "--controller", "pd", "--no-record",
+                       "--set", "effects.rail=1.0", "--set", 'safety.filter="mpsc"',
+                       "--set", "plant.x0=[1.3, 2.0]", "--metrics", str(metrics)])
+    finally:
+        mpsc.RobustAdmission.plan = real_plan
+        for timer in timers:
+            timer.join()
+    assert status == 130 and len(timers) == 1
+    m = json.loads(metrics.read_text())
+    sf = m["safety_filter"]
+    assert m["status"] == "interrupted" and m["steps"] == 0 and sf["samples"] == 0
+    assert sf["start_admitted"] is None and sf["start_refusal"] is None
+    assert "interrupted" in capsys.readouterr().err
+
+
 def test_the_fast_path_passes_a_certifiable_command_without_the_qp():
     f = _filter()
 

@@ -262,6 +262,12 @@ class Controller(ABC):
         or None.  By default nothing is checked."""
         return None
 
+    def interrupted(self) -> None:
+        """A signal cut the last :meth:`step` or :meth:`before_start` short and the run
+        ends there: what that call found is not kept as a finding, since the code it cut
+        may have turned the signal into an answer of its own (a solver's failure read as
+        "no plan").  By default nothing is dropped."""
+
     def parameters(self) -> dict[str, np.ndarray]:
         """Copies of every adapted parameter (empty for a fixed controller)."""
         return {}

@@ -1235,6 +1235,8 @@ class PredictiveSafetyFilter(SafetyFilter):
         #: whether the start was admitted by the robust plan (P11)
         self.robust_admitted = False
         self.admission_ms = 0.0
+        #: whether the last call (before_start, or a step) made the admission
+        self._call_admits = False
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
@@ -1249,18 +1251,29 @@ class PredictiveSafetyFilter(SafetyFilter):
         refusal of a start no certified plan leaves (a rig then never starts it)."""
         if self._rows is None:
             self._prepare(obs)
+        self._call_admits = True
         self.admit(np.asarray(obs.state, dtype=float)[self._rows[0]])
         if not self.admitted and self.cfg.refuse_unadmitted:
             return f"safety.refuse_unadmitted: {self.refusal}"
         return None
 
     def step(self, obs: Observation, dt: float) -> float:
+        self._call_admits = False
         if self.admitted is None:
             self.before_start(obs)
         if not self.samples and not self.admitted and self.cfg.refuse_unadmitted:
             # before the first input: a start no certified plan leaves is not started
             raise RunRefused(f"safety.refuse_unadmitted: {self.refusal}")
         return super().step(obs, dt)
+
+    def interrupted(self) -> None:
+        """A signal cut the last call short: an admission made in it claims no verdict
+        (CasADi turns a signal in IPOPT into a failed solve, read as "no plan"), nor is
+        the first sample filtered after it in the same call counted."""
+        super().interrupted()
+        if self._call_admits:
+            self.reset_counts()
+            self.reset_plan()
 
     # -- the certificate ------------------------------------------------------------------
     def _affords(self, what: str) -> bool:

@@ -170,6 +170,9 @@ class SafetyFilter(Controller):
         self.time_hist = np.zeros(_TIME_BINS.size + 1, dtype=np.int64)
         self.time_max = 0.0
 
+    def interrupted(self) -> None:
+        self.inner.interrupted()
+
     def parameters(self) -> dict[str, np.ndarray]:
         return self.inner.parameters()
 

@@ -333,9 +333,14 @@ class ClosedLoop:
                             u_new = _control_value(ctrl.step(Observation(
                                 t[i], _read_only(full), _read_only(seen), _read_only(ref[i]),
                                 names, constraints), dt * every))
+                            if stop.signal_name is not None:
+                                # the signal's exception swallowed by the code it cut, which
+                                # answered for it (IPOPT's "no plan"): that answer not applied
+                                raise Interrupted(stop.signal_name, stop.exit_status)
                         except Interrupted as exc:
                             # a signal while the controller's code ran (a plug-in sleeping
                             # in its step): the stop at this sample, what came before kept
+                            ctrl.interrupted()
                             raise RunInterrupted(exc.signal_name, exc.exit_status) from None
                         except BaseException as exc:
                             if not own_failure(exc):
@@ -343,6 +348,7 @@ class ClosedLoop:
                             if stop.signal_name is not None:
                                 # the signal's exception, turned into another by the code it
                                 # interrupted (IPOPT's "no plan" for a solve cut short)
+                                ctrl.interrupted()
                                 raise RunInterrupted(stop.signal_name, stop.exit_status) from None
                             if isinstance(exc, RunRefused):
                                 # refused before its first input: nothing of it applied

@@ -192,7 +192,7 @@ def start_check(prepared, timing_notes: dict, stop=None):
             # (IPOPT's failed solve, so "no plan"): that answer is not a verdict
             found.update(interrupted=stop.signal_name, ms=1e3 * (time.perf_counter() - t0))
             # what the check found before the cut is dropped: the metrics claim no verdict
-            ctrl.reset(np.random.default_rng(scenario.run.seed))
+            ctrl.interrupted()
             print(f"rig: the check of the start cut short by {stop.signal_name}; START not "
                   "sent", flush=True)
             return False
