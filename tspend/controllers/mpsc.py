@@ -187,8 +187,8 @@ DECAY_MARGIN = 0.05
 #: it the rollout's estimate is 0 for one call a sample (a probe, which may run past: the
 #: rollout is the only way to certify again, and its first call after a pause is slow
 #: with cold caches), else their largest; the QP's and the recovery plan's keep their
-#: last time (measured at admission, the QP's by its slowest SQP step: at 1 kHz it never
-#: runs)
+#: last time (measured at admission, the QP's by its slowest SQP step: at 1 kHz it
+#: rarely if ever runs)
 COST_WINDOW = 64
 COST_RANK = 4
 #: (P9): the work of fixed size a sample always does after a step (the reserve, a
