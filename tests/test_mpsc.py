@@ -564,13 +564,14 @@ def _on_a_fake_clock(f, roll_costs_s, finish_s):
     """``f`` on a fake clock that only the rollouts (``roll_costs_s`` in turn, repeated)
     and the fallback's bookkeeping (``finish_s``) advance, every rollout refused (so every
     tail and bisection is wanted): ``(run, rollouts started per sample)``."""
-    from tspend.controllers.mpsc import StepCost
+    from tspend.controllers.mpsc import FIXED_COST_RANK, StepCost
 
     now, costs, started = [0.0], list(roll_costs_s), []
     clock = lambda: now[0]  # noqa: E731
     f._clock = f._cpu_clock = clock
     # the QP unmeasured: never started (its real time is not on this clock)
-    f._cost["roll"], f._cost["qp"], f._reserve = StepCost(), StepCost(), StepCost()
+    f._cost["roll"], f._cost["qp"] = StepCost(), StepCost()
+    f._reserve = StepCost(rank=FIXED_COST_RANK)
     for cost in costs:
         f._cost["roll"].measured(cost)
     run_rollout, fallback = f.roll.run, f.fallback
@@ -595,7 +596,43 @@ def _on_a_fake_clock(f, roll_costs_s, finish_s):
         u, _ = f.filter(s, u_c)
         return u, now[0] - t0
 
+    sample.now = now  # the fake clock, for a test that moves it itself
     return sample, started
+
+
+@pytest.mark.parametrize("collect", [True, False])
+def test_a_collection_in_a_sample_does_not_price_the_fixed_work(collect):
+    """(P9): the work after the last step (the reserve) is estimated by the largest of its
+    recent times, and a sample in which the garbage collector ran is left out: on a fake
+    clock, one sample's bookkeeping takes 3 ms more with a collection in it, and the next
+    samples still start rollouts; the same 3 ms without a collection is the reserve's
+    estimate, which then leaves no room in the 1 ms budget, and no rollout starts."""
+    import gc
+
+    f = _filter(**{"safety.budget_ms": 1.0})
+    s = np.array([0.05, 0.01, 0.0, 0.0])
+    f.admit(s)
+    sample, started = _on_a_fake_clock(f, [0.1e-3], 0.05e-3)
+    for _ in range(3):
+        sample(s, 5.0)
+    assert len(started[-1]) >= 3
+    bookkeeping = f.fallback
+
+    def slow_once(*args):
+        f.fallback = bookkeeping
+        sample.now[0] += 3e-3
+        if collect:
+            gc.collect()
+        return bookkeeping(*args)
+
+    f.fallback = slow_once
+    sample(s, 5.0)
+    for _ in range(3):
+        sample(s, 5.0)
+    if collect:
+        assert f._reserve.estimate < 0.1e-3 and len(started[-1]) >= 3
+    else:
+        assert f._reserve.estimate >= 3e-3 and started[-1] == []
 
 
 @pytest.mark.parametrize("finish_ms,fits", [(0.125, 3), (0.3, 2), (0.6, 1)])
