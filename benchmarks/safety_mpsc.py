@@ -31,6 +31,10 @@ sample, at normal priority, the collector running), bare pd on its observations,
 fresh filter on the same observations paced at the control period under the rig runner's
 real-time settings (SCHED_FIFO, memory locked, the collector paused: what a rig's loop
 gives it); one line per seed, appended to safety_mpsc_timing.json's randomized_runs.
+
+Every run also records the machine's steal time over it (``steal_ms``, ``paced_steal_ms``;
+the rows' ``steal_ms`` column, summed per kind): on a virtual machine the hypervisor's
+other guests take the CPU for spells that the filter's clock counts as its own work.
 """
 
 from __future__ import annotations
@@ -53,6 +57,19 @@ RESULTS = Path(__file__).resolve().parent / "results"
 OUT = Path(".") if short() else RESULTS
 
 
+def steal_ms() -> float:
+    """The machine's steal time so far (ms; NaN where the kernel does not say): how long
+    the hypervisor ran something else while this guest's virtual CPUs wanted to run
+    (``/proc/stat``'s first line, every CPU, in clock ticks of 10 ms).  A thread's CPU
+    clock counts it as running, so the filter counts a sample slowed by it as a step over
+    its estimate, not as a wait for a core."""
+    try:
+        ticks = int(Path("/proc/stat").read_text().split("\n", 1)[0].split()[8])
+    except (OSError, IndexError, ValueError):
+        return math.nan
+    return 1e3 * ticks / os.sysconf("SC_CLK_TCK")
+
+
 def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
               refuse: bool = False) -> list[dict]:
     from safety_filter import MACHINES, kinds_of
@@ -64,8 +81,9 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
     out = []
     for kind in kinds_of(machine, kinds):
         for seed in range(first, first + seeds):
-            t0 = time.perf_counter()
+            t0, stolen = time.perf_counter(), steal_ms()
             r = run(override(base, **{"run.seed": seed}), controller=kind, keep_history=False)
+            stolen = steal_ms() - stolen
             m = r.metrics
             sf = m.get("safety_filter", {})
             out.append({"scenario": machine, "controller": f"{kind}+mpsc", "seed": seed,
@@ -94,6 +112,7 @@ def mpsc_rows(machine: str, kinds: list[str], seeds: int, first: int = 0,
                            for cause, n in (sf.get("over_budget_by_cause") or {}).items()},
                         "safety.budget_ms": sf.get("budget_ms"),
                         "load_average_1min": os.getloadavg()[0],
+                        "steal_ms": stolen,
                         "samples": sf.get("samples")})
             print(f"{machine} {kind}+mpsc seed {seed}: {r.end.status}, violations "
                   f"{m['violations']}, {time.perf_counter() - t0:.0f} s", flush=True)
@@ -188,7 +207,10 @@ def summary(table) -> dict:
                     for c in g.columns if c.startswith("safety.over_budget.")}}
                    if any(c.startswith("safety.over_budget.") for c in g.columns) else {}),
                 "budget_ms": float(g["safety.budget_ms"].iloc[0]),
-                "load_average_1min_median": float(g["load_average_1min"].median())})
+                "load_average_1min_median": float(g["load_average_1min"].median()),
+                **({"steal_ms": float(g["steal_ms"].sum()),
+                    "runs_with_steal": int((g["steal_ms"] > 0).sum())}
+                   if "steal_ms" in g and g["steal_ms"].notna().all() else {})})
         out[ctrl] = row
     return out
 
@@ -388,6 +410,7 @@ def paced_replay(scn, history) -> dict:
               for t, s, ref in zip(history["t"], history["state"], history["ref"])]
     filt.step(frames[0], dt)
     period_ns = round(dt * 1e9)
+    stolen = steal_ms()
     with real_time() as granted:
         deadline = time.perf_counter_ns() + period_ns
         for obs in frames[1:]:
@@ -403,7 +426,7 @@ def paced_replay(scn, history) -> dict:
             "paced_certified_share": sf["certified_share"],
             "paced_on_certified_plan_share": sf["on_certified_plan_share"],
             "paced_sched_fifo": granted.sched_fifo, "paced_gc_paused": granted.gc_paused,
-            "paced_notes": list(granted.notes)}
+            "paced_notes": list(granted.notes), "paced_steal_ms": steal_ms() - stolen}
 
 
 def randomized_timing(machine: str, seeds: int) -> dict:
@@ -419,7 +442,9 @@ def randomized_timing(machine: str, seeds: int) -> dict:
     runs, kept = [], []
     for seed in range(seeds):
         scn = override(base, **{"run.seed": seed})
+        stolen = steal_ms()
         result = run(override(scn, **{"safety.filter": "mpsc"}), controller="pd")
+        stolen = steal_ms() - stolen
         filtered = result.metrics
         # bare pd replayed on the filtered loop's observations (a bare run takes the
         # compiled loop, which does not time its controller calls)
@@ -437,7 +462,7 @@ def randomized_timing(machine: str, seeds: int) -> dict:
                      "ratio_median_over_bare": per["median"] / bare["median"],
                      "budget_skipped_samples": sf["budget_skipped_samples"],
                      "rollouts_cut_short": sf["rollouts_cut_short"],
-                     "load_average_1min": os.getloadavg()[0]})
+                     "load_average_1min": os.getloadavg()[0], "steal_ms": stolen})
         kept.append((scn, result.history))
     # the paced replays after every closed loop (one left this process's next closed
     # loop with far fewer rollouts fitting: the collector unfrozen, the memory unlocked)
