@@ -260,8 +260,8 @@ def doc_table(data: dict, kinds: list[str]) -> str:
     lines = ["| machine (seeds) | kind | bare | `cbf` (S1) | `mpsc` | on a certified plan "
              "(steps 1-3) | certified at the sample (steps 1-2) | uncertified samples (in runs) "
              "| starts admitted | time per sample: median of run medians / largest p99 / "
-             "largest max | samples over the budget | load average |",
-             "|---" * 12 + "|"]
+             "largest max | samples over the budget | load average | steal time (in runs) |",
+             "|---" * 13 + "|"]
     for machine, label in DOC_ROWS:
         if machine not in data:
             continue
@@ -282,7 +282,10 @@ def doc_table(data: dict, kinds: list[str]) -> str:
                       f"{mark(f'{m}/time_per_sample_ms_p99_max', '.2f')} / "
                       f"{mark(f'{m}/time_per_sample_ms_max', '.3g')} ms",
                       mark(f"{m}/over_budget_samples", "d"),
-                      mark(f"{m}/load_average_1min_median", ".2f")]
+                      mark(f"{m}/load_average_1min_median", ".2f"),
+                      f"{mark(f'{m}/steal_ms', '.0f')} ms (in {mark(f'{m}/runs_with_steal', 'd')})"
+                      if "steal_ms" in data[machine]["summary"][f"{kind}+mpsc"]
+                      else "not recorded"]
             lines.append(f"| {label} | `{kind}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
