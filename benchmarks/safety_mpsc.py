@@ -240,9 +240,11 @@ def markdown_rows(table, machine: str) -> str:
 #: docs/safety.md's mpsc table: (machine key in safety_mpsc.json, its label)
 DOC_ROWS = (("cartpole_rail", "cart-pole, rail 1 m (0-19)"),
             ("cartpole_rail_seeds200", "cart-pole, rail 1 m (200-219)"),
+            # --refuse-unadmitted: a start no plan is certified from is refused before the run
+            ("cartpole_rail_refuse", "cart-pole, rail 1 m (0-19), refusing"),
+            ("cartpole_rail_seeds200_refuse", "cart-pole, rail 1 m (200-219), refusing"),
             ("furuta_arm", "Furuta, arm stop (0-19)"),
             ("furuta_arm_seeds200", "Furuta, arm stop (200-219)"),
-            # --refuse-unadmitted: a start no plan is certified from is refused before the run
             ("double_rail_refuse", "double cart-pole, box (0-19), refusing"),
             ("double_rail_seeds200_refuse", "double cart-pole, box (200-219), refusing"))
 

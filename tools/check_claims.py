@@ -317,8 +317,10 @@ def unchecked_figures(path: Path, text: str, sections=SECTIONS,
 #: 56; raised to 4495 by the merge of issues 51, 53, 54 and 55, whose new pages and tables
 #: (docs/rig.md 69 lines, docs/accelerator.md 16, docs/reliability.md 13, docs/safety.md 7)
 #: are listed by this tool but not yet marked; lowered to 4262 as docs/rig.md, accelerator.md
-#: and safety.md were marked and the controller and safety evidence became generated tables
-UNCHECKED_AT_MOST = 4260
+#: and safety.md were marked and the controller and safety evidence became generated tables;
+#: 4278 with docs/safety.md's six rows of the cart-pole refusing unadmitted starts (each
+#: row's label: the rail's length and the seed range, as every row's)
+UNCHECKED_AT_MOST = 4278
 
 
 def check_unchecked(paths: list[Path], root: Path = ROOT,
