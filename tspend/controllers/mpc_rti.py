@@ -238,16 +238,20 @@ class RealTimeSQP:
         self._lam[:] = 0.0
 
     def iterate(self, z: np.ndarray, s0: np.ndarray, zr: np.ndarray, iterations: int,
-                tolerance: float) -> tuple[np.ndarray, int]:
+                tolerance: float, clock: Callable[[], float] | None = None,
+                step_times: list[float] | None = None) -> tuple[np.ndarray, int]:
         """``(z, steps)`` after up to ``iterations`` steps from ``z`` (fewer when a step's
         largest entry is below ``tolerance``); raises RuntimeError when a QP's answer is
-        not finite or violates its constraints by more than ``acceptance`` (a failed QP)."""
+        not finite or violates its constraints by more than ``acceptance`` (a failed QP).
+        With ``clock``, each step's time on it is appended to ``step_times`` (a step's
+        cost varies: the first from a cold start costs several times the later ones)."""
         nw, out = self.nw, self._out
         self._z[:] = z
         self._s0[:] = s0
         self._zr[:] = zr
         steps = 0
         while steps < iterations:
+            started = clock() if clock is not None else 0.0
             self._evaluate()
             steps += 1
             size, infeasibility = out[nw], out[nw + 1]
@@ -266,6 +270,8 @@ class RealTimeSQP:
             if not np.all(np.isfinite(self._lam)):
                 # a solver's non-finite multipliers would poison the next warm start
                 self._lam[:] = 0.0
+            if clock is not None and step_times is not None:
+                step_times.append(clock() - started)
             if size < tolerance:
                 break
         return self._z.copy(), steps
