@@ -243,15 +243,16 @@ class RealTimeSQP:
         """``(z, steps)`` after up to ``iterations`` steps from ``z`` (fewer when a step's
         largest entry is below ``tolerance``); raises RuntimeError when a QP's answer is
         not finite or violates its constraints by more than ``acceptance`` (a failed QP).
-        With ``clock``, each step's time on it is appended to ``step_times`` (a step's
-        cost varies: the first from a cold start costs several times the later ones)."""
+        Given both ``clock`` and ``step_times``, each step's time on that clock is
+        appended to the list (a step's cost varies: the first from a cold start costs
+        several times the later ones)."""
         nw, out = self.nw, self._out
         self._z[:] = z
         self._s0[:] = s0
         self._zr[:] = zr
-        steps = 0
+        steps, timed = 0, clock is not None and step_times is not None
         while steps < iterations:
-            started = clock() if clock is not None else 0.0
+            started = clock() if timed else 0.0
             self._evaluate()
             steps += 1
             size, infeasibility = out[nw], out[nw + 1]
@@ -270,7 +271,7 @@ class RealTimeSQP:
             if not np.all(np.isfinite(self._lam)):
                 # a solver's non-finite multipliers would poison the next warm start
                 self._lam[:] = 0.0
-            if clock is not None and step_times is not None:
+            if timed:
                 step_times.append(clock() - started)
             if size < tolerance:
                 break
